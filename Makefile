@@ -1,0 +1,33 @@
+# dockbench: `make demo` (set up, render a small dataset, evaluate it, print the table)
+#            `make test` (set up, run the whole test suite)
+PY    ?= $(shell command -v python3.11 || command -v python3)
+VENV  := .venv
+BIN   := $(VENV)/bin
+STAMP := $(VENV)/.installed-stamp
+
+.PHONY: setup demo test test-slow bench clean
+
+$(STAMP): pyproject.toml
+	$(PY) -c 'import sys; assert sys.version_info[:2] == (3, 11), "dockbench needs Python 3.11 (bpy 5.0.1 wheels are cp311-only)"'
+	$(PY) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e ".[render,apriltag,dev]"
+	touch $(STAMP)
+
+setup: $(STAMP)
+
+demo: setup
+	$(BIN)/dockbench generate configs/quickstart.yaml -o out/demo/dataset
+	$(BIN)/dockbench evaluate out/demo/dataset -l led -l qr -l aruco -o out/demo/results
+
+test: setup
+	$(BIN)/python -m pytest -q
+
+test-slow: setup
+	$(BIN)/python -m pytest -q --slow
+
+bench: setup
+	$(BIN)/dockbench bench
+
+clean:
+	rm -rf out .pytest_cache .hypothesis
