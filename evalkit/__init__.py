@@ -1,0 +1,25 @@
+"""evalkit: evaluate localizers on dockbench datasets (never needs Blender).
+
+Modules: ``dataset`` (read a dataset), ``registry`` (find localizers),
+``runner`` (run them), ``metrics`` (SPEC.md section 7), ``tables`` (output).
+This package imports nothing heavy at import time; the names below are
+loaded lazily on first access.
+"""
+from __future__ import annotations
+
+import importlib
+
+_LAZY = {
+    "Dataset": "dataset", "DatasetError": "dataset", "verify": "dataset",
+    "resolve": "registry", "list_localizers": "registry", "RegistryError": "registry",
+    "evaluate": "runner", "write_results": "runner",
+}
+
+__all__ = sorted(_LAZY)
+
+
+def __getattr__(name: str):
+    """Import ``evalkit.<module>`` only when one of its public names is used."""
+    if name in _LAZY:
+        return getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,0 +1,232 @@
+"""LED-array localizer: bright blobs -> reference LED by colour -> ordered PnP.
+
+Pipeline (one 640x480 frame in well under 1 ms plus PnP):
+1. brightness = max(R, G, B); threshold at ``min(threshold, rel_threshold * max)`` (not
+   below ``min_threshold``) so dim (attenuated) arrays still pass;
+2. connected components (8-connected) with area and circularity limits;
+3. intensity-weighted centroids over each blob's box (other blobs masked out);
+4. colour: the brightness-weighted mean chroma vector (opponent axes
+   a = R - (G+B)/2, b = sqrt(3)/2 (G - B)) over the box, so a saturated white core adds
+   nothing and the coloured halo decides; the reference LED is the blob whose hue is
+   closest to the reference colour relative to the other LEDs' colour;
+5. order: angles around the centroid, counter-clockwise as seen from the camera with
+   image y flipped to point up, starting at the reference; the expected order comes
+   from the keypoints themselves (dock frame, y up), so rectangles and circles both work;
+6. PnP: SOLVEPNP_IPPE on the dock-frame keypoints, both solutions checked, LM refine.
+When more than N blobs pass, combinations of the brightest ``max_candidates`` are tried
+in order of total brightness and the first one whose pose reprojects within
+``max_reproj_px`` wins.
+"""
+from __future__ import annotations
+
+import itertools
+import math
+
+import cv2
+import numpy as np
+
+from evalkit.localizers.pnp import camera_matrices, estimate_dict, solve_planar
+
+_SQ3_2 = math.sqrt(3.0) / 2.0
+
+
+def srgb_from_linear(c) -> np.ndarray:
+    """Linear RGB in [0,1] (N,3) -> sRGB in [0,1]."""
+    c = np.clip(np.asarray(c, float), 0.0, 1.0)
+    return np.where(c <= 0.0031308, 12.92 * c, 1.055 * c ** (1 / 2.4) - 0.055)
+
+
+def hue_deg(rgb) -> np.ndarray:
+    """Opponent-space hue (deg, [0, 360)) of RGB triples (N,3): ~HSV hue (0 red, 120 green)."""
+    rgb = np.asarray(rgb, float).reshape(-1, 3)
+    a = rgb[:, 0] - 0.5 * (rgb[:, 1] + rgb[:, 2])
+    b = _SQ3_2 * (rgb[:, 1] - rgb[:, 2])
+    return np.degrees(np.arctan2(b, a)) % 360.0
+
+
+def expected_order(keypoints: np.ndarray, reference_index: int) -> np.ndarray:
+    """Keypoint indices counter-clockwise (dock x right, y up) around their centroid,
+    starting at the reference LED."""
+    kp = np.asarray(keypoints, float)[:, :2]
+    ang = np.arctan2(kp[:, 1] - kp[:, 1].mean(), kp[:, 0] - kp[:, 0].mean())
+    return np.argsort((ang - ang[reference_index]) % (2 * np.pi), kind="stable")
+
+
+def image_order(uv: np.ndarray, ref: int) -> np.ndarray:
+    """Blob indices counter-clockwise as seen in the image (y flipped up) around the
+    centroid of the blobs (N,2), starting at blob ``ref``."""
+    ang = np.arctan2(-(uv[:, 1] - uv[:, 1].mean()), uv[:, 0] - uv[:, 0].mean())
+    return np.argsort((ang - ang[ref]) % (2 * np.pi), kind="stable")
+
+
+class LedLocalizer:
+    """LED array: threshold, blobs, reference LED by colour, angular ordering, IPPE PnP."""
+
+    name = "led"
+
+    def __init__(self, marker_id: str | None = None, threshold: float = 200.0,
+                 rel_threshold: float = 0.6, min_threshold: float = 40.0,
+                 min_area_px: int = 1, max_area_frac: float = 0.05, min_circularity: float = 0.4,
+                 ref_hue: float | None = None, max_candidates: int = 7, max_blobs: int = 200,
+                 max_reproj_px: float = 3.0, min_chroma: float = 12.0, max_hue_err_deg: float = 60.0):
+        """threshold: brightness (max channel, 0-255) that LED cores exceed; lowered to
+        rel_threshold * image max (not below min_threshold) for dim images.
+        min_area_px / max_area_frac: blob area limits (px / fraction of the image).
+        min_circularity: area / (pi (max(w,h)/2)^2) for blobs of >= 12 px.
+        ref_hue: reference LED hue in degrees (None: from the marker's colours).
+        max_candidates: brightest blobs considered; max_blobs: give up above this many blobs.
+        max_reproj_px: RMS reprojection error (px) above which a blob set is rejected.
+        min_chroma: mean chroma (8-bit units) a blob needs to count as a coloured LED, so
+        white/grey highlights (marker plates, walls) are not taken for LEDs.
+        max_hue_err_deg: hue distance allowed between a blob and its expected LED colour."""
+        self.marker_id = marker_id
+        self.threshold = float(threshold)
+        self.rel_threshold = float(rel_threshold)
+        self.min_threshold = float(min_threshold)
+        self.min_area_px = int(min_area_px)
+        self.max_area_frac = float(max_area_frac)
+        self.min_circularity = float(min_circularity)
+        self.ref_hue = None if ref_hue in (None, "None", "") else float(ref_hue)
+        self.max_candidates = int(max_candidates)
+        self.max_blobs = int(max_blobs)
+        self.max_reproj_px = float(max_reproj_px)
+        self.min_chroma = float(min_chroma)
+        self.cos_hue = math.cos(math.radians(float(max_hue_err_deg)))
+        self._marker = None
+
+    def reset(self, camera: dict) -> None:
+        """Pick the LED marker; precompute its keypoint order and colour axis."""
+        self._K, self._dist = camera_matrices(camera)
+        markers = list(camera.get("markers") or [])
+        if self.marker_id is not None:
+            m = next((x for x in markers if str(x.get("id")) == str(self.marker_id)), None)
+        else:
+            m = next((x for x in markers if x.get("kind") == "led_array"), None)
+        self._marker = m if m is not None and m.get("kind") == "led_array" else None
+        if self._marker is None:
+            return
+        self._kp = np.asarray(m["keypoints"], float).reshape(-1, 3)
+        self._n = len(self._kp)
+        ref_i = int(m.get("reference_index", 0))
+        self._kp_order = expected_order(self._kp, ref_i)
+        colors = srgb_from_linear(np.asarray(m.get("colors", [[1, 1, 1]] * self._n), float))
+        h_ref = self.ref_hue if self.ref_hue is not None else float(hue_deg(colors[ref_i])[0])
+        others = [i for i in range(self._n) if i != ref_i]
+        u_other = np.mean([_unit(hue_deg(colors[i])[0]) for i in others], axis=0) if others else np.zeros(2)
+        self._colour_axis = _unit(h_ref) - u_other  # score = chroma_dir . axis
+        self._u_ref = _unit(h_ref)
+        self._u_other = u_other / max(np.linalg.norm(u_other), 1e-9)
+
+    def localize(self, image: np.ndarray) -> dict | None:
+        """Dock pose from one RGB uint8 image (H,W,3), or None."""
+        if self._marker is None:
+            return None
+        a = np.asarray(image)
+        if a.dtype != np.uint8 or a.ndim != 3 or a.shape[2] != 3 or min(a.shape[:2]) < 8:
+            return None
+        try:
+            blobs = self._blobs(np.ascontiguousarray(a))
+            if blobs is None:
+                return None
+            return self._best_pose(*blobs)
+        except (cv2.error, ValueError, FloatingPointError, np.linalg.LinAlgError):
+            return None
+
+    def _blobs(self, rgb: np.ndarray):
+        """Candidate blobs: centroids (M,2) px, masses (M,), unit chroma directions (M,2)."""
+        v = cv2.max(cv2.max(rgb[:, :, 0], rgb[:, :, 1]), rgb[:, :, 2])
+        vmax = float(v.max())
+        t = max(self.min_threshold, min(self.threshold, self.rel_threshold * vmax))
+        if vmax <= t:
+            return None
+        mask = cv2.threshold(v, t, 255, cv2.THRESH_BINARY)[1]
+        n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+        if n - 1 < self._n or n - 1 > self.max_blobs:
+            return None
+        area = stats[1:, cv2.CC_STAT_AREA]
+        w, h = stats[1:, cv2.CC_STAT_WIDTH], stats[1:, cv2.CC_STAT_HEIGHT]
+        circ = area / (np.pi * (np.maximum(w, h) / 2.0) ** 2)
+        ok = (area >= self.min_area_px) & (area <= self.max_area_frac * v.size)
+        ok &= (area < 12) | (circ >= self.min_circularity)
+        idx = np.nonzero(ok)[0] + 1
+        if len(idx) < self._n:
+            return None
+        cents, masses, chroma = [], [], []
+        for lab in idx:
+            c = self._measure(rgb, v, labels, stats[lab], lab, 0.5 * t, self.min_chroma)
+            if c is not None:
+                cents.append(c[0]), masses.append(c[1]), chroma.append(c[2])
+        if len(cents) < self._n:
+            return None
+        order = np.argsort(masses)[::-1][: self.max_candidates]
+        return np.array(cents)[order], np.array(masses)[order], np.array(chroma)[order]
+
+    @staticmethod
+    def _measure(rgb, v, labels, st, lab, t_low, min_chroma=0.0):
+        """Weighted centroid (u, v), mass and unit chroma direction of one blob."""
+        x0, y0, bw, bh = (int(s) for s in st[:4])
+        m = 2
+        xa, ya = max(0, x0 - m), max(0, y0 - m)
+        xb, yb = min(v.shape[1], x0 + bw + m), min(v.shape[0], y0 + bh + m)
+        lab_roi = labels[ya:yb, xa:xb]
+        wgt = np.clip(v[ya:yb, xa:xb].astype(np.float32) - t_low, 0, None)
+        wgt[(lab_roi != lab) & (lab_roi != 0)] = 0.0
+        s = float(wgt.sum())
+        if s <= 0:
+            return None
+        yy, xx = np.mgrid[ya:yb, xa:xb]
+        cu, cv_ = float((wgt * xx).sum() / s), float((wgt * yy).sum() / s)
+        px = rgb[ya:yb, xa:xb].astype(np.float32)
+        ca = (wgt * (px[:, :, 0] - 0.5 * (px[:, :, 1] + px[:, :, 2]))).sum()
+        cb = (wgt * _SQ3_2 * (px[:, :, 1] - px[:, :, 2])).sum()
+        norm = math.hypot(ca, cb)
+        if norm / s < min_chroma:  # mean chroma (8-bit units) too low: a white/grey blob
+            return None
+        return (cu, cv_), s, np.array([ca, cb]) / norm
+
+    def _best_pose(self, cents, masses, chroma):
+        """First blob set (by total brightness) that orders and solves within max_reproj_px."""
+        n = self._n
+        combos = itertools.combinations(range(len(cents)), n)
+        combos = sorted(combos, key=lambda c: -masses[list(c)].sum()) if len(cents) > n else list(combos)
+        for combo in combos:
+            est = self._solve(cents[list(combo)], chroma[list(combo)])
+            if est is not None:
+                return est
+        return None
+
+    def _solve(self, uv, chroma):
+        """Pose from N blob centroids (N,2) and their chroma directions (N,2), or None."""
+        if not _convex(uv):
+            return None
+        score = chroma @ self._colour_axis
+        ref = int(np.argmax(score))
+        if score[ref] <= 0.0 or chroma[ref] @ self._u_ref < self.cos_hue:
+            return None
+        if np.any(np.delete(chroma, ref, axis=0) @ self._u_other < self.cos_hue):
+            return None  # a blob whose colour is not the LEDs'
+
+        img_pts = np.empty((self._n, 2))
+        img_pts[self._kp_order] = uv[image_order(uv, ref)]
+        pose = solve_planar(self._kp, img_pts, self._K, self._dist)
+        if pose is None or pose.reproj_err_px > self.max_reproj_px:
+            return None
+        return estimate_dict(pose.T_cam_target, self._marker["id"], pose)
+
+
+def _unit(h_deg: float) -> np.ndarray:
+    """Unit vector of a hue angle (deg) in the opponent (a, b) plane."""
+    r = math.radians(h_deg)
+    return np.array([math.cos(r), math.sin(r)])
+
+
+def _convex(uv: np.ndarray) -> bool:
+    """True if the points (N,2), taken in angular order around their centroid, form a
+    strictly convex polygon with no coincident points."""
+    c = uv - uv.mean(axis=0)
+    p = uv[np.argsort(np.arctan2(c[:, 1], c[:, 0]))]
+    e = np.roll(p, -1, axis=0) - p
+    if np.min(np.hypot(e[:, 0], e[:, 1])) < 1.0:
+        return False
+    cross = e[:, 0] * np.roll(e, -1, axis=0)[:, 1] - e[:, 1] * np.roll(e, -1, axis=0)[:, 0]
+    return bool(np.all(cross > 0) or np.all(cross < 0))
