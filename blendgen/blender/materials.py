@@ -1,0 +1,76 @@
+"""Cycles materials: diffuse surfaces, printed marker textures, LED emitters, world, water volume."""
+from __future__ import annotations
+
+import bpy
+
+PRINT_BLACK = 0.04   # albedo of printed black
+PRINT_WHITE = 0.85   # albedo of white plastic / paper
+
+
+def _fresh(name: str) -> tuple[bpy.types.Material, bpy.types.NodeTree]:
+    mat = bpy.data.materials.new(name)
+    nt = mat.node_tree
+    for n in list(nt.nodes):
+        nt.nodes.remove(n)
+    return mat, nt
+
+
+def diffuse(name: str, color) -> bpy.types.Material:
+    """Lambertian surface of linear albedo ``color`` (3,)."""
+    mat, nt = _fresh(name)
+    out = nt.nodes.new("ShaderNodeOutputMaterial")
+    bsdf = nt.nodes.new("ShaderNodeBsdfDiffuse")
+    bsdf.inputs["Color"].default_value = (*color, 1.0)
+    nt.links.new(bsdf.outputs["BSDF"], out.inputs["Surface"])
+    return mat
+
+
+def printed_texture(name: str, path: str) -> bpy.types.Material:
+    """Diffuse print of a black/white cell texture, sampled nearest (sharp cell edges).
+
+    Albedo = PRINT_BLACK + (PRINT_WHITE - PRINT_BLACK) * cell, cell in {0, 1}."""
+    mat, nt = _fresh(name)
+    out = nt.nodes.new("ShaderNodeOutputMaterial")
+    bsdf = nt.nodes.new("ShaderNodeBsdfDiffuse")
+    tex = nt.nodes.new("ShaderNodeTexImage")
+    img = bpy.data.images.load(path, check_existing=True)
+    img.colorspace_settings.name = "Non-Color"
+    tex.image = img
+    tex.interpolation = "Closest"
+    tex.extension = "EXTEND"
+    scale = nt.nodes.new("ShaderNodeMath")
+    scale.operation = "MULTIPLY_ADD"
+    scale.inputs[1].default_value = PRINT_WHITE - PRINT_BLACK
+    scale.inputs[2].default_value = PRINT_BLACK
+    nt.links.new(tex.outputs["Color"], scale.inputs[0])
+    nt.links.new(scale.outputs["Value"], bsdf.inputs["Color"])
+    nt.links.new(bsdf.outputs["BSDF"], out.inputs["Surface"])
+    return mat
+
+
+def emission(name: str, color, strength: float) -> bpy.types.Material:
+    """Self-lit LED: emission of linear colour (3,) times ``strength``.
+
+    Not sampled as a light: the LEDs are seen, but do not light the dock (their
+    share of the face's irradiance is small and would add Monte Carlo noise at the
+    few samples of the fast path)."""
+    mat, nt = _fresh(name)
+    mat.cycles.emission_sampling = "NONE"
+    out = nt.nodes.new("ShaderNodeOutputMaterial")
+    em = nt.nodes.new("ShaderNodeEmission")
+    em.inputs["Color"].default_value = (*color, 1.0)
+    em.inputs["Strength"].default_value = float(strength)
+    nt.links.new(em.outputs["Emission"], out.inputs["Surface"])
+    return mat
+
+
+def world_color(world: bpy.types.World, color) -> None:
+    """Constant background radiance (what a ray that hits nothing returns)."""
+    nt = world.node_tree
+    for n in list(nt.nodes):
+        nt.nodes.remove(n)
+    out = nt.nodes.new("ShaderNodeOutputWorld")
+    bg = nt.nodes.new("ShaderNodeBackground")
+    bg.inputs["Color"].default_value = (*color, 1.0)
+    bg.inputs["Strength"].default_value = 1.0
+    nt.links.new(bg.outputs["Background"], out.inputs["Surface"])

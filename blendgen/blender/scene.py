@@ -1,0 +1,191 @@
+"""Build the docking scene in Blender from a plain scene description (dict).
+
+The description is produced by :mod:`blendgen.plan` (pure Python) and holds only
+numbers, colours and file paths; see ``plan.scene_description``. Everything here
+is in world coordinates (metres, +z up, water surface z = 0).
+"""
+from __future__ import annotations
+
+import math
+
+import bpy
+import numpy as np
+from mathutils import Matrix
+
+from blendgen.blender import materials
+
+
+def reset() -> bpy.types.Scene:
+    """Empty factory scene (no default cube, camera or light)."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    return bpy.context.scene
+
+
+def _link(obj: bpy.types.Object) -> bpy.types.Object:
+    bpy.context.scene.collection.objects.link(obj)
+    return obj
+
+
+def mesh_object(name: str, verts, faces, uvs=None, index: int = 0, smooth: bool = False) -> bpy.types.Object:
+    """Object from vertices (N,3), faces (lists of indices) and optional per-loop UVs."""
+    me = bpy.data.meshes.new(name)
+    me.from_pydata([tuple(map(float, v)) for v in verts], [], [tuple(f) for f in faces])
+    if uvs is not None:
+        layer = me.uv_layers.new(name="UVMap")
+        for loop, uv in zip(layer.data, uvs):
+            loop.uv = uv
+    if smooth:
+        me.shade_smooth()
+    me.update()
+    obj = _link(bpy.data.objects.new(name, me))
+    obj.pass_index = index
+    return obj
+
+
+def set_matrix(obj: bpy.types.Object, T) -> None:
+    """Place an object by a 4x4 world transform (row-major; a bare nested list would be
+    read as columns by bpy, so build the Matrix from rows explicitly)."""
+    obj.matrix_world = Matrix(np.asarray(T, float).tolist())
+
+
+def add_pool(pool: dict, index: int) -> None:
+    """Open-top box: floor and four walls, normals facing inward."""
+    L, W, D = pool["length_m"] / 2, pool["width_m"] / 2, pool["depth_m"]
+    v = [(-L, -W, -D), (L, -W, -D), (L, W, -D), (-L, W, -D), (-L, -W, 0), (L, -W, 0), (L, W, 0), (-L, W, 0)]
+    floor = mesh_object("pool_floor", v, [(0, 1, 2, 3)], index=index)
+    walls = mesh_object("pool_walls", v, [(0, 4, 5, 1), (1, 5, 6, 2), (2, 6, 7, 3), (3, 7, 4, 0)], index=index)
+    floor.data.materials.append(materials.diffuse("floor", pool["floor_color"]))
+    walls.data.materials.append(materials.diffuse("walls", pool["wall_color"]))
+
+
+def box_verts(sx: float, sy: float, sz: float, z0: float = 0.0):
+    """Axis-aligned box centred in x,y, spanning z in [z0 - sz, z0]; outward faces."""
+    x, y = sx / 2, sy / 2
+    v = [(-x, -y, z0 - sz), (x, -y, z0 - sz), (x, y, z0 - sz), (-x, y, z0 - sz),
+         (-x, -y, z0), (x, -y, z0), (x, y, z0), (-x, y, z0)]
+    f = [(0, 3, 2, 1), (4, 5, 6, 7), (0, 1, 5, 4), (1, 2, 6, 5), (2, 3, 7, 6), (3, 0, 4, 7)]
+    return v, f
+
+
+def add_dock(dock: dict, index: int) -> None:
+    """Dock body: a box whose front face lies 2 mm behind the marker plane (dock z = 0)."""
+    sx, sy, sz = dock["body_size_m"]
+    v, f = box_verts(sx, sy, sz, z0=-0.002)
+    obj = mesh_object("dock_body", v, f, index=index)
+    obj.data.materials.append(materials.diffuse("dock_face", dock["face_color"]))
+    set_matrix(obj, dock["T_world_dock"])
+
+
+def add_square_marker(m: dict, T_world_marker) -> None:
+    """Textured plate in the marker plane; its texture cells are sampled nearest."""
+    h = m["plate_size_m"] / 2
+    v = [(-h, h, 0), (h, h, 0), (h, -h, 0), (-h, -h, 0)]
+    uvs = [(0, 1), (1, 1), (1, 0), (0, 0)]
+    obj = mesh_object(f"marker_{m['id']}", v, [(0, 3, 2, 1)], uvs=[uvs[i] for i in (0, 3, 2, 1)],
+                      index=m["object_index"])
+    obj.data.materials.append(materials.printed_texture(f"tex_{m['id']}", m["texture"]))
+    set_matrix(obj, T_world_marker)
+
+
+def uv_sphere(radius: float, segments: int = 24, rings: int = 12):
+    """Vertices and quads/triangles of a UV sphere centred at the origin."""
+    verts = [(0.0, 0.0, radius)]
+    for i in range(1, rings):
+        th = math.pi * i / rings
+        for j in range(segments):
+            ph = 2 * math.pi * j / segments
+            verts.append((radius * math.sin(th) * math.cos(ph), radius * math.sin(th) * math.sin(ph),
+                          radius * math.cos(th)))
+    verts.append((0.0, 0.0, -radius))
+    faces, last = [], len(verts) - 1
+    ring = lambda i, j: 1 + (i - 1) * segments + (j % segments)  # noqa: E731
+    for j in range(segments):
+        faces.append((0, ring(1, j), ring(1, j + 1)))
+        faces.append((last, ring(rings - 1, j + 1), ring(rings - 1, j)))
+    for i in range(1, rings - 1):
+        for j in range(segments):
+            faces.append((ring(i, j), ring(i + 1, j), ring(i + 1, j + 1), ring(i, j + 1)))
+    return verts, faces
+
+
+def camera_only(obj: bpy.types.Object) -> None:
+    """Seen by the camera, invisible to every other ray: an LED that lights nothing
+    (no BSDF-sampled sparkle on the face at a few samples per pixel)."""
+    obj.visible_diffuse = obj.visible_glossy = obj.visible_transmission = False
+    obj.visible_volume_scatter = obj.visible_shadow = False
+
+
+def disc(radius: float, segments: int = 48):
+    """Flat disc in the local z = 0 plane facing +z, area-matched to the circle."""
+    r = radius * math.sqrt(2 * math.pi / (segments * math.sin(2 * math.pi / segments)))
+    verts = [(r * math.cos(2 * math.pi * k / segments), r * math.sin(2 * math.pi * k / segments), 0.0)
+             for k in range(segments)]
+    return verts, [tuple(range(segments))]
+
+
+def add_led_array(m: dict, T_world_dock) -> None:
+    """One flat emitting disc of radius ``led_radius_m`` per LED, centred on its keypoint
+    in the marker plane, facing out of the dock: its image centroid is the projected
+    keypoint (a dome would shift it under oblique views)."""
+    v, f = disc(m["led_radius_m"])
+    T = np.asarray(T_world_dock, float)
+    for i, (kp, col) in enumerate(zip(m["keypoints"], m["colors"])):
+        obj = mesh_object(f"led_{m['id']}_{i}", v, f, index=m["object_index"])
+        obj.data.materials.append(materials.emission(f"led_{m['id']}_{i}", col, m["strength"]))
+        camera_only(obj)
+        set_matrix(obj, T @ np.vstack([np.column_stack([np.eye(3), kp]), [0, 0, 0, 1]]))
+
+
+def add_obstacle(o: dict) -> None:
+    """Large fixed obstacle (box, cylinder or rock) at its world pose."""
+    sx, sy, sz = o["size_m"]
+    if o["kind"] == "box":
+        v, f = box_verts(sx, sy, sz, z0=sz / 2)
+    elif o["kind"] == "cylinder":
+        n = 32
+        ang = [2 * math.pi * k / n for k in range(n)]
+        v = [(sx / 2 * math.cos(a), sy / 2 * math.sin(a), z) for z in (-sz / 2, sz / 2) for a in ang]
+        f = [tuple(range(n - 1, -1, -1)), tuple(range(n, 2 * n))]
+        f += [(k, (k + 1) % n, n + (k + 1) % n, n + k) for k in range(n)]
+    else:  # rock: a lumpy sphere, deterministic from its pose
+        v, f = uv_sphere(0.5, 16, 8)
+        rng = np.random.default_rng(abs(hash(tuple(np.round(o["T_world"][0], 3)))) % 2**32)
+        v = [tuple(np.array(p) * (1 + 0.15 * rng.standard_normal()) * (sx, sy, sz)) for p in v]
+    obj = mesh_object(f"obstacle_{o['object_index']}", v, f, index=o["object_index"])
+    obj.data.materials.append(materials.diffuse(f"obstacle_{o['object_index']}", o["color"]))
+    set_matrix(obj, o["T_world"])
+
+
+def add_sun(name: str, travel_dir, strength: float, shadows: bool = True) -> None:
+    """Directional light travelling along ``travel_dir`` (world, unit) with irradiance ``strength``."""
+    light = bpy.data.lights.new(name, type="SUN")
+    light.energy = float(strength)
+    light.angle = 0.0
+    light.use_shadow = bool(shadows)
+    obj = _link(bpy.data.objects.new(name, light))
+    d = -np.asarray(travel_dir, float)
+    d /= np.linalg.norm(d)
+    obj.rotation_euler = (0.0, math.acos(np.clip(d[2], -1, 1)), math.atan2(d[1], d[0]))
+
+
+def build(desc: dict) -> bpy.types.Scene:
+    """Whole scene from a description; returns the Blender scene."""
+    scene = reset()
+    world = bpy.data.worlds.new("water")
+    scene.world = world
+    materials.world_color(world, desc["world_color"])
+    if desc.get("pool"):
+        add_pool(desc["pool"], desc["object_index"]["pool"])
+    add_dock(desc["dock"], desc["object_index"]["dock"])
+    T_wd = np.asarray(desc["dock"]["T_world_dock"], float)
+    for m in desc["markers"]:
+        if m["kind"] == "led_array":
+            add_led_array(m, T_wd)
+        else:
+            add_square_marker(m, T_wd @ np.asarray(m["T_dock_marker"], float))
+    for o in desc.get("obstacles", []):
+        add_obstacle(o)
+    add_sun("sun", desc["sun"]["direction"], desc["sun"]["strength"])
+    if desc["fill"]["strength"] > 0:
+        add_sun("fill", desc["fill"]["direction"], desc["fill"]["strength"], shadows=False)
+    return scene

@@ -1,0 +1,89 @@
+"""Render worker: ``python -m blendgen.blender.worker JOB.json``.
+
+One process builds the scene once (persistent data keeps the BVH warm) and
+renders every frame of one camera path. After each frame the clean passes are
+turned into the camera image of every sequence that shares them, and each
+sequence's ``frames.jsonl`` grows by one line (the parent counts those lines for
+progress). Blender's own chatter on stdout is sent to the job's log file.
+"""
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def _quiet_stdout(log_path: str) -> None:
+    """Send C-level stdout (Blender's render log) to the log file."""
+    fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+    os.dup2(fd, 1)
+    os.close(fd)
+
+
+def _open_outputs(job: dict) -> list[tuple[dict, Path, object]]:
+    outs = []
+    for o in job["outputs"]:
+        d = Path(o["seq_dir"])
+        for sub in ("rgb", "depth", "index"):
+            (d / sub).mkdir(parents=True, exist_ok=True)
+        outs.append((o, d, open(d / "frames.jsonl", "w")))
+    return outs
+
+
+def run(job: dict) -> dict:
+    """Render the job; returns timing figures (s) per stage."""
+    from blendgen import postprocess as pp
+    from blendgen.blender import render, scene as scn
+
+    t0 = time.perf_counter()
+    sc = scn.build(job["scene"])
+    cam = render.setup_camera(sc, job["camera"])
+    render.setup_cycles(sc, job["render"])
+    K = np.asarray(job["camera"]["K"], float)
+    W, H = job["camera"]["width"], job["camera"]["height"]
+    T_wd = np.asarray(job["gt"]["T_world_dock"], float)
+    markers = job["gt"]["markers"]
+    outs = _open_outputs(job)
+    rngs = [np.random.default_rng(o["post"]["seed"]) for o, _, _ in outs]
+    exr = os.path.join(render.scratch_dir(), f"dockbench-{os.getpid()}.exr")
+    times = {"scene_build": time.perf_counter() - t0, "render": [], "passes_read": [], "post_write": []}
+    try:
+        for fr in job["frames"]:
+            t1 = time.perf_counter()
+            render.render_frame(sc, cam, fr["T_world_cam"], exr)
+            t2 = time.perf_counter()
+            passes = pp.add_range(render.read_passes(exr), K)
+            t3 = time.perf_counter()
+            rec = pp.frame_record(fr, T_wd, markers, K, W, H, passes["index"])
+            for (o, d, fh), rng in zip(outs, rngs):
+                img = pp.camera_image(passes, o["post"], K, markers, rng, job["fidelity"])
+                paths = pp.write_frame_files(d, o["rel"], fr["index"], img, passes,
+                                             job["render"]["write_depth"], job["render"]["write_index"])
+                fh.write(json.dumps({**rec, **paths}) + "\n")
+                fh.flush()
+            times["render"].append(t2 - t1)
+            times["passes_read"].append(t3 - t2)
+            times["post_write"].append(time.perf_counter() - t3)
+    finally:
+        for _, _, fh in outs:
+            fh.close()
+        if os.path.exists(exr):
+            os.remove(exr)
+    return times
+
+
+def main(argv: list[str]) -> int:
+    job_path = Path(argv[1])
+    job = json.loads(job_path.read_text())
+    _quiet_stdout(job.get("log", os.devnull))
+    times = run(job)
+    Path(job["timing_out"]).write_text(json.dumps(times)) if job.get("timing_out") else None
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv))

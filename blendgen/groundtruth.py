@@ -1,0 +1,45 @@
+"""Per-frame ground truth from poses alone (no renderer needed).
+
+``T_cam_dock = inv(T_world_cam) @ T_world_dock``; ``d_true`` is the distance from
+the camera centre to the dock's marker plane (dock z = 0), i.e. |z| of the camera
+centre expressed in the dock frame.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from blendgen.geometry import invert_T, project, transform_points
+
+
+def d_true(T_world_cam: np.ndarray, T_world_dock: np.ndarray) -> float:
+    """Distance (m) from the camera optical centre to the marker plane z_dock = 0."""
+    c_dock = invert_T(T_world_dock) @ T_world_cam[:, 3]
+    return float(abs(c_dock[2]))
+
+
+def marker_in_fov(K: np.ndarray, width: int, height: int, T_cam_dock: np.ndarray,
+                  keypoints_dock: np.ndarray) -> bool:
+    """True when any keypoint (N,3 dock frame) projects inside the image, in front of the camera."""
+    pts = transform_points(T_cam_dock, keypoints_dock)
+    uv = project(K, pts)
+    ok = (pts[:, 2] > 0) & (uv[:, 0] >= -0.5) & (uv[:, 0] <= width - 0.5) \
+        & (uv[:, 1] >= -0.5) & (uv[:, 1] <= height - 0.5)
+    return bool(np.any(ok))
+
+
+def frame_truth(T_world_cam: np.ndarray, T_world_dock: np.ndarray, markers: list[dict],
+                K: np.ndarray, width: int, height: int) -> dict:
+    """Pose part of a frame record: T_cam_dock, d_true and per-marker in_fov / T_cam_marker.
+
+    ``visible_fraction`` is filled later from the rendered object-index pass."""
+    T_cam_dock = invert_T(T_world_cam) @ T_world_dock
+    per_marker = {}
+    for m in markers:
+        kp = np.asarray(m["keypoints"], float)
+        per_marker[m["id"]] = {
+            "in_fov": marker_in_fov(K, width, height, T_cam_dock, kp),
+            "visible_fraction": 0.0,
+            "T_cam_marker": (T_cam_dock @ np.asarray(m["T_dock_marker"], float)).tolist(),
+        }
+    return {"T_world_cam": T_world_cam.tolist(), "T_cam_dock": T_cam_dock.tolist(),
+            "d_true": d_true(T_world_cam, T_world_dock), "markers": per_marker}

@@ -1,0 +1,145 @@
+"""Config -> render jobs: what to render once, what to derive, what to skip.
+
+A *sequence* is one (trajectory, trial, condition) and becomes one directory of
+the dataset. A *render job* is one Blender process rendering one trajectory's
+frames once and writing every sequence that only differs in image space
+(turbidity, depth light, noise) from the same clean passes. With the reference
+fidelity the water is in the render, so each condition is its own job.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from blendgen import markers as mk
+from blendgen import trajectories as tj
+from blendgen.geometry import intrinsics_from_hfov, make_T, rpy_to_R
+from blendgen.spec import Experiment
+
+INDEX_POOL, INDEX_DOCK, INDEX_MARKER0, INDEX_OBSTACLE0 = 1, 2, 10, 100
+
+
+@dataclass
+class SequencePlan:
+    """One output sequence: its id, condition and the image-space processing to apply."""
+    id: str
+    trajectory: str
+    trial: int
+    condition: str
+    conditions: dict
+    post: dict
+
+
+@dataclass
+class RenderJob:
+    """One Blender process: a scene, a camera path, and the sequences it feeds."""
+    key: str
+    scene: dict
+    frames: list[dict]
+    sequences: list[SequencePlan] = field(default_factory=list)
+
+
+def camera_K(exp: Experiment) -> np.ndarray:
+    """Intrinsics (3x3) exactly as Blender renders them (see geometry.intrinsics_from_hfov)."""
+    c = exp.camera
+    return intrinsics_from_hfov(c.width, c.height, math.radians(c.hfov_deg))
+
+
+def manifest_markers(exp: Experiment) -> list[dict]:
+    """Manifest marker entries plus rendering fields (object index, plate size)."""
+    out = []
+    for i, spec in enumerate(exp.scene.dock.markers):
+        m = mk.manifest_marker(spec)
+        m["object_index"] = INDEX_MARKER0 + i
+        tex = mk.texture_for(spec)
+        if tex is not None:
+            m["plate_size_m"] = tex.plane_size_m
+        out.append(m)
+    return out
+
+
+def _sun_dir(elev_deg: float, azim_deg: float) -> list[float]:
+    """Travel direction (unit, world) of light coming from elevation/azimuth (deg)."""
+    e, a = math.radians(elev_deg), math.radians(azim_deg)
+    return [-math.cos(e) * math.cos(a), -math.cos(e) * math.sin(a), -math.sin(e)]
+
+
+def scene_description(exp: Experiment, markers: list[dict], textures: dict[str, str]) -> dict:
+    """Plain-data scene for the Blender builder (world frame, metres, linear colours)."""
+    s = exp.scene
+    T_wd = tj.T_world_dock_from_spec(s.dock)
+    obstacles = []
+    for i, o in enumerate(s.obstacles):
+        R = rpy_to_R(*(math.radians(a) for a in o.pose.rpy_deg))
+        obstacles.append({"kind": o.kind, "T_world": make_T(R, o.pose.xyz).tolist(), "size_m": o.size_m,
+                          "color": o.color, "object_index": INDEX_OBSTACLE0 + i})
+    return {
+        "pool": s.pool.model_dump() if s.kind == "pool" else None,
+        "dock": {"T_world_dock": T_wd.tolist(), "body_size_m": s.dock.body_size_m, "face_color": s.dock.face_color},
+        "markers": [{**m, "texture": textures.get(m["id"])} for m in markers],
+        "obstacles": obstacles,
+        "object_index": {"pool": INDEX_POOL, "dock": INDEX_DOCK},
+        "sun": {"direction": _sun_dir(s.sun_elevation_deg, s.sun_azimuth_deg), "strength": s.sun_strength},
+        "fill": {"direction": _sun_dir(0.0, s.sun_azimuth_deg), "strength": s.fill_strength},
+        "world_color": [0.0, 0.0, 0.0],
+    }
+
+
+def object_index_names(markers: list[dict], exp: Experiment) -> dict[str, str]:
+    """Manifest map object-index value -> name."""
+    names = {"0": "background", str(INDEX_POOL): "pool", str(INDEX_DOCK): "dock"}
+    names.update({str(m["object_index"]): m["id"] for m in markers})
+    names.update({str(INDEX_OBSTACLE0 + i): f"obstacle_{i}" for i in range(len(exp.scene.obstacles))})
+    return names
+
+
+def _frames(exp: Experiment, traj, T_wd: np.ndarray, T_body_cam: np.ndarray) -> list[dict]:
+    smp = tj.sample(traj, T_wd, exp.camera.fps, exp.camera.latency_s)
+    T_wc = smp.T_world_body @ T_body_cam
+    return [{"index": i, "t": float(t), "t_pose": float(tp), "T_world_cam": T.tolist()}
+            for i, (t, tp, T) in enumerate(zip(smp.t, smp.t_pose, T_wc))]
+
+
+def condition_post(exp: Experiment, cond, trial_seed: int) -> dict:
+    """Image-space processing of one condition (water, depth light, sensor)."""
+    water = (cond.water or exp.water).model_dump(exclude_none=True)
+    depth = cond.dock_water_depth_m if cond.dock_water_depth_m is not None else exp.scene.dock.water_depth_m
+    return {"water": water, "light_depth_m": depth, "noise_std": exp.camera.noise_std,
+            "distortion": exp.camera.distortion, "seed": trial_seed}
+
+
+def job_key(scene: dict, frames: list[dict], render: dict) -> str:
+    """Hash of everything that determines the clean render (geometry, poses, camera, lights)."""
+    blob = json.dumps({"scene": scene, "frames": frames, "render": render}, sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def plan_jobs(exp: Experiment, scene: dict, render: dict) -> list[RenderJob]:
+    """Every render job of the experiment; sequences grouped onto shared clean renders."""
+    T_wd = np.asarray(scene["dock"]["T_world_dock"], float)
+    T_bc = tj.T_body_cam_from_spec(exp.camera.T_body_cam)
+    jobs = []
+    for traj in exp.trajectories:
+        frames = _frames(exp, traj, T_wd, T_bc)
+        for trial in range(exp.trials):
+            seed = int(np.random.SeedSequence([exp.seed, trial]).generate_state(1)[0])
+            seqs = [SequencePlan(f"{traj.id}-t{trial:03d}-{c.label}", traj.id, trial, c.label,
+                                 condition_post(exp, c, seed), condition_post(exp, c, seed))
+                    for c in exp.conditions]
+            groups = [seqs] if exp.render.fidelity == "fast" else [[s] for s in seqs]
+            for g in groups:
+                jobs.append(RenderJob(job_key(scene, frames, render), scene, frames, g))
+    return jobs
+
+
+def render_settings(exp: Experiment, threads: int) -> dict:
+    """Cycles settings for the chosen fidelity."""
+    r = exp.render
+    samples = r.samples if r.fidelity == "fast" else r.reference_samples
+    return {"samples": samples, "threads": threads, "max_bounces": 0, "seed": exp.seed,
+            "write_depth": r.write_depth, "write_index": r.write_index}

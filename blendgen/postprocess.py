@@ -1,0 +1,97 @@
+"""Clean render passes -> what the camera delivers, plus per-frame ground truth.
+
+Pure numpy/OpenCV (no Blender): runs inside the render worker right after each
+frame, once per sequence that shares the clean render. Stages, in order:
+water (fast fidelity only), lens distortion, 8-bit sRGB encode with Gaussian noise.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from blendgen import groundtruth, optics, sensor
+from blendgen.geometry import planar_depth_to_range, project, transform_points
+
+
+def emissive_mask(index: np.ndarray, markers: list[dict]) -> np.ndarray:
+    """(H,W) bool: pixels of self-lit objects (the LEDs) that depth light does not dim."""
+    led = [m["object_index"] for m in markers if m["kind"] == "led_array"]
+    return np.isin(index, led) if led else np.zeros(index.shape, bool)
+
+
+def camera_image(passes: dict, post: dict, K: np.ndarray, markers: list[dict],
+                 rng: np.random.Generator, fidelity: str) -> np.ndarray:
+    """Linear clean RGB (H,W,3) -> uint8 sRGB image (H,W,3) for one condition."""
+    rgb = passes["rgb"]
+    if fidelity == "fast":
+        water = optics.water_from_config(post["water"])
+        rgb = optics.apply_water(rgb, passes["range_m"], emissive_mask(passes["index"], markers),
+                                 water, post["light_depth_m"])
+    if post.get("distortion"):
+        rgb = sensor.distort_image(rgb, K, post["distortion"])
+    return sensor.to_uint8(rgb, post.get("noise_std", 0.0), rng)
+
+
+def _polygon_area(uv: np.ndarray) -> float:
+    x, y = uv[:, 0], uv[:, 1]
+    return 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+
+
+def visible_fraction(marker: dict, T_cam_dock: np.ndarray, K: np.ndarray, index: np.ndarray,
+                     occluded: np.ndarray | None = None) -> float:
+    """Share of a marker the camera sees (FORMAT.md); occluded (H,W) bool hides pixels."""
+    h, w = index.shape
+    seen = index == marker["object_index"]
+    if occluded is not None:
+        seen &= ~occluded
+    kp = np.asarray(marker["keypoints"], float)
+    pts = transform_points(T_cam_dock, kp)
+    if np.any(pts[:, 2] <= 0):
+        return 0.0
+    uv = project(K, pts)
+    if marker["kind"] == "led_array":
+        px = np.rint(uv).astype(int)
+        inside = (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)
+        ok = [bool(seen[v, u]) for (u, v), i in zip(px, inside) if i]
+        return float(sum(ok)) / len(kp)
+    centre = kp.mean(axis=0)
+    plate = centre + (kp - centre) * (marker["plate_size_m"] / marker["size_m"])
+    area = _polygon_area(project(K, transform_points(T_cam_dock, plate)))
+    return float(min(1.0, seen.sum() / area)) if area > 0 else 0.0
+
+
+def frame_record(frame: dict, T_world_dock: np.ndarray, markers: list[dict], K: np.ndarray,
+                 width: int, height: int, index: np.ndarray) -> dict:
+    """Ground truth of one frame (pose part + visible fractions from the index pass)."""
+    T_wc = np.asarray(frame["T_world_cam"], float)
+    gt = groundtruth.frame_truth(T_wc, T_world_dock, markers, K, width, height)
+    T_cd = np.asarray(gt["T_cam_dock"], float)
+    for m in markers:
+        entry = gt["markers"][m["id"]]
+        if entry["in_fov"]:
+            entry["visible_fraction"] = round(visible_fraction(m, T_cd, K, index), 6)
+    return {"index": frame["index"], "t": frame["t"], "t_pose": frame["t_pose"], **gt}
+
+
+def add_range(passes: dict, K: np.ndarray) -> dict:
+    """Add ``range_m`` (H,W) float32 along each ray from the planar depth pass."""
+    passes["range_m"] = planar_depth_to_range(passes["depth_z"], K).astype(np.float32)
+    return passes
+
+
+def write_frame_files(seq_dir: Path, rel: str, i: int, img: np.ndarray, passes: dict,
+                      write_depth: bool, write_index: bool) -> dict:
+    """Write the PNG (and optional range NPZ / index PNG); returns the paths for the record."""
+    name = f"{i:06d}"
+    paths = {"image": f"{rel}/rgb/{name}.png"}
+    cv2.imwrite(str(seq_dir / "rgb" / f"{name}.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR),
+                [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    if write_depth:
+        np.savez_compressed(seq_dir / "depth" / f"{name}.npz", range_m=passes["range_m"])
+        paths["depth"] = f"{rel}/depth/{name}.npz"
+    if write_index:
+        cv2.imwrite(str(seq_dir / "index" / f"{name}.png"), passes["index"])
+        paths["object_index"] = f"{rel}/index/{name}.png"
+    return paths
