@@ -27,7 +27,7 @@ test-slow: setup
 	$(BIN)/python -m pytest -q --slow
 
 bench: setup
-	$(BIN)/dockbench bench
+	$(BIN)/dockbench bench stages
 
 clean:
 	rm -rf out .pytest_cache .hypothesis

@@ -106,14 +106,19 @@ def verify(dataset: Path):
     click.echo(f"{dataset}: ok")
 
 
-@main.command()
+@main.group()
+def bench():
+    """Benchmarks (print and write CSV; nothing is asserted)."""
+
+
+@bench.command("stages")
 @click.option("--frames", type=click.IntRange(5, 10000), default=40, help="frames to render per setting")
 @click.option("--samples", "samples", multiple=True, type=click.IntRange(1, 4096),
               help="Cycles samples to time (repeatable; default 1 and 4)")
 @click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
               default=Path("out/bench"), show_default=True)
 @_user_errors
-def bench(frames: int, samples: tuple[int, ...], out: Path):
+def bench_stages(frames: int, samples: tuple[int, ...], out: Path):
     """Time each stage at 640x480 (scene build, render, passes read, post+write) and localizer frames/s."""
     from blendgen.bench import run_bench
     run_bench(out, frames, samples or (1, 4))

@@ -119,8 +119,36 @@ def job_key(scene: dict, frames: list[dict], render: dict) -> str:
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
+def water_volume(exp: Experiment, post: dict) -> dict | None:
+    """Reference-fidelity medium for one condition, or None when the water is clear.
+
+    A box whose top face is the water surface (a World volume would kill sunlight).
+    The surface sits ``light_depth_m`` above the dock, so a depth condition moves the
+    surface, not the geometry, and the clean renders stay comparable."""
+    from blendgen import optics
+    w = optics.water_from_config(post["water"])
+    if w.is_clear:
+        return None
+    s = exp.scene
+    dock_z = -s.dock.water_depth_m
+    surface_z = dock_z + post["light_depth_m"]
+    if s.kind == "pool":
+        lo = [-s.pool.length_m / 2, -s.pool.width_m / 2, -s.pool.depth_m]
+        hi = [s.pool.length_m / 2, s.pool.width_m / 2, surface_z]
+    else:
+        x, y = s.dock.position_xy_m
+        lo, hi = [x - 60.0, y - 60.0, dock_z - 60.0], [x + 60.0, y + 60.0, surface_z]
+    return {"sigma_a": list(map(float, w.sigma_a)), "sigma_s": list(map(float, w.sigma_s)), "phase": w.phase,
+            "g": float(w.g), "ff_ior": float(w.ff_ior), "ff_backscatter": float(w.ff_backscatter),
+            "box_min": lo, "box_max": hi}
+
+
 def plan_jobs(exp: Experiment, scene: dict, render: dict) -> list[RenderJob]:
-    """Every render job of the experiment; sequences grouped onto shared clean renders."""
+    """Every render job of the experiment; sequences grouped onto shared clean renders.
+
+    Fast fidelity: one job per (trajectory, trial) feeds every condition. Reference
+    fidelity: the water is in the render, so each condition is its own job whose scene
+    carries ``water_volume``."""
     T_wd = np.asarray(scene["dock"]["T_world_dock"], float)
     T_bc = tj.T_body_cam_from_spec(exp.camera.T_body_cam)
     jobs = []
@@ -131,9 +159,12 @@ def plan_jobs(exp: Experiment, scene: dict, render: dict) -> list[RenderJob]:
             seqs = [SequencePlan(f"{traj.id}-t{trial:03d}-{c.label}", traj.id, trial, c.label,
                                  condition_post(exp, c, seed), condition_post(exp, c, seed))
                     for c in exp.conditions]
-            groups = [seqs] if exp.render.fidelity == "fast" else [[s] for s in seqs]
-            for g in groups:
-                jobs.append(RenderJob(job_key(scene, frames, render), scene, frames, g))
+            if exp.render.fidelity == "fast":
+                jobs.append(RenderJob(job_key(scene, frames, render), scene, frames, seqs))
+                continue
+            for sq in seqs:
+                sc = {**scene, "water_volume": water_volume(exp, sq.post)}
+                jobs.append(RenderJob(job_key(sc, frames, render), sc, frames, [sq]))
     return jobs
 
 

@@ -185,6 +185,9 @@ def build(desc: dict) -> bpy.types.Scene:
             add_square_marker(m, T_wd @ np.asarray(m["T_dock_marker"], float))
     for o in desc.get("obstacles", []):
         add_obstacle(o)
+    if desc.get("water_volume"):  # reference fidelity: the water is a participating medium
+        from blendgen.blender import water
+        water.add_water_volume(desc["water_volume"])
     add_sun("sun", desc["sun"]["direction"], desc["sun"]["strength"])
     if desc["fill"]["strength"] > 0:
         add_sun("fill", desc["fill"]["direction"], desc["fill"]["strength"], shadows=False)
