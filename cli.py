@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 import click
+import numpy as np
 
 USER_ERROR = 2
 
@@ -104,6 +105,44 @@ def verify(dataset: Path):
     if problems:
         raise DatasetError(f"{dataset}: {len(problems)} problem(s):\n  " + "\n  ".join(problems))
     click.echo(f"{dataset}: ok")
+
+
+@main.command("station-keeping")
+@click.option("--flow", type=click.FloatRange(0.0, 2.0), default=0.5, show_default=True, help="flow speed (m/s)")
+@click.option("--duration", type=click.FloatRange(5.0, 3600.0), default=60.0, show_default=True,
+              help="simulated seconds per row (steady values: mean of the last 10 s)")
+@click.option("-o", "--out", "out", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="also write the table as CSV")
+def station_keeping(flow: float, duration: float, out: Path | None):
+    """The article's Table 5: steady thruster outputs while station keeping."""
+    from blendgen.docking import station_keeping_signs_ok, station_keeping_table
+    from evalkit.tables import print_table
+    df = station_keeping_table(flow_speed=flow, duration_s=duration)
+    print_table(df, floatfmt=".3f")
+    unit = df.attrs.get("unit_N")
+    click.echo(f"\nthrust per group: mean of its two thrusters, in N and in normalised units "
+               f"(1 unit = {unit:.3f} N, so the benchmark vertical reads 6 as in the article)")
+    for k, ok in station_keeping_signs_ok(df).items():
+        click.echo(f"  {'ok ' if ok else 'BAD'} {k}")
+    if out:
+        df.to_csv(out, index=False)
+
+
+@main.command("docking-paths")
+@click.option("--current", "currents", multiple=True, type=click.FloatRange(0.0, 2.0),
+              help="lateral current (m/s), repeatable (default 0, 0.5, 1.0)")
+@click.option("--seed", type=click.IntRange(0, 2**32 - 1), default=1, show_default=True)
+@click.option("-o", "--out", "out", type=click.Path(dir_okay=False, path_type=Path),
+              default=Path("out/docking_paths.png"), show_default=True)
+def docking_paths_cmd(currents: tuple[float, ...], seed: int, out: Path):
+    """Plot one docking trial per lateral current (same start) and time the dynamics."""
+    from blendgen.dynamics_report import docking_paths, plot_docking_paths
+    runs = docking_paths(currents or (0.0, 0.5, 1.0), seed=seed)
+    for r in runs:
+        click.echo(f"current {r['current_mps']:.2f} m/s: {r['stop_reason']} after {r['t'][-1]:.1f} s, "
+                   f"heading std {np.std(r['heading_error_deg']):.2f} deg, "
+                   f"final lateral {r['p_dock'][-1, 0]:+.2f} m, {r['ms_per_sim_s']:.2f} ms CPU per simulated s")
+    click.echo(f"plot: {plot_docking_paths(runs, out)}")
 
 
 @main.group()

@@ -98,19 +98,45 @@ def object_index_names(markers: list[dict], exp: Experiment) -> dict[str, str]:
     return names
 
 
-def _frames(exp: Experiment, traj, T_wd: np.ndarray, T_body_cam: np.ndarray) -> list[dict]:
-    smp = tj.sample(traj, T_wd, exp.camera.fps, exp.camera.latency_s)
+def _frames(exp: Experiment, traj, T_wd: np.ndarray, T_body_cam: np.ndarray, seed: int, fluid) -> list[dict]:
+    smp = tj.sample(traj, T_wd, exp.camera.fps, exp.camera.latency_s, seed=seed, fluid=fluid)
     T_wc = smp.T_world_body @ T_body_cam
     return [{"index": i, "t": float(t), "t_pose": float(tp), "T_world_cam": T.tolist()}
             for i, (t, tp, T) in enumerate(zip(smp.t, smp.t_pose, T_wc))]
 
 
-def condition_post(exp: Experiment, cond, trial_seed: int) -> dict:
-    """Image-space processing of one condition (water, depth light, sensor)."""
+def trial_seed(exp: Experiment, trial: int) -> int:
+    """Seed of one trial: same config seed and trial index -> same start, noise, particles."""
+    return int(np.random.SeedSequence([exp.seed, trial]).generate_state(1)[0])
+
+
+def occlusion_region(exp: Experiment, occ) -> tuple[list[float], list[float]]:
+    """Region of the small obstacles: the config's, else the pool (15x5x8 m = the article's
+    600 m^3), else 600 m^3 in front of the dock in open water."""
+    if occ.region_min is not None:
+        return list(occ.region_min), list(occ.region_max)
+    s = exp.scene
+    if s.kind == "pool":
+        p = s.pool
+        return [-p.length_m / 2, -p.width_m / 2, -p.depth_m], [p.length_m / 2, p.width_m / 2, 0.0]
+    T = tj.T_world_dock_from_spec(s.dock)
+    c = T[:3, 3] + 7.5 * T[:3, 2]
+    return list(c - [7.5, 2.5, 4.0]), list(c + [7.5, 2.5, 4.0])
+
+
+def condition_post(exp: Experiment, cond, seed: int) -> dict:
+    """Image-space processing of one condition: water, depth light, particles, sensor."""
     water = (cond.water or exp.water).model_dump(exclude_none=True)
     depth = cond.dock_water_depth_m if cond.dock_water_depth_m is not None else exp.scene.dock.water_depth_m
-    return {"water": water, "light_depth_m": depth, "noise_std": exp.camera.noise_std,
-            "distortion": exp.camera.distortion, "seed": trial_seed}
+    occ = cond.occlusion or exp.occlusion
+    fluid = cond.fluid or exp.fluid
+    post = {"water": water, "light_depth_m": depth, "noise_std": exp.camera.noise_std,
+            "distortion": exp.camera.distortion, "seed": seed, "fps": exp.camera.fps, "occlusion": None}
+    if occ is not None and occ.n_total > 0:
+        lo, hi = occlusion_region(exp, occ)
+        post["occlusion"] = {**occ.model_dump(), "region_min": lo, "region_max": hi,
+                             "v_flow": list(fluid.current_mps)}
+    return post
 
 
 def job_key(scene: dict, frames: list[dict], render: dict) -> str:
@@ -143,29 +169,40 @@ def water_volume(exp: Experiment, post: dict) -> dict | None:
             "box_min": lo, "box_max": hi}
 
 
-def plan_jobs(exp: Experiment, scene: dict, render: dict) -> list[RenderJob]:
-    """Every render job of the experiment; sequences grouped onto shared clean renders.
+def _motion(exp: Experiment, traj, cond):
+    """What makes a condition's camera path differ: the fluid, for dynamic trials only."""
+    if traj.kind != "docking":
+        return None
+    return cond.fluid or exp.fluid
 
-    Fast fidelity: one job per (trajectory, trial) feeds every condition. Reference
-    fidelity: the water is in the render, so each condition is its own job whose scene
-    carries ``water_volume``."""
+
+def plan_jobs(exp: Experiment, scene: dict, render: dict) -> list[RenderJob]:
+    """Every render job; sequences with identical clean renders share one job.
+
+    A job is keyed by a hash of its scene and camera path, so kinematic trajectories
+    render once for all trials and conditions (trials differ only in image-space
+    seeds), docking trials render once per (trial, fluid), and with the reference
+    fidelity the water makes every condition its own render."""
     T_wd = np.asarray(scene["dock"]["T_world_dock"], float)
     T_bc = tj.T_body_cam_from_spec(exp.camera.T_body_cam)
-    jobs = []
+    jobs: dict[str, RenderJob] = {}
+    paths: dict[tuple, list[dict]] = {}
     for traj in exp.trajectories:
-        frames = _frames(exp, traj, T_wd, T_bc)
         for trial in range(exp.trials):
-            seed = int(np.random.SeedSequence([exp.seed, trial]).generate_state(1)[0])
-            seqs = [SequencePlan(f"{traj.id}-t{trial:03d}-{c.label}", traj.id, trial, c.label,
-                                 condition_post(exp, c, seed), condition_post(exp, c, seed))
-                    for c in exp.conditions]
-            if exp.render.fidelity == "fast":
-                jobs.append(RenderJob(job_key(scene, frames, render), scene, frames, seqs))
-                continue
-            for sq in seqs:
-                sc = {**scene, "water_volume": water_volume(exp, sq.post)}
-                jobs.append(RenderJob(job_key(sc, frames, render), sc, frames, [sq]))
-    return jobs
+            seed = trial_seed(exp, trial)
+            for c in exp.conditions:
+                fluid = _motion(exp, traj, c)
+                mkey = (traj.id, trial if traj.kind == "docking" else None,
+                        None if fluid is None else json.dumps(fluid.model_dump(), sort_keys=True))
+                if mkey not in paths:
+                    paths[mkey] = _frames(exp, traj, T_wd, T_bc, seed, fluid or exp.fluid)
+                frames = paths[mkey]
+                post = condition_post(exp, c, seed)
+                sq = SequencePlan(f"{traj.id}-t{trial:03d}-{c.label}", traj.id, trial, c.label, post, post)
+                sc = scene if exp.render.fidelity == "fast" else {**scene, "water_volume": water_volume(exp, post)}
+                key = job_key(sc, frames, render)
+                jobs.setdefault(key, RenderJob(key, sc, frames)).sequences.append(sq)
+    return list(jobs.values())
 
 
 def render_settings(exp: Experiment, threads: int) -> dict:

@@ -11,7 +11,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from blendgen import groundtruth, optics, sensor
+from dataclasses import dataclass
+
+from blendgen import groundtruth, occlusion, optics, sensor
 from blendgen.geometry import planar_depth_to_range, project, transform_points
 
 
@@ -21,14 +23,56 @@ def emissive_mask(index: np.ndarray, markers: list[dict]) -> np.ndarray:
     return np.isin(index, led) if led else np.zeros(index.shape, bool)
 
 
+@dataclass
+class SequenceState:
+    """What one output sequence carries from frame to frame: its random stream and
+    its small-obstacle particles (world frame, drifting with the current)."""
+    post: dict
+    rng: np.random.Generator
+    field: occlusion.ParticleField | None = None
+
+    @classmethod
+    def start(cls, post: dict) -> "SequenceState":
+        rng = np.random.default_rng(post["seed"])
+        occ = post.get("occlusion")
+        field = None
+        if occ:
+            field = occlusion.ParticleField.sample(
+                rng, occ["region_min"], occ["region_max"], n_total=occ["n_total"], r_min=occ["r_min_m"],
+                r_max=occ["r_max_m"], count_dist=occ["count_dist"], n_max=occ["n_max"])
+        return cls(post, rng, field)
+
+    def advance(self) -> None:
+        """Drift the particles by one frame: p += v_flow dt + eta, eta ~ N(0, sigma^2 I)."""
+        if self.field is not None:
+            occ = self.post["occlusion"]
+            self.field = self.field.step(1.0 / self.post["fps"], occ["v_flow"], [occ["drift_sigma_m"]] * 3,
+                                         self.rng)
+
+
+def add_particles(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam) -> tuple[dict, np.ndarray | None]:
+    """Composite the sequence's particles over the clean passes, depth-tested against the
+    range pass; returns passes with rgb/range of the nearest surface or particle, and
+    the occluder mask (H,W) bool (None without particles)."""
+    if state.field is None:
+        return passes, None
+    rgb, occ_mask, prange = occlusion.render_particles(
+        passes["rgb"], passes["range_m"], state.field, K, np.asarray(T_world_cam, float),
+        mode=state.post["occlusion"]["mode"])
+    rng_eff = np.where(np.isfinite(prange), prange, passes["range_m"]).astype(np.float32)
+    return {**passes, "rgb": rgb, "range_m": rng_eff}, occ_mask
+
+
 def camera_image(passes: dict, post: dict, K: np.ndarray, markers: list[dict],
-                 rng: np.random.Generator, fidelity: str) -> np.ndarray:
+                 rng: np.random.Generator, fidelity: str, occluded: np.ndarray | None = None) -> np.ndarray:
     """Linear clean RGB (H,W,3) -> uint8 sRGB image (H,W,3) for one condition."""
     rgb = passes["rgb"]
     if fidelity == "fast":
         water = optics.water_from_config(post["water"])
-        rgb = optics.apply_water(rgb, passes["range_m"], emissive_mask(passes["index"], markers),
-                                 water, post["light_depth_m"])
+        emissive = emissive_mask(passes["index"], markers)
+        if occluded is not None:
+            emissive &= ~occluded
+        rgb = optics.apply_water(rgb, passes["range_m"], emissive, water, post["light_depth_m"])
     if post.get("distortion"):
         rgb = sensor.distort_image(rgb, K, post["distortion"])
     return sensor.to_uint8(rgb, post.get("noise_std", 0.0), rng)
@@ -67,12 +111,20 @@ def frame_record(frame: dict, T_world_dock: np.ndarray, markers: list[dict], K: 
     """Ground truth of one frame (pose part + visible fractions from the index pass)."""
     T_wc = np.asarray(frame["T_world_cam"], float)
     gt = groundtruth.frame_truth(T_wc, T_world_dock, markers, K, width, height)
-    T_cd = np.asarray(gt["T_cam_dock"], float)
+    rec = {"index": frame["index"], "t": frame["t"], "t_pose": frame["t_pose"], **gt}
+    return with_visibility(rec, markers, K, index, None)
+
+
+def with_visibility(rec: dict, markers: list[dict], K: np.ndarray, index: np.ndarray,
+                    occluded: np.ndarray | None) -> dict:
+    """Copy of a frame record with each in-view marker's visible_fraction (occluders hide)."""
+    T_cd = np.asarray(rec["T_cam_dock"], float)
+    out = {**rec, "markers": {k: dict(v) for k, v in rec["markers"].items()}}
     for m in markers:
-        entry = gt["markers"][m["id"]]
+        entry = out["markers"][m["id"]]
         if entry["in_fov"]:
-            entry["visible_fraction"] = round(visible_fraction(m, T_cd, K, index), 6)
-    return {"index": frame["index"], "t": frame["t"], "t_pose": frame["t_pose"], **gt}
+            entry["visible_fraction"] = round(visible_fraction(m, T_cd, K, index, occluded), 6)
+    return out
 
 
 def add_range(passes: dict, K: np.ndarray) -> dict:

@@ -182,14 +182,83 @@ class CircleTrajectory(Strict):
     speed_mps: float = Field(0.5, gt=0.0, le=20.0)
 
 
-Trajectory = Annotated[Union[LinearTrajectory, CircleTrajectory], Field(discriminator="kind")]
+class StartRanges(Strict):
+    """Random initial positions of docking trials, relative to the dock (m, deg);
+    a pair is [lo, hi], a single number a means [-a, a]."""
+    range_m: Annotated[list[float], Field(min_length=2, max_length=2)] = [6.0, 12.0]
+    lateral_m: float = Field(1.5, ge=0.0, le=100.0)
+    vertical_m: float = Field(0.5, ge=0.0, le=100.0)
+    heading_error_deg: float = Field(15.0, ge=0.0, le=90.0)
+
+    @model_validator(mode="after")
+    def _order(self):
+        lo, hi = self.range_m
+        if not 0.5 <= lo <= hi <= 1000:
+            raise ValueError(f"range_m must be [lo, hi] with 0.5 <= lo <= hi <= 1000, got {self.range_m}")
+        return self
+
+
+class DockingTrajectory(Strict):
+    """Closed-loop docking trial of the 6-DOF vehicle (blendgen.docking) from a seeded random start."""
+    kind: Literal["docking"] = "docking"
+    id: str = "docking"
+    start: StartRanges = StartRanges()
+    stop_distance_m: float = Field(0.5, gt=0.0, le=100.0)
+    max_time_s: float = Field(120.0, gt=0.0, le=3600.0)
+    cruise_speed_mps: float = Field(0.5, gt=0.0, le=3.0)
+    final_speed_mps: float = Field(0.2, gt=0.0, le=3.0)
+
+
+Trajectory = Annotated[Union[LinearTrajectory, CircleTrajectory, DockingTrajectory], Field(discriminator="kind")]
+
+
+class Fluid(Strict):
+    """Water as a fluid: it acts on the vehicle (buoyancy, drag, current)."""
+    density_kg_m3: float = Field(1025.0, ge=900.0, le=1200.0, description="998.2 fresh, 1025 sea")
+    viscosity_pa_s: float = Field(1.3e-3, gt=0.0, le=0.1, description="1.002e-3 fresh, 1.3e-3 sea (recorded)")
+    current_mps: Vec3 = Field([0.0, 0.0, 0.0], description="background flow in the world frame")
+
+    @model_validator(mode="after")
+    def _speed(self):
+        speed = sum(c * c for c in self.current_mps) ** 0.5
+        if speed > 2.0:
+            raise ValueError(f"current speed must be <= 2 m/s, got {speed:.3g}")
+        return self
+
+
+class Occlusion(Strict):
+    """The article's small obstacles (section 2.2.3): N_total particles in a region of
+    volume V_env (default: the pool, 600 m^3 for 15x5x8), radii in [r_min, r_max],
+    drifting with the current plus Gaussian noise."""
+    n_total: float = Field(600, ge=0.0, le=2e7)
+    count_dist: Literal["poisson", "uniform", "fixed"] = "poisson"
+    n_max: Optional[int] = Field(None, ge=0, le=20_000_000)
+    r_min_m: float = Field(0.005, gt=0.0, le=1.0)
+    r_max_m: float = Field(0.02, gt=0.0, le=1.0)
+    drift_sigma_m: float = Field(0.002, ge=0.0, le=1.0, description="per-frame Gaussian step std")
+    mode: Literal["backscatter", "silhouette"] = "backscatter"
+    region_min: Optional[Vec3] = None
+    region_max: Optional[Vec3] = None
+
+    @model_validator(mode="after")
+    def _ranges(self):
+        if self.r_min_m > self.r_max_m:
+            raise ValueError(f"r_min_m ({self.r_min_m}) must be <= r_max_m ({self.r_max_m})")
+        if self.n_max is not None and self.count_dist != "uniform" and self.n_total > self.n_max:
+            raise ValueError(f"n_total ({self.n_total:g}) must be <= n_max ({self.n_max})")
+        if (self.region_min is None) != (self.region_max is None):
+            raise ValueError("give both region_min and region_max, or neither")
+        return self
 
 
 class Condition(Strict):
-    """One experimental condition: a label and what it changes."""
+    """One experimental condition: a label and what it changes. Water, light depth and
+    occlusion are image-space (the clean render is shared); fluid changes the motion."""
     label: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.\-]+$")
     water: Optional[Water] = None
     dock_water_depth_m: Optional[float] = Field(None, ge=0.0, le=1000.0)
+    occlusion: Optional[Occlusion] = None
+    fluid: Optional[Fluid] = None
 
 
 class Experiment(Strict):
@@ -201,6 +270,8 @@ class Experiment(Strict):
     camera: Camera = Camera()
     render: Render = Render()
     water: Water = Water()
+    fluid: Fluid = Fluid()
+    occlusion: Optional[Occlusion] = None
     trajectories: list[Trajectory] = Field(min_length=1)
     conditions: list[Condition] = Field(default_factory=lambda: [Condition(label="default")])
     trials: int = Field(1, ge=1, le=100000)

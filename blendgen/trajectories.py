@@ -97,10 +97,35 @@ def circle(spec, T_world_dock: np.ndarray, fps: float, latency_s: float = 0.0) -
     return Sampled(t, tp, T)
 
 
-def sample(spec, T_world_dock: np.ndarray, fps: float, latency_s: float = 0.0) -> Sampled:
-    """Dispatch on the trajectory kind."""
+def docking_trial(spec, T_world_dock: np.ndarray, fps: float, latency_s: float, seed: int,
+                  fluid) -> tuple[Sampled, dict]:
+    """Closed-loop docking of the 6-DOF vehicle from a random start drawn with ``seed``.
+
+    The vehicle is guided by its controllers on ground-truth navigation through the
+    fluid (density, current); poses are sampled at ``fps``. Returns the sampled poses
+    and the trial's summary (start, stop reason, final offsets)."""
+    from blendgen import docking
+    rng = np.random.default_rng(seed)
+    st = spec.start
+    start = docking.random_start(rng, {"range_m": tuple(st.range_m), "lateral_m": st.lateral_m,
+                                       "vertical_m": st.vertical_m, "heading_error_deg": st.heading_error_deg})
+    run = docking.simulate_docking_trial(
+        T_world_dock, start, current_world=tuple(fluid.current_mps), density=fluid.density_kg_m3, fps=fps,
+        stop_distance_m=spec.stop_distance_m, max_time_s=spec.max_time_s, seed=seed,
+        cruise_speed=spec.cruise_speed_mps, final_speed=spec.final_speed_mps)
+    tp = np.asarray(run["t"], float)
+    info = {"start": start, "stop_reason": run["stop_reason"], "final_distance_m": run["final_distance_m"],
+            "final_lateral_m": run["final_lateral_m"], "final_vertical_m": run["final_vertical_m"]}
+    return Sampled(tp + latency_s, tp, np.asarray(run["T_world_body"], float)), info
+
+
+def sample(spec, T_world_dock: np.ndarray, fps: float, latency_s: float = 0.0, seed: int = 0,
+           fluid=None) -> Sampled:
+    """Dispatch on the trajectory kind (docking trials need the trial seed and the fluid)."""
     if spec.kind == "linear":
         return linear_approach(spec, T_world_dock, fps, latency_s)
     if spec.kind == "circle":
         return circle(spec, T_world_dock, fps, latency_s)
+    if spec.kind == "docking":
+        return docking_trial(spec, T_world_dock, fps, latency_s, seed, fluid)[0]
     raise ValueError(f"unknown trajectory kind {spec.kind!r}")

@@ -48,7 +48,7 @@ def run(job: dict) -> dict:
     T_wd = np.asarray(job["gt"]["T_world_dock"], float)
     markers = job["gt"]["markers"]
     outs = _open_outputs(job)
-    rngs = [np.random.default_rng(o["post"]["seed"]) for o, _, _ in outs]
+    states = [pp.SequenceState.start(o["post"]) for o, _, _ in outs]
     exr = os.path.join(render.scratch_dir(), f"dockbench-{os.getpid()}.exr")
     times = {"scene_build": time.perf_counter() - t0, "render": [], "passes_read": [], "post_write": []}
     try:
@@ -59,12 +59,15 @@ def run(job: dict) -> dict:
             passes = pp.add_range(render.read_passes(exr), K)
             t3 = time.perf_counter()
             rec = pp.frame_record(fr, T_wd, markers, K, W, H, passes["index"])
-            for (o, d, fh), rng in zip(outs, rngs):
-                img = pp.camera_image(passes, o["post"], K, markers, rng, job["fidelity"])
+            for (o, d, fh), st in zip(outs, states):
+                seen, occluded = pp.add_particles(passes, st, K, fr["T_world_cam"])
+                img = pp.camera_image(seen, o["post"], K, markers, st.rng, job["fidelity"], occluded)
                 paths = pp.write_frame_files(d, o["rel"], fr["index"], img, passes,
                                              job["render"]["write_depth"], job["render"]["write_index"])
-                fh.write(json.dumps({**rec, **paths}) + "\n")
+                r = rec if occluded is None else pp.with_visibility(rec, markers, K, passes["index"], occluded)
+                fh.write(json.dumps({**r, **paths}) + "\n")
                 fh.flush()
+                st.advance()
             times["render"].append(t2 - t1)
             times["passes_read"].append(t3 - t2)
             times["post_write"].append(time.perf_counter() - t3)

@@ -1,0 +1,63 @@
+"""Planning: what is rendered once and shared, what gets its own render."""
+import copy
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from blendgen import plan
+from blendgen.spec import Experiment
+
+BASE = {
+    "name": "p", "seed": 11, "scene": {"dock": {"markers": [{"kind": "led_array"}]}},
+    "trajectories": [{"kind": "linear", "id": "lin", "start_range_m": 3, "end_range_m": 1, "speed_mps": 2}],
+}
+
+
+def jobs_for(cfg):
+    exp = Experiment.model_validate(cfg)
+    markers = plan.manifest_markers(exp)
+    return exp, plan.plan_jobs(exp, plan.scene_description(exp, markers, {}), plan.render_settings(exp, 1))
+
+
+def test_image_space_conditions_and_kinematic_trials_share_one_render():
+    cfg = copy.deepcopy(BASE)
+    cfg["trials"] = 3
+    cfg["conditions"] = [{"label": "clear"}, {"label": "mild", "water": {"preset": "mild"}},
+                         {"label": "deep", "dock_water_depth_m": 5}, {"label": "occ", "occlusion": {"n_total": 6000}}]
+    exp, jobs = jobs_for(cfg)
+    assert len(jobs) == 1 and len(jobs[0].sequences) == 12
+    seeds = {s.post["seed"] for s in jobs[0].sequences}
+    assert len(seeds) == 3  # one random stream per trial, shared by its conditions (paired comparisons)
+
+
+def test_docking_trials_render_once_per_trial_and_per_fluid():
+    cfg = copy.deepcopy(BASE)
+    cfg["trajectories"] = [{"kind": "docking", "id": "d", "start": {"range_m": [2.0, 2.5]}, "max_time_s": 6}]
+    cfg["trials"] = 2
+    cfg["conditions"] = [{"label": "c0"}, {"label": "occ", "occlusion": {"n_total": 600}},
+                         {"label": "cur", "fluid": {"current_mps": [0, 0.5, 0]}}]
+    exp, jobs = jobs_for(cfg)
+    assert len(jobs) == 4  # (2 trials) x (still water, current)
+    by_label = {tuple(sorted(s.condition for s in j.sequences)) for j in jobs}
+    assert by_label == {("c0", "occ"), ("cur",)}
+    starts = {tuple(np.round(j.frames[0]["T_world_cam"][0], 6)) for j in jobs}
+    assert len(starts) >= 2  # different trials start from different random positions
+
+
+def test_reference_fidelity_renders_each_water_and_skips_clear_volume():
+    cfg = copy.deepcopy(BASE)
+    cfg["render"] = {"fidelity": "reference"}
+    cfg["conditions"] = [{"label": "clear"}, {"label": "mild", "water": {"preset": "mild"}}]
+    _, jobs = jobs_for(cfg)
+    vols = {j.sequences[0].condition: j.scene["water_volume"] for j in jobs}
+    assert vols["clear"] is None and vols["mild"]["box_max"][2] == pytest.approx(0.0)
+
+
+def test_occlusion_region_defaults_to_the_600_m3_pool():
+    cfg = copy.deepcopy(BASE)
+    cfg["occlusion"] = {"n_total": 600}
+    exp, jobs = jobs_for(cfg)
+    occ = jobs[0].sequences[0].post["occlusion"]
+    vol = np.prod(np.subtract(occ["region_max"], occ["region_min"]))
+    assert vol == pytest.approx(600.0)
