@@ -43,3 +43,22 @@ def frame_truth(T_world_cam: np.ndarray, T_world_dock: np.ndarray, markers: list
         }
     return {"T_world_cam": T_world_cam.tolist(), "T_cam_dock": T_cam_dock.tolist(),
             "d_true": d_true(T_world_cam, T_world_dock), "markers": per_marker}
+
+
+def dock_roi(T_cam_dock: np.ndarray, K: np.ndarray, width: int, height: int, corners_dock: np.ndarray,
+             margin_px: int = 8) -> tuple[int, int, int, int] | None:
+    """Pixel box (x0, y0, x1, y1), end-exclusive, holding the projection of the dock's
+    bounding corners (N,3, dock frame) plus a margin; None when it is out of view.
+    A corner behind the camera makes the whole image the box (a conservative answer)."""
+    pts = transform_points(T_cam_dock, corners_dock)
+    if np.all(pts[:, 2] <= 0):
+        return None
+    if np.any(pts[:, 2] <= 1e-3):
+        return 0, 0, width, height
+    uv = project(K, pts)
+    x0, y0 = np.floor(uv.min(axis=0) - margin_px).astype(int)
+    x1, y1 = np.ceil(uv.max(axis=0) + margin_px).astype(int) + 1
+    x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, width), min(y1, height)
+    if x1 <= x0 or y1 <= y0:
+        return None
+    return int(x0), int(y0), int(x1), int(y1)

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from blendgen import markers as mk
+from blendgen import groundtruth, markers as mk
 from blendgen import trajectories as tj
 from blendgen.geometry import intrinsics_from_hfov, make_T, rpy_to_R
 from blendgen.spec import Experiment
@@ -99,10 +99,35 @@ def object_index_names(markers: list[dict], exp: Experiment) -> dict[str, str]:
 
 
 def _frames(exp: Experiment, traj, T_wd: np.ndarray, T_body_cam: np.ndarray, seed: int, fluid) -> list[dict]:
+    """Camera frames of one path; those farther than ``render.max_distance_m`` from the
+    marker plane are skipped (they are outside the evaluation window). Indices keep the
+    trajectory's sample numbering, so ``t`` stays ``index / fps``."""
     smp = tj.sample(traj, T_wd, exp.camera.fps, exp.camera.latency_s, seed=seed, fluid=fluid)
     T_wc = smp.T_world_body @ T_body_cam
-    return [{"index": i, "t": float(t), "t_pose": float(tp), "T_world_cam": T.tolist()}
-            for i, (t, tp, T) in enumerate(zip(smp.t, smp.t_pose, T_wc))]
+    d_max = exp.render.max_distance_m
+    frames = [{"index": i, "t": float(t), "t_pose": float(tp), "T_world_cam": T.tolist()}
+              for i, (t, tp, T) in enumerate(zip(smp.t, smp.t_pose, T_wc))
+              if d_max is None or groundtruth.d_true(T, T_wd) <= d_max]
+    if exp.render.roi and exp.render.fidelity == "fast":
+        box = dock_corners(exp)
+        K, c = camera_K(exp), exp.camera
+        for f in frames:
+            T_cd = np.linalg.inv(np.asarray(f["T_world_cam"])) @ T_wd
+            f["roi"] = groundtruth.dock_roi(T_cd, K, c.width, c.height, box)
+    return frames
+
+
+def dock_corners(exp: Experiment) -> np.ndarray:
+    """The 8 corners (dock frame, m) of a box holding the dock body and every marker."""
+    sx, sy, sz = exp.scene.dock.body_size_m
+    x, y = sx / 2, sy / 2
+    for m in exp.scene.dock.markers:
+        r = getattr(m, "led_radius_m", 0.0)
+        side = max(m.size_m, getattr(m, "height_m", None) or 0.0)
+        half = side / 2 * (1.5 if m.kind != "led_array" else 1.0) + r  # 1.5: plate with quiet zone
+        x = max(x, abs(m.center_m[0]) + half)
+        y = max(y, abs(m.center_m[1]) + half)
+    return np.array([[a, b, c] for a in (-x, x) for b in (-y, y) for c in (0.01, -sz - 0.01)])
 
 
 def trial_seed(exp: Experiment, trial: int) -> int:
@@ -210,4 +235,6 @@ def render_settings(exp: Experiment, threads: int) -> dict:
     r = exp.render
     samples = r.samples if r.fidelity == "fast" else r.reference_samples
     return {"samples": samples, "threads": threads, "max_bounces": 0, "seed": exp.seed,
-            "write_depth": r.write_depth, "write_index": r.write_index}
+            "write_depth": r.write_depth, "write_index": r.write_index,
+            "roi": r.roi and r.fidelity == "fast", "background_scale": r.background_scale,
+            "background_samples": r.background_samples, "roi_max_fraction": 0.5}

@@ -149,6 +149,12 @@ class Render(Strict):
     threads: int = Field(0, ge=0, le=256, description="Cycles threads per worker; 0 = cores / workers")
     write_depth: bool = True
     write_index: bool = True
+    roi: bool = Field(True, description="fast fidelity: full samples only in the dock's image region")
+    background_scale: float = Field(0.5, gt=0.05, le=1.0, description="resolution factor outside the ROI")
+    background_samples: int = Field(1, ge=1, le=65536)
+    max_distance_m: Optional[float] = Field(10.0, gt=0.0, le=1e4,
+                                            description="frames with d_true beyond this are not rendered "
+                                                        "(evaluation counts d_true <= 10 m); null renders all")
 
 
 class Water(Strict):

@@ -61,3 +61,16 @@ def test_occlusion_region_defaults_to_the_600_m3_pool():
     occ = jobs[0].sequences[0].post["occlusion"]
     vol = np.prod(np.subtract(occ["region_max"], occ["region_min"]))
     assert vol == pytest.approx(600.0)
+
+
+def test_frames_beyond_the_evaluation_window_are_not_rendered():
+    cfg = copy.deepcopy(BASE)
+    cfg["trajectories"] = [{"kind": "linear", "id": "lin", "start_range_m": 14, "end_range_m": 8, "speed_mps": 1}]
+    cfg["camera"] = {"fps": 10, "T_body_cam": {"xyz": [0, 0, 0]}}
+    _, jobs = jobs_for(cfg)
+    idx = [f["index"] for f in jobs[0].frames]
+    assert idx[0] == 40 and idx[-1] == 60  # 14 m -> 10 m at 1 m/s is 4 s = 40 frames skipped
+    assert jobs[0].frames[0]["t"] == pytest.approx(4.0)
+    cfg["render"] = {"max_distance_m": None}
+    _, jobs = jobs_for(cfg)
+    assert [f["index"] for f in jobs[0].frames] == list(range(61))

@@ -113,3 +113,56 @@ def hfov_rad_of(cam_obj: bpy.types.Object) -> float:
     """The horizontal FOV Blender uses (rad), for checking K."""
     d = cam_obj.data
     return 2 * math.atan(d.sensor_width / (2 * d.lens))
+
+
+def _border(scene: bpy.types.Scene, box, width: int, height: int) -> None:
+    """Render only the pixel box (x0, y0, x1, y1) (end-exclusive, OpenCV rows from the top);
+    Blender's border is normalised with y from the bottom."""
+    x0, y0, x1, y1 = box
+    r = scene.render
+    r.use_border = True
+    r.use_crop_to_border = True
+    r.border_min_x, r.border_max_x = x0 / width, x1 / width
+    r.border_min_y, r.border_max_y = 1.0 - y1 / height, 1.0 - y0 / height
+
+
+def _upsample(passes: dict, width: int, height: int) -> dict:
+    """Background passes to full size: colour bilinear, depth and index nearest."""
+    import cv2
+    return {"rgb": cv2.resize(passes["rgb"], (width, height), interpolation=cv2.INTER_LINEAR),
+            "depth_z": cv2.resize(passes["depth_z"], (width, height), interpolation=cv2.INTER_NEAREST),
+            "index": cv2.resize(passes["index"], (width, height), interpolation=cv2.INTER_NEAREST)}
+
+
+def render_roi_frame(scene: bpy.types.Scene, cam_obj: bpy.types.Object, frame: dict, cfg: dict,
+                     width: int, height: int, path: str) -> dict:
+    """Render one frame, spending samples where the dock is.
+
+    Without a usable ROI, or when it covers more than ``roi_max_fraction`` of the image,
+    the full frame is rendered at ``samples``. Otherwise the background is rendered at
+    ``background_scale`` resolution with ``background_samples`` and upsampled, and the
+    ROI box at full resolution with ``samples`` is pasted over it (same pixel grid: the
+    border is whole pixels). Returns full-size passes."""
+    r = scene.render
+    roi = frame.get("roi") if cfg.get("roi") else None
+    area = 0.0 if roi is None else (roi[2] - roi[0]) * (roi[3] - roi[1]) / (width * height)
+    r.use_border, r.resolution_percentage = False, 100
+    scene.cycles.samples = int(cfg["samples"])
+    if cfg.get("roi") and area <= cfg["roi_max_fraction"]:
+        r.resolution_percentage = max(1, int(round(100 * cfg["background_scale"])))
+        scene.cycles.samples = int(cfg["background_samples"])
+        render_frame(scene, cam_obj, frame["T_world_cam"], path)
+        passes = _upsample(read_passes(path), width, height)
+        if roi is None:
+            return passes
+        r.resolution_percentage = 100
+        scene.cycles.samples = int(cfg["samples"])
+        _border(scene, roi, width, height)
+        render_frame(scene, cam_obj, frame["T_world_cam"], path)
+        x0, y0, x1, y1 = roi
+        for k, v in read_passes(path).items():
+            passes[k][y0:y1, x0:x1] = v
+        r.use_border = False
+        return passes
+    render_frame(scene, cam_obj, frame["T_world_cam"], path)
+    return read_passes(path)

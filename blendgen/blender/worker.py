@@ -50,13 +50,14 @@ def run(job: dict) -> dict:
     outs = _open_outputs(job)
     states = [pp.SequenceState.start(o["post"]) for o, _, _ in outs]
     exr = os.path.join(render.scratch_dir(), f"dockbench-{os.getpid()}.exr")
+    # "render" includes reading the EXR passes back (the ROI path reads two renders)
     times = {"scene_build": time.perf_counter() - t0, "render": [], "passes_read": [], "post_write": []}
     try:
         for fr in job["frames"]:
             t1 = time.perf_counter()
-            render.render_frame(sc, cam, fr["T_world_cam"], exr)
+            raw = render.render_roi_frame(sc, cam, fr, job["render"], W, H, exr)
             t2 = time.perf_counter()
-            passes = pp.add_range(render.read_passes(exr), K)
+            passes = pp.add_range(raw, K)
             t3 = time.perf_counter()
             rec = pp.frame_record(fr, T_wd, markers, K, W, H, passes["index"])
             for (o, d, fh), st in zip(outs, states):
