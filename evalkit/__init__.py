@@ -1,7 +1,10 @@
 """evalkit: evaluate localizers on dockbench datasets (never needs Blender).
 
 Modules: ``dataset`` (read a dataset), ``registry`` (find localizers),
-``runner`` (run them), ``metrics`` (SPEC.md section 7), ``tables`` (output).
+``runner`` (run them), ``metrics`` (SPEC.md section 7), ``tables`` (output),
+``truth`` / ``metrics_extra`` (pose errors, FP rate, distance bins, usable range,
+bootstrap CIs, runtime), ``plots``, ``results`` (run directories), ``leaderboard``
+(static HTML) and ``bop`` (BOP export).
 This package imports nothing heavy at import time; the names below are
 loaded lazily on first access.
 """
@@ -13,6 +16,8 @@ _LAZY = {
     "Dataset": "dataset", "DatasetError": "dataset", "verify": "dataset",
     "resolve": "registry", "list_localizers": "registry", "RegistryError": "registry",
     "evaluate": "runner", "write_results": "runner",
+    "save_run": "results", "load_run": "results", "compare_runs": "results",
+    "frame_truth_table": "truth", "export_bop": "bop", "build_leaderboard": "leaderboard",
 }
 
 __all__ = sorted(_LAZY)

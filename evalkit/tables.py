@@ -134,3 +134,52 @@ def to_latex(df: pd.DataFrame, floatfmt: str = ".4g", caption: str | None = None
     if label:
         parts.append(rf"\label{{{label}}}")
     return "\n".join(parts + [tabular, r"\end{table}"]) + "\n"
+
+
+# -- the article's table shape --------------------------------------------------
+ARTICLE_ERROR = "average positioning error (%)"
+ARTICLE_SUCCESS = "successful docking location rate (%)"
+
+
+def _pct(value, lo=None, hi=None, digits: int = 2) -> str:
+    """``12.34`` or ``12.34 [11.0, 13.9]`` (fractions shown in percent); ``-`` for NaN."""
+    if value is None or pd.isna(value):
+        return "-"
+    text = f"{100 * float(value):.{digits}f}"
+    if lo is not None and hi is not None and not (pd.isna(lo) or pd.isna(hi)):
+        text += f" [{100 * float(lo):.{max(digits - 1, 0)}f}, {100 * float(hi):.{max(digits - 1, 0)}f}]"
+    return text
+
+
+def article_table(conditions: pd.DataFrame, with_ci: bool = True, digits: int = 2) -> pd.DataFrame:
+    """The article's table: one row per (localizer, condition) with
+    :data:`ARTICLE_ERROR` (``E_rel_mean``) and :data:`ARTICLE_SUCCESS` (``P_succ_mean``),
+    both in percent, text cells. With ``with_ci`` and the ``*_lo``/``*_hi`` columns of
+    :func:`evalkit.metrics_extra.compute_all`, the 95 % bootstrap CI follows in brackets.
+    Accepts :func:`condition_table` output as well (no CIs then).
+    """
+    def ci(row, prefix):
+        if not with_ci:
+            return None, None
+        return row.get(f"{prefix}_lo"), row.get(f"{prefix}_hi")
+
+    rows = []
+    for _, r in conditions.iterrows():
+        rows.append({"localizer": r["localizer"], "condition": r["condition"],
+                     ARTICLE_ERROR: _pct(r["E_rel_mean"], *ci(r, "E_rel"), digits=digits),
+                     ARTICLE_SUCCESS: _pct(r["P_succ_mean"], *ci(r, "P_succ"), digits=digits)})
+    return pd.DataFrame(rows, columns=["localizer", "condition", ARTICLE_ERROR, ARTICLE_SUCCESS])
+
+
+def article_markdown(conditions: pd.DataFrame, with_ci: bool = True) -> str:
+    """:func:`article_table` as Markdown."""
+    return to_markdown(article_table(conditions, with_ci))
+
+
+def article_latex(conditions: pd.DataFrame, with_ci: bool = True, caption: str | None = None,
+                  label: str | None = None) -> str:
+    """:func:`article_table` as a LaTeX ``booktabs`` tabular (``%`` escaped)."""
+    df = article_table(conditions, with_ci)
+    # text cells are left-aligned by to_latex; numbers are right-aligned in the article
+    out = to_latex(df, caption=caption, label=label)
+    return out.replace(r"\begin{tabular}{llll}", r"\begin{tabular}{llrr}", 1)

@@ -1,0 +1,144 @@
+"""BOP export of the fake dataset: poses, projections, depth (range -> planar z), gt info."""
+from __future__ import annotations
+
+import json
+import math
+
+import cv2
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from evalkit import bop
+from evalkit.dataset import Dataset
+
+from fake_dataset import K, WIDTH, HEIGHT, write_fake_dataset
+
+KM = np.array(K)
+
+
+def _rot(ax, ay, az):
+    return cv2.Rodrigues(np.array([ax, ay, az], float))[0]
+
+
+def _enrich(root):
+    """Give the fake dataset rotated poses, an offset marker, range NPZs and object-index PNGs."""
+    man = json.loads((root / "manifest.json").read_text())
+    T_dock_marker = np.eye(4)
+    T_dock_marker[:3, 3] = [0.05, -0.02, 0.0]
+    man["markers"][0]["T_dock_marker"] = T_dock_marker.tolist()
+    man["markers"][0]["keypoints"] = (np.array([[-0.1, 0.1, 0], [0.1, 0.1, 0], [0.1, -0.1, 0], [-0.1, -0.1, 0]])
+                                      + T_dock_marker[:3, 3]).tolist()
+    (root / "manifest.json").write_text(json.dumps(man))
+    u, v = np.meshgrid(np.arange(WIDTH, dtype=float), np.arange(HEIGHT, dtype=float))
+    norm = np.sqrt(((u - KM[0, 2]) / KM[0, 0]) ** 2 + ((v - KM[1, 2]) / KM[1, 1]) ** 2 + 1)
+    for seq in man["sequences"]:
+        sdir = root / seq["path"]
+        (sdir / "depth").mkdir()
+        (sdir / "index").mkdir()
+        lines = []
+        for line in (sdir / "frames.jsonl").read_text().splitlines():
+            f = json.loads(line)
+            i, d = f["index"], max(f["d_true"], 0.5)
+            T = np.eye(4)
+            T[:3, :3] = _rot(0.2, -0.3 + 0.05 * i, 0.1)
+            T[:3, 3] = [0.1 * i - 0.2, 0.05, d]
+            f["T_cam_dock"] = T.tolist()
+            f["markers"]["0"]["T_cam_marker"] = (T @ T_dock_marker).tolist()
+            z = 2.0 + 0.01 * u + 0.02 * v + 0.1 * i                      # planar depth (m)
+            rng = (z * norm).astype(np.float32)
+            rng[0, 0] = np.inf                                           # no surface
+            f["depth"] = f"{seq['path']}/depth/{i:06d}.npz"
+            np.savez_compressed(root / f["depth"], range_m=rng)
+            idx = np.zeros((HEIGHT, WIDTH), np.uint8)
+            idx[10:20, 30:45] = 1                                        # the marker ("1" -> "0")
+            f["object_index"] = f"{seq['path']}/index/{i:06d}.png"
+            cv2.imwrite(str(root / f["object_index"]), idx)
+            lines.append(json.dumps(f))
+        (sdir / "frames.jsonl").write_text("\n".join(lines) + "\n")
+    return root
+
+
+@pytest.fixture
+def exported(tmp_path):
+    ds = Dataset.open(_enrich(write_fake_dataset(tmp_path / "ds")))
+    summary = bop.export_bop(ds, tmp_path / "bop", depth_scale=0.1)
+    return ds, tmp_path / "bop", summary
+
+
+def test_layout_and_camera(exported):
+    ds, out, summary = exported
+    assert summary == {"scenes": 2, "images": 12, "objects": 1, "depth_clipped_px": 0}
+    cam = json.loads((out / "camera.json").read_text())
+    assert (cam["fx"], cam["cx"], cam["width"], cam["height"]) == (50.0, 31.5, WIDTH, HEIGHT)
+    scenes = json.loads((out / "dockbench_scenes.json").read_text())
+    assert scenes["scenes"]["000001"]["sequence"] == "clear_001"
+    assert scenes["dataset"]["content_hash"] == ds.manifest["content_hash"]
+    sdir = out / "test" / "000000"
+    sc = json.loads((sdir / "scene_camera.json").read_text())
+    assert sc["3"]["cam_K"] == pytest.approx(KM.ravel().tolist()) and sc["3"]["depth_scale"] == 0.1
+    rgb = sdir / "rgb" / "000003.png"
+    assert rgb.is_symlink() and cv2.imread(str(rgb)) is not None
+    assert (out / "models" / "obj_000001.ply").read_text().startswith("ply")
+    info = json.loads((out / "models" / "models_info.json").read_text())["1"]
+    assert info["diameter"] == pytest.approx(200 * math.sqrt(2))
+
+
+def test_projection_matches_manifest(exported):
+    ds, out, _ = exported
+    objects = json.loads((out / "dockbench_objects.json").read_text())
+    kp_model_mm = np.array(objects["1"]["keypoints_mm"])
+    kp_dock = np.array(ds.markers[0]["keypoints"])
+    for scene, seq in (("000000", "clear_000"), ("000001", "clear_001")):
+        gt = json.loads((out / "test" / scene / "scene_gt.json").read_text())
+        sc = json.loads((out / "test" / scene / "scene_camera.json").read_text())
+        for f in ds.iter_frames(seq):
+            g = gt[str(f["index"])][0]
+            assert g["obj_id"] == 1
+            R = np.array(g["cam_R_m2c"]).reshape(3, 3)
+            t = np.array(g["cam_t_m2c"])                                  # mm
+            Kb = np.array(sc[str(f["index"])]["cam_K"]).reshape(3, 3)
+            p = (kp_model_mm @ R.T + t) @ Kb.T
+            uv_bop = p[:, :2] / p[:, 2:]
+            T = np.array(f["T_cam_dock"])
+            q = (kp_dock @ T[:3, :3].T + T[:3, 3]) @ KM.T
+            uv_manifest = q[:, :2] / q[:, 2:]
+            np.testing.assert_allclose(uv_bop, uv_manifest, atol=1e-6)
+            np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-9)
+
+
+def test_depth_is_planar_z(exported):
+    ds, out, _ = exported
+    u, v = np.meshgrid(np.arange(WIDTH, dtype=float), np.arange(HEIGHT, dtype=float))
+    depth = cv2.imread(str(out / "test" / "000000" / "depth" / "000002.png"), cv2.IMREAD_UNCHANGED)
+    assert depth.dtype == np.uint16 and depth.shape == (HEIGHT, WIDTH)
+    z_mm = depth.astype(float) * 0.1
+    expected = (2.0 + 0.01 * u + 0.02 * v + 0.2) * 1000
+    assert depth[0, 0] == 0                                              # inf range -> no data
+    np.testing.assert_allclose(z_mm.ravel()[1:], expected.ravel()[1:], atol=0.2)
+
+
+def test_gt_info(exported):
+    ds, out, _ = exported
+    info = json.loads((out / "test" / "000000" / "scene_gt_info.json").read_text())
+    assert info["5"][0]["visib_fract"] == 0.0 and info["2"][0]["visib_fract"] == 1.0
+    assert info["2"][0]["bbox_visib"] == [30, 10, 15, 10]
+    assert info["2"][0]["px_count_visib"] == 150
+    mask = cv2.imread(str(out / "test" / "000000" / "mask_visib" / "000002_000000.png"), cv2.IMREAD_UNCHANGED)
+    assert int((mask > 0).sum()) == 150
+    assert all(v >= 0 for v in info["2"][0]["bbox_obj"][2:])
+
+
+def test_range_to_depth_clipping():
+    norms = np.ones((1, 3))
+    img, n = bop.range_to_depth_png(np.array([[1.0, 70.0, np.nan]]), norms, 1.0)
+    assert img.tolist() == [[1000, 0, 0]] and n == 1
+
+
+def test_cli(tmp_path):
+    root = write_fake_dataset(tmp_path / "ds")
+    res = CliRunner().invoke(bop.export_bop_cmd, [str(root), "-o", str(tmp_path / "b"), "--copy"])
+    assert res.exit_code == 0, res.output
+    assert not (tmp_path / "b" / "test" / "000000" / "rgb" / "000000.png").is_symlink()
+    res = CliRunner().invoke(bop.export_bop_cmd, [str(tmp_path / "nope"), "-o", str(tmp_path / "c")])
+    assert res.exit_code == 2 and "error:" in res.output
