@@ -5,7 +5,7 @@ VENV  := .venv
 BIN   := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 
-.PHONY: setup demo test test-slow bench clean
+.PHONY: setup chromium demo test test-slow bench clean
 
 $(STAMP): pyproject.toml
 	$(PY) -c 'import sys; assert sys.version_info[:2] == (3, 11), "dockbench needs Python 3.11 (bpy 5.0.1 wheels are cp311-only)"'
@@ -20,7 +20,13 @@ demo: setup
 	$(BIN)/dockbench generate configs/quickstart.yaml -o out/demo/dataset
 	$(BIN)/dockbench evaluate out/demo/dataset -l led -l qr -l aruco -o out/demo/results
 
-test: setup
+# the leaderboard test opens the page in headless Chromium (Debian package)
+chromium:
+	@command -v chromium >/dev/null 2>&1 || { command -v apt-get >/dev/null 2>&1 && [ "$$(id -u)" = 0 ] \
+	  && (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null) \
+	  || echo "chromium not installed: the leaderboard browser test will be skipped"; }
+
+test: setup chromium
 	$(BIN)/python -m pytest -q
 
 test-slow: setup

@@ -79,11 +79,13 @@ def evaluate(dataset: Path, localizers: tuple[str, ...], params: tuple[str, ...]
     kw = registry.parse_params(params)
     specs = [(name, registry.resolve(name, kw)) for name in localizers]
     df = runner.evaluate(ds, specs, frame_timeout_s=frame_timeout, progress=True)
-    paths = runner.write_results(df, out, d_min_rel=ds.d_min_rel_m)
+    from evalkit import results
+    paths = results.save_run(df, out, ds, specs, extra={"localizers": list(localizers), "params": list(params),
+                                                        "frame_timeout_s": frame_timeout})
     import pandas as pd
-    summary = pd.read_csv(paths["summary"])
-    tables.print_table(summary)
-    click.echo(f"\nper-frame estimates: {paths['estimates']}\nsummary: {paths['summary']}")
+    tables.print_table(pd.read_csv(paths["summary"]))
+    click.echo("\n" + paths["article_md"].read_text())
+    click.echo(f"per-frame estimates: {paths['estimates']}\nsummary: {paths['summary']}\nrun: {out / 'run.json'}")
     click.echo(f"(e_rel excludes frames with d_true < {ds.d_min_rel_m} m; only 0 <= d_true <= 10 m count)")
 
 
@@ -162,6 +164,16 @@ def bench_stages(frames: int, samples: tuple[int, ...], out: Path):
     from blendgen.bench import run_bench
     run_bench(out, frames, samples or (1, 4))
 
+
+def _register() -> None:
+    """Commands defined next to their code (imports inside them stay lazy)."""
+    from evalkit.bop import export_bop_cmd
+    from evalkit.leaderboard import leaderboard_cmd
+    main.add_command(leaderboard_cmd)
+    main.add_command(export_bop_cmd)
+
+
+_register()
 
 if __name__ == "__main__":
     main()

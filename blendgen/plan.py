@@ -21,7 +21,7 @@ from blendgen import trajectories as tj
 from blendgen.geometry import intrinsics_from_hfov, make_T, rpy_to_R
 from blendgen.spec import Experiment
 
-INDEX_POOL, INDEX_DOCK, INDEX_MARKER0, INDEX_OBSTACLE0 = 1, 2, 10, 100
+INDEX_POOL, INDEX_DOCK, INDEX_MARKER0, INDEX_OBSTACLE0, INDEX_PARTICLES = 1, 2, 10, 100, 250
 
 
 @dataclass
@@ -95,6 +95,7 @@ def object_index_names(markers: list[dict], exp: Experiment) -> dict[str, str]:
     names = {"0": "background", str(INDEX_POOL): "pool", str(INDEX_DOCK): "dock"}
     names.update({str(m["object_index"]): m["id"] for m in markers})
     names.update({str(INDEX_OBSTACLE0 + i): f"obstacle_{i}" for i in range(len(exp.scene.obstacles))})
+    names[str(INDEX_PARTICLES)] = "particles"
     return names
 
 
@@ -225,6 +226,10 @@ def plan_jobs(exp: Experiment, scene: dict, render: dict) -> list[RenderJob]:
                 post = condition_post(exp, c, seed)
                 sq = SequencePlan(f"{traj.id}-t{trial:03d}-{c.label}", traj.id, trial, c.label, post, post)
                 sc = scene if exp.render.fidelity == "fast" else {**scene, "water_volume": water_volume(exp, post)}
+                if post["occlusion"] and post["occlusion"]["geometry"] == "blender":
+                    # real geometry is part of the render: keyed by its config and seed
+                    sc = {**sc, "particles": {**post["occlusion"], "seed": seed, "fps": exp.camera.fps,
+                                              "object_index": INDEX_PARTICLES}}
                 key = job_key(sc, frames, render)
                 jobs.setdefault(key, RenderJob(key, sc, frames)).sequences.append(sq)
     return list(jobs.values())

@@ -56,6 +56,8 @@ def add_particles(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam
     the occluder mask (H,W) bool (None without particles)."""
     if state.field is None:
         return passes, None
+    if state.post["occlusion"]["geometry"] == "blender":  # already in the render
+        return passes, passes["index"] == state.post["occlusion"].get("object_index", 250)
     rgb, occ_mask, prange = occlusion.render_particles(
         passes["rgb"], passes["range_m"], state.field, K, np.asarray(T_world_cam, float),
         mode=state.post["occlusion"]["mode"])
@@ -68,11 +70,15 @@ def camera_image(passes: dict, post: dict, K: np.ndarray, markers: list[dict],
     """Linear clean RGB (H,W,3) -> uint8 sRGB image (H,W,3) for one condition."""
     rgb = passes["rgb"]
     if fidelity == "fast":
-        water = optics.water_from_config(post["water"])
+        water, fo = optics.fast_water(post["water"], post.get("irradiance"))
         emissive = emissive_mask(passes["index"], markers)
         if occluded is not None:
             emissive &= ~occluded
-        rgb = optics.apply_water(rgb, passes["range_m"], emissive, water, post["light_depth_m"])
+        fx = float(K[0, 0])
+        rgb = optics.apply_water(rgb, passes["range_m"], emissive, water, post["light_depth_m"],
+                                 irradiance=fo["irradiance"], blur=fo["blur"],
+                                 blur_px_per_tau=fo["blur_rad_per_tau"] * fx,
+                                 blur_max_px=fo["blur_max_rad"] * fx)
     if post.get("distortion"):
         rgb = sensor.distort_image(rgb, K, post["distortion"])
     return sensor.to_uint8(rgb, post.get("noise_std", 0.0), rng)

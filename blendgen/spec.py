@@ -243,6 +243,9 @@ class Occlusion(Strict):
     r_max_m: float = Field(0.02, gt=0.0, le=1.0)
     drift_sigma_m: float = Field(0.002, ge=0.0, le=1.0, description="per-frame Gaussian step std")
     mode: Literal["backscatter", "silhouette"] = "backscatter"
+    geometry: Literal["image", "blender"] = Field(
+        "image", description="image: depth-tested blobs drawn on the clean render (fast, shared renders); "
+                             "blender: the same particles as instanced spheres in the scene (validation)")
     region_min: Optional[Vec3] = None
     region_max: Optional[Vec3] = None
 

@@ -34,6 +34,28 @@ def _open_outputs(job: dict) -> list[tuple[dict, Path, object]]:
     return outs
 
 
+class _Geo:
+    def __init__(self, obj):
+        self.obj = obj
+
+    def move(self, positions):
+        from blendgen.blender import particles
+        particles.move_particles(self.obj, positions)
+
+
+def _geometry_particles(job: dict, states: list):
+    """Real-geometry particles of this job (validation mode), driven by the same seeded
+    field as the image-space model; returns (mover, state) or None."""
+    p = job["scene"].get("particles")
+    if not p:
+        return None
+    from blendgen import postprocess as pp
+    from blendgen.blender import particles
+    st = next((s for s in states if s.field is not None), None) or pp.SequenceState.start(
+        {"seed": p["seed"], "fps": p["fps"], "occlusion": p})
+    return _Geo(particles.add_particles(st.field.positions, st.field.radii, p["object_index"])), st
+
+
 def run(job: dict) -> dict:
     """Render the job; returns timing figures (s) per stage."""
     from blendgen import postprocess as pp
@@ -50,11 +72,14 @@ def run(job: dict) -> dict:
     outs = _open_outputs(job)
     states = [pp.SequenceState.start(o["post"]) for o, _, _ in outs]
     exr = os.path.join(render.scratch_dir(), f"dockbench-{os.getpid()}.exr")
+    geo = _geometry_particles(job, states)
     # "render" includes reading the EXR passes back (the ROI path reads two renders)
     times = {"scene_build": time.perf_counter() - t0, "render": [], "passes_read": [], "post_write": []}
     try:
         for fr in job["frames"]:
             t1 = time.perf_counter()
+            if geo is not None:
+                geo[0].move(geo[1].field.positions)
             raw = render.render_roi_frame(sc, cam, fr, job["render"], W, H, exr)
             t2 = time.perf_counter()
             passes = pp.add_range(raw, K)
@@ -69,6 +94,8 @@ def run(job: dict) -> dict:
                 fh.write(json.dumps({**r, **paths}) + "\n")
                 fh.flush()
                 st.advance()
+            if geo is not None and geo[1] not in states:
+                geo[1].advance()
             times["render"].append(t2 - t1)
             times["passes_read"].append(t3 - t2)
             times["post_write"].append(time.perf_counter() - t3)
