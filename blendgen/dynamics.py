@@ -218,6 +218,8 @@ class AUVModel:
                  damping: bool = True):
         self.params = p = params or VehicleParams()
         self.rho = float(rho)
+        if not (math.isfinite(self.rho) and self.rho >= 0.0):
+            raise ValueError(f"water density must be finite and >= 0 kg/m^3, got {rho}")
         self.M = p.M()
         Minv = np.linalg.inv(self.M)
         self._Minv = [tuple(float(c) for c in row) for row in Minv]
@@ -408,6 +410,7 @@ class Plant:
         return self.thrusters.speed_to_thrust(self.n, self.rho)
 
     def step(self, n_cmd, current_ned=(0.0, 0.0, 0.0), dt: float = 0.02):
+        dt = check_dt(dt)
         tau = (self.thrusters.B @ self.thrust()).tolist()
         self.s = self.model.rk4_step(self.s, tau, tuple(current_ned), dt)
         self.n = self.thrusters.lag_step(self.n, n_cmd, dt)

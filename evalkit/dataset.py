@@ -72,7 +72,32 @@ def _read_manifest(root: Path) -> dict:
     for key in ("camera", "sequences"):
         if key not in manifest:
             raise DatasetError(f"{path}: missing key {key!r}")
+    _check_schema(manifest, path)
     return manifest
+
+
+SCHEMA_DIR = Path(__file__).resolve().parent.parent / "datasets_spec"
+
+
+def _check_schema(manifest: dict, path: Path) -> None:
+    """Validate against datasets_spec/manifest.schema.json; the first problem names its key path."""
+    import jsonschema
+    schema = json.loads((SCHEMA_DIR / "manifest.schema.json").read_text())
+    err = jsonschema.exceptions.best_match(jsonschema.Draft202012Validator(schema).iter_errors(manifest))
+    if err is not None:
+        where = ".".join(str(p) for p in err.absolute_path) or "<root>"
+        raise DatasetError(f"{path}: {where}: {err.message}")
+
+
+FRAME_KEYS = {"index": int, "image": str, "d_true": (int, float), "T_cam_dock": list}
+
+
+def _check_frame(frame: dict, where: str) -> None:
+    """The keys evaluation relies on must be present with the right JSON types."""
+    for key, typ in FRAME_KEYS.items():
+        if not isinstance(frame.get(key), typ) or isinstance(frame.get(key), bool):
+            raise DatasetError(f"{where}: frame needs {key!r} ({getattr(typ, '__name__', 'number')}), "
+                               f"got {frame.get(key)!r}")
 
 
 class Dataset:
@@ -150,6 +175,7 @@ class Dataset:
                     raise DatasetError(f"{path}:{lineno}: bad JSON line: {exc.msg}") from None
                 if not isinstance(frame, dict):
                     raise DatasetError(f"{path}:{lineno}: frame must be a JSON object")
+                _check_frame(frame, f"{path}:{lineno}")
                 yield frame
 
     def image_path(self, frame: dict) -> Path:
@@ -183,6 +209,12 @@ def verify(path: str | Path) -> list[str]:
         manifest = _read_manifest(root)
     except DatasetError as exc:
         return [str(exc)]
+    for seq in manifest["sequences"]:
+        try:
+            for _ in Dataset(root, manifest).iter_frames(seq["id"]):
+                pass
+        except DatasetError as exc:
+            return [str(exc)]
     files = manifest.get("files")
     if not isinstance(files, dict):
         return [f"{root / MANIFEST}: missing or invalid 'files' map"]

@@ -48,7 +48,7 @@ def success_mask(df: pd.DataFrame) -> pd.Series:
 def frame_errors(df: pd.DataFrame, d_min_rel: float = D_MIN_REL_M) -> pd.DataFrame:
     """Per-frame errors: ``e_abs`` (m) and ``e_rel`` (1) for successful frames, else NaN.
 
-    ``e_rel`` is NaN when ``d_true < d_min_rel`` (m). Returns a frame with the
+    ``e_rel`` is NaN when ``d_true < d_min_rel`` (m) or when the ratio overflows. Returns a frame with the
     same index as ``df`` and columns ``e_abs, e_rel``.
     """
     d_true = pd.to_numeric(df["d_true"], errors="coerce").astype(float)
@@ -56,6 +56,7 @@ def frame_errors(df: pd.DataFrame, d_min_rel: float = D_MIN_REL_M) -> pd.DataFra
     succ = success_mask(df)
     e_abs = (d_true - d_est).abs().where(succ)
     e_rel = (e_abs / d_true).where(succ & (d_true >= d_min_rel) & (d_true > 0.0))
+    e_rel = e_rel.where(np.isfinite(e_rel))  # a subnormal d_true overflows: undefined, never inf
     return pd.DataFrame({"e_abs": e_abs, "e_rel": e_rel}, index=df.index)
 
 
