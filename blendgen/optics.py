@@ -44,8 +44,11 @@ reference Cycles renders:
 from __future__ import annotations
 
 import dataclasses
+import functools
+import json
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -207,7 +210,7 @@ def get_preset(name: str) -> WaterOptics:
 
 _CONFIG_KEYS = {"preset", "name", "sigma_a", "sigma_s", "beta", "albedo", "g", "phase",
                 "ff_ior", "ff_backscatter", "water_color", "B_inf", "k", "Kd", "model",
-                "provenance"}
+                "provenance"} | {"calibrated", "blur"}   # the last two: fast-model options
 
 
 def water_from_config(cfg: dict | None) -> WaterOptics:
@@ -226,6 +229,9 @@ def water_from_config(cfg: dict | None) -> WaterOptics:
     unknown = sorted(set(cfg) - _CONFIG_KEYS)
     if unknown:
         raise ValueError(f"unknown water key(s) {unknown}; allowed: {sorted(_CONFIG_KEYS)}")
+    for f in ("calibrated", "blur"):            # fast-model options (see fast_water)
+        if f in cfg and not isinstance(cfg.pop(f), bool):
+            raise ValueError(f"{f} must be true or false")
     for a, b in (("water_color", "B_inf"), ("k", "Kd"), ("beta", "sigma_a"), ("beta", "sigma_s")):
         if a in cfg and b in cfg:
             raise ValueError(f"give either {a!r} or {b!r}, not both")
@@ -264,6 +270,61 @@ def water_from_config(cfg: dict | None) -> WaterOptics:
     if "g" in upd:
         upd["g"] = _scalar("g", upd["g"], *G_RANGE)
     return w.replace(**upd)
+
+
+# --------------------------------------------------------------------------- calibration
+
+#: Fast-model calibration against reference renders (``dockbench calibrate-water``).
+CALIBRATION_PATH = Path(__file__).resolve().parent / "data" / "water_calibration.json"
+#: Sun irradiance assumed when a condition does not state it (spec.Scene default, W/m^2).
+DEFAULT_IRRADIANCE = 3.0
+#: Forward-scatter blur of the fast model, as an angle: 2 px per unit scattering optical
+#: depth, at most 3 px, at the default 640 px / 60 deg camera (fx = 554.26 px).
+BLUR_RAD_PER_TAU, BLUR_MAX_RAD = 2.0 / 554.256, 3.0 / 554.256
+
+
+@functools.lru_cache(maxsize=8)
+def _read_calibration(path: str, mtime: float) -> dict:
+    return json.loads(Path(path).read_text())
+
+
+def load_calibration(path: Path | str | None = None) -> dict:
+    """The calibration file as a dict (``{}`` when absent)."""
+    p = Path(path) if path is not None else CALIBRATION_PATH
+    if not p.exists():
+        return {}
+    return _read_calibration(str(p), p.stat().st_mtime)
+
+
+def fast_water(cfg: dict | None, irradiance: float | None = None,
+               calibration: dict | None = None) -> tuple[WaterOptics, dict]:
+    """Water and ``apply_water`` options for the fast fidelity of one condition.
+
+    A bare preset (``{"preset": name}`` plus the fast options) that the calibration
+    lists gets the calibrated ``B_inf`` (per unit sun irradiance) and ``Kd``
+    (effective depth-light coefficient) and the ``revised`` model, unless the config
+    says ``calibrated: false``. ``blur: true|false`` switches the forward-scatter blur
+    (default: the calibration's choice, else off). ``irradiance`` (the scene's sun,
+    W/m^2; default :data:`DEFAULT_IRRADIANCE`) scales physical ``B_inf``; the
+    article model's ``B_inf`` is a water colour and is used as is (irradiance 1).
+    Returns ``(water, {"irradiance", "blur", "blur_rad_per_tau", "blur_max_rad",
+    "calibrated"})``."""
+    cfg = dict(cfg or {})
+    want_cal = cfg.get("calibrated", True)
+    water = water_from_config(cfg)
+    cal = calibration if calibration is not None else load_calibration()
+    entry = (cal.get("presets") or {}).get(_preset_key(cfg.get("preset") or "clear"))
+    bare = set(cfg) <= {"preset", "calibrated", "blur"}
+    use = bool(want_cal and entry and bare and not water.is_clear)
+    if use:
+        water = water.replace(B_inf=np.asarray(entry["B_inf"], float), Kd=np.asarray(entry["Kd"], float),
+                              model="revised",
+                              provenance=water.provenance + "; calibrated: " + str(cal.get("method", "")))
+    blur_default = bool(entry.get("blur", False)) if use else False
+    irr = DEFAULT_IRRADIANCE if irradiance is None else float(irradiance)
+    return water, {"irradiance": 1.0 if water.model == "article" else irr,
+                   "blur": bool(cfg.get("blur", blur_default)), "calibrated": use,
+                   "blur_rad_per_tau": BLUR_RAD_PER_TAU, "blur_max_rad": BLUR_MAX_RAD}
 
 
 # --------------------------------------------------------------------------- phase functions

@@ -156,7 +156,8 @@ def condition_post(exp: Experiment, cond, seed: int) -> dict:
     depth = cond.dock_water_depth_m if cond.dock_water_depth_m is not None else exp.scene.dock.water_depth_m
     occ = cond.occlusion or exp.occlusion
     fluid = cond.fluid or exp.fluid
-    post = {"water": water, "light_depth_m": depth, "noise_std": exp.camera.noise_std,
+    post = {"water": water, "light_depth_m": depth, "irradiance": exp.scene.sun_strength,
+            "noise_std": exp.camera.noise_std,
             "distortion": exp.camera.distortion, "seed": seed, "fps": exp.camera.fps, "occlusion": None}
     if occ is not None and occ.n_total > 0:
         lo, hi = occlusion_region(exp, occ)

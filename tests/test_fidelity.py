@@ -1,0 +1,106 @@
+"""Fast-model calibration, the fidelity bench's pure parts, preview, and their commands."""
+import json
+import sys
+
+import click
+import numpy as np
+import pytest
+
+from blendgen import fidelity, optics
+
+CAL = {"method": "test", "presets": {"moderate": {"B_inf": [0.01, 0.02, 0.03], "Kd": [0.3, 0.3, 0.3],
+                                                  "blur": False}}}
+
+
+def test_fit_condition_recovers_direct_scale_and_veiling_light():
+    rng = np.random.default_rng(0)
+    c = np.array([0.5, 0.3, 0.2])
+    a_true, B_true = np.array([0.6, 0.7, 0.8]), np.array([0.01, 0.05, 0.03])
+    samples = []
+    for _ in range(3):
+        J = rng.uniform(0.05, 0.3, (500, 3))
+        r = rng.uniform(0.5, 10.0, 500)
+        t = np.exp(-c * r[:, None])
+        samples.append((a_true * J * t + B_true * (1 - t), J, r))
+    a, B = fidelity.fit_condition(samples, c)
+    assert np.allclose(a, a_true, rtol=1e-9) and np.allclose(B, B_true, rtol=1e-9)
+
+
+def test_image_errors():
+    ref = np.full((20, 30, 3), 0.5)
+    mask = np.zeros((20, 30), bool)
+    mask[5:10, 5:10] = True
+    psnr, mae = fidelity.image_errors(ref + 0.01, ref, mask)
+    assert mae == pytest.approx(0.01) and psnr == pytest.approx(40.0)
+    assert fidelity.image_errors(ref.copy(), ref, mask) == (float("inf"), 0.0)
+    half = np.full((10, 15, 3), 0.5)          # other resolution: the reference is resized
+    assert fidelity.image_errors(half, ref, mask)[1] == pytest.approx(0.0)
+
+
+def test_srgb_round_trip():
+    x = np.arange(256, dtype=np.uint8)
+    lin = fidelity.srgb_to_linear(x)
+    assert lin[0] == 0 and lin[-1] == pytest.approx(1.0) and np.all(np.diff(lin) > 0)
+
+
+def test_fast_water_uses_calibration_for_bare_presets_only():
+    w, fo = optics.fast_water({"preset": "moderate"}, 3.0, CAL)
+    assert fo["calibrated"] and w.model == "revised" and fo["irradiance"] == 3.0
+    assert np.allclose(w.B_inf, [0.01, 0.02, 0.03]) and np.allclose(w.Kd, 0.3)
+    assert np.allclose(w.c, optics.get_preset("moderate").c)       # c is never calibrated
+    w2, fo2 = optics.fast_water({"preset": "moderate", "calibrated": False}, 3.0, CAL)
+    assert not fo2["calibrated"] and w2.model == "article" and fo2["irradiance"] == 1.0  # colour, as is
+    w3, fo3 = optics.fast_water({"preset": "moderate", "beta": 0.4}, 3.0, CAL)          # not a bare preset
+    assert not fo3["calibrated"]
+    _, fo4 = optics.fast_water({"preset": "jerlov_1C"}, None, CAL)   # physical B_inf: scene sun
+    assert not fo4["calibrated"] and fo4["irradiance"] == optics.DEFAULT_IRRADIANCE
+    assert optics.fast_water({"preset": "moderate", "blur": True}, 3.0, CAL)[1]["blur"]
+    assert not optics.fast_water({"preset": "clear"}, 3.0, CAL)[1]["calibrated"]
+
+
+def test_fast_options_are_validated():
+    with pytest.raises(ValueError, match="calibrated must be true or false"):
+        optics.water_from_config({"preset": "mild", "calibrated": "yes"})
+    assert optics.water_from_config({"preset": "mild", "blur": True}).name == "mild"
+
+
+def test_shipped_calibration_file_is_consistent():
+    data = optics.load_calibration()
+    if not data:
+        pytest.skip("no calibration file (run dockbench calibrate-water)")
+    for name, e in data["presets"].items():
+        optics.get_preset(name)
+        assert len(e["B_inf"]) == 3 and len(e["Kd"]) == 3
+        assert e["residual"]["calibrated"]["mae"] <= e["residual"]["uncalibrated"]["mae"]
+
+
+def test_pareto_plot(tmp_path):
+    import pandas as pd
+    df = pd.DataFrame([{"setting": "reference s64", "condition": "mild", "ms_per_frame": 900.0, "mae": 0.0},
+                       {"setting": "fast s1", "condition": "mild", "ms_per_frame": 20.0, "mae": 0.01},
+                       {"setting": "fast s4", "condition": "mild", "ms_per_frame": 40.0, "mae": 0.005},
+                       {"setting": "fast s4", "condition": "clear", "ms_per_frame": 40.0, "mae": 0.001}])
+    fidelity.pareto_plot(df, tmp_path / "p.png")
+    assert (tmp_path / "p.png").stat().st_size > 1000
+
+
+def test_commands_are_click_commands_without_bpy():
+    from blendgen import preview
+    for cmd in (fidelity.fidelity_cmd, fidelity.calibrate_water_cmd, preview.preview_cmd):
+        assert isinstance(cmd, click.Command)
+    assert "bpy" not in sys.modules
+
+
+@pytest.mark.blender
+def test_calibration_and_preview_render_tiny(tmp_path):
+    """End to end at 64x48: calibration improves the fast model; the preview sheet is whole."""
+    data = fidelity.run_calibration(tmp_path / "work", tmp_path / "cal.json", 64, 48, 3, 8,
+                                    conditions=("clear", "moderate"), echo=lambda m: None)
+    e = json.loads((tmp_path / "cal.json").read_text())["presets"]["moderate"]
+    assert e == data["presets"]["moderate"] and e["n_pixels"] > 200
+    assert e["residual"]["calibrated"]["mae"] < e["residual"]["uncalibrated"]["mae"]
+    from blendgen import preview
+    import cv2
+    p = preview.make_preview(tmp_path / "sheet.png", 48, 36, 1)
+    img = cv2.imread(str(p))
+    assert img.shape == (22 + 3 * 36, 6 * 48, 3)
