@@ -169,8 +169,18 @@ def _register() -> None:
     """Commands defined next to their code (imports inside them stay lazy)."""
     from evalkit.bop import export_bop_cmd
     from evalkit.leaderboard import leaderboard_cmd
+    from blendgen.fidelity import calibrate_water_cmd, fidelity_cmd
+    from blendgen.preview import preview_cmd
+    from blendgen.reproduce import reproduce_cmd
     main.add_command(leaderboard_cmd)
+    reproduce_cmd.callback = _user_errors(reproduce_cmd.callback)
+    main.add_command(reproduce_cmd)
     main.add_command(export_bop_cmd)
+    main.add_command(calibrate_water_cmd)
+    main.add_command(preview_cmd)
+    bench.add_command(fidelity_cmd, "fidelity")
+    from evalkit.pnp_bench import pnp_cmd
+    bench.add_command(pnp_cmd, "pnp")
 
 
 _register()

@@ -25,7 +25,7 @@ class ConfigError(Exception):
 
 
 class Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=False)
+    model_config = ConfigDict(extra="forbid", frozen=False, allow_inf_nan=False)
 
 
 class Pose(Strict):
@@ -257,6 +257,8 @@ class Occlusion(Strict):
             raise ValueError(f"n_total ({self.n_total:g}) must be <= n_max ({self.n_max})")
         if (self.region_min is None) != (self.region_max is None):
             raise ValueError("give both region_min and region_max, or neither")
+        if self.region_min is not None and not all(a < b for a, b in zip(self.region_min, self.region_max)):
+            raise ValueError(f"region_min {self.region_min} must be < region_max {self.region_max} on every axis")
         return self
 
 
@@ -284,7 +286,7 @@ class Experiment(Strict):
     trajectories: list[Trajectory] = Field(min_length=1)
     conditions: list[Condition] = Field(default_factory=lambda: [Condition(label="default")])
     trials: int = Field(1, ge=1, le=100000)
-    d_min_rel_m: float = Field(0.2, ge=0.0, le=10.0)
+    d_min_rel_m: float = Field(0.2, gt=0.0, le=10.0, description="e_rel is not computed below this d_true")
 
     @model_validator(mode="after")
     def _unique(self):

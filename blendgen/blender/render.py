@@ -122,8 +122,11 @@ def _border(scene: bpy.types.Scene, box, width: int, height: int) -> None:
     r = scene.render
     r.use_border = True
     r.use_crop_to_border = True
-    r.border_min_x, r.border_max_x = x0 / width, x1 / width
-    r.border_min_y, r.border_max_y = 1.0 - y1 / height, 1.0 - y0 / height
+    # Blender truncates border * size to int: give whole pixels plus a small epsilon so
+    # 1 - y/H = 0.99999... cannot lose a row
+    frac = lambda n, size: min(1.0, (n + 1e-3) / size)  # noqa: E731
+    r.border_min_x, r.border_max_x = frac(x0, width), frac(x1, width)
+    r.border_min_y, r.border_max_y = frac(height - y1, height), frac(height - y0, height)
 
 
 def _upsample(passes: dict, width: int, height: int) -> dict:
@@ -161,6 +164,8 @@ def render_roi_frame(scene: bpy.types.Scene, cam_obj: bpy.types.Object, frame: d
         render_frame(scene, cam_obj, frame["T_world_cam"], path)
         x0, y0, x1, y1 = roi
         for k, v in read_passes(path).items():
+            if v.shape[:2] != (y1 - y0, x1 - x0):
+                raise RuntimeError(f"ROI render {v.shape[:2]} does not match the box {roi}")
             passes[k][y0:y1, x0:x1] = v
         r.use_border = False
         return passes

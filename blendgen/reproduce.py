@@ -1,0 +1,85 @@
+"""``dockbench reproduce NAME``: the article's experiments, one command each.
+
+For ``turbidity``, ``depth``, ``current`` and ``occlusion`` (configs/paper_NAME.yaml):
+generate the dataset (resumable), evaluate the LED, QR and hybrid localizers, and
+report the article-shaped table (condition, average positioning error = E_rel_mean,
+success rate = P_succ_mean, with bootstrap 95% CIs over trials), the error-vs-distance
+plot of one representative trial per condition, and the breakdown by marker with the
+usable range of each (largest 1 m bin with P_succ >= 0.9). Trends are reported as they
+come out. ``all`` runs the four in turn (and ``dockbench calibrate`` covers section 6).
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import click
+import pandas as pd
+
+from blendgen.spec import ROOT, load_experiment
+
+EXPERIMENTS = ("turbidity", "depth", "current", "occlusion")
+LOCALIZERS = ("led", "qr", "hybrid")
+
+
+def experiment(name: str, trials: int | None):
+    """The paper config, optionally with fewer trials (the dataset name records it)."""
+    exp = load_experiment(ROOT / "configs" / f"paper_{name}.yaml")
+    if trials is not None:
+        exp.trials = trials
+        exp.name = f"{exp.name}-{trials}trials"
+    return exp
+
+
+def evaluate(dataset_dir: Path, out: Path, localizers=LOCALIZERS) -> dict:
+    """Run the localizers over the dataset and save the full run record."""
+    from evalkit import registry, results, runner
+    from evalkit.dataset import Dataset
+    ds = Dataset.open(dataset_dir)
+    specs = [(n, registry.resolve(n, {})) for n in localizers]
+    df = runner.evaluate(ds, specs, progress=True)
+    return results.save_run(df, out, ds, specs, extra={"localizers": list(localizers)})
+
+
+def report(name: str, paths: dict) -> str:
+    """Article table, per-marker usable range and where the plots are."""
+    m = pd.read_csv(paths["metrics"]) if "metrics" in paths else pd.read_csv(Path(paths["summary"]).parent / "metrics.csv")
+    lines = [f"## {name}", "", Path(paths["article_md"]).read_text().strip(), "",
+             "breakdown by localizer (marker): usable range = largest 1 m bin with P_succ >= 0.9", ""]
+    for _, r in m.iterrows():
+        rng = "-" if pd.isna(r["max_range_m"]) else f"{r['max_range_m']:.0f} m"
+        lines.append(f"- {r['localizer']:7s} {r['condition']:12s} P_succ {100 * r['P_succ_mean']:5.1f}%  "
+                     f"E_rel {100 * r['E_rel_mean']:.2f}%  usable range {rng}  "
+                     f"{r['ms_median']:.1f} ms/frame")
+    plots = Path(paths["article_md"]).parent.parent / "plots"
+    lines += ["", f"plots: {plots / 'error_vs_distance.png'}, {plots / 'success_vs_distance.png'}"]
+    return "\n".join(lines)
+
+
+def reproduce_one(name: str, out_root: Path, trials: int | None, workers: int | None) -> str:
+    """Generate + evaluate + report one experiment; returns the Markdown report."""
+    from blendgen.generate import check_out_dir, generate
+    exp = experiment(name, trials)
+    base = Path(out_root) / exp.name
+    check_out_dir(exp, base / "dataset", overwrite=False)
+    t0 = time.perf_counter()
+    generate(exp, base / "dataset", workers=workers)
+    t1 = time.perf_counter()
+    paths = evaluate(base / "dataset", base / "results")
+    t2 = time.perf_counter()
+    text = report(exp.name, paths) + f"\n\ntimes: generate {t1 - t0:.0f} s, evaluate {t2 - t1:.0f} s\n"
+    (base / "report.md").write_text(text)
+    return text
+
+
+@click.command("reproduce")
+@click.argument("name", type=click.Choice(EXPERIMENTS + ("all",)))
+@click.option("--trials", type=click.IntRange(1, 100000), default=None,
+              help="trials per condition (default: the config's 100)")
+@click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
+              default=Path("out/reproduce"), show_default=True)
+@click.option("--workers", type=click.IntRange(1, 256), default=None)
+def reproduce_cmd(name: str, trials: int | None, out: Path, workers: int | None):
+    """Run one of the article's experiments (or all): generate, evaluate, report."""
+    for n in (EXPERIMENTS if name == "all" else (name,)):
+        click.echo(reproduce_one(n, out, trials, workers))
