@@ -63,21 +63,29 @@ def generate(config: Path, out: Path, workers: int | None, overwrite: bool):
 @main.command()
 @click.argument("dataset", type=click.Path(file_okay=False, path_type=Path))
 @click.option("-l", "--localizer", "localizers", multiple=True, required=True,
-              help="built-in name, entry point, path/file.py:Class or module:attr (repeatable)")
+              help="built-in name, entry point, path/file.py:Class, module:attr or exec:COMMAND "
+                   "(any language, datasets_spec/LOCALIZER_PROTOCOL.md); repeatable")
 @click.option("-p", "--param", "params", multiple=True,
-              help="key=value passed to the localizer constructors (repeatable)")
+              help="key=value for every localizer's constructor, or NAME.key=value for one (repeatable)")
 @click.option("-o", "--out", "out", required=True, type=click.Path(file_okay=False, path_type=Path))
 @click.option("--frame-timeout", type=click.FloatRange(min=0.001), default=None,
-              help="seconds after which a frame counts as a failure (timeout)")
+              help="seconds per frame; slower frames fail with 'timeout'; turns on --isolate")
+@click.option("--isolate", is_flag=True,
+              help="run each Python localizer in its own child process: a hang past --frame-timeout "
+                   "(default 60 s) is killed and a crash costs one frame")
+@click.option("--preprocess", default=None, metavar="STEPS",
+              help="image preprocessing before every localizer, e.g. clahe,grayworld or median:k=5,clahe:clip=3 "
+                   "(denoise, bilateral, median, gaussian, clahe, stretch, gain, gamma, grayworld)")
 @_user_errors
 def evaluate(dataset: Path, localizers: tuple[str, ...], params: tuple[str, ...], out: Path,
-             frame_timeout: float | None):
-    """Run localizers over DATASET; write summary.csv and per-frame estimates to OUT."""
+             frame_timeout: float | None, isolate: bool, preprocess: str | None):
+    """Run localizers over DATASET; write tables, plots and per-frame estimates to OUT."""
     from evalkit import registry, runner, tables
     from evalkit.dataset import Dataset
     ds = Dataset.open(dataset)
     kw = registry.parse_params(params)
-    specs = [(name, registry.resolve(name, kw)) for name in localizers]
+    specs = [(name, registry.build(name, registry.params_for(name, kw, list(localizers)), isolate=isolate,
+                                   timeout_s=frame_timeout, preprocess=preprocess)) for name in localizers]
     df = runner.evaluate(ds, specs, frame_timeout_s=frame_timeout, progress=True)
     from evalkit import results
     paths = results.save_run(df, out, ds, specs, extra={"localizers": list(localizers), "params": list(params),

@@ -9,10 +9,17 @@ A localizer is any object with
   (4x4, metres) and ``"marker_id"``.
 
 Third-party localizers register an entry point in the group
-``dockbench.localizers`` (``name = "package.module:Class"``).
+``dockbench.localizers`` (``name = "package.module:Class"``), are named as
+``path/to/file.py:Class`` or ``package.module:attr``, or are any program
+speaking the JSON-lines protocol: ``exec:COMMAND``
+(datasets_spec/LOCALIZER_PROTOCOL.md, :mod:`evalkit.external`).
+
+:func:`build` is what the CLI uses: :func:`resolve` plus process isolation
+(:mod:`evalkit.isolation`) and preprocessing (:mod:`evalkit.preprocess`).
 """
 from __future__ import annotations
 
+import functools
 import importlib
 import importlib.util
 import inspect
@@ -27,7 +34,10 @@ BUILTINS = {
     "led": "evalkit.localizers.led:LedLocalizer",
     "qr": "evalkit.localizers.qr:QrLocalizer",
     "aruco": "evalkit.localizers.aruco:ArucoLocalizer",
+    "apriltag": "evalkit.localizers.apriltag:AprilTagLocalizer",
+    "hybrid": "evalkit.localizers.hybrid:HybridLocalizer",
 }
+EXEC_PREFIX = "exec:"
 
 
 class RegistryError(Exception):
@@ -106,7 +116,7 @@ def load_target(spec: str) -> Any:
     if ":" in spec:
         return _load_module_target(spec)
     raise RegistryError(f"unknown localizer {spec!r}; known: {', '.join(known_names())}; "
-                        f"or give 'path/to/file.py:Class' or 'package.module:Class'")
+                        f"or give 'path/to/file.py:Class', 'package.module:Class' or 'exec:COMMAND'")
 
 
 def resolve(spec: str, params: dict | None = None) -> Any:
@@ -114,15 +124,23 @@ def resolve(spec: str, params: dict | None = None) -> Any:
 
     ``spec`` is a built-in name (``led``, ``qr``, ``aruco``), an entry point
     of group ``dockbench.localizers``, ``path/to/file.py:Class`` or
-    ``package.module:attr``. A class or factory is called with ``**params``;
+    ``package.module:attr``, or ``exec:COMMAND`` (an external program, see
+    :class:`evalkit.external.ExternalLocalizer`; ``params`` go to its constructor,
+    unknown ones to the program). A class or factory is called with ``**params``;
     an already-built object is returned as is (then ``params`` must be empty).
+    Constructor errors (TypeError, ValueError, ImportError such as a missing
+    optional dependency) become :class:`RegistryError`.
     """
-    target = load_target(spec)
     params = dict(params or {})
+    if spec.startswith(EXEC_PREFIX):
+        from .external import ExternalLocalizer
+        target = functools.partial(ExternalLocalizer, spec[len(EXEC_PREFIX):])
+    else:
+        target = load_target(spec)
     if callable(target) and not _is_localizer(target):
         try:
             obj = target(**params)
-        except TypeError as exc:
+        except (TypeError, ValueError, ImportError) as exc:
             raise RegistryError(f"cannot build localizer {spec!r} with params {params}: {exc}") from exc
     else:
         if params:
@@ -131,6 +149,41 @@ def resolve(spec: str, params: dict | None = None) -> Any:
     if not _is_localizer(obj):
         raise RegistryError(f"{spec!r} gave {type(obj).__name__}, which lacks reset()/localize()")
     return obj
+
+
+def build(spec: str, params: dict | None = None, *, isolate: bool = False,
+          timeout_s: float | None = None, preprocess: str | None = None) -> Any:
+    """The localizer the CLI runs for ``-l spec``: :func:`resolve` plus isolation and preprocessing.
+
+    * ``exec:COMMAND`` is always a separate process
+      (:class:`~evalkit.external.ExternalLocalizer`) with the per-frame
+      ``timeout_s`` (default :data:`evalkit.isolation.DEFAULT_TIMEOUT_S`, 60 s);
+    * Python localizers run in this process unless ``isolate`` or ``timeout_s``
+      is given: then in a spawn child (:class:`~evalkit.isolation.IsolatedLocalizer`)
+      that is killed after ``timeout_s`` (default 60 s) and restarted on crashes;
+    * ``preprocess`` (e.g. ``"clahe,grayworld"``, :func:`evalkit.preprocess.parse_steps`)
+      wraps the localizer in :class:`~evalkit.preprocess.Preprocessed` (inside the
+      child when isolated).
+
+    Errors in the spec, params or preprocess spec raise :class:`RegistryError`.
+    """
+    from . import isolation, preprocess as pre
+
+    params = dict(params or {})
+    if preprocess:
+        try:
+            pre.parse_steps(preprocess)
+        except ValueError as exc:
+            raise RegistryError(f"bad --preprocess {preprocess!r}: {exc}") from None
+    timeout = isolation.DEFAULT_TIMEOUT_S if timeout_s is None else float(timeout_s)
+    if spec.startswith(EXEC_PREFIX):
+        loc = resolve(spec, {"timeout_s": timeout, **params})
+    elif isolate or timeout_s is not None:
+        loc = isolation.IsolatedLocalizer(spec, params, preprocess=preprocess or None, timeout_s=timeout)
+        return loc
+    else:
+        loc = resolve(spec, params)
+    return pre.Preprocessed(loc, preprocess) if preprocess else loc
 
 
 def _is_localizer(obj: Any) -> bool:
@@ -184,6 +237,15 @@ def parse_value(text: str) -> Any:
     if isinstance(value, (int, float, bool, str, list, dict)) or value is None:
         return value
     return text  # dates and other YAML types stay strings
+
+
+def params_for(name: str, params: dict[str, Any], names: list[str]) -> dict[str, Any]:
+    """The constructor arguments of localizer ``name``: every unscoped ``key`` plus its own
+    ``name.key`` entries (``-p led.threshold=120`` reaches only ``-l led``)."""
+    out = {k: v for k, v in params.items() if not any(k.startswith(f"{n}.") for n in names)}
+    prefix = f"{name}."
+    out.update({k[len(prefix):]: v for k, v in params.items() if k.startswith(prefix)})
+    return out
 
 
 def parse_params(items: list[str] | tuple[str, ...]) -> dict[str, Any]:

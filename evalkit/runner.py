@@ -11,13 +11,24 @@ failure with a ``fail_reason``; the run continues. ``fail_reason`` values:
 * ``"nan"`` -- non-finite distance or non-finite ``T_cam_dock``;
 * ``"negative"`` -- distance < 0;
 * ``"bad_shape"`` -- ``T_cam_dock`` is not 4x4;
-* ``"timeout"`` -- the call took longer than ``frame_timeout_s`` (see below).
+* ``"timeout"`` -- the call took longer than the per-frame budget (see below);
+* ``"crash: exit code N"`` / ``"crash: signal SIGSEGV"`` -- the localizer's process
+  died (isolated or external localizers only; it is restarted for the next frame);
+* ``"crash: gave up after N restarts in this sequence"`` -- too many restarts;
+* ``"protocol: <what>"`` -- an external program broke the JSON-lines protocol
+  (datasets_spec/LOCALIZER_PROTOCOL.md);
+* ``"... (in reset)"`` -- ``reset`` failed: every frame of the sequence fails so.
 
 Isolation hook: every call goes through an *executor* (``call(localizer,
 method, *args) -> CallResult``). :class:`InProcessExecutor` runs in this
-process and can only flag slow calls after they return; a subprocess executor
-that kills hung localizers can be passed to :func:`evaluate` later without
-changing anything else.
+process and can only flag slow calls after they return. Process isolation is
+done by *proxy localizers* (:mod:`evalkit.isolation`, :mod:`evalkit.external`)
+that run the real localizer in a child process, kill it on a timeout or crash
+and restart it with ``reset`` replayed; they set ``enforces_timeout = True``,
+report their own ``last_call_ms`` (the exchange, not a restart) and raise
+:class:`~evalkit.isolation.FrameFailure` whose ``reason`` is recorded as is.
+Localizers with a ``localize_file(path, index)`` method (external programs)
+get the image's absolute path instead of the pixels.
 """
 from __future__ import annotations
 
@@ -33,9 +44,10 @@ import pandas as pd
 
 from . import metrics
 from .dataset import Dataset
+from .isolation import FrameFailure
 
 COLUMNS = ["localizer", "sequence", "condition", "trial", "index", "t", "d_true", "in_view",
-           "success", "d_est", "e_abs", "e_rel", "marker_id", "ms", "fail_reason"]
+           "success", "d_est", "e_abs", "e_rel", "marker_id", "ms", "fail_reason", "T_cam_dock_est"]
 
 
 @dataclass
@@ -63,14 +75,23 @@ class InProcessExecutor:
         self.timeout_s = timeout_s
 
     def call(self, localizer: Any, method: str, *args: Any) -> CallResult:
-        """Call ``localizer.<method>(*args)``; exceptions become ``"exception: ..."``."""
+        """Call ``localizer.<method>(*args)``; exceptions become ``"exception: ..."``.
+
+        A :class:`FrameFailure` keeps its reason. A localizer that enforces its own
+        timeout (``enforces_timeout``) reports its own ``last_call_ms``.
+        """
         start = time.perf_counter()
         try:
             value = getattr(localizer, method)(*args)
             error = None
+        except FrameFailure as exc:
+            value, error = None, exc.reason
         except Exception as exc:  # noqa: BLE001 - a localizer's bug must not stop the run
             value, error = None, f"exception: {type(exc).__name__}: {exc}"
         ms = (time.perf_counter() - start) * 1e3
+        if getattr(localizer, "enforces_timeout", False):
+            own = getattr(localizer, "last_call_ms", None)
+            return CallResult(value, error, ms if own is None else float(own))
         if error is None and self.timeout_s is not None and ms > self.timeout_s * 1e3:
             value, error = None, "timeout"
         return CallResult(value, error, ms)
@@ -137,14 +158,22 @@ def _row(name: str, seq: dict, frame: dict, est: dict | None, reason: str, ms: f
         "trial": seq.get("trial"), "index": frame.get("index"), "t": frame.get("t"),
         "d_true": frame.get("d_true"), "in_view": _in_view(frame), "success": est is not None,
         "d_est": est["distance"] if est else math.nan,
-        "marker_id": est["marker_id"] if est else None, "ms": ms, "fail_reason": reason,
+        "marker_id": est["marker_id"] if est else None,
+        "ms": ms, "fail_reason": reason,
+        "T_cam_dock_est": (np.asarray(est["T_cam_dock"], float).ravel().tolist()
+                           if est and est.get("T_cam_dock") is not None else None),
     }
 
 
 def _run_sequence(dataset: Dataset, seq: dict, localizers: list[tuple[str, Any]],
                   executor: Executor, tick) -> list[dict]:
-    """Reset every localizer, then feed each frame of ``seq`` to each of them."""
-    camera = camera_for_localizers(dataset)
+    """Reset every localizer, then feed each frame of ``seq`` to each of them.
+
+    The image is read only if some localizer takes pixels; ``localize_file``
+    localizers get ``(absolute path, frame index)``.
+    """
+    camera = {**camera_for_localizers(dataset), "sequence": seq["id"]}
+    by_file = {name: callable(getattr(loc, "localize_file", None)) for name, loc in localizers}
     reset_errors = {}
     for name, loc in localizers:
         res = executor.call(loc, "reset", camera)
@@ -152,12 +181,21 @@ def _run_sequence(dataset: Dataset, seq: dict, localizers: list[tuple[str, Any]]
             reset_errors[name] = f"{res.error} (in reset)"
     rows = []
     for frame in dataset.iter_frames(seq["id"]):
-        image = dataset.load_image(frame)
+        image = path = None
         for name, loc in localizers:
             if name in reset_errors:
                 rows.append(_row(name, seq, frame, None, reset_errors[name], 0.0))
                 continue
-            res = executor.call(loc, "localize", image.copy())
+            if by_file[name]:
+                if path is None:
+                    path = dataset.image_path(frame).resolve()
+                    if not path.is_file():
+                        dataset.load_image(frame)  # raises the DatasetError
+                res = executor.call(loc, "localize_file", str(path), frame.get("index"))
+            else:
+                if image is None:
+                    image = dataset.load_image(frame)
+                res = executor.call(loc, "localize", image.copy())
             est, reason = (None, res.error) if res.error else validate_estimate(res.value)
             rows.append(_row(name, seq, frame, est, reason, res.ms))
         tick(1)
@@ -192,7 +230,10 @@ def evaluate(dataset: Dataset, localizer_specs: Iterable[tuple[str, Any]],
     in seconds, ``ms`` the wall time of ``localize`` in milliseconds.
     ``frame_timeout_s`` is the per-frame budget given to the default
     :class:`InProcessExecutor`; ``executor`` replaces it (isolation hook).
-    ``sequences`` restricts the run to these ids. ``df.attrs`` records
+    ``sequences`` restricts the run to these ids. ``reset`` receives the
+    camera dict plus ``"sequence"`` (the sequence id). After the run,
+    ``close()`` is called on every localizer that has it (process proxies stop
+    their children; they restart on the next ``reset``). ``df.attrs`` records
     ``d_min_rel_m`` and ``d_max_m`` for :func:`write_results`.
 
     Localizer misbehaviour never stops the run (see the module docstring);
@@ -207,9 +248,18 @@ def evaluate(dataset: Dataset, localizer_specs: Iterable[tuple[str, Any]],
     seqs = [s for s in dataset.sequences if sequences is None or s["id"] in sequences]
     total = sum(int(s.get("n_frames", 0)) for s in seqs)
     rows: list[dict] = []
-    with _progress(total, progress) as tick:
-        for seq in seqs:
-            rows.extend(_run_sequence(dataset, seq, localizers, executor, tick))
+    try:
+        with _progress(total, progress) as tick:
+            for seq in seqs:
+                rows.extend(_run_sequence(dataset, seq, localizers, executor, tick))
+    finally:
+        for _, loc in localizers:
+            close = getattr(loc, "close", None)
+            if callable(close):
+                try:
+                    close()
+                except Exception:  # noqa: BLE001 - cleanup must not hide results
+                    pass
     return _finish(rows, dataset.d_min_rel_m)
 
 
