@@ -187,6 +187,9 @@ def _register() -> None:
     main.add_command(calibrate_water_cmd)
     main.add_command(preview_cmd)
     bench.add_command(fidelity_cmd, "fidelity")
+    from blendgen.calibration import calibrate_cmd
+    calibrate_cmd.callback = _user_errors(calibrate_cmd.callback)
+    main.add_command(calibrate_cmd)
     from evalkit.pnp_bench import pnp_cmd
     bench.add_command(pnp_cmd, "pnp")
 

@@ -5,7 +5,7 @@ import sys
 PURE = ["cli", "evalkit", "evalkit.dataset", "evalkit.registry", "evalkit.metrics", "evalkit.runner",
         "evalkit.tables", "blendgen.geometry", "blendgen.spec", "blendgen.markers", "blendgen.trajectories",
         "blendgen.plan", "blendgen.groundtruth", "blendgen.postprocess", "blendgen.writer",
-        "blendgen.generate", "blendgen.executor", "blendgen.optics", "blendgen.reproduce", "blendgen.fidelity",
+        "blendgen.generate", "blendgen.executor", "blendgen.optics", "blendgen.reproduce", "blendgen.fidelity", "blendgen.calibration",
         "evalkit.isolation", "evalkit.external", "evalkit.preprocess", "evalkit.localizers.hybrid",
         "evalkit.results", "evalkit.leaderboard", "evalkit.bop"]
 

@@ -25,13 +25,9 @@ def diffuse(name: str, color) -> bpy.types.Material:
     return mat
 
 
-def printed_texture(name: str, path: str) -> bpy.types.Material:
-    """Diffuse print of a black/white cell texture, sampled nearest (sharp cell edges).
-
-    Albedo = PRINT_BLACK + (PRINT_WHITE - PRINT_BLACK) * cell, cell in {0, 1}."""
-    mat, nt = _fresh(name)
-    out = nt.nodes.new("ShaderNodeOutputMaterial")
-    bsdf = nt.nodes.new("ShaderNodeBsdfDiffuse")
+def _cell_texture(nt: bpy.types.NodeTree, path: str, black: float, white: float):
+    """Nodes reading a black/white cell texture nearest (sharp cell edges exactly on the cell
+    boundaries) and mapping cell 0/1 to ``black``/``white``; returns the value socket."""
     tex = nt.nodes.new("ShaderNodeTexImage")
     img = bpy.data.images.load(path, check_existing=True)
     img.colorspace_settings.name = "Non-Color"
@@ -40,11 +36,31 @@ def printed_texture(name: str, path: str) -> bpy.types.Material:
     tex.extension = "EXTEND"
     scale = nt.nodes.new("ShaderNodeMath")
     scale.operation = "MULTIPLY_ADD"
-    scale.inputs[1].default_value = PRINT_WHITE - PRINT_BLACK
-    scale.inputs[2].default_value = PRINT_BLACK
+    scale.inputs[1].default_value = float(white - black)
+    scale.inputs[2].default_value = float(black)
     nt.links.new(tex.outputs["Color"], scale.inputs[0])
-    nt.links.new(scale.outputs["Value"], bsdf.inputs["Color"])
+    return scale.outputs["Value"]
+
+
+def printed_texture(name: str, path: str) -> bpy.types.Material:
+    """Diffuse print of a black/white cell texture: albedo PRINT_BLACK .. PRINT_WHITE."""
+    mat, nt = _fresh(name)
+    out = nt.nodes.new("ShaderNodeOutputMaterial")
+    bsdf = nt.nodes.new("ShaderNodeBsdfDiffuse")
+    nt.links.new(_cell_texture(nt, path, PRINT_BLACK, PRINT_WHITE), bsdf.inputs["Color"])
     nt.links.new(bsdf.outputs["BSDF"], out.inputs["Surface"])
+    return mat
+
+
+def emissive_texture(name: str, path: str, black: float, white: float) -> bpy.types.Material:
+    """Self-lit cell texture (radiance black .. white): needs no light, renders noise-free."""
+    mat, nt = _fresh(name)
+    mat.cycles.emission_sampling = "NONE"   # lights nothing: never sampled as a light
+    out = nt.nodes.new("ShaderNodeOutputMaterial")
+    em = nt.nodes.new("ShaderNodeEmission")
+    em.inputs["Strength"].default_value = 1.0
+    nt.links.new(_cell_texture(nt, path, black, white), em.inputs["Color"])
+    nt.links.new(em.outputs["Emission"], out.inputs["Surface"])
     return mat
 
 
