@@ -47,14 +47,19 @@ def main():
 @click.option("--workers", type=click.IntRange(1, 256), default=None,
               help="render processes at once (default: one per two cores)")
 @click.option("--overwrite", is_flag=True, help="replace a dataset made from a different config")
+@click.option("--executor", type=click.Choice(["local", "ray"]), default="local", show_default=True,
+              help="local process pool, or Ray tasks (pip install 'dockbench[ray]')")
+@click.option("--address", "ray_address", default=None,
+              help="Ray cluster address (auto, host:6379, ray://host:10001); default: start a local Ray")
 @_user_errors
-def generate(config: Path, out: Path, workers: int | None, overwrite: bool):
+def generate(config: Path, out: Path, workers: int | None, overwrite: bool, executor: str,
+             ray_address: str | None):
     """Render the dataset described by CONFIG (YAML) into OUT."""
     from blendgen.generate import generate as run, check_out_dir
     from blendgen.spec import load_experiment
     exp = load_experiment(config)
     check_out_dir(exp, out, overwrite)
-    manifest = run(exp, out, workers=workers)
+    manifest = run(exp, out, workers=workers, executor=executor, ray_address=ray_address)
     n = sum(s["n_frames"] for s in manifest["sequences"])
     click.echo(f"dataset {manifest['name']} {manifest['version']}: {len(manifest['sequences'])} sequences, "
                f"{n} frames -> {out} (content hash {manifest['content_hash'][:12]})")
