@@ -56,12 +56,13 @@ def report(name: str, paths: dict) -> str:
     return "\n".join(lines)
 
 
-def reproduce_one(name: str, out_root: Path, trials: int | None, workers: int | None) -> str:
+def reproduce_one(name: str, out_root: Path, trials: int | None, workers: int | None,
+                  overwrite: bool = False) -> str:
     """Generate + evaluate + report one experiment; returns the Markdown report."""
     from blendgen.generate import check_out_dir, generate
     exp = experiment(name, trials)
     base = Path(out_root) / exp.name
-    check_out_dir(exp, base / "dataset", overwrite=False)
+    check_out_dir(exp, base / "dataset", overwrite=overwrite)
     t0 = time.perf_counter()
     generate(exp, base / "dataset", workers=workers)
     t1 = time.perf_counter()
@@ -79,7 +80,8 @@ def reproduce_one(name: str, out_root: Path, trials: int | None, workers: int | 
 @click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
               default=Path("out/reproduce"), show_default=True)
 @click.option("--workers", type=click.IntRange(1, 256), default=None)
-def reproduce_cmd(name: str, trials: int | None, out: Path, workers: int | None):
+@click.option("--overwrite", is_flag=True, help="replace a dataset made from an older version of the config")
+def reproduce_cmd(name: str, trials: int | None, out: Path, workers: int | None, overwrite: bool):
     """Run one of the article's experiments (or all): generate, evaluate, report."""
     for n in (EXPERIMENTS if name == "all" else (name,)):
-        click.echo(reproduce_one(n, out, trials, workers))
+        click.echo(reproduce_one(n, out, trials, workers, overwrite))
