@@ -185,13 +185,18 @@ class Dataset:
         return self.root / frame["image"]
 
     def load_image(self, frame: dict) -> np.ndarray:
-        """The frame's image as HxWx3 uint8 RGB."""
+        """The frame's image as HxWx3 uint8 RGB, checked against the manifest's sha256."""
         import cv2  # local: keeps `import evalkit.dataset` light
 
         path = self.image_path(frame)
         if not path.is_file():
             raise DatasetError(f"{path}: missing image (frame {frame.get('index')!r})")
-        bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        data = path.read_bytes()
+        want = (self.manifest.get("files") or {}).get(frame["image"])
+        if want is not None and hashlib.sha256(data).hexdigest() != want:
+            raise DatasetError(f"{path}: sha256 differs from the manifest: the image was changed "
+                               "after generation (dockbench verify lists every such file)")
+        bgr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
         if bgr is None:
             raise DatasetError(f"{path}: unreadable image (frame {frame.get('index')!r})")
         return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)

@@ -3,7 +3,7 @@
 
 Complements tests/test_config.py (26 bad configs there; the cases here are different keys or
 different failure kinds: NaN/inf from YAML ``.nan``/``.inf``, duplicates, cross-field rules).
-Cases that the code does not handle yet are strict xfails naming the place to fix."""
+"""
 from __future__ import annotations
 
 import json
@@ -125,28 +125,26 @@ def nonexistent(root):
     shutil.rmtree(root)
 
 
-# (corruption, text expected in the message, xfail reason for evaluate or None, for verify or None)
+# (corruption, text expected in the message)
 CASES = [
-    (missing_frames, "frames.jsonl", None, None),
-    (bad_json_line, "frames.jsonl", None, None),
-    (frame_not_object, "frames.jsonl", None, None),
-    (corrupt_png, "000001.png", None, None),
-    (swapped_png, "000001.png",
-     "evaluate does not check sha256 (cli.py evaluate / evalkit.dataset.Dataset.open): a changed "
-     "but valid image is evaluated silently", None),
-    (wrong_spec_version, "spec_version", None, None),
-    (wrong_format, "format", None, None),
-    (missing_image, "000002.png", None, None),
-    (truncated_manifest, "manifest.json", None, None),
-    (empty_manifest, "manifest.json", None, None),
-    (binary_manifest, "manifest.json", None, None),
-    (manifest_not_object, "manifest.json", None, None),
-    (missing_manifest, "manifest.json", None, None),
-    (missing_sequences_key, "sequences", None, None),
-    (sequence_without_id, "id", None, None),
-    (camera_without_K, "K", None, None),
-    (frame_without_d_true, "frames.jsonl", None, None),
-    (nonexistent, "ds", None, None),
+    (missing_frames, "frames.jsonl"),
+    (bad_json_line, "frames.jsonl"),
+    (frame_not_object, "frames.jsonl"),
+    (corrupt_png, "000001.png"),
+    (swapped_png, "000001.png"),
+    (wrong_spec_version, "spec_version"),
+    (wrong_format, "format"),
+    (missing_image, "000002.png"),
+    (truncated_manifest, "manifest.json"),
+    (empty_manifest, "manifest.json"),
+    (binary_manifest, "manifest.json"),
+    (manifest_not_object, "manifest.json"),
+    (missing_manifest, "manifest.json"),
+    (missing_sequences_key, "sequences"),
+    (sequence_without_id, "id"),
+    (camera_without_K, "K"),
+    (frame_without_d_true, "frames.jsonl"),
+    (nonexistent, "ds"),
 ]
 
 
@@ -169,36 +167,21 @@ def _check(res, out_text, expect, out_dir=None):
         assert not out_dir.exists()
 
 
-@pytest.mark.parametrize("corrupt,expect,xf_eval,xf_verify", CASES, ids=_ids(CASES))
-def test_evaluate_bad_dataset(tmp_path, corrupt, expect, xf_eval, xf_verify):
+@pytest.mark.parametrize("corrupt,expect", CASES, ids=_ids(CASES))
+def test_evaluate_bad_dataset(tmp_path, corrupt, expect):
     root = write_fake_dataset(tmp_path / "ds")
     corrupt(root)
     out = tmp_path / "out"
     res, text = _run(["evaluate", str(root), "-l", "aruco", "-o", str(out)])
-    if xf_eval:
-        _xfail_unless_ok(lambda: _check(res, text, expect, out), xf_eval)
-    else:
-        _check(res, text, expect, out)
+    _check(res, text, expect, out)
 
 
-@pytest.mark.parametrize("corrupt,expect,xf_eval,xf_verify", CASES, ids=_ids(CASES))
-def test_verify_bad_dataset(tmp_path, corrupt, expect, xf_eval, xf_verify):
+@pytest.mark.parametrize("corrupt,expect", CASES, ids=_ids(CASES))
+def test_verify_bad_dataset(tmp_path, corrupt, expect):
     root = write_fake_dataset(tmp_path / "ds")
     corrupt(root)
     res, text = _run(["verify", str(root)])
-    if xf_verify:
-        _xfail_unless_ok(lambda: _check(res, text, expect), xf_verify)
-    else:
-        _check(res, text, expect)
-
-
-def _xfail_unless_ok(check, reason):
-    """Strict xfail: fails loudly (so the marker gets removed) once the code handles the case."""
-    try:
-        check()
-    except AssertionError:
-        pytest.xfail(reason)
-    pytest.fail(f"now handled, remove the xfail: {reason}")
+    _check(res, text, expect)
 
 
 def test_good_dataset_passes_both(tmp_path):
