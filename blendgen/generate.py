@@ -5,12 +5,14 @@ interrupted run are kept and not rendered again.
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
 import platform
 import shutil
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
+from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
 
@@ -18,7 +20,7 @@ import numpy as np
 
 from blendgen import executor as ex, markers as mk, plan
 from blendgen.spec import Experiment
-from blendgen.writer import FORMAT, SPEC_VERSION, DatasetWriter
+from blendgen.writer import FORMAT, SPEC_VERSION, DatasetWriter, sha256_file
 
 
 def versions() -> dict:
@@ -44,19 +46,20 @@ def write_textures(exp: Experiment, root: Path) -> dict[str, str]:
     return out
 
 
-def _job_dict(job: plan.RenderJob, exp: Experiment, K: np.ndarray, render: dict, markers: list[dict],
-              writer: DatasetWriter, work: Path, seqs: list) -> dict:
-    """The worker's job file; ``seqs`` are the job's sequences still to write (a
-    resumed job whose render is shared may have committed some already)."""
-    c = exp.camera
+def _job_dict(t: "_Target", job: plan.RenderJob, render: dict, parts: list) -> dict:
+    """The worker's job file. ``parts`` are (target, job, sequences still to write) of
+    every dataset fed by this render (a resumed shared job may have committed some)."""
+    c = t.exp.camera
+    first = job.sequences[0].id
     return {
-        "scene": job.scene, "fidelity": exp.render.fidelity, "render": render, "frames": job.frames,
-        "camera": {"width": c.width, "height": c.height, "hfov_rad": math.radians(c.hfov_deg), "K": K.tolist()},
-        "gt": {"T_world_dock": job.scene["dock"]["T_world_dock"], "markers": markers},
-        "outputs": [{"seq_dir": str(writer.tmp_dir(s.id).resolve()), "rel": f"sequences/{s.id}", "post": s.post}
-                    for s in seqs],
-        "log": str((work / "logs" / f"{job.sequences[0].id}.blender.log").resolve()),
-        "timing_out": str((work / "timing" / f"{job.sequences[0].id}.json").resolve()),
+        "scene": job.scene, "fidelity": t.exp.render.fidelity, "render": render, "frames": job.frames,
+        "camera": {"width": c.width, "height": c.height, "hfov_rad": math.radians(c.hfov_deg),
+                   "K": t.K.tolist()},
+        "gt": {"T_world_dock": job.scene["dock"]["T_world_dock"], "markers": t.markers},
+        "outputs": [{"seq_dir": str(pt.writer.tmp_dir(s.id).resolve()), "rel": f"sequences/{s.id}", "post": s.post}
+                    for pt, _, seqs in parts for s in seqs],
+        "log": str((t.work / "logs" / f"{first}.blender.log").resolve()),
+        "timing_out": str((t.work / "timing" / f"{first}.json").resolve()),
     }
 
 
@@ -84,65 +87,119 @@ def generate(exp: Experiment, out: Path, workers: int | None = None, progress: b
     instance; ``workers`` caps the tasks in flight). Both run the same job
     function and write the same bytes. Safe to interrupt (Ctrl-C, SIGTERM, kill):
     finished sequences are kept and a re-run resumes."""
+    return generate_many([(exp, out)], workers, progress, executor, ray_address)[0]
+
+
+def generate_many(items: list[tuple[Experiment, Path]], workers: int | None = None, progress: bool = True,
+                  executor: str = "local", ray_address: str | None = None) -> list[dict]:
+    """Render several datasets at once, rendering each camera path once for all of them:
+    jobs of different experiments with the same scene, poses and render settings are
+    merged (e.g. the article's turbidity, depth and occlusion experiments share their
+    trajectories). Returns the manifests in the order of ``items``."""
     if executor not in ex.EXECUTORS:
         raise ex.ExecutorError(f"unknown executor {executor!r}; choose one of {', '.join(ex.EXECUTORS)}")
     if executor == "ray":
         ex.require_ray()                       # user errors before anything is written
         if ray_address:
             ex.check_ray_address(ray_address)
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    with _exclusive(out), ex.sigterm_as_interrupt():
-        return _generate(exp, out, workers, progress, executor, ray_address)
+    with ExitStack() as stack:
+        for _, out in items:
+            Path(out).mkdir(parents=True, exist_ok=True)
+            stack.enter_context(_exclusive(Path(out)))
+        stack.enter_context(ex.sigterm_as_interrupt())
+        targets = [_Target.prepare(exp, Path(out)) for exp, out in items]
+        _render(targets, workers, progress, executor, ray_address)
+        return [t.writer.finish(manifest_base(t.exp, t.K, t.markers, t.scene, t.jobs)) for t in targets]
 
 
-def _generate(exp: Experiment, out: Path, workers: int | None, progress: bool, kind: str,
-              ray_address: str | None) -> dict:
-    writer = DatasetWriter(out)
-    writer.prepare()
-    stamp_config(exp, out)
-    work = out / ".work"
-    for sub in ("jobs", "logs", "timing"):
-        (work / sub).mkdir(parents=True, exist_ok=True)
-    K = plan.camera_K(exp)
-    markers = plan.manifest_markers(exp)
-    scene = plan.scene_description(exp, markers, write_textures(exp, out))
-    all_jobs = plan.plan_jobs(exp, scene, plan.render_settings(exp, 1))
-    pending = {j.sequences[0].id: [s for s in j.sequences if not writer.is_done(s.id)] for j in all_jobs}
-    todo = [j for j in all_jobs if pending[j.sequences[0].id]]
-    n_workers, threads = ex.slots(kind, len(todo), workers, exp.render.threads)
-    render = plan.render_settings(exp, threads)
+@dataclass
+class _Target:
+    """One dataset being generated: its writer, work dir, planned jobs."""
+    exp: Experiment
+    out: Path
+    writer: DatasetWriter
+    work: Path
+    K: np.ndarray
+    markers: list
+    scene: dict
+    jobs: list
+
+    @classmethod
+    def prepare(cls, exp: Experiment, out: Path) -> "_Target":
+        writer = DatasetWriter(out)
+        writer.prepare()
+        stamp_config(exp, out)
+        work = out / ".work"
+        for sub in ("jobs", "logs", "timing"):
+            (work / sub).mkdir(parents=True, exist_ok=True)
+        markers = plan.manifest_markers(exp)
+        scene = plan.scene_description(exp, markers, write_textures(exp, out))
+        return cls(exp, out, writer, work, plan.camera_K(exp), markers, scene,
+                   plan.plan_jobs(exp, scene, plan.render_settings(exp, 1)))
+
+
+def share_key(t: _Target, job: plan.RenderJob) -> str:
+    """What determines a clean render, independent of which dataset asks for it: scene
+    (texture files by content, not path), poses, camera and render settings."""
+    scene = {**job.scene, "markers": [{**m, "texture": m["texture"] and sha256_file(Path(m["texture"]))}
+                                      for m in job.scene["markers"]]}
+    render = {k: v for k, v in plan.render_settings(t.exp, 1).items() if k != "threads"}
+    c = t.exp.camera
+    blob = json.dumps({"scene": scene, "frames": job.frames, "render": render, "fidelity": t.exp.render.fidelity,
+                       "camera": [c.width, c.height, c.hfov_deg], "markers": t.markers}, sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()
+
+
+def _merged_jobs(targets: list[_Target]) -> dict[str, list]:
+    """share key -> [(target, job, sequences still to write)], finished sequences left out."""
+    merged: dict[str, list] = {}
+    for t in targets:
+        for j in t.jobs:
+            seqs = [s for s in j.sequences if not t.writer.is_done(s.id)]
+            if seqs:
+                merged.setdefault(share_key(t, j), []).append((t, j, seqs))
+    return merged
+
+
+def _render(targets: list[_Target], workers: int | None, progress: bool, kind: str,
+            ray_address: str | None) -> None:
+    merged = _merged_jobs(targets)
+    n_workers, threads = ex.slots(kind, len(merged), workers, targets[0].exp.render.threads)
     files = {}
-    for j in todo:
-        seqs = pending[j.sequences[0].id]
-        for s in seqs:
-            shutil.rmtree(writer.tmp_dir(s.id), ignore_errors=True)
-        jf = ex.write_job(_job_dict(j, exp, K, render, markers, writer, work, seqs),
-                          work / "jobs" / f"{j.sequences[0].id}.json")
-        files[jf] = (j, seqs)
+    for parts in merged.values():
+        t, j, _ = parts[0]
+        for pt, _, seqs in parts:
+            for s in seqs:
+                shutil.rmtree(pt.writer.tmp_dir(s.id), ignore_errors=True)
+        render = plan.render_settings(t.exp, threads)
+        # named by dataset and first sequence: unique across the datasets of one run
+        jf = ex.write_job(_job_dict(t, j, render, parts),
+                          t.work / "jobs" / f"{t.exp.name}--{j.sequences[0].id}.json")
+        files[jf] = parts
 
     def on_done(jf: Path):
-        j, seqs = files[jf]
-        for s in seqs:
-            writer.commit_sequence(s.id, len(j.frames))
+        for pt, j, seqs in files[jf]:
+            for s in seqs:
+                pt.writer.commit_sequence(s.id, len(j.frames))
 
     def count() -> int:
-        return sum(_lines(writer.tmp_dir(s.id) / "frames.jsonl") + _lines(out / "sequences" / s.id / "frames.jsonl")
-                   for j, seqs in files.values() for s in seqs[:1])
+        return sum(_lines(pt.writer.tmp_dir(s.id) / "frames.jsonl")
+                   + _lines(pt.out / "sequences" / s.id / "frames.jsonl")
+                   for parts in files.values() for pt, _, seqs in parts[:1] for s in seqs[:1])
 
     def run():
+        logs = targets[0].work / "logs"
         if kind == "ray":
-            ex.run_ray(list(files), work / "logs", on_done, ray_address, threads, n_workers)
+            ex.run_ray(list(files), logs, on_done, ray_address, threads, n_workers)
         else:
-            ex.run_local(list(files), work / "logs", n_workers, on_done)
+            ex.run_local(list(files), logs, n_workers, on_done)
 
-    total = sum(len(j.frames) for j in todo)
+    total = sum(len(parts[0][1].frames) for parts in files.values())
     if total and progress:
         with ex.Progress(total, count, "rendering" if kind == "local" else "rendering (ray)"):
             run()
     elif total:
         run()
-    return writer.finish(manifest_base(exp, K, markers, scene, all_jobs))
 
 
 @contextmanager

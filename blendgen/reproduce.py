@@ -6,7 +6,10 @@ report the article-shaped table (condition, average positioning error = E_rel_me
 success rate = P_succ_mean, with bootstrap 95% CIs over trials), the error-vs-distance
 plot of one representative trial per condition, and the breakdown by marker with the
 usable range of each (largest 1 m bin with P_succ >= 0.9). Trends are reported as they
-come out. ``all`` runs the four in turn (and ``dockbench calibrate`` covers section 6).
+come out. ``all`` generates the four together, rendering each camera path once for
+every experiment that shares it (turbidity, depth, occlusion and the zero-current
+condition share their trajectories), then evaluates each (``dockbench calibrate``
+covers section 6).
 """
 from __future__ import annotations
 
@@ -56,21 +59,27 @@ def report(name: str, paths: dict) -> str:
     return "\n".join(lines)
 
 
-def reproduce_one(name: str, out_root: Path, trials: int | None, workers: int | None,
-                  overwrite: bool = False) -> str:
-    """Generate + evaluate + report one experiment; returns the Markdown report."""
-    from blendgen.generate import check_out_dir, generate
-    exp = experiment(name, trials)
-    base = Path(out_root) / exp.name
-    check_out_dir(exp, base / "dataset", overwrite=overwrite)
+def reproduce(names: tuple[str, ...], out_root: Path, trials: int | None, workers: int | None,
+              overwrite: bool = False) -> list[str]:
+    """Generate the experiments' datasets together (each shared camera path is rendered
+    once for all of them), then evaluate and report each; returns the Markdown reports."""
+    from blendgen.generate import check_out_dir, generate_many
+    exps = [experiment(n, trials) for n in names]
+    bases = [Path(out_root) / e.name for e in exps]
+    for e, b in zip(exps, bases):
+        check_out_dir(e, b / "dataset", overwrite=overwrite)
     t0 = time.perf_counter()
-    generate(exp, base / "dataset", workers=workers)
+    generate_many([(e, b / "dataset") for e, b in zip(exps, bases)], workers=workers)
     t1 = time.perf_counter()
-    paths = evaluate(base / "dataset", base / "results")
-    t2 = time.perf_counter()
-    text = report(exp.name, paths) + f"\n\ntimes: generate {t1 - t0:.0f} s, evaluate {t2 - t1:.0f} s\n"
-    (base / "report.md").write_text(text)
-    return text
+    reports = []
+    for e, b in zip(exps, bases):
+        t2 = time.perf_counter()
+        paths = evaluate(b / "dataset", b / "results")
+        text = report(e.name, paths) + (f"\n\ntimes: generate (all {len(exps)} together) {t1 - t0:.0f} s, "
+                                         f"evaluate {time.perf_counter() - t2:.0f} s\n")
+        (b / "report.md").write_text(text)
+        reports.append(text)
+    return reports
 
 
 @click.command("reproduce")
@@ -83,5 +92,5 @@ def reproduce_one(name: str, out_root: Path, trials: int | None, workers: int | 
 @click.option("--overwrite", is_flag=True, help="replace a dataset made from an older version of the config")
 def reproduce_cmd(name: str, trials: int | None, out: Path, workers: int | None, overwrite: bool):
     """Run one of the article's experiments (or all): generate, evaluate, report."""
-    for n in (EXPERIMENTS if name == "all" else (name,)):
-        click.echo(reproduce_one(n, out, trials, workers, overwrite))
+    for text in reproduce(EXPERIMENTS if name == "all" else (name,), out, trials, workers, overwrite):
+        click.echo(text)
