@@ -30,12 +30,11 @@ import threading
 from pathlib import Path
 from typing import Any
 
-from .isolation import (DEFAULT_TIMEOUT_S, FrameFailure, ProcessLocalizer, _Dead, _ProtocolError,
-                        _Timeout)
+from .isolation import (DEFAULT_TIMEOUT_S, EXIT_GRACE_S, FrameFailure, ProcessLocalizer, _Dead,
+                        _ProtocolError, _Timeout)
 
 PROTOCOL_VERSION = 1
 SUPPORTED_PROTOCOLS = (1,)
-EXIT_GRACE_S = 2.0
 
 
 def _jsonable(obj: Any) -> Any:
@@ -211,14 +210,6 @@ class ExternalLocalizer(ProcessLocalizer):
             proc.wait(EXIT_GRACE_S)
         except Exception:  # noqa: BLE001 - _kill follows
             pass
-
-    def _exit_code(self):
-        if self._proc is None:
-            return None
-        try:
-            return self._proc.wait(EXIT_GRACE_S)
-        except subprocess.TimeoutExpired:
-            return None
 
     def _kill(self) -> None:
         proc = self._proc

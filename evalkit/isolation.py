@@ -33,6 +33,9 @@ DEFAULT_START_TIMEOUT_S = 120.0  # starting a child and building the localizer
 DEFAULT_MAX_RESTARTS = 10        # per sequence; afterwards frames fail fast
 
 
+EXIT_GRACE_S = 2.0  # s a child gets to exit after stdin/pipe close before it is killed
+
+
 class FrameFailure(Exception):
     """A localizer call failed in a way the runner records as ``reason`` (verbatim)."""
 
@@ -71,9 +74,10 @@ class ProcessLocalizer:
     Subclasses implement the transport: ``_start()`` (raise ``_Dead`` or
     :class:`FrameFailure` on failure), ``_alive()``, ``_send(request)``,
     ``_recv(timeout_s)`` (raise ``_Timeout`` / ``_Dead`` / ``_ProtocolError``),
-    ``_kill()`` (stop now, then reap), ``_exit_code()`` and ``_reply(kind, reply)``
+    ``_kill()`` (stop now, then reap) and ``_reply(kind, reply)``
     (turn a raw reply into a value or raise :class:`FrameFailure`), plus the
-    requests ``_reset_request(camera)`` / ``_frame_request(...)``.
+    requests ``_reset_request(camera)`` / ``_frame_request(...)``; the child process is
+    ``self._proc`` (a Popen), which the base reads for the exit status.
     """
 
     enforces_timeout = True  # the runner must not re-check the wall time
@@ -129,6 +133,16 @@ class ProcessLocalizer:
             pass
 
     # -- machinery ----------------------------------------------------------
+    def _exit_code(self):
+        """The child's exit code once it has ended (waits EXIT_GRACE_S), else None."""
+        import subprocess
+        if self._proc is None:
+            return None
+        try:
+            return self._proc.wait(EXIT_GRACE_S)
+        except subprocess.TimeoutExpired:
+            return None
+
     def _stop_gracefully(self) -> None:
         """Hook: ask the child to exit (default: nothing, _kill follows)."""
 
@@ -319,18 +333,9 @@ class IsolatedLocalizer(ProcessLocalizer):
     def _stop_gracefully(self) -> None:
         try:
             self._tx.send(("close", None))
-            self._proc.wait(2.0)
+            self._proc.wait(EXIT_GRACE_S)
         except Exception:  # noqa: BLE001 - _kill follows
             pass
-
-    def _exit_code(self):
-        import subprocess
-        if self._proc is None:
-            return None
-        try:
-            return self._proc.wait(2.0)
-        except subprocess.TimeoutExpired:
-            return None
 
     def _kill(self) -> None:
         import subprocess

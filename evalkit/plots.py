@@ -39,6 +39,19 @@ def _panels(plt, n: int):
     return fig, flat[:max(n, 1)]
 
 
+def _save(plt, fig, axes, ylabel: str, title: str | None, path: Path) -> Path:
+    """Label the first column of panels, title, write the PNG, free the figure."""
+    for ax in axes[::3]:
+        ax.set_ylabel(ylabel)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def representative_trials(estimates: pd.DataFrame, d_max: float = metrics.D_MAX_M,
                           d_min_rel: float = metrics.D_MIN_REL_M) -> pd.DataFrame:
     """Per (localizer, condition) the sequence whose ``e_rel_mean`` is closest to the
@@ -83,15 +96,7 @@ def plot_error_vs_distance(estimates: pd.DataFrame, path: str | Path, error: str
         ax.grid(alpha=0.3)
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=7)
-    for ax in axes[::3]:
-        ax.set_ylabel(ERROR_LABELS.get(error, error))
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, axes, ERROR_LABELS.get(error, error), title, path)
 
 
 def plot_success_vs_distance(bins: pd.DataFrame, path: str | Path, threshold: float | None = 0.9,
@@ -117,12 +122,4 @@ def plot_success_vs_distance(bins: pd.DataFrame, path: str | Path, threshold: fl
         ax.grid(alpha=0.3)
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=7)
-    for ax in axes[::3]:
-        ax.set_ylabel("P_succ (%)")
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, axes, "P_succ (%)", title, path)
