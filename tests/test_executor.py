@@ -90,7 +90,9 @@ def test_orphaned_worker_exits():
 def test_slots():
     cpus = os.cpu_count() or 1
     n, t = ex.slots("local", 10, None)
-    assert n == max(1, min(10, cpus // 2)) and t == max(1, cpus // n)
+    assert n == min(10, cpus) and t == max(1, cpus // n)  # one worker per core: cores never oversubscribed
+    assert n * t <= max(cpus, n)
+    assert ex.slots("local", 1, None)[0] == 1         # never more workers than jobs
     assert ex.slots("local", 10, 3, threads=4) == (3, 4)
     assert ex.slots("ray", 10, None) == (None, min(ex.RAY_THREADS, cpus))
 
