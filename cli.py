@@ -160,9 +160,12 @@ def docking_paths_cmd(currents: tuple[float, ...], seed: int, out: Path):
     click.echo(f"plot: {plot_docking_paths(runs, out)}")
 
 
-@main.group()
-def bench():
-    """Benchmarks (print and write CSV; nothing is asserted)."""
+@main.group(invoke_without_command=True)
+@click.pass_context
+def bench(ctx: click.Context):
+    """Benchmarks (print and write CSV; nothing is asserted). Without a subcommand: stages."""
+    if ctx.invoked_subcommand is None:
+        ctx.invoke(bench_stages)
 
 
 @bench.command("stages")
