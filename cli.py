@@ -10,7 +10,6 @@ import sys
 from pathlib import Path
 
 import click
-import numpy as np
 
 USER_ERROR = 2
 
@@ -45,7 +44,7 @@ def main():
 @click.option("-o", "--out", "out", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="dataset directory (created; an interrupted run in it is resumed)")
 @click.option("--workers", type=click.IntRange(1, 256), default=None,
-              help="render processes at once (default: one per two cores)")
+              help="render processes at once (default: one per core)")
 @click.option("--overwrite", is_flag=True, help="replace a dataset made from a different config")
 @click.option("--executor", type=click.Choice(["local", "ray"]), default="local", show_default=True,
               help="local process pool, or Ray tasks (pip install 'dockbench[ray]')")
@@ -151,6 +150,7 @@ def station_keeping(flow: float, duration: float, out: Path | None):
               default=Path("out/docking_paths.png"), show_default=True)
 def docking_paths_cmd(currents: tuple[float, ...], seed: int, out: Path):
     """Plot one docking trial per lateral current (same start) and time the dynamics."""
+    import numpy as np
     from blendgen.dynamics_report import docking_paths, plot_docking_paths
     runs = docking_paths(currents or (0.0, 0.5, 1.0), seed=seed)
     for r in runs:
