@@ -60,10 +60,17 @@ def _jobs(tmp_path, n):
 def test_interrupt_kills_running_workers_and_starts_no_more(tmp_path):
     jobs, done = _jobs(tmp_path, 4), []
     marker = "import time; time.sleep(60)  # dockbench-test-interrupt"
+    # a process started with SIGINT ignored (a background job of a non-interactive shell)
+    # would make interrupt_main a no-op: install Python's handler for this test
+    import signal
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
     threading.Timer(1.5, _thread.interrupt_main).start()
     t0 = time.perf_counter()
-    with pytest.raises(KeyboardInterrupt):
-        ex.run_local(jobs, tmp_path, 2, done.append, command=_fake(marker))
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            ex.run_local(jobs, tmp_path, 2, done.append, command=_fake(marker))
+    finally:
+        signal.signal(signal.SIGINT, old)
     assert time.perf_counter() - t0 < 10
     assert done == [] and _live_children("dockbench-test-interrupt") == []
 
