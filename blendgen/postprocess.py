@@ -91,25 +91,21 @@ def _polygon_area(uv: np.ndarray) -> float:
 
 def visible_fraction(marker: dict, T_cam_dock: np.ndarray, K: np.ndarray, index: np.ndarray,
                      occluded: np.ndarray | None = None) -> float:
-    """Share of a marker the camera sees (FORMAT.md); occluded (H,W) bool hides pixels."""
-    h, w = index.shape
-    seen = index == marker["object_index"]
-    if occluded is not None:
-        seen &= ~occluded
+    """Share of a marker the camera sees (FORMAT.md); occluded (H,W) bool hides pixels.
+
+    LED arrays: share of LEDs whose centre pixel shows the array and is not occluded;
+    square markers: visible plate pixels over the plate's projected area."""
+    occluded = np.zeros(index.shape, bool) if occluded is None else occluded
     kp = np.asarray(marker["keypoints"], float)
     pts = transform_points(T_cam_dock, kp)
     if np.any(pts[:, 2] <= 0):
         return 0.0
-    uv = project(K, pts)
     if marker["kind"] == "led_array":
-        px = np.rint(uv).astype(int)
-        inside = (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)
-        ok = [bool(seen[v, u]) for (u, v), i in zip(px, inside) if i]
-        return float(sum(ok)) / len(kp)
+        return occlusion.led_visible_fraction(project(K, pts), index, marker["object_index"], occluded)
     centre = kp.mean(axis=0)
     plate = centre + (kp - centre) * (marker["plate_size_m"] / marker["size_m"])
     area = _polygon_area(project(K, transform_points(T_cam_dock, plate)))
-    return float(min(1.0, seen.sum() / area)) if area > 0 else 0.0
+    return occlusion.visible_fraction_from_masks(index == marker["object_index"], occluded, max(area, 0.0))
 
 
 def frame_record(frame: dict, T_world_dock: np.ndarray, markers: list[dict], K: np.ndarray,
