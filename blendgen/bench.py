@@ -44,9 +44,9 @@ def render_stages(out: Path, frames: int, samples: int) -> dict:
     st = timing_summary(out)
     n = sum(s["n_frames"] for s in man["sequences"])
     return {"samples": samples, "frames": n, "scene_build_ms": 1e3 * st["scene_build"],
-            "render_ms": 1e3 * st["render"], "passes_read_ms": 1e3 * st["passes_read"],
+            "render_read_ms": 1e3 * st["render"], "depth_to_range_ms": 1e3 * st["depth_to_range"],
             "post_write_ms": 1e3 * st["post_write"],
-            "render+write_ms": 1e3 * (st["render"] + st["passes_read"] + st["post_write"]),
+            "render+write_ms": 1e3 * (st["render"] + st["depth_to_range"] + st["post_write"]),
             "wall_ms_per_frame": 1e3 * wall / n}
 
 

@@ -233,7 +233,7 @@ def default_ladder(width: int, height: int) -> list[dict]:
 def ms_per_image(timing: dict, n_conditions_sharing: int) -> float:
     """Median ms to produce one camera image: render + read shared by the conditions
     of one clean render, plus the per-image post-processing and write."""
-    shared = timing.get("render", 0.0) + timing.get("passes_read", 0.0)
+    shared = timing.get("render", 0.0) + timing.get("depth_to_range", 0.0)
     return 1e3 * (shared / n_conditions_sharing + timing.get("post_write", 0.0) / n_conditions_sharing)
 
 
@@ -265,7 +265,7 @@ def run_bench(out: Path, width: int, height: int, frames: int, ref_samples: int,
     for p in (ref_path / ".work" / "timing").glob("*.json"):
         t = json.loads(p.read_text())
         cond = p.stem.rsplit("-", 1)[-1]
-        ref_ms[cond] = 1e3 * float(np.median(np.add(np.add(t["render"], t["passes_read"]), t["post_write"])))
+        ref_ms[cond] = 1e3 * float(np.median(np.add(np.add(t["render"], t["depth_to_range"]), t["post_write"])))
     rows = []
     for cond in conditions:
         rows.append({"setting": f"reference s{ref_samples}", "condition": cond, "width": width, "height": height,

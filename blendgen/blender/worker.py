@@ -73,8 +73,9 @@ def run(job: dict) -> dict:
     states = [pp.SequenceState.start(o["post"]) for o, _, _ in outs]
     exr = os.path.join(render.scratch_dir(), f"dockbench-{os.getpid()}.exr")
     geo = _geometry_particles(job, states)
-    # "render" includes reading the EXR passes back (the ROI path reads two renders)
-    times = {"scene_build": time.perf_counter() - t0, "render": [], "passes_read": [], "post_write": []}
+    # "render" includes reading the EXR passes back (the ROI path reads two renders);
+    # "depth_to_range" turns the planar depth pass into range along each ray
+    times = {"scene_build": time.perf_counter() - t0, "render": [], "depth_to_range": [], "post_write": []}
     try:
         for fr in job["frames"]:
             t1 = time.perf_counter()
@@ -97,7 +98,7 @@ def run(job: dict) -> dict:
             if geo is not None and geo[1] not in states:
                 geo[1].advance()
             times["render"].append(t2 - t1)
-            times["passes_read"].append(t3 - t2)
+            times["depth_to_range"].append(t3 - t2)
             times["post_write"].append(time.perf_counter() - t3)
     finally:
         for _, _, fh in outs:
