@@ -84,17 +84,9 @@ def generate(config: Path, out: Path, workers: int | None, overwrite: bool, exec
 def evaluate(dataset: Path, localizers: tuple[str, ...], params: tuple[str, ...], out: Path,
              frame_timeout: float | None, isolate: bool, preprocess: str | None):
     """Run localizers over DATASET; write tables, plots and per-frame estimates to OUT."""
-    from evalkit import registry, runner, tables
-    from evalkit.dataset import Dataset
-    ds = Dataset.open(dataset)
-    kw = registry.parse_params(params)
-    specs = [(name, registry.build(name, registry.params_for(name, kw, list(localizers)), isolate=isolate,
-                                   timeout_s=frame_timeout, preprocess=preprocess)) for name in localizers]
-    df = runner.evaluate(ds, specs, frame_timeout_s=frame_timeout, progress=True)
-    from evalkit import results
-    paths = results.save_run(df, out, ds, specs, extra={"localizers": list(localizers), "params": list(params),
-                                                        "frame_timeout_s": frame_timeout})
     import pandas as pd
+    from evalkit import results, tables
+    ds, paths = results.evaluate_dataset(dataset, localizers, out, params, isolate, frame_timeout, preprocess)
     tables.print_table(pd.read_csv(paths["summary"]))
     click.echo("\n" + paths["article_md"].read_text())
     click.echo(f"per-frame estimates: {paths['estimates']}\nsummary: {paths['summary']}\nrun: {out / 'run.json'}")

@@ -36,12 +36,8 @@ def experiment(name: str, trials: int | None):
 
 def evaluate(dataset_dir: Path, out: Path, localizers=LOCALIZERS) -> dict:
     """Run the localizers over the dataset and save the full run record."""
-    from evalkit import registry, results, runner
-    from evalkit.dataset import Dataset
-    ds = Dataset.open(dataset_dir)
-    specs = [(n, registry.resolve(n, {})) for n in localizers]
-    df = runner.evaluate(ds, specs, progress=True)
-    return results.save_run(df, out, ds, specs, extra={"localizers": list(localizers)})
+    from evalkit.results import evaluate_dataset
+    return evaluate_dataset(dataset_dir, localizers, out)[1]
 
 
 def report(name: str, paths: dict) -> str:
