@@ -20,7 +20,7 @@ import numpy as np
 
 from blendgen import executor as ex, markers as mk, plan
 from blendgen.spec import Experiment
-from blendgen.writer import FORMAT, SPEC_VERSION, DatasetWriter, sha256_file
+from blendgen.writer import FORMAT, SPEC_VERSION, DatasetWriter
 
 
 def versions() -> dict:
@@ -135,29 +135,18 @@ class _Target:
         markers = plan.manifest_markers(exp)
         scene = plan.scene_description(exp, markers, write_textures(exp, out))
         return cls(exp, out, writer, work, plan.camera_K(exp), markers, scene,
-                   plan.plan_jobs(exp, scene, plan.render_settings(exp, 1)))
-
-
-def share_key(t: _Target, job: plan.RenderJob) -> str:
-    """What determines a clean render, independent of which dataset asks for it: scene
-    (texture files by content, not path), poses, camera and render settings."""
-    scene = {**job.scene, "markers": [{**m, "texture": m["texture"] and sha256_file(Path(m["texture"]))}
-                                      for m in job.scene["markers"]]}
-    render = {k: v for k, v in plan.render_settings(t.exp, 1).items() if k != "threads"}
-    c = t.exp.camera
-    blob = json.dumps({"scene": scene, "frames": job.frames, "render": render, "fidelity": t.exp.render.fidelity,
-                       "camera": [c.width, c.height, c.hfov_deg], "markers": t.markers}, sort_keys=True)
-    return hashlib.sha256(blob.encode()).hexdigest()
+                   plan.plan_jobs(exp, scene))
 
 
 def _merged_jobs(targets: list[_Target]) -> dict[str, list]:
-    """share key -> [(target, job, sequences still to write)], finished sequences left out."""
+    """render key (plan.job_key, the same in every dataset that needs this render) ->
+    [(target, job, sequences still to write)], finished sequences left out."""
     merged: dict[str, list] = {}
     for t in targets:
         for j in t.jobs:
             seqs = [s for s in j.sequences if not t.writer.is_done(s.id)]
             if seqs:
-                merged.setdefault(share_key(t, j), []).append((t, j, seqs))
+                merged.setdefault(j.key, []).append((t, j, seqs))
     return merged
 
 

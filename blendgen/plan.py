@@ -8,9 +8,11 @@ fidelity the water is in the render, so each condition is its own job.
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -166,10 +168,28 @@ def condition_post(exp: Experiment, cond, seed: int) -> dict:
     return post
 
 
-def job_key(scene: dict, frames: list[dict], render: dict) -> str:
-    """Hash of everything that determines the clean render (geometry, poses, camera, lights)."""
-    blob = json.dumps({"scene": scene, "frames": frames, "render": render}, sort_keys=True)
-    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+@functools.lru_cache(maxsize=256)
+def _file_sha(path: str, mtime_ns: int, size: int) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def _texture_sha(path: str | None) -> str | None:
+    """Content hash of a texture file (cached per path, modification time and size)."""
+    if path is None:
+        return None
+    st = os.stat(path)
+    return _file_sha(path, st.st_mtime_ns, st.st_size)
+
+
+def job_key(exp: Experiment, scene: dict, frames: list[dict]) -> str:
+    """What determines a clean render, whichever dataset asks for it: scene (texture files
+    by content, not path), poses, camera, fidelity and render settings (not thread count)."""
+    scene = {**scene, "markers": [{**m, "texture": _texture_sha(m.get("texture"))} for m in scene["markers"]]}
+    render = {k: v for k, v in render_settings(exp, 1).items() if k != "threads"}
+    c = exp.camera
+    blob = json.dumps({"scene": scene, "frames": frames, "render": render, "fidelity": exp.render.fidelity,
+                       "camera": [c.width, c.height, c.hfov_deg]}, sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()
 
 
 def water_volume(exp: Experiment, post: dict) -> dict | None:
@@ -203,10 +223,10 @@ def _motion(exp: Experiment, traj, cond):
     return cond.fluid or exp.fluid
 
 
-def plan_jobs(exp: Experiment, scene: dict, render: dict) -> list[RenderJob]:
+def plan_jobs(exp: Experiment, scene: dict) -> list[RenderJob]:
     """Every render job; sequences with identical clean renders share one job.
 
-    A job is keyed by a hash of its scene and camera path, so kinematic trajectories
+    A job is keyed by :func:`job_key` (scene and camera path), so kinematic trajectories
     render once for all trials and conditions (trials differ only in image-space
     seeds), docking trials render once per (trial, fluid), and with the reference
     fidelity the water makes every condition its own render."""
@@ -231,7 +251,7 @@ def plan_jobs(exp: Experiment, scene: dict, render: dict) -> list[RenderJob]:
                     # real geometry is part of the render: keyed by its config and seed
                     sc = {**sc, "particles": {**post["occlusion"], "seed": seed, "fps": exp.camera.fps,
                                               "object_index": INDEX_PARTICLES}}
-                key = job_key(sc, frames, render)
+                key = job_key(exp, sc, frames)
                 jobs.setdefault(key, RenderJob(key, sc, frames)).sequences.append(sq)
     return list(jobs.values())
 

@@ -17,7 +17,7 @@ BASE = {
 def jobs_for(cfg):
     exp = Experiment.model_validate(cfg)
     markers = plan.manifest_markers(exp)
-    return exp, plan.plan_jobs(exp, plan.scene_description(exp, markers, {}), plan.render_settings(exp, 1))
+    return exp, plan.plan_jobs(exp, plan.scene_description(exp, markers, {}))
 
 
 def test_image_space_conditions_and_kinematic_trials_share_one_render():

@@ -112,7 +112,7 @@ def _writer_dataset(tmp_path: Path, n_frames: int = 3) -> Path:
     K = plan.camera_K(exp)
     markers = plan.manifest_markers(exp)
     scene = plan.scene_description(exp, markers, gen.write_textures(exp, out))
-    jobs = plan.plan_jobs(exp, scene, plan.render_settings(exp, 1))
+    jobs = plan.plan_jobs(exp, scene)
     W, H = exp.camera.width, exp.camera.height
     T_wd = np.asarray(scene["dock"]["T_world_dock"], float)
     for job in jobs:
