@@ -214,12 +214,13 @@ def verify(path: str | Path) -> list[str]:
         manifest = _read_manifest(root)
     except DatasetError as exc:
         return [str(exc)]
-    for seq in manifest["sequences"]:
-        try:
-            for _ in Dataset(root, manifest).iter_frames(seq["id"]):
+    ds = Dataset(root, manifest)
+    try:
+        for seq in manifest["sequences"]:
+            for _ in ds.iter_frames(seq["id"]):  # every frame line parses and has its keys
                 pass
-        except DatasetError as exc:
-            return [str(exc)]
+    except DatasetError as exc:
+        return [str(exc)]
     files = manifest.get("files")
     if not isinstance(files, dict):
         return [f"{root / MANIFEST}: missing or invalid 'files' map"]
