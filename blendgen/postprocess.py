@@ -14,6 +14,7 @@ import numpy as np
 from dataclasses import dataclass
 
 from blendgen import groundtruth, occlusion, optics, sensor
+from blendgen.plan import INDEX_PARTICLES
 from blendgen.geometry import planar_depth_to_range, project, transform_points
 
 
@@ -57,7 +58,7 @@ def add_particles(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam
     if state.field is None:
         return passes, None
     if state.post["occlusion"]["geometry"] == "blender":  # already in the render
-        return passes, passes["index"] == state.post["occlusion"].get("object_index", 250)
+        return passes, passes["index"] == INDEX_PARTICLES
     rgb, occ_mask, prange = occlusion.render_particles(
         passes["rgb"], passes["range_m"], state.field, K, np.asarray(T_world_cam, float),
         mode=state.post["occlusion"]["mode"])
