@@ -18,7 +18,7 @@ def _user_errors(fn):
     """Turn the project's user-error exceptions into a message and exit code 2."""
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
-        from blendgen.spec import ConfigError
+        from blendgen.config.models import ConfigError
         from evalkit.dataset import DatasetError
         from evalkit.registry import RegistryError
         try:
@@ -54,8 +54,8 @@ def main():
 def generate(config: Path, out: Path, workers: int | None, overwrite: bool, executor: str,
              ray_address: str | None):
     """Render the dataset described by CONFIG (YAML) into OUT."""
-    from blendgen.generate import generate as run, check_out_dir
-    from blendgen.spec import load_experiment
+    from blendgen.pipeline.generate import generate as run, check_out_dir
+    from blendgen.config.models import load_experiment
     exp = load_experiment(config)
     check_out_dir(exp, out, overwrite)
     manifest = run(exp, out, workers=workers, executor=executor, ray_address=ray_address)
@@ -85,7 +85,8 @@ def evaluate(dataset: Path, localizers: tuple[str, ...], params: tuple[str, ...]
              frame_timeout: float | None, isolate: bool, preprocess: str | None):
     """Run localizers over DATASET; write tables, plots and per-frame estimates to OUT."""
     import pandas as pd
-    from evalkit import results, tables
+    from evalkit.reports import results
+    from evalkit.reports import tables
     ds, paths = results.evaluate_dataset(dataset, localizers, out, params, isolate, frame_timeout, preprocess)
     tables.print_table(pd.read_csv(paths["summary"]))
     click.echo("\n" + paths["article_md"].read_text())
@@ -121,8 +122,8 @@ def verify(dataset: Path):
               help="also write the table as CSV")
 def station_keeping(flow: float, duration: float, out: Path | None):
     """The article's Table 5: steady thruster outputs while station keeping."""
-    from blendgen.docking import station_keeping_signs_ok, station_keeping_table
-    from evalkit.tables import print_table
+    from blendgen.vehicle.docking import station_keeping_signs_ok, station_keeping_table
+    from evalkit.reports.tables import print_table
     df = station_keeping_table(flow_speed=flow, duration_s=duration)
     print_table(df, floatfmt=".3f")
     unit = df.attrs.get("unit_N")
@@ -143,7 +144,7 @@ def station_keeping(flow: float, duration: float, out: Path | None):
 def docking_paths_cmd(currents: tuple[float, ...], seed: int, out: Path):
     """Plot one docking trial per lateral current (same start) and time the dynamics."""
     import numpy as np
-    from blendgen.dynamics_report import docking_paths, plot_docking_paths
+    from blendgen.tools.dynamics_report import docking_paths, plot_docking_paths
     runs = docking_paths(currents or (0.0, 0.5, 1.0), seed=seed)
     for r in runs:
         click.echo(f"current {r['current_mps']:.2f} m/s: {r['stop_reason']} after {r['t'][-1]:.1f} s, "
@@ -169,17 +170,17 @@ def bench(ctx: click.Context):
 @_user_errors
 def bench_stages(frames: int, samples: tuple[int, ...], out: Path):
     """Time each stage at 640x480 (scene build, render + EXR read, depth to range, post+write) and localizer frames/s."""
-    from blendgen.bench import run_bench
+    from blendgen.tools.bench import run_bench
     run_bench(out, frames, samples or (1, 4))
 
 
 def _register() -> None:
     """Commands defined next to their code (imports inside them stay lazy)."""
-    from evalkit.bop import export_bop_cmd
-    from evalkit.leaderboard import leaderboard_cmd
-    from blendgen.fidelity import calibrate_water_cmd, fidelity_cmd
-    from blendgen.preview import preview_cmd
-    from blendgen.reproduce import reproduce_cmd
+    from evalkit.reports.bop import export_bop_cmd
+    from evalkit.reports.leaderboard import leaderboard_cmd
+    from blendgen.tools.fidelity import calibrate_water_cmd, fidelity_cmd
+    from blendgen.tools.preview import preview_cmd
+    from blendgen.tools.reproduce import reproduce_cmd
     main.add_command(leaderboard_cmd)
     reproduce_cmd.callback = _user_errors(reproduce_cmd.callback)
     main.add_command(reproduce_cmd)
@@ -187,7 +188,7 @@ def _register() -> None:
     main.add_command(calibrate_water_cmd)
     main.add_command(preview_cmd)
     bench.add_command(fidelity_cmd, "fidelity")
-    from blendgen.calibration import calibrate_cmd
+    from blendgen.tools.calibration import calibrate_cmd
     calibrate_cmd.callback = _user_errors(calibrate_cmd.callback)
     main.add_command(calibrate_cmd)
     from evalkit.pnp_bench import pnp_cmd

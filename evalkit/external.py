@@ -30,7 +30,7 @@ import threading
 from pathlib import Path
 from typing import Any
 
-from .isolation import (DEFAULT_TIMEOUT_S, EXIT_GRACE_S, FrameFailure, ProcessLocalizer, _Dead,
+from evalkit.isolation import (DEFAULT_TIMEOUT_S, EXIT_GRACE_S, FrameFailure, ProcessLocalizer, _Dead,
                         _ProtocolError, _Timeout)
 
 PROTOCOL_VERSION = 1

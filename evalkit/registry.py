@@ -133,7 +133,7 @@ def resolve(spec: str, params: dict | None = None) -> Any:
     """
     params = dict(params or {})
     if spec.startswith(EXEC_PREFIX):
-        from .external import ExternalLocalizer
+        from evalkit.external import ExternalLocalizer
         target = functools.partial(ExternalLocalizer, spec[len(EXEC_PREFIX):])
     else:
         target = load_target(spec)
@@ -167,7 +167,7 @@ def build(spec: str, params: dict | None = None, *, isolate: bool = False,
 
     Errors in the spec, params or preprocess spec raise :class:`RegistryError`.
     """
-    from . import isolation, preprocess as pre
+    from evalkit import isolation, preprocess as pre
 
     params = dict(params or {})
     if preprocess:

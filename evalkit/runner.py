@@ -42,9 +42,9 @@ from typing import Any, Iterable, Protocol
 import numpy as np
 import pandas as pd
 
-from . import metrics
-from .dataset import Dataset
-from .isolation import FrameFailure
+from evalkit.metrics import core as metrics
+from evalkit.dataset import Dataset
+from evalkit.isolation import FrameFailure
 
 COLUMNS = ["localizer", "sequence", "condition", "trial", "index", "t", "d_true", "in_view",
            "success", "d_est", "e_abs", "e_rel", "marker_id", "ms", "fail_reason", "T_cam_dock_est"]
@@ -281,7 +281,7 @@ def write_results(df: pd.DataFrame, out_dir: str | Path, d_max: float | None = N
     ``d_max`` / ``d_min_rel`` (m) default to ``df.attrs`` (set by
     :func:`evaluate`), else to the metrics defaults. Returns the written paths.
     """
-    from . import tables
+    from evalkit.reports import tables
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

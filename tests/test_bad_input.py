@@ -16,7 +16,7 @@ import yaml
 from click.testing import CliRunner
 
 import cli
-from blendgen.spec import ConfigError, load_experiment
+from blendgen.config.models import ConfigError, load_experiment
 from tests.fake_dataset import write_fake_dataset
 from tests.test_config import patched
 
@@ -263,7 +263,7 @@ def _cfg(tmp_path, key, value):
 
 
 def _needs_section(key):
-    from blendgen.spec import Experiment
+    from blendgen.config.models import Experiment
     top = key.split(".")[0]
     if top not in Experiment.model_fields:
         pytest.skip(f"no {top!r} section in this spec")

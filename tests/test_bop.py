@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from evalkit import bop
+from evalkit.reports import bop
 from evalkit.dataset import Dataset
 
 from fake_dataset import K, WIDTH, HEIGHT, write_fake_dataset

@@ -8,7 +8,7 @@ import pytest
 import yaml
 from click.testing import CliRunner
 
-from blendgen import calibration as cal
+from blendgen.tools import calibration as cal
 from blendgen.geometry import intrinsics_from_hfov, project, transform_points
 
 BOARD = cal.ChessBoard(9, 6, 0.05, 1)

@@ -7,7 +7,7 @@ import yaml
 from click.testing import CliRunner
 
 import cli
-from blendgen.spec import ConfigError, load_experiment
+from blendgen.config.models import ConfigError, load_experiment
 
 ROOT = Path(__file__).resolve().parent.parent
 GOOD = yaml.safe_load((ROOT / "configs" / "quickstart.yaml").read_text())

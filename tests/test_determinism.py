@@ -36,8 +36,8 @@ CONFIG = {
 
 
 def _generate(tmp_path: Path, name: str, seed: int) -> Path:
-    from blendgen.generate import generate
-    from blendgen.spec import load_experiment
+    from blendgen.pipeline.generate import generate
+    from blendgen.config.models import load_experiment
     cfg = {**CONFIG, "seed": seed}
     p = tmp_path / f"{name}.yaml"
     p.write_text(yaml.safe_dump(cfg))

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 import yaml
 
-from blendgen.generate import generate
-from blendgen.spec import load_experiment
+from blendgen.pipeline.generate import generate
+from blendgen.config.models import load_experiment
 
 pytestmark = pytest.mark.blender
 

@@ -7,14 +7,14 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from blendgen.control import Autopilot, Sensors, step_metrics, step_response
-from blendgen.docking import (random_start, simulate_docking_trial, start_pose_world,
+from blendgen.vehicle.control import Autopilot, Sensors, step_metrics, step_response
+from blendgen.vehicle.docking import (random_start, simulate_docking_trial, start_pose_world,
                               station_keep_run, station_keeping_signs_ok,
                               station_keeping_table, thrust_unit_N)
-from blendgen.dynamics import (AUVModel, DT_MAX, Plant, T_world_body_to_eta,
+from blendgen.vehicle.dynamics import (AUVModel, DT_MAX, Plant, T_world_body_to_eta,
                                VehicleParams, eta_to_T_world_body)
 from blendgen.geometry import make_T
-from blendgen.thrusters import ThrusterSet
+from blendgen.vehicle.thrusters import ThrusterSet
 
 
 def _dock(yaw_deg=30.0, depth=1.0):
@@ -69,7 +69,7 @@ def test_current_carries_unpowered_vehicle():
     for _ in range(3000):
         s = model.rk4_step(s, [0.0] * 6, vc, 0.02)
     eta = np.array(s[:6])
-    from blendgen.dynamics import R_ned_frd
+    from blendgen.vehicle.dynamics import R_ned_frd
     v_ned = R_ned_frd(*eta[3:]) @ np.array(s[6:9])
     assert np.allclose(v_ned, vc, atol=0.01)
 

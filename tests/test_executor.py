@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from blendgen import executor as ex
-from blendgen.spec import ConfigError, Experiment
+from blendgen.pipeline import executor as ex
+from blendgen.config.models import ConfigError, Experiment
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -87,7 +87,7 @@ def test_failure_lets_running_jobs_finish_and_starts_no_more(tmp_path):
 
 
 def test_orphaned_worker_exits():
-    code = ("import time\nfrom blendgen.executor import _exit_with_parent\n"
+    code = ("import time\nfrom blendgen.pipeline.executor import _exit_with_parent\n"
             "_exit_with_parent(1)\ntime.sleep(30)\n")  # pid 1 is not our parent: we are 'orphaned'
     t0 = time.perf_counter()
     r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, timeout=20)
@@ -105,12 +105,12 @@ def test_slots():
 
 
 def test_importing_generate_does_not_import_ray():
-    code = "import sys, blendgen.generate, cli; sys.exit('ray' in sys.modules)"
+    code = "import sys, blendgen.pipeline.generate, cli; sys.exit('ray' in sys.modules)"
     assert subprocess.run([sys.executable, "-c", code], cwd=ROOT).returncode == 0
 
 
 def test_bad_executor_choice_is_a_user_error_and_writes_nothing(tmp_path, monkeypatch):
-    from blendgen.generate import generate
+    from blendgen.pipeline.generate import generate
     exp = Experiment.model_validate(TINY)
     with pytest.raises(ConfigError, match="unknown executor 'dask'"):
         generate(exp, tmp_path / "a", executor="dask")
@@ -129,7 +129,7 @@ def test_bad_executor_choice_is_a_user_error_and_writes_nothing(tmp_path, monkey
 @pytest.mark.blender
 def test_ray_writes_the_same_dataset_as_local(tmp_path):
     ray = pytest.importorskip("ray", reason="ray not installed (optional extra: pip install 'dockbench[ray]')")
-    from blendgen.generate import generate
+    from blendgen.pipeline.generate import generate
     exp = Experiment.model_validate(TINY)
     t0 = time.perf_counter()
     local = generate(exp, tmp_path / "local", workers=1, progress=False)

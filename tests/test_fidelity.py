@@ -6,7 +6,9 @@ import click
 import numpy as np
 import pytest
 
-from blendgen import fidelity, optics
+from blendgen.tools import fidelity
+
+from blendgen.physics import optics
 
 CAL = {"method": "test", "presets": {"moderate": {"B_inf": [0.01, 0.02, 0.03], "Kd": [0.3, 0.3, 0.3],
                                                   "blur": False}}}
@@ -85,7 +87,7 @@ def test_pareto_plot(tmp_path):
 
 
 def test_commands_are_click_commands_without_bpy():
-    from blendgen import preview
+    from blendgen.tools import preview
     for cmd in (fidelity.fidelity_cmd, fidelity.calibrate_water_cmd, preview.preview_cmd):
         assert isinstance(cmd, click.Command)
     assert "bpy" not in sys.modules
@@ -99,7 +101,7 @@ def test_calibration_and_preview_render_tiny(tmp_path):
     e = json.loads((tmp_path / "cal.json").read_text())["presets"]["moderate"]
     assert e == data["presets"]["moderate"] and e["n_pixels"] > 200
     assert e["residual"]["calibrated"]["mae"] < e["residual"]["uncalibrated"]["mae"]
-    from blendgen import preview
+    from blendgen.tools import preview
     import cv2
     p = preview.make_preview(tmp_path / "sheet.png", 48, 36, 1)
     img = cv2.imread(str(p))

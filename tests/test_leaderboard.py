@@ -7,7 +7,9 @@ import shutil
 import pytest
 from click.testing import CliRunner
 
-from evalkit import leaderboard, results
+from evalkit.reports import leaderboard
+
+from evalkit.reports import results
 from evalkit.dataset import Dataset
 
 from fake_dataset import write_fake_dataset

@@ -8,7 +8,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from evalkit import metrics, tables
+from evalkit.metrics import core as metrics
+
+from evalkit.reports import tables
 
 NAN = float("nan")
 

@@ -1,4 +1,4 @@
-"""Metrics beyond the article (evalkit.metrics_extra, truth, tables, plots, results)."""
+"""Metrics beyond the article (evalkit.metrics.extra, truth, tables, plots, results)."""
 from __future__ import annotations
 
 import json
@@ -8,10 +8,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from evalkit import metrics, metrics_extra as mx
-from evalkit import tables
+from evalkit.metrics import core as metrics
+
+from evalkit.metrics import extra as mx
+from evalkit.reports import tables
 from evalkit.dataset import Dataset
-from evalkit.truth import as_matrices, frame_truth_table
+from evalkit.metrics.truth import as_matrices, frame_truth_table
 
 from fake_dataset import write_fake_dataset
 
@@ -222,7 +224,7 @@ def _oracle_estimates(ds: Dataset, sigma: float = 0.05, seed: int = 0) -> pd.Dat
 
 
 def test_save_and_load_run(tmp_path):
-    from evalkit import results
+    from evalkit.reports import results
     ds = Dataset.open(write_fake_dataset(tmp_path / "ds"))
     est = _oracle_estimates(ds)
     paths = results.save_run(est, tmp_path / "run", ds, ["oracle", "noisy"], extra={"params": ["k=1"]},
@@ -246,7 +248,7 @@ def test_save_and_load_run(tmp_path):
 
 
 def test_compare_runs_refuses_mixed_datasets(tmp_path):
-    from evalkit import results
+    from evalkit.reports import results
     dirs = []
     for i, seqs in enumerate(([("a", "clear", 0, [1.0, 2.0])], [("a", "clear", 0, [1.0, 3.0])])):
         ds = Dataset.open(write_fake_dataset(tmp_path / f"ds{i}", sequences=seqs))

@@ -2,12 +2,12 @@
 import subprocess
 import sys
 
-PURE = ["cli", "evalkit", "evalkit.dataset", "evalkit.registry", "evalkit.metrics", "evalkit.runner",
-        "evalkit.tables", "blendgen.geometry", "blendgen.spec", "blendgen.markers", "blendgen.trajectories",
-        "blendgen.plan", "blendgen.groundtruth", "blendgen.postprocess", "blendgen.writer",
-        "blendgen.generate", "blendgen.executor", "blendgen.optics", "blendgen.reproduce", "blendgen.fidelity", "blendgen.calibration",
+PURE = ["cli", "evalkit", "evalkit.dataset", "evalkit.registry", "evalkit.metrics.core", "evalkit.runner",
+        "evalkit.reports.tables", "blendgen.geometry", "blendgen.config.models", "blendgen.markers", "blendgen.vehicle.trajectories",
+        "blendgen.pipeline.plan", "blendgen.pipeline.groundtruth", "blendgen.pipeline.compose", "blendgen.pipeline.writer",
+        "blendgen.pipeline.generate", "blendgen.pipeline.executor", "blendgen.physics.optics", "blendgen.tools.reproduce", "blendgen.tools.fidelity", "blendgen.tools.calibration",
         "evalkit.isolation", "evalkit.external", "evalkit.preprocess", "evalkit.localizers.hybrid",
-        "evalkit.results", "evalkit.leaderboard", "evalkit.bop"]
+        "evalkit.reports.results", "evalkit.reports.leaderboard", "evalkit.reports.bop"]
 
 
 def test_pure_modules_never_import_bpy():

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from scipy import stats
 
 from blendgen.geometry import intrinsics_from_hfov, look_at_R, make_T, project
-from blendgen.occlusion import (ParticleField, count_in_frustum, frustum_volume,
+from blendgen.physics.particles import (ParticleField, count_in_frustum, frustum_volume,
                                 led_visible_fraction, render_particles,
                                 visible_fraction_from_masks)
 

@@ -11,9 +11,11 @@ import numpy as np
 import pytest
 import yaml
 
-from blendgen import occlusion, postprocess
-from blendgen.generate import generate
-from blendgen.spec import load_experiment
+from blendgen.physics import particles as occlusion
+
+from blendgen.pipeline import compose as postprocess
+from blendgen.pipeline.generate import generate
+from blendgen.config.models import load_experiment
 
 pytestmark = pytest.mark.blender
 

@@ -5,8 +5,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from blendgen import plan
-from blendgen.spec import Experiment
+from blendgen.pipeline import plan
+from blendgen.config.models import Experiment
 
 BASE = {
     "name": "p", "seed": 11, "scene": {"dock": {"markers": [{"kind": "led_array"}]}},

@@ -14,7 +14,7 @@ import sys
 import numpy as np
 import pytest
 
-from blendgen import optics
+from blendgen.physics import optics
 
 pytestmark = pytest.mark.blender
 

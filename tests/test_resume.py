@@ -74,7 +74,7 @@ def _procs() -> list[tuple[int, int, int, str]]:
 
 
 def _workers_of(out: Path) -> list[int]:
-    return [pid for pid, _, _, cmd in _procs() if "blendgen.executor" in cmd and str(out) in cmd]
+    return [pid for pid, _, _, cmd in _procs() if "blendgen.pipeline.executor" in cmd and str(out) in cmd]
 
 
 def _wait_for(cond, timeout_s: float, what: str):
@@ -201,8 +201,8 @@ def test_resume_a_shared_render_with_one_sequence_already_committed(tmp_path):
 def test_datasets_generated_together_share_renders_and_equal_separate_runs(tmp_path):
     """generate_many renders a camera path once for every dataset that needs it, and each
     dataset is byte-identical to the one a separate generate writes."""
-    from blendgen.generate import generate, generate_many
-    from blendgen.spec import Experiment
+    from blendgen.pipeline.generate import generate, generate_many
+    from blendgen.config.models import Experiment
     base = {"seed": 3, "camera": {"width": 64, "height": 48}, "render": {"samples": 1},
             "scene": {"dock": {"markers": [{"kind": "led_array"}]}},
             "trajectories": [{"kind": "linear", "id": "a", "start_range_m": 3, "end_range_m": 2, "speed_mps": 4}]}

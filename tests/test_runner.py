@@ -15,7 +15,9 @@ import pytest
 sys.path.insert(0, str(Path(__file__).parent))
 from fake_dataset import SEQUENCES, decode_distance, write_fake_dataset  # noqa: E402
 
-from evalkit import registry, runner, tables  # noqa: E402
+from evalkit import registry, runner  # noqa: E402
+
+from evalkit.reports import tables
 from evalkit.dataset import Dataset, DatasetError, verify  # noqa: E402
 from evalkit.registry import RegistryError  # noqa: E402
 
@@ -313,7 +315,7 @@ def test_duplicate_names_rejected(ds):
 def test_evalkit_import_is_light():
     import subprocess
     code = ("import sys, evalkit, evalkit.dataset, evalkit.registry, evalkit.runner, "
-            "evalkit.metrics, evalkit.tables; "
+            "evalkit.metrics.core, evalkit.reports.tables; "
             "print('bpy' in sys.modules, 'cv2' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          cwd=Path(__file__).parents[1], check=True).stdout.split()

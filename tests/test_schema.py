@@ -95,10 +95,12 @@ def test_fake_dataset_validates(tmp_path):
 
 def _writer_dataset(tmp_path: Path, n_frames: int = 3) -> Path:
     """A dataset from the real generation pieces, with synthetic passes instead of Blender
-    (the same calls as blendgen/blender/worker.py and blendgen.generate.generate)."""
-    from blendgen import generate as gen, plan, postprocess as pp
-    from blendgen.spec import load_experiment
-    from blendgen.writer import DatasetWriter
+    (the same calls as blendgen/blender/worker.py and blendgen.pipeline.generate.generate)."""
+    from blendgen.pipeline import generate as gen
+    from blendgen.pipeline import plan
+    from blendgen.pipeline import compose as pp
+    from blendgen.config.models import load_experiment
+    from blendgen.pipeline.writer import DatasetWriter
 
     cfg = yaml.safe_load((ROOT / "configs" / "quickstart.yaml").read_text())
     cfg["camera"].update(width=64, height=48, noise_std=2.0)

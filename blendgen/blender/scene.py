@@ -1,6 +1,6 @@
 """Build the docking scene in Blender from a plain scene description (dict).
 
-The description is produced by :mod:`blendgen.plan` (pure Python) and holds only
+The description is produced by :mod:`blendgen.pipeline.plan` (pure Python) and holds only
 numbers, colours and file paths; see ``plan.scene_description``. Everything here
 is in world coordinates (metres, +z up, water surface z = 0).
 """

@@ -49,7 +49,7 @@ def _geometry_particles(job: dict, states: list):
     p = job["scene"].get("particles")
     if not p:
         return None
-    from blendgen import postprocess as pp
+    from blendgen.pipeline import compose as pp
     from blendgen.blender import particles
     st = next((s for s in states if s.field is not None), None) or pp.SequenceState.start(
         {"seed": p["seed"], "fps": p["fps"], "occlusion": p})
@@ -58,7 +58,7 @@ def _geometry_particles(job: dict, states: list):
 
 def run(job: dict) -> dict:
     """Render the job; returns timing figures (s) per stage."""
-    from blendgen import postprocess as pp
+    from blendgen.pipeline import compose as pp
     from blendgen.blender import render, scene as scn
 
     t0 = time.perf_counter()

@@ -1,0 +1,369 @@
+"""Experiment configuration: YAML -> validated pydantic models.
+
+Every section forbids unknown keys and states its allowed ranges, so a bad config
+fails with the file, the key path and the range (:class:`ConfigError`), before
+anything is written. Angles are degrees here (the config edge) and radians
+everywhere after.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any, Literal, Optional, Union
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from blendgen.config.bundled import bundled_dir, bundled_names
+
+Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+Color = Annotated[list[Annotated[float, Field(ge=0.0, le=1.0)]], Field(min_length=3, max_length=3)]
+
+
+class ConfigError(Exception):
+    """A user error in a config file: message names the file, key path and allowed range."""
+
+
+class Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=False, allow_inf_nan=False)
+
+
+class Pose(Strict):
+    """A rigid pose: translation (m) and roll/pitch/yaw (deg, ZYX)."""
+    xyz: Vec3 = [0.0, 0.0, 0.0]
+    rpy_deg: Vec3 = [0.0, 0.0, 0.0]
+
+
+class Pool(Strict):
+    """Pool-style volume: x in [-length/2, length/2], y in [-width/2, width/2], z in [-depth, 0]."""
+    length_m: float = Field(15.0, gt=0.5, le=1000)
+    width_m: float = Field(5.0, gt=0.5, le=1000)
+    depth_m: float = Field(8.0, gt=0.5, le=1000)
+    walls: bool = True
+    wall_color: Color = [0.55, 0.62, 0.66]
+    floor_color: Color = [0.5, 0.55, 0.55]
+
+
+class Obstacle(Strict):
+    """A large fixed obstacle in world coordinates."""
+    kind: Literal["box", "cylinder", "rock"]
+    pose: Pose = Pose()
+    size_m: Vec3 = Field([1.0, 1.0, 1.0], description="box: x,y,z sides; cylinder: diameter, diameter, height")
+    color: Color = [0.35, 0.33, 0.3]
+
+    @model_validator(mode="after")
+    def _positive(self):
+        if min(self.size_m) <= 0:
+            raise ValueError(f"size_m must be > 0 in every axis, got {self.size_m}")
+        return self
+
+
+class LedArray(Strict):
+    kind: Literal["led_array"] = "led_array"
+    id: str = "led"
+    layout: Literal["rectangle", "circle"] = "rectangle"
+    size_m: float = Field(0.6, gt=0.01, le=5.0, description="overall size l (side or diameter)")
+    height_m: Optional[float] = Field(None, gt=0.01, le=5.0, description="rectangle height (default = size)")
+    led_radius_m: float = Field(0.04, gt=0.001, le=0.5)
+    color: Color = [0.0, 0.85, 0.6]
+    reference_color: Color = [1.0, 0.35, 0.0]
+    reference_index: int = Field(0, ge=0, le=3)
+    strength: float = Field(20.0, gt=0.0, le=1e5, description="emission strength (W/m^2 radiance scale)")
+    center_m: Annotated[list[float], Field(min_length=2, max_length=2)] = [0.0, 0.0]
+
+
+class SquareMarker(Strict):
+    kind: Literal["qr", "aruco", "apriltag"]
+    id: str
+    size_m: float = Field(0.15, gt=0.005, le=5.0, description="side of the code without its quiet zone")
+    center_m: Annotated[list[float], Field(min_length=2, max_length=2)] = [0.0, 0.0]
+    payload: Optional[str] = Field(None, max_length=200, description="qr: text to encode")
+    dictionary: Optional[str] = Field(None, description="aruco/apriltag: OpenCV dictionary name")
+    marker_id: int = Field(0, ge=0, le=4095)
+
+    @model_validator(mode="after")
+    def _kind_fields(self):
+        if self.kind == "qr" and not self.payload:
+            raise ValueError("a qr marker needs a non-empty 'payload'")
+        if self.kind in ("aruco", "apriltag"):
+            import cv2
+            default = "DICT_4X4_50" if self.kind == "aruco" else "DICT_APRILTAG_36h11"
+            self.dictionary = self.dictionary or default
+            if not self.dictionary.startswith("DICT_") or not hasattr(cv2.aruco, self.dictionary):
+                raise ValueError(f"unknown OpenCV dictionary {self.dictionary!r} (e.g. DICT_4X4_50)")
+            n = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary)).bytesList.shape[0]
+            if self.marker_id >= n:
+                raise ValueError(f"marker_id {self.marker_id} out of range 0..{n - 1} for {self.dictionary}")
+        return self
+
+
+Marker = Annotated[Union[LedArray, SquareMarker], Field(discriminator="kind")]
+
+
+class Dock(Strict):
+    """Docking station: its face centre at ``water_depth_m``, face normal along ``facing_deg``."""
+    position_xy_m: Annotated[list[float], Field(min_length=2, max_length=2)] = [7.0, 0.0]
+    water_depth_m: float = Field(1.0, ge=0.0, le=1000.0)
+    facing_deg: float = Field(180.0, ge=-360, le=360, description="world yaw of the face normal (180 = -x)")
+    body_size_m: Vec3 = [1.0, 1.0, 0.4]
+    face_color: Color = [0.25, 0.27, 0.28]
+    markers: list[Marker] = Field(default_factory=list)
+
+    @model_validator(mode="after")
+    def _unique_ids(self):
+        ids = [m.id for m in self.markers]
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"marker ids must be unique, got {ids}")
+        return self
+
+
+class Scene(Strict):
+    template: Optional[str] = None
+    kind: Literal["pool", "open_water"] = "pool"
+    pool: Pool = Pool()
+    dock: Dock = Dock()
+    obstacles: list[Obstacle] = Field(default_factory=list)
+    sun_elevation_deg: float = Field(60.0, gt=0.0, le=90.0)
+    sun_azimuth_deg: float = Field(180.0, ge=-360, le=360)
+    sun_strength: float = Field(3.0, ge=0.0, le=1000.0, description="sun irradiance at the surface (W/m^2)")
+    fill_strength: float = Field(0.0, ge=0.0, le=1000.0,
+                                 description="horizontal fill light (W/m^2); > 0 adds light-selection "
+                                             "noise at few samples (Cycles samples one light per path)")
+
+
+class Camera(Strict):
+    width: int = Field(640, ge=16, le=8192)
+    height: int = Field(480, ge=16, le=8192)
+    hfov_deg: float = Field(60.0, gt=1.0, lt=179.0)
+    fps: float = Field(10.0, gt=0.0, le=1000.0)
+    latency_s: float = Field(0.0, ge=0.0, le=10.0)
+    T_body_cam: Pose = Pose(xyz=[0.65, 0.0, 0.0])
+    distortion: Optional[Annotated[list[float], Field(min_length=5, max_length=5)]] = None
+    noise_std: float = Field(0.0, ge=0.0, le=256.0, description="Gaussian noise std in 8-bit units")
+
+
+class Render(Strict):
+    fidelity: Literal["fast", "reference"] = "fast"
+    samples: int = Field(4, ge=1, le=65536)
+    reference_samples: int = Field(64, ge=1, le=65536)
+    threads: int = Field(0, ge=0, le=256, description="Cycles threads per worker; 0 = cores / workers")
+    write_depth: bool = True
+    write_index: bool = True
+    roi: bool = Field(True, description="fast fidelity: full samples only in the dock's image region")
+    background_scale: float = Field(0.5, gt=0.05, le=1.0, description="resolution factor outside the ROI")
+    background_samples: int = Field(1, ge=1, le=65536)
+    max_distance_m: Optional[float] = Field(10.0, gt=0.0, le=1e4,
+                                            description="frames with d_true beyond this are not rendered "
+                                                        "(evaluation counts d_true <= 10 m); null renders all")
+
+
+class Water(Strict):
+    model_config = ConfigDict(extra="allow")
+    preset: Optional[str] = "clear"
+
+
+class LinearTrajectory(Strict):
+    kind: Literal["linear"] = "linear"
+    id: str = "linear"
+    start_range_m: float = Field(12.0, gt=0.0, le=1000.0)
+    end_range_m: float = Field(0.5, ge=0.0, le=1000.0)
+    speed_mps: float = Field(1.0, gt=0.0, le=20.0)
+    lateral_m: float = Field(0.0, ge=-100, le=100)
+    vertical_m: float = Field(0.0, ge=-100, le=100)
+
+    @model_validator(mode="after")
+    def _order(self):
+        if self.end_range_m >= self.start_range_m:
+            raise ValueError(f"end_range_m ({self.end_range_m}) must be < start_range_m ({self.start_range_m})")
+        return self
+
+
+class CircleTrajectory(Strict):
+    kind: Literal["circle"] = "circle"
+    id: str = "circle"
+    radius_m: float = Field(3.0, gt=0.05, le=1000.0)
+    height_m: float = Field(0.0, ge=-100, le=100)
+    start_deg: float = Field(-45.0, ge=-360, le=360, description="angle from the dock normal")
+    end_deg: float = Field(45.0, ge=-360, le=360)
+    speed_mps: float = Field(0.5, gt=0.0, le=20.0)
+
+
+class StartRanges(Strict):
+    """Random initial positions of docking trials, relative to the dock (m, deg);
+    a pair is [lo, hi], a single number a means [-a, a]."""
+    range_m: Annotated[list[float], Field(min_length=2, max_length=2)] = [6.0, 12.0]
+    lateral_m: float = Field(1.5, ge=0.0, le=100.0)
+    vertical_m: float = Field(0.5, ge=0.0, le=100.0)
+    heading_error_deg: float = Field(15.0, ge=0.0, le=90.0)
+
+    @model_validator(mode="after")
+    def _order(self):
+        lo, hi = self.range_m
+        if not 0.5 <= lo <= hi <= 1000:
+            raise ValueError(f"range_m must be [lo, hi] with 0.5 <= lo <= hi <= 1000, got {self.range_m}")
+        return self
+
+
+class DockingTrajectory(Strict):
+    """Closed-loop docking trial of the 6-DOF vehicle (blendgen.vehicle.docking) from a seeded random start."""
+    kind: Literal["docking"] = "docking"
+    id: str = "docking"
+    start: StartRanges = StartRanges()
+    stop_distance_m: float = Field(0.5, gt=0.0, le=100.0)
+    max_time_s: float = Field(120.0, gt=0.0, le=3600.0)
+    cruise_speed_mps: float = Field(0.5, gt=0.0, le=3.0)
+    final_speed_mps: float = Field(0.2, gt=0.0, le=3.0)
+
+
+Trajectory = Annotated[Union[LinearTrajectory, CircleTrajectory, DockingTrajectory], Field(discriminator="kind")]
+
+
+class Fluid(Strict):
+    """Water as a fluid: it acts on the vehicle (buoyancy, drag, current)."""
+    density_kg_m3: float = Field(1025.0, ge=900.0, le=1200.0, description="998.2 fresh, 1025 sea")
+    viscosity_pa_s: float = Field(1.3e-3, gt=0.0, le=0.1, description="1.002e-3 fresh, 1.3e-3 sea (recorded)")
+    current_mps: Vec3 = Field([0.0, 0.0, 0.0], description="background flow in the world frame")
+
+    @model_validator(mode="after")
+    def _speed(self):
+        speed = sum(c * c for c in self.current_mps) ** 0.5
+        if speed > 2.0:
+            raise ValueError(f"current speed must be <= 2 m/s, got {speed:.3g}")
+        return self
+
+
+class Occlusion(Strict):
+    """The article's small obstacles (section 2.2.3): N_total particles in a region of
+    volume V_env (default: the pool, 600 m^3 for 15x5x8), radii in [r_min, r_max],
+    drifting with the current plus Gaussian noise."""
+    n_total: float = Field(600, ge=0.0, le=2e7)
+    count_dist: Literal["poisson", "uniform", "fixed"] = "poisson"
+    n_max: Optional[int] = Field(None, ge=0, le=20_000_000)
+    r_min_m: float = Field(0.005, gt=0.0, le=1.0)
+    r_max_m: float = Field(0.02, gt=0.0, le=1.0)
+    drift_sigma_m: float = Field(0.002, ge=0.0, le=1.0, description="per-frame Gaussian step std")
+    mode: Literal["backscatter", "silhouette"] = "backscatter"
+    geometry: Literal["image", "blender"] = Field(
+        "image", description="image: depth-tested blobs drawn on the clean render (fast, shared renders); "
+                             "blender: the same particles as instanced spheres in the scene (validation)")
+    region_min: Optional[Vec3] = None
+    region_max: Optional[Vec3] = None
+
+    @model_validator(mode="after")
+    def _ranges(self):
+        if self.r_min_m > self.r_max_m:
+            raise ValueError(f"r_min_m ({self.r_min_m}) must be <= r_max_m ({self.r_max_m})")
+        if self.n_max is not None and self.count_dist != "uniform" and self.n_total > self.n_max:
+            raise ValueError(f"n_total ({self.n_total:g}) must be <= n_max ({self.n_max})")
+        if (self.region_min is None) != (self.region_max is None):
+            raise ValueError("give both region_min and region_max, or neither")
+        if self.region_min is not None and not all(a < b for a, b in zip(self.region_min, self.region_max)):
+            raise ValueError(f"region_min {self.region_min} must be < region_max {self.region_max} on every axis")
+        return self
+
+
+class Condition(Strict):
+    """One experimental condition: a label and what it changes. Water, light depth and
+    occlusion are image-space (the clean render is shared); fluid changes the motion."""
+    label: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.\-]+$")
+    water: Optional[Water] = None
+    dock_water_depth_m: Optional[float] = Field(None, ge=0.0, le=1000.0)
+    occlusion: Optional[Occlusion] = None
+    fluid: Optional[Fluid] = None
+
+
+class Experiment(Strict):
+    """The whole config file."""
+    name: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.\-]+$")
+    version: str = Field("0.1.0", pattern=r"^\d+\.\d+\.\d+$")
+    seed: int = Field(0, ge=0, le=2**32 - 1)
+    scene: Scene = Scene()
+    camera: Camera = Camera()
+    render: Render = Render()
+    water: Water = Water()
+    fluid: Fluid = Fluid()
+    occlusion: Optional[Occlusion] = None
+    trajectories: list[Trajectory] = Field(min_length=1)
+    conditions: list[Condition] = Field(default_factory=lambda: [Condition(label="default")])
+    trials: int = Field(1, ge=1, le=100000)
+    d_min_rel_m: float = Field(0.2, gt=0.0, le=10.0, description="e_rel is not computed below this d_true")
+
+    @model_validator(mode="after")
+    def _unique(self):
+        for what, ids in (("trajectory", [t.id for t in self.trajectories]),
+                          ("condition", [c.label for c in self.conditions])):
+            if len(set(ids)) != len(ids):
+                raise ValueError(f"{what} ids must be unique, got {ids}")
+        return self
+
+
+def _deep_merge(base: dict, over: dict) -> dict:
+    out = dict(base)
+    for k, v in over.items():
+        out[k] = _deep_merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def _read_yaml(path: Path) -> Any:
+    try:
+        text = path.read_text()
+    except OSError as e:
+        raise ConfigError(f"{path}: cannot read config ({e.strerror})") from None
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f" line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        raise ConfigError(f"{path}:{where} YAML syntax error: {getattr(e, 'problem', e)}") from None
+
+
+def _apply_template(raw: dict, path: Path) -> dict:
+    scene = raw.get("scene") or {}
+    name = scene.get("template") if isinstance(scene, dict) else None
+    if not name:
+        return raw
+    tpath = (path.parent / name) if str(name).endswith((".yaml", ".yml")) else bundled_dir("templates") / f"{name}.yaml"
+    if not tpath.exists():
+        known = bundled_names("templates")
+        raise ConfigError(f"{path}: scene.template: no template {name!r} (known: {', '.join(known)})")
+    tpl = _read_yaml(tpath)
+    if not isinstance(tpl, dict):
+        raise ConfigError(f"{tpath}: a template must be a mapping")
+    return {**raw, "scene": _deep_merge(tpl, scene)}
+
+
+def format_validation_error(path: Path, err: ValidationError) -> str:
+    """One line per problem: ``file: key.path: message (got value)``."""
+    lines = []
+    for e in err.errors():
+        loc = ".".join(str(p) for p in e["loc"] if not str(p).startswith(("function-after", "tagged-union")))
+        got = e.get("input")
+        got_s = "" if isinstance(got, (dict, list)) or got is None else f" (got {got!r})"
+        lines.append(f"{path}: {loc or '<root>'}: {e['msg']}{got_s}")
+    return "\n".join(lines)
+
+
+def load_experiment(path: str | Path) -> Experiment:
+    """Read, template-merge and validate a config file; raise ConfigError on any user error."""
+    path = Path(path)
+    raw = _read_yaml(path)
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{path}: the config must be a YAML mapping, got {type(raw).__name__}")
+    raw = _apply_template(raw, path)
+    try:
+        exp = Experiment.model_validate(raw)
+    except ValidationError as e:
+        raise ConfigError(format_validation_error(path, e)) from None
+    _check_water(exp, path)
+    return exp
+
+
+def _check_water(exp: Experiment, path: Path) -> None:
+    """Validate every water section through the optics module (same ranges for both fidelities)."""
+    from blendgen.physics import optics
+    sections = [("water", exp.water)] + [
+        (f"conditions.{i}.water", c.water) for i, c in enumerate(exp.conditions) if c.water is not None]
+    for where, w in sections:
+        try:
+            optics.water_from_config(w.model_dump(exclude_none=True))
+        except (ValueError, KeyError, TypeError) as e:
+            raise ConfigError(f"{path}: {where}: {e}") from None

@@ -1,0 +1,558 @@
+"""Small-obstacle (particle) occlusion: a 3-D Poisson particle field, drift, and a
+depth-tested, anti-aliased renderer (pure numpy: no OpenCV drawing, no Blender).
+
+The article (SPEC section 4) draws ``Poisson(rho * V_cam)`` blobs in image space.
+Here the obstacles live in the world instead, which gives the same statistics and
+more:
+
+- **Field**: ``N_total`` particles uniformly distributed in an axis-aligned box
+  (the "bounded region", V_env = its volume), radii uniform in ``[r_min, r_max]``.
+  With ``count_dist="poisson"`` the total is ``Poisson(rho * V_env)``, so the field
+  is a homogeneous Poisson point process and the count in *any* sub-volume (the
+  camera frustum included) is ``Poisson(rho * V_sub)`` -- the article's model --
+  while staying consistent from frame to frame. ``"uniform"`` draws the total
+  uniformly in ``[0, n_max]``; ``"fixed"`` uses exactly ``n_total`` (then the count
+  in a sub-volume is binomial).
+- **Drift**: ``p(t+dt) = p(t) + v_flow dt + eta``, ``eta ~ N(0, Sigma)`` per step,
+  then wrapped periodically into the region (a particle leaving through one face
+  re-enters through the opposite one), so the density stays constant forever.
+- **Rendering**: a sphere of radius r at camera point (X, Y, Z), range d = ||p||,
+  projects (first order in r/d) to an ellipse centred on ``(fx X/Z + cx, fy Y/Z + cy)``
+  with tangential semi-axis ``b = f r / Z`` (the article's ``r_pix``, f = (fx+fy)/2)
+  and radial semi-axis ``a = f r d / Z^2`` (off-axis stretching; a = b on the axis).
+  Coverage is anti-aliased (area-conserving); ellipses under half a pixel are splat
+  bilinearly with alpha = their area in px^2, so far specks dim pixels in proportion.
+  A particle covers a pixel only if its range ``d - r`` is less than the rendered
+  surface range there (``range_m``, inf = background). Particles are composited
+  "over" in depth order; for one particle colour that equals
+  ``out = img * T + colour * (1 - T)``, ``T = prod(1 - alpha_i)``, which is
+  order-independent and therefore computed fully vectorised.
+
+Units: metres, world +z up, OpenCV camera frame, ``T_world_cam`` 4x4 (geometry.py).
+Positions are stored as float32 (12 bytes per particle: 1e6 particles = 12 MB);
+keep region coordinates within a few hundred metres of the origin (float32 keeps
+~10 um resolution at 100 m).
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+COUNT_DISTS = ("poisson", "uniform", "fixed")
+MODES = ("backscatter", "silhouette")
+MAX_PARTICLES = 20_000_000            # 240 MB of float32 positions
+DEFAULT_R_MIN_M = 0.005
+DEFAULT_R_MAX_M = 0.02
+DEFAULT_AMBIENT_RGB = (0.60, 0.70, 0.62)  # light grey-green veiling/ambient light (linear)
+SILHOUETTE_ALBEDO = 0.05
+_SPLAT_BELOW_PX = 0.5                 # semi-axis below which a particle is a bilinear speck
+_NORMALISE_BELOW_PX = 4.0             # small ellipses: rescale coverage to the exact area
+_GROUP_MAX_PX = 16                    # boxes up to this size are drawn in broadcast blocks
+_ALPHA_MAX = 1.0 - 1e-6               # keeps log(1 - alpha) finite
+
+
+# ----------------------------------------------------------------------------- field
+def _as_rng(rng) -> np.random.Generator:
+    return rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+
+
+def _check_region(region_min, region_max) -> tuple[np.ndarray, np.ndarray]:
+    lo = np.asarray(region_min, float).reshape(-1)
+    hi = np.asarray(region_max, float).reshape(-1)
+    if lo.shape != (3,) or hi.shape != (3,) or not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+        raise ValueError(f"region_min/region_max must be finite (3,) vectors, got {lo}, {hi}")
+    scale = np.maximum(1.0, np.maximum(np.abs(lo), np.abs(hi)))   # float32 must resolve it
+    if np.any(hi - lo < 1e-6 * scale):
+        raise ValueError(f"region must be non-empty: region_max - region_min >= 1e-6 * max(1, |coord|) "
+                         f"m on every axis, got min={lo.tolist()} max={hi.tolist()}")
+    return lo, hi
+
+
+def _check_radii(r_min: float, r_max: float) -> None:
+    if not (math.isfinite(r_min) and math.isfinite(r_max)) or r_min < 0 or r_max < r_min:
+        raise ValueError(f"radii must satisfy 0 <= r_min <= r_max < inf, got r_min={r_min}, r_max={r_max}")
+
+
+def _draw_count(rng, mean: float, count_dist: str, n_max, n_total) -> int:
+    """Total particle count for ``count_dist`` (see ParticleField.sample)."""
+    if n_max is not None and (not float(n_max).is_integer() or n_max < 0):
+        raise ValueError(f"n_max must be an integer >= 0, got {n_max}")
+    if count_dist == "poisson":
+        n = int(rng.poisson(mean))
+        return n if n_max is None else min(n, int(n_max))
+    if count_dist == "uniform":
+        bound = n_max if n_max is not None else (n_total if n_total is not None else round(mean))
+        if bound is None or not float(bound).is_integer() or bound < 0:
+            raise ValueError(f"uniform counts need an integer upper bound n_max >= 0, got {bound}")
+        return int(rng.integers(0, int(bound), endpoint=True))
+    if count_dist == "fixed":
+        n = n_total if n_total is not None else round(mean)
+        if not float(n).is_integer():
+            raise ValueError(f"fixed counts need an integer n_total >= 0, got {n}")
+        if n_max is not None and n > n_max:
+            raise ValueError(f"n_total={n} exceeds n_max={n_max}: allowed 0 <= n_total <= n_max")
+        return int(n)
+    raise ValueError(f"count_dist must be one of {COUNT_DISTS}, got {count_dist!r}")
+
+
+@dataclass(frozen=True, eq=False)
+class ParticleField:
+    """Spherical small obstacles in an axis-aligned world box.
+
+    positions (N,3) float32 world metres, radii (N,) float32 metres,
+    region_min / region_max (3,) float64 world metres (positions lie in [min, max)).
+    """
+    positions: np.ndarray
+    radii: np.ndarray
+    region_min: np.ndarray
+    region_max: np.ndarray
+
+    def __post_init__(self):
+        pos = np.asarray(self.positions, np.float32).reshape(-1, 3)
+        radii = np.asarray(self.radii, np.float32).reshape(-1)
+        lo, hi = _check_region(self.region_min, self.region_max)
+        if radii.shape[0] != pos.shape[0]:
+            raise ValueError(f"positions (N,3) and radii (N,) disagree: {pos.shape} vs {radii.shape}")
+        if radii.size and not (np.all(np.isfinite(radii)) and radii.min() >= 0):
+            raise ValueError("radii must be finite and >= 0 m")
+        for name, val in (("positions", pos), ("radii", radii), ("region_min", lo), ("region_max", hi)):
+            object.__setattr__(self, name, val)
+
+    @property
+    def n(self) -> int:
+        return int(self.radii.shape[0])
+
+    @property
+    def volume(self) -> float:
+        """Region volume V_env (m^3)."""
+        return float(np.prod(self.region_max - self.region_min))
+
+    @property
+    def density(self) -> float:
+        """Realised density N / V_env (1/m^3)."""
+        return self.n / self.volume
+
+    @classmethod
+    def sample(cls, rng, region_min, region_max, n_total: float | None = None,
+               density: float | None = None, r_min: float = DEFAULT_R_MIN_M,
+               r_max: float = DEFAULT_R_MAX_M, count_dist: str = "poisson",
+               n_max: int | None = None) -> "ParticleField":
+        """Draw a field. Give exactly one of ``n_total`` (expected/total count in the
+        region) or ``density`` (rho, 1/m^3; then the mean count is rho * V_env).
+
+        count_dist: "poisson" -> N ~ Poisson(mean) (clipped at n_max if given);
+        "uniform" -> N uniform on {0..n_max} (n_max defaults to n_total);
+        "fixed" -> N = n_total exactly (must be an integer <= n_max).
+        ``rng`` is a numpy Generator or a seed; the same seed gives the same field.
+        """
+        rng = _as_rng(rng)
+        lo, hi = _check_region(region_min, region_max)
+        _check_radii(float(r_min), float(r_max))
+        if (n_total is None) == (density is None):
+            raise ValueError("give exactly one of n_total or density")
+        vol = float(np.prod(hi - lo))
+        mean = float(n_total) if n_total is not None else float(density) * vol
+        if not math.isfinite(mean) or mean < 0 or mean > MAX_PARTICLES:
+            raise ValueError(f"expected particle count must be in [0, {MAX_PARTICLES}], got {mean} "
+                             f"(n_total={n_total}, density={density}, V_env={vol:.6g} m^3)")
+        n = _draw_count(rng, mean, count_dist, n_max, n_total)
+        if n > MAX_PARTICLES:
+            raise ValueError(f"particle count must be <= {MAX_PARTICLES}, got {n}")
+        pos = rng.random((n, 3), dtype=np.float32)            # in place: ~16 bytes/particle
+        pos *= (hi - lo).astype(np.float32)
+        pos += lo.astype(np.float32)
+        _clamp32(pos, lo, hi)                                # float32 rounding stays inside
+        radii = rng.random(n, dtype=np.float32)
+        radii *= np.float32(r_max - r_min)
+        radii += np.float32(r_min)
+        return cls(pos, radii, lo, hi)
+
+    def step(self, dt: float, v_flow, sigma, rng) -> "ParticleField":
+        """Drift one time step: ``p + v_flow*dt + eta``, eta ~ N(0, Sigma), wrapped
+        periodically into the region (density stays constant). Radii are kept.
+
+        v_flow (3,) m/s world; sigma (3,) = per-axis std-devs (m) or (3,3) = the
+        covariance Sigma (m^2) of the displacement noise *per step* (the article's
+        model; scale it with dt yourself for a diffusion). Returns a new field.
+        Positions are re-rounded to float32 each step (~0.5 um at 5 m from the origin).
+        """
+        rng = _as_rng(rng)
+        if not (math.isfinite(dt) and dt >= 0):
+            raise ValueError(f"dt must be finite and >= 0, got {dt}")
+        v = np.asarray(v_flow, float).reshape(-1)
+        if v.shape != (3,) or not np.all(np.isfinite(v)):
+            raise ValueError(f"v_flow must be a finite (3,) vector in m/s, got {v_flow}")
+        L = _noise_factor(sigma)
+        pos = self.positions.astype(np.float64) + v * dt
+        if np.any(L):
+            pos += rng.standard_normal((self.n, 3)) @ L.T
+        return ParticleField(_wrap(pos, self.region_min, self.region_max), self.radii,
+                             self.region_min, self.region_max)
+
+
+def _noise_factor(sigma) -> np.ndarray:
+    """(3,3) L with L L^T = Sigma from per-axis std-devs (3,) or a covariance (3,3)."""
+    s = np.asarray(sigma, float)
+    if s.shape == (3,) or s.shape == ():
+        s = np.broadcast_to(s, (3,))
+        if not np.all(np.isfinite(s)) or np.any(s < 0):
+            raise ValueError(f"sigma std-devs must be finite and >= 0 (m), got {s.tolist()}")
+        return np.diag(s)
+    if s.shape != (3, 3) or not np.all(np.isfinite(s)) or not np.allclose(s, s.T):
+        raise ValueError(f"sigma must be (3,) std-devs or a symmetric (3,3) covariance, got {s.tolist()}")
+    w, V = np.linalg.eigh(s)
+    if w.min() < -1e-12 * max(1.0, w.max()):
+        raise ValueError(f"covariance sigma must be positive semi-definite, eigenvalues {w.tolist()}")
+    return V * np.sqrt(np.clip(w, 0.0, None))
+
+
+def _wrap(pos: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Periodic wrap into [lo, hi) per axis -> float32 (N,3)."""
+    ext = hi - lo
+    return _clamp32((lo + np.mod(pos - lo, ext)).astype(np.float32), lo, hi)
+
+
+def _clamp32(pos: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """In place: keep float32 positions in [lo, hi) despite rounding (lo, hi float64)."""
+    lo32, hi32 = lo.astype(np.float32), hi.astype(np.float32)
+    lo32 = np.where(lo32 < lo, np.nextafter(lo32, np.float32(np.inf)), lo32)
+    top = np.where(hi32 >= hi, np.nextafter(hi32, np.float32(-np.inf)), hi32)
+    np.maximum(pos, lo32, out=pos)
+    return np.minimum(pos, top, out=pos)
+
+
+# ----------------------------------------------------------------------------- frustum
+def frustum_volume(K: np.ndarray, width: int, height: int, z_near: float, z_far: float) -> float:
+    """Volume (m^3) of the image pyramid between planar depths z_near and z_far.
+
+    The image spans u in [-0.5, W-0.5], v in [-0.5, H-0.5] (pixel centres at
+    integers), so its cross-section at depth z has area W H z^2 / (fx fy) (skew
+    does not change the area): V = W H / (fx fy) * (z_far^3 - z_near^3) / 3.
+    """
+    if not (0 <= z_near <= z_far) or not math.isfinite(z_far):
+        raise ValueError(f"need 0 <= z_near <= z_far < inf, got {z_near}, {z_far}")
+    return width * height / (K[0, 0] * K[1, 1]) * (z_far ** 3 - z_near ** 3) / 3.0
+
+
+def _to_camera(field: ParticleField, T_world_cam: np.ndarray, z_min: float, z_max: float):
+    """Indices and camera-frame centres (M,3) float32 of particles with z_min < Z <= z_max."""
+    T = np.asarray(T_world_cam, float)
+    if T.shape != (4, 4):
+        raise ValueError(f"T_world_cam must be 4x4, got {T.shape}")
+    R = T[:3, :3].astype(np.float32)
+    t = T[:3, 3].astype(np.float32)
+    P = field.positions                     # explicit column sums: no BLAS threads here
+    z = P[:, 0] * R[0, 2] + P[:, 1] * R[1, 2] + P[:, 2] * R[2, 2] - np.float32(t @ R[:, 2])
+    idx = np.flatnonzero((z > z_min) & (z <= z_max))
+    d = P[idx] - t
+    pc = np.empty_like(d)
+    for k in range(3):
+        pc[:, k] = d[:, 0] * R[0, k] + d[:, 1] * R[1, k] + d[:, 2] * R[2, k]
+    return idx, pc
+
+
+def count_in_frustum(field: ParticleField, K: np.ndarray, T_world_cam: np.ndarray, width: int,
+                     height: int, z_near: float, z_far: float) -> int:
+    """Number of particle centres inside the image pyramid with z_near < Z <= z_far.
+
+    Its expectation is rho * V(frustum & region); for a frustum inside the region
+    that is rho * frustum_volume(...)."""
+    _, pc = _to_camera(field, T_world_cam, z_near, z_far)
+    u, v = _project(K, pc)
+    return int(np.count_nonzero((u >= -0.5) & (u < width - 0.5) & (v >= -0.5) & (v < height - 0.5)))
+
+
+def _project(K: np.ndarray, pc: np.ndarray):
+    z = pc[:, 2]
+    u = (K[0, 0] * pc[:, 0] + K[0, 1] * pc[:, 1]) / z + K[0, 2]
+    v = K[1, 1] * pc[:, 1] / z + K[1, 2]
+    return u.astype(np.float32), v.astype(np.float32)
+
+
+# ----------------------------------------------------------------------------- rendering
+@dataclass
+class ProjectedParticles:
+    """Image-space footprint of the particles that can touch the image (float32 arrays)."""
+    u: np.ndarray        # (M,) centre column (px)
+    v: np.ndarray        # (M,) centre row (px)
+    a: np.ndarray        # (M,) radial semi-axis (px)
+    b: np.ndarray        # (M,) tangential semi-axis (px) = f r / Z
+    c: np.ndarray        # (M,) cos of the radial direction in the image
+    s: np.ndarray        # (M,) sin of the radial direction
+    surf_range: np.ndarray  # (M,) range to the particle surface, ||p|| - r (m)
+
+
+def project_particles(field: ParticleField, K: np.ndarray, T_world_cam: np.ndarray, width: int,
+                      height: int, z_near: float = 0.05) -> ProjectedParticles:
+    """Project the particles that can touch the image (vectorised culling).
+
+    Keeps particles with Z > z_near, the camera outside the sphere, and the ellipse
+    overlapping the image (1.5 px margin)."""
+    idx, pc = _to_camera(field, T_world_cam, z_near, np.inf)
+    r = field.radii[idx]
+    dist = np.sqrt(np.einsum("ij,ij->i", pc, pc))
+    ok = dist > r
+    pc, r, dist = pc[ok], r[ok], dist[ok]
+    u, v = _project(K, pc)
+    z = pc[:, 2]
+    b = (0.5 * (K[0, 0] + K[1, 1]) * r / z).astype(np.float32)
+    a = (b * dist / z).astype(np.float32)
+    m = 1.5 + a
+    keep = (u > -0.5 - m) & (u < width - 0.5 + m) & (v > -0.5 - m) & (v < height - 0.5 + m)
+    du, dv = u[keep] - np.float32(K[0, 2]), v[keep] - np.float32(K[1, 2])
+    norm = np.hypot(du, dv)
+    safe = np.where(norm > 1e-6, norm, 1.0)
+    return ProjectedParticles(u[keep], v[keep], a[keep], b[keep],
+                      np.where(norm > 1e-6, du / safe, 1.0).astype(np.float32),
+                      np.where(norm > 1e-6, dv / safe, 0.0).astype(np.float32),
+                      (dist - r)[keep].astype(np.float32))
+
+
+def _speck_samples(p: ProjectedParticles, sel: np.ndarray, width: int, height: int):
+    """Sub-pixel particles: bilinear splat of alpha = ellipse area (px^2) onto 4 pixels."""
+    u, v = p.u[sel], p.v[sel]
+    area = (np.pi * p.a[sel] * p.b[sel]).astype(np.float32)
+    x0, y0 = np.floor(u), np.floor(v)
+    fx, fy = u - x0, v - y0
+    x0, y0 = x0.astype(np.int64), y0.astype(np.int64)
+    px = np.concatenate([x0, x0 + 1, x0, x0 + 1])
+    py = np.concatenate([y0, y0, y0 + 1, y0 + 1])
+    w = np.concatenate([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy])
+    owner = np.tile(sel, 4)
+    inside = (px >= 0) & (px < width) & (py >= 0) & (py < height) & (w > 0)
+    return (py * width + px)[inside], (np.tile(area, 4) * w)[inside], owner[inside]
+
+
+def _ramp_params(p: ProjectedParticles, sel: np.ndarray):
+    """Per-particle coefficients of the coverage ramp (see _coverage)."""
+    a, b, c, s = p.a[sel], p.b[sel], p.c[sel], p.s[sel]
+    m = np.sqrt(a * b)
+    return c / a, s / a, c / b, s / b, 0.5 + m, m
+
+
+def _coverage(dx, dy, ca, sa, cb, sb, k0, k1):
+    """Anti-aliased coverage of pixel centres at offsets (dx, dy) from an ellipse centre.
+
+    With q the normalised elliptic radius (q = 1 on the rim) and m = sqrt(a b), the
+    signed distance to the rim is ~ (q - 1) m, and alpha = clip(0.5 - distance, 0, 1)
+    = clip(k0 - k1 q) (k0 = 0.5 + m, k1 = m). The rim is exact; only the 1-px ramp is
+    approximate (small ellipses are renormalised to their exact area). Broadcasts."""
+    xr = dx * ca + dy * sa
+    xt = dy * cb - dx * sb
+    return np.clip(k0 - k1 * np.sqrt(xr * xr + xt * xt), 0.0, 1.0)
+
+
+def _boxes(p: ProjectedParticles, sel: np.ndarray):
+    """Pixel boxes [x0, x0+sx) x [y0, y0+sy) holding every centre with alpha > 0."""
+    u, v, a, b, c, s = p.u[sel], p.v[sel], p.a[sel], p.b[sel], p.c[sel], p.s[sel]
+    grow = 1.0 + 0.5 / np.sqrt(a * b)                          # alpha > 0 <=> q < k0/k1
+    ex = np.sqrt((a * c) ** 2 + (b * s) ** 2) * grow
+    ey = np.sqrt((a * s) ** 2 + (b * c) ** 2) * grow
+    x0, y0 = np.ceil(u - ex).astype(np.int64), np.ceil(v - ey).astype(np.int64)
+    return x0, y0, np.floor(u + ex).astype(np.int64) + 1 - x0, np.floor(v + ey).astype(np.int64) + 1 - y0
+
+
+def _small_ellipse_samples(p: ProjectedParticles, sel: np.ndarray, x0, y0, size: int, width: int,
+                           height: int, clip: bool):
+    """Ellipses whose box fits in size x size px: one broadcast (m, size^2) block.
+
+    ``clip``: some boxes cross the image border (drop samples outside)."""
+    col = lambda x: x[:, None]
+    g = np.arange(size, dtype=np.float32)
+    gx, gy = np.tile(g, size), np.repeat(g, size)
+    ca, sa, cb, sb, k0, k1 = (col(x) for x in _ramp_params(p, sel))
+    alpha = _coverage(col((x0 - p.u[sel]).astype(np.float32)) + gx,
+                      col((y0 - p.v[sel]).astype(np.float32)) + gy, ca, sa, cb, sb, k0, k1)
+    a, b = p.a[sel], p.b[sel]
+    small = a < _NORMALISE_BELOW_PX
+    if np.any(small):                                   # exact area pi a b for small ones
+        total = np.einsum("ij->i", alpha)                # (no BLAS threads)
+        scale = np.where(small & (total > 0), np.pi * a * b / np.maximum(total, 1e-12), 1.0)
+        alpha = np.minimum(alpha * col(scale.astype(np.float32)), 1.0)
+    keep = alpha > 0
+    gi = np.arange(size)
+    if clip:
+        okx = (col(x0) + gi >= 0) & (col(x0) + gi < width)          # (m, size)
+        oky = (col(y0) + gi >= 0) & (col(y0) + gi < height)
+        keep &= (oky[:, :, None] & okx[:, None, :]).reshape(alpha.shape)
+    flat = np.flatnonzero(keep)
+    row = flat // (size * size)
+    offs = (gi[:, None] * width + gi[None, :]).reshape(-1)
+    pix = (y0 * width + x0).take(row) + offs.take(flat - row * (size * size))
+    return pix, alpha.reshape(-1).take(flat), sel.take(row)
+
+
+def _large_ellipse_samples(p: ProjectedParticles, sel: np.ndarray, x0, y0, sx, sy, width: int, height: int):
+    """Large ellipses: variable boxes clipped to the image, flattened with np.repeat."""
+    x1, y1 = np.minimum(x0 + sx, width), np.minimum(y0 + sy, height)
+    x0, y0 = np.maximum(x0, 0), np.maximum(y0, 0)
+    sx, sy = np.maximum(x1 - x0, 0), np.maximum(y1 - y0, 0)
+    n = sx * sy
+    k = np.repeat(np.arange(len(sel)), n)
+    local = np.arange(int(n.sum()), dtype=np.int64) - np.repeat(np.cumsum(n) - n, n)
+    ly = local // sx[k]
+    px, py = x0[k] + (local - ly * sx[k]), y0[k] + ly
+    prm = [x[k] for x in _ramp_params(p, sel)]
+    alpha = _coverage((px - p.u[sel][k]).astype(np.float32), (py - p.v[sel][k]).astype(np.float32), *prm)
+    keep = alpha > 0
+    return (py * width + px)[keep], alpha[keep], sel[k[keep]]
+
+
+def _ellipse_samples(p: ProjectedParticles, sel: np.ndarray, width: int, height: int):
+    """Coverage samples (flat pixel, alpha, particle) of every ellipse in ``sel``.
+
+    Ellipses with boxes up to _GROUP_MAX_PX are processed in broadcast blocks by box
+    size (fast, no gathers); larger ones are rasterised over their visible part."""
+    x0, y0, sx, sy = _boxes(p, sel)
+    size = np.maximum(sx, sy)
+    border = (x0 < 0) | (y0 < 0) | (x0 + size > width) | (y0 + size > height)
+    parts = []
+    for s_ in np.unique(size[size <= _GROUP_MAX_PX]):
+        for clip in (False, True):
+            m = np.flatnonzero((size == s_) & (border == clip))
+            if m.size:
+                parts.append(_small_ellipse_samples(p, sel[m], x0[m], y0[m], int(s_), width,
+                                                    height, clip))
+    m = size > _GROUP_MAX_PX
+    if np.any(m):
+        parts.append(_large_ellipse_samples(p, sel[m], x0[m], y0[m], sx[m], sy[m], width, height))
+    return parts
+
+
+def _in_front(parts, p: ProjectedParticles, range_flat: np.ndarray):
+    """Depth test: keep samples whose particle surface is nearer than the scene surface."""
+    out = []
+    for pix, alpha, owner in parts:
+        d = p.surf_range.take(owner)
+        front = np.flatnonzero(range_flat.take(pix) > d)
+        out.append((pix.take(front), alpha.take(front), d.take(front)))
+    if not out:
+        return np.zeros(0, np.int64), np.zeros(0, np.float32), np.zeros(0, np.float32)
+    return tuple(np.concatenate(z) for z in zip(*out))
+
+
+def _water_callable(water) -> Callable | None:
+    """None | callable(rgb (M,3), range (M,)) -> (M,3) | {beta, colour} (article's blend)."""
+    if water is None or callable(water):
+        return water
+    get = water.get if isinstance(water, Mapping) else (lambda key, d=None: getattr(water, key, d))
+    beta = get("beta")
+    colour = get("colour", get("color", get("water_colour")))
+    if beta is None or colour is None:
+        raise ValueError("water must be None, a callable (rgb, range) -> rgb, or have 'beta' and 'colour'")
+    beta = np.broadcast_to(np.asarray(beta, np.float32), (3,))
+    colour = np.broadcast_to(np.asarray(colour, np.float32), (3,))
+
+    def blend(rgb, rng):
+        w = 1.0 - np.exp(-beta[None, :] * rng[:, None])
+        return rgb * (1.0 - w) + colour[None, :] * w
+    return blend
+
+
+def _particle_colour(mode: str, colour, ambient) -> np.ndarray:
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+    if colour is not None:
+        return np.broadcast_to(np.asarray(colour, np.float32), (3,)).copy()
+    amb = np.broadcast_to(np.asarray(ambient, np.float32), (3,))
+    return (amb if mode == "backscatter" else SILHOUETTE_ALBEDO * amb).astype(np.float32)
+
+
+def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: ParticleField,
+                     K: np.ndarray, T_world_cam: np.ndarray, water=None, mode: str = "backscatter",
+                     z_near: float = 0.05, colour=None, ambient=DEFAULT_AMBIENT_RGB):
+    """Draw the particle field into a linear RGB image with a depth test.
+
+    image_linear (H,W,3) float, range_m (H,W) float (range along each pixel ray to
+    the rendered surface, inf or NaN = background). Returns (image_out (H,W,3) float32,
+    occluder_mask (H,W) bool = particle coverage >= 0.5, particle_range (H,W)
+    float32 = range of the nearest particle covering the pixel, inf elsewhere).
+    Inputs are not modified. Compositing equals drawing the particles far to near
+    (painter's order) with "over"; per-pixel depth test as in the module docstring.
+
+    Colour: ``colour`` (3,) linear RGB, else "backscatter" = ``ambient`` (a bright
+    speck lit by the veiling light) or "silhouette" = 0.05 * ambient (dark).
+
+    Water: particles must be attenuated by *their own* range, not the surface's.
+    Either (a) pass ``image_linear`` already through the water model and give
+    ``water`` -- a callable ``water(rgb (M,3), range (M,)) -> (M,3)`` or an object /
+    mapping with ``beta`` (1/m, scalar or per RGB) and ``colour`` (the article's
+    blend ``c (1-w) + colour w``, ``w = 1 - exp(-beta d)``) -- and each covered
+    pixel gets the colour at its nearest particle's range. With blendgen.physics.optics:
+    ``water=lambda rgb, r: optics.apply_water(rgb[None], r[None], None, w, depth)[0]``.
+    Or (b) keep ``water=None``
+    on a clean image and apply water to ``image_out`` with the merged range
+    ``np.where(particle_range < inf, particle_range, range_m)`` (approximate on
+    partly covered pixels).
+    """
+    img = np.asarray(image_linear, np.float32)
+    h, w = img.shape[:2]
+    if img.shape != (h, w, 3) or np.shape(range_m) != (h, w):
+        raise ValueError(f"need image (H,W,3) and range_m (H,W), got {img.shape} and {np.shape(range_m)}")
+    if not z_near > 0:
+        raise ValueError(f"z_near must be > 0 m, got {z_near}")
+    col = _particle_colour(mode, colour, ambient)
+    water_fn = _water_callable(water)
+    p = project_particles(field, K, T_world_cam, w, h, z_near)
+    speck = p.a < _SPLAT_BELOW_PX
+    parts = [_speck_samples(p, np.flatnonzero(speck), w, h)]
+    parts += _ellipse_samples(p, np.flatnonzero(~speck), w, h)
+    surf = np.asarray(range_m, np.float32).reshape(-1)
+    if np.isnan(surf).any():                            # NaN = no surface hit = background
+        surf = np.where(np.isnan(surf), np.float32(np.inf), surf)
+    pix, alpha, d = _in_front(parts, p, surf)
+    log_t = np.zeros(h * w, np.float32)                # log transmittance, sum of log(1 - alpha)
+    np.add.at(log_t, pix, np.log1p(-np.minimum(alpha, np.float32(_ALPHA_MAX))))
+    prange = np.full(h * w, np.inf, np.float32)
+    np.minimum.at(prange, pix, d)                      # nearest covering particle per pixel
+    out = img.copy()
+    flat = out.reshape(-1, 3)
+    hit = np.flatnonzero(log_t < 0)
+    cov = (1.0 - np.exp(log_t[hit])).astype(np.float32)
+    c = np.broadcast_to(col, (hit.size, 3)) if water_fn is None else np.asarray(
+        water_fn(np.broadcast_to(col, (hit.size, 3)), prange[hit]), np.float32)
+    keep = 1.0 - cov
+    for ch in range(3):                                   # out = img T + colour (1 - T)
+        v = flat[:, ch]
+        v[hit] = v[hit] * keep + c[:, ch] * cov
+    mask = np.zeros(h * w, bool)
+    mask[hit] = cov >= 0.5
+    return out, mask.reshape(h, w), prange.reshape(h, w)
+
+
+# ----------------------------------------------------------------------------- visibility
+def visible_fraction_from_masks(marker_mask: np.ndarray, occluder_mask: np.ndarray,
+                                expected_area_px: float) -> float:
+    """Share of a marker left visible: |marker & ~occluder| / expected area, in [0, 1].
+
+    expected_area_px is the marker's unoccluded projected area (px); 0 -> 0.0."""
+    if not (math.isfinite(expected_area_px) and expected_area_px >= 0):
+        raise ValueError(f"expected_area_px must be finite and >= 0, got {expected_area_px}")
+    if np.shape(marker_mask) != np.shape(occluder_mask):
+        raise ValueError(f"mask shapes differ: {np.shape(marker_mask)} vs {np.shape(occluder_mask)}")
+    if expected_area_px == 0:
+        return 0.0
+    seen = np.count_nonzero(np.asarray(marker_mask, bool) & ~np.asarray(occluder_mask, bool))
+    return float(min(1.0, seen / expected_area_px))
+
+
+def led_visible_fraction(led_pixels, index_image: np.ndarray, led_index_values,
+                         occluder_mask: np.ndarray) -> float:
+    """Share of LEDs whose centre pixel (u, v) is inside the image, shows an LED
+    (index_image value in ``led_index_values``) and is not occluded."""
+    uv = np.rint(np.asarray(led_pixels, float)).reshape(-1, 2)
+    if uv.shape[0] == 0:
+        raise ValueError("led_pixels must hold at least one LED centre (N,2)")
+    if np.shape(index_image) != np.shape(occluder_mask):
+        raise ValueError(f"shapes differ: {np.shape(index_image)} vs {np.shape(occluder_mask)}")
+    h, w = np.shape(index_image)
+    ok = np.all(np.isfinite(uv), axis=1)
+    ok &= (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
+    u, v = uv[ok, 0].astype(int), uv[ok, 1].astype(int)
+    seen = np.isin(np.asarray(index_image)[v, u], np.atleast_1d(led_index_values)) \
+        & ~np.asarray(occluder_mask, bool)[v, u]
+    return float(np.count_nonzero(seen)) / uv.shape[0]

@@ -1,0 +1,270 @@
+"""``dockbench generate``: config -> versioned dataset on disk.
+
+Validation happens before anything is written. Finished sequences of an earlier,
+interrupted run are kept and not rendered again.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import platform
+import shutil
+from contextlib import ExitStack, contextmanager
+from dataclasses import dataclass
+from importlib import metadata
+from pathlib import Path
+
+import numpy as np
+
+from blendgen import markers as mk
+
+from blendgen.pipeline import executor as ex
+
+from blendgen.pipeline import plan
+from blendgen.config.models import Experiment
+from blendgen.pipeline.writer import FORMAT, SPEC_VERSION, DatasetWriter
+
+
+def versions() -> dict:
+    """Generator versions recorded in the manifest (read from metadata: no bpy import)."""
+    def v(name):
+        try:
+            return metadata.version(name)
+        except metadata.PackageNotFoundError:
+            return None
+    return {"dockbench": v("dockbench"), "bpy": v("bpy"), "opencv": v("opencv-contrib-python-headless"),
+            "numpy": v("numpy"), "python": platform.python_version()}
+
+
+def write_textures(exp: Experiment, root: Path) -> dict[str, str]:
+    """Marker textures into ``assets/`` (part of the dataset: printable); id -> absolute path."""
+    out = {}
+    for spec in exp.scene.dock.markers:
+        tex = mk.texture_for(spec)
+        if tex is not None:
+            p = root / "assets" / f"marker_{spec.id}.png"
+            mk.write_texture(tex, p)
+            out[spec.id] = str(p.resolve())
+    return out
+
+
+def _job_dict(t: "_Target", job: plan.RenderJob, render: dict, parts: list) -> dict:
+    """The worker's job file. ``parts`` are (target, job, sequences still to write) of
+    every dataset fed by this render (a resumed shared job may have committed some)."""
+    c = t.exp.camera
+    first = job.sequences[0].id
+    return {
+        "scene": job.scene, "fidelity": t.exp.render.fidelity, "render": render, "frames": job.frames,
+        "camera": {"width": c.width, "height": c.height, "hfov_rad": math.radians(c.hfov_deg),
+                   "K": t.K.tolist()},
+        "gt": {"T_world_dock": job.scene["dock"]["T_world_dock"], "markers": t.markers},
+        "outputs": [{"seq_dir": str(pt.writer.tmp_dir(s.id).resolve()), "rel": f"sequences/{s.id}", "post": s.post}
+                    for pt, _, seqs in parts for s in seqs],
+        "log": str((t.work / "logs" / f"{first}.blender.log").resolve()),
+        "timing_out": str((t.work / "timing" / f"{first}.json").resolve()),
+    }
+
+
+def manifest_base(exp: Experiment, K: np.ndarray, markers: list[dict], scene: dict,
+                  jobs: list[plan.RenderJob]) -> dict:
+    c = exp.camera
+    seqs = [{"id": s.id, "path": f"sequences/{s.id}", "condition": s.condition,
+             "conditions": {"label": s.condition, **s.conditions}, "trial": s.trial,
+             "trajectory": s.trajectory, "n_frames": len(j.frames)} for j in jobs for s in j.sequences]
+    return {"format": FORMAT, "spec_version": SPEC_VERSION, "name": exp.name, "version": exp.version,
+            "generator": versions(), "config": exp.model_dump(mode="json"), "seed": exp.seed,
+            "camera": {"width": c.width, "height": c.height, "K": K.tolist(), "fps": c.fps,
+                       "latency_s": c.latency_s, "hfov_deg": c.hfov_deg, "distortion": c.distortion},
+            "dock": {"T_world_dock": scene["dock"]["T_world_dock"]},
+            "markers": markers, "object_index": plan.object_index_names(markers, exp),
+            "d_min_rel_m": exp.d_min_rel_m, "sequences": seqs}
+
+
+def generate(exp: Experiment, out: Path, workers: int | None = None, progress: bool = True,
+             executor: str = "local", ray_address: str | None = None) -> dict:
+    """Render the whole experiment into ``out``; returns the manifest.
+
+    ``executor``: ``"local"`` (process pool on this machine; ``workers`` processes)
+    or ``"ray"`` (Ray tasks; ``ray_address`` of a cluster, or None for a local Ray
+    instance; ``workers`` caps the tasks in flight). Both run the same job
+    function and write the same bytes. Safe to interrupt (Ctrl-C, SIGTERM, kill):
+    finished sequences are kept and a re-run resumes."""
+    return generate_many([(exp, out)], workers, progress, executor, ray_address)[0]
+
+
+def generate_many(items: list[tuple[Experiment, Path]], workers: int | None = None, progress: bool = True,
+                  executor: str = "local", ray_address: str | None = None) -> list[dict]:
+    """Render several datasets at once, rendering each camera path once for all of them:
+    jobs of different experiments with the same scene, poses and render settings are
+    merged (e.g. the article's turbidity, depth and occlusion experiments share their
+    trajectories). Returns the manifests in the order of ``items``."""
+    if executor not in ex.EXECUTORS:
+        raise ex.ExecutorError(f"unknown executor {executor!r}; choose one of {', '.join(ex.EXECUTORS)}")
+    if executor == "ray":
+        ex.require_ray()                       # user errors before anything is written
+        if ray_address:
+            ex.check_ray_address(ray_address)
+    with ExitStack() as stack:
+        for _, out in items:
+            Path(out).mkdir(parents=True, exist_ok=True)
+            stack.enter_context(_exclusive(Path(out)))
+        stack.enter_context(ex.sigterm_as_interrupt())
+        targets = [_Target.prepare(exp, Path(out)) for exp, out in items]
+        _render(targets, workers, progress, executor, ray_address)
+        return [t.writer.finish(manifest_base(t.exp, t.K, t.markers, t.scene, t.jobs)) for t in targets]
+
+
+@dataclass
+class _Target:
+    """One dataset being generated: its writer, work dir, planned jobs."""
+    exp: Experiment
+    out: Path
+    writer: DatasetWriter
+    work: Path
+    K: np.ndarray
+    markers: list
+    scene: dict
+    jobs: list
+
+    @classmethod
+    def prepare(cls, exp: Experiment, out: Path) -> "_Target":
+        writer = DatasetWriter(out)
+        writer.prepare()
+        stamp_config(exp, out)
+        work = out / ".work"
+        for sub in ("jobs", "logs", "timing"):
+            (work / sub).mkdir(parents=True, exist_ok=True)
+        markers = plan.manifest_markers(exp)
+        scene = plan.scene_description(exp, markers, write_textures(exp, out))
+        return cls(exp, out, writer, work, plan.camera_K(exp), markers, scene,
+                   plan.plan_jobs(exp, scene))
+
+
+def _merged_jobs(targets: list[_Target]) -> dict[str, list]:
+    """render key (plan.job_key, the same in every dataset that needs this render) ->
+    [(target, job, sequences still to write)], finished sequences left out."""
+    merged: dict[str, list] = {}
+    for t in targets:
+        for j in t.jobs:
+            seqs = [s for s in j.sequences if not t.writer.is_done(s.id)]
+            if seqs:
+                merged.setdefault(j.key, []).append((t, j, seqs))
+    return merged
+
+
+def _render(targets: list[_Target], workers: int | None, progress: bool, kind: str,
+            ray_address: str | None) -> None:
+    merged = _merged_jobs(targets)
+    n_workers, threads = ex.slots(kind, len(merged), workers, targets[0].exp.render.threads)
+    files = {}
+    for parts in merged.values():
+        t, j, _ = parts[0]
+        for pt, _, seqs in parts:
+            for s in seqs:
+                shutil.rmtree(pt.writer.tmp_dir(s.id), ignore_errors=True)
+        render = plan.render_settings(t.exp, threads)
+        # named by dataset and first sequence: unique across the datasets of one run
+        jf = ex.write_job(_job_dict(t, j, render, parts),
+                          t.work / "jobs" / f"{t.exp.name}--{j.sequences[0].id}.json")
+        files[jf] = parts
+
+    def on_done(jf: Path):
+        for pt, j, seqs in files[jf]:
+            for s in seqs:
+                pt.writer.commit_sequence(s.id, len(j.frames))
+
+    def count() -> int:
+        return sum(_lines(pt.writer.tmp_dir(s.id) / "frames.jsonl")
+                   + _lines(pt.out / "sequences" / s.id / "frames.jsonl")
+                   for parts in files.values() for pt, _, seqs in parts[:1] for s in seqs[:1])
+
+    def run():
+        logs = targets[0].work / "logs"
+        if kind == "ray":
+            ex.run_ray(list(files), logs, on_done, ray_address, threads, n_workers)
+        else:
+            ex.run_local(list(files), logs, n_workers, on_done)
+
+    total = sum(len(parts[0][1].frames) for parts in files.values())
+    if total and progress:
+        with ex.Progress(total, count, "rendering" if kind == "local" else "rendering (ray)"):
+            run()
+    elif total:
+        run()
+
+
+@contextmanager
+def _exclusive(out: Path):
+    """One generate per output directory: a second one fails at once (user error).
+    The lock is released when the process ends, however it ends."""
+    import fcntl
+    (out / ".work").mkdir(parents=True, exist_ok=True)
+    with open(out / ".work" / "lock", "a+") as fh:
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            fh.seek(0)
+            raise FileExistsError(f"{out} is being written by another dockbench generate "
+                                  f"(pid {fh.read().strip() or '?'}); wait for it or stop it") from None
+        fh.seek(0)
+        fh.truncate()
+        fh.write(f"{os.getpid()}\n")
+        fh.flush()
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+
+
+def _lines(p: Path) -> int:
+    try:
+        with open(p, "rb") as f:
+            return sum(1 for _ in f)
+    except OSError:
+        return 0
+
+
+def timing_summary(out: Path) -> dict:
+    """Median seconds per stage over every frame of the last run (from the workers' timing files)."""
+    acc: dict[str, list[float]] = {}
+    for p in (Path(out) / ".work" / "timing").glob("*.json"):
+        t = json.loads(p.read_text())
+        for k, v in t.items():
+            acc.setdefault(k, []).extend(v if isinstance(v, list) else [v])
+    return {k: float(np.median(v)) for k, v in acc.items()}
+
+
+def config_digest(exp: Experiment) -> str:
+    """sha256 of the resolved config: what a resumable output directory must match."""
+    import hashlib
+    return hashlib.sha256(json.dumps(exp.model_dump(mode="json"), sort_keys=True).encode()).hexdigest()
+
+
+def check_out_dir(exp: Experiment, out: Path, overwrite: bool) -> None:
+    """Refuse to mix datasets: OUT must be new, empty, or made from the same config.
+
+    Raises FileExistsError (a user error) before anything is written; with
+    ``overwrite`` an existing dockbench dataset is removed first."""
+    out = Path(out)
+    if not out.exists() or not any(out.iterdir()):
+        return
+    stamp = out / ".work" / "config.sha256"
+    ours = stamp.exists() or (out / "manifest.json").exists()
+    same = stamp.exists() and stamp.read_text().strip() == config_digest(exp)
+    if same:
+        return
+    if ours and overwrite:
+        with _exclusive(out):               # never delete a dataset another run is writing
+            pass
+        shutil.rmtree(out)
+        return
+    what = "a dataset made from a different config" if ours else "files that are not a dockbench dataset"
+    raise FileExistsError(f"{out} holds {what}; choose a new -o directory"
+                          + (" or pass --overwrite" if ours else ""))
+
+
+def stamp_config(exp: Experiment, out: Path) -> None:
+    (out / ".work").mkdir(parents=True, exist_ok=True)
+    (out / ".work" / "config.sha256").write_text(config_digest(exp) + "\n")

@@ -1,0 +1,268 @@
+"""Config -> render jobs: what to render once, what to derive, what to skip.
+
+A *sequence* is one (trajectory, trial, condition) and becomes one directory of
+the dataset. A *render job* is one Blender process rendering one trajectory's
+frames once and writing every sequence that only differs in image space
+(turbidity, depth light, noise) from the same clean passes. With the reference
+fidelity the water is in the render, so each condition is its own job.
+"""
+from __future__ import annotations
+
+import functools
+import hashlib
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from blendgen import markers as mk
+
+from blendgen.pipeline import groundtruth
+from blendgen.vehicle import trajectories as tj
+from blendgen.geometry import intrinsics_from_hfov, make_T, rpy_to_R
+from blendgen.config.models import Experiment
+
+INDEX_POOL, INDEX_DOCK, INDEX_MARKER0, INDEX_OBSTACLE0, INDEX_PARTICLES = 1, 2, 10, 100, 250
+
+
+@dataclass
+class SequencePlan:
+    """One output sequence: its id, condition and the image-space processing to apply."""
+    id: str
+    trajectory: str
+    trial: int
+    condition: str
+    conditions: dict
+    post: dict
+
+
+@dataclass
+class RenderJob:
+    """One Blender process: a scene, a camera path, and the sequences it feeds."""
+    key: str
+    scene: dict
+    frames: list[dict]
+    sequences: list[SequencePlan] = field(default_factory=list)
+
+
+def camera_K(exp: Experiment) -> np.ndarray:
+    """Intrinsics (3x3) exactly as Blender renders them (see geometry.intrinsics_from_hfov)."""
+    c = exp.camera
+    return intrinsics_from_hfov(c.width, c.height, math.radians(c.hfov_deg))
+
+
+def manifest_markers(exp: Experiment) -> list[dict]:
+    """Manifest marker entries plus rendering fields (object index, plate size)."""
+    out = []
+    for i, spec in enumerate(exp.scene.dock.markers):
+        m = mk.manifest_marker(spec)
+        m["object_index"] = INDEX_MARKER0 + i
+        tex = mk.texture_for(spec)
+        if tex is not None:
+            m["plate_size_m"] = tex.plane_size_m
+        out.append(m)
+    return out
+
+
+def _sun_dir(elev_deg: float, azim_deg: float) -> list[float]:
+    """Travel direction (unit, world) of light coming from elevation/azimuth (deg)."""
+    e, a = math.radians(elev_deg), math.radians(azim_deg)
+    return [-math.cos(e) * math.cos(a), -math.cos(e) * math.sin(a), -math.sin(e)]
+
+
+def scene_description(exp: Experiment, markers: list[dict], textures: dict[str, str]) -> dict:
+    """Plain-data scene for the Blender builder (world frame, metres, linear colours)."""
+    s = exp.scene
+    T_wd = tj.T_world_dock_from_spec(s.dock)
+    obstacles = []
+    for i, o in enumerate(s.obstacles):
+        R = rpy_to_R(*(math.radians(a) for a in o.pose.rpy_deg))
+        obstacles.append({"kind": o.kind, "T_world": make_T(R, o.pose.xyz).tolist(), "size_m": o.size_m,
+                          "color": o.color, "object_index": INDEX_OBSTACLE0 + i})
+    return {
+        "pool": s.pool.model_dump() if s.kind == "pool" else None,
+        "dock": {"T_world_dock": T_wd.tolist(), "body_size_m": s.dock.body_size_m, "face_color": s.dock.face_color},
+        "markers": [{**m, "texture": textures.get(m["id"])} for m in markers],
+        "obstacles": obstacles,
+        "object_index": {"pool": INDEX_POOL, "dock": INDEX_DOCK},
+        "sun": {"direction": _sun_dir(s.sun_elevation_deg, s.sun_azimuth_deg), "strength": s.sun_strength},
+        "fill": {"direction": _sun_dir(0.0, s.sun_azimuth_deg), "strength": s.fill_strength},
+        "world_color": [0.0, 0.0, 0.0],
+    }
+
+
+def object_index_names(markers: list[dict], exp: Experiment) -> dict[str, str]:
+    """Manifest map object-index value -> name."""
+    names = {"0": "background", str(INDEX_POOL): "pool", str(INDEX_DOCK): "dock"}
+    names.update({str(m["object_index"]): m["id"] for m in markers})
+    names.update({str(INDEX_OBSTACLE0 + i): f"obstacle_{i}" for i in range(len(exp.scene.obstacles))})
+    names[str(INDEX_PARTICLES)] = "particles"
+    return names
+
+
+def _frames(exp: Experiment, traj, T_wd: np.ndarray, T_body_cam: np.ndarray, seed: int, fluid) -> list[dict]:
+    """Camera frames of one path; those farther than ``render.max_distance_m`` from the
+    marker plane are skipped (they are outside the evaluation window). Indices keep the
+    trajectory's sample numbering, so ``t`` stays ``index / fps``."""
+    smp = tj.sample(traj, T_wd, exp.camera.fps, exp.camera.latency_s, seed=seed, fluid=fluid)
+    T_wc = smp.T_world_body @ T_body_cam
+    d_max = exp.render.max_distance_m
+    frames = [{"index": i, "t": float(t), "t_pose": float(tp), "T_world_cam": T.tolist()}
+              for i, (t, tp, T) in enumerate(zip(smp.t, smp.t_pose, T_wc))
+              if d_max is None or groundtruth.d_true(T, T_wd) <= d_max]
+    if exp.render.roi and exp.render.fidelity == "fast":
+        box = dock_corners(exp)
+        K, c = camera_K(exp), exp.camera
+        for f in frames:
+            T_cd = np.linalg.inv(np.asarray(f["T_world_cam"])) @ T_wd
+            f["roi"] = groundtruth.dock_roi(T_cd, K, c.width, c.height, box)
+    return frames
+
+
+def dock_corners(exp: Experiment) -> np.ndarray:
+    """The 8 corners (dock frame, m) of a box holding the dock body and every marker."""
+    sx, sy, sz = exp.scene.dock.body_size_m
+    x, y = sx / 2, sy / 2
+    for m in exp.scene.dock.markers:
+        r = getattr(m, "led_radius_m", 0.0)
+        side = max(m.size_m, getattr(m, "height_m", None) or 0.0)
+        half = side / 2 * (1.5 if m.kind != "led_array" else 1.0) + r  # 1.5: plate with quiet zone
+        x = max(x, abs(m.center_m[0]) + half)
+        y = max(y, abs(m.center_m[1]) + half)
+    return np.array([[a, b, c] for a in (-x, x) for b in (-y, y) for c in (0.01, -sz - 0.01)])
+
+
+def trial_seed(exp: Experiment, trial: int) -> int:
+    """Seed of one trial: same config seed and trial index -> same start, noise, particles."""
+    return int(np.random.SeedSequence([exp.seed, trial]).generate_state(1)[0])
+
+
+def occlusion_region(exp: Experiment, occ) -> tuple[list[float], list[float]]:
+    """Region of the small obstacles: the config's, else the pool (15x5x8 m = the article's
+    600 m^3), else 600 m^3 in front of the dock in open water."""
+    if occ.region_min is not None:
+        return list(occ.region_min), list(occ.region_max)
+    s = exp.scene
+    if s.kind == "pool":
+        p = s.pool
+        return [-p.length_m / 2, -p.width_m / 2, -p.depth_m], [p.length_m / 2, p.width_m / 2, 0.0]
+    T = tj.T_world_dock_from_spec(s.dock)
+    c = T[:3, 3] + 7.5 * T[:3, 2]
+    return list(c - [7.5, 2.5, 4.0]), list(c + [7.5, 2.5, 4.0])
+
+
+def condition_post(exp: Experiment, cond, seed: int) -> dict:
+    """Image-space processing of one condition: water, depth light, particles, sensor."""
+    water = (cond.water or exp.water).model_dump(exclude_none=True)
+    depth = cond.dock_water_depth_m if cond.dock_water_depth_m is not None else exp.scene.dock.water_depth_m
+    occ = cond.occlusion or exp.occlusion
+    fluid = cond.fluid or exp.fluid
+    post = {"water": water, "light_depth_m": depth, "irradiance": exp.scene.sun_strength,
+            "noise_std": exp.camera.noise_std,
+            "distortion": exp.camera.distortion, "seed": seed, "fps": exp.camera.fps, "occlusion": None}
+    if occ is not None and occ.n_total > 0:
+        lo, hi = occlusion_region(exp, occ)
+        post["occlusion"] = {**occ.model_dump(), "region_min": lo, "region_max": hi,
+                             "v_flow": list(fluid.current_mps)}
+    return post
+
+
+@functools.lru_cache(maxsize=256)
+def _file_sha(path: str, mtime_ns: int, size: int) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def _texture_sha(path: str | None) -> str | None:
+    """Content hash of a texture file (cached per path, modification time and size)."""
+    if path is None:
+        return None
+    st = os.stat(path)
+    return _file_sha(path, st.st_mtime_ns, st.st_size)
+
+
+def job_key(exp: Experiment, scene: dict, frames: list[dict]) -> str:
+    """What determines a clean render, whichever dataset asks for it: scene (texture files
+    by content, not path), poses, camera, fidelity and render settings (not thread count)."""
+    scene = {**scene, "markers": [{**m, "texture": _texture_sha(m.get("texture"))} for m in scene["markers"]]}
+    render = {k: v for k, v in render_settings(exp, 1).items() if k != "threads"}
+    c = exp.camera
+    blob = json.dumps({"scene": scene, "frames": frames, "render": render, "fidelity": exp.render.fidelity,
+                       "camera": [c.width, c.height, c.hfov_deg]}, sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()
+
+
+def water_volume(exp: Experiment, post: dict) -> dict | None:
+    """Reference-fidelity medium for one condition, or None when the water is clear.
+
+    A box whose top face is the water surface (a World volume would kill sunlight).
+    The surface sits ``light_depth_m`` above the dock, so a depth condition moves the
+    surface, not the geometry, and the clean renders stay comparable."""
+    from blendgen.physics import optics
+    w = optics.water_from_config(post["water"])
+    if w.is_clear:
+        return None
+    s = exp.scene
+    dock_z = -s.dock.water_depth_m
+    surface_z = dock_z + post["light_depth_m"]
+    if s.kind == "pool":
+        lo = [-s.pool.length_m / 2, -s.pool.width_m / 2, -s.pool.depth_m]
+        hi = [s.pool.length_m / 2, s.pool.width_m / 2, surface_z]
+    else:
+        x, y = s.dock.position_xy_m
+        lo, hi = [x - 60.0, y - 60.0, dock_z - 60.0], [x + 60.0, y + 60.0, surface_z]
+    return {"sigma_a": list(map(float, w.sigma_a)), "sigma_s": list(map(float, w.sigma_s)), "phase": w.phase,
+            "g": float(w.g), "ff_ior": float(w.ff_ior), "ff_backscatter": float(w.ff_backscatter),
+            "box_min": lo, "box_max": hi}
+
+
+def _motion(exp: Experiment, traj, cond):
+    """What makes a condition's camera path differ: the fluid, for dynamic trials only."""
+    if traj.kind != "docking":
+        return None
+    return cond.fluid or exp.fluid
+
+
+def plan_jobs(exp: Experiment, scene: dict) -> list[RenderJob]:
+    """Every render job; sequences with identical clean renders share one job.
+
+    A job is keyed by :func:`job_key` (scene and camera path), so kinematic trajectories
+    render once for all trials and conditions (trials differ only in image-space
+    seeds), docking trials render once per (trial, fluid), and with the reference
+    fidelity the water makes every condition its own render."""
+    T_wd = np.asarray(scene["dock"]["T_world_dock"], float)
+    T_bc = tj.T_body_cam_from_spec(exp.camera.T_body_cam)
+    jobs: dict[str, RenderJob] = {}
+    paths: dict[tuple, list[dict]] = {}
+    for traj in exp.trajectories:
+        for trial in range(exp.trials):
+            seed = trial_seed(exp, trial)
+            for c in exp.conditions:
+                fluid = _motion(exp, traj, c)
+                mkey = (traj.id, trial if traj.kind == "docking" else None,
+                        None if fluid is None else json.dumps(fluid.model_dump(), sort_keys=True))
+                if mkey not in paths:
+                    paths[mkey] = _frames(exp, traj, T_wd, T_bc, seed, fluid or exp.fluid)
+                frames = paths[mkey]
+                post = condition_post(exp, c, seed)
+                sq = SequencePlan(f"{traj.id}-t{trial:03d}-{c.label}", traj.id, trial, c.label, post, post)
+                sc = scene if exp.render.fidelity == "fast" else {**scene, "water_volume": water_volume(exp, post)}
+                if post["occlusion"] and post["occlusion"]["geometry"] == "blender":
+                    # real geometry is part of the render: keyed by its config and seed
+                    sc = {**sc, "particles": {**post["occlusion"], "seed": seed, "fps": exp.camera.fps,
+                                              "object_index": INDEX_PARTICLES}}
+                key = job_key(exp, sc, frames)
+                jobs.setdefault(key, RenderJob(key, sc, frames)).sequences.append(sq)
+    return list(jobs.values())
+
+
+def render_settings(exp: Experiment, threads: int) -> dict:
+    """Cycles settings for the chosen fidelity."""
+    r = exp.render
+    samples = r.samples if r.fidelity == "fast" else r.reference_samples
+    return {"samples": samples, "threads": threads, "max_bounces": 0, "seed": exp.seed,
+            "write_depth": r.write_depth, "write_index": r.write_index,
+            "roi": r.roi and r.fidelity == "fast", "background_scale": r.background_scale,
+            "background_samples": r.background_samples, "roi_max_fraction": 0.5}

@@ -1,0 +1,53 @@
+"""Atomic, resumable dataset writing (datasets_spec/FORMAT.md).
+
+- a sequence is rendered into ``sequences/.<id>.tmp/`` and renamed into place only
+  when complete, so ``sequences/<id>/`` is always whole; a re-run skips it;
+- leftovers of an interrupted run (``.tmp`` dirs) are removed before resuming;
+- ``manifest.json`` is written last (temp file + rename) with the sha256 of every
+  file; names starting with ``.`` (work files) are not part of the dataset.
+"""
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+from datasets_spec.io import FORMAT_NAME, MANIFEST, SPEC_VERSION, content_hash, dataset_files, save_json_atomic, sha256_file
+
+FORMAT = FORMAT_NAME
+
+
+class DatasetWriter:
+    """Owns one dataset directory during generation."""
+
+    def __init__(self, root: Path):
+        self.root = Path(root)
+        self.seq_root = self.root / "sequences"
+
+    def prepare(self) -> None:
+        """Create the layout and drop partial sequences of an interrupted run."""
+        self.seq_root.mkdir(parents=True, exist_ok=True)
+        for d in self.seq_root.glob(".*.tmp"):
+            shutil.rmtree(d, ignore_errors=True)
+        (self.root / MANIFEST).unlink(missing_ok=True)
+
+    def is_done(self, seq_id: str) -> bool:
+        return (self.seq_root / seq_id / "frames.jsonl").exists()
+
+    def tmp_dir(self, seq_id: str) -> Path:
+        return self.seq_root / f".{seq_id}.tmp"
+
+    def commit_sequence(self, seq_id: str, n_frames: int) -> None:
+        """Check the temp sequence is whole, then rename it into place."""
+        tmp = self.tmp_dir(seq_id)
+        lines = (tmp / "frames.jsonl").read_text().splitlines()
+        if len(lines) != n_frames:
+            raise RuntimeError(f"sequence {seq_id}: {len(lines)} of {n_frames} frames written")
+        os.replace(tmp, self.seq_root / seq_id)
+
+    def finish(self, manifest: dict) -> dict:
+        """Hash every file and write manifest.json last; returns the manifest."""
+        files = {p: sha256_file(self.root / p) for p in dataset_files(self.root)}
+        manifest = {**manifest, "content_hash": content_hash(files), "files": files}
+        save_json_atomic(self.root / MANIFEST, manifest)
+        return manifest

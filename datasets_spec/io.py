@@ -1,0 +1,176 @@
+"""Save/load pairs and hashing of the dataset format (FORMAT.md, spec_version 1.0).
+
+One place reads and writes each file of a dataset: the generator writes through
+:func:`save_json_atomic` and :func:`append_frame`, the evaluator reads through
+:func:`load_manifest` and :func:`iter_frames`; both hash with :func:`sha256_file`
+and :func:`content_hash`.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from importlib import resources
+from pathlib import Path
+from typing import IO, Iterator
+
+FORMAT_NAME = "dockbench-dataset"
+SPEC_VERSION = "1.0"
+SUPPORTED_SPEC_VERSIONS = (SPEC_VERSION,)
+MANIFEST = "manifest.json"
+FRAMES = "frames.jsonl"
+DEFAULT_D_MIN_REL_M = 0.2
+FRAME_KEYS = {"index": int, "image": str, "d_true": (int, float), "T_cam_dock": list}
+
+
+class DatasetError(Exception):
+    """A dataset is missing, malformed or of an unsupported version."""
+
+
+# -- hashing ---------------------------------------------------------------
+def sha256_file(path: Path, chunk: int = 1 << 20) -> str:
+    """Hex sha256 of a file's bytes."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(chunk), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def content_hash(files: dict[str, str]) -> str:
+    """sha256 over the sorted ``files`` entries as ``"path sha256\\n"`` lines (FORMAT.md)."""
+    blob = "".join(f"{p} {files[p]}\n" for p in sorted(files))
+    return hashlib.sha256(blob.encode()).hexdigest()
+
+
+def dataset_files(root: Path) -> list[str]:
+    """Relative paths of every dataset file, sorted, without manifest.json and without
+    dot-names (work files and partial ``.tmp`` sequences are not part of a dataset)."""
+    out = []
+    for dirpath, dirnames, filenames in os.walk(root):
+        dirnames[:] = sorted(d for d in dirnames if not d.startswith("."))
+        for f in filenames:
+            rel = Path(dirpath, f).relative_to(root).as_posix()
+            if not f.startswith(".") and rel != MANIFEST:
+                out.append(rel)
+    return sorted(out)
+
+
+# -- schemas ---------------------------------------------------------------
+def load_schema(name: str) -> dict:
+    """A bundled JSON Schema by file name, e.g. ``load_schema('manifest.schema.json')``."""
+    return json.loads(resources.files("datasets_spec").joinpath(name).read_text(encoding="utf-8"))
+
+
+def doc_path(name: str) -> Path:
+    """Filesystem path of a bundled document (``FORMAT.md``, ``LOCALIZER_PROTOCOL.md``)."""
+    return Path(str(resources.files("datasets_spec").joinpath(name)))
+
+
+def check_schema(obj: dict, schema_name: str, where: str) -> None:
+    """Validate ``obj`` against a bundled schema; the first problem names its key path."""
+    import jsonschema
+    validator = jsonschema.Draft202012Validator(load_schema(schema_name))
+    err = jsonschema.exceptions.best_match(validator.iter_errors(obj))
+    if err is not None:
+        key = ".".join(str(p) for p in err.absolute_path) or "<root>"
+        raise DatasetError(f"{where}: {key}: {err.message}")
+
+
+# -- manifest.json ---------------------------------------------------------
+def save_json_atomic(path: Path, obj) -> None:
+    """Write JSON via a temp file in the same directory and an atomic rename."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(obj, indent=1, sort_keys=False) + "\n")
+    os.replace(tmp, path)
+
+
+def load_manifest(root: Path) -> dict:
+    """Load ``root/manifest.json`` and validate it (format, version, schema)."""
+    path = Path(root) / MANIFEST
+    if not Path(root).is_dir():
+        raise DatasetError(f"{root}: not a directory")
+    if not path.is_file():
+        raise DatasetError(f"{path}: missing manifest (dataset incomplete or not a dockbench dataset)")
+    try:
+        manifest = json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise DatasetError(f"{path}: invalid JSON: {exc}") from None
+    if not isinstance(manifest, dict):
+        raise DatasetError(f"{path}: top level must be a JSON object")
+    if manifest.get("format") != FORMAT_NAME:
+        raise DatasetError(f"{path}: \"format\" is {manifest.get('format')!r}, expected {FORMAT_NAME!r}")
+    version = manifest.get("spec_version")
+    if version not in SUPPORTED_SPEC_VERSIONS:
+        raise DatasetError(f"{path}: unsupported \"spec_version\" {version!r}; "
+                           f"supported: {', '.join(SUPPORTED_SPEC_VERSIONS)}")
+    for key in ("camera", "sequences"):
+        if key not in manifest:
+            raise DatasetError(f"{path}: missing key {key!r}")
+    check_schema(manifest, "manifest.schema.json", str(path))
+    return manifest
+
+
+# -- frames.jsonl ----------------------------------------------------------
+def append_frame(fh: IO[str], frame: dict) -> None:
+    """Append one frame record as a JSON line (the generator's only way to write frames)."""
+    fh.write(json.dumps(frame) + "\n")
+
+
+def check_frame(frame: dict, where: str) -> None:
+    """The keys evaluation relies on must be present with the right JSON types."""
+    for key, typ in FRAME_KEYS.items():
+        if not isinstance(frame.get(key), typ) or isinstance(frame.get(key), bool):
+            raise DatasetError(f"{where}: frame needs {key!r} ({getattr(typ, '__name__', 'number')}), "
+                               f"got {frame.get(key)!r}")
+
+
+def iter_frames(path: Path) -> Iterator[dict]:
+    """Yield the frame records of one ``frames.jsonl`` in file order, each checked."""
+    if not path.is_file():
+        raise DatasetError(f"{path}: missing frames file")
+    with open(path, encoding="utf-8") as f:
+        for lineno, line in enumerate(f, start=1):
+            if not line.strip():
+                continue
+            try:
+                frame = json.loads(line)
+            except json.JSONDecodeError as exc:
+                raise DatasetError(f"{path}:{lineno}: bad JSON line: {exc.msg}") from None
+            if not isinstance(frame, dict):
+                raise DatasetError(f"{path}:{lineno}: frame must be a JSON object")
+            check_frame(frame, f"{path}:{lineno}")
+            yield frame
+
+
+def verify(root: Path) -> list[str]:
+    """Check a dataset against its manifest; return human-readable problems ([] = OK).
+
+    Reports: manifest errors, bad frame lines, files listed but missing, sha256
+    mismatches, files on disk not in the manifest (dot-named work files aside), and a
+    wrong ``content_hash``.
+    """
+    root = Path(root)
+    try:
+        manifest = load_manifest(root)
+        for seq in manifest["sequences"]:
+            for _ in iter_frames(root / seq.get("path", f"sequences/{seq['id']}") / FRAMES):
+                pass
+    except DatasetError as exc:
+        return [str(exc)]
+    files = manifest.get("files")
+    if not isinstance(files, dict):
+        return [f"{root / MANIFEST}: missing or invalid 'files' map"]
+    problems = []
+    for rel, digest in sorted(files.items()):
+        fpath = root / rel
+        if not fpath.is_file():
+            problems.append(f"{rel}: missing (listed in manifest)")
+        elif sha256_file(fpath) != digest:
+            problems.append(f"{rel}: sha256 mismatch")
+    for rel in sorted(set(dataset_files(root)) - set(files)):
+        problems.append(f"{rel}: extra file not in manifest")
+    expected = manifest.get("content_hash")
+    if expected is not None and expected != content_hash(files):
+        problems.append(f"{MANIFEST}: content_hash does not match the 'files' entries")
+    return problems

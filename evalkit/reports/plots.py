@@ -1,0 +1,125 @@
+"""PNG plots of a run (matplotlib, Agg backend; no display needed).
+
+* :func:`plot_error_vs_distance` -- the article's Figures 18-21 style: the
+  positioning error against ``d_true`` for **one representative trial per
+  condition**, conditions overlaid, one panel per localizer.
+* :func:`plot_success_vs_distance` -- ``P_succ`` per distance bin (frames of
+  all trials pooled), one line per condition, one panel per localizer.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from evalkit.metrics import core as metrics
+
+ERROR_LABELS = {"e_abs": "positioning error |d_true - d_est| (m)",
+                "e_rel": "relative positioning error e_rel (%)"}
+
+
+def _pyplot():
+    """matplotlib.pyplot on the Agg backend."""
+    import matplotlib
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def _panels(plt, n: int):
+    """Figure and a flat list of ``n`` axes on a grid of at most 3 columns (extra axes hidden)."""
+    ncols = max(1, min(3, n))
+    nrows = -(-max(n, 1) // ncols)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(5.2 * ncols, 3.8 * nrows), squeeze=False,
+                             sharey=True)
+    flat = list(axes.ravel())
+    for ax in flat[n:]:
+        ax.set_visible(False)
+    return fig, flat[:max(n, 1)]
+
+
+def _save(plt, fig, axes, ylabel: str, title: str | None, path: Path) -> Path:
+    """Label the first column of panels, title, write the PNG, free the figure."""
+    for ax in axes[::3]:
+        ax.set_ylabel(ylabel)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def representative_trials(estimates: pd.DataFrame, d_max: float = metrics.D_MAX_M,
+                          d_min_rel: float = metrics.D_MIN_REL_M) -> pd.DataFrame:
+    """Per (localizer, condition) the sequence whose ``e_rel_mean`` is closest to the
+    median over the condition's trials (ties: smallest sequence id); the first trial
+    when no trial has an ``e_rel_mean``. Columns ``localizer, condition, sequence``."""
+    trials = metrics.per_trial(estimates, d_max, d_min_rel)
+    rows = []
+    for (loc, cond), g in trials.groupby(["localizer", "condition"], sort=True, dropna=False):
+        g = g.sort_values("sequence")
+        vals = g["e_rel_mean"]
+        if vals.notna().any():
+            dist = (vals - vals.median()).abs()
+            seq = g.loc[dist.idxmin(), "sequence"] if dist.notna().any() else g["sequence"].iloc[0]
+        else:
+            seq = g["sequence"].iloc[0]
+        rows.append({"localizer": loc, "condition": cond, "sequence": seq})
+    return pd.DataFrame(rows, columns=["localizer", "condition", "sequence"])
+
+
+def plot_error_vs_distance(estimates: pd.DataFrame, path: str | Path, error: str = "e_abs",
+                           d_max: float = metrics.D_MAX_M, d_min_rel: float = metrics.D_MIN_REL_M,
+                           title: str | None = None) -> Path:
+    """Error (``e_abs`` m or ``e_rel`` %) vs ``d_true`` of one representative trial per
+    condition, conditions overlaid; one panel per localizer. Writes ``path`` (PNG)."""
+    plt = _pyplot()
+    path = Path(path)
+    errs = metrics.frame_errors(estimates, d_min_rel)
+    df = estimates.assign(_err=errs[error] * (100.0 if error == "e_rel" else 1.0))
+    df = df[metrics.counted_mask(df["d_true"], d_max)]
+    reps = representative_trials(estimates, d_max, d_min_rel)
+    locs = sorted(reps["localizer"].unique()) or ["(none)"]
+    fig, axes = _panels(plt, len(locs))
+    for ax, loc in zip(axes, locs):
+        for _, r in reps[reps["localizer"] == loc].iterrows():
+            s = df[(df["localizer"] == loc) & (df["sequence"] == r["sequence"])].sort_values("d_true")
+            ok = s["_err"].notna()
+            ax.plot(s.loc[ok, "d_true"], s.loc[ok, "_err"], marker=".", ms=3, lw=0.8,
+                    label=f"{r['condition']} ({r['sequence']})")
+        ax.set_title(str(loc))
+        ax.set_xlabel("d_true (m)")
+        ax.set_xlim(0, d_max)
+        ax.grid(alpha=0.3)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7)
+    return _save(plt, fig, axes, ERROR_LABELS.get(error, error), title, path)
+
+
+def plot_success_vs_distance(bins: pd.DataFrame, path: str | Path, threshold: float | None = 0.9,
+                             title: str | None = None) -> Path:
+    """``P_succ`` per distance bin (from :func:`evalkit.metrics.extra.distance_bins`),
+    one line per condition, one panel per localizer; ``threshold`` drawn dashed."""
+    plt = _pyplot()
+    path = Path(path)
+    locs = sorted(bins["localizer"].unique()) or ["(none)"]
+    fig, axes = _panels(plt, len(locs))
+    for ax, loc in zip(axes, locs):
+        b = bins[bins["localizer"] == loc]
+        for cond, g in b.groupby("condition", sort=True):
+            centre = (g["bin_lo"] + g["bin_hi"]) / 2.0
+            ax.plot(centre, 100.0 * g["P_succ"], marker="o", ms=3, label=str(cond))
+        if threshold is not None:
+            ax.axhline(100.0 * threshold, ls="--", lw=0.8, color="grey")
+        ax.set_title(str(loc))
+        ax.set_xlabel("d_true (m), bin centre")
+        ax.set_ylim(-2, 102)
+        if len(b):
+            ax.set_xlim(0, float(np.nanmax(b["bin_hi"])))
+        ax.grid(alpha=0.3)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7)
+    return _save(plt, fig, axes, "P_succ (%)", title, path)
