@@ -82,7 +82,22 @@ def slots(kind: str, n_jobs: int, workers: int | None, threads: int = 0) -> tupl
 
 # -- the job function: one worker process --------------------------------------
 def worker_command(job_file: Path) -> list[str]:
+    """Command line of a dataset render worker for ``job_file``."""
     return [sys.executable, "-m", "blendgen.pipeline.executor", str(job_file)]
+
+
+def calibration_command(job_file: Path) -> list[str]:
+    """Command line of a chessboard calibration render worker for ``job_file``."""
+    return [sys.executable, "-m", "blendgen.pipeline.executor", "--calibration", str(job_file)]
+
+
+def require_render_stack() -> None:
+    """Raise ExecutorError (a user error) when bpy is not installed, before any worker starts."""
+    import importlib.util
+    if importlib.util.find_spec("bpy") is None:
+        raise ExecutorError("rendering needs Blender as a module: pip install 'dockbench[render]' "
+                            f"(bpy 5.2, Python 3.13; this is Python {sys.version_info.major}."
+                            f"{sys.version_info.minor}); evaluation works without it")
 
 
 class Children:
@@ -359,6 +374,9 @@ def _child_main(argv: list[str]) -> int:
     parent = os.environ.get(PARENT_ENV)
     if parent:
         _exit_with_parent(int(parent))
+    if len(argv) > 2 and argv[1] == "--calibration":
+        from blendgen.blender import calibration_scene
+        return calibration_scene.main([argv[0], argv[2]])
     from blendgen.blender import worker
     return worker.main(argv)
 

@@ -106,6 +106,8 @@ def generate_many(items: list[tuple[Experiment, Path]], workers: int | None = No
         ex.require_ray()                       # user errors before anything is written
         if ray_address:
             ex.check_ray_address(ray_address)
+    else:
+        ex.require_render_stack()              # the workers of this machine need bpy
     with ExitStack() as stack:
         for _, out in items:
             Path(out).mkdir(parents=True, exist_ok=True)

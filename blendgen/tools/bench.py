@@ -8,8 +8,6 @@ asserted; the numbers are printed and written to ``OUT/bench.csv``.
 """
 from __future__ import annotations
 
-from blendgen.config.bundled import bundled_file
-
 import shutil
 import time
 from pathlib import Path
@@ -20,6 +18,7 @@ import pandas as pd
 
 from blendgen.pipeline.generate import generate, timing_summary
 from blendgen.config.models import load_experiment
+from blendgen.config.bundled import bundled_file
 
 LOCALIZERS = ("led", "qr", "aruco")
 

@@ -17,13 +17,11 @@ Pure Python (numpy; OpenCV imported on use): Blender runs only in the worker sub
 """
 from __future__ import annotations
 
-from blendgen.config.bundled import bundled_file
-
 import csv
+from concurrent.futures import ThreadPoolExecutor
 import json
 import math
 import os
-import subprocess
 import sys
 import time
 from dataclasses import dataclass
@@ -35,6 +33,8 @@ from pydantic import Field, ValidationError
 
 from blendgen.geometry import intrinsics_from_hfov, invert_T, make_T, project, rot_z, transform_points
 from blendgen.config.models import ConfigError, Strict, _read_yaml, format_validation_error
+from blendgen.config.bundled import bundled_file
+from blendgen.pipeline import executor as ex
 
 DEFAULT_CONFIG = bundled_file("configs", "calibration.yaml")
 PARAMS = ("fx", "fy", "cx", "cy")
@@ -360,38 +360,10 @@ def write_job(cfg: CalibrationConfig, board: ChessBoard, texture: Path, width: i
     return jf, Ts, paths
 
 
-def _start_worker(job_file: Path) -> subprocess.Popen:
-    log = open(job_file.parent / "render.log", "ab")
-    p = subprocess.Popen([sys.executable, "-m", "blendgen.blender.calibration_scene", str(job_file)],
-                         stdout=log, stderr=log, stdin=subprocess.DEVNULL)
-    log.close()
-    return p
-
-
-def _count(path: Path) -> int:
-    try:
-        with open(path) as f:
-            return sum(1 for _ in f)
-    except OSError:
-        return 0
-
-
-def _wait(p: subprocess.Popen, job_file: Path, label: str, n: int, progress: bool, t_start: float) -> None:
-    last = 0.0
-    while p.poll() is None:
-        time.sleep(0.5)
-        if progress and time.perf_counter() - last > 30.0:
-            last = time.perf_counter()
-            done = _count(job_file.parent / "frames.jsonl")
-            click.echo(f"calibrate: {label} rendered {done}/{n} ({time.perf_counter() - t_start:.0f} s)", err=True)
-    if p.returncode != 0:
-        tail = (job_file.parent / "render.log").read_text(errors="replace").splitlines()[-25:]
-        raise RuntimeError(f"calibration render failed (exit {p.returncode}) for {job_file}:\n" + "\n".join(tail))
-
-
 def run_calibration(cfg: CalibrationConfig, out: Path, progress: bool = True) -> list[TrialResult]:
     """Render and calibrate every (resolution, trial). Rendering of the next trial
     overlaps the detection and calibration of the previous one."""
+    ex.require_render_stack()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     import cv2
@@ -415,13 +387,20 @@ def run_calibration(cfg: CalibrationConfig, out: Path, progress: bool = True) ->
                        + ", ".join(f"{p} {e[p]:.3f}%" for p in PARAMS)
                        + f" ({time.perf_counter() - t0:.0f} s)", err=True)
 
-    for w, h, k in todo:
-        jf, Ts, paths = write_job(cfg, board, texture, w, h, k, out, threads)
-        p = _start_worker(jf)
-        if pending is not None:
-            finish(pending)
-        _wait(p, jf, f"{w}x{h} trial {k}", len(Ts), progress, t0)
-        pending = (jf, Ts, paths, (w, h, k))
+    children = ex.Children()
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        try:
+            for w, h, k in todo:
+                jf, Ts, paths = write_job(cfg, board, texture, w, h, k, out, threads)
+                rendering = pool.submit(ex.run_worker, jf, jf.parent / "render.log", children,
+                                        ex.calibration_command)
+                if pending is not None:      # calibrate the previous trial while this one renders
+                    finish(pending)
+                rendering.result()
+                pending = (jf, Ts, paths, (w, h, k))
+        except BaseException:
+            children.kill()                  # an interrupt or a failed render ends every worker
+            raise
     if pending is not None:
         finish(pending)
     return results

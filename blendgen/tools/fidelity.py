@@ -25,8 +25,6 @@ attenuation), then stores ``Kd = -ln(a) / depth`` (effective depth light) and
 """
 from __future__ import annotations
 
-from blendgen.config.bundled import bundled_file
-
 import json
 import math
 import shutil
@@ -34,6 +32,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from blendgen.config.bundled import bundled_file
 
 
 CONDITIONS = ("clear", "mild", "moderate", "jerlov_1C")

@@ -7,12 +7,12 @@ Cycles medium, one job per condition), labelled with OpenCV, written as one PNG.
 """
 from __future__ import annotations
 
-from blendgen.config.bundled import bundled_file
-
 import shutil
 from pathlib import Path
 
 import numpy as np
+
+from blendgen.config.bundled import bundled_file
 
 
 WATERS = ("clear", "mild", "moderate")

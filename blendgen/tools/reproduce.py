@@ -13,8 +13,6 @@ covers section 6).
 """
 from __future__ import annotations
 
-from blendgen.config.bundled import bundled_file
-
 import time
 from pathlib import Path
 
@@ -22,6 +20,7 @@ import click
 import pandas as pd
 
 from blendgen.config.models import load_experiment
+from blendgen.config.bundled import bundled_file
 
 EXPERIMENTS = ("turbidity", "depth", "current", "occlusion")
 LOCALIZERS = ("led", "qr", "hybrid")
