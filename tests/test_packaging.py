@@ -10,6 +10,7 @@ from __future__ import annotations
 import glob
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tomllib
@@ -60,8 +61,15 @@ def _run(cmd: list, cwd: Path, check: bool = True, timeout: float = 900) -> subp
 
 @pytest.fixture(scope="module")
 def wheel(tmp_path_factory) -> Path:
+    """The wheel, built from a copy of the tracked sources (the build writes nothing into the tree)."""
     out = tmp_path_factory.mktemp("wheel")
-    _run([sys.executable, "-m", "pip", "wheel", "--quiet", "--no-deps", "-w", out, ROOT], cwd=out)
+    src = out / "src"
+    tracked = subprocess.run(["git", "ls-files", "-z"], cwd=ROOT, capture_output=True, check=True).stdout
+    for rel in filter(None, tracked.decode().split("\0")):
+        if (ROOT / rel).is_file() and not rel.startswith("tests/"):
+            (src / rel).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(ROOT / rel, src / rel)
+    _run([sys.executable, "-m", "pip", "wheel", "--quiet", "--no-deps", "-w", out, src], cwd=out)
     (whl,) = out.glob("dockbench-*.whl")
     return whl
 

@@ -13,33 +13,13 @@ import numpy as np
 from mathutils import Matrix
 
 from blendgen.blender import materials
+from blendgen.blender.meshes import _link, mesh_object  # noqa: F401  (scene builders use both)
 
 
 def reset() -> bpy.types.Scene:
     """Empty factory scene (no default cube, camera or light)."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
     return bpy.context.scene
-
-
-def _link(obj: bpy.types.Object) -> bpy.types.Object:
-    bpy.context.scene.collection.objects.link(obj)
-    return obj
-
-
-def mesh_object(name: str, verts, faces, uvs=None, index: int = 0, smooth: bool = False) -> bpy.types.Object:
-    """Object from vertices (N,3), faces (lists of indices) and optional per-loop UVs."""
-    me = bpy.data.meshes.new(name)
-    me.from_pydata([tuple(map(float, v)) for v in verts], [], [tuple(f) for f in faces])
-    if uvs is not None:
-        layer = me.uv_layers.new(name="UVMap")
-        for loop, uv in zip(layer.data, uvs):
-            loop.uv = uv
-    if smooth:
-        me.shade_smooth()
-    me.update()
-    obj = _link(bpy.data.objects.new(name, me))
-    obj.pass_index = index
-    return obj
 
 
 def set_matrix(obj: bpy.types.Object, T) -> None:

@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import bpy
 
+from blendgen.blender.meshes import mesh_object
+
 #: The box grows this much (m) beyond ``box_min``/``box_max`` on every side but the
 #: top, so that pool walls and floor lie inside the water instead of coinciding
 #: with the volume's boundary faces (coplanar faces flicker between inside/outside).
@@ -75,7 +77,6 @@ def add_water_volume(desc: dict, pad: float = SIDE_PAD_M) -> bpy.types.Object:
     ``ff_ior``, ``ff_backscatter``, ``box_min``, ``box_max`` (world m; the top face
     ``z = box_max[2]`` is the surface). Object index 0: the medium is not an object
     of the index pass (a camera ray's first *surface* hit still sets it)."""
-    from blendgen.blender.scene import mesh_object
 
     (x0, y0, z0), (x1, y1, z1) = desc["box_min"], desc["box_max"]
     x0, y0, z0, x1, y1 = x0 - pad, y0 - pad, z0 - pad, x1 + pad, y1 + pad

@@ -18,14 +18,15 @@ and a speed schedule slowing from ``cruise_speed`` to ``final_speed`` inside
 added mass, Coriolis); a steady cross current beyond the lateral thrusters' authority
 (~0.6 m/s toward the vehicle's left, ~0.7 m/s toward its right: reverse thrust is
 weaker) saturates them, the vehicle drifts, LOS turns the nose into the flow, and
-turbulent gusts (Ornstein-Uhlenbeck, intensity ``turbulence_intensity`` x |current|,
-time scale ``turbulence_time_s``; seeded) make the heading oscillate. Thrust is
+turbulent gusts (Ornstein-Uhlenbeck, :class:`Turbulence`: intensity x |current|,
+time scale; seeded) make the heading oscillate. Thrust is
 allocated with moment priority (:meth:`ThrusterSet.allocate_prioritized`): when a
 group saturates, its force (sway/surge/heave) is given up before the yaw/pitch moment.
 """
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -202,17 +203,123 @@ def start_pose_world(T_world_dock: np.ndarray, start: dict) -> np.ndarray:
     return eta_to_T_world_body([p[0], -p[1], -p[2], 0.0, 0.0, -yaw_w])
 
 
+@dataclass(frozen=True)
+class LosGuidance:
+    """Line-of-sight guidance along the dock axis: speeds in m/s, distances in m."""
+    cruise_speed: float = 0.5
+    final_speed: float = 0.2
+    slow_zone_m: float = 4.0
+    lookahead_m: float = 2.5
+
+
+@dataclass(frozen=True)
+class Turbulence:
+    """Ornstein-Uhlenbeck gusts: std = ``intensity`` x |mean current| (m/s), time scale ``time_s``."""
+    intensity: float = 0.15
+    time_s: float = 2.0
+
+
+class DockAxesNED:
+    """The dock frame seen in NED: origin (3,), lateral/vertical/out-of-face axes, approach heading."""
+
+    def __init__(self, T_world_dock: np.ndarray):
+        o_w, xd_w, yd_w, zd_w = _dock_axes(T_world_dock)
+        F = F_WORLD_NED
+        self.origin, self.axis = F @ o_w, F @ zd_w                 # axis: +z_d, out of the face
+        self.R_dock_ned = np.vstack([F @ xd_w, F @ yd_w, self.axis])  # rows: dock axes in NED
+        lat = F @ xd_w
+        lat[2] = 0.0
+        self.lateral_h = lat / max(np.linalg.norm(lat), 1e-9)    # horizontal lateral unit vector
+        self.approach_psi = math.atan2(-self.axis[1], -self.axis[0])  # NED heading toward the face
+
+    def p_dock(self, p_ned: np.ndarray) -> np.ndarray:
+        """NED position (3,) -> dock frame (x lateral, y vertical, z range), metres."""
+        return self.R_dock_ned @ (np.asarray(p_ned, float) - self.origin)
+
+
+def los_references(axes: DockAxesNED, guidance: LosGuidance, eta: np.ndarray,
+                   stop_distance_m: float) -> tuple[float, float, float, float]:
+    """(psi_ref rad, depth_ref m, u_ref m/s, lateral error m) for the NED pose ``eta`` (6,).
+
+    Aim at the axis point ``lookahead_m`` beyond the vehicle's projection on the axis; hold the
+    axis depth; slow from cruise to final speed inside the slow zone, and turn first when way off."""
+    p_n = np.asarray(eta[:3], float)
+    rel = p_n - axes.origin
+    along = float(rel @ axes.axis)
+    q = axes.origin + axes.axis * (along - guidance.lookahead_m)
+    psi_ref = math.atan2(q[1] - p_n[1], q[0] - p_n[0])
+    depth_ref = float(axes.origin[2] + axes.axis[2] * along)
+    span = max(guidance.slow_zone_m - stop_distance_m, 1e-6)
+    frac = min(max((along - stop_distance_m) / span, 0.0), 1.0)
+    u_ref = guidance.final_speed + (guidance.cruise_speed - guidance.final_speed) * frac
+    u_ref *= max(math.cos(wrap_pi(psi_ref - eta[5])), 0.0)
+    return psi_ref, depth_ref, u_ref, float(rel @ axes.lateral_h)
+
+
+class Gusts:
+    """Seeded current with OU turbulence about a mean NED current (3,) m/s, one draw per step."""
+
+    def __init__(self, rng: np.random.Generator, mean_ned: np.ndarray, turbulence: Turbulence,
+                 dt: float, n_steps: int):
+        self.mean = np.asarray(mean_ned, float)
+        self.sigma = turbulence.intensity * float(np.linalg.norm(self.mean))
+        self.a = math.exp(-dt / turbulence.time_s)
+        self.noise = (rng.standard_normal((n_steps + 1, 3)) * (self.sigma * math.sqrt(1 - self.a ** 2))
+                      if self.sigma > 0 else None)
+        self.gust = rng.standard_normal(3) * self.sigma if self.sigma > 0 else np.zeros(3)
+        self.k = 0
+
+    def next(self) -> tuple[float, float, float]:
+        """Current (NED, m/s) for the next integration step."""
+        if self.noise is not None:
+            self.gust = self.a * self.gust + self.noise[self.k]
+        self.k += 1
+        vc = self.mean + self.gust
+        return float(vc[0]), float(vc[1]), float(vc[2])
+
+
+class _TrialLog:
+    """Per-frame records of a docking trial."""
+
+    def __init__(self):
+        self.rows: list[tuple] = []
+
+    def add(self, t: float, plant: Plant, sens: dict, p_dock: np.ndarray, heading_err_deg: float):
+        eta = plant.s[:6]
+        self.rows.append((t, eta_to_T_world_body(eta), plant.thrust(), plant.n.copy(), sens, p_dock,
+                          heading_err_deg))
+
+    def arrays(self) -> dict:
+        t, T, thr, n, sens, pd, he = zip(*self.rows)
+        return {"t": np.array(t), "T_world_body": np.array(T), "thrust": np.array(thr), "n_rad_s": np.array(n),
+                "sensors": {k: np.array([s[k] for s in sens]) for k in sens[0]}, "p_dock": np.array(pd),
+                "heading_error_deg": np.array(he)}
+
+
+def _control_steps(plant: Plant, ap: Autopilot, sensors: Sensors, axes: DockAxesNED, guidance: LosGuidance,
+                   gusts: Gusts, n_sub: int, dt: float, stop_distance_m: float) -> None:
+    """Advance the plant one frame period: ``n_sub`` steps of LOS guidance + cross-track PID."""
+    for _ in range(n_sub):
+        eta, nu = plant.s[:6], plant.s[6:]
+        sens = sensors.read(eta)
+        psi_ref, depth_ref, u_ref, e_lat = los_references(axes, guidance, eta, stop_distance_m)
+        v_n = ap._R(eta) @ np.asarray(nu[:3])
+        f_lat = ap.sway_pid.update(-e_lat, -float(v_n @ axes.lateral_h), dt)
+        tau = ap.track(eta, nu, sens, depth_ref, psi_ref, u_ref, dt, cross_force_ned=f_lat * axes.lateral_h)
+        plant.step(ap.thruster_command(tau), gusts.next(), dt)
+
+
 def simulate_docking_trial(T_world_dock: np.ndarray, start: dict,
                            current_world=(0.0, 0.0, 0.0), density: float = 1025.0,
                            fps: float = 10.0, stop_distance_m: float = 0.5,
                            max_time_s: float = 120, seed=None, dt: float = 0.02,
                            params: VehicleParams | None = None,
-                           cruise_speed: float = 0.5, final_speed: float = 0.2,
-                           slow_zone_m: float = 4.0, lookahead_m: float = 2.5,
-                           turbulence_intensity: float = 0.15,
-                           turbulence_time_s: float = 2.0) -> dict:
-    """Closed-loop docking approach; frames sampled at ``fps``.
+                           guidance: LosGuidance = LosGuidance(),
+                           turbulence: Turbulence = Turbulence()) -> dict:
+    """Closed-loop docking approach on ground-truth navigation; frames sampled at ``fps``.
 
+    Twelve keyword parameters (a reason): they are the trial's independent physical settings
+    (fluid, sampling, vehicle, guidance, turbulence) with documented defaults, and callers name them.
     The integration step is ``dt`` shrunk (if needed) to divide the frame period
     exactly: ``dt_eff = 1 / (fps * ceil(1 / (fps * dt)))``. The stop test
     (body origin within ``stop_distance_m`` of the face plane, i.e. dock-frame z <=
@@ -236,96 +343,38 @@ def simulate_docking_trial(T_world_dock: np.ndarray, start: dict,
     dt = 1.0 / (fps * n_sub)
     params = params or VehicleParams()
     rng = np.random.default_rng(seed)
-    o_w, xd_w, yd_w, zd_w = _dock_axes(T_world_dock)
-    F = F_WORLD_NED
-    o_n, xd_n, zd_n = F @ o_w, F @ xd_w, F @ zd_w
-    R_dock_ned = np.vstack([F @ xd_w, F @ yd_w, zd_n])    # rows: dock axes in NED
-    lat_h = xd_n.copy()
-    lat_h[2] = 0.0
-    lat_h /= max(np.linalg.norm(lat_h), 1e-9)
-    approach_psi = math.atan2(-zd_n[1], -zd_n[0])         # NED heading toward the face
-
+    axes = DockAxesNED(T_world_dock)
     plant = Plant(params, density)
     ap = Autopilot(params, density, plant.thrusters)
-    T0 = start_pose_world(T_world_dock, start)
-    eta0 = T_world_body_to_eta(T0)
-    plant.set_pose_ned(eta0, [float(start.get("speed_mps", 0.0)), 0, 0, 0, 0, 0])
+    plant.set_pose_ned(T_world_body_to_eta(start_pose_world(T_world_dock, start)),
+                       [float(start.get("speed_mps", 0.0)), 0, 0, 0, 0, 0])
     plant.n = ap.hover_speeds()
     sensors = Sensors()
-
-    vc_mean = F @ np.asarray(current_world, float)
-    sigma = turbulence_intensity * float(np.linalg.norm(vc_mean))
     n_frames_max = int(math.floor(max_time_s * fps + 1e-9)) + 1
-    n_steps_max = (n_frames_max - 1) * n_sub
-    if sigma > 0:
-        a = math.exp(-dt / turbulence_time_s)
-        gust_noise = rng.standard_normal((n_steps_max + 1, 3)) * (sigma * math.sqrt(1 - a * a))
-    gust = (rng.standard_normal(3) * sigma) if sigma > 0 else np.zeros(3)
-
-    t_l, T_l, thr_l, n_l, sens_l, pd_l, he_l = [], [], [], [], [], [], []
-    stop_reason = "timeout"
-    k_step = 0
+    gusts = Gusts(rng, F_WORLD_NED @ np.asarray(current_world, float), turbulence, dt, (n_frames_max - 1) * n_sub)
+    log, stop_reason = _TrialLog(), "timeout"
     for frame in range(n_frames_max):
         eta = plant.s[:6]
-        sens = sensors.read(eta)
-        p_n = np.array(eta[:3])
-        p_dock = R_dock_ned @ (p_n - o_n)
-        t_l.append(frame / fps)
-        T_l.append(eta_to_T_world_body(eta))
-        thr_l.append(plant.thrust())
-        n_l.append(plant.n.copy())
-        sens_l.append(sens)
-        pd_l.append(p_dock)
-        he_l.append(-math.degrees(wrap_pi(eta[5] - approach_psi)))
+        p_dock = axes.p_dock(eta[:3])
+        log.add(frame / fps, plant, sensors.read(eta), p_dock,
+                -math.degrees(wrap_pi(eta[5] - axes.approach_psi)))
         if p_dock[2] <= stop_distance_m:
             stop_reason = "reached"
             break
         if frame == n_frames_max - 1:
             break
-        for _ in range(n_sub):
-            s = plant.s
-            eta, nu = s[:6], s[6:]
-            sens = sensors.read(eta)
-            p_n = np.array(eta[:3])
-            rel = p_n - o_n
-            along = float(rel @ zd_n)
-            # LOS: aim at the axis point lookahead_m beyond our projection on the axis
-            q = o_n + zd_n * (along - lookahead_m)
-            psi_ref = math.atan2(q[1] - p_n[1], q[0] - p_n[0])
-            depth_ref = float(o_n[2] + zd_n[2] * along)
-            # speed schedule: cruise -> final inside the slow zone; turn first if way off
-            frac = min(max((along - stop_distance_m) / max(slow_zone_m - stop_distance_m, 1e-6),
-                           0.0), 1.0)
-            u_ref = final_speed + (cruise_speed - final_speed) * frac
-            u_ref *= max(math.cos(wrap_pi(psi_ref - eta[5])), 0.0)
-            # cross-track PID (lateral thrusters) on the horizontal offset from the axis
-            R = ap._R(eta)
-            v_n = R @ np.asarray(nu[:3])
-            e_lat = float(rel @ lat_h)
-            f_lat = ap.sway_pid.update(-e_lat, -float(v_n @ lat_h), dt)
-            tau = ap.track(eta, nu, sens, depth_ref, psi_ref, u_ref, dt,
-                           cross_force_ned=f_lat * lat_h)
-            if sigma > 0:
-                gust = a * gust + gust_noise[k_step]
-            vc = vc_mean + gust
-            plant.step(ap.thruster_command(tau), (float(vc[0]), float(vc[1]), float(vc[2])), dt)
-            k_step += 1
+        _control_steps(plant, ap, sensors, axes, guidance, gusts, n_sub, dt, stop_distance_m)
         if not all(map(math.isfinite, plant.s)):
             raise FloatingPointError("docking simulation diverged")
-
-    pd_arr = np.array(pd_l)
-    sensors_out = {k: np.array([s[k] for s in sens_l]) for k in sens_l[0]}
-    return {
-        "t": np.array(t_l), "T_world_body": np.array(T_l), "thrust": np.array(thr_l),
-        "n_rad_s": np.array(n_l), "sensors": sensors_out, "p_dock": pd_arr,
-        "heading_error_deg": np.array(he_l), "stop_reason": stop_reason,
-        "final_distance_m": float(pd_arr[-1, 2]), "final_lateral_m": float(pd_arr[-1, 0]),
-        "final_vertical_m": float(pd_arr[-1, 1]), "dt": dt, "seed": seed,
-        "start": dict(start), "current_world": tuple(float(c) for c in current_world),
-        "density": float(density), "thruster_names": THRUSTER_NAMES,
-    }
+    out = log.arrays()
+    pd_arr = out["p_dock"]
+    return {**out, "stop_reason": stop_reason,
+            "final_distance_m": float(pd_arr[-1, 2]), "final_lateral_m": float(pd_arr[-1, 0]),
+            "final_vertical_m": float(pd_arr[-1, 1]), "dt": dt, "seed": seed,
+            "start": dict(start), "current_world": tuple(float(c) for c in current_world),
+            "density": float(density), "thruster_names": THRUSTER_NAMES}
 
 
 __all__ = ["station_keeping_table", "station_keeping_signs_ok", "station_keep_run",
            "thrust_unit_N", "random_start", "start_pose_world", "simulate_docking_trial",
-           "DEFAULT_START_RANGES"]
+           "DEFAULT_START_RANGES", "LosGuidance", "Turbulence", "DockAxesNED", "los_references"]

@@ -255,28 +255,10 @@ class AUVModel:
                 zg * W * sth + xg * W * cth * cph,
                 -xg * W * cth * sph - yg * W * sth)
 
-    def deriv(self, s, tau, vc):
-        """State derivative. s: 12 floats (NED eta, FRD nu); tau: 6 floats (FRD);
-        vc: NED current (3 floats, m/s)."""
-        x, y, z, phi, th, psi, u, v, w, p, q, r = s
-        cph, sph = math.cos(phi), math.sin(phi)
-        cth, sth = math.cos(th), math.sin(th)
-        cps, sps = math.cos(psi), math.sin(psi)
-        R00 = cps * cth
-        R01 = -sps * cph + cps * sth * sph
-        R02 = sps * sph + cps * cph * sth
-        R10 = sps * cth
-        R11 = cps * cph + sph * sth * sps
-        R12 = -cps * sph + sth * sps * cph
-        R20 = -sth
-        R21 = cth * sph
-        R22 = cth * cph
-        vcx, vcy, vcz = vc
-        uc = R00 * vcx + R10 * vcy + R20 * vcz
-        vcb = R01 * vcx + R11 * vcy + R21 * vcz
-        wc = R02 * vcx + R12 * vcy + R22 * vcz
-        ur, vr, wr = u - uc, v - vcb, w - wc
-
+    def _coriolis_damping(self, ur, vr, wr, p, q, r):
+        """Rigid-body and added-mass Coriolis plus damping forces (6 floats, FRD) for the
+        velocity relative to the water (ur, vr, wr; m/s) and the body rates (p, q, r; rad/s).
+        Unrolled scalar arithmetic: this is the inner loop of every RK4 stage."""
         m = self._m
         xg, yg, zg = self._rg
         Ix, Iy, Iz = self._I
@@ -323,6 +305,31 @@ class AUVModel:
         f3 += (dl[3] + dq[3] * abs(p)) * p
         f4 += (dl[4] + dq[4] * abs(q)) * q
         f5 += (dl[5] + dq[5] * abs(r)) * r
+        return f0, f1, f2, f3, f4, f5
+
+    def deriv(self, s, tau, vc):
+        """State derivative. s: 12 floats (NED eta, FRD nu); tau: 6 floats (FRD);
+        vc: NED current (3 floats, m/s)."""
+        x, y, z, phi, th, psi, u, v, w, p, q, r = s
+        cph, sph = math.cos(phi), math.sin(phi)
+        cth, sth = math.cos(th), math.sin(th)
+        cps, sps = math.cos(psi), math.sin(psi)
+        R00 = cps * cth
+        R01 = -sps * cph + cps * sth * sph
+        R02 = sps * sph + cps * cph * sth
+        R10 = sps * cth
+        R11 = cps * cph + sph * sth * sps
+        R12 = -cps * sph + sth * sps * cph
+        R20 = -sth
+        R21 = cth * sph
+        R22 = cth * cph
+        vcx, vcy, vcz = vc
+        uc = R00 * vcx + R10 * vcy + R20 * vcz
+        vcb = R01 * vcx + R11 * vcy + R21 * vcz
+        wc = R02 * vcx + R12 * vcy + R22 * vcz
+        ur, vr, wr = u - uc, v - vcb, w - wc
+
+        f0, f1, f2, f3, f4, f5 = self._coriolis_damping(ur, vr, wr, p, q, r)
         g = self._g(cph, sph, cth, sth)
         fv = (tau[0] - f0 - g[0], tau[1] - f1 - g[1], tau[2] - f2 - g[2],
               tau[3] - f3 - g[3], tau[4] - f4 - g[4], tau[5] - f5 - g[5])

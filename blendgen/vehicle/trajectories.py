@@ -112,7 +112,7 @@ def docking_trial(spec, T_world_dock: np.ndarray, fps: float, latency_s: float, 
     run = docking.simulate_docking_trial(
         T_world_dock, start, current_world=tuple(fluid.current_mps), density=fluid.density_kg_m3, fps=fps,
         stop_distance_m=spec.stop_distance_m, max_time_s=spec.max_time_s, seed=seed,
-        cruise_speed=spec.cruise_speed_mps, final_speed=spec.final_speed_mps)
+        guidance=docking.LosGuidance(cruise_speed=spec.cruise_speed_mps, final_speed=spec.final_speed_mps))
     tp = np.asarray(run["t"], float)
     info = {"start": start, "stop_reason": run["stop_reason"], "final_distance_m": run["final_distance_m"],
             "final_lateral_m": run["final_lateral_m"], "final_vertical_m": run["final_vertical_m"]}
