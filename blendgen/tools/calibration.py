@@ -31,7 +31,7 @@ import click
 import numpy as np
 from pydantic import Field, ValidationError
 
-from blendgen.geometry import intrinsics_from_hfov, invert_T, make_T, project, rot_z, transform_points
+from blendgen.geometry import axis_angle_to_R, intrinsics_from_hfov, invert_T, make_T, project, rot_z, transform_points
 from blendgen.config.models import ConfigError, Strict, _read_yaml, format_validation_error
 from blendgen.config.bundled import bundled_file
 from blendgen.pipeline import executor as ex
@@ -146,13 +146,6 @@ class ChessBoard:
 
 # ----------------------------------------------------------------------------- poses
 
-def _axis_angle(axis, angle: float) -> np.ndarray:
-    a = np.asarray(axis, float)
-    a = a / np.linalg.norm(a)
-    Kx = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-    return np.eye(3) + math.sin(angle) * Kx + (1 - math.cos(angle)) * Kx @ Kx
-
-
 def polygon_area(uv: np.ndarray) -> float:
     x, y = uv[:, 0], uv[:, 1]
     return 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
@@ -202,7 +195,7 @@ def sample_pose(rng: np.random.Generator, K: np.ndarray, board: ChessBoard, widt
         ray /= np.linalg.norm(ray)
         # tilt about an axis perpendicular to the line of sight, measured from facing it
         R_face_ray = _look_along(ray)
-        R = R_face_ray @ _axis_angle([math.cos(az), math.sin(az), 0.0], tilt) @ rot_z(roll) @ R_facing
+        R = R_face_ray @ axis_angle_to_R([math.cos(az), math.sin(az), 0.0], tilt) @ rot_z(roll) @ R_facing
         d = 1.0
         for _ in range(8):   # projected area ~ 1/d^2
             T = make_T(R, d * ray)
@@ -229,7 +222,7 @@ def _look_along(ray: np.ndarray) -> np.ndarray:
     s = np.linalg.norm(axis)
     if s < 1e-12:
         return np.eye(3)
-    return _axis_angle(axis, math.atan2(s, float(z @ ray)))
+    return axis_angle_to_R(axis, math.atan2(s, float(z @ ray)))
 
 
 def sample_poses(seed: int, n: int, K: np.ndarray, board: ChessBoard, width: int, height: int,
