@@ -27,7 +27,6 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import click
 import numpy as np
 from pydantic import Field, ValidationError
 
@@ -376,9 +375,9 @@ def run_calibration(cfg: CalibrationConfig, out: Path, progress: bool = True) ->
         results.append(r)
         if progress:
             e = r.rel_err_pct()
-            click.echo(f"calibrate: {w}x{h} trial {k}: {r.n_views}/{len(paths)} views, rms {r.rms_px:.3f} px, "
+            print(f"calibrate: {w}x{h} trial {k}: {r.n_views}/{len(paths)} views, rms {r.rms_px:.3f} px, "
                        + ", ".join(f"{p} {e[p]:.3f}%" for p in PARAMS)
-                       + f" ({time.perf_counter() - t0:.0f} s)", err=True)
+                       + f" ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
 
     children = ex.Children()
     with ThreadPoolExecutor(max_workers=1) as pool:
@@ -451,33 +450,3 @@ def write_csv(results: list[TrialResult], rows: list[dict], out: Path) -> tuple[
         w.writeheader()
         w.writerows(rows)
     return summary, per_trial
-
-
-# ----------------------------------------------------------------------------- command
-
-@click.command("calibrate")
-@click.option("--config", "config", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_CONFIG,
-              show_default=True, help="calibration config (YAML)")
-@click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
-              default=Path("out/calibration"), show_default=True,
-              help="output directory (rendered frames, calibration.csv, calibration_trials.csv)")
-def calibrate_cmd(config: Path, out: Path):
-    """Render chessboards and check Zhang's calibration against the true K (SPEC section 6)."""
-    try:
-        cfg = load_config(config)
-    except ConfigError as e:
-        click.echo(f"error: {e}", err=True)
-        sys.exit(2)
-    t0 = time.perf_counter()
-    try:
-        results = run_calibration(cfg, out)
-    except RuntimeError as e:   # a failed render or an unreachable pose constraint
-        click.echo(f"error: {e}", err=True)
-        sys.exit(1)
-    rows = summarize(results)
-    summary, per_trial = write_csv(results, rows, out)
-    click.echo(f"Zhang calibration vs ground-truth K: relative error %, mean over {cfg.trials} trials "
-               f"({cfg.poses_per_trial} poses each, {cfg.samples} spp, hfov {cfg.hfov_deg:g} deg, "
-               f"{'no distortion' if cfg.fix_distortion else 'k1 k2 p1 p2 k3 estimated'})")
-    click.echo(format_table(rows))
-    click.echo(f"wall time {time.perf_counter() - t0:.0f} s; {summary}, {per_trial}")

@@ -16,7 +16,6 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-import click
 import pandas as pd
 
 from blendgen.config.models import load_experiment
@@ -77,17 +76,3 @@ def reproduce(names: tuple[str, ...], out_root: Path, trials: int | None, worker
         (b / "report.md").write_text(text)
         reports.append(text)
     return reports
-
-
-@click.command("reproduce")
-@click.argument("name", type=click.Choice(EXPERIMENTS + ("all",)))
-@click.option("--trials", type=click.IntRange(1, 100000), default=None,
-              help="trials per condition (default: the config's 100)")
-@click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
-              default=Path("out/reproduce"), show_default=True)
-@click.option("--workers", type=click.IntRange(1, 256), default=None)
-@click.option("--overwrite", is_flag=True, help="replace a dataset made from an older version of the config")
-def reproduce_cmd(name: str, trials: int | None, out: Path, workers: int | None, overwrite: bool):
-    """Run one of the article's experiments (or all): generate, evaluate, report."""
-    for text in reproduce(EXPERIMENTS if name == "all" else (name,), out, trials, workers, overwrite):
-        click.echo(text)
