@@ -188,9 +188,7 @@ def _run_sequence(dataset: Dataset, seq: dict, localizers: list[tuple[str, Any]]
                 continue
             if by_file[name]:
                 if path is None:
-                    path = dataset.image_path(frame).resolve()
-                    if not path.is_file():
-                        dataset.load_image(frame)  # raises the DatasetError
+                    path = dataset.checked_image_path(frame)  # DatasetError if missing/wrong
                 res = executor.call(loc, "localize_file", str(path), frame.get("index"))
             else:
                 if image is None:

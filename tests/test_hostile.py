@@ -1,0 +1,127 @@
+"""Hostile inputs (issue 18): every case of tests/hostile_corpus.py through the CLI.
+
+Config, dataset and verify cases run in this process (click's CliRunner; generation stops
+where Blender would start, so an accepted config shows as "accepted"); they must exit 2
+with one line naming the file and key, no traceback, and leave every folder as it was.
+Localizer cases run ``dockbench evaluate`` in a child (a plugin may call os._exit): the
+run must finish (rc 0) with the frames failed for the expected reason.
+The summary table (case | rc | message) is printed by the last test (``pytest -s``).
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+import cli
+from tests import hostile_corpus as hc
+
+SUMMARY: list[tuple[str, int, str]] = []
+IN_PROCESS = hc.CONFIG_CASES + hc.DATASET_CASES + hc.VERIFY_CASES
+
+
+@pytest.fixture
+def no_render(monkeypatch):
+    """Stop `generate` where rendering would start: reaching it means the config was accepted."""
+    import blendgen.pipeline.generate as gen
+
+    def stub(*args, **kwargs):
+        raise RuntimeError("config accepted: rendering reached")
+    monkeypatch.setattr(gen, "_render", stub)
+
+
+@pytest.mark.parametrize("case", IN_PROCESS, ids=[c.name for c in IN_PROCESS])
+def test_hostile_input(tmp_path, case, no_render):
+    base = tmp_path / "base"
+    base.mkdir()
+    argv = case.build(base)
+    before = hc.files_under(base)
+    res = CliRunner().invoke(cli.main, argv)
+    text = res.output
+    SUMMARY.append((case.name, res.exit_code, hc.summarize(res.exit_code, text)
+                    if res.exception is None or isinstance(res.exception, SystemExit)
+                    else f"TRACEBACK {type(res.exception).__name__}: {res.exception}"[:160]))
+    assert res.exception is None or isinstance(res.exception, SystemExit), repr(res.exception)
+    assert "Traceback" not in text, text
+    assert res.exit_code == case.rc, text
+    assert case.expect in text, text
+    errors = [ln for ln in text.splitlines() if ln.startswith(("error:", "Error:"))]
+    assert errors and (str(base) in errors[0] or case.name.startswith("cfg_out")), text
+    assert hc.files_under(base) == before, sorted(hc.files_under(base) ^ before)
+
+
+@pytest.mark.parametrize("case", hc.LOCALIZER_CASES, ids=[c.name for c in hc.LOCALIZER_CASES])
+def test_hostile_localizer(tmp_path, case):
+    import pandas as pd
+    argv = case.build(tmp_path)
+    rc, text, _ = hc.run_subprocess(argv, timeout_s=240)
+    out = hc.out_dir(tmp_path)
+    reasons = []
+    if (out / "estimates.parquet").is_file():
+        reasons = sorted(set(pd.read_parquet(out / "estimates.parquet")["fail_reason"]))
+    SUMMARY.append((case.name, rc, f"fail_reason: {', '.join(r[:60] for r in reasons)}" if reasons
+                    else hc.summarize(rc, text)))
+    assert rc == case.rc, text[-2000:]
+    assert any(case.expect in r for r in reasons), (reasons, text[-2000:])
+
+
+def test_hostile_png_bomb_is_refused_from_its_header(tmp_path):
+    """The 30000x30000 PNG is refused by its 33-byte header, never decoded."""
+    from evalkit.dataset import Dataset, DatasetError
+    root = hc.write_fake_dataset(tmp_path / "ds")
+    (root / hc.SEQ / "rgb" / "000001.png").write_bytes(hc.png_bomb())
+    hc.rehash(root)
+    ds = Dataset.open(root)
+    frame = list(ds.iter_frames("clear_000"))[1]
+    with pytest.raises(DatasetError, match="30000x30000 px; the manifest camera is 64x48"):
+        ds.load_image(frame)
+
+
+def test_frame_check_agrees_with_the_schema():
+    """The fast frame check (datasets_spec.validate) refuses exactly what frame.schema.json
+    refuses, on the good record and on every single-key mutation below."""
+    from datasets_spec.validate import frame_problem, schema_message
+    root = Path(__file__).parent
+    good = json.loads(hc.write_fake_dataset.__module__ and _good_frame())
+    nan = float("nan")
+    mutations = {"index": [-1, 1.5, "1", True, 2**31, None], "t": ["0", None, [1]],
+                 "d_true": [-0.1, "3", None], "image": ["/abs.png", "a/../b.png", "x.jpg", "a\\b.png", "", 3],
+                 "depth": ["d.png", "../d.npz"], "T_cam_dock": [[[1, 0, 0], [0, 1, 0, 0]], "eye", [[1] * 4] * 3,
+                                                               [[1, 0, 0, "0"]] * 4],
+                 "markers": [[], {"0": {"in_fov": 1, "visible_fraction": 0.5, "T_cam_marker": good["T_cam_dock"]}},
+                             {"0": {"in_fov": True, "visible_fraction": 1.5, "T_cam_marker": good["T_cam_dock"]}},
+                             {"": {"in_fov": True, "visible_fraction": 1, "T_cam_marker": good["T_cam_dock"]}}],
+                 "extra_key": [1]}
+    assert frame_problem(good) is None and schema_message(good) is None
+    n = 0
+    for key, values in mutations.items():
+        for v in values:
+            bad = {**good, key: v}
+            assert (frame_problem(bad) is None) == (schema_message(bad) is None), (key, v, frame_problem(bad))
+            n += 1
+        missing = {k: v for k, v in good.items() if k != key}
+        if key in good and key != "depth":
+            assert frame_problem(missing) is not None and schema_message(missing) is not None, key
+    # non-finite numbers: the schema cannot express them; the JSON reader refuses them first
+    assert frame_problem({**good, "d_true": nan}) is not None
+    assert n > 25 and root.is_dir()
+
+
+def _good_frame() -> str:
+    import tempfile
+    with tempfile.TemporaryDirectory() as tmp:
+        root = hc.write_fake_dataset(Path(tmp) / "ds")
+        return (root / hc.SEQ / "frames.jsonl").read_text().splitlines()[1]
+
+
+def test_zz_summary_table():
+    """Print the table of every case run above (pytest -s shows it)."""
+    if not SUMMARY:
+        pytest.skip("no hostile case ran")
+    width = max(len(n) for n, _, _ in SUMMARY)
+    print(f"\n{'case':{width}s} | rc | message")
+    for name, rc, msg in SUMMARY:
+        print(f"{name:{width}s} | {rc:2d} | {msg}")
+    print(f"{len(SUMMARY)} hostile cases")
