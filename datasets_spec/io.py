@@ -15,7 +15,8 @@ from pathlib import Path
 from typing import IO, Iterator
 
 from datasets_spec.validate import (MAX_JSON_LINE_BYTES, MAX_MANIFEST_BYTES, ContentError, camera_problem,
-                                    check_frame_record, image_problem, loads_bounded, non_finite_key, png_header,
+                                    check_frame_record, image_problem, load_schema, loads_bounded, non_finite_key,
+                                    png_header,
                                     schema_message)
 
 FORMAT_NAME = "dockbench-dataset"
@@ -79,11 +80,6 @@ def path_inside(root: Path, rel: str | Path, what: str = "path") -> Path:
 
 
 # -- schemas ---------------------------------------------------------------
-def load_schema(name: str) -> dict:
-    """A bundled JSON Schema by file name, e.g. ``load_schema('manifest.schema.json')``."""
-    return json.loads(resources.files("datasets_spec").joinpath(name).read_text(encoding="utf-8"))
-
-
 def doc_path(name: str) -> Path:
     """Filesystem path of a bundled document (``FORMAT.md``, ``LOCALIZER_PROTOCOL.md``)."""
     return Path(str(resources.files("datasets_spec").joinpath(name)))

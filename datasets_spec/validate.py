@@ -55,6 +55,12 @@ def non_finite_key(obj: Any) -> str | None:
     return None
 
 
+def load_schema(name: str) -> dict:
+    """A bundled JSON Schema by file name, e.g. ``load_schema('manifest.schema.json')``."""
+    from importlib import resources
+    return json.loads(resources.files("datasets_spec").joinpath(name).read_text(encoding="utf-8"))
+
+
 # -- frames ------------------------------------------------------------------
 def _is_number(v: Any) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
@@ -128,7 +134,6 @@ def schema_message(frame: Any) -> str | None:
     global _FRAME_VALIDATOR
     import jsonschema
 
-    from datasets_spec.io import load_schema
     if _FRAME_VALIDATOR is None:
         _FRAME_VALIDATOR = jsonschema.Draft202012Validator(load_schema("frame.schema.json"))
     err = jsonschema.exceptions.best_match(_FRAME_VALIDATOR.iter_errors(frame))

@@ -374,6 +374,10 @@ class Bad:
             return {"distance": "3.0"}
         if how == "bool":
             return {"distance": True}
+        if how == "slow":
+            import time
+            time.sleep(0.3)
+            return None
         if how == "memory":
             blob = bytearray(8 << 30)
             return {"distance": 1.0}
@@ -417,12 +421,16 @@ def _long_line(mib: int):
 # rc 0 here: the run completes and the frames fail with the reason in ``expect`` (estimates)
 LOCALIZER_CASES = [
     Case("loc_systemexit", "localizer", _loc("systemexit"), "exception: SystemExit", rc=0),
+    Case("loc_systemexit_in_process", "localizer", _loc("systemexit", ("--in-process",)),
+         "exception: SystemExit", rc=0),
     Case("loc_keyboardinterrupt_raised", "localizer", _loc("keyboardinterrupt"),
          "exception: KeyboardInterrupt", rc=0),
+    Case("loc_keyboardinterrupt_in_process", "localizer", _loc("keyboardinterrupt", ("--in-process",)),
+         "exception: KeyboardInterrupt", rc=0),
     Case("loc_os_exit", "localizer", _loc("os_exit"), "crash: exit code 3", rc=0),
-    Case("loc_distance_1e308", "localizer", _loc("huge"), "out_of_range", rc=0),
-    Case("loc_distance_string", "localizer", _loc("string"), "bad_type", rc=0),
-    Case("loc_distance_bool", "localizer", _loc("bool"), "bad_type", rc=0),
+    Case("loc_distance_1e308", "localizer", _loc("huge", ("--in-process",)), "out_of_range", rc=0),
+    Case("loc_distance_string", "localizer", _loc("string", ("--in-process",)), "bad_type", rc=0),
+    Case("loc_distance_bool", "localizer", _loc("bool", ("--in-process",)), "bad_type", rc=0),
     Case("loc_isolated_8GiB", "localizer", _loc("memory", ("--isolate",)), "MemoryError", rc=0),
     Case("loc_exec_64MiB_line", "localizer", _long_line(64), "protocol: reply line longer than", rc=0),
 ]
@@ -464,9 +472,11 @@ def run_subprocess(argv: list[str], timeout_s: float = 300.0, limit_as: int | No
 def summarize(rc: int, text: str) -> str:
     """The message a user sees: the first error line, or the last line of a traceback."""
     lines = [ln for ln in text.splitlines() if ln.strip()]
-    for ln in lines:
+    for i, ln in enumerate(lines):
         if ln.startswith("error:"):
-            return ln[:160]
+            if ln.endswith("problem(s):") and i + 1 < len(lines):     # verify: the first problem
+                ln = f"{ln} {lines[i + 1].strip()}"
+            return ln[:200]
     if any(ln.startswith("Traceback") for ln in lines):
         return ("TRACEBACK " + lines[-1])[:160]
     return (lines[-1] if lines else "")[:160]

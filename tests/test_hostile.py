@@ -67,6 +67,28 @@ def test_hostile_localizer(tmp_path, case):
     assert any(case.expect in r for r in reasons), (reasons, text[-2000:])
 
 
+@pytest.mark.parametrize("mode", ["--in-process", "--isolate"])
+def test_real_ctrl_c_still_stops_the_run(tmp_path, mode):
+    """SIGINT during evaluate (a user's Ctrl-C) ends it with exit 130, although the guard
+    turns a KeyboardInterrupt raised by the plugin itself into one failed frame."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    argv = hc._loc("slow", (mode,))(tmp_path)
+    code = "import sys; sys.argv = ['dockbench'] + sys.argv[1:]; import cli; cli.main()"
+    p = subprocess.Popen([sys.executable, "-c", code, *argv], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                         text=True, env={**os.environ, "PYTHONPATH": str(hc.ROOT)}, cwd=str(hc.ROOT))
+    time.sleep(4.0)           # imports, child start, a few 0.3 s frames
+    p.send_signal(signal.SIGINT)
+    out, _ = p.communicate(timeout=60)
+    SUMMARY.append((f"loc_real_ctrl_c{mode.replace('--', '_').replace('-', '_')}", p.returncode,
+                    hc.summarize(p.returncode, out)))
+    assert p.returncode == 130, out
+    assert "Traceback" not in out and "interrupted" in out
+
+
 def test_hostile_png_bomb_is_refused_from_its_header(tmp_path):
     """The 30000x30000 PNG is refused by its 33-byte header, never decoded."""
     from evalkit.dataset import Dataset, DatasetError
