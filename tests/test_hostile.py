@@ -147,3 +147,62 @@ def test_zz_summary_table():
     for name, rc, msg in SUMMARY:
         print(f"{name:{width}s} | {rc:2d} | {msg}")
     print(f"{len(SUMMARY)} hostile cases")
+
+
+# ------------------------------------------------------------------ containment, unit level
+def test_path_inside_refuses_every_escape(tmp_path):
+    from datasets_spec.io import DatasetError, path_inside
+    root = tmp_path / "ds"
+    (root / "rgb").mkdir(parents=True)
+    (tmp_path / "outside.png").write_bytes(b"x")
+    (root / "rgb" / "real.png").write_bytes(b"x")
+    (root / "rgb" / "alias.png").symlink_to(root / "rgb" / "real.png")      # stays inside: fine
+    (root / "rgb" / "leak.png").symlink_to(tmp_path / "outside.png")
+    (root / "up").symlink_to(tmp_path, target_is_directory=True)
+    assert path_inside(root, "rgb/alias.png") == (root / "rgb" / "real.png").resolve()
+    assert path_inside(root, "rgb/new/file.png").parent.name == "new"        # not existing yet: fine
+    for bad in ["../outside.png", "/etc/passwd", str(tmp_path / "outside.png"), "rgb/../../outside.png",
+                "rgb/leak.png", "up/outside.png", "a\x00b"]:
+        with pytest.raises(DatasetError):
+            path_inside(root, bad)
+
+
+def test_writer_refuses_ids_that_bypass_the_schema(tmp_path):
+    """Defence in depth: even an id that skipped validation cannot make the writer leave -o."""
+    from blendgen.pipeline.writer import DatasetWriter
+    from datasets_spec.io import DatasetError
+    w = DatasetWriter(tmp_path / "out")
+    w.prepare()
+    for bad in ("../../x", "../x", "/abs", "a/b"):
+        with pytest.raises(DatasetError, match="outside the dataset folder"):
+            w.seq_dir(bad)
+        with pytest.raises(DatasetError, match="outside the dataset folder"):
+            w.tmp_dir(bad + "/y")
+    assert w.tmp_dir("ok-t000-clear").name == ".ok-t000-clear.tmp"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+
+
+def test_out_location_rules(tmp_path):
+    from blendgen.config.models import OutputDirError
+    from blendgen.pipeline.generate import check_out_location
+    check_out_location(tmp_path / "new" / "deeper")                 # creatable: fine
+    check_out_location(hc.ROOT / "out" / "demo")                    # the Makefile's place: fine
+    for bad in (hc.ROOT, hc.ROOT / "blendgen" / "x", hc.ROOT / "tests", hc.ROOT / "datasets_spec" / "a" / "b"):
+        with pytest.raises(OutputDirError, match="source tree"):
+            check_out_location(bad)
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(OutputDirError, match="is a file"):
+        check_out_location(tmp_path / "file" / "sub")
+
+
+def test_yaml_limits_keep_ordinary_configs_working(tmp_path):
+    """Anchors/aliases and merge keys stay usable; only their explosion is refused."""
+    from blendgen.config.models import load_experiment
+    p = tmp_path / "ok.yaml"
+    p.write_text(hc._good_yaml() + "water:\n  preset: clear\n"
+                 "conditions:\n  - &c {label: c1}\n  - {<<: *c, label: c2}\n")
+    exp = load_experiment(p)
+    assert [c.label for c in exp.conditions] == ["c1", "c2"]
+    p.write_text("{seed: 1, seed: 2}\n")                            # duplicates on one line too
+    with pytest.raises(Exception, match="duplicate key 'seed'"):
+        load_experiment(p)

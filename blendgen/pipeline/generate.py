@@ -63,8 +63,8 @@ def _job_dict(t: "_Target", job: plan.RenderJob, render: dict, parts: list) -> d
         "gt": {"T_world_dock": job.scene["dock"]["T_world_dock"], "markers": t.markers},
         "outputs": [{"seq_dir": str(pt.writer.tmp_dir(s.id).resolve()), "rel": f"sequences/{s.id}", "post": s.post}
                     for pt, _, seqs in parts for s in seqs],
-        "log": str((t.work / "logs" / f"{first}.blender.log").resolve()),
-        "timing_out": str((t.work / "timing" / f"{first}.json").resolve()),
+        "log": str(path_inside(t.work, f"logs/{first}.blender.log", "render log")),
+        "timing_out": str(path_inside(t.work, f"timing/{first}.json", "timing file")),
     }
 
 

@@ -12,7 +12,7 @@ import os
 import shutil
 from pathlib import Path
 
-from datasets_spec.io import (FORMAT_NAME, MANIFEST, SPEC_VERSION, content_hash, dataset_files, path_inside,
+from datasets_spec.io import (FORMAT_NAME, DatasetError, MANIFEST, SPEC_VERSION, content_hash, dataset_files, path_inside,
                               save_json_atomic, sha256_file)
 
 FORMAT = FORMAT_NAME
@@ -32,16 +32,24 @@ class DatasetWriter:
             shutil.rmtree(d, ignore_errors=True)
         (self.root / MANIFEST).unlink(missing_ok=True)
 
+    def _child(self, name: str, what: str) -> Path:
+        """``sequences/<name>`` resolved, proven to be a direct child of ``sequences/``."""
+        path = path_inside(self.root, f"sequences/{name}", what)
+        if "/" in name or "\\" in name or path.parent != self.seq_root.resolve():
+            raise DatasetError(f"{self.seq_root / name}: {what} {name!r} is not a folder directly in "
+                               f"{self.seq_root}, outside the dataset folder layout")
+        return path
+
     def seq_dir(self, seq_id: str) -> Path:
         """``sequences/<id>``, proven inside the dataset folder (ids come from the config)."""
-        return path_inside(self.root, f"sequences/{seq_id}", "sequence folder")
+        return self._child(seq_id, "sequence folder")
 
     def is_done(self, seq_id: str) -> bool:
         return (self.seq_dir(seq_id) / "frames.jsonl").exists()
 
     def tmp_dir(self, seq_id: str) -> Path:
         """``sequences/.<id>.tmp`` (proven inside the dataset folder)."""
-        return path_inside(self.root, f"sequences/.{seq_id}.tmp", "sequence work folder")
+        return self._child(f".{seq_id}.tmp", "sequence work folder")
 
     def commit_sequence(self, seq_id: str, n_frames: int) -> None:
         """Check the temp sequence is whole, then rename it into place."""
