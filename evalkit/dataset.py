@@ -95,6 +95,13 @@ class Dataset:
         path_inside(self.root, frame["image"], "image")
         return self.root / frame["image"]
 
+    def frame_file(self, frame: dict, key: str) -> Path:
+        """Path of a frame's ``depth`` / ``object_index`` / ``image`` file, proven inside
+        the dataset folder (no symlink leaving it); DatasetError if the key is absent."""
+        if key not in frame:
+            raise DatasetError(f"frame {frame.get('index')!r}: no {key!r} key")
+        return path_inside(self.root, frame[key], key)
+
     def checked_image_path(self, frame: dict) -> Path:
         """:meth:`image_path` (resolved) after its PNG header was checked against the
         manifest camera (width x height, 8-bit RGB), without decoding a pixel."""
