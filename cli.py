@@ -78,7 +78,8 @@ def generate(config: Path, out: Path, workers: int | None, overwrite: bool, exec
 @click.option("--isolate/--in-process", default=None,
               help="run each Python localizer in its own child process (memory-capped): a hang past "
                    "--frame-timeout (default 60 s) is killed and a crash or os._exit costs one frame. "
-                   "Default: plugins (file.py:Class, module:attr, entry points) isolated, built-ins in process")
+                   "Default: plugins (file.py:Class, module:attr, entry points) isolated, built-ins in process. "
+                   "Children get 4096 MiB of address space (env DOCKBENCH_MEMORY_LIMIT_MB, 0 = unlimited)")
 @click.option("--preprocess", default=None, metavar="STEPS",
               help="image preprocessing before every localizer, e.g. clahe,grayworld or median:k=5,clahe:clip=3 "
                    "(denoise, bilateral, median, gaussian, clahe, stretch, gain, gamma, grayworld)")

@@ -20,7 +20,14 @@ DEFAULT_MAX_RESTARTS = 10        # per sequence; afterwards frames fail fast
 
 
 EXIT_GRACE_S = 2.0  # s a child gets to exit after stdin/pipe close before it is killed
-DEFAULT_MEMORY_LIMIT_MB = 4096  # address space of a localizer child (RLIMIT_AS); None/0 = unlimited
+# address space of a localizer child (RLIMIT_AS, MiB); 0 = unlimited. DOCKBENCH_MEMORY_LIMIT_MB
+# overrides it (e.g. for GPU frameworks, which reserve large virtual ranges)
+def _memory_limit_from_env(default_mb: int = 4096) -> int:
+    text = os.environ.get("DOCKBENCH_MEMORY_LIMIT_MB", "").strip()
+    return int(text) if text.isdigit() else default_mb
+
+
+DEFAULT_MEMORY_LIMIT_MB = _memory_limit_from_env()
 
 
 class FrameFailure(Exception):

@@ -500,6 +500,10 @@ def main(argv: list[str]) -> int:
             rc, text, peak = run_subprocess(args, limit_as=None if case.kind == "localizer" else 4 << 30)
             new = sorted(files_under(base) - before)
             msg = summarize(rc, text)
+            est = out_dir(base) / "estimates.parquet"
+            if case.kind == "localizer" and est.is_file():
+                import pandas as pd
+                msg = "fail_reason: " + ", ".join(sorted(set(pd.read_parquet(est)["fail_reason"])))[:150]
             rows.append((case.name, rc, f"{time.perf_counter() - t0:.1f}", peak // 1024, len(new), msg))
             print(f"| {case.name} | {rc} | {rows[-1][2]} s | {rows[-1][3]} MB | {len(new)} new | {msg} |",
                   flush=True)
