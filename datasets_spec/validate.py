@@ -173,17 +173,27 @@ def camera_problem(camera: dict) -> str | None:
 
 
 # -- PNG header --------------------------------------------------------------
+PNG_IEND = b"\x00\x00\x00\x00IEND\xaeB`\x82"
+
+
 def png_header(path: Path) -> tuple[int, int, int, int]:
     """``(width, height, bit_depth, color_type)`` from the 33-byte PNG start (signature +
-    IHDR chunk with its CRC), read without decoding a pixel. ContentError if it is not one."""
+    IHDR chunk with its CRC), read without decoding a pixel; the file must also end with
+    the 12-byte IEND chunk (a truncated PNG does not). ContentError if it is not one."""
     with open(path, "rb") as fh:
         head = fh.read(33)
+        fh.seek(0, 2)
+        size = fh.tell()
+        fh.seek(max(size - 12, 0))
+        tail = fh.read(12)
     if len(head) < 33 or not head.startswith(PNG_SIGNATURE):
         raise ContentError("not a PNG file (bad signature or shorter than its header)")
     length, kind = struct.unpack(">I4s", head[8:16])
     data, crc = head[16:29], struct.unpack(">I", head[29:33])[0]
     if kind != b"IHDR" or length != 13 or zlib.crc32(kind + data) != crc:
         raise ContentError("not a PNG file (first chunk is not a valid IHDR)")
+    if tail != PNG_IEND:
+        raise ContentError("truncated PNG (no IEND chunk at its end)")
     width, height, depth, color, _, _, _ = struct.unpack(">IIBBBBB", data)
     return width, height, depth, color
 

@@ -72,6 +72,8 @@ def _cfg(edit: Callable[[dict], None] | None = None, out: str | None = None):
         argv = _cfg_text(base, yaml.safe_dump(cfg, allow_unicode=True))
         if out is not None:
             argv[-1] = out.format(base=base, root=ROOT)
+            if "{base}/link" in out:
+                (base / "link").symlink_to(ROOT / "evalkit", target_is_directory=True)
         return argv
     return build
 
@@ -109,6 +111,13 @@ def _duplicate_key() -> str:
     return "seed: 7\n" + _good_yaml().replace("seed: 1\n", "") + "seed: 8\n"
 
 
+def _template_case(base: Path) -> list[str]:
+    (base / "tpl.yaml").write_bytes(b"pool: {length_m: 10}\n# \xff\n")
+    cfg = copy.deepcopy(GOOD_CONFIG)
+    cfg["scene"]["template"] = "tpl.yaml"
+    return _cfg_text(base, yaml.safe_dump(cfg))
+
+
 CONFIG_CASES = [
     Case("cfg_non_utf8", "config", lambda b: _cfg_text(b, _good_yaml().encode() + b"# caf\xe9 \xff\xfe\n"),
          "UTF-8"),
@@ -135,6 +144,8 @@ CONFIG_CASES = [
     Case("cfg_condition_dotdot", "config", _cfg(_set("conditions", [{"label": ".."}])), "conditions.0.label"),
     Case("cfg_name_dotdot", "config", _cfg(_set("name", "..")), "name"),
     Case("cfg_name_dot_hidden", "config", _cfg(_set("name", ".hidden")), "name"),
+    Case("cfg_out_symlink_into_source", "config", _cfg(out="{base}/link/x"), "source tree"),
+    Case("cfg_template_not_utf8", "config", lambda b: _template_case(b), "UTF-8"),
     Case("cfg_trials_100000", "config", _cfg(_set("trials", 100000)), "trials"),
     Case("cfg_frames_1e12", "config", _cfg(_set("trajectories.0.speed_mps", 1e-9)), "frames"),
     Case("cfg_fps_x_time_huge", "config",
@@ -310,6 +321,22 @@ def _ds(tamper: Callable[[Path], None], command: str = "evaluate"):
     return build
 
 
+def _frames_fifo(root: Path) -> None:
+    (root / SEQ / "frames.jsonl").unlink()
+    os.mkfifo(root / SEQ / "frames.jsonl")
+
+
+def _image_is_dir(root: Path) -> None:
+    p = root / SEQ / "rgb" / "000001.png"
+    p.unlink()
+    p.mkdir()
+
+
+def _truncated_idat(root: Path) -> None:
+    data = _png(64, 48)
+    (root / SEQ / "rgb" / "000001.png").write_bytes(data[:60])
+
+
 _DATASET_TAMPERS = [
     ("png_bomb_30000", _image_bytes(png_bomb), "30000x30000"),
     ("image_wrong_size", _image_bytes(lambda: _png(32, 24)), "32x24"),
@@ -345,6 +372,17 @@ _DATASET_TAMPERS = [
     ("camera_size_1e9", _manifest_edit(lambda m: m["camera"].update(width=10 ** 9)), "camera.width"),
     ("sequence_path_dotdot", _manifest_edit(lambda m: m["sequences"][0].update(path="sequences/../../x")), "path"),
     ("manifest_file_key_abs", _manifest_edit(lambda m: m["files"].update({"/etc/passwd": "0" * 64})), "files"),
+    ("frames_fifo", _frames_fifo, "frames"),
+    ("image_is_directory", _image_is_dir, "000001.png"),
+    ("image_truncated_idat", _truncated_idat, "000001.png"),
+    ("marker_keypoint_nan", _manifest_edit(lambda m: m["markers"][0]["keypoints"][0].__setitem__(0, float("nan"))),
+     "markers.0.keypoints.0.0"),
+    ("d_min_rel_nan", _manifest_edit(lambda m: m.update(d_min_rel_m=float("nan"))), "d_min_rel_m"),
+    ("n_frames_1e30", _manifest_edit(lambda m: m["sequences"][0].update(n_frames=10 ** 30)), "n_frames"),
+    ("sequence_path_confusable", _manifest_edit(lambda m: m["sequences"][0].update(
+        path="sequences/clear_\u041e00")), "frames"),                          # Cyrillic O
+    ("sequence_path_escapes_sequences", _manifest_edit(lambda m: m["sequences"][0].update(path="sequences")),
+     "sequences.0.path"),
 ]
 DATASET_CASES = [Case(f"ds_{n}", "dataset", _ds(t), e) for n, t, e in _DATASET_TAMPERS]
 VERIFY_CASES = [Case(f"verify_{n}", "verify", _ds(t, "verify"), e) for n, t, e in _DATASET_TAMPERS
