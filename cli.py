@@ -27,8 +27,9 @@ def _user_errors(fn):
             click.echo(f"error: {e}", err=True)
             sys.exit(USER_ERROR)
         except KeyboardInterrupt:
-            click.echo("\ninterrupted: finished sequences are kept; re-run the same command to resume",
-                       err=True)
+            hint = ("finished sequences are kept; re-run the same command to resume"
+                    if fn.__name__ == "generate" else "stopped by Ctrl-C (SIGINT)")
+            click.echo(f"\ninterrupted: {hint}", err=True)
             sys.exit(130)
     return wrapper
 
@@ -81,15 +82,17 @@ def generate(config: Path, out: Path, workers: int | None, overwrite: bool, exec
 @click.option("-o", "--out", "out", required=True, type=click.Path(file_okay=False, path_type=Path))
 @click.option("--frame-timeout", type=click.FloatRange(min=0.001), default=None,
               help="seconds per frame; slower frames fail with 'timeout'; turns on --isolate")
-@click.option("--isolate", is_flag=True,
-              help="run each Python localizer in its own child process: a hang past --frame-timeout "
-                   "(default 60 s) is killed and a crash costs one frame")
+@click.option("--isolate/--in-process", default=None,
+              help="run each Python localizer in its own child process (memory-capped): a hang past "
+                   "--frame-timeout (default 60 s) is killed and a crash or os._exit costs one frame. "
+                   "Default: plugins (file.py:Class, module:attr, entry points) isolated, built-ins in process. "
+                   "Children get 4096 MiB of address space (env DOCKBENCH_MEMORY_LIMIT_MB, 0 = unlimited)")
 @click.option("--preprocess", default=None, metavar="STEPS",
               help="image preprocessing before every localizer, e.g. clahe,grayworld or median:k=5,clahe:clip=3 "
                    "(denoise, bilateral, median, gaussian, clahe, stretch, gain, gamma, grayworld)")
 @_user_errors
 def evaluate(dataset: Path, localizers: tuple[str, ...], params: tuple[str, ...], out: Path,
-             frame_timeout: float | None, isolate: bool, preprocess: str | None):
+             frame_timeout: float | None, isolate: bool | None, preprocess: str | None):
     """Run localizers over DATASET; write tables, plots and per-frame estimates to OUT."""
     import pandas as pd
     from evalkit.reports import results

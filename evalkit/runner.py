@@ -5,11 +5,15 @@ failure with a ``fail_reason``; the run continues. ``fail_reason`` values:
 
 * ``""`` -- success;
 * ``"none"`` -- the localizer returned ``None`` (it found nothing);
-* ``"exception: <Type>: <message>"`` -- ``localize`` (or ``reset``) raised;
-* ``"bad_type"`` -- not a dict, or a distance that is not a number;
+* ``"exception: <Type>: <message>"`` -- ``localize`` (or ``reset``) raised, including
+  ``SystemExit`` and a ``KeyboardInterrupt`` the localizer raised itself (a real Ctrl-C,
+  i.e. SIGINT during :func:`evaluate`, still stops the run);
+* ``"bad_type"`` -- not a dict, or a distance that is not a number (a string such as
+  ``"3.0"`` or a bool is not);
 * ``"no_distance"`` -- the dict has no ``"distance"``;
 * ``"nan"`` -- non-finite distance or non-finite ``T_cam_dock``;
 * ``"negative"`` -- distance < 0;
+* ``"out_of_range"`` -- distance > :data:`MAX_DISTANCE_M` (10 km);
 * ``"bad_shape"`` -- ``T_cam_dock`` is not 4x4;
 * ``"timeout"`` -- the call took longer than the per-frame budget (see below);
 * ``"crash: exit code N"`` / ``"crash: signal SIGSEGV"`` -- the localizer's process
@@ -26,7 +30,7 @@ done by *proxy localizers* (:mod:`evalkit.isolation`, :mod:`evalkit.external`)
 that run the real localizer in a child process, kill it on a timeout or crash
 and restart it with ``reset`` replayed; they set ``enforces_timeout = True``,
 report their own ``last_call_ms`` (the exchange, not a restart) and raise
-:class:`~evalkit.isolation.FrameFailure` whose ``reason`` is recorded as is.
+:class:`~evalkit.process.FrameFailure` whose ``reason`` is recorded as is.
 Localizers with a ``localize_file(path, index)`` method (external programs)
 get the image's absolute path instead of the pixels.
 """
@@ -44,7 +48,7 @@ import pandas as pd
 
 from evalkit.metrics import core as metrics
 from evalkit.dataset import Dataset
-from evalkit.isolation import FrameFailure
+from evalkit.process import FrameFailure
 
 COLUMNS = ["localizer", "sequence", "condition", "trial", "index", "t", "d_true", "in_view",
            "success", "d_est", "e_abs", "e_rel", "marker_id", "ms", "fail_reason", "T_cam_dock_est"]
@@ -86,7 +90,11 @@ class InProcessExecutor:
             error = None
         except FrameFailure as exc:
             value, error = None, exc.reason
-        except Exception as exc:  # noqa: BLE001 - a localizer's bug must not stop the run
+        except KeyboardInterrupt as exc:
+            if _CTRL_C.pressed:            # a real Ctrl-C stops the run (exit 130 in the CLI)
+                raise
+            value, error = None, f"exception: KeyboardInterrupt: {exc}"
+        except BaseException as exc:  # noqa: BLE001 - SystemExit, GeneratorExit...: one failed frame
             value, error = None, f"exception: {type(exc).__name__}: {exc}"
         ms = (time.perf_counter() - start) * 1e3
         if getattr(localizer, "enforces_timeout", False):
@@ -97,11 +105,24 @@ class InProcessExecutor:
         return CallResult(value, error, ms)
 
 
+class _CtrlC:
+    """Set by the SIGINT handler :func:`evaluate` installs: tells a real Ctrl-C (stop the
+    run) from a KeyboardInterrupt a localizer raised itself (one failed frame)."""
+    pressed = False
+
+
+_CTRL_C = _CtrlC()
+MAX_DISTANCE_M = 1e4   # answers beyond 10 km are not distances to a dock: "out_of_range"
+
+
 def validate_estimate(value: Any) -> tuple[dict | None, str]:
     """Check a ``localize`` return value; ``(clean estimate, "")`` or ``(None, reason)``.
 
     The clean estimate has ``distance`` (float, m), ``T_cam_dock`` (4x4 float
-    ndarray or None) and ``marker_id`` (str or None).
+    ndarray or None) and ``marker_id`` (str or None). ``distance`` must be a real
+    number (int, float or a numpy number; not a string such as ``"3.0"``, not a
+    bool: ``bad_type``), finite (``nan``), >= 0 (``negative``) and at most
+    :data:`MAX_DISTANCE_M` (``out_of_range``).
     """
     if value is None:
         return None, "none"
@@ -109,14 +130,19 @@ def validate_estimate(value: Any) -> tuple[dict | None, str]:
         return None, "bad_type"
     if "distance" not in value:
         return None, "no_distance"
-    try:
-        distance = float(value["distance"])
-    except (TypeError, ValueError):
+    raw = value["distance"]
+    if isinstance(raw, (bool, np.bool_)) or not isinstance(raw, (int, float, np.integer, np.floating)):
         return None, "bad_type"
+    try:
+        distance = float(raw)
+    except OverflowError:          # an int beyond float range
+        return None, "out_of_range"
     if not math.isfinite(distance):
         return None, "nan"
     if distance < 0.0:
         return None, "negative"
+    if distance > MAX_DISTANCE_M:
+        return None, "out_of_range"
     T, reason = _validate_pose(value.get("T_cam_dock"))
     if reason:
         return None, reason
@@ -188,9 +214,7 @@ def _run_sequence(dataset: Dataset, seq: dict, localizers: list[tuple[str, Any]]
                 continue
             if by_file[name]:
                 if path is None:
-                    path = dataset.image_path(frame).resolve()
-                    if not path.is_file():
-                        dataset.load_image(frame)  # raises the DatasetError
+                    path = dataset.checked_image_path(frame)  # DatasetError if missing/wrong
                 res = executor.call(loc, "localize_file", str(path), frame.get("index"))
             else:
                 if image is None:
@@ -249,7 +273,7 @@ def evaluate(dataset: Dataset, localizer_specs: Iterable[tuple[str, Any]],
     total = sum(int(s.get("n_frames", 0)) for s in seqs)
     rows: list[dict] = []
     try:
-        with _progress(total, progress) as tick:
+        with _progress(total, progress) as tick, _sigint_marks_ctrl_c():
             for seq in seqs:
                 rows.extend(_run_sequence(dataset, seq, localizers, executor, tick))
     finally:
@@ -261,6 +285,32 @@ def evaluate(dataset: Dataset, localizer_specs: Iterable[tuple[str, Any]],
                 except Exception:  # noqa: BLE001 - cleanup must not hide results
                     pass
     return _finish(rows, dataset.d_min_rel_m)
+
+
+def _sigint_marks_ctrl_c():
+    """Within the block (main thread only): SIGINT sets ``_CTRL_C.pressed`` and raises
+    KeyboardInterrupt as usual, so the in-process guard lets a real Ctrl-C through."""
+    import contextlib
+    import signal
+    import threading
+
+    @contextlib.contextmanager
+    def ctx():
+        if threading.current_thread() is not threading.main_thread():
+            yield
+            return
+        previous = signal.getsignal(signal.SIGINT)
+
+        def handler(signum, frame):
+            _CTRL_C.pressed = True
+            raise KeyboardInterrupt
+        signal.signal(signal.SIGINT, handler)
+        _CTRL_C.pressed = False
+        try:
+            yield
+        finally:
+            signal.signal(signal.SIGINT, previous)
+    return ctx()
 
 
 def _finish(rows: list[dict], d_min_rel: float) -> pd.DataFrame:

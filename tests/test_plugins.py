@@ -26,7 +26,7 @@ import cli  # noqa: E402
 import synth_images as synth  # noqa: E402
 from fake_dataset import SEQUENCES, write_fake_dataset  # noqa: E402
 
-from evalkit import preprocess, registry, runner  # noqa: E402
+from evalkit import assemble, preprocess, registry, runner  # noqa: E402
 from evalkit.dataset import Dataset  # noqa: E402
 from evalkit.external import ExternalLocalizer  # noqa: E402
 from evalkit.registry import RegistryError  # noqa: E402
@@ -230,7 +230,7 @@ def test_parse_preprocess_spec():
         with pytest.raises(ValueError, match=msg):
             preprocess.parse_steps(bad)
     with pytest.raises(RegistryError, match="bad --preprocess"):
-        registry.build("qr", preprocess="nope")
+        assemble.build("qr", preprocess="nope")
 
 
 def test_preprocess_steps_are_deterministic_images():
@@ -271,7 +271,7 @@ def test_preprocess_in_isolated_child(ds_path, tmp_path):
     f = tmp_path / "my_loc.py"
     f.write_text(PLUGIN_SRC)
     # gain alpha=1 beta=0 is the identity: the oracle still reads the exact distance
-    loc = registry.build(f"{f}:Oracle", {}, isolate=True, preprocess="gain:alpha=1:beta=0")
+    loc = assemble.build(f"{f}:Oracle", {}, isolate=True, preprocess="gain:alpha=1:beta=0")
     df = runner.evaluate(Dataset.open(ds_path), [("o", loc)], progress=False)
     _assert_oracle(df)
     assert json.loads(json.dumps(preprocess.parse_steps("gain:alpha=1")[0].params)) == {"alpha": 1}

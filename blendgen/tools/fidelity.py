@@ -93,9 +93,9 @@ def load_frames(ds_path: Path) -> dict:
         for f in ds.iter_frames(seq["id"]):
             rec = {"rgb": srgb_to_linear(ds.load_image(f)), "d_true": f["d_true"]}
             if f.get("object_index"):
-                rec["index"] = cv2.imread(str(ds.root / f["object_index"]), cv2.IMREAD_UNCHANGED)
+                rec["index"] = cv2.imread(str(ds.frame_file(f, "object_index")), cv2.IMREAD_UNCHANGED)
             if f.get("depth"):
-                rec["range"] = np.load(ds.root / f["depth"])["range_m"]
+                rec["range"] = np.load(ds.frame_file(f, "depth"))["range_m"]
             out[(seq["condition"], f["index"])] = rec
     return out
 

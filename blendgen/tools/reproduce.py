@@ -18,8 +18,10 @@ from pathlib import Path
 
 import pandas as pd
 
-from blendgen.config.models import load_experiment
+from pydantic import ValidationError
+
 from blendgen.config.bundled import bundled_file
+from blendgen.config.models import ConfigError, format_validation_error, load_experiment
 
 EXPERIMENTS = ("turbidity", "depth", "current", "occlusion")
 LOCALIZERS = ("led", "qr", "hybrid")
@@ -27,10 +29,14 @@ LOCALIZERS = ("led", "qr", "hybrid")
 
 def experiment(name: str, trials: int | None):
     """The paper config, optionally with fewer trials (the dataset name records it)."""
-    exp = load_experiment(bundled_file("configs", f"paper_{name}.yaml"))
-    if trials is not None:
-        exp.trials = trials
-        exp.name = f"{exp.name}-{trials}trials"
+    path = bundled_file("configs", f"paper_{name}.yaml")
+    exp = load_experiment(path)
+    if trials is not None:         # re-validated: the trials and frame limits apply here too
+        raw = {**exp.model_dump(), "trials": trials, "name": f"{exp.name}-{trials}trials"}
+        try:
+            exp = type(exp).model_validate(raw)
+        except ValidationError as e:
+            raise ConfigError(format_validation_error(Path(f"{path} with --trials {trials}"), e)) from None
     return exp
 
 

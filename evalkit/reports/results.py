@@ -207,17 +207,17 @@ class Run:
 
 
 def evaluate_dataset(dataset_dir: str | Path, localizers: Iterable[str], out_dir: str | Path,
-                     params: Iterable[str] = (), isolate: bool = False, frame_timeout_s: float | None = None,
+                     params: Iterable[str] = (), isolate: bool | None = None, frame_timeout_s: float | None = None,
                      preprocess: str | None = None, progress: bool = True) -> tuple[Any, dict[str, Path]]:
     """Open a dataset, build the localizers (``-l`` specs with ``-p`` params), run them
     and save the run record; returns ``(dataset, paths)``. What ``dockbench evaluate``
     and ``dockbench reproduce`` both do."""
-    from evalkit import registry, runner
+    from evalkit import assemble, registry, runner
     from evalkit.dataset import Dataset
     ds = Dataset.open(dataset_dir)
     names, params = list(localizers), list(params)
     kw = registry.parse_params(params)
-    specs = [(n, registry.build(n, registry.params_for(n, kw, names), isolate=isolate,
+    specs = [(n, assemble.build(n, registry.params_for(n, kw, names), isolate=isolate,
                                 timeout_s=frame_timeout_s, preprocess=preprocess)) for n in names]
     df = runner.evaluate(ds, specs, frame_timeout_s=frame_timeout_s, progress=progress)
     extra = {"localizers": names, "params": params, "frame_timeout_s": frame_timeout_s}
