@@ -64,6 +64,23 @@ def generate(config: Path, out: Path, workers: int | None, overwrite: bool, exec
                f"{n} frames -> {out} (content hash {manifest['content_hash'][:12]})")
 
 
+def _command_line(ctx: click.Context) -> list[str]:
+    """The invocation as a canonical argv (every option spelled out, defaults included), so
+    run.json can be replayed exactly even when the command was called from Python."""
+    argv, positional = ["dockbench", *ctx.command_path.split()[1:]], []
+    for param in ctx.command.params:
+        value = ctx.params.get(param.name)
+        if isinstance(param, click.Argument):
+            positional.append(str(value))
+            continue
+        flag = max(param.opts, key=len)
+        if getattr(param, "is_flag", False):
+            argv += [flag] if value else []
+        elif value is not None:
+            argv += [x for v in (value if param.multiple else [value]) for x in (flag, str(v))]
+    return argv + positional
+
+
 @main.command()
 @click.argument("dataset", type=click.Path(file_okay=False, path_type=Path))
 @click.option("-l", "--localizer", "localizers", multiple=True, required=True,
@@ -115,7 +132,8 @@ def evaluate(dataset: Path, localizers: tuple[str, ...], params: tuple[str, ...]
     criteria = SuccessCriteria(max_rel_dist, min_tol_m, max_rel_trans, max_rot_deg)
     req = results.EvalRequest(dataset, list(localizers), out, list(params), isolate, frame_timeout, preprocess,
                               verify=not no_verify, overwrite=overwrite, progress=not quiet,
-                              settings=EvalSettings(criteria=criteria), command=["dockbench", *sys.argv[1:]])
+                              settings=EvalSettings(criteria=criteria),
+                              command=_command_line(click.get_current_context()))
     if no_verify and not quiet:
         click.echo("warning: --no-verify: dataset files are read unchecked (recorded in run.json)", err=True)
     ds, paths, res = results.evaluate_dataset(req)

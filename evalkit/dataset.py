@@ -58,6 +58,8 @@ class Dataset:
         want = (self.manifest.get("files") or {}).get(rel)
         if want is None:
             raise DatasetError(f"{path}: not listed in the manifest's 'files', so it cannot be verified")
+        if data is None and not Path(path).is_file():
+            raise DatasetError(f"{path}: missing (listed in the manifest)")
         got = hashlib.sha256(data).hexdigest() if data is not None else sha256_file(Path(path))
         if got != want:
             raise DatasetError(f"{path}: sha256 differs from the manifest: changed after generation "

@@ -238,7 +238,7 @@ def progress_bar(total: int, enabled: bool, label: str = "evaluating"):
     def ctx():
         with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
                       TimeElapsedColumn(), TimeRemainingColumn(), console=Console(file=sys.stderr),
-                      transient=False) as bar:
+                      transient=True) as bar:
             task = bar.add_task(label, total=total)
             yield lambda n: bar.advance(task, n)
     return ctx()

@@ -42,7 +42,7 @@ METRIC_COLUMNS = GROUP + [
     "n_trials", "few_trials", "P_succ_mean", "P_succ_lo", "P_succ_hi", "P_detect_mean", "P_detect_lo",
     "P_detect_hi", "E_rel_mean", "E_rel_lo", "E_rel_hi", "e_abs_mean", "e_trans_mean", "e_rot_deg_mean",
     "e_range_abs_mean", "e_lateral_mean", "AR", "AR_MSSD", "AR_MSPD", "n_targets", "n_frames", "n_est",
-    "n_fp", "fp_rate", "fp_rate_no_view", "max_range_m", "ms_median", "ms_p95"]
+    "n_fp", "fp_rate", "fp_rate_no_view", "max_range_m"]
 RUNTIME_COLUMNS = ["localizer", "n_calls", "ms_median", "ms_p95", "ms_mean"]
 
 
@@ -225,8 +225,9 @@ def compute_all(estimates: pd.DataFrame, settings: EvalSettings | None = None,
 
     ``frames`` is the scored per-frame table; ``trials`` one row per trial
     (:data:`~evalkit.metrics.core.TRIAL_COLUMNS`); ``metrics`` one row per group with
-    :data:`METRIC_COLUMNS` (means over the group's trials with CIs; FP, recall and
-    runtime pool frames); ``model`` (the dock's marker models) enables AR."""
+    :data:`METRIC_COLUMNS` (means over the group's trials with CIs; FP and recall pool
+    frames; no timings, so the same inputs give the same table: ``runtime`` is apart);
+    ``model`` (the dock's marker models) enables AR."""
     settings = settings or EvalSettings()
     frames = score(estimates, settings, model)
     trials = core.per_trial(frames, settings.d_max_m)
@@ -236,11 +237,10 @@ def compute_all(estimates: pd.DataFrame, settings: EvalSettings | None = None,
     out = frames[GROUP].drop_duplicates().merge(_group_means(trials), on=GROUP, how="left")
     for part in (condition_cis(trials, settings), recall,
                  fp[GROUP + ["n_frames", "n_est", "n_fp", "fp_rate", "fp_rate_no_view"]],
-                 max_usable_range(bins, settings.usable_threshold),
-                 runtime_table(frames, GROUP)[GROUP + ["ms_median", "ms_p95"]]):
+                 max_usable_range(bins, settings.usable_threshold)):
         out = out.merge(part, on=GROUP, how="left")
     out["n_trials"] = out["n_trials"].fillna(0).astype("int64")
     out["few_trials"] = out["n_trials"] < MIN_TRIALS_FOR_CI
     out = out.sort_values(GROUP, kind="stable").reset_index(drop=True)
     return {"frames": frames, "trials": trials, "metrics": out[METRIC_COLUMNS], "bins": bins,
-            "fp": fp, "recall": recall, "runtime": runtime_table(frames)}
+            "fp": fp, "recall": recall, "runtime": runtime_table(frames, GROUP)}
