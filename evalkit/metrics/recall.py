@@ -3,9 +3,9 @@
 Follows the BOP Challenge 2019+ definitions (Hodan et al., "BOP Challenge 2020 on
 6D object localization", section 2.2) with the dock as the object:
 
-* the **dock model** is the vertices of every marker's model (a box: the marker's
-  face rectangle, grown by the LED radius for LED arrays, extruded
-  :data:`MODEL_THICKNESS_M` behind the face) expressed in the dock frame;
+* the **dock model** is the vertices of every marker's model (:func:`marker_model`: a
+  plate :data:`MODEL_THICKNESS_M` deep for printed markers, a small cube per LED for
+  LED arrays; the same meshes ``export-bop`` writes) expressed in the dock frame;
 * ``MSSD = max_x |T_est x - T_true x|`` (m) over the model vertices ``x``;
 * ``MSPD = max_x |proj(T_est x) - proj(T_true x)|`` (px), pinhole ``K`` (BOP ignores
   distortion too);
@@ -47,22 +47,53 @@ def marker_points(marker: dict) -> np.ndarray:
     return kp @ T_marker_dock[:3, :3].T + T_marker_dock[:3, 3]
 
 
-def marker_box(marker: dict, thickness_m: float = MODEL_THICKNESS_M) -> np.ndarray:
-    """The 8 vertices (m, marker frame) of a marker's model box, ``(8, 3)``.
+def _outward(faces: np.ndarray) -> np.ndarray:
+    """``faces`` of a unit :func:`_box` with each triangle wound counter-clockwise seen
+    from outside (normal away from the centre), as renderers expect."""
+    v = _box(0.0, 0.0, 1.0, 1.0, 0.0, 1.0)
+    out = faces.copy()
+    for i, (a, b, c) in enumerate(faces):
+        normal = np.cross(v[b] - v[a], v[c] - v[a])
+        if normal @ (v[[a, b, c]].mean(axis=0) - 0.5) < 0:
+            out[i] = (a, c, b)
+    return out
 
-    Face: the keypoints' bounding rectangle in ``z = 0`` grown by ``led_radius_m``
-    (or a ``size_m`` square without keypoints); order TL, TR, BR, BL of the face,
-    then the same four at ``z = -thickness_m`` (behind the face; the marker's
-    +z points away from the plate, towards the camera)."""
+
+def _box(x0: float, y0: float, x1: float, y1: float, z0: float, z1: float) -> np.ndarray:
+    """8 vertices: the face at ``z1`` TL, TR, BR, BL, then the same at ``z0``."""
+    face = np.array([[x0, y1], [x1, y1], [x1, y0], [x0, y0]])
+    return np.vstack([np.c_[face, np.full(4, z1)], np.c_[face, np.full(4, z0)]])
+
+
+BOX_FACES = _outward(np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7], [0, 4, 5], [0, 5, 1],
+                               [1, 5, 6], [1, 6, 2], [2, 6, 7], [2, 7, 3], [3, 7, 4], [3, 4, 0]]))
+
+
+def is_led_array(marker: dict) -> bool:
+    """LED arrays are modelled LED by LED; every other marker as one plate."""
+    return str(marker.get("kind", "")).startswith("led") and float(marker.get("led_radius_m") or 0) > 0
+
+
+def marker_model(marker: dict, thickness_m: float = MODEL_THICKNESS_M) -> tuple[np.ndarray, np.ndarray]:
+    """A closed mesh of a marker in its own frame: ``(vertices (8k, 3) m, faces (12k, 3))``,
+    ``k`` boxes of 8 vertices each.
+
+    * planar markers: one box, the keypoints' bounding rectangle in ``z = 0`` (or a
+      ``size_m`` square without keypoints), ``thickness_m`` deep behind the face (-z);
+    * LED arrays: one cube of side ``2 led_radius_m`` around each LED (keypoint), so the
+      model is the lit geometry a camera sees, not the empty rectangle between the LEDs.
+    """
     pts = marker_points(marker)
-    if len(pts) == 0:
-        s = float(marker.get("size_m", 0.1)) / 2
-        pts = np.array([[-s, -s, 0], [s, s, 0]])
-    pad = float(marker.get("led_radius_m", 0.0) or 0.0)
-    x0, y0 = pts[:, 0].min() - pad, pts[:, 1].min() - pad
-    x1, y1 = pts[:, 0].max() + pad, pts[:, 1].max() + pad
-    face = np.array([[x0, y1, 0.0], [x1, y1, 0.0], [x1, y0, 0.0], [x0, y0, 0.0]])
-    return np.vstack([face, face - [0.0, 0.0, thickness_m]])
+    if is_led_array(marker) and len(pts):
+        r = float(marker["led_radius_m"])
+        boxes = [_box(x - r, y - r, x + r, y + r, z - r, z + r) for x, y, z in pts]
+    else:
+        if len(pts) == 0:
+            s = float(marker.get("size_m", 0.1)) / 2
+            pts = np.array([[-s, -s, 0], [s, s, 0]])
+        boxes = [_box(pts[:, 0].min(), pts[:, 1].min(), pts[:, 0].max(), pts[:, 1].max(), -thickness_m, 0.0)]
+    faces = np.vstack([BOX_FACES + 8 * i for i in range(len(boxes))])
+    return np.vstack(boxes), faces
 
 
 @dataclass(frozen=True)
@@ -83,8 +114,8 @@ class DockModel:
         parts = []
         for m in markers:
             T = np.asarray(m.get("T_dock_marker", np.eye(4)), dtype=float)
-            box = marker_box(m)
-            parts.append(box @ T[:3, :3].T + T[:3, 3])
+            vertices, _ = marker_model(m)
+            parts.append(vertices @ T[:3, :3].T + T[:3, 3])
         if not parts:
             return None
         pts = np.vstack(parts)
