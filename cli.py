@@ -123,7 +123,7 @@ def evaluate(dataset: Path, localizers: tuple[str, ...], params: tuple[str, ...]
     A frame *succeeds* when the answer is within the error bounds (--max-rel-error,
     --min-tol and, for localizers that return a pose, --max-rel-trans / --max-rot-deg)
     and is no false positive; P_detect is the rate of any answer (the article's rate).
-    (16 parameters: one per command-line option.)
+    (15 parameters: one per command-line option.)
     """
     from evalkit.metrics.core import SuccessCriteria
     from evalkit.metrics.extra import EvalSettings

@@ -205,7 +205,10 @@ def _bins(bins: pd.DataFrame | None) -> dict | None:
     """P_succ per range bin of one group: rows per label, columns per bin."""
     if bins is None or bins.empty:
         return None
-    edges = sorted(set(zip(bins["bin_lo"], bins["bin_hi"])))
+    used = bins[bins["n_total"] > 0]          # bins no frame of this group reaches are left out
+    edges = sorted(set(zip(used["bin_lo"], used["bin_hi"])))
+    if not edges:
+        return None
     rows = []
     for label, g in bins.groupby("label", sort=True):
         by = {(lo, hi): r for lo, hi, r in zip(g["bin_lo"], g["bin_hi"], g.to_dict("records"))}
