@@ -290,3 +290,18 @@ def test_compare_runs_refuses_mixed_datasets(tmp_path):
         results.compare_runs(dirs)
     with pytest.raises(results.ResultsError, match="not a dockbench results directory"):
         results.load_run(tmp_path)
+
+
+def test_representative_trial_is_shared_by_every_localizer_and_panels_have_own_axes(tmp_path):
+    from evalkit.reports import plots
+    # trial P_succ per localizer: t1 is the median trial for the mean over localizers
+    trials = pd.DataFrame({"localizer": ["a", "a", "a", "b", "b", "b"], "trajectory": "x", "condition": "c",
+                           "sequence": ["t0", "t1", "t2"] * 2, "P_succ": [0.1, 0.5, 0.9, 0.9, 0.4, 0.0]})
+    reps = plots.representative_trials(trials)
+    assert reps.to_dict("records") == [{"trajectory": "x", "condition": "c", "sequence": "t1"}]
+    plt = plots._pyplot()
+    fig, axes = plots._panels(plt, 2)
+    axes[0].plot([0, 1], [0, 100])
+    axes[1].plot([0, 1], [0, 0.01])
+    assert axes[1].get_ylim()[1] < 1.0                       # not squashed by the other panel
+    plt.close(fig)

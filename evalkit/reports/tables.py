@@ -2,8 +2,9 @@
 :func:`evalkit.metrics.extra.compute_all` (column names live there and in
 :mod:`evalkit.metrics.core`, not here).
 
-``tabulate`` (needed by pandas' ``to_markdown``) is not a dependency, so the
-small Markdown/text formatters are written here.
+LaTeX goes through pandas' ``Styler.to_latex`` (jinja2); ``tabulate`` (needed by
+pandas' ``to_markdown``) is not a dependency, so the small Markdown/text formatters
+are written here.
 """
 from __future__ import annotations
 
@@ -100,27 +101,23 @@ _LATEX_SPECIAL = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$",
 
 
 def latex_escape(text: str) -> str:
-    """Escape LaTeX special characters."""
+    """Escape LaTeX special characters (for captions; cells go through pandas' own escaping)."""
     return "".join(_LATEX_SPECIAL.get(ch, ch) for ch in text)
 
 
 def to_latex(df: pd.DataFrame, floatfmt: str = ".4g", caption: str | None = None,
-             label: str | None = None) -> str:
-    """A ``booktabs`` tabular (wrapped in a table float if ``caption``/``label`` is given)."""
-    header, body = _cells(df, floatfmt)
-    spec = "".join("r" if r else "l" for r in _numeric_columns(df))
-    rows = [" & ".join(latex_escape(c) for c in header) + r" \\", r"\midrule"]
-    rows += [" & ".join(latex_escape(c) for c in r) + r" \\" for r in body]
-    tabular = "\n".join([rf"\begin{{tabular}}{{{spec}}}", r"\toprule", *rows, r"\bottomrule",
-                         r"\end{tabular}"])
-    if caption is None and label is None:
-        return tabular + "\n"
-    parts = [r"\begin{table}[t]", r"\centering"]
-    if caption:
-        parts.append(rf"\caption{{{latex_escape(caption)}}}")
-    if label:
-        parts.append(rf"\label{{{label}}}")
-    return "\n".join(parts + [tabular, r"\end{table}"]) + "\n"
+             label: str | None = None, column_format: str | None = None) -> str:
+    """A ``booktabs`` tabular by pandas' ``Styler.to_latex`` (cells and headers LaTeX-escaped;
+    numbers right-aligned unless ``column_format``), in a ``table`` float when
+    ``caption``/``label`` is given."""
+    spec = column_format or "".join("r" if r else "l" for r in _numeric_columns(df))
+    text = df.astype(object).map(lambda v: format_cell(v, floatfmt))
+    styler = text.style.hide(axis="index").format(escape="latex").format_index(escape="latex", axis=1)
+    kw = {"hrules": True, "column_format": spec}
+    if caption is not None or label is not None:
+        kw.update(position="t", position_float="centering", label=label,
+                  caption=latex_escape(caption) if caption else None)
+    return styler.to_latex(**kw)
 
 
 # -- the article's table shape --------------------------------------------------
@@ -188,8 +185,7 @@ def article_latex(metrics: pd.DataFrame, with_ci: bool = True, caption: str | No
     """:func:`article_table` as a LaTeX ``booktabs`` tabular (``%`` escaped); a footnote
     row when some group has fewer than :data:`MIN_TRIALS_FOR_CI` trials."""
     df = article_table(metrics, with_ci)
-    out = to_latex(df, caption=caption, label=label)
-    out = out.replace(r"\begin{tabular}{lllllll}", r"\begin{tabular}{lllrrrr}", 1)
+    out = to_latex(df, caption=caption, label=label, column_format="lllrrrr")
     if _few(metrics):
         note = latex_escape(FEW_TRIALS_NOTE)
         out = out.replace(r"\bottomrule", r"\bottomrule" + "\n" + rf"\multicolumn{{7}}{{l}}{{\footnotesize {note}}} \\", 1)
