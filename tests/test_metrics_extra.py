@@ -305,3 +305,11 @@ def test_representative_trial_is_shared_by_every_localizer_and_panels_have_own_a
     axes[1].plot([0, 1], [0, 0.01])
     assert axes[1].get_ylim()[1] < 1.0                       # not squashed by the other panel
     plt.close(fig)
+
+
+def test_old_results_format_is_refused(tmp_path):
+    from evalkit.reports import results
+    (tmp_path / "old").mkdir()
+    (tmp_path / "old" / "run.json").write_text(json.dumps({"format": "dockbench-results", "format_version": "1"}))
+    with pytest.raises(results.ResultsError, match="format 1 counted any answer as a success"):
+        results.load_run(tmp_path / "old")

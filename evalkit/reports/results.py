@@ -341,6 +341,10 @@ def load_run(path: str | Path) -> Run:
         raise ResultsError(f"{rj}: invalid JSON: {exc}") from None
     if not isinstance(run, dict) or run.get("format") != RUN_FORMAT:
         raise ResultsError(f"{rj}: \"format\" is not {RUN_FORMAT!r}")
+    if str(run.get("format_version")) != RUN_FORMAT_VERSION:
+        raise ResultsError(f"{rj}: results format {run.get('format_version')!r}, this dockbench reads "
+                           f"{RUN_FORMAT_VERSION!r} (format 1 counted any answer as a success); "
+                           "re-run dockbench evaluate")
     m = _read_csv(root / "metrics.csv")
     if m is None:
         m = pd.DataFrame(run.get("metrics") or [], columns=metrics_extra.METRIC_COLUMNS)
