@@ -127,12 +127,11 @@ def _pct_text(v) -> str:
 
 
 def _ci_text(row, key: str) -> str | None:
-    """``[lo, hi]`` in % rounded outward (lo down, hi up), so the printed mean stays inside."""
+    """``[lo, hi]`` in % with the mean's digits (rounding is monotonic: the printed mean stays inside)."""
     p = CI_PREFIX.get(key)
     if p is None or not (_finite(row.get(f"{p}_lo")) and _finite(row.get(f"{p}_hi"))):
         return None
-    lo, hi = 100 * float(row[f"{p}_lo"]), 100 * float(row[f"{p}_hi"])
-    return f"[{math.floor(round(lo * 10, 6)) / 10:.1f}, {math.ceil(round(hi * 10, 6)) / 10:.1f}]"
+    return f"[{100 * float(row[f'{p}_lo']):.1f}, {100 * float(row[f'{p}_hi']):.1f}]"
 
 
 def _cell(row, key: str, kind: str) -> dict:

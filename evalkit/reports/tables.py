@@ -14,8 +14,6 @@ from typing import Sequence
 
 import pandas as pd
 
-import numpy as np
-
 from evalkit.metrics.extra import MIN_TRIALS_FOR_CI
 
 def write_csv(df: pd.DataFrame, path: str | Path) -> Path:
@@ -131,16 +129,14 @@ FEW_TRIALS_NOTE = (f"* M < {MIN_TRIALS_FOR_CI} trials: the bootstrap CI is unrel
 def _pct(value, lo=None, hi=None, digits: int = 1) -> str:
     """``12.3`` or ``12.3 [11.0, 13.9]`` (fractions shown in percent); ``-`` for NaN.
 
-    Value and bounds use the same number of digits; the lower bound is rounded down
-    and the upper bound up, so a mean inside its CI is printed inside it."""
+    Value and bounds are rounded to the same number of digits: rounding is monotonic, so
+    a mean inside its CI is printed inside it (the old table printed the bounds with one
+    digit less, which could put the mean outside)."""
     if value is None or pd.isna(value):
         return "-"
-    scale = 10.0 ** digits
     text = f"{100 * float(value):.{digits}f}"
     if lo is not None and hi is not None and not (pd.isna(lo) or pd.isna(hi)):
-        lo_t = np.floor(round(100 * float(lo) * scale, 6)) / scale
-        hi_t = np.ceil(round(100 * float(hi) * scale, 6)) / scale
-        text += f" [{lo_t:.{digits}f}, {hi_t:.{digits}f}]"
+        text += f" [{100 * float(lo):.{digits}f}, {100 * float(hi):.{digits}f}]"
     return text
 
 
