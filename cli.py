@@ -72,6 +72,23 @@ def generate(config: Path, out: Path, workers: int | None, overwrite: bool, exec
                f"{n} frames -> {out} (content hash {manifest['content_hash'][:12]})")
 
 
+def _command_line(ctx: click.Context) -> list[str]:
+    """The invocation as a canonical argv (every option spelled out, defaults included), so
+    run.json can be replayed exactly even when the command was called from Python."""
+    argv, positional = ["dockbench", *ctx.command_path.split()[1:]], []
+    for param in ctx.command.params:
+        value = ctx.params.get(param.name)
+        if isinstance(param, click.Argument):
+            positional.append(str(value))
+            continue
+        flag = max(param.opts, key=len)
+        if getattr(param, "is_flag", False):
+            argv += [flag] if value else []
+        elif value is not None:
+            argv += [x for v in (value if param.multiple else [value]) for x in (flag, str(v))]
+    return argv + positional
+
+
 @main.command()
 @click.argument("dataset", type=click.Path(file_okay=False, path_type=Path))
 @click.option("-l", "--localizer", "localizers", multiple=True, required=True,
@@ -79,7 +96,12 @@ def generate(config: Path, out: Path, workers: int | None, overwrite: bool, exec
                    "(any language, datasets_spec/LOCALIZER_PROTOCOL.md); repeatable")
 @click.option("-p", "--param", "params", multiple=True,
               help="key=value for every localizer's constructor, or NAME.key=value for one (repeatable)")
-@click.option("-o", "--out", "out", required=True, type=click.Path(file_okay=False, path_type=Path))
+@click.option("-o", "--out", "out", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="results folder (must be empty or absent unless --overwrite)")
+@click.option("--overwrite", is_flag=True, help="replace a non-empty results folder")
+@click.option("--no-verify", is_flag=True,
+              help="do not check the files read against the manifest's sha256 (recorded in run.json; "
+                   "the content hash is then recomputed from the bytes on disk)")
 @click.option("--frame-timeout", type=click.FloatRange(min=0.001), default=None,
               help="seconds per frame; slower frames fail with 'timeout'; turns on --isolate")
 @click.option("--isolate/--in-process", default=None,
@@ -90,18 +112,48 @@ def generate(config: Path, out: Path, workers: int | None, overwrite: bool, exec
 @click.option("--preprocess", default=None, metavar="STEPS",
               help="image preprocessing before every localizer, e.g. clahe,grayworld or median:k=5,clahe:clip=3 "
                    "(denoise, bilateral, median, gaussian, clahe, stretch, gain, gamma, grayworld)")
+@click.option("--max-rel-error", "max_rel_dist", type=click.FloatRange(min=0.0, min_open=True), default=0.10,
+              show_default=True, help="success: |d_est - d_true| <= this x d_true (or --min-tol)")
+@click.option("--min-tol", "min_tol_m", type=click.FloatRange(min=0.0, min_open=True), default=0.05,
+              show_default=True, help="success: smallest distance/translation tolerance (m)")
+@click.option("--max-rel-trans", type=click.FloatRange(min=0.0, min_open=True), default=0.10,
+              show_default=True, help="success with a pose: |t_est - t_true| <= this x d_true (or --min-tol)")
+@click.option("--max-rot-deg", type=click.FloatRange(min=0.0, min_open=True), default=10.0,
+              show_default=True, help="success with a pose: rotation error <= this (deg)")
+@click.option("--quiet", "-q", is_flag=True, help="print nothing but errors (no table, no progress bar)")
+@click.option("--json", "as_json", is_flag=True,
+              help="print a machine-readable summary (JSON) on stdout instead of the tables")
 @_user_errors
-def evaluate(dataset: Path, localizers: tuple[str, ...], params: tuple[str, ...], out: Path,
-             frame_timeout: float | None, isolate: bool | None, preprocess: str | None):
-    """Run localizers over DATASET; write tables, plots and per-frame estimates to OUT."""
-    import pandas as pd
+def evaluate(dataset: Path, localizers: tuple[str, ...], params: tuple[str, ...], out: Path, overwrite: bool,
+             no_verify: bool, frame_timeout: float | None, isolate: bool | None, preprocess: str | None,
+             max_rel_dist: float, min_tol_m: float, max_rel_trans: float, max_rot_deg: float,
+             quiet: bool, as_json: bool):
+    """Run localizers over DATASET; write tables, plots and per-frame estimates to OUT.
+
+    A frame *succeeds* when the answer is within the error bounds (--max-rel-error,
+    --min-tol and, for localizers that return a pose, --max-rel-trans / --max-rot-deg)
+    and is no false positive; P_detect is the rate of any answer (the article's rate).
+    (15 parameters: one per command-line option.)
+    """
+    from evalkit.metrics.core import SuccessCriteria
+    from evalkit.metrics.extra import EvalSettings
     from evalkit.reports import results
-    from evalkit.reports import tables
-    ds, paths = results.evaluate_dataset(dataset, localizers, out, params, isolate, frame_timeout, preprocess)
-    tables.print_table(pd.read_csv(paths["summary"]))
-    click.echo("\n" + paths["article_md"].read_text())
-    click.echo(f"per-frame estimates: {paths['estimates']}\nsummary: {paths['summary']}\nrun: {out / 'run.json'}")
-    click.echo(f"(e_rel excludes frames with d_true < {ds.d_min_rel_m} m; only 0 <= d_true <= 10 m count)")
+
+    criteria = SuccessCriteria(max_rel_dist, min_tol_m, max_rel_trans, max_rot_deg)
+    req = results.EvalRequest(dataset, list(localizers), out, list(params), isolate, frame_timeout, preprocess,
+                              verify=not no_verify, overwrite=overwrite, progress=not quiet,
+                              settings=EvalSettings(criteria=criteria),
+                              command=_command_line(click.get_current_context()))
+    if no_verify and not quiet:
+        click.echo("warning: --no-verify: dataset files are read unchecked (recorded in run.json)", err=True)
+    ds, paths, res = results.evaluate_dataset(req)
+    if as_json:
+        click.echo(results.json_summary(paths["run"]))
+    elif not quiet:
+        click.echo("\n" + paths["article_md"].read_text())
+        click.echo(f"per-frame estimates: {paths['estimates']}\nmetrics: {paths['metrics']}\nrun: {paths['run']}")
+        click.echo(f"(success: {criteria.as_dict()}; only 0 <= d_true <= 10 m count; "
+                   f"e_rel excludes d_true < {ds.d_min_rel_m} m)")
 
 
 @main.command("localizers")

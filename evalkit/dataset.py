@@ -18,18 +18,53 @@ from datasets_spec.io import (  # noqa: F401  (re-exported: the reader's public 
 
 
 class Dataset:
-    """An opened dataset. Use :meth:`Dataset.open`."""
+    """An opened dataset. Use :meth:`Dataset.open`.
 
-    def __init__(self, root: Path, manifest: dict):
+    With ``verify`` (the default) every file read through it (``frames.jsonl``,
+    images) must be listed in the manifest's ``files`` with the same sha256, and the
+    manifest's ``content_hash`` must match its ``files``; otherwise :class:`DatasetError`.
+    """
+
+    def __init__(self, root: Path, manifest: dict, verify: bool = True):
         self.root = Path(root)
         self.manifest = manifest
+        self.verify = verify
         self._seq_by_id = {s["id"]: s for s in manifest["sequences"]}
 
     @classmethod
-    def open(cls, path: str | Path) -> "Dataset":
+    def open(cls, path: str | Path, verify: bool = True) -> "Dataset":
         """Open the dataset directory ``path``; raises :class:`DatasetError` on problems."""
         root = Path(path)
-        return cls(root, load_manifest(root))
+        ds = cls(root, load_manifest(root), verify)
+        if verify:
+            ds._check_content_hash()
+        return ds
+
+    def _check_content_hash(self) -> None:
+        """The manifest's ``content_hash`` must be the hash of its ``files`` map."""
+        files = self.manifest.get("files")
+        if not isinstance(files, dict):
+            raise DatasetError(f"{self.root / MANIFEST}: no 'files' map, so nothing can be verified "
+                               "(evaluate --no-verify reads it unchecked)")
+        if content_hash(files) != self.manifest.get("content_hash"):
+            raise DatasetError(f"{self.root / MANIFEST}: content_hash does not match the 'files' "
+                               "entries (manifest edited after generation)")
+
+    def check_file(self, path: Path, data: bytes | None = None) -> None:
+        """With ``verify``: ``path`` (under the root; ``data`` its bytes if already read) must be
+        listed in the manifest with the same sha256, else :class:`DatasetError`."""
+        if not self.verify:
+            return
+        rel = Path(path).resolve().relative_to(self.root.resolve()).as_posix()
+        want = (self.manifest.get("files") or {}).get(rel)
+        if want is None:
+            raise DatasetError(f"{path}: not listed in the manifest's 'files', so it cannot be verified")
+        if data is None and not Path(path).is_file():
+            raise DatasetError(f"{path}: missing (listed in the manifest)")
+        got = hashlib.sha256(data).hexdigest() if data is not None else sha256_file(Path(path))
+        if got != want:
+            raise DatasetError(f"{path}: sha256 differs from the manifest: changed after generation "
+                               "(dockbench verify lists every changed file)")
 
     # -- manifest views ---------------------------------------------------
     @property
@@ -86,6 +121,7 @@ class Dataset:
         path = self.frames_path(seq_id)
         if not path.is_file():
             raise DatasetError(f"{path}: missing frames file of sequence {seq_id!r}")
+        self.check_file(path)
         yield from iter_frames(path, self.root)
 
     def image_path(self, frame: dict) -> Path:
@@ -121,10 +157,7 @@ class Dataset:
         path = self.checked_image_path(frame)
         shown = self.root / frame["image"]
         data = path.read_bytes()
-        want = (self.manifest.get("files") or {}).get(frame["image"])
-        if want is not None and hashlib.sha256(data).hexdigest() != want:
-            raise DatasetError(f"{shown}: sha256 differs from the manifest: the image was changed "
-                               "after generation (dockbench verify lists every such file)")
+        self.check_file(path, data)
         bgr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
         cam = self.manifest["camera"]
         if bgr is None or bgr.shape != (cam["height"], cam["width"], 3):

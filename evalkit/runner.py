@@ -3,7 +3,8 @@
 A localizer that raises or returns garbage on a frame makes that frame a
 failure with a ``fail_reason``; the run continues. ``fail_reason`` values:
 
-* ``""`` -- success;
+* ``""`` -- a valid answer (``detected``; whether it is *right* is ``success``, see
+  :mod:`evalkit.metrics.core`);
 * ``"none"`` -- the localizer returned ``None`` (it found nothing);
 * ``"exception: <Type>: <message>"`` -- ``localize`` (or ``reset``) raised, including
   ``SystemExit`` and a ``KeyboardInterrupt`` the localizer raised itself (a real Ctrl-C,
@@ -50,8 +51,11 @@ from evalkit.metrics import core as metrics
 from evalkit.dataset import Dataset
 from evalkit.process import FrameFailure
 
-COLUMNS = ["localizer", "sequence", "condition", "trial", "index", "t", "d_true", "in_view",
-           "success", "d_est", "e_abs", "e_rel", "marker_id", "ms", "fail_reason", "T_cam_dock_est"]
+# raw columns of a frame row; _finish appends metrics.SCORE_COLUMNS (errors, fp, success)
+RAW_COLUMNS = ["localizer", "sequence", "trajectory", "condition", "trial", "index", "t", "d_true",
+               "in_view", "markers_in_fov", "detected", "d_est", "marker_id", "ms", "fail_reason",
+               "T_cam_dock_est", "T_cam_dock"]
+COLUMNS = RAW_COLUMNS + metrics.SCORE_COLUMNS
 
 
 @dataclass
@@ -171,23 +175,37 @@ def camera_for_localizers(dataset: Dataset) -> dict:
     return {**dataset.camera, "markers": dataset.markers}
 
 
-def _in_view(frame: dict) -> bool:
-    """True if any marker of the frame has ``in_fov``."""
+def _markers_in_fov(frame: dict) -> list[str]:
+    """Ids of the frame's markers that have ``in_fov`` (ground truth)."""
     markers = frame.get("markers") or {}
-    return any(bool(m.get("in_fov")) for m in markers.values() if isinstance(m, dict))
+    return [str(k) for k, m in markers.items() if isinstance(m, dict) and bool(m.get("in_fov"))]
+
+
+def _flat_pose(T: Any) -> list[float] | None:
+    """A 4x4 pose as 16 floats (row-major), or None if absent/malformed."""
+    if T is None:
+        return None
+    try:
+        arr = np.asarray(T, dtype=float)
+    except (TypeError, ValueError):
+        return None
+    return arr.ravel().tolist() if arr.shape == (4, 4) else None
 
 
 def _row(name: str, seq: dict, frame: dict, est: dict | None, reason: str, ms: float) -> dict:
-    """One per-frame output row (errors are filled later, in bulk)."""
+    """One per-frame output row with the truth it is scored against (scores are filled later, in bulk)."""
+    in_fov = _markers_in_fov(frame)
     return {
-        "localizer": name, "sequence": seq["id"], "condition": seq.get("condition", ""),
-        "trial": seq.get("trial"), "index": frame.get("index"), "t": frame.get("t"),
-        "d_true": frame.get("d_true"), "in_view": _in_view(frame), "success": est is not None,
+        "localizer": name, "sequence": seq["id"], "trajectory": str(seq.get("trajectory", "")),
+        "condition": seq.get("condition", ""), "trial": seq.get("trial"), "index": frame.get("index"),
+        "t": frame.get("t"), "d_true": frame.get("d_true"), "in_view": bool(in_fov),
+        "markers_in_fov": ",".join(in_fov), "detected": est is not None,
         "d_est": est["distance"] if est else math.nan,
         "marker_id": est["marker_id"] if est else None,
         "ms": ms, "fail_reason": reason,
         "T_cam_dock_est": (np.asarray(est["T_cam_dock"], float).ravel().tolist()
                            if est and est.get("T_cam_dock") is not None else None),
+        "T_cam_dock": _flat_pose(frame.get("T_cam_dock")),
     }
 
 
@@ -214,7 +232,9 @@ def _run_sequence(dataset: Dataset, seq: dict, localizers: list[tuple[str, Any]]
                 continue
             if by_file[name]:
                 if path is None:
-                    path = dataset.checked_image_path(frame)  # DatasetError if missing/wrong
+                    path = dataset.checked_image_path(frame)  # DatasetError if missing/outside
+                    dataset.check_file(path)                  # the program reads it: verify it first
+                    path = path.resolve()
                 res = executor.call(loc, "localize_file", str(path), frame.get("index"))
             else:
                 if image is None:
@@ -226,21 +246,25 @@ def _run_sequence(dataset: Dataset, seq: dict, localizers: list[tuple[str, Any]]
     return rows
 
 
-def _progress(total: int, enabled: bool):
-    """A click progress bar on stderr, or a no-op context when disabled."""
+def progress_bar(total: int, enabled: bool, label: str = "evaluating"):
+    """A context giving ``tick(n)``: a rich progress bar on stderr, or a no-op when disabled.
+
+    The one progress mechanism of evalkit (no threads of its own; rich refreshes the bar)."""
     import contextlib
 
     if not enabled:
         return contextlib.nullcontext(lambda n: None)
-    import click
-
-    bar = click.progressbar(length=total, label="evaluating", file=sys.stderr,
-                            show_pos=True, show_eta=True)
+    from rich.console import Console
+    from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
+                               TimeElapsedColumn, TimeRemainingColumn)
 
     @contextlib.contextmanager
     def ctx():
-        with bar:
-            yield bar.update
+        with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                      TimeElapsedColumn(), TimeRemainingColumn(), console=Console(file=sys.stderr),
+                      transient=True) as bar:
+            task = bar.add_task(label, total=total)
+            yield lambda n: bar.advance(task, n)
     return ctx()
 
 
@@ -249,16 +273,20 @@ def evaluate(dataset: Dataset, localizer_specs: Iterable[tuple[str, Any]],
              executor: Executor | None = None, sequences: list[str] | None = None) -> pd.DataFrame:
     """Run each ``(name, localizer)`` on every frame; return the per-frame table.
 
-    Columns are :data:`COLUMNS`: ``d_true``/``d_est``/``e_abs`` in metres,
-    ``e_rel`` dimensionless (NaN below the dataset's ``d_min_rel_m``), ``t``
-    in seconds, ``ms`` the wall time of ``localize`` in milliseconds.
+    Columns are :data:`COLUMNS`: ``detected`` (a valid answer), the truth
+    (``d_true`` m, ``in_view``, ``markers_in_fov``, ``T_cam_dock`` 16 floats) and the
+    scores of :func:`evalkit.metrics.core.score_frames` (``success`` = thresholded);
+    ``d_true``/``d_est``/``e_abs`` in metres, ``e_rel`` dimensionless (NaN below the
+    dataset's ``d_min_rel_m``), ``t`` in seconds, ``ms`` the wall time of ``localize``
+    in milliseconds.
     ``frame_timeout_s`` is the per-frame budget given to the default
     :class:`InProcessExecutor`; ``executor`` replaces it (isolation hook).
     ``sequences`` restricts the run to these ids. ``reset`` receives the
     camera dict plus ``"sequence"`` (the sequence id). After the run,
     ``close()`` is called on every localizer that has it (process proxies stop
     their children; they restart on the next ``reset``). ``df.attrs`` records
-    ``d_min_rel_m`` and ``d_max_m`` for :func:`write_results`.
+    ``d_min_rel_m`` and ``d_max_m``; the run record is written by
+    :func:`evalkit.reports.results.save_run`.
 
     Localizer misbehaviour never stops the run (see the module docstring);
     dataset problems (bad JSON line, missing image) do: they raise
@@ -273,7 +301,7 @@ def evaluate(dataset: Dataset, localizer_specs: Iterable[tuple[str, Any]],
     total = sum(int(s.get("n_frames", 0)) for s in seqs)
     rows: list[dict] = []
     try:
-        with _progress(total, progress) as tick, _sigint_marks_ctrl_c():
+        with progress_bar(total, progress) as tick, _sigint_marks_ctrl_c():
             for seq in seqs:
                 rows.extend(_run_sequence(dataset, seq, localizers, executor, tick))
     finally:
@@ -314,59 +342,14 @@ def _sigint_marks_ctrl_c():
 
 
 def _finish(rows: list[dict], d_min_rel: float) -> pd.DataFrame:
-    """Build the DataFrame with stable dtypes and the error columns."""
-    df = pd.DataFrame(rows, columns=COLUMNS)
+    """Build the DataFrame with stable dtypes and the scores under the default
+    :class:`~evalkit.metrics.core.SuccessCriteria` (re-scored by
+    :func:`evalkit.metrics.extra.compute_all` with the run's settings)."""
+    df = pd.DataFrame(rows, columns=RAW_COLUMNS)
     df = df.astype({"d_true": float, "d_est": float, "ms": float, "t": float,
-                    "success": bool, "in_view": bool})
-    df[["e_abs", "e_rel"]] = metrics.frame_errors(df, d_min_rel)
+                    "detected": bool, "in_view": bool})
     df["fail_reason"] = df["fail_reason"].fillna("").astype(str)
+    df["markers_in_fov"] = df["markers_in_fov"].fillna("").astype(str)
+    df = pd.concat([df, metrics.score_frames(df, d_min_rel=d_min_rel)], axis=1)
     df.attrs.update({"d_min_rel_m": float(d_min_rel), "d_max_m": metrics.D_MAX_M})
     return df
-
-
-def write_results(df: pd.DataFrame, out_dir: str | Path, d_max: float | None = None,
-                  d_min_rel: float | None = None) -> dict[str, Path]:
-    """Write ``estimates.parquet``, ``summary.csv`` (per trial) and ``conditions.csv``.
-
-    ``d_max`` / ``d_min_rel`` (m) default to ``df.attrs`` (set by
-    :func:`evaluate`), else to the metrics defaults. Returns the written paths.
-    """
-    from evalkit.reports import tables
-
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    d_max = d_max if d_max is not None else df.attrs.get("d_max_m", metrics.D_MAX_M)
-    d_min_rel = d_min_rel if d_min_rel is not None else df.attrs.get("d_min_rel_m", metrics.D_MIN_REL_M)
-    trials = tables.summary_table(df, d_max=d_max, d_min_rel=d_min_rel)
-    paths = {"estimates": out / "estimates.parquet", "summary": out / "summary.csv",
-             "conditions": out / "conditions.csv"}
-    paths["estimates"] = _write_estimates(df, paths["estimates"])
-    tables.write_csv(trials, paths["summary"])
-    tables.write_csv(tables.condition_table(trials), paths["conditions"])
-    return paths
-
-
-def _write_estimates(df: pd.DataFrame, path: Path) -> Path:
-    """Write ``path`` (parquet); if no parquet engine imports, write CSV beside it and warn.
-
-    Returns the path actually written, so a long run never loses its results
-    to a broken optional dependency.
-    """
-    try:
-        df.to_parquet(path, index=False)
-        return path
-    except ImportError as exc:
-        csv_path = path.with_suffix(".csv")
-        print(f"warning: cannot write {path.name} ({_parquet_problem(exc)}); "
-              f"wrote {csv_path.name} instead", file=sys.stderr)
-        df.to_csv(csv_path, index=False, lineterminator="\n")
-        return csv_path
-
-
-def _parquet_problem(exc: ImportError) -> str:
-    """Short reason why parquet is unavailable (pyarrow's own import error if any)."""
-    try:
-        import pyarrow  # noqa: F401
-    except ImportError as pa_exc:
-        return f"pyarrow: {pa_exc}"
-    return str(exc).strip().splitlines()[0]

@@ -149,9 +149,9 @@ def _check(df, expected):
     f = df.set_index("d_true")
     for d, reason in expected.items():
         assert f.loc[d, "fail_reason"] == reason, (d, f.loc[d, "fail_reason"])
-        assert not f.loc[d, "success"] and np.isnan(f.loc[d, "d_est"])
+        assert not f.loc[d, "detected"] and np.isnan(f.loc[d, "d_est"])
     ok = f[~f.index.isin(list(expected))]
-    assert ok["success"].all(), ok[["fail_reason"]]
+    assert ok["detected"].all(), ok[["fail_reason"]]
     assert np.allclose(ok.index, ok["d_est"])
 
 
@@ -170,7 +170,7 @@ def test_isolated_python_faults_cost_one_frame_each(ds, py_file):
 
 
 def test_isolated_matches_in_process(ds, py_file):
-    cols = ["localizer", "sequence", "index", "success", "d_est", "e_abs", "e_rel", "marker_id", "fail_reason"]
+    cols = ["localizer", "sequence", "index", "detected", "d_est", "e_abs", "e_rel", "marker_id", "fail_reason"]
     inproc = runner.evaluate(ds, [("o", assemble.build(f"{py_file}:Oracle", isolate=False))], progress=False)
     iso = runner.evaluate(ds, [("o", assemble.build(f"{py_file}:Oracle", isolate=True))], progress=False)
     assert inproc[cols].equals(iso[cols])

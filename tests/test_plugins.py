@@ -86,7 +86,7 @@ def _evaluate(ds_path, out, *args):
 
 
 def _assert_oracle(df, scale=1.0, tag=None):
-    assert len(df) == N_FRAMES and df["success"].all()
+    assert len(df) == N_FRAMES and df["detected"].all()
     assert np.allclose(df["d_est"], scale * df["d_true"])
     if tag is not None:
         assert (df["marker_id"] == tag).all()
@@ -159,7 +159,7 @@ def test_exec_persistent_process_and_pixels(ds_path, tmp_path):
 @pytest.mark.skipif(shutil.which("sh") is None, reason="no POSIX sh")
 def test_exec_posix_shell_example(ds_path, tmp_path):
     df = _evaluate(ds_path, tmp_path / "out", "-l", f"exec:sh {ROOT / 'examples/external_localizer.sh'} 2.5")
-    assert df["success"].all() and (df["d_est"] == 2.5).all()
+    assert df["detected"].all() and (df["d_est"] == 2.5).all()
 
 
 def test_python_example_program_on_a_rendered_aruco(tmp_path):
@@ -260,7 +260,7 @@ def test_preprocessed_wrapper_feeds_processed_images(ds_path):
 
     loc = preprocess.Preprocessed(Spy(), "gain:alpha=2")
     df = runner.evaluate(Dataset.open(ds_path), [("spy", loc)], progress=False, sequences=["clear_000"])
-    assert df["success"].all() and loc.name == "Spy+gain"
+    assert df["detected"].all() and loc.name == "Spy+gain"
     raw = Dataset.open(ds_path)
     frame = next(raw.iter_frames("clear_000"))
     expected = np.clip(2.0 * raw.load_image(frame).astype(float), 0, 255).astype(np.uint8)

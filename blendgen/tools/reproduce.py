@@ -42,18 +42,22 @@ def experiment(name: str, trials: int | None):
 
 def evaluate(dataset_dir: Path, out: Path, localizers=LOCALIZERS) -> dict:
     """Run the localizers over the dataset and save the full run record."""
-    from evalkit.reports.results import evaluate_dataset
-    return evaluate_dataset(dataset_dir, localizers, out)[1]
+    from evalkit.reports.results import EvalRequest, evaluate_dataset
+    return evaluate_dataset(EvalRequest(dataset_dir, list(localizers), out, overwrite=True))[1]
 
 
 def report(name: str, paths: dict) -> str:
     """Article table, per-marker usable range and where the plots are."""
-    m = pd.read_csv(paths["metrics"]) if "metrics" in paths else pd.read_csv(Path(paths["summary"]).parent / "metrics.csv")
+    m = pd.read_csv(paths["metrics"], keep_default_na=False, na_values=[""])
+    group = ["localizer", "trajectory", "condition"]
+    rt = pd.read_csv(paths["runtime"], keep_default_na=False, na_values=[""])
+    m = m.merge(rt[group + ["ms_median"]], on=group, how="left")
     lines = [f"## {name}", "", Path(paths["article_md"]).read_text().strip(), "",
              "breakdown by localizer (marker): usable range = largest 1 m bin with P_succ >= 0.9", ""]
     for _, r in m.iterrows():
         rng = "-" if pd.isna(r["max_range_m"]) else f"{r['max_range_m']:.0f} m"
-        lines.append(f"- {r['localizer']:7s} {r['condition']:12s} P_succ {100 * r['P_succ_mean']:5.1f}%  "
+        lines.append(f"- {r['localizer']:7s} {r['trajectory']}/{r['condition']:12s} "
+                     f"P_succ {100 * r['P_succ_mean']:5.1f}%  P_detect {100 * r['P_detect_mean']:5.1f}%  "
                      f"E_rel {100 * r['E_rel_mean']:.2f}%  usable range {rng}  "
                      f"{r['ms_median']:.1f} ms/frame")
     plots = Path(paths["article_md"]).parent.parent / "plots"
