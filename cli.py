@@ -188,6 +188,8 @@ def _register() -> None:
     main.add_command(calibrate_water_cmd)
     main.add_command(preview_cmd)
     bench.add_command(fidelity_cmd, "fidelity")
+    from blendgen.tools.bench import localizers_cmd
+    bench.add_command(localizers_cmd, "localizers")
     from blendgen.tools.calibration import calibrate_cmd
     calibrate_cmd.callback = _user_errors(calibrate_cmd.callback)
     main.add_command(calibrate_cmd)

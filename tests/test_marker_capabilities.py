@@ -96,10 +96,11 @@ def test_led_pattern_resolved_among_led_coloured_distractors(count, refs):
 
 
 def test_core_centroid_resists_one_sided_glow():
-    """A saturated LED core with a glow smeared to one side (as forward scatter plus
-    motion blur would do): the weighted centroid moves towards the glow, the core's does not."""
+    """A saturated LED core with a glow (half as bright) smeared to one side, as forward
+    scatter plus motion blur would do: the weighted centroid moves towards the glow, the
+    core's does not."""
     img = np.zeros((60, 60, 3), np.uint8)
-    cv2.ellipse(img, ((36.0, 30.0), (20.0, 9.0), 0.0), (0, 200, 150), -1, cv2.LINE_AA)  # glow to the right
+    cv2.ellipse(img, ((36.0, 30.0), (20.0, 9.0), 0.0), (0, 130, 100), -1, cv2.LINE_AA)  # glow to the right
     cv2.circle(img, (30 * 16, 30 * 16), 3 * 16, (255, 255, 255), -1, cv2.LINE_AA, 4)   # core at (30, 30)
     v = img.max(axis=2)
     n, labels, stats, _ = cv2.connectedComponentsWithStats((v > 100).astype(np.uint8), connectivity=8)

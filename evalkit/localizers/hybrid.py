@@ -18,7 +18,9 @@ Per frame (the distance known before it: the previous estimate of the sequence):
 * previous distance within the near range: near first, the LED if the near marker fails;
 * otherwise the LED first; the near marker is tried only when the LED says the range is
   within the near range (or the LED failed): beyond it a decode is impossible and
-  skipped, which keeps far frames at LED cost.
+  skipped, which keeps far frames at LED cost. When tried after an LED estimate, the
+  near localizer first searches where that pose projects the near marker
+  (``set_roi_hint``: an upscaled ROI, which is what lets small codes decode).
 The estimate is the sub-localizer's dict (``marker_id`` is the marker actually used,
 and reaches estimates.parquet) plus ``"source"`` (``"near"`` / ``"far"``) and
 ``"near_range_m"``.
@@ -65,12 +67,14 @@ class HybridLocalizer:
         self.subs = subs
         self.near_range_m = self.switch_m if self.switch_m is not None else float("inf")
         self._last_d = None
+        self._last_far_T = None
 
     def reset(self, camera: dict) -> None:
         """New sequence: reset both sub-localizers, derive the near range, forget the last distance."""
         for sub in self.subs.values():
             sub.reset(camera)
         self._last_d = None
+        self._last_far_T = None
         if self.switch_m is not None:
             self.near_range_m = self.switch_m
             return
@@ -86,19 +90,30 @@ class HybridLocalizer:
     def localize(self, image: np.ndarray) -> dict | None:
         """Near marker when it is found, else the LED array (order: module docstring), or None."""
         if self._last_d is not None and self._last_d <= self.near_range_m:
+            if self._last_far_T is not None:
+                self._hint(self._last_far_T)  # the QR was not found last frame: look where the LED put it
             est, used = self._try("near", image), "near"
             if est is None:
                 est, used = self._try("far", image), "far"
         else:
             est, used = self._try("far", image), "far"
             if est is None or est["distance"] <= self.near_range_m:
+                if est is not None and est.get("T_cam_dock") is not None:
+                    self._hint(est["T_cam_dock"])  # look for the QR where the LED pose puts it
                 near = self._try("near", image)
                 if near is not None:
                     est, used = near, "near"
         self._last_d = None if est is None else float(est["distance"])
+        self._last_far_T = est.get("T_cam_dock") if est is not None and used == "far" else None
         if est is None:
             return None
         return {**est, "source": used, "near_range_m": self.near_range_m}
+
+    def _hint(self, T_cam_dock) -> None:
+        """Tell the near localizer where to look first (if it takes hints)."""
+        hint = getattr(self.subs["near"], "set_roi_hint", None)
+        if callable(hint):
+            hint(T_cam_dock)
 
     def _try(self, role: str, image: np.ndarray) -> dict | None:
         est = self.subs[role].localize(image)

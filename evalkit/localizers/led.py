@@ -2,14 +2,20 @@
 
 The array has N >= 4 LEDs in convex position; one or more reference LEDs have another
 colour, and the cyclic reference/other pattern has no rotational symmetry (blendgen
-checks it), so the colour pattern fixes the order. Pipeline (640x480 in ~1 ms + PnP):
+checks it), so the colour pattern fixes the order. Pipeline (640x480: ~0.5 ms + PnP):
 1. brightness = max(R, G, B); threshold at ``min(threshold, rel_threshold * max)`` (not
    below ``min_threshold``) so dim (attenuated) arrays still pass;
 2. connected components (8-connected) with area and circularity limits;
-3. centroid of each blob (``centroid=``): ``weighted`` (intensity above half the
-   threshold over its box, other blobs masked out) or ``core`` (unweighted centroid of
-   the saturated core >= ``core_level``, falling back to weighted for unsaturated blobs;
-   glow around a saturated LED then cannot pull it);
+3. centroid of each blob (``centroid=``): ``core`` (default: intensity-weighted over
+   the pixels above the middle of the blob's range, (threshold/2 + peak)/2, i.e. the
+   saturated core and its anti-aliased rim; glow around the LED then cannot pull it) or
+   ``weighted`` (intensity above half the threshold over the whole blob box, other blobs
+   masked out). On the quickstart demo (``dockbench bench localizers``, 624 LED images)
+   the core centroid is 0.084 px from the true centre (median; p95 0.199) against 0.092
+   (0.223) weighted, 0.106 vs 0.124 beyond 4 m; a one-sided glow moves the weighted
+   centroid by pixels and the core one by < 0.1 px (test oracle). An unweighted centroid
+   of the saturated pixels only was also measured: same on the demo, but quantised on
+   small (2-3 px) cores, 3-6 deg rotation errors at 5-10 m on the synthetic oracles;
 4. colour: the brightness-weighted mean chroma vector (opponent axes
    a = R - (G+B)/2, b = sqrt(3)/2 (G - B)) over the box, so a saturated white core adds
    nothing and the coloured halo decides; the R reference LEDs are the R blobs whose
@@ -95,7 +101,7 @@ class LedLocalizer:
                  min_area_px: int = 1, max_area_frac: float = 0.05, min_circularity: float = 0.4,
                  ref_hue: float | None = None, max_candidates: int | None = None, max_blobs: int = 200,
                  max_reproj_px: float = 3.0, min_chroma: float = 12.0, max_hue_err_deg: float = 60.0,
-                 centroid: str = "weighted", core_level: int = 250):
+                 centroid: str = "core"):
         """threshold: brightness (max channel, 0-255) that LED cores exceed; lowered to
         rel_threshold * image max (not below min_threshold) for dim images.
         min_area_px / max_area_frac: blob area limits (px / fraction of the image).
@@ -106,8 +112,7 @@ class LedLocalizer:
         set is rejected. min_chroma: mean chroma (8-bit units) a blob needs to count as a
         coloured LED, so white/grey highlights (marker plates, walls) are not taken for
         LEDs. max_hue_err_deg: hue distance allowed between a blob and its expected LED
-        colour. centroid: "weighted" or "core" (see the module docstring); core_level:
-        the brightness (0-255) of a saturated core.
+        colour. centroid: "core" or "weighted" (see the module docstring).
         Reason for > 8 params: every threshold of the blob pipeline is a documented knob."""
         if centroid not in ("weighted", "core"):
             raise ValueError(f"centroid must be weighted or core, got {centroid!r}")
@@ -125,7 +130,6 @@ class LedLocalizer:
         self.min_chroma = float(min_chroma)
         self.cos_hue = math.cos(math.radians(float(max_hue_err_deg)))
         self.centroid = centroid
-        self.core_level = int(core_level)
         self._marker = None
 
     def reset(self, camera: dict) -> None:
@@ -176,7 +180,13 @@ class LedLocalizer:
         if vmax <= t:
             return None
         mask = cv2.threshold(v, t, 255, cv2.THRESH_BINARY)[1]
-        n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+        # Labelling only the box around the bright pixels (2 px margin for _measure) skips
+        # the dark rest of the frame: 0.02 ms instead of ~1.9 ms at 640x480.
+        x, y, bw, bh = cv2.boundingRect(mask)
+        x0, y0 = max(0, x - 2), max(0, y - 2)
+        x1, y1 = min(v.shape[1], x + bw + 2), min(v.shape[0], y + bh + 2)
+        n, labels, stats, _ = cv2.connectedComponentsWithStatsWithAlgorithm(
+            np.ascontiguousarray(mask[y0:y1, x0:x1]), 8, cv2.CV_32S, cv2.CCL_BBDT)
         if n - 1 < self._n or n - 1 > self.max_blobs:
             return None
         area = stats[1:, cv2.CC_STAT_AREA]
@@ -187,16 +197,17 @@ class LedLocalizer:
         idx = np.nonzero(ok)[0] + 1
         if len(idx) < self._n:
             return None
+        rgb_c, v_c = rgb[y0:y1, x0:x1], v[y0:y1, x0:x1]
         cents, masses, chroma = [], [], []
         for lab in idx:
-            c = self._measure(rgb, v, labels, stats[lab], lab, 0.5 * t)
+            c = self._measure(rgb_c, v_c, labels, stats[lab], lab, 0.5 * t)
             if c is not None:
                 cents.append(c[0]), masses.append(c[1]), chroma.append(c[2])
         if len(cents) < self._n:
             return None
         k = self.max_candidates if self.max_candidates is not None else self._n + 3
         order = np.argsort(masses)[::-1][:k]
-        return np.array(cents)[order], np.array(masses)[order], np.array(chroma)[order]
+        return np.array(cents)[order] + (x0, y0), np.array(masses)[order], np.array(chroma)[order]
 
     def _measure(self, rgb, v, labels, st, lab, t_low):
         """Centroid (u, v) px, mass and unit chroma direction (2,) of blob ``lab``
@@ -219,9 +230,12 @@ class LedLocalizer:
         norm = math.hypot(ca, cb)
         if norm / s < self.min_chroma:  # mean chroma (8-bit units) too low: a white/grey blob
             return None
-        core = (v_roi >= self.core_level) & (lab_roi == lab) if self.centroid == "core" else None
-        if core is not None and core.any():
-            cu, cv_ = float(xx[core].mean()), float(yy[core].mean())
+        if self.centroid == "core":  # weights above the middle of the blob's range: the core
+            peak = float(v_roi[lab_roi == lab].max())
+            w2 = np.clip(v_roi.astype(np.float32) - 0.5 * (t_low + peak), 0, None)
+            w2[lab_roi != lab] = 0.0
+            s2 = float(w2.sum())
+            cu, cv_ = float((w2 * xx).sum() / s2), float((w2 * yy).sum() / s2)
         else:
             cu, cv_ = float((wgt * xx).sum() / s), float((wgt * yy).sum() / s)
         return (cu, cv_), s, np.array([ca, cb]) / norm

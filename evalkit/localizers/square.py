@@ -122,13 +122,14 @@ class SquareMarkerLocalizer:
     kinds: tuple[str, ...] = ()          # manifest marker kinds it reads, preferred first
     outputs = FULL_POSE_WITH_ID
     roi_margin = 1.0                      # ROI = previous quad's box grown by this x its size
+    roi_upscale = 1.0                     # ROI resampled by this factor (bicubic) before detect
     min_image_px = 8                      # smaller images give None without detection
 
     def __init__(self, marker_id: str | None = None, roi: bool = True):
         """marker_id: manifest id of the marker (None: first marker of the first kind in
         ``kinds``). roi: search first in a window around the previous frame's quad (grown
-        by ``roi_margin`` times its size on each side, at least 32 px), then in the whole
-        frame if that finds nothing (never loses a detection, only skips pixels)."""
+        by ``roi_margin`` times its size on each side, at least 32 px, resampled by
+        ``roi_upscale``), then in the whole frame if that finds nothing."""
         self.marker_id = marker_id
         self.roi = _as_bool(roi)
         self._marker = None
@@ -178,17 +179,37 @@ class SquareMarkerLocalizer:
         self._last_quad = None if best is None else np.asarray(quad, np.float64).reshape(4, 2)
         return best
 
+    def set_roi_hint(self, T_cam_dock: np.ndarray) -> None:
+        """Search the next frame first around the marker as projected with a dock pose
+        (4,4) from elsewhere (the hybrid's LED estimate); ignored when roi is off or the
+        marker is not in front of the camera."""
+        if not self.roi or self._marker is None:
+            return
+        kp = np.asarray(self._marker["keypoints"], np.float64).reshape(-1, 3)
+        T = np.asarray(T_cam_dock, np.float64).reshape(4, 4)
+        if not np.all(kp @ T[:3, :3].T[:, 2] + T[2, 3] > 1e-3):
+            return
+        rvec = cv2.Rodrigues(T[:3, :3])[0]
+        uv = cv2.projectPoints(kp.reshape(-1, 1, 3), rvec, T[:3, 3], self._K, self._dist)[0].reshape(-1, 2)
+        if np.all(np.isfinite(uv)):
+            self._last_quad = uv
+
     def _detect_roi_first(self, gray: np.ndarray) -> list[np.ndarray]:
-        """``detect`` in the ROI around the last quad (when enabled), else in the whole image."""
+        """``detect`` in the ROI around the last quad (when enabled; resampled by
+        roi_upscale), else in the whole image."""
         if self.roi and self._last_quad is not None:
             x0, y0, x1, y1 = roi_box(self._last_quad, gray.shape, self.roi_margin)
-            if (x1 - x0) * (y1 - y0) < 0.5 * gray.size:
+            if 0 < (x1 - x0) * (y1 - y0) < 0.5 * gray.size:
+                s = float(self.roi_upscale)
+                crop = np.ascontiguousarray(gray[y0:y1, x0:x1])
+                if s > 1.0:
+                    crop = cv2.resize(crop, None, fx=s, fy=s, interpolation=cv2.INTER_CUBIC)
                 try:
-                    quads = self.detect(np.ascontiguousarray(gray[y0:y1, x0:x1]))
+                    quads = self.detect(crop)
                 except cv2.error:
                     quads = []
-                if quads:
-                    return [np.asarray(q, np.float64).reshape(4, 2) + (x0, y0) for q in quads]
+                if quads:  # resampled pixel centre j is original (j + 0.5) / s - 0.5
+                    return [(np.asarray(q, np.float64).reshape(4, 2) + 0.5) / s - 0.5 + (x0, y0) for q in quads]
         try:
             return [np.asarray(q, np.float64).reshape(4, 2) for q in self.detect(gray)]
         except cv2.error:
