@@ -126,3 +126,12 @@ def test_identical_inputs_give_identical_results(frames):
     for x, y in zip(a, b):
         assert x.keys() == y.keys()
         assert all(np.array_equal(x[k], y[k]) for k in x)
+
+
+def test_prefer_footprint_takes_the_marker_spanning_more_pixels():
+    h = stubbed(prefer="footprint")
+    assert frame(h, 2.0, 2.0) == ("led", (1, 1))     # LED 0.85 m diagonal vs QR 0.21 m: LED
+    assert frame(h, 0.5, None) == ("qr", (1, 1))     # LED out of view: QR
+    assert frame(h, None, 8.0) == ("led", (0, 1))    # beyond the near range: QR not run
+    with pytest.raises(ValueError):
+        HybridLocalizer(prefer="bogus")
