@@ -202,3 +202,40 @@ def test_qr_detectors_agree_on_a_clean_code():
     with pytest.raises(ValueError):
         QrLocalizer(detector="bogus")
     assert W == 640 and H == 480
+
+
+# ---------------------------------------------------------------- qr_track
+
+RECEDE = [1.2, 1.8, 2.4, 2.8, 3.2, 3.6, 4.0]
+
+
+def _receding(payloads=None):
+    payloads = payloads or ["DOCK-01"] * len(RECEDE)
+    return [synth.render(K, synth.pose_looking_at_dock(d, 10.0, 5.0, 15.0), [dict(QR, payload=p)],
+                         noise_std=2.0, seed=i, ss=3) for i, (d, p) in enumerate(zip(RECEDE, payloads))]
+
+
+def test_qr_track_follows_a_decoded_code_beyond_decode_range():
+    from evalkit.localizers.qr import QrTrackLocalizer
+    imgs = _receding()
+    qr, trk = make(QrLocalizer, [QR]), make(QrTrackLocalizer, [QR])
+    plain = [qr.localize(im) for im in imgs]
+    tracked = [trk.localize(im) for im in imgs]
+    assert plain[0] is not None and plain[-1] is None          # 4 m: 1 px/module, no decode
+    assert all(e is not None for e in tracked)
+    for d, e, p in zip(RECEDE, tracked, plain):
+        assert e["distance"] == pytest.approx(d, rel=0.01)
+        assert e.get("tracked", False) == (p is None)           # tracked exactly where qr fails
+    cold = make(QrTrackLocalizer, [QR])                         # never decoded in this sequence
+    assert [cold.localize(im) for im in imgs[::-1]][:2] == [None, None]
+    trk.reset(synth.camera_dict(K, W, H, [QR]))                 # reset forgets the decode
+    assert trk.localize(imgs[-1]) is None
+
+
+def test_qr_track_rejects_another_code_after_a_decode():
+    from evalkit.localizers.qr import QrTrackLocalizer
+    imgs = _receding(["DOCK-01", "DOCK-01"] + ["DOCK-02"] * (len(RECEDE) - 2))
+    trk = make(QrTrackLocalizer, [QR])
+    out = [trk.localize(im) for im in imgs]
+    assert out[0] is not None and out[1] is not None
+    assert all(e is None for e in out[2:])  # same version, same finders: the ECC check on the known modules rejects it

@@ -21,7 +21,7 @@ import pandas as pd
 from blendgen.pipeline.generate import generate, timing_summary
 from blendgen.config.models import load_experiment
 
-LOCALIZERS = ("led", "qr", "aruco", "hybrid")
+LOCALIZERS = ("led", "qr", "aruco", "hybrid", "qr_track")
 # (label, QrLocalizer params): single-frame decoders, then zxing with the ROI of the previous
 # frame's code resampled 2x (what "qr" does in a sequence).
 QR_DETECTORS = (("zxing", {"detector": "zxing", "roi": False}), ("aruco", {"detector": "aruco", "roi": False}),

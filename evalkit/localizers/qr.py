@@ -207,11 +207,15 @@ _ECC_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 15, 1e-2)
 _TEMPLATE_QUIET = 2  # modules of white drawn around the template
 
 
-def ecc_align_quad(gray: np.ndarray, quad: np.ndarray, cells: np.ndarray, min_ecc: float = 0.6):
+def ecc_align_quad(gray: np.ndarray, quad: np.ndarray, cells: np.ndarray, min_ecc: float = 0.6,
+                   coarse: int = 0):
     """Code corners (4,2) TL, TR, BR, BL px aligned by cv2.findTransformECC (homography)
     of the code template ``cells`` (n,n; 1 dark) to ``gray`` (H,W uint8 sRGB), started
     from the detected ``quad`` (4,2); None if it fails, correlates below ``min_ecc`` or
-    moves a corner by more than 1.5 modules."""
+    moves a corner by more than 1.5 modules (``max_move_modules``). coarse > 0: first
+    align both images smoothed with a coarse x coarse Gaussian (wider basin, for starts
+    several modules off such as the previous frame's corners); the move limit is then
+    3 modules."""
     n = cells.shape[0]
     module_px = float(np.mean(np.linalg.norm(quad - np.roll(quad, 1, axis=0), axis=1))) / n
     s = int(np.clip(round(module_px), 2, 4))  # template px per module, ~ the image's
@@ -228,13 +232,15 @@ def ecc_align_quad(gray: np.ndarray, quad: np.ndarray, cells: np.ndarray, min_ec
     img = np.ascontiguousarray(linear_gray(gray[y0:y1, x0:x1]))
     H = cv2.getPerspectiveTransform(code_t, (quad - (x0, y0)).astype(np.float32)).astype(np.float32)
     try:
+        if coarse:
+            _, H = cv2.findTransformECC(tmpl, img, H, cv2.MOTION_HOMOGRAPHY, _ECC_CRITERIA, None, int(coarse))
         rho, H = cv2.findTransformECC(tmpl, img, H, cv2.MOTION_HOMOGRAPHY, _ECC_CRITERIA, None, 1)
     except cv2.error:  # not converged / singular
         return None
     if not (np.isfinite(rho) and rho >= min_ecc and np.all(np.isfinite(H))):
         return None
     out = cv2.perspectiveTransform(code_t.reshape(-1, 1, 2), H.astype(np.float64)).reshape(-1, 2) + (x0, y0)
-    if not np.all(np.isfinite(out)) or np.max(np.linalg.norm(out - quad, axis=1)) > 1.5 * module_px:
+    if not np.all(np.isfinite(out)) or np.max(np.linalg.norm(out - quad, axis=1)) > (3.0 if coarse else 1.5) * module_px:
         return None
     return out
 
@@ -270,3 +276,79 @@ def _opencv_read(det, gray: np.ndarray):
     if pts is None:
         return []
     return [(text or None, np.asarray(pts, np.float64).reshape(-1, 2))]
+
+
+class QrTrackLocalizer(QrLocalizer):
+    """QR tracking: once the payload decoded in a sequence, also codes located but not decoded (ECC-verified)."""
+
+    name = "qr_track"
+
+    def __init__(self, marker_id: str | None = None, min_ecc: float = 0.8, roi: bool = True,
+                 binarizer: str = "LocalAverage"):
+        """Pose of a QR whose payload was decoded earlier in the same sequence, from codes
+        that zxing-cpp locates (its three finder patterns) but can no longer decode.
+
+        Identity: only after a decode of this marker's payload in the sequence (``reset``
+        clears it); every located-but-undecoded code must then align with the known
+        module matrix (ECC correlation >= ``min_ecc``, stricter than the decoded case)
+        or it is dropped: no finder-corner or 4-corner fallback for undecoded codes.
+        Candidates: codes zxing-cpp locates without decoding, OpenCV's QR locator, and
+        the previous frame's corners (ECC coarse-to-fine: template tracking). On the
+        synthetic oracles the right code aligns at rho >= 0.9 down to 1 px/module and
+        another payload of the same version at rho < 0.7 (hence min_ecc 0.8).
+        Estimates of tracked frames carry ``"tracked": True``. Reported as its own
+        localizer (never mixed into ``qr``); off unless asked for (``-l qr_track``).
+        roi, binarizer: as for ``qr``."""
+        super().__init__(marker_id, detector="zxing", allow_undecoded=True, refine="ecc", roi=roi,
+                         binarizer=binarizer, min_ecc=min_ecc)
+        self._seen = False
+        self._tracking = False
+        self._locator = cv2.QRCodeDetector()
+
+    def reset(self, camera: dict) -> None:
+        """New sequence: forget the decode."""
+        super().reset(camera)
+        self._seen = False
+        self._tracking = False
+
+    def detect(self, gray: np.ndarray) -> list[np.ndarray]:
+        """Decoded quads of the payload; after a decode in this sequence, else the located ones."""
+        want = self._marker.get("payload")
+        found = self._read(gray)
+        decoded = [quad for text, quad in found if text == want]
+        self._tracking = not decoded
+        if decoded:
+            return decoded
+        if not self._seen or self._cells is None:
+            return []
+        located = [quad for text, quad in found if text is None]
+        if not located:  # zxing found no finder triple: OpenCV's locator (finder patterns, no decode)
+            ok, pts = self._locator.detect(gray)
+            if ok and pts is not None:
+                located = [np.asarray(pts, np.float64).reshape(-1, 2)]
+        return located
+
+    def _detect_roi_first(self, gray: np.ndarray) -> list[np.ndarray]:
+        """Located quads; while tracking, also the last frame's code corners as a start
+        for the ECC alignment (template tracking when no locator finds the code)."""
+        quads = super()._detect_roi_first(gray)
+        if self._seen and self._tracking and self._last_quad is not None and self._misses <= 1:
+            quads = quads + [self._last_quad]
+        return quads
+
+    def quad_pose(self, gray: np.ndarray, quad: np.ndarray) -> dict | None:
+        """Decoded: as ``qr``. Tracked: ECC alignment with the known code or nothing."""
+        if not self._tracking:
+            est = super().quad_pose(gray, quad)
+            self._seen = self._seen or est is not None
+            return est
+        if self._last_quad is not None and np.array_equal(quad, self._last_quad):
+            starts = [(quad, 3)]  # last frame's corners: coarse-to-fine (moves of a few modules)
+        else:  # a locator's corner order may start at another finder: ECC decides
+            starts = [(np.roll(quad, -k, axis=0), 0) for k in range(4)]
+        for start, coarse in starts:
+            aligned = ecc_align_quad(gray, start, self._cells, self.min_ecc, coarse)
+            if aligned is not None:
+                est = square_pose_estimate(aligned, self._marker, self._K, self._dist)
+                return None if est is None else {**est, "tracked": True}
+        return None

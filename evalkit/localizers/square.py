@@ -123,18 +123,21 @@ class SquareMarkerLocalizer:
     outputs = FULL_POSE_WITH_ID
     roi_margin = 1.0                      # ROI = previous quad's box grown by this x its size
     roi_upscale = 1.0                     # ROI resampled by this factor (bicubic) before detect
+    roi_keep_frames = 5                   # frames without a detection before the ROI is dropped
     min_image_px = 8                      # smaller images give None without detection
 
     def __init__(self, marker_id: str | None = None, roi: bool = True):
         """marker_id: manifest id of the marker (None: first marker of the first kind in
         ``kinds``). roi: search first in a window around the previous frame's quad (grown
         by ``roi_margin`` times its size on each side, at least 32 px, resampled by
-        ``roi_upscale``), then in the whole frame if that finds nothing."""
+        ``roi_upscale``; kept for ``roi_keep_frames`` frames without a detection), then in
+        the whole frame if that finds nothing."""
         self.marker_id = marker_id
         self.roi = _as_bool(roi)
         self._marker = None
         self._K = self._dist = None
         self._last_quad = None
+        self._misses = 0
 
     # ---- hooks -----------------------------------------------------------------
     def setup(self, marker: dict) -> dict | None:
@@ -156,7 +159,7 @@ class SquareMarkerLocalizer:
         self._K, self._dist = camera_matrices(camera)
         m = find_marker(camera.get("markers"), self.kinds, self.marker_id)
         self._marker = self.setup(m) if m is not None and m.get("kind") in self.kinds else None
-        self._last_quad = None
+        self._last_quad, self._misses = None, 0
 
     def localize(self, image: np.ndarray) -> dict | None:
         """Dock pose from one RGB uint8 image (H,W,3), or None: the lowest-reprojection
@@ -176,7 +179,12 @@ class SquareMarkerLocalizer:
                 est = None
             if est is not None and (best is None or est["reproj_err_px"] < best["reproj_err_px"]):
                 best, quad = est, q
-        self._last_quad = None if best is None else np.asarray(quad, np.float64).reshape(4, 2)
+        if best is not None:
+            self._last_quad, self._misses = np.asarray(quad, np.float64).reshape(4, 2), 0
+        else:
+            self._misses += 1
+            if self._misses > self.roi_keep_frames:
+                self._last_quad = None
         return best
 
     def set_roi_hint(self, T_cam_dock: np.ndarray) -> None:
