@@ -238,4 +238,5 @@ def test_qr_track_rejects_another_code_after_a_decode():
     trk = make(QrTrackLocalizer, [QR])
     out = [trk.localize(im) for im in imgs]
     assert out[0] is not None and out[1] is not None
-    assert all(e is None for e in out[2:])  # same version, same finders: the ECC check on the known modules rejects it
+    # same version, same finder patterns: the ECC check against the known modules rejects it
+    assert all(e is None for e in out[2:])

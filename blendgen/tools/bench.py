@@ -111,13 +111,15 @@ def localizer_cpu_table(dataset: Path, names=LOCALIZERS) -> pd.DataFrame:
     _, camera, seqs = load_sequences(dataset)
     rows = []
     for name in names:
-        df = time_localizer(registry.resolve(name, {}), camera, seqs)
+        loc = registry.resolve(name, {})
+        df = time_localizer(loc, camera, seqs)
         cpu = df["cpu_ms"].to_numpy()
         rows.append({"localizer": name, "frames": len(df), "cpu_ms_median": float(np.median(cpu)),
                      "cpu_ms_mean": float(cpu.mean()), "cpu_ms_p95": float(np.percentile(cpu, 95)),
                      "wall_ms_median": float(df["wall_ms"].median()),
                      "P_succ_in_view": float(df.loc[df["in_view"], "success"].mean()),
-                     "estimates_by_marker": " ".join(f"{k}:{v}" for k, v in df["marker"].value_counts().items())})
+                     "estimates_by_marker": " ".join(f"{k}:{v}" for k, v in df["marker"].value_counts().items()),
+                     "near_range_m": getattr(loc, "near_range_m", np.nan)})  # the hybrid's QR range
     return pd.DataFrame(rows)
 
 

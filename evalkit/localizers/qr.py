@@ -240,7 +240,8 @@ def ecc_align_quad(gray: np.ndarray, quad: np.ndarray, cells: np.ndarray, min_ec
     if not (np.isfinite(rho) and rho >= min_ecc and np.all(np.isfinite(H))):
         return None
     out = cv2.perspectiveTransform(code_t.reshape(-1, 1, 2), H.astype(np.float64)).reshape(-1, 2) + (x0, y0)
-    if not np.all(np.isfinite(out)) or np.max(np.linalg.norm(out - quad, axis=1)) > (3.0 if coarse else 1.5) * module_px:
+    max_move_px = (3.0 if coarse else 1.5) * module_px
+    if not np.all(np.isfinite(out)) or np.max(np.linalg.norm(out - quad, axis=1)) > max_move_px:
         return None
     return out
 
