@@ -359,6 +359,16 @@ def calibrate(config: Path | None, out: Path):
     click.echo(f"wall time {time.perf_counter() - t0:.0f} s; {summary}, {per_trial}")
 
 
+@bench.command("localizers")
+@click.argument("dataset", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
+              default=Path("out/bench"), show_default=True)
+def bench_localizers(dataset: Path, out: Path) -> None:
+    """CPU ms per 640x480 frame of each built-in localizer and QR decode rate by range, on DATASET."""
+    from blendgen.tools.bench import run_localizer_bench
+    run_localizer_bench(dataset, out)
+
+
 def _register() -> None:
     """Commands defined next to their code (imports inside them stay lazy)."""
     from evalkit.reports.bop import export_bop_cmd

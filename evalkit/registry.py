@@ -37,6 +37,7 @@ BUILTINS = {
     "aruco": "evalkit.localizers.aruco:ArucoLocalizer",
     "apriltag": "evalkit.localizers.apriltag:AprilTagLocalizer",
     "hybrid": "evalkit.localizers.hybrid:HybridLocalizer",
+    "qr_track": "evalkit.localizers.qr:QrTrackLocalizer",
 }
 EXEC_PREFIX = "exec:"
 

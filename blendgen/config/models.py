@@ -81,15 +81,49 @@ class Obstacle(Strict):
 class LedArray(Strict):
     kind: Literal["led_array"] = "led_array"
     id: SafeId = "led"
-    layout: Literal["rectangle", "circle"] = "rectangle"
+    layout: Literal["rectangle", "circle", "custom"] = Field(
+        "rectangle", description="rectangle: 4 corners; circle: count LEDs evenly on a circle from the top, "
+        "clockwise; custom: positions_m")
+    count: int = Field(4, ge=4, le=32, description="number of LEDs (rectangle: 4)")
+    positions_m: Optional[list[Annotated[list[float], Field(min_length=2, max_length=2)]]] = Field(
+        None, description="custom layout: LED centres (x, y) in the marker frame (m), in convex position")
     size_m: float = Field(0.6, gt=0.01, le=5.0, description="overall size l (side or diameter)")
     height_m: Optional[float] = Field(None, gt=0.01, le=5.0, description="rectangle height (default = size)")
     led_radius_m: float = Field(0.04, gt=0.001, le=0.5)
     color: Color = [0.0, 0.85, 0.6]
     reference_color: Color = [1.0, 0.35, 0.0]
-    reference_index: int = Field(0, ge=0, le=3)
+    reference_index: Union[int, list[int]] = Field(
+        0, description="index (or indices) of the reference LED(s), which have reference_color")
     strength: float = Field(20.0, gt=0.0, le=1e5, description="emission strength (W/m^2 radiance scale)")
     center_m: Annotated[list[float], Field(min_length=2, max_length=2)] = [0.0, 0.0]
+
+    @property
+    def reference_indices(self) -> list[int]:
+        """The reference LEDs' indices, sorted."""
+        r = self.reference_index
+        return sorted({int(r)} if isinstance(r, int) else {int(i) for i in r})
+
+    @model_validator(mode="after")
+    def _layout(self):
+        if self.layout == "custom":
+            if not self.positions_m:
+                raise ValueError("layout 'custom' needs positions_m (>= 4 [x, y] pairs)")
+            self.count = len(self.positions_m)
+            if not 4 <= self.count <= 32:
+                raise ValueError(f"positions_m: need 4..32 LEDs, got {self.count}")
+        elif self.positions_m is not None:
+            raise ValueError(f"positions_m is only for layout 'custom', not {self.layout!r}")
+        elif self.layout == "rectangle" and self.count != 4:
+            raise ValueError(f"a rectangle has 4 LEDs, got count {self.count} (use circle or custom)")
+        refs = self.reference_indices
+        if not refs or refs[0] < 0 or refs[-1] >= self.count or len(refs) >= self.count:
+            raise ValueError(f"reference_index must name 1..{self.count - 1} LEDs in 0..{self.count - 1}, "
+                             f"got {self.reference_index}")
+        from blendgen.markers import led_pattern_problem
+        problem = led_pattern_problem(self)
+        if problem:
+            raise ValueError(problem)
+        return self
 
 
 class SquareMarker(Strict):
@@ -100,11 +134,25 @@ class SquareMarker(Strict):
     payload: Optional[str] = Field(None, max_length=200, description="qr: text to encode")
     dictionary: Optional[str] = Field(None, description="aruco/apriltag: OpenCV dictionary name")
     marker_id: int = Field(0, ge=0, le=4095)
+    error_correction: Literal["L", "M", "Q", "H"] = Field(
+        "M", description="qr: error-correction level (the smallest version that fits the payload is used)")
+    quiet_zone_modules: Optional[int] = Field(
+        None, ge=0, le=16, description="white margin around the code, in modules/cells "
+        "(default: 4 for qr as ISO/IEC 18004 asks, 1 cell for aruco/apriltag)")
 
     @model_validator(mode="after")
     def _kind_fields(self):
         if self.kind == "qr" and not self.payload:
             raise ValueError("a qr marker needs a non-empty 'payload'")
+        if self.quiet_zone_modules is None:
+            self.quiet_zone_modules = 4 if self.kind == "qr" else 1
+        if self.kind == "qr":
+            try:
+                import segno
+                segno.make_qr(self.payload, error=self.error_correction.lower(), boost_error=False)
+            except Exception as exc:  # noqa: BLE001 - segno's DataOverflowError and friends
+                raise ValueError(f"payload cannot be encoded as a QR code at level "
+                                 f"{self.error_correction}: {exc}") from None
         if self.kind in ("aruco", "apriltag"):
             import cv2
             default = "DICT_4X4_50" if self.kind == "aruco" else "DICT_APRILTAG_36h11"
