@@ -1,7 +1,8 @@
 """evalkit: evaluate localizers on dockbench datasets (never needs Blender).
 
 Modules: ``dataset`` (read a dataset), ``registry`` (find localizers),
-``runner`` (run them), ``metrics`` (SPEC.md section 7), ``tables`` (output),
+``assemble`` (wrap them: child process, external program, preprocessing), ``process``
+(child processes: spawn with a memory cap, kill and reap), ``runner`` (run them), ``metrics`` (SPEC.md section 7), ``tables`` (output),
 ``truth`` / ``metrics_extra`` (pose errors, FP rate, distance bins, usable range,
 bootstrap CIs, runtime), ``plots``, ``results`` (run directories), ``leaderboard``
 (static HTML) and ``bop`` (BOP export).
@@ -15,6 +16,7 @@ import importlib
 _LAZY = {
     "Dataset": "dataset", "DatasetError": "dataset", "verify": "dataset",
     "resolve": "registry", "list_localizers": "registry", "RegistryError": "registry",
+    "build": "assemble",
     "evaluate": "runner", "write_results": "runner",
     "save_run": "results", "load_run": "results", "compare_runs": "results",
     "frame_truth_table": "truth", "export_bop": "bop", "build_leaderboard": "leaderboard",
