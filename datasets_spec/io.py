@@ -14,7 +14,7 @@ from importlib import resources
 from pathlib import Path
 from typing import IO, Iterator
 
-from datasets_spec.validate import (MAX_JSON_LINE_BYTES, MAX_MANIFEST_BYTES, ContentError, camera_problem,
+from datasets_spec.validate import (MAX_JSON_LINE_BYTES, MAX_MANIFEST_BYTES, RELPATH, RELPATH_RULE, ContentError, camera_problem,
                                     check_frame_record, image_problem, load_schema, loads_bounded, non_finite_key,
                                     png_header,
                                     schema_message)
@@ -92,7 +92,12 @@ def check_schema(obj: dict, schema_name: str, where: str) -> None:
     err = jsonschema.exceptions.best_match(validator.iter_errors(obj))
     if err is not None:
         key = ".".join(str(p) for p in err.absolute_path) or "<root>"
-        raise DatasetError(f"{where}: {key}: {err.message}")
+        message = err.message
+        if err.validator == "pattern" and err.validator_value == RELPATH.pattern:
+            message = f"{err.instance!r} {RELPATH_RULE}"
+        elif err.validator == "propertyNames":
+            key = f"{key} (a key)"
+        raise DatasetError(f"{where}: {key}: {message}")
 
 
 # -- manifest.json ---------------------------------------------------------
@@ -163,8 +168,11 @@ def check_frame(frame: dict, where: str) -> None:
     try:
         check_frame_record(frame)
     except ContentError as exc:
-        detail = schema_message(frame) or str(exc)
-        raise DatasetError(f"{where}: {detail} ({exc})" if detail != str(exc) else f"{where}: {exc}") from None
+        # the rule in words (key, what is allowed); jsonschema's own wording is added when
+        # it says more than a regular expression
+        detail = schema_message(frame)
+        extra = f" [schema: {detail}]" if detail and "does not match" not in detail else ""
+        raise DatasetError(f"{where}: {exc}{extra}") from None
 
 
 def _bounded_lines(fh: IO[bytes], path: Path) -> Iterator[tuple[int, bytes]]:

@@ -23,6 +23,8 @@ MAX_IMAGE_SIDE = 65535
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 PNG_COLOR_TYPES = {0: "gray", 2: "RGB", 3: "palette", 4: "gray+alpha", 6: "RGBA"}
 RELPATH = re.compile(r"^(?!/)(?!.*\\)(?!(.*/)?\.\.(/|$))[^\u0000]+$")   # frame.schema.json $defs.relpath
+RELPATH_RULE = "is not a relative path inside the dataset (allowed: '/' separators, no '..', no leading '/', " \
+               "no backslash, no NUL)"
 
 
 class ContentError(ValueError):
@@ -75,7 +77,7 @@ def _mat4_problem(v: Any) -> str | None:
 
 def _path_problem(v: Any, suffix: str) -> str | None:
     if not isinstance(v, str) or not v or not RELPATH.match(v) or not v.endswith(suffix):
-        return f"must be a relative path inside the dataset ending in {suffix} (no '..', no leading '/')"
+        return f"{v!r} {RELPATH_RULE.replace('(allowed: ', f'(allowed: a name ending in {suffix}, ')}"
     return None
 
 

@@ -1,11 +1,13 @@
 """evalkit: evaluate localizers on dockbench datasets (never needs Blender).
 
 Modules: ``dataset`` (read and verify a dataset), ``registry`` (find localizers),
-``runner`` (run them), ``metrics.core`` (judge each frame: errors, false positives,
-thresholded success; per trial), ``metrics.extra`` (the one path to every table:
-CIs, bins, usable range, runtime), ``metrics.recall`` (BOP-style AR), ``reports.tables``
-/ ``reports.plots`` (output), ``reports.results`` (run directories, provenance),
-``reports.leaderboard`` (static HTML) and ``reports.bop`` (BOP export).
+``assemble`` (wrap them: child process, external program, preprocessing), ``process``
+(child processes: spawn with a memory cap, kill and reap), ``runner`` (run them),
+``metrics.core`` (judge each frame: errors, false positives, thresholded success; per trial),
+``metrics.extra`` (the one path to every table: CIs, bins, usable range, runtime),
+``metrics.recall`` (BOP-style AR), ``reports.tables`` / ``reports.plots`` (output),
+``reports.results`` (run directories, provenance), ``reports.leaderboard`` (static HTML)
+and ``reports.bop`` (BOP export).
 This package imports nothing heavy at import time; the names below are
 loaded lazily on first access.
 """
@@ -16,6 +18,7 @@ import importlib
 _LAZY = {
     "Dataset": "dataset", "DatasetError": "dataset", "verify": "dataset",
     "resolve": "registry", "list_localizers": "registry", "RegistryError": "registry",
+    "build": "assemble",
     "evaluate": "runner", "SuccessCriteria": "metrics.core", "compute_all": "metrics.extra",
     "EvalSettings": "metrics.extra", "save_run": "reports.results", "load_run": "reports.results",
     "compare_runs": "reports.results", "evaluate_dataset": "reports.results",
