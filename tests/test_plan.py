@@ -27,7 +27,7 @@ def test_image_space_conditions_and_kinematic_trials_share_one_render():
                          {"label": "deep", "dock_water_depth_m": 5}, {"label": "occ", "occlusion": {"n_total": 6000}}]
     exp, jobs = jobs_for(cfg)
     assert len(jobs) == 1 and len(jobs[0].sequences) == 12
-    seeds = {s.post["seed"] for s in jobs[0].sequences}
+    seeds = {s.post.seed for s in jobs[0].sequences}
     assert len(seeds) == 3  # one random stream per trial, shared by its conditions (paired comparisons)
 
 
@@ -46,19 +46,27 @@ def test_docking_trials_render_once_per_trial_and_per_fluid():
 
 
 def test_reference_fidelity_renders_each_water_and_skips_clear_volume():
+    from blendgen.physics import optics
+    cfg = copy.deepcopy(BASE)
+    cfg["image_formation"] = "article"
+    cfg["render"] = {"fidelity": "reference"}
+    cfg["conditions"] = [{"label": "clear"}, {"label": "mild", "water": {"preset": "mild"}}]
+    _, jobs = jobs_for(cfg)
+    assert {j.sequences[0].condition: j.scene["water_volume"] for j in jobs}["clear"] is None   # no water
     cfg = copy.deepcopy(BASE)
     cfg["render"] = {"fidelity": "reference"}
     cfg["conditions"] = [{"label": "clear"}, {"label": "mild", "water": {"preset": "mild"}}]
     _, jobs = jobs_for(cfg)
     vols = {j.sequences[0].condition: j.scene["water_volume"] for j in jobs}
-    assert vols["clear"] is None and vols["mild"]["box_max"][2] == pytest.approx(0.0)
+    assert vols["clear"]["sigma_a"] == pytest.approx(optics.get_preset("jerlov_I").sigma_a.tolist())  # physical
+    assert vols["mild"]["box_max"][2] == pytest.approx(0.0)
 
 
 def test_occlusion_region_defaults_to_the_600_m3_pool():
     cfg = copy.deepcopy(BASE)
     cfg["occlusion"] = {"n_total": 600}
     exp, jobs = jobs_for(cfg)
-    occ = jobs[0].sequences[0].post["occlusion"]
+    occ = jobs[0].sequences[0].post.occlusion.model_dump()
     vol = np.prod(np.subtract(occ["region_max"], occ["region_min"]))
     assert vol == pytest.approx(600.0)
 

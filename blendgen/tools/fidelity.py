@@ -149,8 +149,11 @@ def fit_mask(clean: dict, ref_rgb: np.ndarray, dock_ids: list[int], markers: lis
             & (clean["rgb"].max(axis=2) < 0.98) & (ref_rgb.max(axis=2) < 0.98))
 
 
-def calibrate(ref_path: Path, clean_path: Path, light_depth_m: float, irradiance: float) -> dict:
-    """Fit every turbid condition of the reference dataset; returns the calibration dict."""
+def calibrate(ref_path: Path, clean_path: Path, light_depth_m: float, irradiance: float,
+              sun_elevation_deg: float = 90.0) -> dict:
+    """Fit every turbid condition of the reference dataset; returns the calibration dict.
+    ``irradiance`` is the sun's strength (W/m^2, normal to the beam) at ``sun_elevation_deg``."""
+    from blendgen.config.models import Water
     from blendgen.physics import optics
     from evalkit.dataset import Dataset
     ref, clean = load_frames(ref_path), load_frames(clean_path)
@@ -159,7 +162,7 @@ def calibrate(ref_path: Path, clean_path: Path, light_depth_m: float, irradiance
     dock_ids = [INDEX_DOCK] + [m["object_index"] for m in markers]
     presets = {}
     for cond in sorted({k[0] for k in ref}):
-        w0 = optics.water_from_config({"preset": cond})
+        w0 = optics.water_optics(Water(preset=cond))
         if w0.is_clear:
             continue
         keys = sorted(k for k in ref if k[0] == cond)
@@ -173,10 +176,11 @@ def calibrate(ref_path: Path, clean_path: Path, light_depth_m: float, irradiance
         entry = {"B_inf": (B / (a * irradiance)).round(6).tolist(),
                  "Kd": np.clip(-np.log(a) / max(light_depth_m, 1e-6), 0.0, 5.0).round(5).tolist(),
                  "blur": False, "a": a.round(5).tolist()}
-        cal = {"presets": {cond: entry}}
+        cal = {"presets": {cond: entry}, "sun_elevation_deg": sun_elevation_deg}
         res = {}
         for label, use in (("uncalibrated", False), ("calibrated", True)):
-            w, fo = optics.fast_water({"preset": cond, "calibrated": use}, irradiance, cal)
+            e_d = irradiance * math.sin(math.radians(sun_elevation_deg))
+            w, fo = optics.fast_water(Water(preset=cond, calibrated=use), "physical", e_d, cal)
             err = []
             for k, (y, J, r) in zip(keys, pix):
                 pred = optics.apply_water(J[None].astype(np.float64), r[None], None, w, light_depth_m,
@@ -202,7 +206,7 @@ def run_calibration(work: Path, data_path: Path, width: int, height: int, frames
     clean_path, _ = render(clean_exp, work / f"clean-{width}x{height}-s{ref_samples}")
     depth = ref_exp.scene.dock.water_depth_m
     E = ref_exp.scene.sun_strength
-    presets = calibrate(ref_path, clean_path, depth, E)
+    presets = calibrate(ref_path, clean_path, depth, E, ref_exp.scene.sun_elevation_deg)
     data = {"version": 1,
             "method": (f"least squares of I_ref = a J exp(-c r) + B (1 - exp(-c r)) over dock+marker pixels; "
                        f"reference: Cycles medium, 0 volume bounces (single scattering), {ref_samples} spp, "
