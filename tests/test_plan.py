@@ -82,3 +82,18 @@ def test_frames_beyond_the_evaluation_window_are_not_rendered():
     cfg["render"] = {"max_distance_m": None}
     _, jobs = jobs_for(cfg)
     assert [f["index"] for f in jobs[0].frames] == list(range(61))
+
+
+def test_no_frame_from_inside_the_dock():
+    """A kinematic approach through the marker plane is a config error naming the fix; a docking
+    trial ends at contact: every frame keeps the camera in front of the face (d_true > 0 is exact)."""
+    from blendgen.config.models import ConfigError
+    cfg = copy.deepcopy(BASE)
+    cfg["trajectories"] = [{"kind": "linear", "id": "lin", "start_range_m": 3, "end_range_m": 0.5, "speed_mps": 2}]
+    with pytest.raises(ConfigError, match=r"'lin'.*end_range_m must be >= 0.70"):
+        jobs_for(cfg)
+    cfg["trajectories"] = [{"kind": "docking", "id": "d", "start": {"range_m": [2.0, 2.5]}, "max_time_s": 20}]
+    exp, jobs = jobs_for(cfg)
+    T_wd = np.asarray(jobs[0].scene["dock"]["T_world_dock"])
+    z = [(np.linalg.inv(T_wd) @ np.asarray(f["T_world_cam"])[:, 3])[2] for f in jobs[0].frames]
+    assert min(z) >= plan.MIN_CLEARANCE_M and len(z) > 5

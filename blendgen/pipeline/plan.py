@@ -25,13 +25,15 @@ from blendgen import markers as mk
 from blendgen.pipeline import groundtruth
 from blendgen.vehicle import trajectories as tj
 from blendgen.geometry import intrinsics_from_hfov, make_T, rpy_to_R
-from blendgen.config.models import Experiment, ImageFormation, Occlusion, Strict, Vec3, Water
+from blendgen.config.models import ConfigError, Experiment, ImageFormation, Occlusion, Strict, Vec3, Water
 
 INDEX_POOL, INDEX_DOCK, INDEX_MARKER0, INDEX_OBSTACLE0, INDEX_PARTICLES = 1, 2, 10, 100, 250
 #: Version of :class:`JobRecord`, the file a render worker reads.
 JOB_RECORD_VERSION = 1
 #: Irradiance reflectance of the water column below (E_u / E_d; Kirk 2011: 0.02-0.1 in the sea).
 UPWELLING_REFLECTANCE = 0.05
+#: The camera must stay this far (m) in front of the dock's marker plane: no frame from inside the dock.
+MIN_CLEARANCE_M = 0.05
 #: Diffuse sky irradiance as a fraction of the direct sun's on a horizontal plane (clear sky:
 #: about 0.1-0.3); our choice for the physical mode.
 SKY_FRACTION_PHYSICAL = 0.25
@@ -206,15 +208,34 @@ def object_index_names(markers: list[dict], exp: Experiment) -> dict[str, str]:
     return names
 
 
+def until_contact(exp: Experiment, traj, T_wc: np.ndarray, T_wd: np.ndarray) -> int:
+    """Number of leading frames with the camera at least ``MIN_CLEARANCE_M`` in front of the
+    marker plane. A docking trial ends there (contact: the camera enters the dock); a
+    kinematic path that gets there is a config error naming the trajectory and the fix."""
+    z = (np.linalg.inv(T_wd) @ T_wc[:, :, 3].T)[2]            # camera centre, dock frame (+z out of the face)
+    bad = np.flatnonzero(z < MIN_CLEARANCE_M)
+    if bad.size == 0:
+        return len(T_wc)
+    if traj.kind == "docking":
+        return int(bad[0])
+    lead = exp.camera.T_body_cam.xyz[0]
+    hint = (f"; end_range_m must be >= {lead + MIN_CLEARANCE_M:.2f} (camera {lead:g} m ahead of the body)"
+            if traj.kind == "linear" else "")
+    raise ConfigError(f"trajectories: {traj.id!r}: the camera comes within {MIN_CLEARANCE_M} m of the dock's "
+                      f"marker plane (or behind it) at t = {bad[0] / exp.camera.fps:.2f} s{hint}")
+
+
 def _frames(exp: Experiment, traj, T_wd: np.ndarray, T_body_cam: np.ndarray, seed: int, fluid) -> list[dict]:
-    """Camera frames of one path; those farther than ``render.max_distance_m`` from the
-    marker plane are skipped (they are outside the evaluation window). Indices keep the
-    trajectory's sample numbering, so ``t`` stays ``index / fps``."""
+    """Camera frames of one path up to contact (:func:`until_contact`); those farther than
+    ``render.max_distance_m`` from the marker plane are skipped (they are outside the
+    evaluation window). Indices keep the trajectory's sample numbering, so ``t`` stays
+    ``index / fps``."""
     smp = tj.sample(traj, T_wd, exp.camera.fps, exp.camera.latency_s, seed=seed, fluid=fluid)
     T_wc = smp.T_world_body @ T_body_cam
+    n = until_contact(exp, traj, T_wc, T_wd)
     d_max = exp.render.max_distance_m
     frames = [{"index": i, "t": float(t), "t_pose": float(tp), "T_world_cam": T.tolist()}
-              for i, (t, tp, T) in enumerate(zip(smp.t, smp.t_pose, T_wc))
+              for i, (t, tp, T) in enumerate(zip(smp.t[:n], smp.t_pose[:n], T_wc[:n]))
               if d_max is None or groundtruth.d_true(T, T_wd) <= d_max]
     if exp.render.roi and exp.render.fidelity == "fast":
         box = dock_corners(exp)
