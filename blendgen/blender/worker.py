@@ -89,8 +89,8 @@ def run(job) -> dict:
             rec = pp.frame_record(fr, T_wd, markers, K, W, H, passes["index"])
             for (o, d, fh), st in zip(outs, states):
                 seen, occluded = pp.add_particles(passes, st, K, fr["T_world_cam"])
-                img = pp.camera_image(seen, st, K, fr["T_world_cam"], markers, job.fidelity, occluded)
-                paths = pp.write_frame_files(d, o.rel, fr["index"], img, passes,
+                img = pp.camera_image(seen, st, K, fr, markers, job.fidelity, occluded)
+                paths = pp.write_frame_files(d, o.rel, fr["index"], img, pp.output_passes(passes, K, o.post.distortion),
                                              job.render["write_depth"], job.render["write_index"])
                 r = rec if occluded is None else pp.with_visibility(rec, markers, K, passes["index"], occluded)
                 fh.write(json.dumps({**r, **paths}) + "\n")

@@ -137,6 +137,28 @@ class Scene(Strict):
                           "null: on in physical mode, off in article mode")
 
 
+class Sensor(Strict):
+    """The camera's sensor (EMVA 1288 photon-transfer model, OPTICS.md): radiance -> electrons
+    over the exposure -> saturation at the full well -> digital numbers with system gain
+    ``K = gain * 255 / full_well_e`` DN/e- -> response curve -> 8 bits."""
+    exposure_s: float = Field(0.01, gt=0.0, le=1.0, description="exposure time (s)")
+    responsivity_e_per_s: float = Field(
+        1e6, gt=0.0, le=1e12, description="electrons per second per unit linear radiance of the render "
+                                          "(quantum efficiency, aperture and pixel area folded in); 1e6 "
+                                          "fills a 10000 e- well at radiance 1 in 10 ms")
+    full_well_e: float = Field(10000.0, ge=100.0, le=1e7, description="saturation capacity (electrons)")
+    read_noise_e: float = Field(3.0, ge=0.0, le=1000.0, description="temporal dark noise (electrons rms)")
+    gain: float = Field(1.0, gt=0.0, le=1000.0, description="analog gain (1: the full well is 255 DN)")
+    noise: Optional[bool] = Field(None, description="shot and read noise; null: on in physical mode, off in "
+                                                    "article mode (which uses noise_std only)")
+    response: Literal["srgb", "linear"] = Field("srgb", description="response curve to 8 bits")
+    bloom_fraction: float = Field(0.0, ge=0.0, le=1.0,
+                                  description="share of the charge above the full well that spills into "
+                                              "neighbouring pixels (0: perfect anti-blooming drain)")
+    bloom_sigma_px: float = Field(2.0, gt=0.0, le=50.0, description="spread of the spilled charge (px)")
+    motion_blur: bool = Field(False, description="blur by the camera's motion over the exposure")
+
+
 class Camera(Strict):
     width: int = Field(640, ge=16, le=8192)
     height: int = Field(480, ge=16, le=8192)
@@ -146,6 +168,7 @@ class Camera(Strict):
     T_body_cam: Pose = Pose(xyz=[0.65, 0.0, 0.0])
     distortion: Optional[Annotated[list[float], Field(min_length=5, max_length=5)]] = None
     noise_std: float = Field(0.0, ge=0.0, le=256.0, description="Gaussian noise std in 8-bit units")
+    sensor: Sensor = Sensor()
 
 
 class Render(Strict):

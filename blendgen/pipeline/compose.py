@@ -3,7 +3,9 @@
 Pure numpy/OpenCV (no Blender): runs inside the render worker right after each
 frame, once per sequence that shares the clean render. Stages, in order:
 water and light with depth (fast fidelity only; ``physical`` or ``article`` mode),
-lens distortion, 8-bit sRGB encode with Gaussian noise.
+motion blur over the exposure, lens distortion (of every written pass alike, so the
+ground truth stays aligned), then the sensor (EMVA 1288: electrons, blooming, shot and
+read noise, full well, gain, response curve, 8 bits).
 """
 from __future__ import annotations
 
@@ -38,6 +40,7 @@ class SequenceState:
     field: occlusion.ParticleField | None = None
     water: optics.WaterOptics | None = None
     water_opts: dict = dataclasses.field(default_factory=dict)
+    camera: sensor.SensorModel = dataclasses.field(default_factory=sensor.SensorModel)
 
     @classmethod
     def start(cls, post: SequencePost) -> "SequenceState":
@@ -49,7 +52,7 @@ class SequenceState:
                 rng, occ.region_min, occ.region_max, n_total=occ.n_total, r_min=occ.r_min_m,
                 r_max=occ.r_max_m, count_dist=occ.count_dist, n_max=occ.n_max)
         water, opts = optics.fast_water(post.water, post.image_formation, post.irradiance_w_m2)
-        return cls(post, rng, pfield, water, opts)
+        return cls(post, rng, pfield, water, opts, sensor_model(post))
 
     def advance(self) -> None:
         """Drift the particles by one frame: p += v_flow dt + eta, eta ~ N(0, sigma^2 I)."""
@@ -122,15 +125,41 @@ def water_image(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, 
                               blur_px_per_tau=optics.BLUR_RAD_PER_TAU * fx, blur_max_px=optics.BLUR_MAX_RAD * fx)
 
 
-def camera_image(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, markers: list[dict],
+def sensor_model(post: SequencePost) -> sensor.SensorModel:
+    """The sequence's camera sensor; shot/read noise default on in physical mode only."""
+    s = post.sensor
+    noise = s.noise if s.noise is not None else post.image_formation == "physical"
+    return sensor.SensorModel(exposure_s=s.exposure_s, responsivity_e_per_s=s.responsivity_e_per_s,
+                              full_well_e=s.full_well_e, read_noise_e=s.read_noise_e, gain=s.gain, noise=noise,
+                              response=s.response, bloom_fraction=s.bloom_fraction,
+                              bloom_sigma_px=s.bloom_sigma_px, noise_std=post.noise_std)
+
+
+def camera_image(passes: dict, state: SequenceState, K: np.ndarray, frame: dict, markers: list[dict],
                  fidelity: str, occluded: np.ndarray | None = None) -> np.ndarray:
-    """Linear clean RGB (H,W,3) -> uint8 sRGB image (H,W,3) for one condition."""
+    """Linear clean RGB (H,W,3) -> uint8 image (H,W,3) for one condition; ``frame`` is the
+    planned frame (``T_world_cam``, optional ``blur_px`` motion over the exposure)."""
     rgb = passes["rgb"]
     if fidelity == "fast":
-        rgb = water_image(passes, state, K, T_world_cam, markers, occluded)
+        rgb = water_image(passes, state, K, frame["T_world_cam"], markers, occluded)
+    if frame.get("blur_px") is not None:
+        rgb = sensor.motion_blur(rgb, frame["blur_px"])
     if state.post.distortion:
         rgb = sensor.distort_image(rgb, K, state.post.distortion)
-    return sensor.to_uint8(rgb, state.post.noise_std, state.rng)
+    return state.camera.apply(rgb, state.rng)
+
+
+def output_passes(passes: dict, K: np.ndarray, distortion) -> dict:
+    """The passes as written next to a distorted image: index and range remapped with the
+    same lens map (nearest: labels and depths are not blended), so every pass stays aligned
+    with the RGB image. Without distortion, the passes themselves."""
+    if not distortion:
+        return passes
+    out = dict(passes)
+    for k in ("index", "range_m"):
+        if k in passes:
+            out[k] = sensor.distort_image(passes[k], K, distortion, interpolation=cv2.INTER_NEAREST)
+    return out
 
 
 def _polygon_area(uv: np.ndarray) -> float:

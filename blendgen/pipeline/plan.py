@@ -25,7 +25,7 @@ from blendgen import markers as mk
 from blendgen.pipeline import groundtruth
 from blendgen.vehicle import trajectories as tj
 from blendgen.geometry import intrinsics_from_hfov, make_T, rpy_to_R
-from blendgen.config.models import ConfigError, Experiment, ImageFormation, Occlusion, Strict, Vec3, Water
+from blendgen.config.models import ConfigError, Experiment, ImageFormation, Occlusion, Sensor, Strict, Vec3, Water
 
 INDEX_POOL, INDEX_DOCK, INDEX_MARKER0, INDEX_OBSTACLE0, INDEX_PARTICLES = 1, 2, 10, 100, 250
 #: Version of :class:`JobRecord`, the file a render worker reads.
@@ -57,6 +57,7 @@ class SequencePost(Strict):
     surface_z_m: float = Field(description="world z of the water surface for this condition")
     irradiance_w_m2: float = Field(ge=0.0, description="downwelling irradiance just below the surface")
     noise_std: float = 0.0
+    sensor: Sensor = Sensor()
     distortion: Optional[list[float]] = None
     occlusion: Optional[OcclusionPost] = None
 
@@ -225,6 +226,31 @@ def until_contact(exp: Experiment, traj, T_wc: np.ndarray, T_wd: np.ndarray) -> 
                       f"marker plane (or behind it) at t = {bad[0] / exp.camera.fps:.2f} s{hint}")
 
 
+def exposure_flow(exp: Experiment, T_wc: np.ndarray, T_wd: np.ndarray) -> np.ndarray:
+    """(N, 2) image motion (px) of the dock's face centre during each frame's exposure.
+
+    The pose at ``t + exposure_s`` is interpolated between consecutive samples (position
+    linearly, attitude by slerp); the last frame repeats the previous motion. One vector per
+    frame: a uniform blur, exact for rotation, approximate for motion toward the dock
+    (whose flow is radial)."""
+    from scipy.spatial.transform import Rotation, Slerp
+    K = camera_K(exp)
+    a = min(exp.camera.sensor.exposure_s * exp.camera.fps, 1.0)
+    centre = T_wd[:, 3]
+    flow = np.zeros((len(T_wc), 2))
+    for i in range(len(T_wc) - 1):
+        slerp = Slerp([0.0, 1.0], Rotation.from_matrix([T_wc[i][:3, :3], T_wc[i + 1][:3, :3]]))
+        T1 = np.eye(4)
+        T1[:3, :3] = slerp(a).as_matrix()
+        T1[:3, 3] = (1 - a) * T_wc[i][:3, 3] + a * T_wc[i + 1][:3, 3]
+        p0, p1 = (np.linalg.inv(T) @ centre for T in (T_wc[i], T1))
+        if p0[2] > 0 and p1[2] > 0:
+            flow[i] = (K @ p1[:3])[:2] / p1[2] - (K @ p0[:3])[:2] / p0[2]
+    if len(T_wc) > 1:
+        flow[-1] = flow[-2]
+    return flow
+
+
 def _frames(exp: Experiment, traj, T_wd: np.ndarray, T_body_cam: np.ndarray, seed: int, fluid) -> list[dict]:
     """Camera frames of one path up to contact (:func:`until_contact`); those farther than
     ``render.max_distance_m`` from the marker plane are skipped (they are outside the
@@ -234,7 +260,9 @@ def _frames(exp: Experiment, traj, T_wd: np.ndarray, T_body_cam: np.ndarray, see
     T_wc = smp.T_world_body @ T_body_cam
     n = until_contact(exp, traj, T_wc, T_wd)
     d_max = exp.render.max_distance_m
+    flow = exposure_flow(exp, T_wc[:n], T_wd) if exp.camera.sensor.motion_blur else None
     frames = [{"index": i, "t": float(t), "t_pose": float(tp), "T_world_cam": T.tolist()}
+              | ({} if flow is None else {"blur_px": flow[i].tolist()})
               for i, (t, tp, T) in enumerate(zip(smp.t[:n], smp.t_pose[:n], T_wc[:n]))
               if d_max is None or groundtruth.d_true(T, T_wd) <= d_max]
     if exp.render.roi and exp.render.fidelity == "fast":
@@ -295,6 +323,7 @@ def condition_post(exp: Experiment, cond, seed: int) -> SequencePost:
                         water=cond.water or exp.water, light_depth_m=depth,
                         surface_z_m=-exp.scene.dock.water_depth_m + depth,
                         irradiance_w_m2=downwelling_irradiance(exp), noise_std=exp.camera.noise_std,
+                        sensor=exp.camera.sensor,
                         distortion=exp.camera.distortion, occlusion=occ_post)
 
 
