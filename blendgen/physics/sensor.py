@@ -67,7 +67,10 @@ def to_uint8(linear: np.ndarray, noise_std: float = 0.0,
     return np.clip(np.rint(v), 0, 255).astype(np.uint8)
 
 
-POISSON_EXACT_BELOW = 1000.0
+#: Below this many electrons shot noise is drawn exactly (Poisson); above, Normal(mean, mean),
+#: which has the same mean and variance (skewness 1/sqrt(mean) < 0.23). rng.poisson costs
+#: ~100 ns a sample: a dim 640x480 frame took ~90 ms with the threshold at 1000.
+POISSON_EXACT_BELOW = 20.0
 
 
 def shot_read_noise_e(mean_e: np.ndarray, rng: np.random.Generator, read_noise_e: float = 0.0) -> np.ndarray:
@@ -75,18 +78,18 @@ def shot_read_noise_e(mean_e: np.ndarray, rng: np.random.Generator, read_noise_e
 
     ``Poisson(mean_e) + Normal(0, read_noise_e)``: exact Poisson below
     ``POISSON_EXACT_BELOW`` electrons, Normal(mean, mean) above (skewness 1/sqrt(mean)
-    < 0.03; ~5x faster for bright images). Float32, same shape, not clipped."""
+    < 0.23). Float32, same shape, not clipped."""
     if read_noise_e < 0:
         raise ValueError(f"read_noise_e must be >= 0 electrons, got {read_noise_e}")
-    lam = np.clip(np.nan_to_num(np.asarray(mean_e, np.float32), nan=0.0), 0.0, None)
+    lam = np.fmax(np.asarray(mean_e, np.float32), np.float32(0))          # NaN -> 0
     e = rng.standard_normal(lam.shape, dtype=np.float32)
-    e *= np.sqrt(lam)
+    e *= np.sqrt(lam + np.float32(read_noise_e) ** 2)   # shot and read noise: one Normal draw
     e += lam
     small = lam < POISSON_EXACT_BELOW
     if small.any():
-        e[small] = rng.poisson(lam[small])
-    if read_noise_e > 0:
-        e += rng.standard_normal(e.shape, dtype=np.float32) * np.float32(read_noise_e)
+        n = int(small.sum())
+        e[small] = rng.poisson(lam[small]) + (rng.standard_normal(n, dtype=np.float32) * np.float32(read_noise_e)
+                                              if read_noise_e > 0 else 0.0)
     return e
 
 
@@ -234,19 +237,33 @@ class SensorModel:
 
     def electrons(self, linear: np.ndarray, rng: np.random.Generator | None = None) -> np.ndarray:
         """Collected charge (H, W, 3) float32 electrons, saturated at the full well."""
-        mu = np.nan_to_num(np.asarray(linear, np.float32), nan=0.0).clip(0.0, None)
-        mu = mu * np.float32(self.responsivity_e_per_s * self.exposure_s)
+        mu = np.asarray(linear, np.float32) * np.float32(self.responsivity_e_per_s * self.exposure_s)
+        np.fmax(mu, np.float32(0), out=mu)                                   # NaN and negatives -> 0
         if self.bloom_fraction > 0:
-            excess = np.maximum(mu - np.float32(self.full_well_e), 0)
-            if excess.any():
-                spill = cv2.GaussianBlur(excess * np.float32(self.bloom_fraction), (0, 0), self.bloom_sigma_px,
-                                         borderType=cv2.BORDER_CONSTANT)
-                mu = mu + spill
+            mu = self._bloom(mu)
         if self.noise:
             if rng is None:
                 raise ValueError("shot/read noise needs a numpy Generator")
             mu = shot_read_noise_e(np.minimum(mu, np.float32(4 * self.full_well_e)), rng, self.read_noise_e)
-        return np.clip(mu, 0.0, self.full_well_e).astype(np.float32)
+        np.minimum(mu, np.float32(self.full_well_e), out=mu)
+        return np.fmax(mu, np.float32(0), out=mu)
+
+    def _bloom(self, mu: np.ndarray) -> np.ndarray:
+        """Spill ``bloom_fraction`` of the charge above the full well with a Gaussian of
+        ``bloom_sigma_px``; only the box around saturated pixels (+- 4 sigma) is filtered."""
+        excess = np.maximum(mu - np.float32(self.full_well_e), 0)
+        hit = excess.max(axis=-1) > 0 if excess.ndim == 3 else excess > 0
+        if not hit.any():
+            return mu
+        rows, cols = np.flatnonzero(hit.any(axis=1)), np.flatnonzero(hit.any(axis=0))
+        pad = int(np.ceil(4 * self.bloom_sigma_px))
+        y0, y1 = max(rows[0] - pad, 0), min(rows[-1] + pad + 1, mu.shape[0])
+        x0, x1 = max(cols[0] - pad, 0), min(cols[-1] + pad + 1, mu.shape[1])
+        win = excess[y0:y1, x0:x1] * np.float32(self.bloom_fraction)
+        spill = cv2.GaussianBlur(win, (0, 0), self.bloom_sigma_px, borderType=cv2.BORDER_CONSTANT)
+        out = mu.copy()
+        out[y0:y1, x0:x1] += spill.reshape(win.shape)
+        return out
 
     def apply(self, linear: np.ndarray, rng: np.random.Generator | None = None,
               velocity_px=None) -> np.ndarray:
@@ -254,7 +271,8 @@ class SensorModel:
         x = np.asarray(linear, np.float32)
         if velocity_px is not None:
             x = motion_blur(x, velocity_px)
-        y = self.electrons(x, rng) * np.float32(self.K / DN_MAX)            # y / 255 in [0, gain]
+        y = self.electrons(x, rng)
+        y *= np.float32(self.K / DN_MAX)                                     # y / 255 in [0, gain]
         np.minimum(y, np.float32(1.0), out=y)
         if self.response == "linear":
             v = y * np.float32(DN_MAX)
