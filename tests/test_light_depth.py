@@ -80,7 +80,7 @@ def test_veil_dims_with_camera_depth_and_emitters_only_along_their_path():
     w = optics.water_for_mode(water, "physical")
     rgb = np.full((H, W, 3), 0.3)
     index = np.full((H, W), DOCK_ID, np.uint8)
-    index[20:24, 30:34] = 10                                          # an LED
+    index[21, 31] = 10                                                # an LED (one pixel: no glow onto itself)
     depth_z = np.full((H, W), 3.0)
     depth_z[:4] = np.inf                                              # open water above the dock
     outs = {}

@@ -41,8 +41,11 @@ reference Cycles renders:
 - depth falloff with ``Kd`` is the multiply-scattered limit; the reference with
   0 bounces attenuates the sun by ``c`` along its refracted path;
 - volumetric shadows and light shafts (no 3-D light field here);
-- backscatter cones/glow around artificial lights (LEDs, AUV lamp): emissive
-  pixels are only attenuated along the camera ray;
+- the glow of emitters (``physical`` mode, :func:`glow_kernel`) has the single
+  small-angle scattering shape, whose angular profile does not change with range;
+  multiple forward scattering would widen it (Wells' small-angle model); its energy
+  includes all scattered, unabsorbed light;
+- backscatter cones from artificial lights (LEDs, AUV lamp): they light no water;
 - the veil's change of depth along a slanted ray (it uses the camera's depth);
 - ``beta_D != beta_B`` and their range/reflectance dependence (A&T 2018).
 """
@@ -359,6 +362,74 @@ def phase_value(water: WaterOptics, theta_rad: float) -> float:
     return float(hg_phase(math.cos(theta_rad), water.g))
 
 
+def hg_cumulative(theta, g: float):
+    """Share of Henyey-Greenstein scattering within angle ``theta`` (rad) of forward:
+    ``int_0^theta p(t) 2 pi sin t dt`` (1 at pi)."""
+    th = np.clip(np.asarray(theta, float), 0.0, np.pi)
+    if abs(g) < 1e-9:
+        return (1.0 - np.cos(th)) / 2.0
+    return (1.0 - g * g) / (2.0 * g) * (1.0 / (1.0 - g) - 1.0 / np.sqrt(1.0 + g * g - 2.0 * g * np.cos(th)))
+
+
+def phase_cumulative(water: WaterOptics, theta):
+    """Share of the water's scattering within ``theta`` (rad) of forward (HG analytic, FF numeric)."""
+    if water.phase != "ff":
+        return hg_cumulative(theta, water.g)
+    grid = np.concatenate([np.geomspace(1e-6, 1e-2, 400), np.linspace(1e-2, np.pi, 2000)])
+    dens = ff_phase(grid, water.ff_ior, water.ff_backscatter) * 2 * np.pi * np.sin(grid)
+    cum = np.concatenate([[0.0], np.cumsum(0.5 * (dens[1:] + dens[:-1]) * np.diff(grid))])
+    return np.interp(np.asarray(theta, float), grid, cum / cum[-1])
+
+
+def glow_encircled_energy(water: WaterOptics, range_m: float, psi, n_steps: int = 64) -> np.ndarray:
+    """Forward-scattered light of a point source at ``range_m`` within angle ``psi`` (rad) of it,
+    relative to its unscattered (attenuated) light, per channel: (..., 3).
+
+    Single small-angle scattering (Mobley's Ocean Optics Web Book, "Beam and Point Spread
+    Functions"): a photon scattered by theta at distance u from the source is seen at
+    ``psi = theta u / r``, so ``EE(psi) = b int_0^r P(psi r / u) du`` with P the phase
+    function's cumulative share; ``EE(pi) = b r``. Scaled by ``(exp(b r) - 1) / (b r)`` so the
+    total is all light scattered but not absorbed, ``exp(-a r) (1 - exp(-b r))`` over the
+    direct ``exp(-c r)`` (multiple forward scattering keeps the single-scatter shape here)."""
+    r = float(range_m)
+    psi = np.asarray(psi, float)
+    b = water.sigma_s
+    if r <= 0 or not np.any(b > 0):
+        return np.zeros(psi.shape + (3,))
+    u = (np.arange(n_steps) + 0.5) / n_steps * r                        # midpoints along the path
+    P = phase_cumulative(water, np.minimum(psi[..., None] * r / u, np.pi))   # (..., n)
+    single = P.mean(axis=-1)[..., None] * (b * r)                       # (..., 3)
+    br = b * r
+    boost = np.where(br > 0, np.expm1(br) / np.where(br > 0, br, 1.0), 1.0)
+    return single * boost
+
+
+def glow_kernel(water: WaterOptics, range_m: float, fx: float, max_radius_px: int = 96) -> np.ndarray:
+    """(2R+1, 2R+1, 3) float32 point-spread of the forward-scattered glow around an emitter at
+    ``range_m`` (camera ``fx`` px/rad): pixel weights relative to the emitter's direct image
+    (a direct image of total 1 gets a glow of total ``kernel.sum()``). The centre pixel is 0
+    (the direct term keeps it). R grows with range until 99 % of the glow is inside, at most
+    ``max_radius_px``."""
+    rad = np.arange(0.0, max_radius_px + 1.5)
+    ee = glow_encircled_energy(water, range_m, rad / float(fx))           # (R+2, 3) at ring edges
+    total = glow_encircled_energy(water, range_m, np.array(np.pi))
+    if not np.any(total > 0):
+        return np.zeros((1, 1, 3), np.float32)
+    inside = np.nonzero(np.all(ee >= 0.99 * total, axis=-1))[0]
+    R = int(min(max_radius_px, inside[0] if inside.size else max_radius_px))
+    R = max(R, 1)
+    yy, xx = np.mgrid[-R:R + 1, -R:R + 1]
+    rho = np.hypot(xx, yy)
+    ring = np.rint(rho).astype(int)
+    edges = glow_encircled_energy(water, range_m, (np.arange(R + 2) - 0.5).clip(0) / float(fx))
+    ring_energy = np.diff(edges, axis=0)                                # energy in ring k = [k-.5, k+.5)
+    counts = np.bincount(ring.ravel(), minlength=R + 2)[: R + 1]
+    k = np.zeros(rho.shape + (3,))
+    ok = (ring >= 1) & (ring <= R)
+    k[ok] = ring_energy[ring[ok]] / counts[ring[ok], None]
+    return k.astype(np.float32)
+
+
 # --------------------------------------------------------------------------- analytic scatter
 
 def single_scatter_backscatter(sigma_a, sigma_s, g: float = 0.0, E=1.0, depth_m=0.0,
@@ -469,7 +540,8 @@ def _depth_factor(water: WaterOptics, depth_m, h: int, w: int, dtype) -> np.ndar
 def apply_water(J: np.ndarray, range_m: np.ndarray, emissive_mask=None,
                 water: WaterOptics | None = None, depth_m=0.0, *, model: str = "physical",
                 veil_depth_m: float | None = None, irradiance=1.0, blur: bool = False,
-                blur_px_per_tau: float = 2.0, blur_max_px: float = 3.0, blur_levels: int = 4) -> np.ndarray:
+                blur_px_per_tau: float = 2.0, blur_max_px: float = 3.0, blur_levels: int = 4,
+                glow_fx: float | None = None) -> np.ndarray:
     """Fast underwater image formation (module docstring) on a clean render.
 
     J (H, W, 3) float32/float64 linear; range_m (H, W) metres along the ray (inf or
@@ -481,6 +553,8 @@ def apply_water(J: np.ndarray, range_m: np.ndarray, emissive_mask=None,
     blur: range-dependent forward-scatter Gaussian on the direct term, sigma_px =
     min(blur_max_px, blur_px_per_tau * mean(sigma_s) * r), ``blur_levels``
     precomputed cv2.GaussianBlur levels blended linearly by sigma.
+    glow_fx: camera focal length (px); in ``physical`` mode the emitters' forward-scattered
+    glow (:func:`glow_kernel` at their median range) is added around them.
     Returns a new (H, W, 3) array of J's dtype (float32 unless J is float64).
     """
     water = water if water is not None else get_preset("clear")
@@ -517,6 +591,8 @@ def apply_water(J: np.ndarray, range_m: np.ndarray, emissive_mask=None,
         direct = _forward_scatter_blur(direct.reshape(h, w, 3), range_m, float(np.mean(water.sigma_s)),
                                        blur_px_per_tau, blur_max_px, blur_levels
                                        ).astype(dtype, copy=False).reshape(h, 3 * w)
+    if model == "physical" and glow_fx and em is not None and em.any() and np.any(water.sigma_s > 0):
+        direct = add_emitter_glow(direct.reshape(h, w, 3), em, range_m, water, float(glow_fx)).reshape(h, 3 * w)
     if bool(np.any(B != 0)):
         np.subtract(dtype(1), t, out=t)                   # 1 - exp(-c r), in place
         t *= B
@@ -524,6 +600,32 @@ def apply_water(J: np.ndarray, range_m: np.ndarray, emissive_mask=None,
     if model == "article":
         direct *= D                                       # every pixel times exp(-k d)
     return direct.reshape(h, w, 3)
+
+
+def add_emitter_glow(img: np.ndarray, emissive: np.ndarray, range_m: np.ndarray, water: WaterOptics,
+                     fx: float) -> np.ndarray:
+    """``img`` (H, W, 3) plus the forward-scattered glow of its emitter pixels (``emissive``
+    (H, W) bool; their values in ``img`` are the attenuated direct radiance): the emitters'
+    image convolved with :func:`glow_kernel` at their median range, in the box they and the
+    kernel cover. Returns a new array (the input when nothing glows)."""
+    import cv2
+    r = np.asarray(range_m, float)[emissive]
+    r = r[np.isfinite(r)]
+    if r.size == 0:
+        return img
+    k = glow_kernel(water, float(np.median(r)), fx)
+    R = k.shape[0] // 2
+    if R == 0 or not np.any(k):
+        return img
+    h, w = emissive.shape
+    ys, xs = np.nonzero(emissive)
+    y0, y1 = max(ys.min() - R, 0), min(ys.max() + R + 1, h)
+    x0, x1 = max(xs.min() - R, 0), min(xs.max() + R + 1, w)
+    src = np.where(emissive[y0:y1, x0:x1, None], img[y0:y1, x0:x1], 0).astype(np.float32)
+    out = img.copy()
+    for ch in range(3):
+        out[y0:y1, x0:x1, ch] += cv2.filter2D(src[:, :, ch], -1, k[:, :, ch], borderType=cv2.BORDER_CONSTANT)
+    return out
 
 
 def _forward_scatter_blur(img: np.ndarray, range_m, sigma_s_mean: float, px_per_tau: float,

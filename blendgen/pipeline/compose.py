@@ -122,7 +122,8 @@ def water_image(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, 
     return optics.apply_water(passes["rgb"], passes["range_m"], emissive, state.water, depth,
                               model=post.image_formation, veil_depth_m=veil_depth,
                               irradiance=state.water_opts["irradiance"], blur=state.water_opts["blur"],
-                              blur_px_per_tau=optics.BLUR_RAD_PER_TAU * fx, blur_max_px=optics.BLUR_MAX_RAD * fx)
+                              blur_px_per_tau=optics.BLUR_RAD_PER_TAU * fx, blur_max_px=optics.BLUR_MAX_RAD * fx,
+                              glow_fx=fx)
 
 
 def sensor_model(post: SequencePost) -> sensor.SensorModel:
