@@ -178,7 +178,7 @@ def _register() -> None:
     """Commands defined next to their code (imports inside them stay lazy)."""
     from evalkit.reports.bop import export_bop_cmd
     from evalkit.reports.leaderboard import leaderboard_cmd
-    from blendgen.tools.fidelity import calibrate_water_cmd, fidelity_cmd
+    from blendgen.tools.fidelity import calibrate_water_cmd, fidelity_cmd, glow_cmd
     from blendgen.tools.preview import preview_cmd
     from blendgen.tools.reproduce import reproduce_cmd
     main.add_command(leaderboard_cmd)
@@ -188,6 +188,7 @@ def _register() -> None:
     main.add_command(calibrate_water_cmd)
     main.add_command(preview_cmd)
     bench.add_command(fidelity_cmd, "fidelity")
+    bench.add_command(glow_cmd, "glow")
     from blendgen.tools.calibration import calibrate_cmd
     calibrate_cmd.callback = _user_errors(calibrate_cmd.callback)
     main.add_command(calibrate_cmd)

@@ -74,3 +74,16 @@ def test_apply_water_adds_the_kernel_energy_around_an_led():
     assert ring[2] > ring[1] > ring[0] > 0                   # the halo keeps the LED's colour
     art = o.apply_water(J, r, em, wat, 0.0, model="article", glow_fx=300.0)
     assert art[100, 110].sum() == 0                           # the article has no glow
+
+
+@pytest.mark.blender
+def test_glow_matches_the_reference_medium(tmp_path):
+    """Encircled glow energy of a point light seen through the Cycles medium (HG g = 0.9, single
+    scattering) at 3..40 px, for two water types and three ranges, against the fast model's
+    single-scatter PSF: absolute (Cycles' point light I = P / 4 pi), within 10 %."""
+    from blendgen.tools import fidelity
+    df = fidelity.glow_comparison(tmp_path, samples=64)
+    assert len(df) == 2 * 3 * len(fidelity.GLOW_RADII_PX)
+    assert df["ratio"].between(0.9, 1.1).all(), df.to_string()
+    by = df[df.radius_px == 24].set_index(["water", "range_m"])["EE_reference"]
+    assert by["moderate", 8.0] > by["moderate", 2.0] and by["moderate", 5.0] > by["mild", 5.0]

@@ -70,7 +70,7 @@ def term_costs(dataset: Path) -> pd.DataFrame:
     is switched off is not called: its cost is 0 by construction."""
     import cv2
     from blendgen.config.models import Sensor, Water
-    from blendgen.physics import sensor
+    from blendgen.physics import optics, sensor
     from blendgen.pipeline import compose
     from blendgen.pipeline.plan import SequencePost
     from evalkit.dataset import Dataset
@@ -97,6 +97,8 @@ def term_costs(dataset: Path) -> pd.DataFrame:
         ("surface depth map", lambda: compose.surface_depth(passes["range_m"], K, frame["T_world_cam"], 0.0)),
         ("water physical (incl. depth map)", lambda: compose.water_image(passes, phys, K, frame["T_world_cam"], markers)),
         ("water article", lambda: compose.water_image(passes, art, K, frame["T_world_cam"], markers)),
+        ("  of which LED glow", lambda: optics.add_emitter_glow(
+            rgb, compose.emissive_mask(passes["index"], markers), passes["range_m"], phys.water, float(K[0, 0]))),
         ("sensor, no noise", lambda: phys.camera.apply(rgb, phys.rng)),
         ("sensor, shot + read noise", lambda: noisy.camera.apply(rgb, noisy.rng)),
         ("sensor, blooming", lambda: bloom.camera.apply(rgb * 20, bloom.rng)),

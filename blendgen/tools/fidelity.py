@@ -396,9 +396,93 @@ def _calibrate_cmd():
     return calibrate_water_cmd
 
 
+def _glow_cmd():
+    import click
+
+    @click.command("glow")
+    @click.option("--samples", type=click.IntRange(1, 65536), default=64, show_default=True)
+    @click.option("--size", type=click.IntRange(16, 1024), default=96, show_default=True)
+    @click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
+                  default=Path("out/bench_glow"), show_default=True)
+    def glow_cmd(samples, size, out):
+        """Emitter glow: fast single-scatter PSF vs the Cycles medium (HG g 0.9), mild/moderate x 2/5/8 m."""
+        from evalkit.reports.tables import print_table
+        df = glow_comparison(out, size=size, samples=samples)
+        print_table(df, floatfmt=".4g")
+        df.to_csv(out / "glow.csv", index=False)
+        click.echo(f"\n{out / 'glow.csv'} (green channel; EE relative to the unscattered irradiance; "
+                   f"max |ratio - 1| = {(df['ratio'] - 1).abs().max():.3f})")
+    return glow_cmd
+
+
 def __getattr__(name):     # click commands built lazily: importing this module needs no click
+    if name == "glow_cmd":
+        return _glow_cmd()
     if name == "fidelity_cmd":
         return _fidelity_cmd()
     if name == "calibrate_water_cmd":
         return _calibrate_cmd()
     raise AttributeError(name)
+
+
+# --------------------------------------------------------------------------- glow
+
+GLOW_WATERS = ("mild", "moderate")
+GLOW_RANGES = (2.0, 5.0, 8.0)
+GLOW_RADII_PX = (3, 6, 12, 24, 40)
+
+
+def glow_reference(water, range_m: float, out: Path, size: int = 96, hfov_deg: float = 40.0,
+                   samples: int = 64, power_w: float = 100.0) -> np.ndarray:
+    """Render the reference glow of a point light ``range_m`` ahead (``blendgen.blender.glow_scene``,
+    Blender in a subprocess); returns its linear RGB (size, size, 3)."""
+    import subprocess
+    import sys
+    spec = {"water": {"sigma_a": water.sigma_a.tolist(), "sigma_s": water.sigma_s.tolist(), "phase": water.phase,
+                      "g": float(water.g), "ff_ior": float(water.ff_ior), "ff_backscatter": float(water.ff_backscatter)},
+            "range_m": range_m, "power_w": power_w, "light_radius_m": 0.005, "hfov_deg": hfov_deg,
+            "width": size, "height": size, "samples": samples, "seed": 1}
+    out.mkdir(parents=True, exist_ok=True)
+    sp, npy = out / f"glow-{water.name}-{range_m:g}.json", out / f"glow-{water.name}-{range_m:g}.npy"
+    sp.write_text(json.dumps(spec))
+    res = subprocess.run([sys.executable, "-m", "blendgen.blender.glow_scene", str(sp), str(npy)],
+                         capture_output=True, text=True, timeout=600)
+    if res.returncode != 0:
+        raise RuntimeError(f"glow reference render failed: {res.stderr[-1500:]}")
+    return np.load(npy)
+
+
+def encircled_glow(img: np.ndarray, fx: float, radii_px) -> np.ndarray:
+    """(len(radii), 3): sum of radiance x pixel solid angle within each radius of the image
+    centre (pixel solid angle ``cos^3(theta) / fx^2``)."""
+    h, w = img.shape[:2]
+    yy, xx = np.mgrid[0:h, 0:w]
+    dx, dy = xx - (w - 1) / 2, yy - (h - 1) / 2
+    rho = np.hypot(dx, dy)
+    omega = (1.0 / (1.0 + (rho / fx) ** 2)) ** 1.5 / fx ** 2
+    return np.array([(img * omega[..., None])[rho <= R].sum(axis=0) for R in radii_px])
+
+
+def glow_comparison(work: Path, waters=GLOW_WATERS, ranges=GLOW_RANGES, size: int = 96, samples: int = 64,
+                    power_w: float = 100.0, hfov_deg: float = 40.0):
+    """Fast single-scatter glow model vs the reference medium (0 volume bounces), per water,
+    range and radius: encircled glow relative to the unscattered irradiance of the source,
+    ``EE = sum(L Omega) / (I exp(-c r) / r^2)`` with Cycles' point-light intensity
+    ``I = P / (4 pi)`` W/sr. Returns a DataFrame (green channel) with both and their ratio."""
+    import pandas as pd
+    from blendgen.config.models import Water
+    from blendgen.physics import optics
+    fx = (size / 2) / math.tan(math.radians(hfov_deg) / 2)
+    rows = []
+    for name in waters:
+        w = optics.water_for_mode(Water(preset=name), "physical")
+        for r in ranges:
+            img = glow_reference(w, r, work, size, hfov_deg, samples, power_w)
+            direct = power_w / (4 * math.pi) * np.exp(-w.c * r) / r ** 2
+            ref = encircled_glow(img.astype(np.float64), fx, GLOW_RADII_PX) / direct
+            single = optics.glow_encircled_energy(w, r, np.array(GLOW_RADII_PX) / fx)
+            single /= (np.expm1(w.sigma_s * r) / (w.sigma_s * r))            # the reference is single scatter
+            for R, e_ref, e_fast in zip(GLOW_RADII_PX, ref[:, 1], single[:, 1]):
+                rows.append({"water": name, "range_m": r, "radius_px": R, "EE_reference": e_ref,
+                             "EE_fast_single": e_fast, "ratio": e_fast / e_ref if e_ref > 0 else float("nan")})
+    return pd.DataFrame(rows)
