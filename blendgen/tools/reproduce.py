@@ -27,12 +27,16 @@ EXPERIMENTS = ("turbidity", "depth", "current", "occlusion")
 LOCALIZERS = ("led", "qr", "hybrid")
 
 
-def experiment(name: str, trials: int | None):
-    """The paper config, optionally with fewer trials (the dataset name records it)."""
+def experiment(name: str, trials: int | None, mode: str | None = None):
+    """The paper config, optionally with fewer trials or another image formation (the
+    dataset name records both)."""
     exp = load_experiment(bundled_file("configs", f"paper_{name}.yaml"))
     if trials is not None:
         exp.trials = trials
         exp.name = f"{exp.name}-{trials}trials"
+    if mode is not None and mode != exp.image_formation:
+        exp.image_formation = mode
+        exp.name = f"{exp.name}-{mode}"
     return exp
 
 
@@ -58,11 +62,11 @@ def report(name: str, paths: dict) -> str:
 
 
 def reproduce(names: tuple[str, ...], out_root: Path, trials: int | None, workers: int | None,
-              overwrite: bool = False) -> list[str]:
+              overwrite: bool = False, mode: str | None = None) -> list[str]:
     """Generate the experiments' datasets together (each shared camera path is rendered
     once for all of them), then evaluate and report each; returns the Markdown reports."""
     from blendgen.pipeline.generate import check_out_dir, generate_many
-    exps = [experiment(n, trials) for n in names]
+    exps = [experiment(n, trials, mode) for n in names]
     bases = [Path(out_root) / e.name for e in exps]
     for e, b in zip(exps, bases):
         check_out_dir(e, b / "dataset", overwrite=overwrite)
@@ -88,7 +92,10 @@ def reproduce(names: tuple[str, ...], out_root: Path, trials: int | None, worker
               default=Path("out/reproduce"), show_default=True)
 @click.option("--workers", type=click.IntRange(1, 256), default=None)
 @click.option("--overwrite", is_flag=True, help="replace a dataset made from an older version of the config")
-def reproduce_cmd(name: str, trials: int | None, out: Path, workers: int | None, overwrite: bool):
+@click.option("--mode", type=click.Choice(["physical", "article"]), default=None,
+              help="image formation (default: the paper configs' own, article)")
+def reproduce_cmd(name: str, trials: int | None, out: Path, workers: int | None, overwrite: bool,
+                  mode: str | None):
     """Run one of the article's experiments (or all): generate, evaluate, report."""
-    for text in reproduce(EXPERIMENTS if name == "all" else (name,), out, trials, workers, overwrite):
+    for text in reproduce(EXPERIMENTS if name == "all" else (name,), out, trials, workers, overwrite, mode):
         click.echo(text)
