@@ -97,3 +97,24 @@ def test_no_frame_from_inside_the_dock():
     T_wd = np.asarray(jobs[0].scene["dock"]["T_world_dock"])
     z = [(np.linalg.inv(T_wd) @ np.asarray(f["T_world_cam"])[:, 3])[2] for f in jobs[0].frames]
     assert min(z) >= plan.MIN_CLEARANCE_M and len(z) > 5
+
+
+def test_job_record_is_typed_versioned_and_round_trips():
+    """The worker's job file: written by generate, parsed once by the worker; a record of
+    another version or with unknown keys is refused."""
+    from pydantic import ValidationError
+    exp, jobs = jobs_for(copy.deepcopy(BASE))
+    post = jobs[0].sequences[0].post
+    rec = plan.JobRecord(scene=jobs[0].scene, fidelity="fast", render=plan.render_settings(exp, 1),
+                         frames=jobs[0].frames,
+                         camera=plan.JobCamera(width=64, height=48, hfov_rad=1.0, K=np.eye(3).tolist()),
+                         gt=plan.JobTruth(T_world_dock=np.eye(4).tolist(), markers=[]),
+                         outputs=[plan.JobOutput(seq_dir="/tmp/x", rel="sequences/x", post=post)])
+    back = plan.JobRecord.model_validate_json(rec.model_dump_json())
+    assert back.model_dump_json() == rec.model_dump_json() and back.version == plan.JOB_RECORD_VERSION
+    assert back.outputs[0].post.water.preset == post.water.preset
+    data = rec.model_dump(mode="json")
+    with pytest.raises(ValidationError):
+        plan.JobRecord.model_validate({**data, "version": 2})
+    with pytest.raises(ValidationError):
+        plan.JobRecord.model_validate({**data, "extra": 1})
