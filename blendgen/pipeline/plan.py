@@ -30,8 +30,6 @@ from blendgen.config.models import ConfigError, Experiment, ImageFormation, Occl
 INDEX_POOL, INDEX_DOCK, INDEX_MARKER0, INDEX_OBSTACLE0, INDEX_PARTICLES = 1, 2, 10, 100, 250
 #: Version of :class:`JobRecord`, the file a render worker reads.
 JOB_RECORD_VERSION = 1
-#: Irradiance reflectance of the water column below (E_u / E_d; Kirk 2011: 0.02-0.1 in the sea).
-UPWELLING_REFLECTANCE = 0.05
 #: The camera must stay this far (m) in front of the dock's marker plane: no frame from inside the dock.
 MIN_CLEARANCE_M = 0.05
 #: Diffuse sky irradiance as a fraction of the direct sun's on a horizontal plane (clear sky:
@@ -193,11 +191,13 @@ def ambient_radiance(exp: Experiment) -> float:
 
 def sky_radiance(exp: Experiment) -> dict | None:
     """Reference fidelity: a uniform environment (W/m^2/sr, hidden from the camera) standing
-    in for the diffuse light field, attenuated by the medium on its way in: the mean radiance
-    from above, the upwelling ``UPWELLING_REFLECTANCE * E_d0 / pi`` from below."""
+    in for the diffuse light field, the same isotropic-equivalent mean radiance the fast
+    path's ambient term uses (attenuated by the medium on its way in, which the in-water
+    light field is not: a known difference between the fidelities)."""
     if not ambient_on(exp):
         return None
-    return {"upper": ambient_radiance(exp), "lower": UPWELLING_REFLECTANCE * downwelling_irradiance(exp) / math.pi}
+    L = ambient_radiance(exp)
+    return {"upper": L, "lower": L}
 
 
 def object_index_names(markers: list[dict], exp: Experiment) -> dict[str, str]:
