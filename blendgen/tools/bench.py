@@ -99,6 +99,7 @@ def term_costs(dataset: Path) -> pd.DataFrame:
         ("water article", lambda: compose.water_image(passes, art, K, frame["T_world_cam"], markers)),
         ("  of which LED glow", lambda: optics.add_emitter_glow(
             rgb, compose.emissive_mask(passes["index"], markers), passes["range_m"], phys.water, float(K[0, 0]))),
+        ("8-bit sRGB encode only (before: to_uint8)", lambda: sensor.to_uint8(rgb)),
         ("sensor, no noise", lambda: phys.camera.apply(rgb, phys.rng)),
         ("sensor, shot + read noise", lambda: noisy.camera.apply(rgb, noisy.rng)),
         ("sensor, blooming", lambda: bloom.camera.apply(rgb * 20, bloom.rng)),
