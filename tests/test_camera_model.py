@@ -115,3 +115,12 @@ def test_motion_blur_vector_is_the_image_motion_over_the_exposure():
     th = omega * np.array([0, 1, 2, 2]) / 10                   # the last frame repeats the previous motion
     np.testing.assert_allclose(np.abs(flow[:, 0]), fx * (np.tan(th + omega * 0.02) - np.tan(th)), rtol=1e-6)
     np.testing.assert_allclose(flow[:, 1], 0.0, atol=1e-9)
+
+
+@pytest.mark.parametrize("gain", [0.5, 1.0, 3.0])
+def test_noise_free_fast_path_equals_the_electron_path(gain):
+    lin = (np.random.default_rng(2).random((30, 40, 3)) * 3).astype(np.float32)
+    lin[0, 0] = np.nan
+    fast = s.SensorModel(gain=gain, response="linear").apply(lin)
+    slow = s.SensorModel(gain=gain, response="linear", bloom_fraction=1e-30).apply(lin)   # forces electrons()
+    assert np.array_equal(fast, slow)

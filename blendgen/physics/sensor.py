@@ -271,8 +271,14 @@ class SensorModel:
         x = np.asarray(linear, np.float32)
         if velocity_px is not None:
             x = motion_blur(x, velocity_px)
-        y = self.electrons(x, rng)
-        y *= np.float32(self.K / DN_MAX)                                     # y / 255 in [0, gain]
+        if self.noise or self.bloom_fraction > 0:
+            y = self.electrons(x, rng)
+            y *= np.float32(self.K / DN_MAX)                                 # y / 255 in [0, gain]
+        else:                  # noise-free: the same numbers in one pass (the encode clips at 0 and 1)
+            y = x * np.float32(self.responsivity_e_per_s * self.exposure_s * self.K / DN_MAX)
+            np.fmax(y, np.float32(0), out=y)                                 # NaN and negatives -> 0
+            if self.gain < 1:
+                np.minimum(y, np.float32(self.gain), out=y)                  # the full well saturates first
         np.minimum(y, np.float32(1.0), out=y)
         if self.response == "linear":
             v = y * np.float32(DN_MAX)
