@@ -118,3 +118,13 @@ def test_job_record_is_typed_versioned_and_round_trips():
         plan.JobRecord.model_validate({**data, "version": 2})
     with pytest.raises(ValidationError):
         plan.JobRecord.model_validate({**data, "extra": 1})
+
+
+def test_a_path_into_the_dock_fails_before_anything_is_written(tmp_path):
+    from blendgen.config.models import ConfigError
+    from blendgen.pipeline.generate import generate
+    cfg = copy.deepcopy(BASE)
+    cfg["trajectories"] = [{"kind": "linear", "id": "lin", "start_range_m": 3, "end_range_m": 0.5, "speed_mps": 2}]
+    with pytest.raises(ConfigError, match="marker plane"):
+        generate(Experiment.model_validate(cfg), tmp_path / "out", progress=False)
+    assert not (tmp_path / "out").exists()

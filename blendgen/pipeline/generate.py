@@ -100,8 +100,10 @@ def generate_many(items: list[tuple[Experiment, Path]], workers: int | None = No
     trajectories). Returns the manifests in the order of ``items``."""
     if executor not in ex.EXECUTORS:
         raise ex.ExecutorError(f"unknown executor {executor!r}; choose one of {', '.join(ex.EXECUTORS)}")
+    for exp, _ in items:
+        plan.check_paths(exp)                  # user errors before anything is written
     if executor == "ray":
-        ex.require_ray()                       # user errors before anything is written
+        ex.require_ray()
         if ray_address:
             ex.check_ray_address(ray_address)
     with ExitStack() as stack:

@@ -251,6 +251,17 @@ def exposure_flow(exp: Experiment, T_wc: np.ndarray, T_wd: np.ndarray) -> np.nda
     return flow
 
 
+def check_paths(exp: Experiment) -> None:
+    """Raise ConfigError before anything is written if a kinematic path (linear, circle) brings
+    the camera to the dock's marker plane (:func:`until_contact`); docking trials end there."""
+    T_wd = tj.T_world_dock_from_spec(exp.scene.dock)
+    T_bc = tj.T_body_cam_from_spec(exp.camera.T_body_cam)
+    for traj in exp.trajectories:
+        if traj.kind != "docking":
+            smp = tj.sample(traj, T_wd, exp.camera.fps, exp.camera.latency_s, seed=0, fluid=exp.fluid)
+            until_contact(exp, traj, smp.T_world_body @ T_bc, T_wd)
+
+
 def _frames(exp: Experiment, traj, T_wd: np.ndarray, T_body_cam: np.ndarray, seed: int, fluid) -> list[dict]:
     """Camera frames of one path up to contact (:func:`until_contact`); those farther than
     ``render.max_distance_m`` from the marker plane are skipped (they are outside the
