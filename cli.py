@@ -286,6 +286,22 @@ def bench_pnp(trials: int, seed: int, out: Path):
     click.echo(f"\n{len(df)} cells in {time.perf_counter() - t0:.1f} s -> {out / 'pnp.csv'}, {out / 'pnp.png'}")
 
 
+@bench.command("glow")
+@click.option("--samples", type=click.IntRange(1, 65536), default=64, show_default=True)
+@click.option("--size", type=click.IntRange(16, 1024), default=96, show_default=True)
+@click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
+              default=Path("out/bench_glow"), show_default=True)
+def bench_glow(samples: int, size: int, out: Path):
+    """Emitter glow: fast single-scatter PSF vs the Cycles medium (HG g 0.9), mild/moderate x 2/5/8 m."""
+    from blendgen.tools.fidelity import glow_comparison
+    from evalkit.reports.tables import print_table
+    df = glow_comparison(out, size=size, samples=samples)
+    print_table(df, floatfmt=".4g")
+    df.to_csv(out / "glow.csv", index=False)
+    click.echo(f"\n{out / 'glow.csv'} (green channel; EE relative to the unscattered irradiance; "
+               f"max |ratio - 1| = {(df['ratio'] - 1).abs().max():.3f})")
+
+
 @main.command("calibrate-water")
 @_size_options
 @click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
@@ -312,10 +328,12 @@ def calibrate_water(width: int, height: int, ref_samples: int, frames: int, out:
 @click.option("--height", type=click.IntRange(16, 4096), default=240, show_default=True)
 @click.option("--samples", type=click.IntRange(1, 65536), default=4, show_default=True)
 @click.option("--fidelity", type=click.Choice(["fast", "reference"]), default="fast", show_default=True)
-def preview(out: Path, width: int, height: int, samples: int, fidelity: str):
-    """Contact sheet: clear/mild/moderate x depth 0/1/5 m, LED at 5 m and QR at 1 m."""
+@click.option("--mode", type=click.Choice(["physical", "article"]), default="physical", show_default=True,
+              help="image formation")
+def preview(out: Path, width: int, height: int, samples: int, fidelity: str, mode: str):
+    """Contact sheet: clear/mild/moderate x depth 0/1/5 m, camera 8/5/2 m from the dock."""
     from blendgen.tools.preview import make_preview
-    click.echo(f"wrote {make_preview(out, width, height, samples, fidelity)}")
+    click.echo(f"wrote {make_preview(out, width, height, samples, fidelity, mode=mode)}")
 
 
 @main.command("reproduce")
@@ -326,10 +344,13 @@ def preview(out: Path, width: int, height: int, samples: int, fidelity: str):
               default=Path("out/reproduce"), show_default=True)
 @click.option("--workers", type=click.IntRange(1, 256), default=None)
 @click.option("--overwrite", is_flag=True, help="replace a dataset made from an older version of the config")
-def reproduce(name: str, trials: int | None, out: Path, workers: int | None, overwrite: bool):
+@click.option("--mode", type=click.Choice(["physical", "article"]), default=None,
+              help="image formation (default: the paper configs' own)")
+def reproduce(name: str, trials: int | None, out: Path, workers: int | None, overwrite: bool,
+              mode: str | None):
     """Run one of the article's experiments (or all): generate, evaluate, report."""
     from blendgen.tools.reproduce import EXPERIMENTS, reproduce as run
-    for text in run(EXPERIMENTS if name == "all" else (name,), out, trials, workers, overwrite):
+    for text in run(EXPERIMENTS if name == "all" else (name,), out, trials, workers, overwrite, mode):
         click.echo(text)
 
 

@@ -38,7 +38,7 @@ GOOD_CONFIG = {
     "camera": {"width": 32, "height": 24},
     "render": {"samples": 1},
     "scene": {"dock": {"markers": [{"kind": "aruco", "id": "a", "size_m": 0.3}]}},
-    "trajectories": [{"kind": "linear", "id": "lin", "start_range_m": 1.0, "end_range_m": 0.5}],
+    "trajectories": [{"kind": "linear", "id": "lin", "start_range_m": 1.5, "end_range_m": 1.0}],
 }
 
 

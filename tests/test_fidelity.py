@@ -8,6 +8,7 @@ import pytest
 
 from blendgen.tools import fidelity
 
+from blendgen.config.models import Water
 from blendgen.physics import optics
 
 CAL = {"method": "test", "presets": {"moderate": {"B_inf": [0.01, 0.02, 0.03], "Kd": [0.3, 0.3, 0.3],
@@ -45,25 +46,26 @@ def test_srgb_round_trip():
     assert lin[0] == 0 and lin[-1] == pytest.approx(1.0) and np.all(np.diff(lin) > 0)
 
 
-def test_fast_water_uses_calibration_for_bare_presets_only():
-    w, fo = optics.fast_water({"preset": "moderate"}, 3.0, CAL)
-    assert fo["calibrated"] and w.model == "revised" and fo["irradiance"] == 3.0
-    assert np.allclose(w.B_inf, [0.01, 0.02, 0.03]) and np.allclose(w.Kd, 0.3)
-    assert np.allclose(w.c, optics.get_preset("moderate").c)       # c is never calibrated
-    w2, fo2 = optics.fast_water({"preset": "moderate", "calibrated": False}, 3.0, CAL)
-    assert not fo2["calibrated"] and w2.model == "article" and fo2["irradiance"] == 1.0  # colour, as is
-    w3, fo3 = optics.fast_water({"preset": "moderate", "beta": 0.4}, 3.0, CAL)          # not a bare preset
-    assert not fo3["calibrated"]
-    _, fo4 = optics.fast_water({"preset": "jerlov_1C"}, None, CAL)   # physical B_inf: scene sun
-    assert not fo4["calibrated"] and fo4["irradiance"] == optics.DEFAULT_IRRADIANCE
-    assert optics.fast_water({"preset": "moderate", "blur": True}, 3.0, CAL)[1]["blur"]
-    assert not optics.fast_water({"preset": "clear"}, 3.0, CAL)[1]["calibrated"]
-
-
-def test_fast_options_are_validated():
-    with pytest.raises(ValueError, match="calibrated must be true or false"):
-        optics.water_from_config({"preset": "mild", "calibrated": "yes"})
-    assert optics.water_from_config({"preset": "mild", "blur": True}).name == "mild"
+def test_fast_water_veil_per_mode_and_calibration():
+    cal = {**CAL, "sun_elevation_deg": 30.0}
+    w, fo = optics.fast_water(Water(preset="moderate", calibrated=True), "physical", 3.0, cal)
+    assert fo["calibrated"] and fo["irradiance"] == 3.0
+    assert np.allclose(w.B_inf, np.array([0.01, 0.02, 0.03]) / 0.5)    # per unit sun -> per unit E_d
+    assert np.allclose(w.c, optics.get_preset("moderate").c)           # c is never calibrated
+    assert np.allclose(w.Kd, optics.get_preset("jerlov_1C").Kd)        # physical: moderate -> Jerlov 1C Kd
+    w2, fo2 = optics.fast_water(Water(preset="moderate"), "physical", 3.0, cal)    # default: light field
+    assert not fo2["calibrated"]
+    assert np.allclose(w2.B_inf, w2.albedo / (4 * np.pi * optics.MEAN_COSINE_DOWN))
+    w3, fo3 = optics.fast_water(Water(preset="moderate", beta=0.4, calibrated=True), "physical", 3.0, cal)
+    assert not fo3["calibrated"]                                       # not a bare preset
+    w4, fo4 = optics.fast_water(Water(preset="moderate"), "article", 3.0, cal)
+    assert fo4["irradiance"] == 1.0 and np.allclose(w4.B_inf, optics.get_preset("moderate").B_inf)
+    w5, _ = optics.fast_water(Water(preset="jerlov_1C"), "article", 2.0)   # colour = physical veil x E_d
+    assert np.allclose(w5.B_inf, 2.0 * optics.light_field_veil(optics.get_preset("jerlov_1C")))
+    assert optics.fast_water(Water(preset="moderate", blur=True), "physical", 3.0)[1]["blur"]
+    assert not np.any(optics.fast_water(Water(preset="clear"), "article", 3.0)[0].c)
+    clear = optics.fast_water(Water(preset="clear"), "physical", 3.0)[0]        # physical clear: Jerlov I
+    assert np.allclose(clear.c, optics.get_preset("jerlov_I").c)
 
 
 def test_shipped_calibration_file_is_consistent():
@@ -106,4 +108,4 @@ def test_calibration_and_preview_render_tiny(tmp_path):
     import cv2
     p = preview.make_preview(tmp_path / "sheet.png", 48, 36, 1)
     img = cv2.imread(str(p))
-    assert img.shape == (22 + 3 * 36, 6 * 48, 3)
+    assert img.shape == (22 + 3 * 36, 9 * 48, 3)

@@ -7,13 +7,19 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
+from pydantic import ValidationError
+
+from blendgen.config.models import Water
 from blendgen.physics import optics as o
 
 
-def _water(c, B=(0.1, 0.3, 0.25), Kd=(0.3, 0.1, 0.05), albedo=0.5, model="revised"):
+def _water(c, B=(0.1, 0.3, 0.25), Kd=(0.3, 0.1, 0.05), albedo=0.5):
     c = np.broadcast_to(np.asarray(c, float), (3,))
-    return o.WaterOptics(name="t", sigma_a=(1 - albedo) * c, sigma_s=albedo * c, Kd=Kd,
-                         B_inf=B, g=0.9, model=model)
+    return o.WaterOptics(name="t", sigma_a=(1 - albedo) * c, sigma_s=albedo * c, Kd=Kd, B_inf=B, g=0.9)
+
+
+def _cfg(**kw):
+    return o.water_optics(Water(**kw))
 
 
 def _scene(dtype=np.float32, h=24, w=32, seed=0):
@@ -52,7 +58,6 @@ def test_article_presets_mapping():
     for name, beta in (("clear", 0.0), ("mild", 0.2), ("moderate", 0.5)):
         w = o.get_preset(name)
         np.testing.assert_allclose(w.c, beta, atol=1e-12)
-        assert w.model == "article"
         np.testing.assert_allclose(w.Kd, 0.2)
     w = o.get_preset("moderate")
     # albedo proportional to the water colour, max 0.8
@@ -95,43 +100,42 @@ def test_phase_functions_normalised():
 # --------------------------------------------------------------------------- config
 
 def test_config_preset_and_overrides():
-    assert o.water_from_config({"preset": "mild"}).name == "mild"
-    w = o.water_from_config({"preset": "mild", "k": 0.7})
+    assert _cfg(preset="mild").name == "mild"
+    w = _cfg(preset="mild", k=0.7)
     np.testing.assert_allclose(w.Kd, 0.7)
     np.testing.assert_allclose(w.c, 0.2)
-    w = o.water_from_config({"preset": "Jerlov II"})
-    assert w.name == "jerlov_II" and w.model == "revised"
-    w = o.water_from_config({"sigma_a": [0.1, 0.05, 0.02], "sigma_s": 0.2, "g": 0.8,
-                             "B_inf": [0.01, 0.02, 0.03], "Kd": [0.3, 0.1, 0.05]})
+    w = _cfg(preset="Jerlov II")
+    assert w.name == "jerlov_II"
+    w = _cfg(sigma_a=[0.1, 0.05, 0.02], sigma_s=0.2, g=0.8, B_inf=[0.01, 0.02, 0.03], Kd=[0.3, 0.1, 0.05])
     np.testing.assert_allclose(w.c, [0.3, 0.25, 0.22])
-    assert w.model == "revised" and w.g == 0.8
-    w = o.water_from_config({"beta": [0.1, 0.2, 0.3], "water_color": [0.1, 0.5, 0.4]})
+    assert w.g == 0.8 and w.name == "clear+custom"
+    w = _cfg(beta=[0.1, 0.2, 0.3], water_color=[0.1, 0.5, 0.4])
     np.testing.assert_allclose(w.c, [0.1, 0.2, 0.3])
     np.testing.assert_allclose(w.B_inf, [0.1, 0.5, 0.4])
-    assert o.water_from_config({"preset": "clear"}).is_clear
+    assert _cfg(preset="clear").is_clear
     for name in ("jerlov_1C", "mild"):                     # to_dict round-trips
         w0 = o.get_preset(name)
-        w2 = o.water_from_config(w0.to_dict())
-        assert w2.to_dict() == w0.to_dict()
+        assert o.WaterOptics(**w0.to_dict()).to_dict() == w0.to_dict()
 
 
 @pytest.mark.parametrize("cfg, fragment", [
     ({"preset": "murky"}, "unknown water preset"),
-    ({"sigma_a": [6, 0, 0]}, "[0, 5]"),
-    ({"sigma_s": -0.1}, "[0, 5]"),
-    ({"g": 1.0}, "(-1, 1)"),
-    ({"g": -1.0}, "(-1, 1)"),
-    ({"beta": float("nan")}, "[0, 5]"),
-    ({"water_color": [0, 2, 0]}, "[0, 1]"),
-    ({"sigma_s": [1, 2]}, "3 numbers"),
-    ({"colour": 1}, "unknown water key"),
+    ({"sigma_a": [6, 0, 0]}, "less than or equal to 5"),
+    ({"sigma_s": -0.1}, "greater than or equal to 0"),
+    ({"g": 1.0}, "less than 1"),
+    ({"g": -1.0}, "greater than -1"),
+    ({"beta": float("nan")}, "finite number"),
+    ({"water_color": [0, 2, 0]}, "less than or equal to 1"),
+    ({"sigma_s": [1, 2]}, "at least 3 items"),
+    ({"colour": 1}, "Extra inputs are not permitted"),
     ({"k": 0.1, "Kd": 0.1}, "not both"),
     ({"preset": "jerlov_II", "beta": 0.1}, "article presets"),
-    ({"model": "fancy"}, "model"),
+    ({"model": "article"}, "Extra inputs are not permitted"),   # the mode is image_formation now
+    ({"calibrated": "maybe"}, "valid boolean"),
 ])
 def test_config_errors(cfg, fragment):
-    with pytest.raises(ValueError) as e:
-        o.water_from_config(cfg)
+    with pytest.raises(ValidationError) as e:
+        Water(**cfg)
     assert fragment in str(e.value)
 
 
@@ -158,24 +162,25 @@ def test_article_form_and_emissive():
     em = np.zeros(r.shape, bool)
     em[5:8, 5:8] = True
     depth = 4.0
-    out = o.apply_water(J, r, em, w, depth)              # preset default: article form
+    out = o.apply_water(J, r, em, w, depth, model="article")
     wgt = 1 - np.exp(-0.5 * r[..., None])
-    dim = np.where(em[..., None], 1.0, math.exp(-0.2 * depth))
-    expected = (1 - wgt) * J * dim + wgt * w.B_inf
+    expected = ((1 - wgt) * J + wgt * w.B_inf) * math.exp(-0.2 * depth)   # every pixel, LEDs too
     np.testing.assert_allclose(out, expected, rtol=1e-12, atol=1e-15)
-    rev = o.apply_water(J, r, em, w, depth, model="revised")
-    np.testing.assert_allclose(rev[0, :5], np.broadcast_to(w.B_inf * math.exp(-0.8), (5, 3)))
+    phys = o.apply_water(J, r, em, w, depth, model="physical")
+    np.testing.assert_allclose(phys[0, :5], np.broadcast_to(w.B_inf * math.exp(-0.8), (5, 3)))
+    t = np.exp(-0.5 * r[5:8, 5:8, None])                  # emitters: only their own path
+    np.testing.assert_allclose(phys[5:8, 5:8], J[5:8, 5:8] * t + w.B_inf * math.exp(-0.8) * (1 - t))
 
 
 def test_per_pixel_depth_and_irradiance():
     J, r = _scene(np.float64)
     w = _water([0.3, 0.2, 0.1])
     depth = np.linspace(0, 5, r.size).reshape(r.shape)
-    out = o.apply_water(J, r, None, w, depth, irradiance=3.0)
+    out = o.apply_water(J, r, None, w, depth, irradiance=3.0, veil_depth_m=2.0)
     D = np.exp(-w.Kd * depth[..., None])
     t = np.exp(-w.c * r[..., None])
-    np.testing.assert_allclose(out, J * D * t + 3.0 * w.B_inf * D * (1 - t), rtol=1e-12,
-                               atol=1e-15)
+    veil = 3.0 * w.B_inf * np.exp(-w.Kd * 2.0)            # the veil dims with the camera's depth
+    np.testing.assert_allclose(out, J * D * t + veil * (1 - t), rtol=1e-12, atol=1e-15)
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])

@@ -49,8 +49,9 @@ def test_image_space_mask_matches_real_spheres(pair):
     man = json.loads((root / "manifest.json").read_text())
     K = np.array(man["camera"]["K"])
     seq = man["sequences"][0]
-    post = json.loads(next((pair["image"] / ".work" / "jobs").glob("*.json")).read_text())["outputs"][0]["post"]
-    state = postprocess.SequenceState.start(post)
+    from blendgen.pipeline.plan import JobRecord
+    job = JobRecord.model_validate_json(next((pair["image"] / ".work" / "jobs").glob("*.json")).read_text())
+    state = postprocess.SequenceState.start(job.outputs[0].post)
     ious = []
     for line in (root / seq["path"] / "frames.jsonl").read_text().splitlines():
         f = json.loads(line)

@@ -27,7 +27,7 @@ def test_image_space_conditions_and_kinematic_trials_share_one_render():
                          {"label": "deep", "dock_water_depth_m": 5}, {"label": "occ", "occlusion": {"n_total": 6000}}]
     exp, jobs = jobs_for(cfg)
     assert len(jobs) == 1 and len(jobs[0].sequences) == 12
-    seeds = {s.post["seed"] for s in jobs[0].sequences}
+    seeds = {s.post.seed for s in jobs[0].sequences}
     assert len(seeds) == 3  # one random stream per trial, shared by its conditions (paired comparisons)
 
 
@@ -46,19 +46,27 @@ def test_docking_trials_render_once_per_trial_and_per_fluid():
 
 
 def test_reference_fidelity_renders_each_water_and_skips_clear_volume():
+    from blendgen.physics import optics
+    cfg = copy.deepcopy(BASE)
+    cfg["image_formation"] = "article"
+    cfg["render"] = {"fidelity": "reference"}
+    cfg["conditions"] = [{"label": "clear"}, {"label": "mild", "water": {"preset": "mild"}}]
+    _, jobs = jobs_for(cfg)
+    assert {j.sequences[0].condition: j.scene["water_volume"] for j in jobs}["clear"] is None   # no water
     cfg = copy.deepcopy(BASE)
     cfg["render"] = {"fidelity": "reference"}
     cfg["conditions"] = [{"label": "clear"}, {"label": "mild", "water": {"preset": "mild"}}]
     _, jobs = jobs_for(cfg)
     vols = {j.sequences[0].condition: j.scene["water_volume"] for j in jobs}
-    assert vols["clear"] is None and vols["mild"]["box_max"][2] == pytest.approx(0.0)
+    assert vols["clear"]["sigma_a"] == pytest.approx(optics.get_preset("jerlov_I").sigma_a.tolist())  # physical
+    assert vols["mild"]["box_max"][2] == pytest.approx(0.0)
 
 
 def test_occlusion_region_defaults_to_the_600_m3_pool():
     cfg = copy.deepcopy(BASE)
     cfg["occlusion"] = {"n_total": 600}
     exp, jobs = jobs_for(cfg)
-    occ = jobs[0].sequences[0].post["occlusion"]
+    occ = jobs[0].sequences[0].post.occlusion.model_dump()
     vol = np.prod(np.subtract(occ["region_max"], occ["region_min"]))
     assert vol == pytest.approx(600.0)
 
@@ -74,3 +82,49 @@ def test_frames_beyond_the_evaluation_window_are_not_rendered():
     cfg["render"] = {"max_distance_m": None}
     _, jobs = jobs_for(cfg)
     assert [f["index"] for f in jobs[0].frames] == list(range(61))
+
+
+def test_no_frame_from_inside_the_dock():
+    """A kinematic approach through the marker plane is a config error naming the fix; a docking
+    trial ends at contact: every frame keeps the camera in front of the face (d_true > 0 is exact)."""
+    from blendgen.config.models import ConfigError
+    cfg = copy.deepcopy(BASE)
+    cfg["trajectories"] = [{"kind": "linear", "id": "lin", "start_range_m": 3, "end_range_m": 0.5, "speed_mps": 2}]
+    with pytest.raises(ConfigError, match=r"'lin'.*end_range_m must be >= 0.70"):
+        jobs_for(cfg)
+    cfg["trajectories"] = [{"kind": "docking", "id": "d", "start": {"range_m": [2.0, 2.5]}, "max_time_s": 20}]
+    exp, jobs = jobs_for(cfg)
+    T_wd = np.asarray(jobs[0].scene["dock"]["T_world_dock"])
+    z = [(np.linalg.inv(T_wd) @ np.asarray(f["T_world_cam"])[:, 3])[2] for f in jobs[0].frames]
+    assert min(z) >= plan.MIN_CLEARANCE_M and len(z) > 5
+
+
+def test_job_record_is_typed_versioned_and_round_trips():
+    """The worker's job file: written by generate, parsed once by the worker; a record of
+    another version or with unknown keys is refused."""
+    from pydantic import ValidationError
+    exp, jobs = jobs_for(copy.deepcopy(BASE))
+    post = jobs[0].sequences[0].post
+    rec = plan.JobRecord(scene=jobs[0].scene, fidelity="fast", render=plan.render_settings(exp, 1),
+                         frames=jobs[0].frames,
+                         camera=plan.JobCamera(width=64, height=48, hfov_rad=1.0, K=np.eye(3).tolist()),
+                         gt=plan.JobTruth(T_world_dock=np.eye(4).tolist(), markers=[]),
+                         outputs=[plan.JobOutput(seq_dir="/tmp/x", rel="sequences/x", post=post)])
+    back = plan.JobRecord.model_validate_json(rec.model_dump_json())
+    assert back.model_dump_json() == rec.model_dump_json() and back.version == plan.JOB_RECORD_VERSION
+    assert back.outputs[0].post.water.preset == post.water.preset
+    data = rec.model_dump(mode="json")
+    with pytest.raises(ValidationError):
+        plan.JobRecord.model_validate({**data, "version": 2})
+    with pytest.raises(ValidationError):
+        plan.JobRecord.model_validate({**data, "extra": 1})
+
+
+def test_a_path_into_the_dock_fails_before_anything_is_written(tmp_path):
+    from blendgen.config.models import ConfigError
+    from blendgen.pipeline.generate import generate
+    cfg = copy.deepcopy(BASE)
+    cfg["trajectories"] = [{"kind": "linear", "id": "lin", "start_range_m": 3, "end_range_m": 0.5, "speed_mps": 2}]
+    with pytest.raises(ConfigError, match="marker plane"):
+        generate(Experiment.model_validate(cfg), tmp_path / "out", progress=False)
+    assert not (tmp_path / "out").exists()

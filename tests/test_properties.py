@@ -75,10 +75,9 @@ def test_e_rel_defined_exactly_above_d_min_rel(d_min_rel, d_true, d_est):
 
 
 # ------------------------------------------------------------------ optics
-def _water(beta, B, model):
+def _water(beta, B, model=None):
     c = np.full(3, beta)
-    return o.WaterOptics(name="t", sigma_a=0.5 * c, sigma_s=0.5 * c, Kd=(0.3, 0.1, 0.05), B_inf=B,
-                         g=0.9, model=model)
+    return o.WaterOptics(name="t", sigma_a=0.5 * c, sigma_s=0.5 * c, Kd=(0.3, 0.1, 0.05), B_inf=B, g=0.9)
 
 
 @given(beta=st.lists(st.floats(0.0, 5.0), min_size=2, max_size=6),
@@ -93,7 +92,7 @@ def test_optics_monotone_vectorised(beta, rng_m, j, b, dtype, model):
     eps = 8 * float(np.finfo(dtype).eps)
     prev = None
     for be in sorted(beta):
-        out = o.apply_water(J, r, None, _water(be, (b, b, b), model), 0.0)
+        out = o.apply_water(J, r, None, _water(be, (b, b, b)), 0.0, model=model)
         assert out.dtype == dtype and np.isfinite(out).all()
         dist = np.abs(out[0, :, 0].astype(np.float64) - b)       # distance to B_inf (depth 0: D = 1)
         assert np.all(np.diff(dist) <= eps)                      # farther -> closer to B
@@ -107,7 +106,7 @@ def test_optics_monotone_vectorised(beta, rng_m, j, b, dtype, model):
        st.sampled_from([np.float32, np.float64]))
 def test_transmittance_bounded_and_exact_at_zero_range(beta, rng_m, dtype):
     r = np.asarray([[0.0] + list(rng_m) + [np.inf, np.nan]], dtype)
-    t = o.transmittance(_water(beta, (0.1, 0.1, 0.1), "revised"), r, dtype)
+    t = o.transmittance(_water(beta, (0.1, 0.1, 0.1)), r, dtype)
     assert t.dtype == dtype and np.isfinite(t).all()
     assert np.all((t >= 0) & (t <= 1)) and np.all(t[0, 0] == 1)
     if beta == 0:

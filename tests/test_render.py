@@ -33,7 +33,7 @@ TINY = {
     "render": {"fidelity": "fast", "samples": 4},
     "water": {"preset": "clear"},
     "trajectories": [
-        {"kind": "linear", "id": "near", "start_range_m": 2.2, "end_range_m": 0.6, "speed_mps": 2.0,
+        {"kind": "linear", "id": "near", "start_range_m": 2.2, "end_range_m": 0.75, "speed_mps": 2.0,
          "lateral_m": 0.1, "vertical_m": 0.05},
         {"kind": "circle", "id": "arc", "radius_m": 1.5, "start_deg": -35, "end_deg": 35, "speed_mps": 2.5},
     ],

@@ -32,7 +32,7 @@ TINY = {
     "trajectories": [
         {"kind": "linear", "id": "a", "start_range_m": 3.0, "end_range_m": 1.0, "speed_mps": 2.0},
         {"kind": "linear", "id": "b", "start_range_m": 2.5, "end_range_m": 0.8, "speed_mps": 2.0, "lateral_m": 0.2},
-        {"kind": "linear", "id": "c", "start_range_m": 2.0, "end_range_m": 0.6, "speed_mps": 2.0, "vertical_m": 0.1},
+        {"kind": "linear", "id": "c", "start_range_m": 2.0, "end_range_m": 0.75, "speed_mps": 2.0, "vertical_m": 0.1},
         {"kind": "circle", "id": "d", "radius_m": 1.5, "start_deg": -20, "end_deg": 20, "speed_mps": 2.0},
     ],
 }

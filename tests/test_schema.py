@@ -133,7 +133,7 @@ def _writer_dataset(tmp_path: Path, n_frames: int = 3) -> Path:
             rec = pp.frame_record(fr, T_wd, markers, K, W, H, passes["index"])
             for s, d, fh, st in handles:
                 seen, occluded = pp.add_particles(passes, st, K, fr["T_world_cam"])
-                img = pp.camera_image(seen, s.post, K, markers, st.rng, exp.render.fidelity, occluded)
+                img = pp.camera_image(seen, st, K, fr, markers, exp.render.fidelity, occluded)
                 paths = pp.write_frame_files(d, f"sequences/{s.id}", fr["index"], img, passes, True, True)
                 fh.write(json.dumps({**rec, **paths}) + "\n")
                 st.advance()

@@ -90,3 +90,30 @@ def world_color(world: bpy.types.World, color) -> None:
     bg.inputs["Color"].default_value = (*color, 1.0)
     bg.inputs["Strength"].default_value = 1.0
     nt.links.new(bg.outputs["Background"], out.inputs["Surface"])
+
+
+def world_sky(world: bpy.types.World, upper: float, lower: float) -> None:
+    """Uniform grey environment hidden from the camera: radiance ``upper`` (W/m^2/sr) from
+    directions above the horizon (diffuse sky and in-water scattered light), ``lower`` from
+    below (upwelling). Lights every surface a few bounces can reach; camera rays that hit
+    nothing still return 0 (the water model paints those)."""
+    nt = world.node_tree
+    for n in list(nt.nodes):
+        nt.nodes.remove(n)
+    out = nt.nodes.new("ShaderNodeOutputWorld")
+    coord = nt.nodes.new("ShaderNodeTexCoord")
+    sep = nt.nodes.new("ShaderNodeSeparateXYZ")
+    above = nt.nodes.new("ShaderNodeMath")
+    above.operation = "GREATER_THAN"
+    above.inputs[1].default_value = 0.0
+    mix = nt.nodes.new("ShaderNodeMapRange")           # 0 -> lower, 1 -> upper
+    mix.inputs["To Min"].default_value = float(lower)
+    mix.inputs["To Max"].default_value = float(upper)
+    bg = nt.nodes.new("ShaderNodeBackground")
+    nt.links.new(coord.outputs["Generated"], sep.inputs["Vector"])
+    nt.links.new(sep.outputs["Z"], above.inputs[0])
+    nt.links.new(above.outputs["Value"], mix.inputs["Value"])
+    nt.links.new(mix.outputs["Result"], bg.inputs["Strength"])
+    bg.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+    nt.links.new(bg.outputs["Background"], out.inputs["Surface"])
+    world.cycles_visibility.camera = False

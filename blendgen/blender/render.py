@@ -48,6 +48,8 @@ def setup_cycles(scene: bpy.types.Scene, r: dict) -> None:
     cy.use_adaptive_sampling = False
     cy.use_denoising = False
     cy.max_bounces = int(r.get("max_bounces", 0))
+    cy.diffuse_bounces = int(r.get("diffuse_bounces", 0))      # light that bounces off walls and floor
+    cy.glossy_bounces = cy.transmission_bounces = 0
     cy.volume_bounces = int(r.get("volume_bounces", 0))
     cy.caustics_reflective = cy.caustics_refractive = False
     cy.seed = int(r.get("seed", 0))
@@ -65,6 +67,7 @@ def setup_cycles(scene: bpy.types.Scene, r: dict) -> None:
     vl = scene.view_layers[0]
     vl.use_pass_z = True
     vl.use_pass_object_index = True
+    vl.use_pass_diffuse_color = bool(r.get("albedo_pass"))    # the ambient term's albedo
     s = scene.render.image_settings
     s.media_type = "MULTI_LAYER_IMAGE"
     s.file_format = "OPEN_EXR_MULTILAYER"
@@ -95,6 +98,8 @@ def read_passes(path: str) -> dict:
                 out["depth_z"] = np.where(z > NO_SURFACE_Z, np.inf, z).astype(np.float32)
             elif any(n.endswith("Object Index.X") for n in names):
                 out["index"] = np.rint(px[:, :, 0]).clip(0, 255).astype(np.uint8)
+            elif any(n.endswith(("DiffCol.R", "Diffuse Color.R")) for n in names):
+                out["albedo"] = np.ascontiguousarray(px[:, :, :3], dtype=np.float32)
             sub += 1
     finally:
         inp.close()
@@ -132,9 +137,9 @@ def _border(scene: bpy.types.Scene, box, width: int, height: int) -> None:
 def _upsample(passes: dict, width: int, height: int) -> dict:
     """Background passes to full size: colour bilinear, depth and index nearest."""
     import cv2
-    return {"rgb": cv2.resize(passes["rgb"], (width, height), interpolation=cv2.INTER_LINEAR),
-            "depth_z": cv2.resize(passes["depth_z"], (width, height), interpolation=cv2.INTER_NEAREST),
-            "index": cv2.resize(passes["index"], (width, height), interpolation=cv2.INTER_NEAREST)}
+    linear = {"rgb", "albedo"}
+    return {k: cv2.resize(v, (width, height), interpolation=cv2.INTER_LINEAR if k in linear else cv2.INTER_NEAREST)
+            for k, v in passes.items()}
 
 
 def render_roi_frame(scene: bpy.types.Scene, cam_obj: bpy.types.Object, frame: dict, cfg: dict,

@@ -153,7 +153,11 @@ def build(desc: dict) -> bpy.types.Scene:
     scene = reset()
     world = bpy.data.worlds.new("water")
     scene.world = world
-    materials.world_color(world, desc["world_color"])
+    sky = desc.get("sky")
+    if sky:       # reference fidelity: the diffuse light field as a hidden environment
+        materials.world_sky(world, sky["upper"], sky["lower"])
+    else:
+        materials.world_color(world, desc["world_color"])
     if desc.get("pool"):
         add_pool(desc["pool"], desc["object_index"]["pool"])
     add_dock(desc["dock"], desc["object_index"]["dock"])

@@ -44,10 +44,10 @@ class _FramesFile:
         pass
 
 
-def _open_outputs(job: dict) -> list[tuple[dict, Path, object]]:
+def _open_outputs(job) -> list[tuple[object, Path, object]]:
     outs = []
-    for o in job["outputs"]:
-        d = Path(o["seq_dir"])
+    for o in job.outputs:
+        d = Path(o.seq_dir)
         for sub in ("rgb", "depth", "index"):
             (d / sub).mkdir(parents=True, exist_ok=True)
         outs.append((o, d, _FramesFile(d / "frames.jsonl")))
@@ -66,51 +66,52 @@ class _Geo:
 def _geometry_particles(job: dict, states: list):
     """Real-geometry particles of this job (validation mode), driven by the same seeded
     field as the image-space model; returns (mover, state) or None."""
-    p = job["scene"].get("particles")
+    p = job.scene.get("particles")
     if not p:
         return None
-    from blendgen.pipeline import compose as pp
+    from blendgen.pipeline import compose as pp, plan
     from blendgen.blender import particles
     st = next((s for s in states if s.field is not None), None) or pp.SequenceState.start(
-        {"seed": p["seed"], "fps": p["fps"], "occlusion": p})
+        states[0].post.model_copy(update={"seed": p["seed"], "fps": p["fps"], "occlusion": plan.OcclusionPost(
+            **{k: v for k, v in p.items() if k not in ("seed", "fps", "object_index")})}))
     return _Geo(particles.add_particles(st.field.positions, st.field.radii, p["object_index"])), st
 
 
-def run(job: dict) -> dict:
-    """Render the job; returns timing figures (s) per stage."""
+def run(job) -> dict:
+    """Render the job (a ``plan.JobRecord``); returns timing figures (s) per stage."""
     from blendgen.pipeline import compose as pp
     from blendgen.blender import render, scene as scn
 
     t0 = time.perf_counter()
-    sc = scn.build(job["scene"])
-    cam = render.setup_camera(sc, job["camera"])
-    render.setup_cycles(sc, job["render"])
-    K = np.asarray(job["camera"]["K"], float)
-    W, H = job["camera"]["width"], job["camera"]["height"]
-    T_wd = np.asarray(job["gt"]["T_world_dock"], float)
-    markers = job["gt"]["markers"]
+    sc = scn.build(job.scene)
+    cam = render.setup_camera(sc, job.camera.model_dump())
+    render.setup_cycles(sc, job.render)
+    K = np.asarray(job.camera.K, float)
+    W, H = job.camera.width, job.camera.height
+    T_wd = np.asarray(job.gt.T_world_dock, float)
+    markers = job.gt.markers
     outs = _open_outputs(job)
-    states = [pp.SequenceState.start(o["post"]) for o, _, _ in outs]
+    states = [pp.SequenceState.start(o.post) for o, _, _ in outs]
     exr = os.path.join(render.scratch_dir(), f"dockbench-{os.getpid()}.exr")
     geo = _geometry_particles(job, states)
     # "render" includes reading the EXR passes back (the ROI path reads two renders);
     # "depth_to_range" turns the planar depth pass into range along each ray
     times = {"scene_build": time.perf_counter() - t0, "render": [], "depth_to_range": [], "post_write": []}
     try:
-        for fr in job["frames"]:
+        for fr in job.frames:
             t1 = time.perf_counter()
             if geo is not None:
                 geo[0].move(geo[1].field.positions)
-            raw = render.render_roi_frame(sc, cam, fr, job["render"], W, H, exr)
+            raw = render.render_roi_frame(sc, cam, fr, job.render, W, H, exr)
             t2 = time.perf_counter()
-            passes = pp.add_range(raw, K)
+            passes = pp.add_ambient(pp.add_range(raw, K), job.render.get("ambient_radiance", 0.0))
             t3 = time.perf_counter()
             rec = pp.frame_record(fr, T_wd, markers, K, W, H, passes["index"])
             for (o, d, fh), st in zip(outs, states):
                 seen, occluded = pp.add_particles(passes, st, K, fr["T_world_cam"])
-                img = pp.camera_image(seen, o["post"], K, markers, st.rng, job["fidelity"], occluded)
-                paths = pp.write_frame_files(d, o["rel"], fr["index"], img, passes,
-                                             job["render"]["write_depth"], job["render"]["write_index"])
+                img = pp.camera_image(seen, st, K, fr, markers, job.fidelity, occluded)
+                paths = pp.write_frame_files(d, o.rel, fr["index"], img, pp.output_passes(passes, K, o.post.distortion),
+                                             job.render["write_depth"], job.render["write_index"])
                 r = rec if occluded is None else pp.with_visibility(rec, markers, K, passes["index"], occluded)
                 fh.write(json.dumps({**r, **paths}) + "\n")
                 fh.flush()
@@ -129,11 +130,12 @@ def run(job: dict) -> dict:
 
 
 def main(argv: list[str]) -> int:
-    job_path = Path(argv[1])
-    job = json.loads(job_path.read_text())
-    _quiet_stdout(job.get("log", os.devnull))
+    from blendgen.pipeline.plan import JobRecord
+    job = JobRecord.model_validate_json(Path(argv[1]).read_text())   # parsed once, typed from here on
+    _quiet_stdout(job.log or os.devnull)
     times = run(job)
-    Path(job["timing_out"]).write_text(json.dumps(times)) if job.get("timing_out") else None
+    if job.timing_out:
+        Path(job.timing_out).write_text(json.dumps(times))
     return 0
 
 

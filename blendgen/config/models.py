@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Annotated, Any, Literal, Optional, Union
 
 import yaml
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from blendgen.config.bundled import bundled_dir, bundled_names
 
@@ -197,6 +197,35 @@ class Scene(Strict):
     fill_strength: float = Field(0.0, ge=0.0, le=1000.0,
                                  description="horizontal fill light (W/m^2); > 0 adds light-selection "
                                              "noise at few samples (Cycles samples one light per path)")
+    sky_fraction: Optional[float] = Field(
+        None, ge=0.0, le=10.0,
+        description="diffuse sky irradiance on a horizontal surface as a fraction of the sun's; "
+                    "null: 0.25 in physical mode, 0 in article mode")
+    ambient: Optional[bool] = Field(
+        None, description="light of the water's diffuse light field on every surface (no black shadows); "
+                          "null: on in physical mode, off in article mode")
+
+
+class Sensor(Strict):
+    """The camera's sensor (EMVA 1288 photon-transfer model, OPTICS.md): radiance -> electrons
+    over the exposure -> saturation at the full well -> digital numbers with system gain
+    ``K = gain * 255 / full_well_e`` DN/e- -> response curve -> 8 bits."""
+    exposure_s: float = Field(0.01, gt=0.0, le=1.0, description="exposure time (s)")
+    responsivity_e_per_s: float = Field(
+        1e6, gt=0.0, le=1e12, description="electrons per second per unit linear radiance of the render "
+                                          "(quantum efficiency, aperture and pixel area folded in); 1e6 "
+                                          "fills a 10000 e- well at radiance 1 in 10 ms")
+    full_well_e: float = Field(10000.0, ge=100.0, le=1e7, description="saturation capacity (electrons)")
+    read_noise_e: float = Field(3.0, ge=0.0, le=1000.0, description="temporal dark noise (electrons rms)")
+    gain: float = Field(1.0, gt=0.0, le=1000.0, description="analog gain (1: the full well is 255 DN)")
+    noise: Optional[bool] = Field(None, description="shot and read noise; null: on in physical mode, off in "
+                                                    "article mode (which uses noise_std only)")
+    response: Literal["srgb", "linear"] = Field("srgb", description="response curve to 8 bits")
+    bloom_fraction: float = Field(0.0, ge=0.0, le=1.0,
+                                  description="share of the charge above the full well that spills into "
+                                              "neighbouring pixels (0: perfect anti-blooming drain)")
+    bloom_sigma_px: float = Field(2.0, gt=0.0, le=50.0, description="spread of the spilled charge (px)")
+    motion_blur: bool = Field(False, description="blur by the camera's motion over the exposure")
 
 
 class Camera(Strict):
@@ -208,6 +237,7 @@ class Camera(Strict):
     T_body_cam: Pose = Pose(xyz=[0.65, 0.0, 0.0])
     distortion: Optional[Annotated[list[float], Field(min_length=5, max_length=5)]] = None
     noise_std: float = Field(0.0, ge=0.0, le=256.0, description="Gaussian noise std in 8-bit units")
+    sensor: Sensor = Sensor()
 
 
 class Render(Strict):
@@ -215,6 +245,8 @@ class Render(Strict):
     samples: int = Field(4, ge=1, le=65536)
     reference_samples: int = Field(64, ge=1, le=65536)
     threads: int = Field(0, ge=0, le=256, description="Cycles threads per worker; 0 = cores / workers")
+    diffuse_bounces: int = Field(0, ge=0, le=16,
+                                 description="Cycles diffuse bounces (interreflection; noisy at few samples)")
     write_depth: bool = True
     write_index: bool = True
     roi: bool = Field(True, description="fast fidelity: full samples only in the dock's image region")
@@ -225,9 +257,71 @@ class Render(Strict):
                                                         "(evaluation counts d_true <= 10 m); null renders all")
 
 
+Coef = Annotated[float, Field(ge=0.0, le=5.0)]
+Coef3 = Union[Coef, Annotated[list[Coef], Field(min_length=3, max_length=3)]]
+Unit = Annotated[float, Field(ge=0.0, le=1.0)]
+Unit3 = Union[Unit, Annotated[list[Unit], Field(min_length=3, max_length=3)]]
+Veil = Annotated[float, Field(ge=0.0, le=10.0)]
+Veil3 = Union[Veil, Annotated[list[Veil], Field(min_length=3, max_length=3)]]
+
+#: The two image-formation modes (OPTICS.md): ``physical`` (what water and light do) and
+#: ``article`` (the article's formulas: blend toward the water colour with
+#: ``w = 1 - exp(-beta d)``, every pixel scaled by ``exp(-k depth)``).
+ImageFormation = Literal["physical", "article"]
+
+
 class Water(Strict):
-    model_config = ConfigDict(extra="allow")
-    preset: Optional[str] = "clear"
+    """Water optics of a condition: a named preset plus typed overrides.
+
+    A number for a per-channel coefficient means the same value in R, G and B.
+    Coefficients are 1/m in [0, 5]; ``water_color`` linear RGB in [0, 1]; ``B_inf``
+    veiling light per unit downwelling irradiance in [0, 10]. The article's shorthand
+    ``beta`` (optional ``albedo``) applies to the article presets only."""
+    preset: str = Field("clear", description="clear | mild | moderate | jerlov_<I..9C>")
+    name: Optional[str] = Field(None, max_length=64)
+    provenance: Optional[str] = Field(None, max_length=500)
+    beta: Optional[Coef3] = Field(None, description="article: beam attenuation c = beta (1/m)")
+    albedo: Optional[Unit3] = Field(None, description="article: single-scattering albedo b/c")
+    water_color: Optional[Unit3] = Field(None, description="veiling-light colour (linear RGB)")
+    k: Optional[Coef3] = Field(None, description="depth-light coefficient (1/m), the article's k")
+    Kd: Optional[Coef3] = Field(None, description="diffuse attenuation of downwelling light (1/m)")
+    sigma_a: Optional[Coef3] = None
+    sigma_s: Optional[Coef3] = None
+    B_inf: Optional[Veil3] = None
+    g: Optional[float] = Field(None, gt=-1.0, lt=1.0, description="Henyey-Greenstein mean cosine")
+    phase: Optional[Literal["hg", "ff"]] = None
+    ff_ior: Optional[float] = Field(None, gt=1.0, le=1.5)
+    ff_backscatter: Optional[float] = Field(None, gt=0.0, lt=0.5)
+    calibrated: bool = Field(False, description="fast fidelity: veiling light fitted to reference renders "
+                                                "(blendgen/data/water_calibration.json) instead of the "
+                                                "light-field estimate")
+    blur: bool = Field(False, description="fast fidelity: range-dependent forward-scatter blur")
+
+    @field_validator("preset", mode="before")
+    @classmethod
+    def _known_preset(cls, v):
+        from blendgen.physics.water_presets import preset_key
+        return preset_key(v)
+
+    @model_validator(mode="after")
+    def _consistent(self):
+        from blendgen.physics.water_presets import ARTICLE_BETAS
+        for a, b in (("water_color", "B_inf"), ("k", "Kd"), ("beta", "sigma_a"), ("beta", "sigma_s")):
+            if getattr(self, a) is not None and getattr(self, b) is not None:
+                raise ValueError(f"give either {a!r} or {b!r}, not both")
+        article = self.preset in ARTICLE_BETAS
+        if self.beta is not None and not article:
+            raise ValueError(f"'beta' applies to the article presets {tuple(ARTICLE_BETAS)}, not "
+                             f"{self.preset!r}; give sigma_a/sigma_s instead")
+        if self.albedo is not None and not article:
+            raise ValueError("'albedo' only applies with 'beta' or an article preset")
+        return self
+
+    @property
+    def is_bare(self) -> bool:
+        """True when no coefficient is overridden (only the preset and the fast-model switches)."""
+        return all(getattr(self, f) is None for f in type(self).model_fields
+                   if f not in ("preset", "calibrated", "blur"))
 
 
 class LinearTrajectory(Strict):
@@ -343,6 +437,7 @@ class Condition(Strict):
 class Experiment(Strict):
     """The whole config file."""
     name: SafeId
+    image_formation: ImageFormation = Field("physical", description="physical (default) or the article's formulas")
     version: str = Field("0.1.0", pattern=r"^\d+\.\d+\.\d+$")
     seed: int = Field(0, ge=0, le=2**32 - 1)
     scene: Scene = Scene()
@@ -539,17 +634,5 @@ def load_experiment(path: str | Path) -> Experiment:
         exp = Experiment.model_validate(raw)
     except ValidationError as e:
         raise ConfigError(format_validation_error(path, e)) from None
-    _check_water(exp, path)
     return exp
 
-
-def _check_water(exp: Experiment, path: Path) -> None:
-    """Validate every water section through the optics module (same ranges for both fidelities)."""
-    from blendgen.physics import optics
-    sections = [("water", exp.water)] + [
-        (f"conditions.{i}.water", c.water) for i, c in enumerate(exp.conditions) if c.water is not None]
-    for where, w in sections:
-        try:
-            optics.water_from_config(w.model_dump(exclude_none=True))
-        except (ValueError, KeyError, TypeError) as e:
-            raise ConfigError(f"{path}: {where}: {e}") from None

@@ -1,30 +1,34 @@
 """Water optical coefficients and the FAST underwater image-formation model.
 
 Pure numpy (+ cv2 for the optional blur). Everything is per RGB channel, linear
-radiance, metres.
+radiance, metres. Two image-formation modes (``model=``, the experiment's
+``image_formation``):
 
-Model (Akkaynak & Treibitz 2018 revised model with ``beta_D = beta_B = c``)::
+``physical`` (Akkaynak & Treibitz 2018 revised model with ``beta_D = beta_B = c``)::
 
-    I = J_lit * exp(-c r) + B_depth * (1 - exp(-c r))
-    J_lit   = J * exp(-Kd * depth)     on sunlit pixels, J on emissive pixels
-    B_depth = B_inf * exp(-Kd * depth) (veiling light of sunlight at depth)
+    I = J_lit * exp(-c r) + B_inf E_d0 exp(-Kd h_cam) * (1 - exp(-c r))
+    J_lit = J * exp(-Kd h)   on surfaces lit from above, h the SURFACE's own depth
+    J_lit = J                on emitters (LEDs): dimmed only along their path
 
-``J`` is the clean surfaces-only render with the sun at its surface-level
+``article`` (the article's formulas, every pixel alike)::
+
+    I = ((1 - w) J + w C) * exp(-k d),   w = 1 - exp(-beta r)
+
+``J`` is the clean surfaces-only render lit by the sun and sky at their surface
 strength, ``r`` the range along the pixel ray (``geometry.planar_depth_to_range``;
-``inf`` where no surface is hit), ``c = sigma_a + sigma_s`` the beam attenuation.
-``model="article"`` is the article's form
-``I = (1-w) J exp(-k depth) + w water_colour`` with ``w = 1 - exp(-beta r)``: the
-same formula except that the water colour does not dim with depth.
+``inf`` where no surface is hit), ``c = sigma_a + sigma_s`` the beam attenuation,
+``h`` (H, W) the depth of each surface below the water surface, ``h_cam`` the
+camera's depth (the veiling light dims with it), ``E_d0`` the downwelling
+irradiance just below the surface, ``d`` the dock's depth, ``C`` the water colour.
 
 Conventions chosen here:
 
 - A channel with ``c == 0`` is left untouched at every range, including
   background pixels (``r = inf``): clear water is the identity, whatever the
-  renderer gave the background. For ``c > 0`` background pixels become
-  ``B_depth``.
-- ``B_inf`` is in the units of ``J`` per unit surface irradiance; pass
-  ``irradiance=`` (default 1) if ``J`` was rendered with another sun strength.
-  For the article presets it is the water colour itself.
+  renderer gave the background. For ``c > 0`` background pixels become the veil.
+- ``B_inf`` is veiling radiance per unit downwelling irradiance. Unless the config
+  gives it (or asks for the reference calibration), :func:`light_field_veil`
+  estimates it from the single-scattering albedo.
 
 What the fast model misses (OPTICS.md), to be calibrated/published against the
 reference Cycles renders:
@@ -37,8 +41,12 @@ reference Cycles renders:
 - depth falloff with ``Kd`` is the multiply-scattered limit; the reference with
   0 bounces attenuates the sun by ``c`` along its refracted path;
 - volumetric shadows and light shafts (no 3-D light field here);
-- backscatter cones/glow around artificial lights (LEDs, AUV lamp): emissive
-  pixels are only attenuated along the camera ray;
+- the glow of emitters (``physical`` mode, :func:`glow_kernel`) has the single
+  small-angle scattering shape, whose angular profile does not change with range;
+  multiple forward scattering would widen it (Wells' small-angle model); its energy
+  includes all scattered, unabsorbed light;
+- backscatter cones from artificial lights (LEDs, AUV lamp): they light no water;
+- the veil's change of depth along a slanted ray (it uses the camera's depth);
 - ``beta_D != beta_B`` and their range/reflectance dependence (A&T 2018).
 """
 from __future__ import annotations
@@ -60,7 +68,9 @@ COLOR_RANGE = (0.0, 1.0)         # water_color (linear RGB)
 B_INF_RANGE = (0.0, 10.0)        # B_inf (radiance per unit surface irradiance)
 FF_IOR_RANGE = (1.0, 1.5)        # Fournier-Forand relative particle index (open at 1)
 FF_B_RANGE = (0.0, 0.5)          # Fournier-Forand backscatter fraction (open)
-MODELS = ("revised", "article")
+MODELS = ("physical", "article")
+#: Mean cosine of downwelling light (Kirk 2011: about 0.7-0.9 near the surface; 0.75 here).
+MEAN_COSINE_DOWN = 0.75
 PHASES = ("hg", "ff")
 
 
@@ -72,7 +82,8 @@ class WaterOptics:
     downwelling light, ``B_inf`` veiling light (linear RGB, per unit surface
     irradiance), ``phase`` ``"hg"`` (Henyey-Greenstein ``g``) or ``"ff"``
     (Fournier-Forand ``ff_ior``, ``ff_backscatter``, as Blender's Volume Scatter
-    node), ``model`` the default form used by :func:`apply_water`.
+    node). The image-formation mode is not a property of the water: see
+    :func:`apply_water`'s ``model``.
     """
     name: str
     sigma_a: np.ndarray
@@ -83,7 +94,6 @@ class WaterOptics:
     phase: str = "hg"
     ff_ior: float = 1.1
     ff_backscatter: float = 0.0183
-    model: str = "revised"
     provenance: str = ""
 
     def __post_init__(self):
@@ -115,12 +125,12 @@ class WaterOptics:
         return dataclasses.replace(self, **kw)
 
     def to_dict(self) -> dict:
-        """JSON-friendly dict (for manifests); round-trips via water_from_config."""
+        """JSON-friendly dict (for manifests); ``WaterOptics(**d)`` round-trips it."""
         return {"name": self.name, "sigma_a": self.sigma_a.tolist(),
                 "sigma_s": self.sigma_s.tolist(), "Kd": self.Kd.tolist(),
                 "B_inf": self.B_inf.tolist(), "g": self.g, "phase": self.phase,
                 "ff_ior": self.ff_ior, "ff_backscatter": self.ff_backscatter,
-                "model": self.model, "provenance": self.provenance}
+                "provenance": self.provenance}
 
 
 # --------------------------------------------------------------------------- validation
@@ -163,8 +173,6 @@ def _validate(w: WaterOptics) -> None:
     _scalar("ff_backscatter", w.ff_backscatter, *FF_B_RANGE)
     if w.phase not in PHASES:
         raise ValueError(f"phase must be one of {PHASES}, got {w.phase!r}")
-    if w.model not in MODELS:
-        raise ValueError(f"model must be one of {MODELS}, got {w.model!r}")
 
 
 # --------------------------------------------------------------------------- presets
@@ -183,92 +191,44 @@ def article_water(beta=0.0, water_color=wp.ARTICLE_WATER_COLOR, k=wp.ARTICLE_K,
     if albedo is not None:
         albedo = _vec3("albedo", albedo, 0.0, 1.0)
     d = wp.article_coefficients(beta, color, k, albedo)
-    d.setdefault("model", "article")
     d.update(kw)
     return WaterOptics(name=name, **d)
 
 
-def _preset_key(name: str) -> str:
-    s = str(name).strip()
-    low = s.lower()
-    if low in ARTICLE_PRESETS:
-        return low
-    t = low.replace("jerlov", "").strip(" _-").upper()
-    if t in wp.JERLOV_TYPES:
-        return f"jerlov_{t}"
-    raise ValueError(f"unknown water preset {name!r}; known: {', '.join(PRESETS)}")
-
-
 def get_preset(name: str) -> WaterOptics:
     """A named preset: 'clear', 'mild', 'moderate' or 'jerlov_<type>' (I..9C)."""
-    key = _preset_key(name)
+    key = wp.preset_key(name)
     if key in ARTICLE_PRESETS:
         return article_water(wp.ARTICLE_BETAS[key], name=key)
     d = dict(wp.jerlov_coefficients(key.split("_", 1)[1]))
     return WaterOptics(name=key, **d)
 
 
-_CONFIG_KEYS = {"preset", "name", "sigma_a", "sigma_s", "beta", "albedo", "g", "phase",
-                "ff_ior", "ff_backscatter", "water_color", "B_inf", "k", "Kd", "model",
-                "provenance"} | {"calibrated", "blur"}   # the last two: fast-model options
+def _first(*values):
+    return next((v for v in values if v is not None), None)
 
 
-def water_from_config(cfg: dict | None) -> WaterOptics:
-    """Build :class:`WaterOptics` from a config mapping.
+def water_optics(spec) -> WaterOptics:
+    """:class:`WaterOptics` of a validated water section (``blendgen.config.models.Water``).
 
-    ``{"preset": name}`` with optional overrides, or explicit coefficients:
-    ``sigma_a``, ``sigma_s`` (3 or 1 numbers, [0, 5] 1/m), ``g`` in (-1, 1),
-    ``phase`` ('hg'|'ff', with ``ff_ior`` (1, 1.5], ``ff_backscatter`` (0, 0.5)),
-    ``water_color`` ([0, 1]) or ``B_inf`` ([0, 10]), ``k`` or ``Kd`` ([0, 5] 1/m),
-    ``model`` ('revised'|'article'). The article's shorthand ``beta`` ([0, 5] 1/m,
-    optional ``albedo`` in [0, 1]) builds ``c = beta`` with B_inf = water colour.
-    Without a preset the base is 'clear'. Raises ValueError naming the key and
-    its allowed range.
-    """
-    cfg = dict(cfg or {})
-    unknown = sorted(set(cfg) - _CONFIG_KEYS)
-    if unknown:
-        raise ValueError(f"unknown water key(s) {unknown}; allowed: {sorted(_CONFIG_KEYS)}")
-    for f in ("calibrated", "blur"):            # fast-model options (see fast_water)
-        if f in cfg and not isinstance(cfg.pop(f), bool):
-            raise ValueError(f"{f} must be true or false")
-    for a, b in (("water_color", "B_inf"), ("k", "Kd"), ("beta", "sigma_a"), ("beta", "sigma_s")):
-        if a in cfg and b in cfg:
-            raise ValueError(f"give either {a!r} or {b!r}, not both")
-    preset = cfg.get("preset") or "clear"
-    key = _preset_key(preset)
-    explicit = any(k in cfg for k in ("sigma_a", "sigma_s", "B_inf"))
-    if "beta" in cfg and key not in ARTICLE_PRESETS:
-        raise ValueError(f"'beta' applies to the article presets {ARTICLE_PRESETS}, not {key!r}; "
-                         "give sigma_a/sigma_s instead")
+    The preset gives every coefficient; the section's non-null fields override them.
+    Article presets take ``beta``, ``water_color``, ``k``/``Kd`` and ``albedo`` through
+    :func:`article_water`; a Jerlov preset takes ``water_color`` as its ``B_inf``."""
+    key = spec.preset
     if key in ARTICLE_PRESETS:
-        w = article_water(cfg.get("beta", wp.ARTICLE_BETAS[key]),
-                          cfg.get("water_color", wp.ARTICLE_WATER_COLOR),
-                          cfg.get("k", cfg.get("Kd", wp.ARTICLE_K)), cfg.get("albedo"), name=key)
+        w = article_water(_first(spec.beta, wp.ARTICLE_BETAS[key]), _first(spec.water_color, wp.ARTICLE_WATER_COLOR),
+                          _first(spec.k, spec.Kd, wp.ARTICLE_K), spec.albedo, name=key)
     else:
-        if "albedo" in cfg:
-            raise ValueError("'albedo' only applies with 'beta' or an article preset")
         w = get_preset(key)
-        if "water_color" in cfg:
-            w = w.replace(B_inf=_vec3("water_color", cfg["water_color"], *COLOR_RANGE))
-        if "k" in cfg or "Kd" in cfg:
-            w = w.replace(Kd=_vec3("k" if "k" in cfg else "Kd", cfg.get("k", cfg.get("Kd")),
-                                   *COEF_RANGE, " 1/m"))
-    upd = {}
-    for f in ("sigma_a", "sigma_s"):
-        if f in cfg:
-            upd[f] = _vec3(f, cfg[f], *COEF_RANGE, " 1/m")
-    if "B_inf" in cfg:
-        upd["B_inf"] = _vec3("B_inf", cfg["B_inf"], *B_INF_RANGE)
-    for f in ("g", "phase", "ff_ior", "ff_backscatter", "name", "provenance"):
-        if f in cfg:
-            upd[f] = cfg[f]
-    upd["model"] = cfg.get("model", "revised" if explicit else w.model)
-    if explicit:
-        upd.setdefault("name", f"{key}+custom" if cfg.get("preset") else "custom")
+        if spec.water_color is not None:
+            w = w.replace(B_inf=spec.water_color)
+        if _first(spec.k, spec.Kd) is not None:
+            w = w.replace(Kd=_first(spec.k, spec.Kd))
+    upd = {f: getattr(spec, f) for f in ("sigma_a", "sigma_s", "B_inf", "g", "phase", "ff_ior",
+                                         "ff_backscatter", "name", "provenance") if getattr(spec, f) is not None}
+    if any(f in upd for f in ("sigma_a", "sigma_s", "B_inf")):
+        upd.setdefault("name", f"{key}+custom")
         upd.setdefault("provenance", f"config: explicit coefficients over preset {key!r}")
-    if "g" in upd:
-        upd["g"] = _scalar("g", upd["g"], *G_RANGE)
     return w.replace(**upd)
 
 
@@ -276,8 +236,6 @@ def water_from_config(cfg: dict | None) -> WaterOptics:
 
 #: Fast-model calibration against reference renders (``dockbench calibrate-water``).
 CALIBRATION_PATH = Path(__file__).resolve().parents[1] / "data" / "water_calibration.json"
-#: Sun irradiance assumed when a condition does not state it (spec.Scene default, W/m^2).
-DEFAULT_IRRADIANCE = 3.0
 #: Forward-scatter blur of the fast model, as an angle: 2 px per unit scattering optical
 #: depth, at most 3 px, at the default 640 px / 60 deg camera (fx = 554.26 px).
 BLUR_RAD_PER_TAU, BLUR_MAX_RAD = 2.0 / 554.256, 3.0 / 554.256
@@ -296,35 +254,65 @@ def load_calibration(path: Path | str | None = None) -> dict:
     return _read_calibration(str(p), p.stat().st_mtime)
 
 
-def fast_water(cfg: dict | None, irradiance: float | None = None,
-               calibration: dict | None = None) -> tuple[WaterOptics, dict]:
+def light_field_veil(water: WaterOptics, mean_cosine_down: float = MEAN_COSINE_DOWN) -> np.ndarray:
+    """Veiling radiance per unit downwelling irradiance (3,), 1/sr.
+
+    Far from any surface, path radiance balances attenuation and in-scattering:
+    ``L_inf = (b / c) L_mean`` when the light field is treated as isotropic-equivalent,
+    with the mean radiance ``L_mean = E_0 / (4 pi)`` and the scalar irradiance
+    ``E_0 = E_d / mu_d`` (mean cosine of downwelling light). It includes multiple
+    scattering, which the 0-bounce reference medium leaves out (OPTICS.md: 1.5-7x
+    single scatter). Zero where the water is clear."""
+    return water.albedo / (4.0 * math.pi * float(mean_cosine_down))
+
+
+def water_for_mode(spec, mode: str) -> WaterOptics:
+    """The water's coefficients in an image-formation mode (both fidelities use these).
+
+    ``article``: :func:`water_optics` as configured. ``physical``: an article level's
+    depth light is the per-channel Kd of the Jerlov type ``water_presets.ARTICLE_KD_JERLOV``
+    names (unless ``k``/``Kd`` is given), and a bare ``clear`` is that type's water
+    (Jerlov I: real water absorbs red even when clear; the article's clear is no water)."""
+    water = water_optics(spec)
+    if mode != "physical" or spec.preset not in ARTICLE_PRESETS:
+        return water
+    jerlov = get_preset(f"jerlov_{wp.ARTICLE_KD_JERLOV[spec.preset]}")
+    if spec.preset == "clear" and spec.is_bare:
+        return jerlov.replace(name="clear", provenance=f"physical clear = {jerlov.name}: " + jerlov.provenance)
+    if spec.k is None and spec.Kd is None:
+        water = water.replace(Kd=jerlov.Kd, provenance=water.provenance + f"; Kd: {jerlov.name} (physical mode)")
+    return water
+
+
+def fast_water(spec, mode: str, irradiance: float, calibration: dict | None = None
+               ) -> tuple[WaterOptics, dict]:
     """Water and ``apply_water`` options for the fast fidelity of one condition.
 
-    A bare preset (``{"preset": name}`` plus the fast options) that the calibration
-    lists gets the calibrated ``B_inf`` (per unit sun irradiance) and ``Kd``
-    (effective depth-light coefficient) and the ``revised`` model, unless the config
-    says ``calibrated: false``. ``blur: true|false`` switches the forward-scatter blur
-    (default: the calibration's choice, else off). ``irradiance`` (the scene's sun,
-    W/m^2; default :data:`DEFAULT_IRRADIANCE`) scales physical ``B_inf``; the
-    article model's ``B_inf`` is a water colour and is used as is (irradiance 1).
-    Returns ``(water, {"irradiance", "blur", "blur_rad_per_tau", "blur_max_rad",
-    "calibrated"})``."""
-    cfg = dict(cfg or {})
-    want_cal = cfg.get("calibrated", True)
-    water = water_from_config(cfg)
-    cal = calibration if calibration is not None else load_calibration()
-    entry = (cal.get("presets") or {}).get(_preset_key(cfg.get("preset") or "clear"))
-    bare = set(cfg) <= {"preset", "calibrated", "blur"}
-    use = bool(want_cal and entry and bare and not water.is_clear)
+    ``spec`` a validated water section (``config.models.Water``); ``mode`` 'physical'
+    or 'article'; ``irradiance`` the downwelling irradiance just below the surface
+    (W/m^2, sun + sky on a horizontal plane). The veiling light is, in this order: the
+    config's ``B_inf`` (per unit irradiance); the reference calibration when
+    ``calibrated`` is set and the preset is bare and listed; else
+    :func:`light_field_veil`. In ``article`` mode it is the water colour ``C`` (the
+    article presets' colour, or the veil above times the irradiance) and is used as is.
+    Coefficients: :func:`water_for_mode`.
+    Returns ``(water, {"irradiance", "blur", "calibrated"})``."""
+    water = water_for_mode(spec, mode)
+    cal = calibration if calibration is not None else (load_calibration() if spec.calibrated else {})
+    entry = (cal.get("presets") or {}).get(spec.preset)
+    use = bool(spec.calibrated and entry and spec.is_bare and not water.is_clear)
+    article_colour = mode == "article" and spec.preset in ARTICLE_PRESETS and spec.B_inf is None
     if use:
-        water = water.replace(B_inf=np.asarray(entry["B_inf"], float), Kd=np.asarray(entry["Kd"], float),
-                              model="revised",
-                              provenance=water.provenance + "; calibrated: " + str(cal.get("method", "")))
-    blur_default = bool(entry.get("blur", False)) if use else False
-    irr = DEFAULT_IRRADIANCE if irradiance is None else float(irradiance)
-    return water, {"irradiance": 1.0 if water.model == "article" else irr,
-                   "blur": bool(cfg.get("blur", blur_default)), "calibrated": use,
-                   "blur_rad_per_tau": BLUR_RAD_PER_TAU, "blur_max_rad": BLUR_MAX_RAD}
+        # the calibration's B_inf is per unit sun strength at its sun elevation
+        per_ed = np.asarray(entry["B_inf"], float) / math.sin(math.radians(cal.get("sun_elevation_deg", 90.0)))
+        water = water.replace(B_inf=per_ed, provenance=water.provenance + "; calibrated: " + str(cal.get("method", "")))
+    elif spec.B_inf is None and not article_colour:
+        water = water.replace(B_inf=light_field_veil(water),
+                              provenance=water.provenance + "; B_inf: light-field estimate (b/c)/(4 pi mu_d)")
+    irr = float(irradiance)
+    if mode == "article" and not article_colour:
+        water = water.replace(B_inf=water.B_inf * irr)     # a colour, used as is
+    return water, {"irradiance": 1.0 if mode == "article" else irr, "blur": bool(spec.blur), "calibrated": use}
 
 
 # --------------------------------------------------------------------------- phase functions
@@ -372,6 +360,74 @@ def phase_value(water: WaterOptics, theta_rad: float) -> float:
     if water.phase == "ff":
         return float(ff_phase(theta_rad, water.ff_ior, water.ff_backscatter))
     return float(hg_phase(math.cos(theta_rad), water.g))
+
+
+def hg_cumulative(theta, g: float):
+    """Share of Henyey-Greenstein scattering within angle ``theta`` (rad) of forward:
+    ``int_0^theta p(t) 2 pi sin t dt`` (1 at pi)."""
+    th = np.clip(np.asarray(theta, float), 0.0, np.pi)
+    if abs(g) < 1e-9:
+        return (1.0 - np.cos(th)) / 2.0
+    return (1.0 - g * g) / (2.0 * g) * (1.0 / (1.0 - g) - 1.0 / np.sqrt(1.0 + g * g - 2.0 * g * np.cos(th)))
+
+
+def phase_cumulative(water: WaterOptics, theta):
+    """Share of the water's scattering within ``theta`` (rad) of forward (HG analytic, FF numeric)."""
+    if water.phase != "ff":
+        return hg_cumulative(theta, water.g)
+    grid = np.concatenate([np.geomspace(1e-6, 1e-2, 400), np.linspace(1e-2, np.pi, 2000)])
+    dens = ff_phase(grid, water.ff_ior, water.ff_backscatter) * 2 * np.pi * np.sin(grid)
+    cum = np.concatenate([[0.0], np.cumsum(0.5 * (dens[1:] + dens[:-1]) * np.diff(grid))])
+    return np.interp(np.asarray(theta, float), grid, cum / cum[-1])
+
+
+def glow_encircled_energy(water: WaterOptics, range_m: float, psi, n_steps: int = 64) -> np.ndarray:
+    """Forward-scattered light of a point source at ``range_m`` within angle ``psi`` (rad) of it,
+    relative to its unscattered (attenuated) light, per channel: (..., 3).
+
+    Single small-angle scattering (Mobley's Ocean Optics Web Book, "Beam and Point Spread
+    Functions"): a photon scattered by theta at distance u from the source is seen at
+    ``psi = theta u / r``, so ``EE(psi) = b int_0^r P(psi r / u) du`` with P the phase
+    function's cumulative share; ``EE(pi) = b r``. Scaled by ``(exp(b r) - 1) / (b r)`` so the
+    total is all light scattered but not absorbed, ``exp(-a r) (1 - exp(-b r))`` over the
+    direct ``exp(-c r)`` (multiple forward scattering keeps the single-scatter shape here)."""
+    r = float(range_m)
+    psi = np.asarray(psi, float)
+    b = water.sigma_s
+    if r <= 0 or not np.any(b > 0):
+        return np.zeros(psi.shape + (3,))
+    u = (np.arange(n_steps) + 0.5) / n_steps * r                        # midpoints along the path
+    P = phase_cumulative(water, np.minimum(psi[..., None] * r / u, np.pi))   # (..., n)
+    single = P.mean(axis=-1)[..., None] * (b * r)                       # (..., 3)
+    br = b * r
+    boost = np.where(br > 0, np.expm1(br) / np.where(br > 0, br, 1.0), 1.0)
+    return single * boost
+
+
+def glow_kernel(water: WaterOptics, range_m: float, fx: float, max_radius_px: int = 96) -> np.ndarray:
+    """(2R+1, 2R+1, 3) float32 point-spread of the forward-scattered glow around an emitter at
+    ``range_m`` (camera ``fx`` px/rad): pixel weights relative to the emitter's direct image
+    (a direct image of total 1 gets a glow of total ``kernel.sum()``). The centre pixel is 0
+    (the direct term keeps it). R grows with range until 99 % of the glow is inside, at most
+    ``max_radius_px``."""
+    rad = np.arange(0.0, max_radius_px + 1.5)
+    ee = glow_encircled_energy(water, range_m, rad / float(fx))           # (R+2, 3) at ring edges
+    total = glow_encircled_energy(water, range_m, np.array(np.pi))
+    if not np.any(total > 0):
+        return np.zeros((1, 1, 3), np.float32)
+    inside = np.nonzero(np.all(ee >= 0.99 * total, axis=-1))[0]
+    R = int(min(max_radius_px, inside[0] if inside.size else max_radius_px))
+    R = max(R, 1)
+    yy, xx = np.mgrid[-R:R + 1, -R:R + 1]
+    rho = np.hypot(xx, yy)
+    ring = np.rint(rho).astype(int)
+    edges = glow_encircled_energy(water, range_m, (np.arange(R + 2) - 0.5).clip(0) / float(fx))
+    ring_energy = np.diff(edges, axis=0)                                # energy in ring k = [k-.5, k+.5)
+    counts = np.bincount(ring.ravel(), minlength=R + 2)[: R + 1]
+    k = np.zeros(rho.shape + (3,))
+    ok = (ring >= 1) & (ring <= R)
+    k[ok] = ring_energy[ring[ok]] / counts[ring[ok], None]
+    return k.astype(np.float32)
 
 
 # --------------------------------------------------------------------------- analytic scatter
@@ -468,23 +524,40 @@ def transmittance(water: WaterOptics, range_m: np.ndarray, dtype=np.float32) -> 
     return x.reshape(h, w, 3)
 
 
+def _depth_factor(water: WaterOptics, depth_m, h: int, w: int, dtype) -> np.ndarray:
+    """``exp(-Kd depth)`` as a (1, 3W) row (scalar depth) or (H, 3W) (per-pixel depth)."""
+    depth = np.asarray(depth_m, float)
+    if depth.ndim == 0:
+        return _row(depth_light(water, float(depth)), w, dtype)
+    if depth.shape != (h, w):
+        raise ValueError(f"depth_m must be a scalar or {(h, w)}, got {depth.shape}")
+    if np.any(depth < 0) or not np.isfinite(depth).all():
+        raise ValueError("depth_m must be finite and >= 0 (metres below the surface)")
+    D = _gray3(depth.astype(dtype)) * _row(-water.Kd, w, dtype)
+    return np.exp(D, out=D)
+
+
 def apply_water(J: np.ndarray, range_m: np.ndarray, emissive_mask=None,
-                water: WaterOptics | None = None, depth_m=0.0, *, model: str | None = None,
-                irradiance=1.0, blur: bool = False, blur_px_per_tau: float = 2.0,
-                blur_max_px: float = 3.0, blur_levels: int = 4) -> np.ndarray:
+                water: WaterOptics | None = None, depth_m=0.0, *, model: str = "physical",
+                veil_depth_m: float | None = None, irradiance=1.0, blur: bool = False,
+                blur_px_per_tau: float = 2.0, blur_max_px: float = 3.0, blur_levels: int = 4,
+                glow_fx: float | None = None) -> np.ndarray:
     """Fast underwater image formation (module docstring) on a clean render.
 
     J (H, W, 3) float32/float64 linear; range_m (H, W) metres along the ray (inf or
-    NaN: no surface); emissive_mask (H, W) bool or None (self-lit pixels keep their
-    brightness at depth); depth_m water depth of the lit surfaces, scalar or (H, W);
-    model 'revised' | 'article' (default ``water.model``); irradiance scales B_inf.
+    NaN: no surface); emissive_mask (H, W) bool or None (emitters: not dimmed by depth
+    in ``physical`` mode); depth_m water depth of the lit surfaces, scalar or (H, W)
+    (``article`` mode: the scalar dock depth d, or the (H, W) map's value is used per
+    pixel); veil_depth_m the camera's depth (physical veil; default: depth_m when
+    scalar, else 0); model 'physical' | 'article'; irradiance scales B_inf (physical).
     blur: range-dependent forward-scatter Gaussian on the direct term, sigma_px =
     min(blur_max_px, blur_px_per_tau * mean(sigma_s) * r), ``blur_levels``
     precomputed cv2.GaussianBlur levels blended linearly by sigma.
+    glow_fx: camera focal length (px); in ``physical`` mode the emitters' forward-scattered
+    glow (:func:`glow_kernel` at their median range) is added around them.
     Returns a new (H, W, 3) array of J's dtype (float32 unless J is float64).
     """
     water = water if water is not None else get_preset("clear")
-    model = model or water.model
     if model not in MODELS:
         raise ValueError(f"model must be one of {MODELS}, got {model!r}")
     J = np.asarray(J)
@@ -494,52 +567,65 @@ def apply_water(J: np.ndarray, range_m: np.ndarray, emissive_mask=None,
     h, w = J.shape[:2]
     if np.shape(range_m) != (h, w):
         raise ValueError(f"range_m must be {(h, w)}, got {np.shape(range_m)}")
-    J2 = np.ascontiguousarray(J, dtype=dtype).reshape(h, 3 * w)
-    t = transmittance(water, range_m, dtype).reshape(h, 3 * w)
-
-    depth = np.asarray(depth_m, float)
-    if depth.ndim == 0:
-        D = _row(depth_light(water, float(depth)), w, dtype)             # (1, 3W)
-    else:
-        if depth.shape != (h, w):
-            raise ValueError(f"depth_m must be a scalar or {(h, w)}, got {depth.shape}")
-        if np.any(depth < 0) or not np.isfinite(depth).all():
-            raise ValueError("depth_m must be finite and >= 0 (metres below the surface)")
-        D = _gray3(depth.astype(dtype)) * _row(-water.Kd, w, dtype)
-        np.exp(D, out=D)                                                   # (H, 3W)
-
-    em = None if emissive_mask is None else np.asarray(emissive_mask, bool)
-    if em is not None and em.shape != (h, w):
-        raise ValueError(f"emissive_mask must be {(h, w)}, got {em.shape}")
-    direct = J2 * D                                   # J_lit: sunlit surfaces dim with depth
-    if em is not None and em.any():
-        direct.reshape(h, w, 3)[em] = J2.reshape(h, w, 3)[em]   # self-lit: not dimmed
     irr = float(irradiance)
     if not (math.isfinite(irr) and irr >= 0):
         raise ValueError(f"irradiance must be finite and >= 0, got {irradiance!r}")
-    B = _row(water.B_inf * irr, w, dtype)
-    if model == "revised":
-        B = B * D                                     # veiling light dims with depth
-    has_b = bool(np.any(B != 0))
-    if blur and np.any(water.sigma_s > 0) and blur_max_px > 0:
-        direct *= t                                   # J_lit exp(-c r), then blurred
-        direct = _forward_scatter_blur(direct.reshape(h, w, 3), range_m,
-                                       float(np.mean(water.sigma_s)), blur_px_per_tau,
-                                       blur_max_px, blur_levels
-                                       ).astype(dtype, copy=False).reshape(h, 3 * w)
-        if has_b:
-            np.subtract(dtype(1), t, out=t)
-            t *= B
-            direct += t                               # + B (1 - exp(-c r))
-    elif has_b:
-        direct *= t                                   # J_lit exp(-c r)
-        np.subtract(dtype(1), t, out=t)               # 1 - exp(-c r), in place
-        t *= B
-        direct += t                                   # + B (1 - exp(-c r)); exact J at c = 0
+    em = None if emissive_mask is None else np.asarray(emissive_mask, bool)
+    if em is not None and em.shape != (h, w):
+        raise ValueError(f"emissive_mask must be {(h, w)}, got {em.shape}")
+    J2 = np.ascontiguousarray(J, dtype=dtype).reshape(h, 3 * w)
+    t = transmittance(water, range_m, dtype).reshape(h, 3 * w)
+    D = _depth_factor(water, depth_m, h, w, dtype)
+    if model == "physical":
+        direct = J2 * D                                   # J_lit: each surface dims by its own depth
+        if em is not None and em.any():
+            direct.reshape(h, w, 3)[em] = J2.reshape(h, w, 3)[em]   # emitters: only their path
+        if veil_depth_m is None:
+            veil_depth_m = float(depth_m) if np.ndim(depth_m) == 0 else 0.0
+        B = _row(water.B_inf * irr * depth_light(water, float(veil_depth_m)), w, dtype)
     else:
-        direct *= t
-    out = direct
-    return out.reshape(h, w, 3)
+        direct = J2.copy()                                # the article: scale everything at the end
+        B = _row(water.B_inf, w, dtype)
+    direct *= t                                           # J_lit exp(-c r)
+    if blur and np.any(water.sigma_s > 0) and blur_max_px > 0:
+        direct = _forward_scatter_blur(direct.reshape(h, w, 3), range_m, float(np.mean(water.sigma_s)),
+                                       blur_px_per_tau, blur_max_px, blur_levels
+                                       ).astype(dtype, copy=False).reshape(h, 3 * w)
+    if model == "physical" and glow_fx and em is not None and em.any() and np.any(water.sigma_s > 0):
+        direct = add_emitter_glow(direct.reshape(h, w, 3), em, range_m, water, float(glow_fx)).reshape(h, 3 * w)
+    if bool(np.any(B != 0)):
+        np.subtract(dtype(1), t, out=t)                   # 1 - exp(-c r), in place
+        t *= B
+        direct += t                                       # + B (1 - exp(-c r)); exact J at c = 0
+    if model == "article":
+        direct *= D                                       # every pixel times exp(-k d)
+    return direct.reshape(h, w, 3)
+
+
+def add_emitter_glow(img: np.ndarray, emissive: np.ndarray, range_m: np.ndarray, water: WaterOptics,
+                     fx: float) -> np.ndarray:
+    """``img`` (H, W, 3) plus the forward-scattered glow of its emitter pixels (``emissive``
+    (H, W) bool; their values in ``img`` are the attenuated direct radiance): the emitters'
+    image convolved with :func:`glow_kernel` at their median range, in the box they and the
+    kernel cover. Returns a new array (the input when nothing glows)."""
+    import cv2
+    r = np.asarray(range_m, float)[emissive]
+    r = r[np.isfinite(r)]
+    if r.size == 0:
+        return img
+    k = glow_kernel(water, float(np.median(r)), fx)
+    R = k.shape[0] // 2
+    if R == 0 or not np.any(k):
+        return img
+    h, w = emissive.shape
+    ys, xs = np.nonzero(emissive)
+    y0, y1 = max(ys.min() - R, 0), min(ys.max() + R + 1, h)
+    x0, x1 = max(xs.min() - R, 0), min(xs.max() + R + 1, w)
+    src = np.where(emissive[y0:y1, x0:x1, None], img[y0:y1, x0:x1], 0).astype(np.float32)
+    out = img.copy()
+    for ch in range(3):
+        out[y0:y1, x0:x1, ch] += cv2.filter2D(src[:, :, ch], -1, k[:, :, ch], borderType=cv2.BORDER_CONSTANT)
+    return out
 
 
 def _forward_scatter_blur(img: np.ndarray, range_m, sigma_s_mean: float, px_per_tau: float,

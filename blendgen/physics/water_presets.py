@@ -64,6 +64,10 @@ PARTICLE_G = 0.92
 ARTICLE_BETAS = {"clear": 0.0, "mild": 0.2, "moderate": 0.5}
 #: The article's typical depth-light coefficient k (1/m).
 ARTICLE_K = 0.2
+#: Jerlov type whose measured per-channel Kd is the depth light of each article level in the
+#: ``physical`` mode (the article gives one grey k). Our choice, by beam attenuation and
+#: colour: clear -> oceanic I, mild (c 0.2/m) -> oceanic II, moderate (0.5/m, greenish) -> coastal 1C.
+ARTICLE_KD_JERLOV = {"clear": "I", "mild": "II", "moderate": "1C"}
 #: Greenish water colour, linear RGB (our choice; the article names no numbers).
 ARTICLE_WATER_COLOR = (0.03, 0.20, 0.15)
 #: Single-scattering albedo of the brightest channel of the article's water.
@@ -137,3 +141,19 @@ def jerlov_coefficients(water_type: str) -> dict:
             "provenance": "; ".join(notes) + "; RGB = mean at R 600/625/650, "
                           "G 525/550, B 450/475 nm; g = 0.92*b_p/b; "
                           "B_inf = single-scatter sigma_s p_HG(90)/c per unit sun"}
+
+
+#: Every preset name, as :func:`preset_key` spells it.
+PRESETS = tuple(ARTICLE_BETAS) + tuple(f"jerlov_{t}" for t in JERLOV_TYPES)
+
+
+def preset_key(name) -> str:
+    """Canonical preset name: 'clear' | 'mild' | 'moderate' | 'jerlov_<type>' (case and
+    'Jerlov II' / 'jerlov-ii' spellings accepted). Raises ValueError listing the known ones."""
+    low = str(name).strip().lower()
+    if low in ARTICLE_BETAS:
+        return low
+    t = low.replace("jerlov", "").strip(" _-").upper()
+    if t in JERLOV_TYPES:
+        return f"jerlov_{t}"
+    raise ValueError(f"unknown water preset {name!r}; known: {', '.join(PRESETS)}")

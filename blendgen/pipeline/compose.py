@@ -2,26 +2,26 @@
 
 Pure numpy/OpenCV (no Blender): runs inside the render worker right after each
 frame, once per sequence that shares the clean render. Stages, in order:
-water (fast fidelity only), lens distortion, 8-bit sRGB encode with Gaussian noise.
+water and light with depth (fast fidelity only; ``physical`` or ``article`` mode),
+motion blur over the exposure, lens distortion (of every written pass alike, so the
+ground truth stays aligned), then the sensor (EMVA 1288: electrons, blooming, shot and
+read noise, full well, gain, response curve, 8 bits).
 """
 from __future__ import annotations
 
+import functools
+import dataclasses
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from dataclasses import dataclass
-
-from blendgen.pipeline import groundtruth
-
-from blendgen.physics import particles as occlusion
-
-from blendgen.physics import optics
-
-from blendgen.physics import sensor
-from blendgen.pipeline.plan import INDEX_PARTICLES
 from blendgen.geometry import planar_depth_to_range, project, transform_points
+from blendgen.physics import optics, sensor
+from blendgen.physics import particles as occlusion
+from blendgen.pipeline import groundtruth
+from blendgen.pipeline.plan import INDEX_PARTICLES, SequencePost
 
 
 def emissive_mask(index: np.ndarray, markers: list[dict]) -> np.ndarray:
@@ -32,29 +32,33 @@ def emissive_mask(index: np.ndarray, markers: list[dict]) -> np.ndarray:
 
 @dataclass
 class SequenceState:
-    """What one output sequence carries from frame to frame: its random stream and
-    its small-obstacle particles (world frame, drifting with the current)."""
-    post: dict
+    """What one output sequence carries from frame to frame: its typed processing, its
+    random stream, its small-obstacle particles (world frame, drifting with the current)
+    and its water model (built once, not per frame)."""
+    post: SequencePost
     rng: np.random.Generator
     field: occlusion.ParticleField | None = None
+    water: optics.WaterOptics | None = None
+    water_opts: dict = dataclasses.field(default_factory=dict)
+    camera: sensor.SensorModel = dataclasses.field(default_factory=sensor.SensorModel)
 
     @classmethod
-    def start(cls, post: dict) -> "SequenceState":
-        rng = np.random.default_rng(post["seed"])
-        occ = post.get("occlusion")
-        field = None
+    def start(cls, post: SequencePost) -> "SequenceState":
+        rng = np.random.default_rng(post.seed)
+        occ = post.occlusion
+        pfield = None
         if occ:
-            field = occlusion.ParticleField.sample(
-                rng, occ["region_min"], occ["region_max"], n_total=occ["n_total"], r_min=occ["r_min_m"],
-                r_max=occ["r_max_m"], count_dist=occ["count_dist"], n_max=occ["n_max"])
-        return cls(post, rng, field)
+            pfield = occlusion.ParticleField.sample(
+                rng, occ.region_min, occ.region_max, n_total=occ.n_total, r_min=occ.r_min_m,
+                r_max=occ.r_max_m, count_dist=occ.count_dist, n_max=occ.n_max)
+        water, opts = optics.fast_water(post.water, post.image_formation, post.irradiance_w_m2)
+        return cls(post, rng, pfield, water, opts, sensor_model(post))
 
     def advance(self) -> None:
         """Drift the particles by one frame: p += v_flow dt + eta, eta ~ N(0, sigma^2 I)."""
         if self.field is not None:
-            occ = self.post["occlusion"]
-            self.field = self.field.step(1.0 / self.post["fps"], occ["v_flow"], [occ["drift_sigma_m"]] * 3,
-                                         self.rng)
+            occ = self.post.occlusion
+            self.field = self.field.step(1.0 / self.post.fps, occ.v_flow, [occ.drift_sigma_m] * 3, self.rng)
 
 
 def add_particles(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam) -> tuple[dict, np.ndarray | None]:
@@ -63,32 +67,100 @@ def add_particles(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam
     the occluder mask (H,W) bool (None without particles)."""
     if state.field is None:
         return passes, None
-    if state.post["occlusion"]["geometry"] == "blender":  # already in the render
+    if state.post.occlusion.geometry == "blender":  # already in the render
         return passes, passes["index"] == INDEX_PARTICLES
     rgb, occ_mask, prange = occlusion.render_particles(
         passes["rgb"], passes["range_m"], state.field, K, np.asarray(T_world_cam, float),
-        mode=state.post["occlusion"]["mode"])
+        mode=state.post.occlusion.mode)
     rng_eff = np.where(np.isfinite(prange), prange, passes["range_m"]).astype(np.float32)
     return {**passes, "rgb": rgb, "range_m": rng_eff}, occ_mask
 
 
-def camera_image(passes: dict, post: dict, K: np.ndarray, markers: list[dict],
-                 rng: np.random.Generator, fidelity: str, occluded: np.ndarray | None = None) -> np.ndarray:
-    """Linear clean RGB (H,W,3) -> uint8 sRGB image (H,W,3) for one condition."""
+@functools.lru_cache(maxsize=4)
+def _unit_rays(K_t: tuple, width: int, height: int) -> np.ndarray:
+    """(H, W, 3) float32 unit ray directions (camera frame) through each pixel centre."""
+    K = np.array(K_t).reshape(3, 3)
+    u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
+    y = (v - K[1, 2]) / K[1, 1]
+    x = (u - K[0, 2] - K[0, 1] * y) / K[0, 0]
+    d = np.dstack([x, y, np.ones_like(x)])
+    d /= np.linalg.norm(d, axis=2, keepdims=True)
+    d = d.astype(np.float32)
+    d.setflags(write=False)
+    return d
+
+
+def surface_depth(range_m: np.ndarray, K: np.ndarray, T_world_cam, surface_z_m: float) -> tuple[np.ndarray, float]:
+    """Depth below the water surface (m, >= 0) of the surface each pixel sees, and the camera's.
+
+    range_m (H, W) along the ray (inf: nothing hit -> the camera's depth); T_world_cam
+    4x4 (OpenCV camera, world z up); surface_z_m the world z of the water surface.
+    Returns ((H, W) float32, camera depth float)."""
+    T = np.asarray(T_world_cam, float)
+    h, w = range_m.shape
+    rays = _unit_rays(tuple(np.asarray(K, float).ravel()), w, h)
+    dir_z = rays @ T[2, :3].astype(np.float32)                 # world z of each unit ray
+    cam_depth = max(float(surface_z_m - T[2, 3]), 0.0)
+    r = np.where(np.isfinite(range_m), range_m, 0.0).astype(np.float32)
+    depth = np.float32(surface_z_m - T[2, 3]) - r * dir_z
+    return np.maximum(depth, np.float32(0.0)), cam_depth
+
+
+def water_image(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, markers: list[dict],
+                occluded: np.ndarray | None = None) -> np.ndarray:
+    """Fast fidelity: the clean linear render (H,W,3) seen through the condition's water
+    with light at depth, in the sequence's image-formation mode (optics module docstring)."""
+    post = state.post
+    emissive = emissive_mask(passes["index"], markers)
+    if occluded is not None:
+        emissive &= ~occluded
+    fx = float(K[0, 0])
+    if post.image_formation == "physical":
+        depth, veil_depth = surface_depth(passes["range_m"], K, T_world_cam, post.surface_z_m)
+    else:
+        depth, veil_depth = post.light_depth_m, None
+    return optics.apply_water(passes["rgb"], passes["range_m"], emissive, state.water, depth,
+                              model=post.image_formation, veil_depth_m=veil_depth,
+                              irradiance=state.water_opts["irradiance"], blur=state.water_opts["blur"],
+                              blur_px_per_tau=optics.BLUR_RAD_PER_TAU * fx, blur_max_px=optics.BLUR_MAX_RAD * fx,
+                              glow_fx=fx)
+
+
+def sensor_model(post: SequencePost) -> sensor.SensorModel:
+    """The sequence's camera sensor; shot/read noise default on in physical mode only."""
+    s = post.sensor
+    noise = s.noise if s.noise is not None else post.image_formation == "physical"
+    return sensor.SensorModel(exposure_s=s.exposure_s, responsivity_e_per_s=s.responsivity_e_per_s,
+                              full_well_e=s.full_well_e, read_noise_e=s.read_noise_e, gain=s.gain, noise=noise,
+                              response=s.response, bloom_fraction=s.bloom_fraction,
+                              bloom_sigma_px=s.bloom_sigma_px, noise_std=post.noise_std)
+
+
+def camera_image(passes: dict, state: SequenceState, K: np.ndarray, frame: dict, markers: list[dict],
+                 fidelity: str, occluded: np.ndarray | None = None) -> np.ndarray:
+    """Linear clean RGB (H,W,3) -> uint8 image (H,W,3) for one condition; ``frame`` is the
+    planned frame (``T_world_cam``, optional ``blur_px`` motion over the exposure)."""
     rgb = passes["rgb"]
     if fidelity == "fast":
-        water, fo = optics.fast_water(post["water"], post.get("irradiance"))
-        emissive = emissive_mask(passes["index"], markers)
-        if occluded is not None:
-            emissive &= ~occluded
-        fx = float(K[0, 0])
-        rgb = optics.apply_water(rgb, passes["range_m"], emissive, water, post["light_depth_m"],
-                                 irradiance=fo["irradiance"], blur=fo["blur"],
-                                 blur_px_per_tau=fo["blur_rad_per_tau"] * fx,
-                                 blur_max_px=fo["blur_max_rad"] * fx)
-    if post.get("distortion"):
-        rgb = sensor.distort_image(rgb, K, post["distortion"])
-    return sensor.to_uint8(rgb, post.get("noise_std", 0.0), rng)
+        rgb = water_image(passes, state, K, frame["T_world_cam"], markers, occluded)
+    if frame.get("blur_px") is not None:
+        rgb = sensor.motion_blur(rgb, frame["blur_px"])
+    if state.post.distortion:
+        rgb = sensor.distort_image(rgb, K, state.post.distortion)
+    return state.camera.apply(rgb, state.rng)
+
+
+def output_passes(passes: dict, K: np.ndarray, distortion) -> dict:
+    """The passes as written next to a distorted image: index and range remapped with the
+    same lens map (nearest: labels and depths are not blended), so every pass stays aligned
+    with the RGB image. Without distortion, the passes themselves."""
+    if not distortion:
+        return passes
+    out = dict(passes)
+    for k in ("index", "range_m"):
+        if k in passes:
+            out[k] = sensor.distort_image(passes[k], K, distortion, interpolation=cv2.INTER_NEAREST)
+    return out
 
 
 def _polygon_area(uv: np.ndarray) -> float:
@@ -134,6 +206,20 @@ def with_visibility(rec: dict, markers: list[dict], K: np.ndarray, index: np.nda
         if entry["in_fov"]:
             entry["visible_fraction"] = round(visible_fraction(m, T_cd, K, index, occluded), 6)
     return out
+
+
+def add_ambient(passes: dict, ambient_radiance: float) -> dict:
+    """Fast fidelity: light of the water's diffuse light field on every surface.
+
+    A Lambertian surface of albedo rho (the render's diffuse-colour pass, (H,W,3)) under
+    a uniform radiance L reflects ``rho L``; added to the sun-lit render before the water
+    model dims both by the surface's depth. Ignores occlusion of the light field (no
+    ambient occlusion) and interreflection. No-op (no cost) when 0 or without the pass."""
+    if ambient_radiance > 0 and "albedo" in passes:
+        rgb = passes["albedo"] * np.float32(ambient_radiance)
+        rgb += passes["rgb"]
+        passes["rgb"] = rgb
+    return passes
 
 
 def add_range(passes: dict, K: np.ndarray) -> dict:

@@ -336,9 +336,10 @@ class Progress:
         sys.stderr.flush()
 
 
-def write_job(job: dict, path: Path) -> Path:
+def write_job(job, path: Path) -> Path:
+    """Write a job record (``plan.JobRecord``; a plain dict is written as JSON as is)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(job))
+    path.write_text(job.model_dump_json() if hasattr(job, "model_dump_json") else json.dumps(job))
     return path
 
 

@@ -51,28 +51,26 @@ def write_textures(exp: Experiment, root: Path) -> dict[str, str]:
     return out
 
 
-def _job_dict(t: "_Target", job: plan.RenderJob, render: dict, parts: list) -> dict:
-    """The worker's job file. ``parts`` are (target, job, sequences still to write) of
+def _job_record(t: "_Target", job: plan.RenderJob, render: dict, parts: list) -> plan.JobRecord:
+    """The worker's job record. ``parts`` are (target, job, sequences still to write) of
     every dataset fed by this render (a resumed shared job may have committed some)."""
     c = t.exp.camera
     first = job.sequences[0].id
-    return {
-        "scene": job.scene, "fidelity": t.exp.render.fidelity, "render": render, "frames": job.frames,
-        "camera": {"width": c.width, "height": c.height, "hfov_rad": math.radians(c.hfov_deg),
-                   "K": t.K.tolist()},
-        "gt": {"T_world_dock": job.scene["dock"]["T_world_dock"], "markers": t.markers},
-        "outputs": [{"seq_dir": str(pt.writer.tmp_dir(s.id).resolve()), "rel": f"sequences/{s.id}", "post": s.post}
-                    for pt, _, seqs in parts for s in seqs],
-        "log": str(path_inside(t.work, f"logs/{first}.blender.log", "render log")),
-        "timing_out": str(path_inside(t.work, f"timing/{first}.json", "timing file")),
-    }
+    return plan.JobRecord(
+        scene=job.scene, fidelity=t.exp.render.fidelity, render=render, frames=job.frames,
+        camera=plan.JobCamera(width=c.width, height=c.height, hfov_rad=math.radians(c.hfov_deg), K=t.K.tolist()),
+        gt=plan.JobTruth(T_world_dock=job.scene["dock"]["T_world_dock"], markers=t.markers),
+        outputs=[plan.JobOutput(seq_dir=str(pt.writer.tmp_dir(s.id).resolve()), rel=f"sequences/{s.id}",
+                                post=s.post) for pt, _, seqs in parts for s in seqs],
+        log=str(path_inside(t.work, f"logs/{first}.blender.log", "render log")),
+        timing_out=str(path_inside(t.work, f"timing/{first}.json", "timing file")))
 
 
 def manifest_base(exp: Experiment, K: np.ndarray, markers: list[dict], scene: dict,
                   jobs: list[plan.RenderJob]) -> dict:
     c = exp.camera
     seqs = [{"id": s.id, "path": f"sequences/{s.id}", "condition": s.condition,
-             "conditions": {"label": s.condition, **s.conditions}, "trial": s.trial,
+             "conditions": {"label": s.condition, **s.post.model_dump(mode="json", exclude_none=True)}, "trial": s.trial,
              "trajectory": s.trajectory, "n_frames": len(j.frames)} for j in jobs for s in j.sequences]
     return {"format": FORMAT, "spec_version": SPEC_VERSION, "name": exp.name, "version": exp.version,
             "generator": versions(), "config": exp.model_dump(mode="json"), "seed": exp.seed,
@@ -103,8 +101,10 @@ def generate_many(items: list[tuple[Experiment, Path]], workers: int | None = No
     trajectories). Returns the manifests in the order of ``items``."""
     if executor not in ex.EXECUTORS:
         raise ex.ExecutorError(f"unknown executor {executor!r}; choose one of {', '.join(ex.EXECUTORS)}")
+    for exp, _ in items:
+        plan.check_paths(exp)                  # user errors before anything is written
     if executor == "ray":
-        ex.require_ray()                       # user errors before anything is written
+        ex.require_ray()
         if ray_address:
             ex.check_ray_address(ray_address)
     else:
@@ -174,7 +174,7 @@ def _render(targets: list[_Target], workers: int | None, progress: bool, kind: s
                 shutil.rmtree(pt.writer.tmp_dir(s.id), ignore_errors=True)
         render = plan.render_settings(t.exp, threads)
         # named by dataset and first sequence: unique across the datasets of one run
-        jf = ex.write_job(_job_dict(t, j, render, parts),
+        jf = ex.write_job(_job_record(t, j, render, parts),
                           path_inside(t.work, f"jobs/{t.exp.name}--{j.sequences[0].id}.json", "job file"))
         files[jf] = parts
 

@@ -15,17 +15,83 @@ import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal, Optional
 
 import numpy as np
+from pydantic import Field
 
 from blendgen import markers as mk
 
 from blendgen.pipeline import groundtruth
 from blendgen.vehicle import trajectories as tj
 from blendgen.geometry import intrinsics_from_hfov, make_T, rpy_to_R
-from blendgen.config.models import Experiment
+from blendgen.config.models import ConfigError, Experiment, ImageFormation, Occlusion, Sensor, Strict, Vec3, Water
 
 INDEX_POOL, INDEX_DOCK, INDEX_MARKER0, INDEX_OBSTACLE0, INDEX_PARTICLES = 1, 2, 10, 100, 250
+#: Version of :class:`JobRecord`, the file a render worker reads.
+JOB_RECORD_VERSION = 1
+#: The camera must stay this far (m) in front of the dock's marker plane: no frame from inside the dock.
+MIN_CLEARANCE_M = 0.05
+#: Diffuse sky irradiance as a fraction of the direct sun's on a horizontal plane (clear sky:
+#: about 0.1-0.3); our choice for the physical mode.
+SKY_FRACTION_PHYSICAL = 0.25
+
+
+class OcclusionPost(Occlusion):
+    """Small obstacles of one sequence: the config's, with the region resolved and the flow."""
+    region_min: Vec3
+    region_max: Vec3
+    v_flow: Vec3
+
+
+class SequencePost(Strict):
+    """Image-space processing of one sequence (typed; recorded in the manifest as its
+    ``conditions``). Depths in metres below the surface, world z up, irradiance W/m^2."""
+    seed: int
+    fps: float
+    image_formation: ImageFormation
+    water: Water
+    light_depth_m: float = Field(ge=0.0, description="the dock's depth (the article's d)")
+    surface_z_m: float = Field(description="world z of the water surface for this condition")
+    irradiance_w_m2: float = Field(ge=0.0, description="downwelling irradiance just below the surface")
+    noise_std: float = 0.0
+    sensor: Sensor = Sensor()
+    distortion: Optional[list[float]] = None
+    occlusion: Optional[OcclusionPost] = None
+
+
+class JobCamera(Strict):
+    width: int
+    height: int
+    hfov_rad: float
+    K: list[list[float]]
+
+
+class JobTruth(Strict):
+    T_world_dock: list[list[float]]
+    markers: list[dict]
+
+
+class JobOutput(Strict):
+    seq_dir: str
+    rel: str
+    post: SequencePost
+
+
+class JobRecord(Strict):
+    """What a render worker process is given (JSON on disk, parsed once by the worker).
+    ``scene``, ``render`` and ``frames`` are the plain data of :func:`scene_description`,
+    :func:`render_settings` and the camera path."""
+    version: Literal[1] = JOB_RECORD_VERSION
+    scene: dict
+    fidelity: Literal["fast", "reference"]
+    render: dict
+    frames: list[dict]
+    camera: JobCamera
+    gt: JobTruth
+    outputs: list[JobOutput]
+    log: Optional[str] = None
+    timing_out: Optional[str] = None
 
 
 @dataclass
@@ -35,8 +101,7 @@ class SequencePlan:
     trajectory: str
     trial: int
     condition: str
-    conditions: dict
-    post: dict
+    post: SequencePost
 
 
 @dataclass
@@ -91,7 +156,48 @@ def scene_description(exp: Experiment, markers: list[dict], textures: dict[str, 
         "sun": {"direction": _sun_dir(s.sun_elevation_deg, s.sun_azimuth_deg), "strength": s.sun_strength},
         "fill": {"direction": _sun_dir(0.0, s.sun_azimuth_deg), "strength": s.fill_strength},
         "world_color": [0.0, 0.0, 0.0],
+        "sky": sky_radiance(exp) if exp.render.fidelity == "reference" else None,
     }
+
+
+def sky_fraction(exp: Experiment) -> float:
+    """Diffuse sky light as a fraction of the sun's horizontal irradiance (config, else by mode)."""
+    f = exp.scene.sky_fraction
+    return f if f is not None else (SKY_FRACTION_PHYSICAL if exp.image_formation == "physical" else 0.0)
+
+
+def sun_horizontal_irradiance(exp: Experiment) -> float:
+    """Irradiance of the sun on a horizontal plane (W/m^2): strength x sin(elevation)."""
+    return exp.scene.sun_strength * math.sin(math.radians(exp.scene.sun_elevation_deg))
+
+
+def downwelling_irradiance(exp: Experiment) -> float:
+    """E_d0 (W/m^2): sun plus sky on a horizontal plane just below the surface."""
+    return sun_horizontal_irradiance(exp) * (1.0 + sky_fraction(exp))
+
+
+def ambient_on(exp: Experiment) -> bool:
+    a = exp.scene.ambient
+    return a if a is not None else exp.image_formation == "physical"
+
+
+def ambient_radiance(exp: Experiment) -> float:
+    """Mean radiance of the diffuse light field just below the surface (W/m^2/sr):
+    ``E_d0 / (4 pi mu_d)`` (the same light field as the fast model's veil,
+    ``optics.light_field_veil``); 0 when the ambient light is off."""
+    from blendgen.physics.optics import MEAN_COSINE_DOWN
+    return downwelling_irradiance(exp) / (4.0 * math.pi * MEAN_COSINE_DOWN) if ambient_on(exp) else 0.0
+
+
+def sky_radiance(exp: Experiment) -> dict | None:
+    """Reference fidelity: a uniform environment (W/m^2/sr, hidden from the camera) standing
+    in for the diffuse light field, the same isotropic-equivalent mean radiance the fast
+    path's ambient term uses (attenuated by the medium on its way in, which the in-water
+    light field is not: a known difference between the fidelities)."""
+    if not ambient_on(exp):
+        return None
+    L = ambient_radiance(exp)
+    return {"upper": L, "lower": L}
 
 
 def object_index_names(markers: list[dict], exp: Experiment) -> dict[str, str]:
@@ -103,15 +209,72 @@ def object_index_names(markers: list[dict], exp: Experiment) -> dict[str, str]:
     return names
 
 
+def until_contact(exp: Experiment, traj, T_wc: np.ndarray, T_wd: np.ndarray) -> int:
+    """Number of leading frames with the camera at least ``MIN_CLEARANCE_M`` in front of the
+    marker plane. A docking trial ends there (contact: the camera enters the dock); a
+    kinematic path that gets there is a config error naming the trajectory and the fix."""
+    z = (np.linalg.inv(T_wd) @ T_wc[:, :, 3].T)[2]            # camera centre, dock frame (+z out of the face)
+    bad = np.flatnonzero(z < MIN_CLEARANCE_M)
+    if bad.size == 0:
+        return len(T_wc)
+    if traj.kind == "docking":
+        return int(bad[0])
+    lead = exp.camera.T_body_cam.xyz[0]
+    hint = (f"; end_range_m must be >= {lead + MIN_CLEARANCE_M:.2f} (camera {lead:g} m ahead of the body)"
+            if traj.kind == "linear" else "")
+    raise ConfigError(f"trajectories: {traj.id!r}: the camera comes within {MIN_CLEARANCE_M} m of the dock's "
+                      f"marker plane (or behind it) at t = {bad[0] / exp.camera.fps:.2f} s{hint}")
+
+
+def exposure_flow(exp: Experiment, T_wc: np.ndarray, T_wd: np.ndarray) -> np.ndarray:
+    """(N, 2) image motion (px) of the dock's face centre during each frame's exposure.
+
+    The pose at ``t + exposure_s`` is interpolated between consecutive samples (position
+    linearly, attitude by slerp); the last frame repeats the previous motion. One vector per
+    frame: a uniform blur, exact for rotation, approximate for motion toward the dock
+    (whose flow is radial)."""
+    from scipy.spatial.transform import Rotation, Slerp
+    K = camera_K(exp)
+    a = min(exp.camera.sensor.exposure_s * exp.camera.fps, 1.0)
+    centre = T_wd[:, 3]
+    flow = np.zeros((len(T_wc), 2))
+    for i in range(len(T_wc) - 1):
+        slerp = Slerp([0.0, 1.0], Rotation.from_matrix([T_wc[i][:3, :3], T_wc[i + 1][:3, :3]]))
+        T1 = np.eye(4)
+        T1[:3, :3] = slerp(a).as_matrix()
+        T1[:3, 3] = (1 - a) * T_wc[i][:3, 3] + a * T_wc[i + 1][:3, 3]
+        p0, p1 = (np.linalg.inv(T) @ centre for T in (T_wc[i], T1))
+        if p0[2] > 0 and p1[2] > 0:
+            flow[i] = (K @ p1[:3])[:2] / p1[2] - (K @ p0[:3])[:2] / p0[2]
+    if len(T_wc) > 1:
+        flow[-1] = flow[-2]
+    return flow
+
+
+def check_paths(exp: Experiment) -> None:
+    """Raise ConfigError before anything is written if a kinematic path (linear, circle) brings
+    the camera to the dock's marker plane (:func:`until_contact`); docking trials end there."""
+    T_wd = tj.T_world_dock_from_spec(exp.scene.dock)
+    T_bc = tj.T_body_cam_from_spec(exp.camera.T_body_cam)
+    for traj in exp.trajectories:
+        if traj.kind != "docking":
+            smp = tj.sample(traj, T_wd, exp.camera.fps, exp.camera.latency_s, seed=0, fluid=exp.fluid)
+            until_contact(exp, traj, smp.T_world_body @ T_bc, T_wd)
+
+
 def _frames(exp: Experiment, traj, T_wd: np.ndarray, T_body_cam: np.ndarray, seed: int, fluid) -> list[dict]:
-    """Camera frames of one path; those farther than ``render.max_distance_m`` from the
-    marker plane are skipped (they are outside the evaluation window). Indices keep the
-    trajectory's sample numbering, so ``t`` stays ``index / fps``."""
+    """Camera frames of one path up to contact (:func:`until_contact`); those farther than
+    ``render.max_distance_m`` from the marker plane are skipped (they are outside the
+    evaluation window). Indices keep the trajectory's sample numbering, so ``t`` stays
+    ``index / fps``."""
     smp = tj.sample(traj, T_wd, exp.camera.fps, exp.camera.latency_s, seed=seed, fluid=fluid)
     T_wc = smp.T_world_body @ T_body_cam
+    n = until_contact(exp, traj, T_wc, T_wd)
     d_max = exp.render.max_distance_m
+    flow = exposure_flow(exp, T_wc[:n], T_wd) if exp.camera.sensor.motion_blur else None
     frames = [{"index": i, "t": float(t), "t_pose": float(tp), "T_world_cam": T.tolist()}
-              for i, (t, tp, T) in enumerate(zip(smp.t, smp.t_pose, T_wc))
+              | ({} if flow is None else {"blur_px": flow[i].tolist()})
+              for i, (t, tp, T) in enumerate(zip(smp.t[:n], smp.t_pose[:n], T_wc[:n]))
               if d_max is None or groundtruth.d_true(T, T_wd) <= d_max]
     if exp.render.roi and exp.render.fidelity == "fast":
         box = dock_corners(exp)
@@ -154,20 +317,25 @@ def occlusion_region(exp: Experiment, occ) -> tuple[list[float], list[float]]:
     return list(c - [7.5, 2.5, 4.0]), list(c + [7.5, 2.5, 4.0])
 
 
-def condition_post(exp: Experiment, cond, seed: int) -> dict:
-    """Image-space processing of one condition: water, depth light, particles, sensor."""
-    water = (cond.water or exp.water).model_dump(exclude_none=True)
+def condition_post(exp: Experiment, cond, seed: int) -> SequencePost:
+    """Image-space processing of one condition: water, depth light, particles, sensor.
+
+    A depth condition moves the water surface (``surface_z_m``), not the geometry, so the
+    clean render is shared: the surface sits ``light_depth_m`` above the dock's face centre."""
     depth = cond.dock_water_depth_m if cond.dock_water_depth_m is not None else exp.scene.dock.water_depth_m
     occ = cond.occlusion or exp.occlusion
     fluid = cond.fluid or exp.fluid
-    post = {"water": water, "light_depth_m": depth, "irradiance": exp.scene.sun_strength,
-            "noise_std": exp.camera.noise_std,
-            "distortion": exp.camera.distortion, "seed": seed, "fps": exp.camera.fps, "occlusion": None}
+    occ_post = None
     if occ is not None and occ.n_total > 0:
         lo, hi = occlusion_region(exp, occ)
-        post["occlusion"] = {**occ.model_dump(), "region_min": lo, "region_max": hi,
-                             "v_flow": list(fluid.current_mps)}
-    return post
+        occ_post = OcclusionPost(**occ.model_dump(exclude={"region_min", "region_max"}), region_min=lo,
+                                 region_max=hi, v_flow=list(fluid.current_mps))
+    return SequencePost(seed=seed, fps=exp.camera.fps, image_formation=exp.image_formation,
+                        water=cond.water or exp.water, light_depth_m=depth,
+                        surface_z_m=-exp.scene.dock.water_depth_m + depth,
+                        irradiance_w_m2=downwelling_irradiance(exp), noise_std=exp.camera.noise_std,
+                        sensor=exp.camera.sensor,
+                        distortion=exp.camera.distortion, occlusion=occ_post)
 
 
 @functools.lru_cache(maxsize=256)
@@ -194,19 +362,19 @@ def job_key(exp: Experiment, scene: dict, frames: list[dict]) -> str:
     return hashlib.sha256(blob.encode()).hexdigest()
 
 
-def water_volume(exp: Experiment, post: dict) -> dict | None:
+def water_volume(exp: Experiment, post: SequencePost) -> dict | None:
     """Reference-fidelity medium for one condition, or None when the water is clear.
 
     A box whose top face is the water surface (a World volume would kill sunlight).
     The surface sits ``light_depth_m`` above the dock, so a depth condition moves the
     surface, not the geometry, and the clean renders stay comparable."""
     from blendgen.physics import optics
-    w = optics.water_from_config(post["water"])
+    w = optics.water_for_mode(post.water, post.image_formation)
     if w.is_clear:
         return None
     s = exp.scene
     dock_z = -s.dock.water_depth_m
-    surface_z = dock_z + post["light_depth_m"]
+    surface_z = post.surface_z_m
     if s.kind == "pool":
         lo = [-s.pool.length_m / 2, -s.pool.width_m / 2, -s.pool.depth_m]
         hi = [s.pool.length_m / 2, s.pool.width_m / 2, surface_z]
@@ -247,11 +415,11 @@ def plan_jobs(exp: Experiment, scene: dict) -> list[RenderJob]:
                     paths[mkey] = _frames(exp, traj, T_wd, T_bc, seed, fluid or exp.fluid)
                 frames = paths[mkey]
                 post = condition_post(exp, c, seed)
-                sq = SequencePlan(f"{traj.id}-t{trial:03d}-{c.label}", traj.id, trial, c.label, post, post)
+                sq = SequencePlan(f"{traj.id}-t{trial:03d}-{c.label}", traj.id, trial, c.label, post)
                 sc = scene if exp.render.fidelity == "fast" else {**scene, "water_volume": water_volume(exp, post)}
-                if post["occlusion"] and post["occlusion"]["geometry"] == "blender":
+                if post.occlusion and post.occlusion.geometry == "blender":
                     # real geometry is part of the render: keyed by its config and seed
-                    sc = {**sc, "particles": {**post["occlusion"], "seed": seed, "fps": exp.camera.fps,
+                    sc = {**sc, "particles": {**post.occlusion.model_dump(), "seed": seed, "fps": exp.camera.fps,
                                               "object_index": INDEX_PARTICLES}}
                 key = job_key(exp, sc, frames)
                 jobs.setdefault(key, RenderJob(key, sc, frames)).sequences.append(sq)
@@ -262,7 +430,10 @@ def render_settings(exp: Experiment, threads: int) -> dict:
     """Cycles settings for the chosen fidelity."""
     r = exp.render
     samples = r.samples if r.fidelity == "fast" else r.reference_samples
-    return {"samples": samples, "threads": threads, "max_bounces": 0, "seed": exp.seed,
+    return {"samples": samples, "threads": threads, "max_bounces": r.diffuse_bounces,
+            "diffuse_bounces": r.diffuse_bounces, "seed": exp.seed,
+            "ambient_radiance": ambient_radiance(exp) if r.fidelity == "fast" else 0.0,
+            "albedo_pass": r.fidelity == "fast" and ambient_on(exp),
             "write_depth": r.write_depth, "write_index": r.write_index,
             "roi": r.roi and r.fidelity == "fast", "background_scale": r.background_scale,
             "background_samples": r.background_samples, "roi_max_fraction": 0.5}

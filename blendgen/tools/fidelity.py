@@ -149,8 +149,11 @@ def fit_mask(clean: dict, ref_rgb: np.ndarray, dock_ids: list[int], markers: lis
             & (clean["rgb"].max(axis=2) < 0.98) & (ref_rgb.max(axis=2) < 0.98))
 
 
-def calibrate(ref_path: Path, clean_path: Path, light_depth_m: float, irradiance: float) -> dict:
-    """Fit every turbid condition of the reference dataset; returns the calibration dict."""
+def calibrate(ref_path: Path, clean_path: Path, light_depth_m: float, irradiance: float,
+              sun_elevation_deg: float = 90.0) -> dict:
+    """Fit every turbid condition of the reference dataset; returns the calibration dict.
+    ``irradiance`` is the sun's strength (W/m^2, normal to the beam) at ``sun_elevation_deg``."""
+    from blendgen.config.models import Water
     from blendgen.physics import optics
     from evalkit.dataset import Dataset
     ref, clean = load_frames(ref_path), load_frames(clean_path)
@@ -159,7 +162,7 @@ def calibrate(ref_path: Path, clean_path: Path, light_depth_m: float, irradiance
     dock_ids = [INDEX_DOCK] + [m["object_index"] for m in markers]
     presets = {}
     for cond in sorted({k[0] for k in ref}):
-        w0 = optics.water_from_config({"preset": cond})
+        w0 = optics.water_optics(Water(preset=cond))
         if w0.is_clear:
             continue
         keys = sorted(k for k in ref if k[0] == cond)
@@ -173,10 +176,11 @@ def calibrate(ref_path: Path, clean_path: Path, light_depth_m: float, irradiance
         entry = {"B_inf": (B / (a * irradiance)).round(6).tolist(),
                  "Kd": np.clip(-np.log(a) / max(light_depth_m, 1e-6), 0.0, 5.0).round(5).tolist(),
                  "blur": False, "a": a.round(5).tolist()}
-        cal = {"presets": {cond: entry}}
+        cal = {"presets": {cond: entry}, "sun_elevation_deg": sun_elevation_deg}
         res = {}
         for label, use in (("uncalibrated", False), ("calibrated", True)):
-            w, fo = optics.fast_water({"preset": cond, "calibrated": use}, irradiance, cal)
+            e_d = irradiance * math.sin(math.radians(sun_elevation_deg))
+            w, fo = optics.fast_water(Water(preset=cond, calibrated=use), "physical", e_d, cal)
             err = []
             for k, (y, J, r) in zip(keys, pix):
                 pred = optics.apply_water(J[None].astype(np.float64), r[None], None, w, light_depth_m,
@@ -202,7 +206,7 @@ def run_calibration(work: Path, data_path: Path, width: int, height: int, frames
     clean_path, _ = render(clean_exp, work / f"clean-{width}x{height}-s{ref_samples}")
     depth = ref_exp.scene.dock.water_depth_m
     E = ref_exp.scene.sun_strength
-    presets = calibrate(ref_path, clean_path, depth, E)
+    presets = calibrate(ref_path, clean_path, depth, E, ref_exp.scene.sun_elevation_deg)
     data = {"version": 1,
             "method": (f"least squares of I_ref = a J exp(-c r) + B (1 - exp(-c r)) over dock+marker pixels; "
                        f"reference: Cycles medium, 0 volume bounces (single scattering), {ref_samples} spp, "
@@ -333,3 +337,66 @@ def pareto_plot(df, path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
+
+
+# --------------------------------------------------------------------------- glow
+
+GLOW_WATERS = ("mild", "moderate")
+GLOW_RANGES = (2.0, 5.0, 8.0)
+GLOW_RADII_PX = (3, 6, 12, 24, 40)
+
+
+def glow_reference(water, range_m: float, out: Path, size: int = 96, hfov_deg: float = 40.0,
+                   samples: int = 64, power_w: float = 100.0) -> np.ndarray:
+    """Render the reference glow of a point light ``range_m`` ahead (``blendgen.blender.glow_scene``,
+    Blender in a subprocess); returns its linear RGB (size, size, 3)."""
+    import subprocess
+    import sys
+    spec = {"water": {"sigma_a": water.sigma_a.tolist(), "sigma_s": water.sigma_s.tolist(), "phase": water.phase,
+                      "g": float(water.g), "ff_ior": float(water.ff_ior), "ff_backscatter": float(water.ff_backscatter)},
+            "range_m": range_m, "power_w": power_w, "light_radius_m": 0.005, "hfov_deg": hfov_deg,
+            "width": size, "height": size, "samples": samples, "seed": 1}
+    out.mkdir(parents=True, exist_ok=True)
+    sp, npy = out / f"glow-{water.name}-{range_m:g}.json", out / f"glow-{water.name}-{range_m:g}.npy"
+    sp.write_text(json.dumps(spec))
+    res = subprocess.run([sys.executable, "-m", "blendgen.blender.glow_scene", str(sp), str(npy)],
+                         capture_output=True, text=True, timeout=600)
+    if res.returncode != 0:
+        raise RuntimeError(f"glow reference render failed: {res.stderr[-1500:]}")
+    return np.load(npy)
+
+
+def encircled_glow(img: np.ndarray, fx: float, radii_px) -> np.ndarray:
+    """(len(radii), 3): sum of radiance x pixel solid angle within each radius of the image
+    centre (pixel solid angle ``cos^3(theta) / fx^2``)."""
+    h, w = img.shape[:2]
+    yy, xx = np.mgrid[0:h, 0:w]
+    dx, dy = xx - (w - 1) / 2, yy - (h - 1) / 2
+    rho = np.hypot(dx, dy)
+    omega = (1.0 / (1.0 + (rho / fx) ** 2)) ** 1.5 / fx ** 2
+    return np.array([(img * omega[..., None])[rho <= R].sum(axis=0) for R in radii_px])
+
+
+def glow_comparison(work: Path, waters=GLOW_WATERS, ranges=GLOW_RANGES, size: int = 96, samples: int = 64,
+                    power_w: float = 100.0, hfov_deg: float = 40.0):
+    """Fast single-scatter glow model vs the reference medium (0 volume bounces), per water,
+    range and radius: encircled glow relative to the unscattered irradiance of the source,
+    ``EE = sum(L Omega) / (I exp(-c r) / r^2)`` with Cycles' point-light intensity
+    ``I = P / (4 pi)`` W/sr. Returns a DataFrame (green channel) with both and their ratio."""
+    import pandas as pd
+    from blendgen.config.models import Water
+    from blendgen.physics import optics
+    fx = (size / 2) / math.tan(math.radians(hfov_deg) / 2)
+    rows = []
+    for name in waters:
+        w = optics.water_for_mode(Water(preset=name), "physical")
+        for r in ranges:
+            img = glow_reference(w, r, work, size, hfov_deg, samples, power_w)
+            direct = power_w / (4 * math.pi) * np.exp(-w.c * r) / r ** 2
+            ref = encircled_glow(img.astype(np.float64), fx, GLOW_RADII_PX) / direct
+            single = optics.glow_encircled_energy(w, r, np.array(GLOW_RADII_PX) / fx)
+            single /= (np.expm1(w.sigma_s * r) / (w.sigma_s * r))            # the reference is single scatter
+            for R, e_ref, e_fast in zip(GLOW_RADII_PX, ref[:, 1], single[:, 1]):
+                rows.append({"water": name, "range_m": r, "radius_px": R, "EE_reference": e_ref,
+                             "EE_fast_single": e_fast, "ratio": e_fast / e_ref if e_ref > 0 else float("nan")})
+    return pd.DataFrame(rows)

@@ -27,16 +27,20 @@ EXPERIMENTS = ("turbidity", "depth", "current", "occlusion")
 LOCALIZERS = ("led", "qr", "hybrid")
 
 
-def experiment(name: str, trials: int | None):
-    """The paper config, optionally with fewer trials (the dataset name records it)."""
+def experiment(name: str, trials: int | None, mode: str | None = None):
+    """The paper config, optionally with fewer trials or another image formation (the
+    dataset name records both)."""
     path = bundled_file("configs", f"paper_{name}.yaml")
     exp = load_experiment(path)
+    raw = exp.model_dump()
     if trials is not None:         # re-validated: the trials and frame limits apply here too
-        raw = {**exp.model_dump(), "trials": trials, "name": f"{exp.name}-{trials}trials"}
-        try:
-            exp = type(exp).model_validate(raw)
-        except ValidationError as e:
-            raise ConfigError(format_validation_error(Path(f"{path} with --trials {trials}"), e)) from None
+        raw.update(trials=trials, name=f"{raw['name']}-{trials}trials")
+    if mode is not None and mode != exp.image_formation:
+        raw.update(image_formation=mode, name=f"{raw['name']}-{mode}")
+    try:
+        exp = type(exp).model_validate(raw)
+    except ValidationError as e:
+        raise ConfigError(format_validation_error(Path(f"{path} with --trials {trials}"), e)) from None
     return exp
 
 
@@ -66,11 +70,11 @@ def report(name: str, paths: dict) -> str:
 
 
 def reproduce(names: tuple[str, ...], out_root: Path, trials: int | None, workers: int | None,
-              overwrite: bool = False) -> list[str]:
+              overwrite: bool = False, mode: str | None = None) -> list[str]:
     """Generate the experiments' datasets together (each shared camera path is rendered
     once for all of them), then evaluate and report each; returns the Markdown reports."""
     from blendgen.pipeline.generate import check_out_dir, generate_many
-    exps = [experiment(n, trials) for n in names]
+    exps = [experiment(n, trials, mode) for n in names]
     bases = [Path(out_root) / e.name for e in exps]
     for e, b in zip(exps, bases):
         check_out_dir(e, b / "dataset", overwrite=overwrite)

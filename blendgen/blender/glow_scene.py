@@ -1,0 +1,64 @@
+"""Reference glow of a point emitter seen through the Cycles medium (for the fast model's PSF).
+
+``python -m blendgen.blender.glow_scene SPEC.json OUT.npy`` renders a small point light
+(radius ``light_radius_m``, never seen directly: Cycles point lights are invisible to camera
+rays) at ``range_m`` straight ahead of a pinhole camera, both inside a water box
+(``plan.water_volume``-style ``water`` dict, 0 volume bounces: single scattering, the light
+reached by next-event estimation). The image then holds only the forward-scattered glow;
+OUT.npy is its linear RGB (H, W, 3) float32. SPEC keys: ``water``, ``range_m``, ``power_w``,
+``light_radius_m``, ``hfov_deg``, ``width``, ``height``, ``samples``, ``seed``.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+
+
+def build(spec: dict):
+    import bpy
+    from blendgen.blender import materials, render, scene as scn, water
+
+    sc = scn.reset()
+    world = bpy.data.worlds.new("black")
+    sc.world = world
+    materials.world_color(world, [0.0, 0.0, 0.0])
+    r = float(spec["range_m"])
+    water.add_water_volume({**spec["water"], "box_min": [-2.0, -20.0, -20.0], "box_max": [r + 5.0, 20.0, 20.0]})
+    light = bpy.data.lights.new("led", type="POINT")
+    light.energy = float(spec.get("power_w", 1.0))
+    light.shadow_soft_size = float(spec.get("light_radius_m", 0.005))
+    obj = bpy.data.objects.new("led", light)
+    sc.collection.objects.link(obj)
+    obj.location = (r, 0.0, 0.0)
+    cam = render.setup_camera(sc, {"width": spec["width"], "height": spec["height"],
+                                   "hfov_rad": math.radians(spec["hfov_deg"]), "clip_start": 0.001})
+    cam.rotation_euler = (math.pi / 2, 0.0, -math.pi / 2)   # Blender -Z view axis -> world +x
+    render.setup_cycles(sc, {"samples": spec["samples"], "seed": spec.get("seed", 0), "max_bounces": 0})
+    water.reference_settings(sc, 0)
+    return sc
+
+
+def main(argv: list[str]) -> int:
+    import bpy
+    import numpy as np
+    from blendgen.blender import render
+
+    spec = json.loads(open(argv[1]).read())
+    null = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(null, 1)                      # Blender's render log -> /dev/null
+    sc = build(spec)
+    path = os.path.join(render.scratch_dir(), f"dockbench-glow-{os.getpid()}.exr")
+    sc.render.filepath = path
+    try:
+        bpy.ops.render.render(write_still=True)
+        np.save(argv[2], render.read_passes(path)["rgb"])
+    finally:
+        if os.path.exists(path):
+            os.remove(path)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv))
