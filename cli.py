@@ -193,6 +193,9 @@ def _register() -> None:
     main.add_command(calibrate_cmd)
     from evalkit.pnp_bench import pnp_cmd
     bench.add_command(pnp_cmd, "pnp")
+    from blendgen.tools.closed_loop import dock_cmd
+    dock_cmd.callback = _user_errors(dock_cmd.callback)
+    main.add_command(dock_cmd)
 
 
 _register()
