@@ -255,33 +255,34 @@ def _vision_factory(bench: Bench, client: RenderClient, localizer, executor, con
 
 def run_suite(bench: Bench, localizers: list[LocalizerSpec], trials: int, out: Path, images: bool = False,
               threads: int = 0, baseline: bool = True, progress=print) -> tuple[list[dict], list[dict]]:
-    """Every (condition, localizer, trial); ``truth`` first when ``baseline``. Returns trial
+    """Every (trial, condition, localizer), trial-major so that an interrupted run has the same
+    number of trials in every cell; ``truth`` first when ``baseline``. The tables are
+    rewritten after every trial (``OUT/trials.parquet``, ``OUT/frames.parquet``). Returns trial
     and frame rows; the render server starts only when a localizer needs frames."""
     from evalkit.runner import InProcessExecutor
-    client = None
     executor = InProcessExecutor()
+    names = ([TRUTH] if baseline else []) + [s.name for s in localizers]
+    locs = {s.name: s.build() for s in localizers}
+    client = start_client(bench, out / "render_server.log", threads) if locs else None
     rows, frames = [], []
     try:
-        for cond in bench.exp.conditions:
-            for spec in ([None] if baseline else []) + list(localizers):
-                name = TRUTH if spec is None else spec.name
-                loc = None if spec is None else spec.build()
-                if loc is not None and client is None:
-                    client = start_client(bench, out / "render_server.log", threads)
-                for trial in range(trials):
+        for trial in range(trials):
+            for cond in bench.exp.conditions:
+                for name in names:
+                    loc = locs.get(name)
                     fac = None if loc is None else _vision_factory(
                         bench, client, loc, executor, cond, trial, name, out / "images" if images else None)
                     row, fr = run_trial(bench, cond, trial, name, fac)
                     rows.append(row)
                     frames.extend(fr)
+                    write_tables(rows, frames, out)
                     progress(f"{cond.label:14s} {name:10s} trial {trial:3d}: {row['outcome']:15s} "
                              f"{row['t_end_s']:5.1f} s sim, {row['wall_s']:6.1f} s wall")
-                close = getattr(loc, "close", None)
-                if callable(close):
-                    close()
     finally:
         if client is not None:
             client.close()
+        for loc in locs.values():
+            getattr(loc, "close", lambda: None)()
     return rows, frames
 
 
@@ -436,12 +437,18 @@ def report(summary, out: Path, exp: Experiment, capture: CaptureSpec) -> str:
 
 
 def run_dock(exp: Experiment, specs: list[LocalizerSpec], trials: int, out: Path, images: bool = False,
-             threads: int = 0, baseline: bool = True, progress=print) -> dict:
-    """Run the suite and write tables, summary and the path plot into ``out``; returns paths."""
+             threads: int = 0, baseline: bool = True, progress=print, report_only: bool = False) -> dict:
+    """Run the suite (unless ``report_only``: the tables already in ``out``) and write the
+    summary and the path plot into ``out``; returns paths."""
     import pandas as pd
     bench = Bench.prepare(exp, out / "assets")
-    rows, frames = run_suite(bench, specs, trials, out, images, threads, baseline, progress)
-    paths = write_tables(rows, frames, out)
+    if report_only:
+        paths = {"trials": out / "trials.parquet", "frames": out / "frames.parquet"}
+        if not paths["trials"].is_file():
+            raise ConfigError(f"--report-only: no {paths['trials']} (run without it first)")
+    else:
+        rows, frames = run_suite(bench, specs, trials, out, images, threads, baseline, progress)
+        paths = write_tables(rows, frames, out)
     tr, fr = pd.read_parquet(paths["trials"]), pd.read_parquet(paths["frames"])
     summary = summary_table(tr, fr, exp.d_min_rel_m)
     summary.to_csv(out / "summary.csv", index=False)
@@ -482,10 +489,11 @@ import click  # noqa: E402  (the command sits below the library functions it dri
 @click.option("--isolate", is_flag=True, help="run Python localizers in a child process")
 @click.option("--frame-timeout", type=click.FloatRange(min=0.001), default=None, help="s per frame")
 @click.option("--preprocess", default=None, metavar="STEPS", help="image preprocessing (see evaluate)")
+@click.option("--report-only", is_flag=True, help="only summarise and plot the tables already in OUT")
 @click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="output directory (default out/dock/NAME)")
 def dock_cmd(experiment, localizers, params, trials, conditions, size, images, no_baseline, threads, isolate,
-             frame_timeout, preprocess, out):
+             frame_timeout, preprocess, report_only, out):
     """Closed-loop docking: each localizer steers the vehicle from seeded starts.
 
     EXPERIMENT is turbidity, depth, current, occlusion (the paper configs) or a config file.
@@ -494,14 +502,69 @@ def dock_cmd(experiment, localizers, params, trials, conditions, size, images, n
     from blendgen.pipeline.executor import require_render_stack
     exp = load_bench_experiment(experiment, size, conditions)
     specs = _specs(localizers, params, isolate, frame_timeout, preprocess)
-    if specs:
+    if specs and not report_only:
         require_render_stack()
         for s in specs:                      # user errors before the first trial
             loc = s.build()
             getattr(loc, "close", lambda: None)()
     out = out or Path("out/dock") / exp.name
     paths = run_dock(exp, specs, trials, out, images, threads, not no_baseline,
-                     progress=lambda m: click.echo(m, err=True))
+                     progress=lambda m: click.echo(m, err=True), report_only=report_only)
     import pandas as pd
     print_table(pd.read_csv(paths["summary"]), floatfmt=".3g")
     click.echo("\n".join(f"{k}: {v}" for k, v in paths.items()))
+
+
+# ------------------------------------------------------------------ cost ---------------
+def closed_loop_cost(exp: Experiment, localizer: str, trials: int, out: Path, threads: int = 0) -> dict:
+    """Seconds per closed-loop trial and ms per frame by stage (render incl. reading the passes,
+    compose, localize, the rest = dynamics + filter + bookkeeping) over ``trials`` trials of
+    the first condition."""
+    import pandas as pd
+    bench = Bench.prepare(exp, out / "assets")
+    exp.conditions = exp.conditions[:1]
+    t0 = time.perf_counter()
+    rows, frames = run_suite(bench, [LocalizerSpec(localizer, {})], trials, out, baseline=False,
+                             threads=threads, progress=lambda m: click.echo(m, err=True))
+    wall = time.perf_counter() - t0
+    f, tr = pd.DataFrame(frames), pd.DataFrame(rows)
+    n = len(f)
+    per_frame = 1e3 * float(tr["wall_s"].sum()) / n
+    stages = {s: float(f[c].mean()) for s, c in (("render_ms", "render_ms"), ("compose_ms", "compose_ms"),
+                                                  ("localize_ms", "ms"))}
+    return {"localizer": localizer, "size": f"{exp.camera.width}x{exp.camera.height}", "fps": exp.camera.fps,
+            "trials": len(tr), "frames": n, "s_per_trial": float(tr["wall_s"].mean()),
+            "sim_s_per_trial": float(tr["t_end_s"].mean()), "ms_per_frame": per_frame, **stages,
+            "other_ms": per_frame - sum(stages.values()), "wall_s_incl_server_start": wall,
+            "outcomes": ", ".join(tr["outcome"])}
+
+
+@click.command("closed-loop")
+@click.option("--experiment", default="turbidity", show_default=True, help="paper experiment or config file")
+@click.option("-l", "--localizer", default="led", show_default=True)
+@click.option("--trials", type=click.IntRange(1, 1000), default=2, show_default=True)
+@click.option("--size", default=None, metavar="WxH", help="override the resolution (default: the config's)")
+@click.option("--open-loop-frames", type=click.IntRange(0, 10000), default=30, show_default=True,
+              help="frames of the open-loop stage bench to compare with (0: skip)")
+@click.option("--threads", type=click.IntRange(0, 256), default=0, help="Cycles threads (0: all cores)")
+@click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
+              default=Path("out/bench_closed_loop"), show_default=True)
+def bench_cmd(experiment, localizer, trials, size, open_loop_frames, threads, out):
+    """Seconds per closed-loop trial (fast fidelity) vs the open-loop cost per frame."""
+    import pandas as pd
+    from evalkit.reports.tables import print_table
+    from blendgen.pipeline.executor import require_render_stack
+    require_render_stack()
+    exp = load_bench_experiment(experiment, size, ())
+    row = closed_loop_cost(exp, localizer, trials, out, threads)
+    click.echo("\nclosed loop (one warm Blender process, render -> compose -> localize -> guide):")
+    print_table(pd.DataFrame([row]), floatfmt=".1f")
+    pd.DataFrame([row]).to_csv(out / "bench_closed_loop.csv", index=False)
+    if open_loop_frames:
+        from blendgen.tools.bench import render_stages
+        ol = render_stages(out / "open_loop", open_loop_frames, exp.render.samples)
+        click.echo(f"\nopen loop (dockbench generate, quickstart approach, 640x480, {exp.render.samples} spp): "
+                   f"{ol['wall_ms_per_frame']:.1f} ms/frame wall incl. process start and scene build, "
+                   f"{ol['render+write_ms']:.1f} ms/frame render+post+write")
+        click.echo(f"closed loop: {row['ms_per_frame']:.1f} ms/frame -> {row['s_per_trial']:.1f} s per trial of "
+                   f"{row['frames'] / row['trials']:.0f} frames")
