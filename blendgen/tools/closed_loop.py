@@ -356,11 +356,24 @@ def summary_table(trials, frames, d_min_rel: float = 0.2):
     return df[SUMMARY_COLUMNS]
 
 
-def plot_paths(trials, frames, capture: CaptureSpec, T_world_dock: np.ndarray, path: Path) -> Path:
-    """Top-down paths (world x, y) per condition, one colour per localizer; the dock face
-    and its capture mouth drawn; crossing points: o docked, x any failure."""
+def _with_camera_xy(frames, T_world_dock: np.ndarray, cam_forward_m: float):
+    """Frames with ``x_cam_world``/``y_cam_world``; tables without them (older runs) get the
+    body origin moved ``cam_forward_m`` along the logged heading (level vehicle)."""
+    if "x_cam_world" in frames and frames["x_cam_world"].notna().all():
+        return frames
+    z = T_world_dock[:3, 2]
+    yaw = math.atan2(-z[1], -z[0]) + np.radians(frames["heading_err_deg"].to_numpy())
+    return frames.assign(x_cam_world=frames["x_world"] + cam_forward_m * np.cos(yaw),
+                         y_cam_world=frames["y_world"] + cam_forward_m * np.sin(yaw))
+
+
+def plot_paths(trials, frames, capture: CaptureSpec, T_world_dock: np.ndarray, path: Path,
+               cam_forward_m: float = 0.65) -> Path:
+    """Top-down paths of the camera (= nose; world x, y) per condition, one colour per localizer;
+    the dock face and its capture mouth drawn; last points: o docked, x any failure."""
     from evalkit.reports.plots import _pyplot
     plt = _pyplot()
+    frames = _with_camera_xy(frames, T_world_dock, cam_forward_m)
     conds = list(dict.fromkeys(trials["condition"]))
     locs = list(dict.fromkeys(trials["localizer"]))
     colours = dict(zip(locs, plt.get_cmap("tab10").colors))
@@ -370,11 +383,12 @@ def plot_paths(trials, frames, capture: CaptureSpec, T_world_dock: np.ndarray, p
     o, xd = T_world_dock[:3, 3], T_world_dock[:3, 0]
     for ax, cond in zip(axes.ravel(), conds):
         for (loc, trial), g in frames[frames["condition"] == cond].groupby(["localizer", "trial"], sort=False):
-            ax.plot(g["x_world"], g["y_world"], color=colours[loc], lw=0.8, alpha=0.7,
+            ax.plot(g["x_cam_world"], g["y_cam_world"], color=colours[loc], lw=0.8, alpha=0.7,
                     label=loc if trial == 0 else None)
             end = trials[(trials["condition"] == cond) & (trials["localizer"] == loc) & (trials["trial"] == trial)]
             docked = bool(end["docked"].iloc[0]) if len(end) else False
-            ax.plot(g["x_world"].iloc[-1], g["y_world"].iloc[-1], "o" if docked else "x", color=colours[loc], ms=4)
+            ax.plot(g["x_cam_world"].iloc[-1], g["y_cam_world"].iloc[-1], "o" if docked else "x",
+                    color=colours[loc], ms=4)
         face = np.array([o - xd * capture.frame_half_m[0], o + xd * capture.frame_half_m[0]])
         ax.plot(face[:, 0], face[:, 1], color="k", lw=3)
         mouth = np.array([o - xd * capture.capture_radius_m, o + xd * capture.capture_radius_m])
@@ -387,7 +401,8 @@ def plot_paths(trials, frames, capture: CaptureSpec, T_world_dock: np.ndarray, p
         ax.legend(fontsize=7, loc="best")
     for ax in axes.ravel()[len(conds):]:
         ax.set_visible(False)
-    fig.suptitle("closed-loop docking paths (top view); o docked, x failed; black: dock face grown by the hull radius (collision), green: capture radius")
+    fig.suptitle("closed-loop docking, camera/nose paths (top view): o docked, x failed\n"
+                 "black: dock face + hull radius (collision), green: capture radius", fontsize=10)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
@@ -453,7 +468,8 @@ def run_dock(exp: Experiment, specs: list[LocalizerSpec], trials: int, out: Path
     summary = summary_table(tr, fr, exp.d_min_rel_m)
     summary.to_csv(out / "summary.csv", index=False)
     paths["summary"] = out / "summary.csv"
-    paths["plot"] = plot_paths(tr, fr, bench.capture, bench.T_world_dock, out / "paths.png")
+    paths["plot"] = plot_paths(tr, fr, bench.capture, bench.T_world_dock, out / "paths.png",
+                               float(bench.T_body_cam[0, 3]))
     paths["report"] = out / "summary.md"
     report(summary, out, exp, bench.capture)
     (out / "run.json").write_text(json.dumps({"config": exp.model_dump(mode="json"), "trials": trials,
