@@ -136,6 +136,19 @@ def test_kalman_filter_smooths_noise_and_gates_an_outlier():
     assert abs(f.v[1] + 0.3) < 3 * math.sqrt(f.P[1, 1, 1])      # consistent with its covariance
 
 
+def test_dock_heading_estimate_trusts_near_fixes_over_mirrored_far_ones():
+    rng = np.random.default_rng(1)
+    psi_true, f = 0.3, RelativePoseFilter()
+    for k in range(100):
+        rng_m = 10.0 - 0.09 * k                                     # approach from 10 m to 1 m
+        flip = 0.5 if (rng_m > 6 and k % 3 == 0) else 0.0          # mirrored IPPE pose far away
+        psi = psi_true + flip + rng.normal(0.0, 0.02 * rng_m * 0.5)
+        f.update(0.1 * k, DockFix(np.array([0.0, 0.0, rng_m]), psi, 1.0,
+                                  np.array([rng_m, 0.0, 0.0])))
+    assert abs(f.psi_dock - psi_true) < math.radians(1.0)
+    assert f.psi_var < math.radians(1.0) ** 2
+
+
 def test_dropouts_hold_for_hold_s_then_stale_then_lost():
     f = RelativePoseFilter(FilterParams(hold_s=1.0, lost_s=3.0))
     f.update(0.0, DockFix(np.array([0.0, 0.0, 5.0]), 0.0, 1.0))

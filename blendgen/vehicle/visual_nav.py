@@ -16,8 +16,11 @@ filter restarts on it. The vehicle's own sensors are fused as follows:
 
 - the attitude sensor (heading/pitch/roll, 0.1 deg) turns each vision fix into the dock's
   approach heading in NED, ``psi_dock``; the depth sensor (0.01 m) turns it into the
-  dock's depth. Both are constants of the scene, so each accepted fix updates them with a
-  first-order low-pass (gain ``const_gain``), and between fixes the relative heading and
+  dock's depth. Both are constants of the scene: the heading is estimated as a constant
+  by a scalar Kalman filter whose measurement std grows with range (``psi_std_per_m``:
+  a planar target's rotation is poorly and ambiguously observed far away, so near fixes
+  dominate and gated outliers -- mirrored IPPE solutions -- are dropped); the depth by a
+  first-order low-pass (gain ``const_gain``). Between fixes the relative heading and
   depth come from the sensors at the control rate, not from the (older, noisier) fix;
 - between fixes and through dropouts the position is dead-reckoned with the filter's
   velocity for at most ``hold_s``; after that the estimate is *stale* and guidance stops
@@ -49,6 +52,8 @@ class FilterParams:
     meas_std_min_m: float = 0.01
     gate_sigma: float = 4.0
     const_gain: float = 0.3
+    psi_std_per_m: float = 0.02
+    psi_std_min_rad: float = 0.005
     hold_s: float = 3.0
     lost_s: float = 8.0
 
@@ -123,6 +128,7 @@ class RelativePoseFilter:
         self.v = np.zeros(2)           # their rates (m/s)
         self.P = np.zeros((2, 2, 2))   # per axis covariance of [position, rate]
         self.psi_dock = math.nan
+        self.psi_var = math.nan        # rad^2
         self.depth_dock = math.nan
         self.t_fix = math.nan          # time of the last accepted fix
         self.t_upd = math.nan          # time the state refers to
@@ -138,16 +144,25 @@ class RelativePoseFilter:
         self.xz, self.v = meas.copy(), np.zeros(2)
         self.P = np.array([np.diag([r2, 0.5 ** 2])] * 2)    # rate unknown: +-0.5 m/s
         if math.isfinite(self.psi_dock):                     # re-acquired: the dock did not move
-            self._update_constants(fix)
+            self._update_constants(fix, float(meas[1]))
         else:
             self.psi_dock, self.depth_dock = fix.psi_dock, fix.depth_dock
+            self.psi_var = self._psi_r(float(meas[1]))
         self.t_fix = self.t_upd = t
 
-    def _update_constants(self, fix: DockFix) -> None:
-        """Low-pass the dock heading and depth toward this fix's values."""
-        g = self.p.const_gain
+    def _psi_r(self, range_m: float) -> float:
+        return max(self.p.psi_std_min_rad, self.p.psi_std_per_m * max(range_m, 0.0)) ** 2
+
+    def _update_constants(self, fix: DockFix, range_m: float) -> None:
+        """Scalar Kalman update of the dock heading (gated) and low-pass of the dock depth."""
         if math.isfinite(fix.psi_dock):
-            self.psi_dock = wrap_pi(self.psi_dock + g * wrap_pi(fix.psi_dock - self.psi_dock))
+            r = self._psi_r(range_m)
+            nu = wrap_pi(fix.psi_dock - self.psi_dock)
+            if abs(nu) <= self.p.gate_sigma * math.sqrt(self.psi_var + r):
+                k = self.psi_var / (self.psi_var + r)
+                self.psi_dock = wrap_pi(self.psi_dock + k * nu)
+                self.psi_var *= 1.0 - k
+        g = self.p.const_gain
         if math.isfinite(fix.depth_dock):
             self.depth_dock += g * (fix.depth_dock - self.depth_dock)
 
@@ -193,7 +208,7 @@ class RelativePoseFilter:
             self.v[i] += K[1] * innov[i]
             self.P[i] = self.P[i] - np.outer(K, self.P[i, 0, :])
         self.t_fix = t
-        self._update_constants(fix)
+        self._update_constants(fix, float(self.xz[1]))
 
     def since_fix(self, t: float) -> float:
         """Seconds since the last fix (since the start when there was none)."""
