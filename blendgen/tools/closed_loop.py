@@ -454,7 +454,8 @@ def report(summary, out: Path, exp: Experiment, capture: CaptureSpec) -> str:
 def run_dock(exp: Experiment, specs: list[LocalizerSpec], trials: int, out: Path, images: bool = False,
              threads: int = 0, baseline: bool = True, progress=print, report_only: bool = False) -> dict:
     """Run the suite (unless ``report_only``: the tables already in ``out``) and write the
-    summary and the path plot into ``out``; returns paths."""
+    summary and the path plot into ``out``; returns paths. Nine parameters (a reason): they
+    are the ``dockbench dock`` run options, passed through by name."""
     import pandas as pd
     bench = Bench.prepare(exp, out / "assets")
     if report_only:
@@ -532,17 +533,25 @@ def dock_cmd(experiment, localizers, params, trials, conditions, size, images, n
 
 
 # ------------------------------------------------------------------ cost ---------------
+def cpu_seconds() -> float:
+    """CPU seconds (user + system) of this process and its finished children."""
+    import resource
+    a, b = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return a.ru_utime + a.ru_stime + b.ru_utime + b.ru_stime
+
+
 def closed_loop_cost(exp: Experiment, localizer: str, trials: int, out: Path, threads: int = 0) -> dict:
     """Seconds per closed-loop trial and ms per frame by stage (render incl. reading the passes,
     compose, localize, the rest = dynamics + filter + bookkeeping) over ``trials`` trials of
-    the first condition."""
+    the first condition; also CPU seconds per frame (this process + the render server), which
+    a machine shared with other jobs inflates less than wall time."""
     import pandas as pd
     bench = Bench.prepare(exp, out / "assets")
     exp.conditions = exp.conditions[:1]
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), cpu_seconds()
     rows, frames = run_suite(bench, [LocalizerSpec(localizer, {})], trials, out, baseline=False,
                              threads=threads, progress=lambda m: click.echo(m, err=True))
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, cpu_seconds() - c0
     f, tr = pd.DataFrame(frames), pd.DataFrame(rows)
     n = len(f)
     per_frame = 1e3 * float(tr["wall_s"].sum()) / n
@@ -552,6 +561,7 @@ def closed_loop_cost(exp: Experiment, localizer: str, trials: int, out: Path, th
             "trials": len(tr), "frames": n, "s_per_trial": float(tr["wall_s"].mean()),
             "sim_s_per_trial": float(tr["t_end_s"].mean()), "ms_per_frame": per_frame, **stages,
             "other_ms": per_frame - sum(stages.values()), "wall_s_incl_server_start": wall,
+            "cpu_ms_per_frame": 1e3 * cpu / n, "load_avg_1min": os.getloadavg()[0],
             "outcomes": ", ".join(tr["outcome"])}
 
 
@@ -578,9 +588,12 @@ def bench_cmd(experiment, localizer, trials, size, open_loop_frames, threads, ou
     pd.DataFrame([row]).to_csv(out / "bench_closed_loop.csv", index=False)
     if open_loop_frames:
         from blendgen.tools.bench import render_stages
+        c0 = cpu_seconds()
         ol = render_stages(out / "open_loop", open_loop_frames, exp.render.samples)
+        ol_cpu = 1e3 * (cpu_seconds() - c0) / ol["frames"]
         click.echo(f"\nopen loop (dockbench generate, quickstart approach, 640x480, {exp.render.samples} spp): "
                    f"{ol['wall_ms_per_frame']:.1f} ms/frame wall incl. process start and scene build, "
-                   f"{ol['render+write_ms']:.1f} ms/frame render+post+write")
-        click.echo(f"closed loop: {row['ms_per_frame']:.1f} ms/frame -> {row['s_per_trial']:.1f} s per trial of "
-                   f"{row['frames'] / row['trials']:.0f} frames")
+                   f"{ol['render+write_ms']:.1f} ms/frame render+post+write, {ol_cpu:.1f} CPU ms/frame "
+                   f"(load average {os.getloadavg()[0]:.1f})")
+        click.echo(f"closed loop: {row['ms_per_frame']:.1f} ms/frame wall, {row['cpu_ms_per_frame']:.1f} CPU ms/frame "
+                   f"-> {row['s_per_trial']:.1f} s per trial of {row['frames'] / row['trials']:.0f} frames")
