@@ -10,31 +10,24 @@ Conventions (DESIGN.md, *must*):
   pixel corner, hence the half-pixel in ``cx, cy``.
 - World frame: Blender's world (+z up, metres). The water surface is z = 0 in the
   pool templates, so a point at water depth h has z = -h.
+
+rot_x/y/z and rpy_to_R stay closed-form (they sit in the vehicle model's RK4 inner loop, where
+scipy's per-call overhead would double its cost); every other rotation goes through scipy.
 """
 from __future__ import annotations
 
 import math
 
 import numpy as np
+from scipy.spatial.transform import Rotation
+
+from datasets_spec.geometry import (  # noqa: F401  (the format's transforms, re-exported for blendgen)
+    axis_angle_to_R, check_K, check_T, invert_T, make_T, rotation_angle,
+)
 
 # Rotation taking Blender-camera-frame vectors to OpenCV-camera-frame vectors.
 R_CV_FROM_BLENDERCAM = np.diag([1.0, -1.0, -1.0])
 T_CV_FROM_BLENDERCAM = np.diag([1.0, -1.0, -1.0, 1.0])
-
-
-def make_T(R: np.ndarray, t) -> np.ndarray:
-    """Homogeneous 4x4 from a 3x3 rotation and a translation (3,), metres."""
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = np.asarray(t, dtype=float).reshape(3)
-    return T
-
-
-def invert_T(T: np.ndarray) -> np.ndarray:
-    """Inverse of a rigid 4x4 transform (uses R^T, not a general inverse)."""
-    R = T[:3, :3]
-    t = T[:3, 3]
-    return make_T(R.T, -R.T @ t)
 
 
 def rot_x(a: float) -> np.ndarray:
@@ -62,10 +55,8 @@ def rpy_to_R(roll: float, pitch: float, yaw: float) -> np.ndarray:
 
 def R_to_rpy(R: np.ndarray) -> tuple[float, float, float]:
     """Inverse of :func:`rpy_to_R`: (roll, pitch, yaw) in rad, pitch in [-pi/2, pi/2]."""
-    pitch = -math.asin(float(np.clip(R[2, 0], -1.0, 1.0)))
-    roll = math.atan2(R[2, 1], R[2, 2])
-    yaw = math.atan2(R[1, 0], R[0, 0])
-    return roll, pitch, yaw
+    yaw, pitch, roll = Rotation.from_matrix(np.asarray(R, float)).as_euler("ZYX")
+    return float(roll), float(pitch), float(yaw)
 
 
 def orthonormalize(R: np.ndarray) -> np.ndarray:
@@ -174,10 +165,3 @@ def point_plane_distance(p, plane_point, plane_normal) -> float:
     n = np.asarray(plane_normal, float)
     n = n / np.linalg.norm(n)
     return float(abs(np.dot(np.asarray(p, float) - np.asarray(plane_point, float), n)))
-
-
-def rotation_angle(R: np.ndarray) -> float:
-    """Angle (rad, [0, pi]) of a rotation matrix; numerically safe near 0 and pi."""
-    c = (np.trace(R) - 1.0) / 2.0
-    s = np.linalg.norm([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]]) / 2.0
-    return float(math.atan2(s, float(np.clip(c, -1.0, 1.0))))

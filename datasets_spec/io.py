@@ -14,13 +14,17 @@ from importlib import resources
 from pathlib import Path
 from typing import IO, Iterator
 
+from datasets_spec.validate import (MAX_JSON_LINE_BYTES, MAX_MANIFEST_BYTES, ContentError, camera_problem,
+                                    check_frame_record, image_problem, load_schema, loads_bounded, non_finite_key,
+                                    png_header,
+                                    schema_message)
+
 FORMAT_NAME = "dockbench-dataset"
 SPEC_VERSION = "1.0"
 SUPPORTED_SPEC_VERSIONS = (SPEC_VERSION,)
 MANIFEST = "manifest.json"
 FRAMES = "frames.jsonl"
 DEFAULT_D_MIN_REL_M = 0.2
-FRAME_KEYS = {"index": int, "image": str, "d_true": (int, float), "T_cam_dock": list}
 
 
 class DatasetError(Exception):
@@ -56,12 +60,26 @@ def dataset_files(root: Path) -> list[str]:
     return sorted(out)
 
 
+# -- paths -----------------------------------------------------------------
+def path_inside(root: Path, rel: str | Path, what: str = "path") -> Path:
+    """``root / rel`` resolved (symlinks followed), proven to lie inside ``root``.
+
+    Raises :class:`DatasetError` for an absolute ``rel``, ``..`` that climbs out, or a
+    symlink (at any level) that leads outside ``root`` -- the writer calls it before it
+    creates a file, the reader before it opens one."""
+    base = Path(root).resolve()
+    rel_s = str(rel)
+    if "\x00" in rel_s:
+        raise DatasetError(f"{root}: {what} {rel_s!r} contains a NUL byte")
+    target = (base / rel_s).resolve()
+    if Path(rel_s).is_absolute() or os.path.commonpath([base, target]) != str(base):
+        raise DatasetError(f"{Path(root) / rel_s}: {what} {rel_s!r} resolves to {target}, outside the "
+                           f"dataset folder {base}; allowed: a relative path inside it (no '..', "
+                           "no symlink leaving it)")
+    return target
+
+
 # -- schemas ---------------------------------------------------------------
-def load_schema(name: str) -> dict:
-    """A bundled JSON Schema by file name, e.g. ``load_schema('manifest.schema.json')``."""
-    return json.loads(resources.files("datasets_spec").joinpath(name).read_text(encoding="utf-8"))
-
-
 def doc_path(name: str) -> Path:
     """Filesystem path of a bundled document (``FORMAT.md``, ``LOCALIZER_PROTOCOL.md``)."""
     return Path(str(resources.files("datasets_spec").joinpath(name)))
@@ -85,16 +103,33 @@ def save_json_atomic(path: Path, obj) -> None:
     os.replace(tmp, path)
 
 
+def _read_regular(root: Path, rel: str, what: str, max_bytes: int) -> bytes:
+    """Bytes of ``root/rel``: proven inside ``root``, a regular file, at most ``max_bytes``."""
+    import stat
+    path = path_inside(root, rel, what)
+    st = path.stat()
+    if not stat.S_ISREG(st.st_mode):
+        raise DatasetError(f"{Path(root) / rel}: {what} is not a regular file")
+    if st.st_size > max_bytes:
+        raise DatasetError(f"{Path(root) / rel}: {what} is {st.st_size / 2**20:.0f} MiB; "
+                           f"allowed: up to {max_bytes >> 20} MiB")
+    with open(path, "rb") as fh:
+        return fh.read(max_bytes + 1)
+
+
 def load_manifest(root: Path) -> dict:
-    """Load ``root/manifest.json`` and validate it (format, version, schema)."""
+    """Load ``root/manifest.json`` and validate it (format, version, schema, camera)."""
     path = Path(root) / MANIFEST
     if not Path(root).is_dir():
         raise DatasetError(f"{root}: not a directory")
     if not path.is_file():
         raise DatasetError(f"{path}: missing manifest (dataset incomplete or not a dockbench dataset)")
     try:
-        manifest = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        manifest = loads_bounded(_read_regular(Path(root), MANIFEST, "manifest", MAX_MANIFEST_BYTES)
+                                 .decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise DatasetError(f"{path}: invalid JSON: not UTF-8 ({exc.reason} at byte {exc.start})") from None
+    except ContentError as exc:
         raise DatasetError(f"{path}: invalid JSON: {exc}") from None
     if not isinstance(manifest, dict):
         raise DatasetError(f"{path}: top level must be a JSON object")
@@ -108,6 +143,12 @@ def load_manifest(root: Path) -> dict:
         if key not in manifest:
             raise DatasetError(f"{path}: missing key {key!r}")
     check_schema(manifest, "manifest.schema.json", str(path))
+    problem = camera_problem(manifest["camera"])
+    bad = non_finite_key(manifest)
+    if bad and not problem:
+        problem = f"{bad}: non-finite number (allowed: finite numbers only)"
+    if problem:
+        raise DatasetError(f"{path}: {problem}")
     return manifest
 
 
@@ -118,52 +159,110 @@ def append_frame(fh: IO[str], frame: dict) -> None:
 
 
 def check_frame(frame: dict, where: str) -> None:
-    """The keys evaluation relies on must be present with the right JSON types."""
-    for key, typ in FRAME_KEYS.items():
-        if not isinstance(frame.get(key), typ) or isinstance(frame.get(key), bool):
-            raise DatasetError(f"{where}: frame needs {key!r} ({getattr(typ, '__name__', 'number')}), "
-                               f"got {frame.get(key)!r}")
+    """The record must follow frame.schema.json (paths, shapes, finite numbers)."""
+    try:
+        check_frame_record(frame)
+    except ContentError as exc:
+        detail = schema_message(frame) or str(exc)
+        raise DatasetError(f"{where}: {detail} ({exc})" if detail != str(exc) else f"{where}: {exc}") from None
 
 
-def iter_frames(path: Path) -> Iterator[dict]:
-    """Yield the frame records of one ``frames.jsonl`` in file order, each checked."""
+def _bounded_lines(fh: IO[bytes], path: Path) -> Iterator[tuple[int, bytes]]:
+    """``(line number, line)`` of a binary file; a line over MAX_JSON_LINE_BYTES is an error
+    (read at most that much: a line without end cannot fill the memory)."""
+    lineno = 0
+    while True:
+        line = fh.readline(MAX_JSON_LINE_BYTES + 1)
+        if not line:
+            return
+        lineno += 1
+        if len(line) > MAX_JSON_LINE_BYTES:
+            raise DatasetError(f"{path}:{lineno}: line longer than {MAX_JSON_LINE_BYTES >> 20} MiB "
+                               "(allowed: one frame record of a few kB per line)")
+        yield lineno, line
+
+
+def iter_frames(path: Path, root: Path | None = None) -> Iterator[dict]:
+    """Yield the frame records of one ``frames.jsonl`` in file order, each checked against
+    frame.schema.json; frame indices must be unique. With ``root`` (the dataset folder)
+    the file is proven to lie inside it (no symlink out, a regular file)."""
+    import stat
+    if root is not None:
+        path_inside(root, os.path.relpath(path, root), "frames file")
     if not path.is_file():
         raise DatasetError(f"{path}: missing frames file")
-    with open(path, encoding="utf-8") as f:
-        for lineno, line in enumerate(f, start=1):
+    if not stat.S_ISREG(path.stat().st_mode):
+        raise DatasetError(f"{path}: frames file is not a regular file")
+    seen: dict[int, int] = {}
+    with open(path, "rb") as f:
+        for lineno, line in _bounded_lines(f, path):
             if not line.strip():
                 continue
             try:
-                frame = json.loads(line)
-            except json.JSONDecodeError as exc:
-                raise DatasetError(f"{path}:{lineno}: bad JSON line: {exc.msg}") from None
+                frame = loads_bounded(line.decode("utf-8"))
+            except UnicodeDecodeError:
+                raise DatasetError(f"{path}:{lineno}: bad JSON line: not UTF-8") from None
+            except ContentError as exc:
+                raise DatasetError(f"{path}:{lineno}: bad JSON line: {exc}") from None
             if not isinstance(frame, dict):
                 raise DatasetError(f"{path}:{lineno}: frame must be a JSON object")
             check_frame(frame, f"{path}:{lineno}")
+            if frame["index"] in seen:
+                raise DatasetError(f"{path}:{lineno}: index: frame index {frame['index']} repeats line "
+                                   f"{seen[frame['index']]} (allowed: each index once per sequence)")
+            seen[frame["index"]] = lineno
             yield frame
+
+
+def check_image_header(root: Path, frame: dict, camera: dict) -> Path:
+    """The frame's image path, proven inside ``root``, whose PNG header (read without
+    decoding) matches the manifest camera: width x height, 8-bit RGB. DatasetError otherwise."""
+    path = path_inside(root, frame["image"], "image")
+    shown = Path(root) / frame["image"]
+    if not path.is_file():
+        raise DatasetError(f"{shown}: missing image (frame {frame.get('index')!r})")
+    try:
+        problem = image_problem(png_header(path), int(camera["width"]), int(camera["height"]))
+    except ContentError as exc:
+        problem = str(exc)
+    if problem:
+        raise DatasetError(f"{shown}: {problem} (frame {frame.get('index')!r})")
+    return path
 
 
 def verify(root: Path) -> list[str]:
     """Check a dataset against its manifest; return human-readable problems ([] = OK).
 
-    Reports: manifest errors, bad frame lines, files listed but missing, sha256
-    mismatches, files on disk not in the manifest (dot-named work files aside), and a
-    wrong ``content_hash``.
+    Reports: manifest errors, frame lines that break frame.schema.json (or repeat an
+    index), paths leaving the dataset, images whose PNG header does not match the camera,
+    files listed but missing, sha256 mismatches, files on disk not in the manifest
+    (dot-named work files aside), and a wrong ``content_hash``.
     """
     root = Path(root)
+    problems = []
     try:
         manifest = load_manifest(root)
         for seq in manifest["sequences"]:
-            for _ in iter_frames(root / seq.get("path", f"sequences/{seq['id']}") / FRAMES):
-                pass
+            for frame in iter_frames(root / seq.get("path", f"sequences/{seq['id']}") / FRAMES, root):
+                for key in ("image", "depth", "object_index"):
+                    if key in frame:
+                        path_inside(root, frame[key], key)
+                if (root / frame["image"]).is_file():       # a missing one is reported below
+                    try:
+                        check_image_header(root, frame, manifest["camera"])
+                    except DatasetError as exc:
+                        problems.append(str(exc))
     except DatasetError as exc:
         return [str(exc)]
     files = manifest.get("files")
     if not isinstance(files, dict):
         return [f"{root / MANIFEST}: missing or invalid 'files' map"]
-    problems = []
     for rel, digest in sorted(files.items()):
-        fpath = root / rel
+        try:
+            fpath = path_inside(root, rel, "file")
+        except DatasetError as exc:
+            problems.append(str(exc))
+            continue
         if not fpath.is_file():
             problems.append(f"{rel}: missing (listed in manifest)")
         elif sha256_file(fpath) != digest:

@@ -1,10 +1,11 @@
 """evalkit: evaluate localizers on dockbench datasets (never needs Blender).
 
-Modules: ``dataset`` (read a dataset), ``registry`` (find localizers),
-``runner`` (run them), ``metrics`` (SPEC.md section 7), ``tables`` (output),
-``truth`` / ``metrics_extra`` (pose errors, FP rate, distance bins, usable range,
-bootstrap CIs, runtime), ``plots``, ``results`` (run directories), ``leaderboard``
-(static HTML) and ``bop`` (BOP export).
+Modules: ``dataset`` (read and verify a dataset), ``registry`` (find localizers),
+``runner`` (run them), ``metrics.core`` (judge each frame: errors, false positives,
+thresholded success; per trial), ``metrics.extra`` (the one path to every table:
+CIs, bins, usable range, runtime), ``metrics.recall`` (BOP-style AR), ``reports.tables``
+/ ``reports.plots`` (output), ``reports.results`` (run directories, provenance),
+``reports.leaderboard`` (static HTML) and ``reports.bop`` (BOP export).
 This package imports nothing heavy at import time; the names below are
 loaded lazily on first access.
 """
@@ -15,9 +16,11 @@ import importlib
 _LAZY = {
     "Dataset": "dataset", "DatasetError": "dataset", "verify": "dataset",
     "resolve": "registry", "list_localizers": "registry", "RegistryError": "registry",
-    "evaluate": "runner", "write_results": "runner",
-    "save_run": "results", "load_run": "results", "compare_runs": "results",
-    "frame_truth_table": "truth", "export_bop": "bop", "build_leaderboard": "leaderboard",
+    "evaluate": "runner", "SuccessCriteria": "metrics.core", "compute_all": "metrics.extra",
+    "EvalSettings": "metrics.extra", "save_run": "reports.results", "load_run": "reports.results",
+    "compare_runs": "reports.results", "evaluate_dataset": "reports.results",
+    "frame_truth_table": "metrics.truth", "export_bop": "reports.bop",
+    "build_leaderboard": "reports.leaderboard",
 }
 
 __all__ = sorted(_LAZY)

@@ -12,23 +12,59 @@ import numpy as np
 
 from datasets_spec.io import (  # noqa: F401  (re-exported: the reader's public names)
     DEFAULT_D_MIN_REL_M, FORMAT_NAME, MANIFEST, SUPPORTED_SPEC_VERSIONS, DatasetError, content_hash,
-    dataset_files, iter_frames, load_manifest, sha256_file, verify as _verify,
+    check_image_header, dataset_files, iter_frames, load_manifest, path_inside, sha256_file,
+    verify as _verify,
 )
 
 
 class Dataset:
-    """An opened dataset. Use :meth:`Dataset.open`."""
+    """An opened dataset. Use :meth:`Dataset.open`.
 
-    def __init__(self, root: Path, manifest: dict):
+    With ``verify`` (the default) every file read through it (``frames.jsonl``,
+    images) must be listed in the manifest's ``files`` with the same sha256, and the
+    manifest's ``content_hash`` must match its ``files``; otherwise :class:`DatasetError`.
+    """
+
+    def __init__(self, root: Path, manifest: dict, verify: bool = True):
         self.root = Path(root)
         self.manifest = manifest
+        self.verify = verify
         self._seq_by_id = {s["id"]: s for s in manifest["sequences"]}
 
     @classmethod
-    def open(cls, path: str | Path) -> "Dataset":
+    def open(cls, path: str | Path, verify: bool = True) -> "Dataset":
         """Open the dataset directory ``path``; raises :class:`DatasetError` on problems."""
         root = Path(path)
-        return cls(root, load_manifest(root))
+        ds = cls(root, load_manifest(root), verify)
+        if verify:
+            ds._check_content_hash()
+        return ds
+
+    def _check_content_hash(self) -> None:
+        """The manifest's ``content_hash`` must be the hash of its ``files`` map."""
+        files = self.manifest.get("files")
+        if not isinstance(files, dict):
+            raise DatasetError(f"{self.root / MANIFEST}: no 'files' map, so nothing can be verified "
+                               "(evaluate --no-verify reads it unchecked)")
+        if content_hash(files) != self.manifest.get("content_hash"):
+            raise DatasetError(f"{self.root / MANIFEST}: content_hash does not match the 'files' "
+                               "entries (manifest edited after generation)")
+
+    def check_file(self, path: Path, data: bytes | None = None) -> None:
+        """With ``verify``: ``path`` (under the root; ``data`` its bytes if already read) must be
+        listed in the manifest with the same sha256, else :class:`DatasetError`."""
+        if not self.verify:
+            return
+        rel = Path(path).resolve().relative_to(self.root.resolve()).as_posix()
+        want = (self.manifest.get("files") or {}).get(rel)
+        if want is None:
+            raise DatasetError(f"{path}: not listed in the manifest's 'files', so it cannot be verified")
+        if data is None and not Path(path).is_file():
+            raise DatasetError(f"{path}: missing (listed in the manifest)")
+        got = hashlib.sha256(data).hexdigest() if data is not None else sha256_file(Path(path))
+        if got != want:
+            raise DatasetError(f"{path}: sha256 differs from the manifest: changed after generation "
+                               "(dockbench verify lists every changed file)")
 
     # -- manifest views ---------------------------------------------------
     @property
@@ -69,41 +105,63 @@ class Dataset:
 
     # -- frames -----------------------------------------------------------
     def frames_path(self, seq_id: str) -> Path:
-        """Path of ``frames.jsonl`` of a sequence."""
+        """Path of ``frames.jsonl`` of a sequence (proven inside the dataset folder)."""
         seq = self.sequence(seq_id)
-        return self.root / seq.get("path", f"sequences/{seq_id}") / "frames.jsonl"
+        rel = f"{seq.get('path', f'sequences/{seq_id}')}/frames.jsonl"
+        path_inside(self.root, rel, "frames file")
+        return self.root / rel
 
     def iter_frames(self, seq_id: str) -> Iterator[dict]:
         """Yield the frame dicts of a sequence in file order.
 
-        Raises :class:`DatasetError` naming the file and line for bad JSON.
+        Each record is checked against frame.schema.json (paths inside the dataset,
+        4x4 poses, finite numbers, unique indices); raises :class:`DatasetError`
+        naming the file, line and key.
         """
         path = self.frames_path(seq_id)
         if not path.is_file():
             raise DatasetError(f"{path}: missing frames file of sequence {seq_id!r}")
-        yield from iter_frames(path)
+        self.check_file(path)
+        yield from iter_frames(path, self.root)
 
     def image_path(self, frame: dict) -> Path:
-        """Absolute path of a frame's RGB image."""
+        """Absolute path of a frame's RGB image, proven inside the dataset folder."""
         if "image" not in frame:
             raise DatasetError(f"frame {frame.get('index')!r}: no 'image' key")
+        path_inside(self.root, frame["image"], "image")
         return self.root / frame["image"]
 
+    def frame_file(self, frame: dict, key: str) -> Path:
+        """Path of a frame's ``depth`` / ``object_index`` / ``image`` file, proven inside
+        the dataset folder (no symlink leaving it); DatasetError if the key is absent."""
+        if key not in frame:
+            raise DatasetError(f"frame {frame.get('index')!r}: no {key!r} key")
+        return path_inside(self.root, frame[key], key)
+
+    def checked_image_path(self, frame: dict) -> Path:
+        """:meth:`image_path` (resolved) after its PNG header was checked against the
+        manifest camera (width x height, 8-bit RGB), without decoding a pixel."""
+        if "image" not in frame:
+            raise DatasetError(f"frame {frame.get('index')!r}: no 'image' key")
+        return check_image_header(self.root, frame, self.manifest["camera"])
+
     def load_image(self, frame: dict) -> np.ndarray:
-        """The frame's image as HxWx3 uint8 RGB, checked against the manifest's sha256."""
+        """The frame's image as HxWx3 uint8 RGB, checked against the manifest's sha256.
+
+        The PNG header is checked against the manifest camera before anything is
+        decoded, so a huge or wrong image (a decompression bomb) is refused cheaply
+        as a :class:`DatasetError`.
+        """
         import cv2  # local: keeps `import evalkit.dataset` light
 
-        path = self.image_path(frame)
-        if not path.is_file():
-            raise DatasetError(f"{path}: missing image (frame {frame.get('index')!r})")
+        path = self.checked_image_path(frame)
+        shown = self.root / frame["image"]
         data = path.read_bytes()
-        want = (self.manifest.get("files") or {}).get(frame["image"])
-        if want is not None and hashlib.sha256(data).hexdigest() != want:
-            raise DatasetError(f"{path}: sha256 differs from the manifest: the image was changed "
-                               "after generation (dockbench verify lists every such file)")
+        self.check_file(path, data)
         bgr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
-        if bgr is None:
-            raise DatasetError(f"{path}: unreadable image (frame {frame.get('index')!r})")
+        cam = self.manifest["camera"]
+        if bgr is None or bgr.shape != (cam["height"], cam["width"], 3):
+            raise DatasetError(f"{shown}: unreadable image (frame {frame.get('index')!r})")
         return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
 

@@ -16,7 +16,9 @@ reads exactly one JSON object per line from its stdout for each request:
 
 stderr is passed through. Timeouts, crashes and protocol violations cost one
 frame each; the program is then killed and restarted for the next frame with the
-reset replayed (:class:`evalkit.isolation.ProcessLocalizer`).
+reset replayed (:class:`evalkit.process.ProcessLocalizer`). Reply lines longer than
+1 MiB are a protocol error (read in bounded chunks, never buffered whole); the program's
+address space is capped (``memory_limit_mb``, default 4096 MiB).
 """
 from __future__ import annotations
 
@@ -30,11 +32,46 @@ import threading
 from pathlib import Path
 from typing import Any
 
-from evalkit.isolation import (DEFAULT_TIMEOUT_S, EXIT_GRACE_S, FrameFailure, ProcessLocalizer, _Dead,
-                        _ProtocolError, _Timeout)
+from evalkit.process import (DEFAULT_MEMORY_LIMIT_MB, DEFAULT_TIMEOUT_S, EXIT_GRACE_S, ChildDead, ChildTimeout,
+                             FrameFailure, ProcessLocalizer, ProtocolError, kill_and_reap, spawn)
 
 PROTOCOL_VERSION = 1
 SUPPORTED_PROTOCOLS = (1,)
+MAX_REPLY_BYTES = 1 << 20     # one reply line; a longer one is a protocol error (never buffered whole)
+MAX_QUEUED_LINES = 64         # replies read ahead of requests (a program may answer one per request)
+_TOO_LONG = object()          # reader -> parent: the current line exceeded MAX_REPLY_BYTES
+
+
+def _read_replies(stream, lines: queue.Queue, stop: threading.Event) -> None:
+    """Reader thread: put each reply line (bytes) on ``lines``; a line longer than
+    MAX_REPLY_BYTES becomes ``_TOO_LONG`` and the rest of it is skipped in bounded chunks,
+    so a program that writes gigabytes without a newline cannot grow this process.
+    ``None`` marks the end of the stream."""
+    def put(item) -> bool:
+        while not stop.is_set():
+            try:
+                lines.put(item, timeout=0.5)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    try:
+        while True:
+            line = stream.readline(MAX_REPLY_BYTES + 1)
+            if not line:
+                break
+            if len(line) > MAX_REPLY_BYTES:
+                if not put(_TOO_LONG):        # at once: the parent kills the program now
+                    return
+                while line and not line.endswith(b"\n") and not stop.is_set():
+                    line = stream.readline(MAX_REPLY_BYTES)
+                continue
+            if not put(line):
+                return
+    except (OSError, ValueError):
+        pass
+    put(None)
 
 
 def _jsonable(obj: Any) -> Any:
@@ -60,13 +97,15 @@ class ExternalLocalizer(ProcessLocalizer):
     def __init__(self, cmd: str | list[str], timeout_s: float | None = DEFAULT_TIMEOUT_S,
                  persistent: bool = False, cwd: str | None = None, env: dict | None = None,
                  reset_timeout_s: float | None = None, start_timeout_s: float | None = None,
-                 max_restarts: int | None = None, **params: Any):
+                 max_restarts: int | None = None, memory_limit_mb: int | None = DEFAULT_MEMORY_LIMIT_MB,
+                 **params: Any):
         """cmd: command line (a string split like a POSIX shell, or an argv list).
         timeout_s: per-frame reply budget (s; None waits forever).
         persistent: keep one process for all sequences (each gets a new reset)
         instead of one process per sequence. cwd / env: of the process (env adds
-        to os.environ). Other keyword params are sent to the program in the reset
-        request as ``"params"``."""
+        to os.environ). memory_limit_mb: the program's address space (RLIMIT_AS, MiB,
+        set right after it starts; None = unlimited). Other keyword params are sent to
+        the program in the reset request as ``"params"``."""
         kw = {k: v for k, v in (("reset_timeout_s", reset_timeout_s), ("start_timeout_s", start_timeout_s),
                                 ("max_restarts", max_restarts)) if v is not None}
         super().__init__(timeout_s=timeout_s, **kw)
@@ -82,6 +121,8 @@ class ExternalLocalizer(ProcessLocalizer):
         self.cwd = cwd
         self.env = None if env is None else {**os.environ, **{str(k): str(v) for k, v in env.items()}}
         self.params = params
+        self.memory_limit_mb = memory_limit_mb
+        self._stop_reader: threading.Event | None = None
         self._proc: subprocess.Popen | None = None
         self._lines: queue.Queue | None = None
         self._pending_index: Any = None
@@ -140,49 +181,41 @@ class ExternalLocalizer(ProcessLocalizer):
         return msg
 
     def _start(self) -> None:
-        try:
-            proc = subprocess.Popen(self.argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                    cwd=self.cwd, env=self.env, text=True, encoding="utf-8",
-                                    errors="replace", bufsize=1)
-        except OSError as exc:
-            raise _Dead(f"{type(exc).__name__}: {exc}") from None
-        lines: queue.Queue = queue.Queue()
-
-        def pump(stream=proc.stdout):
-            try:
-                for line in stream:
-                    lines.put(line)
-            except (OSError, ValueError):
-                pass
-            lines.put(None)
-
-        threading.Thread(target=pump, daemon=True, name="dockbench-exec-reader").start()
-        self._proc, self._lines = proc, lines
+        proc = spawn(self.argv, self.memory_limit_mb, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                     cwd=self.cwd, env=self.env)
+        lines: queue.Queue = queue.Queue(MAX_QUEUED_LINES)
+        stop = threading.Event()
+        threading.Thread(target=_read_replies, args=(proc.stdout, lines, stop), daemon=True,
+                         name="dockbench-exec-reader").start()
+        self._proc, self._lines, self._stop_reader = proc, lines, stop
 
     def _alive(self) -> bool:
         return self._proc is not None and self._proc.poll() is None
 
     def _send(self, request: dict) -> None:
         try:
-            self._proc.stdin.write(json.dumps(request, default=_jsonable, separators=(",", ":")) + "\n")
+            line = json.dumps(request, default=_jsonable, separators=(",", ":")) + "\n"
+            self._proc.stdin.write(line.encode("utf-8"))
             self._proc.stdin.flush()
         except (OSError, ValueError, AttributeError):
-            raise _Dead() from None
+            raise ChildDead() from None
 
     def _recv(self, timeout_s: float | None) -> dict:
         try:
             line = self._lines.get(timeout=timeout_s)
         except queue.Empty:
-            raise _Timeout() from None
+            raise ChildTimeout() from None
         if line is None:
-            raise _Dead()
-        text = line.strip()
+            raise ChildDead()
+        if line is _TOO_LONG:
+            raise ProtocolError(f"reply line longer than {MAX_REPLY_BYTES >> 20} MiB")
+        text = line.decode("utf-8", errors="replace").strip()
         try:
             reply = json.loads(text)
-        except json.JSONDecodeError:
-            raise _ProtocolError(f"reply is not JSON: {text[:80]!r}") from None
+        except (json.JSONDecodeError, RecursionError):
+            raise ProtocolError(f"reply is not JSON: {text[:80]!r}") from None
         if not isinstance(reply, dict) or not isinstance(reply.get("ok"), bool):
-            raise _ProtocolError(f"reply is not an object with a boolean \"ok\": {text[:80]!r}")
+            raise ProtocolError(f"reply is not an object with a boolean \"ok\": {text[:80]!r}")
         return reply
 
     def _reply(self, kind: str, reply: dict) -> Any:
@@ -196,7 +229,7 @@ class ExternalLocalizer(ProcessLocalizer):
                 raise FrameFailure(f"exception: ExternalError: {error or 'reset refused'}")
             return None
         if "index" in reply and reply["index"] != self._pending_index:
-            raise _ProtocolError(f"reply for frame {reply['index']!r} while waiting for {self._pending_index!r}")
+            raise ProtocolError(f"reply for frame {reply['index']!r} while waiting for {self._pending_index!r}")
         if not reply["ok"]:
             if error:
                 raise FrameFailure(f"exception: ExternalError: {error}")
@@ -215,12 +248,9 @@ class ExternalLocalizer(ProcessLocalizer):
         proc = self._proc
         if proc is None:
             return
-        if proc.poll() is None:
-            proc.kill()
-        try:
-            proc.wait(5.0)
-        except subprocess.TimeoutExpired:
-            pass
+        kill_and_reap(proc)
+        if self._stop_reader is not None:
+            self._stop_reader.set()
         for stream in (proc.stdin, proc.stdout):
             try:
                 if stream is not None:

@@ -8,7 +8,7 @@ the sequence's ``reset`` first. Failures raise :class:`FrameFailure`, whose
 ``reason`` the runner records verbatim (``"timeout"``, ``"crash: exit code 3"``,
 ``"crash: signal SIGSEGV"``, ``"exception: Type: message"``, ``"protocol: ..."``).
 
-Two proxies share :class:`ProcessLocalizer`:
+Two proxies share :class:`evalkit.process.ProcessLocalizer`:
 
 * :class:`IsolatedLocalizer` -- any Python localizer spec (built-in, entry point,
   ``file.py:Class``, ``module:attr``) built *inside* a child interpreter (a fresh
@@ -23,188 +23,28 @@ Only the standard library is imported here (children start fast).
 """
 from __future__ import annotations
 
-import signal
-import time
+import os
 from typing import Any
 
-DEFAULT_TIMEOUT_S = 60.0        # per frame, when isolation is on without --frame-timeout
-DEFAULT_RESET_TIMEOUT_S = 120.0  # reset (may load models)
-DEFAULT_START_TIMEOUT_S = 120.0  # starting a child and building the localizer
-DEFAULT_MAX_RESTARTS = 10        # per sequence; afterwards frames fail fast
-
-
-EXIT_GRACE_S = 2.0  # s a child gets to exit after stdin/pipe close before it is killed
-
-
-class FrameFailure(Exception):
-    """A localizer call failed in a way the runner records as ``reason`` (verbatim)."""
-
-    def __init__(self, reason: str):
-        super().__init__(reason)
-        self.reason = reason
-
-
-class _Timeout(Exception):
-    pass
-
-
-class _Dead(Exception):
-    pass
-
-
-class _ProtocolError(Exception):
-    pass
-
-
-def exit_reason(code: int | None) -> str:
-    """``"crash: exit code N"`` or ``"crash: signal NAME"`` for a process return code."""
-    if code is None:
-        return "crash: process gone"
-    if code < 0:
-        try:
-            return f"crash: signal {signal.Signals(-code).name}"
-        except ValueError:
-            return f"crash: signal {-code}"
-    return f"crash: exit code {code}"
-
-
-class ProcessLocalizer:
-    """Base of the process proxies: timeouts, crash detection, restart with reset replay.
-
-    Subclasses implement the transport: ``_start()`` (raise ``_Dead`` or
-    :class:`FrameFailure` on failure), ``_alive()``, ``_send(request)``,
-    ``_recv(timeout_s)`` (raise ``_Timeout`` / ``_Dead`` / ``_ProtocolError``),
-    ``_kill()`` (stop now, then reap) and ``_reply(kind, reply)``
-    (turn a raw reply into a value or raise :class:`FrameFailure`), plus the
-    requests ``_reset_request(camera)`` / ``_frame_request(...)``; the child process is
-    ``self._proc`` (a Popen), which the base reads for the exit status.
-    """
-
-    enforces_timeout = True  # the runner must not re-check the wall time
-
-    def __init__(self, timeout_s: float | None = DEFAULT_TIMEOUT_S,
-                 reset_timeout_s: float | None = DEFAULT_RESET_TIMEOUT_S,
-                 start_timeout_s: float | None = DEFAULT_START_TIMEOUT_S,
-                 max_restarts: int = DEFAULT_MAX_RESTARTS):
-        """timeout_s: per-frame budget (s; None waits forever); reset_timeout_s: for
-        reset; start_timeout_s: for starting the child; max_restarts: restarts per
-        sequence before the remaining frames fail at once."""
-        self.timeout_s = None if timeout_s is None else float(timeout_s)
-        self.reset_timeout_s = None if reset_timeout_s is None else float(reset_timeout_s)
-        self.start_timeout_s = None if start_timeout_s is None else float(start_timeout_s)
-        self.max_restarts = int(max_restarts)
-        self.last_call_ms: float | None = None
-        self._camera: dict | None = None
-        self._restarts = 0
-        self.n_restarts_total = 0
-
-    # -- localizer API ------------------------------------------------------
-    def reset(self, camera: dict) -> None:
-        """Start (or reuse) the child and reset it for a new sequence."""
-        self._camera = camera
-        self._restarts = 0
-        self._new_sequence()
-        if not self._alive():
-            self._start_child()
-        self._exchange("reset", self._reset_request(camera), self.reset_timeout_s)
-
-    def _new_sequence(self) -> None:
-        """Hook: called by reset() before the child is (re)used."""
-
-    def _request(self, kind: str, request: Any) -> Any:
-        """Send one frame request, restarting a dead child first; the reply value."""
-        self.last_call_ms = None
-        if self._camera is None:
-            raise FrameFailure("exception: RuntimeError: localize before reset")
-        if not self._alive():
-            self._restart()
-        return self._exchange(kind, request, self.timeout_s)
-
-    def close(self) -> None:
-        """Stop the child (a later reset() starts a new one)."""
-        if self._alive():
-            self._stop_gracefully()
-        self._kill()
-
-    def __del__(self):
-        try:
-            self.close()
-        except Exception:  # noqa: BLE001 - interpreter shutdown
-            pass
-
-    # -- machinery ----------------------------------------------------------
-    def _exit_code(self):
-        """The child's exit code once it has ended (waits EXIT_GRACE_S), else None."""
-        import subprocess
-        if self._proc is None:
-            return None
-        try:
-            return self._proc.wait(EXIT_GRACE_S)
-        except subprocess.TimeoutExpired:
-            return None
-
-    def _stop_gracefully(self) -> None:
-        """Hook: ask the child to exit (default: nothing, _kill follows)."""
-
-    def _start_child(self) -> None:
-        try:
-            self._start()
-        except _Dead as exc:
-            self._kill()
-            raise FrameFailure(f"crash: cannot start: {exc}") from None
-        except FrameFailure:
-            self._kill()
-            raise
-
-    def _restart(self) -> None:
-        """New child for the current sequence, with reset replayed."""
-        if self._restarts >= self.max_restarts:
-            raise FrameFailure(f"crash: gave up after {self.max_restarts} restarts in this sequence")
-        self._restarts += 1
-        self.n_restarts_total += 1
-        self._start_child()
-        try:
-            self._exchange("reset", self._reset_request(self._camera), self.reset_timeout_s)
-        except FrameFailure as exc:
-            self._kill()
-            raise FrameFailure(f"{exc.reason} (in reset replay)") from None
-        self.last_call_ms = None
-
-    def _exchange(self, kind: str, request: Any, timeout_s: float | None) -> Any:
-        """One request/reply; on timeout, death or protocol error the child is killed."""
-        start = time.perf_counter()
-        try:
-            self._send(request)
-            raw = self._recv(timeout_s)
-        except _Timeout:
-            self._kill()
-            raise FrameFailure("timeout") from None
-        except _Dead:
-            reason = exit_reason(self._exit_code())  # waits briefly for the exit status
-            self._kill()
-            raise FrameFailure(reason) from None
-        except _ProtocolError as exc:
-            self._kill()
-            raise FrameFailure(f"protocol: {exc}") from None
-        finally:
-            self.last_call_ms = (time.perf_counter() - start) * 1e3
-        try:
-            return self._reply(kind, raw)
-        except _ProtocolError as exc:
-            self._kill()
-            raise FrameFailure(f"protocol: {exc}") from None
+from evalkit.process import (  # noqa: F401  (FrameFailure, DEFAULT_TIMEOUT_S...: re-exported, old import path)
+    DEFAULT_MAX_RESTARTS, DEFAULT_MEMORY_LIMIT_MB, DEFAULT_RESET_TIMEOUT_S, DEFAULT_START_TIMEOUT_S,
+    DEFAULT_TIMEOUT_S, EXIT_GRACE_S, ChildDead, ChildTimeout, FrameFailure, ProcessLocalizer, exit_reason,
+    kill_and_reap, limit_memory, spawn,
+)
 
 
 # -- Python localizers in a child interpreter ----------------------------------
 _CHILD_CODE = ("import sys; from evalkit.isolation import _child_main; "
-               "_child_main(int(sys.argv[1]), int(sys.argv[2]))")
+               "_child_main(int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]))")
 
 
-def _child_main(fd_in: int, fd_out: int) -> None:
-    """Child process: build the localizer, then answer ``(method, arg)`` requests.
+def _child_main(fd_in: int, fd_out: int, memory_limit_mb: int = 0) -> None:
+    """Child process: cap its own memory, build the localizer, then answer ``(method, arg)``
+    requests (a localizer that needs more than ``memory_limit_mb`` MiB gets MemoryError).
 
     Messages are pickled :class:`multiprocessing.connection.Connection` frames on two
     pipes (not stdin/stdout, so a localizer that prints cannot corrupt them)."""
+    limit_memory(os.getpid(), memory_limit_mb)
     from multiprocessing.connection import Connection
     rx, tx = Connection(fd_in, writable=False), Connection(fd_out, readable=False)
     try:
@@ -230,7 +70,7 @@ def _child_main(fd_in: int, fd_out: int) -> None:
         try:
             value = getattr(loc, method)(arg)
             status = "ok"
-        except Exception as exc:  # noqa: BLE001 - a localizer's bug loses one frame
+        except (Exception, SystemExit, KeyboardInterrupt) as exc:  # noqa: BLE001 - loses one frame
             value, status = f"exception: {type(exc).__name__}: {exc}", "fail"
         try:
             tx.send((status, value))
@@ -249,11 +89,14 @@ class IsolatedLocalizer(ProcessLocalizer):
     """
 
     def __init__(self, spec: str, params: dict | None = None, preprocess: str | None = None,
-                 timeout_s: float | None = DEFAULT_TIMEOUT_S, **kw):
+                 timeout_s: float | None = DEFAULT_TIMEOUT_S,
+                 memory_limit_mb: int | None = DEFAULT_MEMORY_LIMIT_MB, **kw):
         """spec/params: as for registry.resolve (resolved in the child); preprocess:
-        a preprocess spec applied in the child; timeout_s and ``**kw``: see
-        :class:`ProcessLocalizer`."""
+        a preprocess spec applied in the child; memory_limit_mb: the child's address
+        space (RLIMIT_AS, MiB; None = unlimited); timeout_s and ``**kw``: see
+        :class:`~evalkit.process.ProcessLocalizer`."""
         super().__init__(timeout_s=timeout_s, **kw)
+        self.memory_limit_mb = memory_limit_mb
         self.spec, self.params, self.preprocess = spec, dict(params or {}), preprocess
         self.name = spec
         self._proc = None
@@ -261,7 +104,7 @@ class IsolatedLocalizer(ProcessLocalizer):
         from evalkit.registry import RegistryError
         try:
             self._start()
-        except _Dead as exc:
+        except ChildDead as exc:
             self._kill()
             raise RegistryError(f"cannot start a child process for localizer {spec!r}: {exc}") from None
         except FrameFailure as exc:  # the child could not build it: its message
@@ -274,7 +117,6 @@ class IsolatedLocalizer(ProcessLocalizer):
 
     # transport ------------------------------------------------------------
     def _start(self) -> None:
-        import os
         import subprocess
         import sys
         from multiprocessing.connection import Connection
@@ -284,12 +126,13 @@ class IsolatedLocalizer(ProcessLocalizer):
         env = dict(os.environ)
         env["PYTHONPATH"] = os.pathsep.join(os.path.abspath(p or ".") for p in sys.path)
         try:
-            proc = subprocess.Popen([sys.executable, "-c", _CHILD_CODE, str(r1), str(w2)],
-                                    pass_fds=(r1, w2), stdin=subprocess.DEVNULL, env=env)
-        except OSError as exc:
+            proc = spawn([sys.executable, "-c", _CHILD_CODE, str(r1), str(w2), str(self.memory_limit_mb or 0)],
+                         memory_limit_mb=None,    # the child sets its own limit before any import
+                         pass_fds=(r1, w2), stdin=subprocess.DEVNULL, env=env)
+        except ChildDead:
             for fd in (r1, w1, r2, w2):
                 os.close(fd)
-            raise _Dead(f"{type(exc).__name__}: {exc}") from None
+            raise
         os.close(r1)
         os.close(w2)
         self._proc = proc
@@ -297,10 +140,10 @@ class IsolatedLocalizer(ProcessLocalizer):
         self._send(("init", self.spec, self.params, self.preprocess))
         try:
             status, info = self._recv(self.start_timeout_s)
-        except _Timeout:
-            raise _Dead("timed out while starting") from None
-        except _Dead:
-            raise _Dead(exit_reason(self._exit_code())) from None
+        except ChildTimeout:
+            raise ChildDead("timed out while starting") from None
+        except ChildDead:
+            raise ChildDead(exit_reason(self._exit_code())) from None
         if status != "ready":
             raise FrameFailure(info)
 
@@ -311,15 +154,15 @@ class IsolatedLocalizer(ProcessLocalizer):
         try:
             self._tx.send(request)
         except (OSError, EOFError, AttributeError):
-            raise _Dead() from None
+            raise ChildDead() from None
 
     def _recv(self, timeout_s):
         try:
             if not self._rx.poll(timeout_s):
-                raise _Timeout()
+                raise ChildTimeout()
             return self._rx.recv()
         except (EOFError, OSError, AttributeError):
-            raise _Dead() from None
+            raise ChildDead() from None
 
     def _reset_request(self, camera):
         return ("reset", camera)
@@ -338,14 +181,7 @@ class IsolatedLocalizer(ProcessLocalizer):
             pass
 
     def _kill(self) -> None:
-        import subprocess
-        proc = self._proc
-        if proc is not None and proc.poll() is None:
-            proc.kill()
-            try:
-                proc.wait(5.0)
-            except subprocess.TimeoutExpired:
-                pass
+        kill_and_reap(self._proc)
         for conn in (self._tx, self._rx):
             if conn is not None:
                 conn.close()

@@ -27,7 +27,6 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import click
 import cv2
 import numpy as np
 import pandas as pd
@@ -382,25 +381,3 @@ def format_report(df: pd.DataFrame) -> str:
                  f"{int(d.nan_naive.sum())} NaN, {int(d.behind_naive.sum())} behind the camera "
                  f"(of {int(d.n.sum())} trials per method)")
     return "\n".join(lines)
-
-
-@click.command("pnp")
-@click.option("--trials", type=click.IntRange(5, 100000), default=60, show_default=True,
-              help="random poses per (target, Z, angle, noise) cell")
-@click.option("--seed", type=click.IntRange(0, 2**32 - 1), default=0, show_default=True)
-@click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
-              default=Path("out/bench"), show_default=True)
-def pnp_cmd(trials: int, seed: int, out: Path):
-    """Stress the planar PnP solvers: error vs distance/angle/noise against the Z^2 law,
-    wrong IPPE-branch picks (naive vs disambiguated), NaN and behind-camera solutions."""
-    t0 = time.perf_counter()
-    df = run_sweep(n_trials=trials, seed=seed)
-    out.mkdir(parents=True, exist_ok=True)
-    df.to_csv(out / "pnp.csv", index=False)
-    plot(df, out / "pnp.png")
-    click.echo(format_report(df))
-    click.echo(f"\n{len(df)} cells in {time.perf_counter() - t0:.1f} s -> {out / 'pnp.csv'}, {out / 'pnp.png'}")
-
-
-if __name__ == "__main__":
-    pnp_cmd()

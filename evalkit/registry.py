@@ -14,8 +14,9 @@ Third-party localizers register an entry point in the group
 speaking the JSON-lines protocol: ``exec:COMMAND``
 (datasets_spec/LOCALIZER_PROTOCOL.md, :mod:`evalkit.external`).
 
-:func:`build` is what the CLI uses: :func:`resolve` plus process isolation
-(:mod:`evalkit.isolation`) and preprocessing (:mod:`evalkit.preprocess`).
+This module only looks localizers up and builds them; wrapping them (process
+isolation, external programs' defaults, preprocessing) is :func:`evalkit.assemble.build`,
+what the CLI uses.
 """
 from __future__ import annotations
 
@@ -36,6 +37,7 @@ BUILTINS = {
     "aruco": "evalkit.localizers.aruco:ArucoLocalizer",
     "apriltag": "evalkit.localizers.apriltag:AprilTagLocalizer",
     "hybrid": "evalkit.localizers.hybrid:HybridLocalizer",
+    "qr_track": "evalkit.localizers.qr:QrTrackLocalizer",
 }
 EXEC_PREFIX = "exec:"
 
@@ -149,41 +151,6 @@ def resolve(spec: str, params: dict | None = None) -> Any:
     if not _is_localizer(obj):
         raise RegistryError(f"{spec!r} gave {type(obj).__name__}, which lacks reset()/localize()")
     return obj
-
-
-def build(spec: str, params: dict | None = None, *, isolate: bool = False,
-          timeout_s: float | None = None, preprocess: str | None = None) -> Any:
-    """The localizer the CLI runs for ``-l spec``: :func:`resolve` plus isolation and preprocessing.
-
-    * ``exec:COMMAND`` is always a separate process
-      (:class:`~evalkit.external.ExternalLocalizer`) with the per-frame
-      ``timeout_s`` (default :data:`evalkit.isolation.DEFAULT_TIMEOUT_S`, 60 s);
-    * Python localizers run in this process unless ``isolate`` or ``timeout_s``
-      is given: then in a spawn child (:class:`~evalkit.isolation.IsolatedLocalizer`)
-      that is killed after ``timeout_s`` (default 60 s) and restarted on crashes;
-    * ``preprocess`` (e.g. ``"clahe,grayworld"``, :func:`evalkit.preprocess.parse_steps`)
-      wraps the localizer in :class:`~evalkit.preprocess.Preprocessed` (inside the
-      child when isolated).
-
-    Errors in the spec, params or preprocess spec raise :class:`RegistryError`.
-    """
-    from evalkit import isolation, preprocess as pre
-
-    params = dict(params or {})
-    if preprocess:
-        try:
-            pre.parse_steps(preprocess)
-        except ValueError as exc:
-            raise RegistryError(f"bad --preprocess {preprocess!r}: {exc}") from None
-    timeout = isolation.DEFAULT_TIMEOUT_S if timeout_s is None else float(timeout_s)
-    if spec.startswith(EXEC_PREFIX):
-        loc = resolve(spec, {"timeout_s": timeout, **params})
-    elif isolate or timeout_s is not None:
-        loc = isolation.IsolatedLocalizer(spec, params, preprocess=preprocess or None, timeout_s=timeout)
-        return loc
-    else:
-        loc = resolve(spec, params)
-    return pre.Preprocessed(loc, preprocess) if preprocess else loc
 
 
 def _is_localizer(obj: Any) -> bool:

@@ -27,7 +27,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-QR_QUIET_MODULES = 2
+QR_QUIET_MODULES = 4  # ISO/IEC 18004, blendgen's default
 ARUCO_QUIET_CELLS = 1
 SHIFT = 4  # cv2 drawing fixed-point bits: 1/16 px
 
@@ -38,12 +38,12 @@ def linear_to_srgb(c) -> np.ndarray:
     return np.where(c <= 0.0031308, 12.92 * c, 1.055 * c ** (1 / 2.4) - 0.055)
 
 
-def qr_cells(payload: str) -> tuple[np.ndarray, int]:
+def qr_cells(payload: str, error: str = "m", quiet: int = QR_QUIET_MODULES) -> tuple[np.ndarray, int]:
     """QR cells (uint8, 0 dark / 255 light) with the quiet zone, and the code's module count."""
     import segno
-    code = np.array(segno.make_qr(payload, error="m", boost_error=False).matrix, dtype=np.uint8)
+    code = np.array(segno.make_qr(payload, error=error.lower(), boost_error=False).matrix, dtype=np.uint8)
     cells = np.where(code > 0, 0, 255).astype(np.uint8)
-    return np.pad(cells, QR_QUIET_MODULES, constant_values=255), code.shape[0]
+    return np.pad(cells, quiet, constant_values=255), code.shape[0]
 
 
 def aruco_cells(dictionary: str, marker_id: int) -> tuple[np.ndarray, int]:
@@ -73,7 +73,8 @@ def project(K, T_cam_x, pts) -> tuple[np.ndarray, np.ndarray]:
 
 def _draw_square(img, K_hi, T_cam_dock, marker, plate_grey):
     if marker["kind"] == "qr":
-        cells, n_code = qr_cells(marker["payload"])
+        cells, n_code = qr_cells(marker["payload"], marker.get("error_correction", "m"),
+                                 marker.get("quiet_zone_modules", QR_QUIET_MODULES))
     else:
         cells, n_code = aruco_cells(marker["dictionary"], marker["marker_id"])
     M = cells.shape[0]

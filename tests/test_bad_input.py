@@ -199,6 +199,8 @@ def test_existing_output_dir_is_untouched_on_failure(tmp_path):
     out.mkdir()
     (out / "keep.txt").write_text("x")
     res, text = _run(["evaluate", str(root), "-l", "aruco", "-o", str(out)])
+    _check(res, text, "folder is not empty")                # refused before anything runs
+    res, text = _run(["evaluate", str(root), "-l", "aruco", "-o", str(out), "--overwrite"])
     _check(res, text, "000002.png")
     assert sorted(p.name for p in out.iterdir()) == ["keep.txt"]
 

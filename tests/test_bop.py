@@ -21,14 +21,36 @@ def _rot(ax, ay, az):
     return cv2.Rodrigues(np.array([ax, ay, az], float))[0]
 
 
+SQUARE = np.array([[-0.1, 0.1, 0], [0.1, 0.1, 0], [0.1, -0.1, 0], [-0.1, -0.1, 0]])
+
+
+def _marker_pixels(T_cam_marker) -> np.ndarray:
+    """An object-index image of the marker plate (0.2 m square, 5 mm deep) drawn with OpenCV's own
+    projection: value 1 inside the convex hull of the 8 projected corners."""
+    corners = np.vstack([SQUARE, SQUARE - [0, 0, 0.005]])
+    rvec = cv2.Rodrigues(np.asarray(T_cam_marker)[:3, :3])[0]
+    uv, _ = cv2.projectPoints(corners, rvec, np.asarray(T_cam_marker)[:3, 3], KM, None)
+    idx = np.zeros((HEIGHT, WIDTH), np.uint8)
+    cv2.fillConvexPoly(idx, cv2.convexHull(np.round(uv.reshape(-1, 2)).astype(np.int32)), 1)
+    return idx
+
+
+def _rehash(root):
+    """List every file in the manifest again (the enriched dataset is a valid, verified one)."""
+    from datasets_spec.io import content_hash, dataset_files, sha256_file
+    man = json.loads((root / "manifest.json").read_text())
+    man["files"] = {rel: sha256_file(root / rel) for rel in dataset_files(root)}
+    man["content_hash"] = content_hash(man["files"])
+    (root / "manifest.json").write_text(json.dumps(man))
+
+
 def _enrich(root):
     """Give the fake dataset rotated poses, an offset marker, range NPZs and object-index PNGs."""
     man = json.loads((root / "manifest.json").read_text())
     T_dock_marker = np.eye(4)
     T_dock_marker[:3, 3] = [0.05, -0.02, 0.0]
     man["markers"][0]["T_dock_marker"] = T_dock_marker.tolist()
-    man["markers"][0]["keypoints"] = (np.array([[-0.1, 0.1, 0], [0.1, 0.1, 0], [0.1, -0.1, 0], [-0.1, -0.1, 0]])
-                                      + T_dock_marker[:3, 3]).tolist()
+    man["markers"][0]["keypoints"] = (SQUARE + T_dock_marker[:3, 3]).tolist()
     (root / "manifest.json").write_text(json.dumps(man))
     u, v = np.meshgrid(np.arange(WIDTH, dtype=float), np.arange(HEIGHT, dtype=float))
     norm = np.sqrt(((u - KM[0, 2]) / KM[0, 0]) ** 2 + ((v - KM[1, 2]) / KM[1, 1]) ** 2 + 1)
@@ -51,11 +73,16 @@ def _enrich(root):
             f["depth"] = f"{seq['path']}/depth/{i:06d}.npz"
             np.savez_compressed(root / f["depth"], range_m=rng)
             idx = np.zeros((HEIGHT, WIDTH), np.uint8)
-            idx[10:20, 30:45] = 1                                        # the marker ("1" -> "0")
+            if (seq["id"], i) != ("clear_000", 5):                       # frame 5: marker not in view
+                idx = _marker_pixels(T @ T_dock_marker)                    # value 1 = the marker ("1" -> "0")
+            if (seq["id"], i) == ("clear_000", 2):                       # left half occluded
+                xs = np.nonzero(idx.any(axis=0))[0]
+                idx[:, : (xs.min() + xs.max() + 1) // 2] = 0
             f["object_index"] = f"{seq['path']}/index/{i:06d}.png"
             cv2.imwrite(str(root / f["object_index"]), idx)
             lines.append(json.dumps(f))
         (sdir / "frames.jsonl").write_text("\n".join(lines) + "\n")
+    _rehash(root)
     return root
 
 
@@ -79,9 +106,12 @@ def test_layout_and_camera(exported):
     assert sc["3"]["cam_K"] == pytest.approx(KM.ravel().tolist()) and sc["3"]["depth_scale"] == 0.1
     rgb = sdir / "rgb" / "000003.png"
     assert rgb.is_symlink() and cv2.imread(str(rgb)) is not None
-    assert (out / "models" / "obj_000001.ply").read_text().startswith("ply")
+    ply = (out / "models" / "obj_000001.ply").read_text()
+    assert ply.startswith("ply") and "element vertex 8" in ply and "element face 12" in ply
+    assert (out / "models_eval" / "obj_000001.ply").read_text() == ply
     info = json.loads((out / "models" / "models_info.json").read_text())["1"]
-    assert info["diameter"] == pytest.approx(200 * math.sqrt(2))
+    assert info["diameter"] == pytest.approx(math.sqrt(200 ** 2 + 200 ** 2 + 5 ** 2))   # 5 mm plate
+    assert info["size_z"] == pytest.approx(5.0)
 
 
 def test_projection_matches_manifest(exported):
@@ -118,15 +148,25 @@ def test_depth_is_planar_z(exported):
     np.testing.assert_allclose(z_mm.ravel()[1:], expected.ravel()[1:], atol=0.2)
 
 
-def test_gt_info(exported):
+def test_gt_info_visib_fract_from_the_index_pass(exported):
     ds, out, _ = exported
     info = json.loads((out / "test" / "000000" / "scene_gt_info.json").read_text())
-    assert info["5"][0]["visib_fract"] == 0.0 and info["2"][0]["visib_fract"] == 1.0
-    assert info["2"][0]["bbox_visib"] == [30, 10, 15, 10]
-    assert info["2"][0]["px_count_visib"] == 150
+    full, half, hidden = info["1"][0], info["2"][0], info["5"][0]
+    assert full["visib_fract"] > 0.9                                   # unoccluded (edge pixels aside)
+    own = int(_marker_pixels(np.array(next(f for f in ds.iter_frames("clear_000") if f["index"] == 1)
+                                      ["markers"]["0"]["T_cam_marker"])).sum())
+    assert full["px_count_all"] == pytest.approx(own, rel=0.2)         # the silhouette's area
+    assert 0.3 < half["visib_fract"] < 0.7                             # left half occluded
+    assert hidden["visib_fract"] == 0.0 and hidden["px_count_all"] > 0
     mask = cv2.imread(str(out / "test" / "000000" / "mask_visib" / "000002_000000.png"), cv2.IMREAD_UNCHANGED)
-    assert int((mask > 0).sum()) == 150
-    assert all(v >= 0 for v in info["2"][0]["bbox_obj"][2:])
+    assert int((mask > 0).sum()) == half["px_count_visib"]
+    assert all(v >= 0 for v in full["bbox_obj"][2:]) and full["bbox_visib"][2] > 0
+    targets = json.loads((out / "test_targets_bop19.json").read_text())
+    keys = {(t["scene_id"], t["im_id"]) for t in targets}
+    assert (0, 1) in keys and (0, 2) in keys and (0, 5) not in keys    # visib_fract >= 0.1 only
+    assert all(t["obj_id"] == 1 and t["inst_count"] == 1 for t in targets)
+    scenes = json.loads((out / "dockbench_scenes.json").read_text())
+    assert scenes["visib_fract"] == {"from_object_index": 12, "copied_from_dataset": 0}
 
 
 def test_range_to_depth_clipping():

@@ -8,6 +8,7 @@ import pytest
 import yaml
 from click.testing import CliRunner
 
+import cli
 from blendgen.tools import calibration as cal
 from blendgen.geometry import intrinsics_from_hfov, project, transform_points
 
@@ -67,7 +68,7 @@ def test_order_like_undoes_reversal():
 def test_bad_config_is_a_user_error(tmp_path):
     p = tmp_path / "c.yaml"
     p.write_text("trials: 0\nbogus: 1\n")
-    r = CliRunner().invoke(cal.calibrate_cmd, ["--config", str(p), "-o", str(tmp_path / "o")])
+    r = CliRunner().invoke(cli.main, ["calibrate", "--config", str(p), "-o", str(tmp_path / "o")])
     assert r.exit_code == 2
     assert "trials" in r.output and "bogus" in r.output
 
@@ -78,7 +79,7 @@ def test_rendered_zhang_calibration(tmp_path):
     p = tmp_path / "calib.yaml"
     p.write_text(yaml.safe_dump(cfg))
     out = tmp_path / "out"
-    r = CliRunner().invoke(cal.calibrate_cmd, ["--config", str(p), "-o", str(out)])
+    r = CliRunner().invoke(cli.main, ["calibrate", "--config", str(p), "-o", str(out)])
     assert r.exit_code == 0, (r.output, r.exception)
     assert "640x480" in r.output and "fx err %" in r.output
     rows = list(csv.DictReader(open(out / "calibration_trials.csv")))

@@ -87,9 +87,10 @@ def test_pareto_plot(tmp_path):
 
 
 def test_commands_are_click_commands_without_bpy():
-    from blendgen.tools import preview
-    for cmd in (fidelity.fidelity_cmd, fidelity.calibrate_water_cmd, preview.preview_cmd):
-        assert isinstance(cmd, click.Command)
+    import cli
+    assert isinstance(cli.main.commands["calibrate-water"], click.Command)
+    assert isinstance(cli.main.commands["preview"], click.Command)
+    assert isinstance(cli.bench.commands["fidelity"], click.Command)
     assert "bpy" not in sys.modules
 
 

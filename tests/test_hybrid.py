@@ -1,4 +1,4 @@
-"""The article's hybrid localizer: LED far, QR near, switching with hysteresis, state per sequence."""
+"""The hybrid localizer: QR whenever it decodes, LED otherwise; QR skipped beyond its px/module range."""
 from __future__ import annotations
 
 import sys
@@ -14,12 +14,19 @@ from test_localizers import led_marker, square_marker  # noqa: E402
 from evalkit import registry  # noqa: E402
 from evalkit.localizers.hybrid import HybridLocalizer  # noqa: E402
 
+W, H = 640, 480
+K = synth.k_from_hfov(W, H, 60.0)
+LED = led_marker(size=0.6)
+QR = square_marker("qr", 0.15, T=[[1, 0, 0, -0.12], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]],
+                   payload="DOCK-01", modules=21, module_size_m=0.15 / 21, quiet_zone_modules=4)
+CAMERA = synth.camera_dict(K, W, H, [LED, QR])
+
 
 class Script:
     """Stub sub-localizer: returns the next scripted distance (None = nothing found)."""
 
-    def __init__(self, marker_id):
-        self.marker_id = marker_id
+    def __init__(self, marker_id, marker=None):
+        self.marker_id, self._marker = marker_id, marker
         self.values, self.calls, self.resets = [], 0, 0
 
     def reset(self, camera):
@@ -33,79 +40,63 @@ class Script:
 
 def stubbed(**kw):
     h = HybridLocalizer(**kw)
-    h.subs = {"near": Script("qr"), "far": Script("led")}
-    h.reset({})
+    h.subs = {"near": Script("qr", QR), "far": Script("led", LED)}
+    h.reset(CAMERA)
     return h
 
 
-def run(h, truth):
-    """Feed frames where both stubs see the true distance; (mode, marker) per frame."""
-    out = []
-    for d in truth:
-        h.subs["near"].values = [d]
-        h.subs["far"].values = [d]
-        est = h.localize(None)
-        out.append((est["mode"], est["marker_id"]))
-    return out
-
-
-def test_hysteresis_band_prevents_flicker():
-    h = stubbed(switch_m=5.0, hysteresis_m=0.5)
-    assert h.band == (4.75, 5.25)
-    truth = [8.0, 6.0, 5.2, 4.8, 5.1, 4.7, 4.9, 5.2, 5.24, 5.3, 5.0, 4.76, 4.74, 3.0]
-    modes = [m for m, _ in run(h, truth)]
-    assert modes == ["far"] * 5 + ["near"] * 4 + ["far"] * 3 + ["near"] * 2
-    # without hysteresis it would flip at every crossing of 5 m
-    h0 = stubbed(switch_m=5.0, hysteresis_m=0.0)
-    assert [m for m, _ in run(h0, [5.2, 4.8, 5.1, 4.9])] == ["far", "near", "far", "near"]
-
-
-def test_immediate_switch_returns_the_marker_actually_used():
-    h = stubbed()
-    h.subs["far"].values = [4.0]       # LED says 4 m: below the band ...
-    h.subs["near"].values = [4.1]      # ... so QR is tried on the same frame
+def frame(h, near, far):
+    h.subs["near"].values, h.subs["far"].values = [near], [far]
+    c0 = (h.subs["near"].calls, h.subs["far"].calls)
     est = h.localize(None)
-    assert (est["marker_id"], est["source"], est["mode"], est["distance"]) == ("qr", "near", "near", 4.1)
-    h2 = stubbed(immediate=False)
-    h2.subs["far"].values = [4.0]
-    est = h2.localize(None)
-    assert (est["marker_id"], est["mode"]) == ("led", "near") and h2.subs["near"].calls == 0
+    tried = (h.subs["near"].calls - c0[0], h.subs["far"].calls - c0[1])
+    return (None if est is None else est["marker_id"]), tried
 
 
-def test_fallback_and_reset_clears_state():
+def test_near_range_from_pixels_per_module():
     h = stubbed()
-    run(h, [3.0])
-    assert h.mode == "near"
-    h.subs["near"].values = [None]     # QR lost: LED answers, the mode stays (3.1 m < band)
-    h.subs["far"].values = [3.1]
+    expected = K[0, 0] * (0.15 / 21) / 1.3   # f m / min px per module = 3.05 m
+    assert h.near_range_m == pytest.approx(expected) and 2.9 < expected < 3.2
+    assert stubbed(min_px_per_module=2.6).near_range_m == pytest.approx(expected / 2)
+    assert stubbed(switch_m=5.0).near_range_m == 5.0
+
+
+def test_qr_when_it_decodes_led_otherwise_and_qr_skipped_beyond_range():
+    h = stubbed()
+    assert frame(h, 7.9, 8.0) == ("led", (0, 1))     # LED says 8 m > 3.05 m: no decode attempt
+    assert frame(h, None, 2.9) == ("led", (1, 1))    # within range, QR tried, fails: LED
+    assert frame(h, 2.8, 2.8) == ("qr", (1, 0))      # previous 2.9 m: QR first, it decodes
+    assert frame(h, None, 2.7) == ("led", (1, 1))    # QR lost: the LED answers the same frame
+    assert frame(h, None, 4.0) == ("led", (1, 1))
+    assert frame(h, 3.0, 3.9) == ("led", (0, 1))     # previous 4 m, LED 3.9 m: QR skipped
+    assert frame(h, 0.4, None) == ("qr", (1, 1))     # LED lost (too close for the array): QR
+    assert frame(h, None, None) == (None, (1, 1))
+
+
+def test_estimate_records_source_and_range_and_reset_clears_state():
+    h = stubbed()
+    h.subs["near"].values, h.subs["far"].values = [1.0], [1.1]
     est = h.localize(None)
-    assert (est["marker_id"], est["source"], est["mode"]) == ("led", "far", "near")
-    h.subs["near"].values, h.subs["far"].values = [None], [None]
-    assert h.localize(None) is None and h.mode == "near"   # nothing found: state kept
-    h.reset({})
-    assert h.mode == "far" and h.subs["near"].resets == 2 and h.subs["far"].resets == 2
-    h3 = stubbed(fallback=False)
-    h3.subs["far"].values = [None]
-    h3.subs["near"].values = [2.0]
-    assert h3.localize(None) is None and h3.subs["near"].calls == 0
+    assert (est["marker_id"], est["source"], est["distance"]) == ("qr", "near", 1.0)
+    assert est["near_range_m"] == pytest.approx(h.near_range_m)
+    h.reset(CAMERA)
+    assert h._last_d is None and h.subs["near"].resets == 2 and h.subs["far"].resets == 2
+    assert frame(h, 1.0, 8.0) == ("led", (0, 1))     # no memory of the previous sequence
 
 
 def test_params_and_sub_localizer_choice():
-    h = registry.resolve("hybrid", {"near": "aruco", "switch_m": 3, "hysteresis_m": 1,
-                                    "near_params": {"refine": "none"}, "far_marker_id": "led"})
+    aruco = square_marker("aruco", 0.12, dictionary="DICT_4X4_50", marker_id=7)
+    h = registry.resolve("hybrid", {"near": "aruco", "near_params": {"refine": "none"}, "far_marker_id": "led"})
+    h.reset(synth.camera_dict(K, W, H, [LED, aruco]))
     assert type(h.subs["near"]).__name__ == "ArucoLocalizer" and h.subs["near"].refine == "none"
-    assert h.subs["far"].marker_id == "led" and h.band == (2.5, 3.5)
-    with pytest.raises(registry.RegistryError, match="hysteresis_m"):
-        registry.resolve("hybrid", {"hysteresis_m": 20})
+    assert h.subs["far"].marker_id == "led"
+    assert h.near_range_m == pytest.approx(K[0, 0] * 0.12 / 6 / 1.3)  # 4x4 + border = 6 cells
+    with pytest.raises(registry.RegistryError, match="min_px_per_module"):
+        registry.resolve("hybrid", {"min_px_per_module": 0})
 
 
 # -- on rendered images ------------------------------------------------------------
-W, H = 640, 480
-K = synth.k_from_hfov(W, H, 35.0)   # narrow lens: the 0.4 m QR decodes out to ~7 m
-LED = led_marker(size=1.2)
-QR = square_marker("qr", 0.4, payload="DOCK-01")
-TRUTH = [8.0, 6.5, 5.15, 4.9, 5.1, 4.5, 4.9, 5.15, 5.6, 4.85, 3.0, 2.0]
-MODES = ["far"] * 5 + ["near"] * 3 + ["far"] * 2 + ["near"] * 2
+TRUTH = [6.0, 4.0, 3.0, 1.6, 1.0, 0.7]
 
 
 @pytest.fixture(scope="module")
@@ -116,20 +107,18 @@ def frames():
 
 def _run_rendered(frames):
     h = registry.resolve("hybrid", {})
-    h.reset(synth.camera_dict(K, W, H, [LED, QR]))
+    h.reset(CAMERA)
     return [h.localize(img) for img in frames]
 
 
 def test_rendered_sequence_switches_led_to_qr(frames):
     ests = _run_rendered(frames)
     assert all(e is not None for e in ests)
-    assert [e["mode"] for e in ests] == MODES
     for d, e in zip(TRUTH, ests):
         assert e["distance"] == pytest.approx(d, rel=0.03)
-        if d > 5.25 or (e["mode"] == "far" and d > 4.75):
-            assert e["marker_id"] == "led"      # far away / far mode: the LED array
-    assert ests[5]["marker_id"] == "qr"          # 4.5 m: switched within the frame
-    assert [e["marker_id"] for e in ests[-2:]] == ["qr", "qr"]
+        if d > 3.1:
+            assert e["marker_id"] == "led"  # beyond the QR's decodable range
+    assert [e["marker_id"] for e in ests[-3:]] == ["qr", "qr", "qr"]
 
 
 def test_identical_inputs_give_identical_results(frames):
@@ -137,3 +126,12 @@ def test_identical_inputs_give_identical_results(frames):
     for x, y in zip(a, b):
         assert x.keys() == y.keys()
         assert all(np.array_equal(x[k], y[k]) for k in x)
+
+
+def test_prefer_footprint_takes_the_marker_spanning_more_pixels():
+    h = stubbed(prefer="footprint")
+    assert frame(h, 2.0, 2.0) == ("led", (1, 1))     # LED 0.85 m diagonal vs QR 0.21 m: LED
+    assert frame(h, 0.5, None) == ("qr", (1, 1))     # LED out of view: QR
+    assert frame(h, None, 8.0) == ("led", (0, 1))    # beyond the near range: QR not run
+    with pytest.raises(ValueError):
+        HybridLocalizer(prefer="bogus")

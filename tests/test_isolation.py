@@ -17,7 +17,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).parent))
 from fake_dataset import SEQUENCES, write_fake_dataset  # noqa: E402
 
-from evalkit import registry, runner  # noqa: E402
+from evalkit import assemble, registry, runner  # noqa: E402
 from evalkit.dataset import Dataset  # noqa: E402
 from evalkit.external import ExternalLocalizer  # noqa: E402
 from evalkit.isolation import IsolatedLocalizer  # noqa: E402
@@ -149,14 +149,14 @@ def _check(df, expected):
     f = df.set_index("d_true")
     for d, reason in expected.items():
         assert f.loc[d, "fail_reason"] == reason, (d, f.loc[d, "fail_reason"])
-        assert not f.loc[d, "success"] and np.isnan(f.loc[d, "d_est"])
+        assert not f.loc[d, "detected"] and np.isnan(f.loc[d, "d_est"])
     ok = f[~f.index.isin(list(expected))]
-    assert ok["success"].all(), ok[["fail_reason"]]
+    assert ok["detected"].all(), ok[["fail_reason"]]
     assert np.allclose(ok.index, ok["d_est"])
 
 
 def test_isolated_python_faults_cost_one_frame_each(ds, py_file):
-    loc = registry.build(f"{py_file}:Faulty", {}, isolate=True, timeout_s=TIMEOUT)
+    loc = assemble.build(f"{py_file}:Faulty", {}, isolate=True, timeout_s=TIMEOUT)
     assert isinstance(loc, IsolatedLocalizer)
     t0 = time.perf_counter()
     df = runner.evaluate(ds, [("faulty", loc)], progress=False)
@@ -170,31 +170,33 @@ def test_isolated_python_faults_cost_one_frame_each(ds, py_file):
 
 
 def test_isolated_matches_in_process(ds, py_file):
-    cols = ["localizer", "sequence", "index", "success", "d_est", "e_abs", "e_rel", "marker_id", "fail_reason"]
-    inproc = runner.evaluate(ds, [("o", registry.build(f"{py_file}:Oracle"))], progress=False)
-    iso = runner.evaluate(ds, [("o", registry.build(f"{py_file}:Oracle", isolate=True))], progress=False)
+    cols = ["localizer", "sequence", "index", "detected", "d_est", "e_abs", "e_rel", "marker_id", "fail_reason"]
+    inproc = runner.evaluate(ds, [("o", assemble.build(f"{py_file}:Oracle", isolate=False))], progress=False)
+    iso = runner.evaluate(ds, [("o", assemble.build(f"{py_file}:Oracle", isolate=True))], progress=False)
     assert inproc[cols].equals(iso[cols])
 
 
 def test_timeout_alone_turns_isolation_on(py_file):
-    assert isinstance(registry.build(f"{py_file}:Oracle", timeout_s=2.0), IsolatedLocalizer)
-    assert not isinstance(registry.build(f"{py_file}:Oracle"), IsolatedLocalizer)  # default: in process
+    assert isinstance(assemble.build(f"{py_file}:Oracle", timeout_s=2.0), IsolatedLocalizer)
+    assert not isinstance(assemble.build(f"{py_file}:Oracle", isolate=False), IsolatedLocalizer)
+    assert isinstance(assemble.build(f"{py_file}:Oracle"), IsolatedLocalizer)  # default: plugins isolated
+    assert not isinstance(assemble.build("aruco"), IsolatedLocalizer)  # default: built-ins in process
 
 
 def test_isolated_reset_failure_and_bad_spec(ds, py_file):
-    loc = registry.build(f"{py_file}:BadReset", isolate=True, timeout_s=TIMEOUT)
+    loc = assemble.build(f"{py_file}:BadReset", isolate=True, timeout_s=TIMEOUT)
     df = runner.evaluate(ds, [("bad", loc)], progress=False, sequences=["clear_001"])
     assert (df["fail_reason"] == "exception: RuntimeError: no camera for me (in reset)").all()
     with pytest.raises(RegistryError, match="cannot build localizer .*unexpected keyword argument .bogus."):
-        registry.build(f"{py_file}:Oracle", {"bogus": 1}, isolate=True)
+        assemble.build(f"{py_file}:Oracle", {"bogus": 1}, isolate=True)
     with pytest.raises(RegistryError, match="not found"):
-        registry.build("nowhere/x.py:Y", isolate=True)
+        assemble.build("nowhere/x.py:Y", isolate=True)
 
 
 def test_external_faults_cost_one_frame_each(ds, tmp_path):
     script = tmp_path / "faulty_ext.py"
     script.write_text(EXT_FAULTY)
-    loc = registry.build(f"exec:{sys.executable} {script}", timeout_s=TIMEOUT)
+    loc = assemble.build(f"exec:{sys.executable} {script}", timeout_s=TIMEOUT)
     assert isinstance(loc, ExternalLocalizer)
     df = runner.evaluate(ds, [("ext", loc)], progress=False)
     _check(df, EXT_EXPECTED)
@@ -223,11 +225,11 @@ def test_external_reset_refused_and_missing_command(ds):
     df = runner.evaluate(ds, [("n", newer)], progress=False, sequences=["clear_000"])
     assert df["fail_reason"].str.startswith("protocol: program speaks protocol 2").all()
     with pytest.raises(RegistryError, match="command not found"):
-        registry.build("exec:no-such-program-xyz --flag")
+        assemble.build("exec:no-such-program-xyz --flag")
 
 
 def test_runner_records_reason_of_inprocess_hang_flag(ds, py_file):
     # in process (no isolation) a slow call is only flagged after it returns
-    loc = registry.build(f"{py_file}:Slow", {"hang_s": 0.05})
+    loc = assemble.build(f"{py_file}:Slow", {"hang_s": 0.05}, isolate=False)
     df = runner.evaluate(ds, [("f", loc)], progress=False, frame_timeout_s=0.04, sequences=["clear_000"])
     assert df.set_index("d_true").loc[1.0, "fail_reason"] == "timeout"

@@ -257,13 +257,15 @@ def test_aruco_refine_options():
 QR_SWEEP = [(d, a) for d in (0.3, 0.5, 0.7) for a in ((0, 0, 0), (30, 10, 25), (-40, -10, -100))]
 
 
+@pytest.mark.parametrize("refine", ["ecc", "finders"])
 @pytest.mark.parametrize("d,angles", QR_SWEEP)
-def test_qr_pose_sweep(d, angles):
+def test_qr_pose_sweep(d, angles, refine):
     m = square_marker("qr", 0.15, T=T_offset(0.25, -0.1, 0.0), payload="DOCK-01")
     T = synth.pose_looking_at_dock(d, *angles, offset=centre_of(m))
-    est = make(QrLocalizer, [LED, m]).localize(synth.render(K, T, [m], noise_std=2.0))
+    est = make(QrLocalizer, [LED, m], refine=refine).localize(synth.render(K, T, [m], noise_std=2.0))
     assert est is not None and est["marker_id"] == "qr"
-    assert est["n_points"] >= 8  # finder-pattern corners used, not the extrapolated BR corner
+    # finders: the finder-pattern corners, not the extrapolated BR corner; ecc: the aligned code's 4 corners
+    assert est["n_points"] >= (8 if refine == "finders" else 4)
     assert abs(est["distance"] - d) / d <= 0.01
     assert np.median(keypoint_err_px(est["T_cam_dock"], T, m["keypoints"])) <= 0.4
     assert rot_err_deg(est["T_cam_dock"], T) < 3.0
@@ -284,8 +286,8 @@ def test_qr_payload_must_match():
 def test_qr_detector_and_refine_options():
     T = synth.pose_looking_at_dock(0.5, 20, 0, 10)
     img = synth.render(K, T, [QR], ss=2)
-    for detector in ("aruco", "classic"):
-        for refine in ("finders", "subpix", "none"):
+    for detector in ("zxing", "aruco", "classic"):
+        for refine in ("ecc", "finders", "subpix", "none"):
             est = make(QrLocalizer, [QR], detector=detector, refine=refine).localize(img)
             assert est is not None and abs(est["distance"] - 0.5) / 0.5 < 0.03, (detector, refine)
 

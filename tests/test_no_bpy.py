@@ -7,7 +7,8 @@ PURE = ["cli", "evalkit", "evalkit.dataset", "evalkit.registry", "evalkit.metric
         "blendgen.pipeline.plan", "blendgen.pipeline.groundtruth", "blendgen.pipeline.compose", "blendgen.pipeline.writer",
         "blendgen.pipeline.generate", "blendgen.pipeline.executor", "blendgen.physics.optics", "blendgen.tools.reproduce", "blendgen.tools.fidelity", "blendgen.tools.calibration",
         "evalkit.isolation", "evalkit.external", "evalkit.preprocess", "evalkit.localizers.hybrid",
-        "evalkit.reports.results", "evalkit.reports.leaderboard", "evalkit.reports.bop"]
+        "evalkit.reports.results", "evalkit.reports.leaderboard", "evalkit.reports.bop",
+        "evalkit.metrics.recall", "evalkit.metrics.extra", "evalkit.reports.provenance", "evalkit.reports.outdir"]
 
 
 def test_pure_modules_never_import_bpy():

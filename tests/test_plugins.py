@@ -26,7 +26,7 @@ import cli  # noqa: E402
 import synth_images as synth  # noqa: E402
 from fake_dataset import SEQUENCES, write_fake_dataset  # noqa: E402
 
-from evalkit import preprocess, registry, runner  # noqa: E402
+from evalkit import assemble, preprocess, registry, runner  # noqa: E402
 from evalkit.dataset import Dataset  # noqa: E402
 from evalkit.external import ExternalLocalizer  # noqa: E402
 from evalkit.registry import RegistryError  # noqa: E402
@@ -86,7 +86,7 @@ def _evaluate(ds_path, out, *args):
 
 
 def _assert_oracle(df, scale=1.0, tag=None):
-    assert len(df) == N_FRAMES and df["success"].all()
+    assert len(df) == N_FRAMES and df["detected"].all()
     assert np.allclose(df["d_est"], scale * df["d_true"])
     if tag is not None:
         assert (df["marker_id"] == tag).all()
@@ -159,7 +159,7 @@ def test_exec_persistent_process_and_pixels(ds_path, tmp_path):
 @pytest.mark.skipif(shutil.which("sh") is None, reason="no POSIX sh")
 def test_exec_posix_shell_example(ds_path, tmp_path):
     df = _evaluate(ds_path, tmp_path / "out", "-l", f"exec:sh {ROOT / 'examples/external_localizer.sh'} 2.5")
-    assert df["success"].all() and (df["d_est"] == 2.5).all()
+    assert df["detected"].all() and (df["d_est"] == 2.5).all()
 
 
 def test_python_example_program_on_a_rendered_aruco(tmp_path):
@@ -230,7 +230,7 @@ def test_parse_preprocess_spec():
         with pytest.raises(ValueError, match=msg):
             preprocess.parse_steps(bad)
     with pytest.raises(RegistryError, match="bad --preprocess"):
-        registry.build("qr", preprocess="nope")
+        assemble.build("qr", preprocess="nope")
 
 
 def test_preprocess_steps_are_deterministic_images():
@@ -260,7 +260,7 @@ def test_preprocessed_wrapper_feeds_processed_images(ds_path):
 
     loc = preprocess.Preprocessed(Spy(), "gain:alpha=2")
     df = runner.evaluate(Dataset.open(ds_path), [("spy", loc)], progress=False, sequences=["clear_000"])
-    assert df["success"].all() and loc.name == "Spy+gain"
+    assert df["detected"].all() and loc.name == "Spy+gain"
     raw = Dataset.open(ds_path)
     frame = next(raw.iter_frames("clear_000"))
     expected = np.clip(2.0 * raw.load_image(frame).astype(float), 0, 255).astype(np.uint8)
@@ -271,7 +271,7 @@ def test_preprocess_in_isolated_child(ds_path, tmp_path):
     f = tmp_path / "my_loc.py"
     f.write_text(PLUGIN_SRC)
     # gain alpha=1 beta=0 is the identity: the oracle still reads the exact distance
-    loc = registry.build(f"{f}:Oracle", {}, isolate=True, preprocess="gain:alpha=1:beta=0")
+    loc = assemble.build(f"{f}:Oracle", {}, isolate=True, preprocess="gain:alpha=1:beta=0")
     df = runner.evaluate(Dataset.open(ds_path), [("o", loc)], progress=False)
     _assert_oracle(df)
     assert json.loads(json.dumps(preprocess.parse_steps("gain:alpha=1")[0].params)) == {"alpha": 1}

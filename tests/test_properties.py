@@ -27,7 +27,7 @@ finite = dict(allow_nan=False, allow_infinity=False)
 def _df(d_true, d_est, success=True):
     n = len(d_true)
     return pd.DataFrame({"localizer": "l", "sequence": [f"s{i % 2}" for i in range(n)], "condition": "c",
-                         "d_true": d_true, "success": success, "d_est": d_est})
+                         "d_true": d_true, "detected": success, "d_est": d_est})
 
 
 @given(st.lists(st.one_of(st.sampled_from(TINY), st.floats(0.0, 1e-3)), min_size=1, max_size=20),
@@ -41,7 +41,7 @@ def test_metrics_near_zero_distance(d_true, d_est, d_min_rel):
     d = np.asarray(d_true)
     assert (np.isnan(e_rel) == ((d < d_min_rel) | (d <= 0.0))).all()
     assert not np.isinf(e_rel).any()                             # never 1/0: inf would poison means
-    tr = metrics.per_trial(df, d_min_rel=d_min_rel)
+    tr = metrics.summarize(df, d_min_rel=d_min_rel)[0]
     assert tr.n_total.sum() == len(d_true) and not np.isinf(tr.e_rel_mean).any()
 
 
@@ -57,9 +57,9 @@ def test_metrics_ten_metre_edge(d_true, d_est):
     df = _df(d_true, d_est)
     counted = metrics.counted_mask(df.d_true).to_numpy()
     assert (counted == (np.asarray(d_true) <= 10.0)).all()       # 10.0 itself counts, one ulp above does not
-    tr = metrics.per_trial(df)
+    tr = metrics.summarize(df)[0]
     assert tr.n_total.sum() == counted.sum()
-    assert ((tr.P_succ == 1.0) | (tr.n_total == 0)).all()
+    assert ((tr.P_detect == 1.0) | (tr.n_total == 0)).all()
 
 
 @given(st.floats(0.0, 10.0, **finite), st.floats(0.0, 10.0, **finite), st.floats(0.0, 30.0, **finite))

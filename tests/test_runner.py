@@ -17,7 +17,7 @@ from fake_dataset import SEQUENCES, decode_distance, write_fake_dataset  # noqa:
 
 from evalkit import registry, runner  # noqa: E402
 
-from evalkit.reports import tables
+from evalkit.metrics import core as metrics
 from evalkit.dataset import Dataset, DatasetError, verify  # noqa: E402
 from evalkit.registry import RegistryError  # noqa: E402
 
@@ -114,9 +114,41 @@ def test_bad_json_line(ds_path):
     lines = path.read_text().splitlines()
     lines[2] = lines[2][:-5]
     path.write_text("\n".join(lines) + "\n")
-    ds = Dataset.open(ds_path)
+    with pytest.raises(DatasetError, match=r"clear_001/frames\.jsonl: sha256 differs from the manifest"):
+        list(Dataset.open(ds_path).iter_frames("clear_001"))      # verified: refused before parsing
+    ds = Dataset.open(ds_path, verify=False)
     with pytest.raises(DatasetError, match=r"clear_001/frames\.jsonl:3: bad JSON line"):
         list(ds.iter_frames("clear_001"))
+
+
+def test_tampered_ground_truth_is_refused(ds_path):
+    """A GT edit (d_true + 1 m) that keeps the JSON valid is caught by the sha256 check."""
+    import json
+    path = ds_path / "sequences/clear_000/frames.jsonl"
+    frames = [json.loads(x) for x in path.read_text().splitlines()]
+    frames[2]["d_true"] += 1.0
+    path.write_text("".join(json.dumps(f) + "\n" for f in frames))
+    with pytest.raises(DatasetError, match="frames.jsonl: sha256 differs from the manifest"):
+        runner.evaluate(Dataset.open(ds_path), [("o", Oracle())], progress=False)
+    df = runner.evaluate(Dataset.open(ds_path, verify=False), [("o", Oracle())], progress=False)
+    assert df.loc[(df.sequence == "clear_000") & (df["index"] == 2), "d_true"].item() == 2.0
+
+
+def test_unlisted_and_relisted_files_are_refused(ds_path):
+    import json
+    m = json.loads((ds_path / "manifest.json").read_text())
+    del m["files"]["sequences/clear_000/rgb/000001.png"]             # not listed, hash recomputed
+    from datasets_spec.io import content_hash
+    m["content_hash"] = content_hash(m["files"])
+    (ds_path / "manifest.json").write_text(json.dumps(m))
+    ds = Dataset.open(ds_path)
+    frame = list(ds.iter_frames("clear_000"))[1]
+    with pytest.raises(DatasetError, match="000001.png: not listed in the manifest"):
+        ds.load_image(frame)
+    m["content_hash"] = "0" * 64                                      # manifest edited by hand
+    (ds_path / "manifest.json").write_text(json.dumps(m))
+    with pytest.raises(DatasetError, match="content_hash does not match"):
+        Dataset.open(ds_path)
 
 
 def test_missing_image(ds_path):
@@ -224,17 +256,22 @@ def test_oracle_and_constant(ds):
     df = runner.evaluate(ds, [("oracle", oracle), ("const", const)], progress=False)
     assert list(df.columns) == runner.COLUMNS
     assert len(df) == 2 * N_FRAMES
-    assert df["success"].all() and (df["fail_reason"] == "").all()
+    assert df["detected"].all() and (df["fail_reason"] == "").all()
     o = df[df.localizer == "oracle"]
+    assert (o["success"] == o["in_view"]).all()        # exact; the out-of-view answer is a false positive
+    assert o["fp"].sum() == 1
     assert np.allclose(o["d_est"], o["d_true"]) and np.allclose(o["e_abs"], 0.0)
     assert o["e_rel"].isna().sum() == 2                      # d_true 0.1 and 0.15 m
     assert (o["marker_id"] == "0").all()
     assert o["in_view"].sum() == N_FRAMES - 1
     assert oracle.camera["markers"][0]["id"] == "0" and oracle.camera["K"].shape == (3, 3)
-    summary = tables.summary_table(df)
+    summary, cond = metrics.summarize(df)
     assert summary["n_total"].tolist() == [5, 5, 5, 5]      # 12.0 and 10.5 m excluded
-    assert summary["n_succ"].tolist() == [5, 5, 5, 5]
-    cond = tables.condition_table(summary).set_index("localizer")
+    assert summary["n_detect"].tolist() == [5, 5, 5, 5]
+    # const 1.0 m is right (within 10 % / 5 cm) only at d_true 1.0 m:
+    # clear_000 counted frames 0.1 0.5 1 2 5 -> one success; clear_001 0.15 0.3 3 8 10 -> none
+    assert summary["n_succ"].tolist() == [1, 0, 5, 5]
+    cond = cond.set_index("localizer")
     assert cond.loc["oracle", "E_rel_mean"] == pytest.approx(0.0, abs=1e-12)
     # const 1.0 m on clear_000: 0.5 1 2 5 -> e_rel 1, 0, .5, .8 (0.1 m has none)
     c0 = summary[(summary.localizer == "const") & (summary.sequence == "clear_000")].iloc[0]
@@ -244,16 +281,16 @@ def test_oracle_and_constant(ds):
 
 def test_faulty_localizer_is_isolated(ds):
     df = runner.evaluate(ds, [("faulty", Faulty()), ("oracle", Oracle())], progress=False)
-    assert df[df.localizer == "oracle"]["success"].all()
+    assert df[df.localizer == "oracle"]["detected"].all()
     f = df[df.localizer == "faulty"].set_index("d_true")
     expected = {0.5: "exception: ZeroDivisionError: division by zero", 1.0: "nan",
                 2.0: "bad_type", 5.0: "bad_shape", 0.3: "negative", 3.0: "none",
                 8.0: "nan", 10.0: "no_distance", 0.15: "bad_type"}
     for d, reason in expected.items():
         assert f.loc[d, "fail_reason"] == reason, d
-        assert not f.loc[d, "success"] and math.isnan(f.loc[d, "d_est"])
+        assert not f.loc[d, "detected"] and math.isnan(f.loc[d, "d_est"])
     ok = f[~f.index.isin(list(expected))]
-    assert ok["success"].all() and (ok["fail_reason"] == "").all() and len(ok) == 3
+    assert ok["detected"].all() and (ok["fail_reason"] == "").all() and len(ok) == 3
 
 
 def test_reset_failure_fails_all_frames(ds):
@@ -261,7 +298,7 @@ def test_reset_failure_fails_all_frames(ds):
         def reset(self, camera):
             raise RuntimeError("no camera for me")
     df = runner.evaluate(ds, [("bad", BadReset())], progress=False)
-    assert not df["success"].any()
+    assert not df["detected"].any()
     assert (df["fail_reason"] == "exception: RuntimeError: no camera for me (in reset)").all()
 
 
@@ -283,7 +320,7 @@ def test_timeout_hook(ds):
     ex = Recording()
     df = runner.evaluate(ds, [("o", Oracle())], progress=False, executor=ex)
     assert ex.calls.count("localize") == N_FRAMES and ex.calls.count("reset") == 2
-    assert df["success"].all()
+    assert df["detected"].all()
 
 
 def test_progress_to_stderr(ds, capsys):
@@ -292,19 +329,21 @@ def test_progress_to_stderr(ds, capsys):
     assert captured.out == ""
 
 
-def test_write_results(ds, tmp_path):
+def test_run_record_on_disk(ds, tmp_path):
+    from evalkit.metrics.extra import EvalSettings
+    from evalkit.reports import results
     df = runner.evaluate(ds, [("oracle", Oracle()), ("faulty", Faulty())], progress=False)
-    paths = runner.write_results(df, tmp_path / "out")
+    paths, _ = results.save_run(df, tmp_path / "out", results.RunRecord(ds, ["oracle", "faulty"],
+                                                                        EvalSettings(n_boot=50), make_plots=False))
     if paths["estimates"].suffix == ".parquet":
         back = pd.read_parquet(paths["estimates"])
     else:  # no usable parquet engine in this environment: CSV fallback
         assert paths["estimates"].name == "estimates.csv"
         back = pd.read_csv(paths["estimates"])
-    assert list(back.columns) == runner.COLUMNS and len(back) == len(df)
+    assert list(back.columns)[:len(runner.COLUMNS)] == runner.COLUMNS and len(back) == len(df)
     summary = pd.read_csv(paths["summary"])
-    assert list(summary.columns) == tables.SUMMARY_COLUMNS
+    assert list(summary.columns) == metrics.TRIAL_COLUMNS
     assert summary.set_index(["localizer", "sequence"]).loc[("oracle", "clear_000"), "P_succ"] == 1.0
-    assert list(pd.read_csv(paths["conditions"]).columns) == tables.CONDITION_COLUMNS
 
 
 def test_duplicate_names_rejected(ds):

@@ -24,13 +24,33 @@ def _quiet_stdout(log_path: str) -> None:
     os.close(fd)
 
 
+class _FramesFile:
+    """``frames.jsonl`` of one output sequence, opened only while a line is appended, so a
+    job feeding thousands of sequences (trials x conditions) holds one file handle, not one
+    per sequence (100k trials used to end in EMFILE)."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        path.write_text("")
+
+    def write(self, line: str) -> None:
+        with open(self.path, "a") as fh:
+            fh.write(line)
+
+    def flush(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
 def _open_outputs(job: dict) -> list[tuple[dict, Path, object]]:
     outs = []
     for o in job["outputs"]:
         d = Path(o["seq_dir"])
         for sub in ("rgb", "depth", "index"):
             (d / sub).mkdir(parents=True, exist_ok=True)
-        outs.append((o, d, open(d / "frames.jsonl", "w")))
+        outs.append((o, d, _FramesFile(d / "frames.jsonl")))
     return outs
 
 

@@ -11,16 +11,37 @@ from pathlib import Path
 from typing import Annotated, Any, Literal, Optional, Union
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from blendgen.config.bundled import bundled_dir, bundled_names
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+
+SAFE_ID_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"
+MAX_TRIALS = 1000                 # the writer has been run at 1000 trials (6000 frames, ulimit -n 256)
+MAX_FRAMES_PER_SEQUENCE = 20_000  # 33 min at 10 fps; the writer has been run at 19991 frames
+MAX_FRAMES_TOTAL = 500_000        # per dataset: manifest.json (3 files a frame) stays under 256 MiB
+
+
+def _no_dotdot(value: str) -> str:
+    if ".." in value:
+        raise ValueError(f"not a safe name; {SAFE_ID_RULE}")
+    return value
+
+
+SAFE_ID_RULE = ("allowed: 1-64 ASCII letters, digits, '_', '.', '-', starting with a letter or digit, "
+                "no '..' (it becomes a file or folder name)")
+SafeId = Annotated[str, Field(pattern=SAFE_ID_PATTERN, description=SAFE_ID_RULE),
+                   AfterValidator(_no_dotdot)]
 Color = Annotated[list[Annotated[float, Field(ge=0.0, le=1.0)]], Field(min_length=3, max_length=3)]
 
 
 class ConfigError(Exception):
     """A user error in a config file: message names the file, key path and allowed range."""
+
+
+class OutputDirError(ConfigError):
+    """``-o`` cannot hold a dataset: unwritable, a file, or inside dockbench's source tree."""
 
 
 class Strict(BaseModel):
@@ -59,31 +80,79 @@ class Obstacle(Strict):
 
 class LedArray(Strict):
     kind: Literal["led_array"] = "led_array"
-    id: str = "led"
-    layout: Literal["rectangle", "circle"] = "rectangle"
+    id: SafeId = "led"
+    layout: Literal["rectangle", "circle", "custom"] = Field(
+        "rectangle", description="rectangle: 4 corners; circle: count LEDs evenly on a circle from the top, "
+        "clockwise; custom: positions_m")
+    count: int = Field(4, ge=4, le=32, description="number of LEDs (rectangle: 4)")
+    positions_m: Optional[list[Annotated[list[float], Field(min_length=2, max_length=2)]]] = Field(
+        None, description="custom layout: LED centres (x, y) in the marker frame (m), in convex position")
     size_m: float = Field(0.6, gt=0.01, le=5.0, description="overall size l (side or diameter)")
     height_m: Optional[float] = Field(None, gt=0.01, le=5.0, description="rectangle height (default = size)")
     led_radius_m: float = Field(0.04, gt=0.001, le=0.5)
     color: Color = [0.0, 0.85, 0.6]
     reference_color: Color = [1.0, 0.35, 0.0]
-    reference_index: int = Field(0, ge=0, le=3)
+    reference_index: Union[int, list[int]] = Field(
+        0, description="index (or indices) of the reference LED(s), which have reference_color")
     strength: float = Field(20.0, gt=0.0, le=1e5, description="emission strength (W/m^2 radiance scale)")
     center_m: Annotated[list[float], Field(min_length=2, max_length=2)] = [0.0, 0.0]
+
+    @property
+    def reference_indices(self) -> list[int]:
+        """The reference LEDs' indices, sorted."""
+        r = self.reference_index
+        return sorted({int(r)} if isinstance(r, int) else {int(i) for i in r})
+
+    @model_validator(mode="after")
+    def _layout(self):
+        if self.layout == "custom":
+            if not self.positions_m:
+                raise ValueError("layout 'custom' needs positions_m (>= 4 [x, y] pairs)")
+            self.count = len(self.positions_m)
+            if not 4 <= self.count <= 32:
+                raise ValueError(f"positions_m: need 4..32 LEDs, got {self.count}")
+        elif self.positions_m is not None:
+            raise ValueError(f"positions_m is only for layout 'custom', not {self.layout!r}")
+        elif self.layout == "rectangle" and self.count != 4:
+            raise ValueError(f"a rectangle has 4 LEDs, got count {self.count} (use circle or custom)")
+        refs = self.reference_indices
+        if not refs or refs[0] < 0 or refs[-1] >= self.count or len(refs) >= self.count:
+            raise ValueError(f"reference_index must name 1..{self.count - 1} LEDs in 0..{self.count - 1}, "
+                             f"got {self.reference_index}")
+        from blendgen.markers import led_pattern_problem
+        problem = led_pattern_problem(self)
+        if problem:
+            raise ValueError(problem)
+        return self
 
 
 class SquareMarker(Strict):
     kind: Literal["qr", "aruco", "apriltag"]
-    id: str
+    id: SafeId
     size_m: float = Field(0.15, gt=0.005, le=5.0, description="side of the code without its quiet zone")
     center_m: Annotated[list[float], Field(min_length=2, max_length=2)] = [0.0, 0.0]
     payload: Optional[str] = Field(None, max_length=200, description="qr: text to encode")
     dictionary: Optional[str] = Field(None, description="aruco/apriltag: OpenCV dictionary name")
     marker_id: int = Field(0, ge=0, le=4095)
+    error_correction: Literal["L", "M", "Q", "H"] = Field(
+        "M", description="qr: error-correction level (the smallest version that fits the payload is used)")
+    quiet_zone_modules: Optional[int] = Field(
+        None, ge=0, le=16, description="white margin around the code, in modules/cells "
+        "(default: 4 for qr as ISO/IEC 18004 asks, 1 cell for aruco/apriltag)")
 
     @model_validator(mode="after")
     def _kind_fields(self):
         if self.kind == "qr" and not self.payload:
             raise ValueError("a qr marker needs a non-empty 'payload'")
+        if self.quiet_zone_modules is None:
+            self.quiet_zone_modules = 4 if self.kind == "qr" else 1
+        if self.kind == "qr":
+            try:
+                import segno
+                segno.make_qr(self.payload, error=self.error_correction.lower(), boost_error=False)
+            except Exception as exc:  # noqa: BLE001 - segno's DataOverflowError and friends
+                raise ValueError(f"payload cannot be encoded as a QR code at level "
+                                 f"{self.error_correction}: {exc}") from None
         if self.kind in ("aruco", "apriltag"):
             import cv2
             default = "DICT_4X4_50" if self.kind == "aruco" else "DICT_APRILTAG_36h11"
@@ -163,7 +232,7 @@ class Water(Strict):
 
 class LinearTrajectory(Strict):
     kind: Literal["linear"] = "linear"
-    id: str = "linear"
+    id: SafeId = "linear"
     start_range_m: float = Field(12.0, gt=0.0, le=1000.0)
     end_range_m: float = Field(0.5, ge=0.0, le=1000.0)
     speed_mps: float = Field(1.0, gt=0.0, le=20.0)
@@ -179,7 +248,7 @@ class LinearTrajectory(Strict):
 
 class CircleTrajectory(Strict):
     kind: Literal["circle"] = "circle"
-    id: str = "circle"
+    id: SafeId = "circle"
     radius_m: float = Field(3.0, gt=0.05, le=1000.0)
     height_m: float = Field(0.0, ge=-100, le=100)
     start_deg: float = Field(-45.0, ge=-360, le=360, description="angle from the dock normal")
@@ -206,7 +275,7 @@ class StartRanges(Strict):
 class DockingTrajectory(Strict):
     """Closed-loop docking trial of the 6-DOF vehicle (blendgen.vehicle.docking) from a seeded random start."""
     kind: Literal["docking"] = "docking"
-    id: str = "docking"
+    id: SafeId = "docking"
     start: StartRanges = StartRanges()
     stop_distance_m: float = Field(0.5, gt=0.0, le=100.0)
     max_time_s: float = Field(120.0, gt=0.0, le=3600.0)
@@ -264,7 +333,7 @@ class Occlusion(Strict):
 class Condition(Strict):
     """One experimental condition: a label and what it changes. Water, light depth and
     occlusion are image-space (the clean render is shared); fluid changes the motion."""
-    label: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.\-]+$")
+    label: SafeId
     water: Optional[Water] = None
     dock_water_depth_m: Optional[float] = Field(None, ge=0.0, le=1000.0)
     occlusion: Optional[Occlusion] = None
@@ -273,7 +342,7 @@ class Condition(Strict):
 
 class Experiment(Strict):
     """The whole config file."""
-    name: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.\-]+$")
+    name: SafeId
     version: str = Field("0.1.0", pattern=r"^\d+\.\d+\.\d+$")
     seed: int = Field(0, ge=0, le=2**32 - 1)
     scene: Scene = Scene()
@@ -284,7 +353,7 @@ class Experiment(Strict):
     occlusion: Optional[Occlusion] = None
     trajectories: list[Trajectory] = Field(min_length=1)
     conditions: list[Condition] = Field(default_factory=lambda: [Condition(label="default")])
-    trials: int = Field(1, ge=1, le=100000)
+    trials: int = Field(1, ge=1, le=MAX_TRIALS)
     d_min_rel_m: float = Field(0.2, gt=0.0, le=10.0, description="e_rel is not computed below this d_true")
 
     @model_validator(mode="after")
@@ -295,6 +364,40 @@ class Experiment(Strict):
                 raise ValueError(f"{what} ids must be unique, got {ids}")
         return self
 
+    @model_validator(mode="after")
+    def _frame_budget(self):
+        """Refuse datasets larger than the writer has been run at (frames per sequence and
+        in total; a docking trial is counted at its ``max_time_s``)."""
+        total = 0
+        for i, t in enumerate(self.trajectories):
+            n = max_frames(t, self.camera.fps, self.camera.latency_s)
+            if n > MAX_FRAMES_PER_SEQUENCE:
+                raise ValueError(f"trajectories.{i} ({t.id}) gives {n:.3g} frames at {self.camera.fps:g} fps; "
+                                 f"allowed: at most {MAX_FRAMES_PER_SEQUENCE} frames per sequence "
+                                 "(raise speed_mps or lower camera.fps / max_time_s)")
+            total += n * self.trials * len(self.conditions)
+        if total > MAX_FRAMES_TOTAL:
+            raise ValueError(f"trials x conditions x trajectories give {total:.3g} frames; allowed: at most "
+                             f"{MAX_FRAMES_TOTAL} frames per dataset")
+        return self
+
+
+def max_frames(traj, fps: float, latency_s: float = 0.0) -> float:
+    """Upper bound of the frames one sequence of ``traj`` has at ``fps`` (Hz), as
+    blendgen.vehicle.trajectories.frame_times counts them (a docking trial at max_time_s)."""
+    import math
+    if traj.kind == "linear":
+        duration = (traj.start_range_m - traj.end_range_m) / traj.speed_mps
+    elif traj.kind == "circle":
+        duration = abs(math.radians(traj.end_deg - traj.start_deg)) * traj.radius_m / traj.speed_mps
+    else:
+        duration = traj.max_time_s
+    return math.floor((duration + latency_s) * fps) + 1.0
+
+
+# discriminator values pydantic puts in error locations (trajectories.0.linear.id -> trajectories.0.id)
+_UNION_TAGS = {"linear", "circle", "docking", "led_array", "qr", "aruco", "apriltag"}
+
 
 def _deep_merge(base: dict, over: dict) -> dict:
     out = dict(base)
@@ -303,17 +406,94 @@ def _deep_merge(base: dict, over: dict) -> dict:
     return out
 
 
-def _read_yaml(path: Path) -> Any:
+MAX_CONFIG_BYTES = 1 << 20      # a config is a few kB; 1 MiB leaves room for long lists
+MAX_YAML_DEPTH = 64             # the deepest section of a config is 6 levels
+MAX_YAML_NODES = 200_000        # nodes after expanding aliases (guards alias bombs)
+
+
+class _YamlLimit(Exception):
+    """A structural limit of a config file was exceeded (message without the path)."""
+
+
+class _StrictLoader(yaml.SafeLoader):
+    """PyYAML's safe loader that refuses duplicate keys (YAML 1.2 forbids them)."""
+
+    def construct_mapping(self, node, deep=False):
+        seen: dict = {}
+        for key_node, _ in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge":
+                continue
+            key = self.construct_object(key_node, deep=True)
+            line = key_node.start_mark.line + 1
+            try:
+                if key in seen:
+                    raise _YamlLimit(f"line {line}: duplicate key {key!r} (first at line {seen[key]}); "
+                                     "each key may appear once per section")
+                seen[key] = line
+            except TypeError:          # unhashable key: the schema reports it
+                continue
+        return super().construct_mapping(node, deep)
+
+
+def _check_yaml_structure(text: str) -> None:
+    """Walk the YAML events (iteratively, no recursion): refuse nesting deeper than
+    MAX_YAML_DEPTH and more than MAX_YAML_NODES nodes once aliases are expanded."""
+    sizes: dict[str, int] = {}
+    stack: list[list] = [[0, None]]            # [expanded node count, anchor] per open collection
+    for ev in yaml.parse(text, Loader=yaml.SafeLoader):
+        if isinstance(ev, (yaml.MappingStartEvent, yaml.SequenceStartEvent)):
+            stack.append([0, ev.anchor])
+            if len(stack) - 1 > MAX_YAML_DEPTH:
+                raise _YamlLimit(f"line {ev.start_mark.line + 1}: nested deeper than {MAX_YAML_DEPTH} levels")
+        elif isinstance(ev, (yaml.MappingEndEvent, yaml.SequenceEndEvent)):
+            n, anchor = stack.pop()
+            if anchor:
+                sizes[anchor] = n + 1
+            stack[-1][0] += n + 1
+        elif isinstance(ev, yaml.ScalarEvent):
+            stack[-1][0] += 1
+            if ev.anchor:
+                sizes[ev.anchor] = 1
+        elif isinstance(ev, yaml.AliasEvent):
+            stack[-1][0] += sizes.get(ev.anchor, 1)
+        if stack[-1][0] > MAX_YAML_NODES:
+            raise _YamlLimit(f"line {ev.start_mark.line + 1}: more than {MAX_YAML_NODES} values once "
+                             "aliases are expanded (alias bomb?)")
+
+
+def _read_config_text(path: Path) -> str:
+    """The file as UTF-8 text, at most MAX_CONFIG_BYTES; ConfigError otherwise."""
     try:
-        text = path.read_text()
+        with open(path, "rb") as fh:
+            data = fh.read(MAX_CONFIG_BYTES + 1)
     except OSError as e:
         raise ConfigError(f"{path}: cannot read config ({e.strerror})") from None
+    if len(data) > MAX_CONFIG_BYTES:
+        raise ConfigError(f"{path}: config larger than {MAX_CONFIG_BYTES >> 20} MiB; allowed: up to "
+                          f"{MAX_CONFIG_BYTES >> 20} MiB of YAML")
     try:
-        return yaml.safe_load(text)
+        return data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        line = data[:e.start].count(b"\n") + 1
+        raise ConfigError(f"{path}: line {line}: byte 0x{data[e.start]:02x} is not UTF-8; "
+                          "a config must be UTF-8 text") from None
+
+
+def _read_yaml(path: Path) -> Any:
+    """Parse a config or template file safely: size, encoding, depth, alias expansion and
+    duplicate keys are checked; every problem is a one-line :class:`ConfigError`."""
+    text = _read_config_text(path)
+    try:
+        _check_yaml_structure(text)
+        return yaml.load(text, Loader=_StrictLoader)  # noqa: S506 - a SafeLoader subclass
+    except _YamlLimit as e:
+        raise ConfigError(f"{path}: {e}") from None
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f" line {mark.line + 1}, column {mark.column + 1}" if mark else ""
         raise ConfigError(f"{path}:{where} YAML syntax error: {getattr(e, 'problem', e)}") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: nested too deeply (allowed: {MAX_YAML_DEPTH} levels)") from None
 
 
 def _apply_template(raw: dict, path: Path) -> dict:
@@ -335,10 +515,16 @@ def format_validation_error(path: Path, err: ValidationError) -> str:
     """One line per problem: ``file: key.path: message (got value)``."""
     lines = []
     for e in err.errors():
-        loc = ".".join(str(p) for p in e["loc"] if not str(p).startswith(("function-after", "tagged-union")))
+        parts = [str(p) for i, p in enumerate(e["loc"])
+                 if not str(p).startswith(("function-after", "tagged-union"))
+                 and not (p in _UNION_TAGS and i > 0 and isinstance(e["loc"][i - 1], int))]
+        loc = ".".join(parts)
+        if e["type"] == "string_pattern_mismatch" and e.get("ctx", {}).get("pattern") == SAFE_ID_PATTERN:
+            e = {**e, "msg": f"not a safe name; {SAFE_ID_RULE}"}
         got = e.get("input")
         got_s = "" if isinstance(got, (dict, list)) or got is None else f" (got {got!r})"
-        lines.append(f"{path}: {loc or '<root>'}: {e['msg']}{got_s}")
+        msg = e["msg"].removeprefix("Value error, ")
+        lines.append(f"{path}: {loc or '<root>'}: {msg}{got_s}")
     return "\n".join(lines)
 
 

@@ -23,7 +23,8 @@ from blendgen import markers as mk
 from blendgen.pipeline import executor as ex
 
 from blendgen.pipeline import plan
-from blendgen.config.models import Experiment
+from blendgen.config.models import Experiment, OutputDirError
+from datasets_spec.io import path_inside
 from blendgen.pipeline.writer import FORMAT, SPEC_VERSION, DatasetWriter
 
 
@@ -44,7 +45,7 @@ def write_textures(exp: Experiment, root: Path) -> dict[str, str]:
     for spec in exp.scene.dock.markers:
         tex = mk.texture_for(spec)
         if tex is not None:
-            p = root / "assets" / f"marker_{spec.id}.png"
+            p = path_inside(root, f"assets/marker_{spec.id}.png", "marker texture")
             mk.write_texture(tex, p)
             out[spec.id] = str(p.resolve())
     return out
@@ -62,8 +63,8 @@ def _job_dict(t: "_Target", job: plan.RenderJob, render: dict, parts: list) -> d
         "gt": {"T_world_dock": job.scene["dock"]["T_world_dock"], "markers": t.markers},
         "outputs": [{"seq_dir": str(pt.writer.tmp_dir(s.id).resolve()), "rel": f"sequences/{s.id}", "post": s.post}
                     for pt, _, seqs in parts for s in seqs],
-        "log": str((t.work / "logs" / f"{first}.blender.log").resolve()),
-        "timing_out": str((t.work / "timing" / f"{first}.json").resolve()),
+        "log": str(path_inside(t.work, f"logs/{first}.blender.log", "render log")),
+        "timing_out": str(path_inside(t.work, f"timing/{first}.json", "timing file")),
     }
 
 
@@ -110,7 +111,12 @@ def generate_many(items: list[tuple[Experiment, Path]], workers: int | None = No
         ex.require_render_stack()              # the workers of this machine need bpy
     with ExitStack() as stack:
         for _, out in items:
-            Path(out).mkdir(parents=True, exist_ok=True)
+            check_out_location(Path(out))
+            try:
+                Path(out).mkdir(parents=True, exist_ok=True)
+            except OSError as e:
+                raise OutputDirError(f"-o {out}: cannot create the output folder ({e.strerror}); "
+                                     "choose a writable folder") from None
             stack.enter_context(_exclusive(Path(out)))
         stack.enter_context(ex.sigterm_as_interrupt())
         targets = [_Target.prepare(exp, Path(out)) for exp, out in items]
@@ -169,7 +175,7 @@ def _render(targets: list[_Target], workers: int | None, progress: bool, kind: s
         render = plan.render_settings(t.exp, threads)
         # named by dataset and first sequence: unique across the datasets of one run
         jf = ex.write_job(_job_dict(t, j, render, parts),
-                          t.work / "jobs" / f"{t.exp.name}--{j.sequences[0].id}.json")
+                          path_inside(t.work, f"jobs/{t.exp.name}--{j.sequences[0].id}.json", "job file"))
         files[jf] = parts
 
     def on_done(jf: Path):
@@ -244,12 +250,46 @@ def config_digest(exp: Experiment) -> str:
     return hashlib.sha256(json.dumps(exp.model_dump(mode="json"), sort_keys=True).encode()).hexdigest()
 
 
+def _source_tree() -> list[Path]:
+    """Folders of dockbench's own source: the packages, and in a checkout (pyproject.toml
+    beside them) the project folder itself and its shipped folders (``out/`` stays allowed)."""
+    import blendgen
+    pkg = Path(blendgen.__file__).resolve().parent
+    top = pkg.parent
+    dirs = [pkg, top / "evalkit", top / "datasets_spec"]
+    if (top / "pyproject.toml").is_file():
+        dirs += [top / d for d in ("tests", "configs", "templates", "examples", "constraints", ".git")]
+    return dirs
+
+
+def check_out_location(out: Path) -> None:
+    """Refuse an output folder inside dockbench's source tree, the project folder itself,
+    a path through a file, or an unwritable place, before anything is written
+    (:class:`OutputDirError`, a user error)."""
+    target = Path(out).resolve()
+    top = Path(__file__).resolve().parents[2]
+    inside = [d for d in _source_tree() if os.path.commonpath([d, target]) == str(d)]
+    if target == top and (top / "pyproject.toml").is_file():
+        inside = [top]
+    if inside:
+        raise OutputDirError(f"-o {out}: inside dockbench's source tree ({inside[0]}); "
+                             "choose a folder outside it, e.g. out/NAME")
+    probe = target
+    while not probe.exists():
+        probe = probe.parent
+    if not probe.is_dir():
+        raise OutputDirError(f"-o {out}: {probe} is a file, not a folder")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise OutputDirError(f"-o {out}: {probe} is not writable; choose a writable folder")
+
+
 def check_out_dir(exp: Experiment, out: Path, overwrite: bool) -> None:
     """Refuse to mix datasets: OUT must be new, empty, or made from the same config.
 
     Raises FileExistsError (a user error) before anything is written; with
     ``overwrite`` an existing dockbench dataset is removed first."""
     out = Path(out)
+    check_out_location(out)
     if not out.exists() or not any(out.iterdir()):
         return
     stamp = out / ".work" / "config.sha256"

@@ -12,7 +12,8 @@ import os
 import shutil
 from pathlib import Path
 
-from datasets_spec.io import FORMAT_NAME, MANIFEST, SPEC_VERSION, content_hash, dataset_files, save_json_atomic, sha256_file
+from datasets_spec.io import (FORMAT_NAME, DatasetError, MANIFEST, SPEC_VERSION, content_hash, dataset_files, path_inside,
+                              save_json_atomic, sha256_file)
 
 FORMAT = FORMAT_NAME
 
@@ -31,11 +32,24 @@ class DatasetWriter:
             shutil.rmtree(d, ignore_errors=True)
         (self.root / MANIFEST).unlink(missing_ok=True)
 
+    def _child(self, name: str, what: str) -> Path:
+        """``sequences/<name>`` resolved, proven to be a direct child of ``sequences/``."""
+        path = path_inside(self.root, f"sequences/{name}", what)
+        if "/" in name or "\\" in name or path.parent != self.seq_root.resolve():
+            raise DatasetError(f"{self.seq_root / name}: {what} {name!r} is not a folder directly in "
+                               f"{self.seq_root}, outside the dataset folder layout")
+        return path
+
+    def seq_dir(self, seq_id: str) -> Path:
+        """``sequences/<id>``, proven inside the dataset folder (ids come from the config)."""
+        return self._child(seq_id, "sequence folder")
+
     def is_done(self, seq_id: str) -> bool:
-        return (self.seq_root / seq_id / "frames.jsonl").exists()
+        return (self.seq_dir(seq_id) / "frames.jsonl").exists()
 
     def tmp_dir(self, seq_id: str) -> Path:
-        return self.seq_root / f".{seq_id}.tmp"
+        """``sequences/.<id>.tmp`` (proven inside the dataset folder)."""
+        return self._child(f".{seq_id}.tmp", "sequence work folder")
 
     def commit_sequence(self, seq_id: str, n_frames: int) -> None:
         """Check the temp sequence is whole, then rename it into place."""
@@ -43,7 +57,7 @@ class DatasetWriter:
         lines = (tmp / "frames.jsonl").read_text().splitlines()
         if len(lines) != n_frames:
             raise RuntimeError(f"sequence {seq_id}: {len(lines)} of {n_frames} frames written")
-        os.replace(tmp, self.seq_root / seq_id)
+        os.replace(tmp, self.seq_dir(seq_id))
 
     def finish(self, manifest: dict) -> dict:
         """Hash every file and write manifest.json last; returns the manifest."""

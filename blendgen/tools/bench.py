@@ -20,7 +20,12 @@ from blendgen.pipeline.generate import generate, timing_summary
 from blendgen.config.models import load_experiment
 from blendgen.config.bundled import bundled_file
 
-LOCALIZERS = ("led", "qr", "aruco")
+LOCALIZERS = ("led", "qr", "aruco", "hybrid", "qr_track")
+# (label, QrLocalizer params): single-frame decoders, then zxing with the ROI of the previous
+# frame's code resampled 2x (what "qr" does in a sequence).
+QR_DETECTORS = (("zxing", {"detector": "zxing", "roi": False}), ("aruco", {"detector": "aruco", "roi": False}),
+                ("classic", {"detector": "classic", "roi": False}), ("zxing+roi2x", {"detector": "zxing"}))
+RANGE_BINS_M = ((0.0, 1.0), (1.0, 2.0), (2.0, 4.0), (4.0, float("inf")))
 
 
 def bench_experiment(frames: int, samples: int):
@@ -66,6 +71,139 @@ def localizer_speed(dataset: Path) -> pd.DataFrame:
                      "p95_ms": float(np.percentile(ms, 95)), "frames_per_s": 1e3 / float(np.mean(ms)),
                      "P_succ_in_view": float(df.loc[df["in_view"], "success"].mean())})
     return pd.DataFrame(rows)
+
+
+def load_sequences(dataset: Path) -> tuple:
+    """(Dataset, camera dict for reset, [(sequence id, [(frame dict, RGB image)])]) with
+    every image decoded once up front, so that timings hold only the localizer."""
+    from evalkit import runner
+    from evalkit.dataset import Dataset
+    ds = Dataset.open(dataset)
+    seqs = [(s["id"], [(f, ds.load_image(f)) for f in ds.iter_frames(s["id"])]) for s in ds.sequences]
+    return ds, runner.camera_for_localizers(ds), seqs
+
+
+def time_localizer(loc, camera: dict, seqs) -> pd.DataFrame:
+    """Run ``loc`` over the sequences in order (reset per sequence, so ROI/tracking state
+    is realistic); per frame: d_true, in-view flags, estimate, CPU ms (this thread) and wall ms."""
+    rows = []
+    for seq_id, frames in seqs:
+        loc.reset({**camera, "sequence": seq_id})
+        for frame, img in frames:
+            c0, w0 = time.thread_time(), time.perf_counter()
+            est = loc.localize(img)
+            cpu, wall = 1e3 * (time.thread_time() - c0), 1e3 * (time.perf_counter() - w0)
+            markers = frame.get("markers") or {}
+            rows.append({"sequence": seq_id, "d_true": frame.get("d_true"), "cpu_ms": cpu, "wall_ms": wall,
+                         "in_view": any(bool(m.get("in_fov")) for m in markers.values()),
+                         "in_fov": {k: bool(m.get("in_fov")) for k, m in markers.items()},
+                         "success": isinstance(est, dict), "marker": est.get("marker_id") if est else None,
+                         "d_est": float(est["distance"]) if est else np.nan})
+    return pd.DataFrame(rows)
+
+
+def localizer_cpu_table(dataset: Path, names=LOCALIZERS) -> pd.DataFrame:
+    """CPU ms per frame (one thread) of each localizer, default parameters, frames in order."""
+    import cv2
+    from evalkit import registry
+    cv2.setNumThreads(1)
+    _, camera, seqs = load_sequences(dataset)
+    rows = []
+    for name in names:
+        loc = registry.resolve(name, {})
+        df = time_localizer(loc, camera, seqs)
+        cpu = df["cpu_ms"].to_numpy()
+        rows.append({"localizer": name, "frames": len(df), "cpu_ms_median": float(np.median(cpu)),
+                     "cpu_ms_mean": float(cpu.mean()), "cpu_ms_p95": float(np.percentile(cpu, 95)),
+                     "wall_ms_median": float(df["wall_ms"].median()),
+                     "P_succ_in_view": float(df.loc[df["in_view"], "success"].mean()),
+                     "estimates_by_marker": " ".join(f"{k}:{v}" for k, v in df["marker"].value_counts().items()),
+                     "near_range_m": getattr(loc, "near_range_m", np.nan)})  # the hybrid's QR range
+    return pd.DataFrame(rows)
+
+
+def qr_decode_table(dataset: Path, detectors=QR_DETECTORS, marker_id: str | None = None) -> pd.DataFrame:
+    """Per QR detector, over the frames with the QR marker in the field of view: successes
+    (payload decoded and pose solved) per d_true bin, the farthest success and its
+    px/module (f * module_size_m / d_true), CPU ms median (one thread)."""
+    import cv2
+    from evalkit.localizers.qr import QrLocalizer
+    cv2.setNumThreads(1)
+    ds, camera, seqs = load_sequences(dataset)
+    qr = next(m for m in ds.markers if (m["id"] == marker_id if marker_id else m["kind"] == "qr"))
+    module_m = qr.get("module_size_m") or qr["size_m"] / (qr.get("modules") or 21)
+    K = np.asarray(camera["K"], float).reshape(3, 3)
+    rows = []
+    for det, params in detectors:
+        df = time_localizer(QrLocalizer(marker_id=qr["id"], **params), camera, seqs)
+        df = df[[bool(f.get(qr["id"])) for f in df["in_fov"]]]
+        row = {"detector": det, "frames_in_view": len(df)}
+        for lo, hi in RANGE_BINS_M:
+            b = df[(df["d_true"] >= lo) & (df["d_true"] < hi)]
+            row[f"{lo:g}-{hi:g} m"] = f"{int(b['success'].sum())}/{len(b)}"
+        far = df.loc[df["success"], "d_true"].max() if df["success"].any() else np.nan
+        row["farthest_m"] = far
+        row["px_per_module_at_farthest"] = K[0, 0] * module_m / far if far == far else np.nan
+        row["cpu_ms_median"] = float(df["cpu_ms"].median())
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def led_centroid_table(dataset: Path) -> pd.DataFrame:
+    """LED blob centroid error (px) against the true projected LED centres, per centroid
+    mode (intensity-weighted vs saturated core) and d_true bin: each true LED in the image
+    is matched to the nearest candidate blob (within 5 px)."""
+    import cv2
+    from evalkit.localizers.led import LedLocalizer
+    ds, camera, seqs = load_sequences(dataset)
+    led = next(m for m in ds.markers if m["kind"] == "led_array")
+    K = np.asarray(camera["K"], float).reshape(3, 3)
+    dist = camera.get("dist")
+    dist = None if dist is None else np.asarray(dist, float)
+    kp = np.asarray(led["keypoints"], float).reshape(-1, 1, 3)
+    errs = {"weighted": [], "core": []}
+    for mode in errs:
+        loc = LedLocalizer(centroid=mode)
+        loc.reset(camera)
+        for _, frames in seqs:
+            for frame, img in frames:
+                T = np.asarray(frame["T_cam_dock"], float)
+                uv = cv2.projectPoints(kp, cv2.Rodrigues(T[:3, :3])[0], T[:3, 3], K, dist)[0].reshape(-1, 2)
+                blobs = loc._blobs(np.ascontiguousarray(img))
+                if blobs is None:
+                    continue
+                for p in uv:
+                    e = np.linalg.norm(blobs[0] - p, axis=1).min()
+                    if e < 5.0:
+                        errs[mode].append((frame["d_true"], e))
+    rows = []
+    for lo, hi in RANGE_BINS_M + ((0.0, float("inf")),):
+        row = {"d_true": f"{lo:g}-{hi:g} m"}
+        for mode, vals in errs.items():
+            e = np.array([x for d, x in vals if lo <= d < hi])
+            row[f"{mode}_n"] = len(e)
+            row[f"{mode}_median_px"] = float(np.median(e)) if len(e) else np.nan
+            row[f"{mode}_p95_px"] = float(np.percentile(e, 95)) if len(e) else np.nan
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def run_localizer_bench(dataset: Path, out: Path) -> None:
+    """Print and write OUT/bench_localizer_cpu.csv and OUT/bench_qr_decoders.csv."""
+    from evalkit.reports.tables import print_table
+    out.mkdir(parents=True, exist_ok=True)
+    cpu = localizer_cpu_table(dataset)
+    click.echo("localizers, CPU ms per frame on one thread (cv2.setNumThreads(1), images decoded beforehand):")
+    print_table(cpu, floatfmt=".2f")
+    cpu.to_csv(out / "bench_localizer_cpu.csv", index=False)
+    qr = qr_decode_table(dataset)
+    click.echo("\nQR detectors on the frames with the QR in view (success = payload decoded + pose):")
+    print_table(qr, floatfmt=".2f")
+    qr.to_csv(out / "bench_qr_decoders.csv", index=False)
+    led = led_centroid_table(dataset)
+    click.echo("\nLED centroid error vs the true projected LED centres (px):")
+    print_table(led, floatfmt=".3f")
+    led.to_csv(out / "bench_led_centroids.csv", index=False)
 
 
 def run_bench(out: Path, frames: int, samples: tuple[int, ...]) -> None:

@@ -27,11 +27,10 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import click
 import numpy as np
 from pydantic import Field, ValidationError
 
-from blendgen.geometry import intrinsics_from_hfov, invert_T, make_T, project, rot_z, transform_points
+from blendgen.geometry import axis_angle_to_R, intrinsics_from_hfov, invert_T, make_T, project, rot_z, transform_points
 from blendgen.config.models import ConfigError, Strict, _read_yaml, format_validation_error
 from blendgen.config.bundled import bundled_file
 from blendgen.pipeline import executor as ex
@@ -146,13 +145,6 @@ class ChessBoard:
 
 # ----------------------------------------------------------------------------- poses
 
-def _axis_angle(axis, angle: float) -> np.ndarray:
-    a = np.asarray(axis, float)
-    a = a / np.linalg.norm(a)
-    Kx = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-    return np.eye(3) + math.sin(angle) * Kx + (1 - math.cos(angle)) * Kx @ Kx
-
-
 def polygon_area(uv: np.ndarray) -> float:
     x, y = uv[:, 0], uv[:, 1]
     return 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
@@ -202,7 +194,7 @@ def sample_pose(rng: np.random.Generator, K: np.ndarray, board: ChessBoard, widt
         ray /= np.linalg.norm(ray)
         # tilt about an axis perpendicular to the line of sight, measured from facing it
         R_face_ray = _look_along(ray)
-        R = R_face_ray @ _axis_angle([math.cos(az), math.sin(az), 0.0], tilt) @ rot_z(roll) @ R_facing
+        R = R_face_ray @ axis_angle_to_R([math.cos(az), math.sin(az), 0.0], tilt) @ rot_z(roll) @ R_facing
         d = 1.0
         for _ in range(8):   # projected area ~ 1/d^2
             T = make_T(R, d * ray)
@@ -229,7 +221,7 @@ def _look_along(ray: np.ndarray) -> np.ndarray:
     s = np.linalg.norm(axis)
     if s < 1e-12:
         return np.eye(3)
-    return _axis_angle(axis, math.atan2(s, float(z @ ray)))
+    return axis_angle_to_R(axis, math.atan2(s, float(z @ ray)))
 
 
 def sample_poses(seed: int, n: int, K: np.ndarray, board: ChessBoard, width: int, height: int,
@@ -383,9 +375,9 @@ def run_calibration(cfg: CalibrationConfig, out: Path, progress: bool = True) ->
         results.append(r)
         if progress:
             e = r.rel_err_pct()
-            click.echo(f"calibrate: {w}x{h} trial {k}: {r.n_views}/{len(paths)} views, rms {r.rms_px:.3f} px, "
+            print(f"calibrate: {w}x{h} trial {k}: {r.n_views}/{len(paths)} views, rms {r.rms_px:.3f} px, "
                        + ", ".join(f"{p} {e[p]:.3f}%" for p in PARAMS)
-                       + f" ({time.perf_counter() - t0:.0f} s)", err=True)
+                       + f" ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
 
     children = ex.Children()
     with ThreadPoolExecutor(max_workers=1) as pool:
@@ -458,33 +450,3 @@ def write_csv(results: list[TrialResult], rows: list[dict], out: Path) -> tuple[
         w.writeheader()
         w.writerows(rows)
     return summary, per_trial
-
-
-# ----------------------------------------------------------------------------- command
-
-@click.command("calibrate")
-@click.option("--config", "config", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_CONFIG,
-              show_default=True, help="calibration config (YAML)")
-@click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
-              default=Path("out/calibration"), show_default=True,
-              help="output directory (rendered frames, calibration.csv, calibration_trials.csv)")
-def calibrate_cmd(config: Path, out: Path):
-    """Render chessboards and check Zhang's calibration against the true K (SPEC section 6)."""
-    try:
-        cfg = load_config(config)
-    except ConfigError as e:
-        click.echo(f"error: {e}", err=True)
-        sys.exit(2)
-    t0 = time.perf_counter()
-    try:
-        results = run_calibration(cfg, out)
-    except RuntimeError as e:   # a failed render or an unreachable pose constraint
-        click.echo(f"error: {e}", err=True)
-        sys.exit(1)
-    rows = summarize(results)
-    summary, per_trial = write_csv(results, rows, out)
-    click.echo(f"Zhang calibration vs ground-truth K: relative error %, mean over {cfg.trials} trials "
-               f"({cfg.poses_per_trial} poses each, {cfg.samples} spp, hfov {cfg.hfov_deg:g} deg, "
-               f"{'no distortion' if cfg.fix_distortion else 'k1 k2 p1 p2 k3 estimated'})")
-    click.echo(format_table(rows))
-    click.echo(f"wall time {time.perf_counter() - t0:.0f} s; {summary}, {per_trial}")

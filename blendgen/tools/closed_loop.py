@@ -194,8 +194,13 @@ class VisionCamera:
         res = (self.executor.call(self.loc, "localize_file", str(path.resolve()), k) if self.by_file
                else self.executor.call(self.loc, "localize", img))
         est, reason = (None, res.error) if res.error else validate_estimate(res.value)
-        info = {"d_true": float(gt["d_true"]), "in_view": any(m["in_fov"] for m in gt["markers"].values()),
-                "success": est is not None, "d_est": est["distance"] if est else math.nan,
+        in_fov = [k for k, m in gt["markers"].items() if m["in_fov"]]
+        T_est = None if est is None or est.get("T_cam_dock") is None else np.asarray(est["T_cam_dock"], float)
+        info = {"d_true": float(gt["d_true"]), "in_view": bool(in_fov), "markers_in_fov": ",".join(in_fov),
+                "detected": est is not None, "d_est": est["distance"] if est else math.nan,
+                "marker_id": est.get("marker_id") if est else None,
+                "T_cam_dock_est": None if T_est is None else T_est.ravel().tolist(),
+                "T_cam_dock": np.asarray(gt["T_cam_dock"], float).ravel().tolist(),
                 "fail_reason": reason, "ms": res.ms, **times}
         return Observation(est, info)
 
@@ -212,13 +217,13 @@ class LocalizerSpec:
     """How to build the localizer under test (the ``dockbench evaluate`` options)."""
     name: str
     params: dict
-    isolate: bool = False
+    isolate: bool | None = None        # None: evalkit's default (plugins isolated, built-ins not)
     frame_timeout_s: float | None = None
     preprocess: str | None = None
 
     def build(self):
-        from evalkit import registry
-        return registry.build(self.name, self.params, isolate=self.isolate, timeout_s=self.frame_timeout_s,
+        from evalkit import assemble
+        return assemble.build(self.name, self.params, isolate=self.isolate, timeout_s=self.frame_timeout_s,
                               preprocess=self.preprocess)
 
 
@@ -300,7 +305,7 @@ def start_client(bench: Bench, log: Path, threads: int) -> RenderClient:
 # ------------------------------------------------------------------ reporting ----------
 SUMMARY_COLUMNS = ["localizer", "condition", "n_trials", "n_docked", "success_rate", "ci_low", "ci_high",
                    "time_to_dock_median_s", "final_lateral_abs_mean_m", "final_heading_abs_mean_deg",
-                   "outcomes", "P_succ_mean", "E_rel_mean"]
+                   "outcomes", "P_detect_mean", "P_succ_mean", "E_rel_mean"]
 
 
 def write_tables(rows: list[dict], frames: list[dict], out: Path) -> dict[str, Path]:
@@ -324,16 +329,25 @@ def wilson_ci(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
 
 
 def _localization(frames, d_min_rel: float):
-    """Per (localizer, condition) P_succ_mean and E_rel_mean over trials (evalkit metrics)."""
+    """Per (localizer, condition) per-frame localization of the run, scored by evalkit
+    (:func:`evalkit.metrics.core.summarize`): ``P_detect_mean`` (any answer, the article's
+    rate), ``P_succ_mean`` (a right answer) and ``E_rel_mean``, means over trials."""
     import pandas as pd
     from evalkit.metrics import core
-    if frames.empty or "d_est" not in frames:
-        return pd.DataFrame(columns=["localizer", "condition", "P_succ_mean", "E_rel_mean"])
+    cols = ["localizer", "condition", "P_detect_mean", "P_succ_mean", "E_rel_mean"]
+    if "detected" not in frames and "success" in frames:     # tables of the first version
+        frames = frames.rename(columns={"success": "detected"})
+    if frames.empty or "detected" not in frames:
+        return pd.DataFrame(columns=cols)
     f = frames[frames["d_true"].notna()].copy()
+    for c, v in (("T_cam_dock", None), ("T_cam_dock_est", None), ("markers_in_fov", ""), ("marker_id", None)):
+        if c not in f:
+            f[c] = v
     f["sequence"] = f["localizer"] + "-" + f["condition"] + "-t" + f["trial"].astype(str)
-    f["success"] = f["success"].astype(bool)
+    f["trajectory"] = ""
+    f["detected"] = f["detected"].astype(bool)
     _, cond = core.summarize(f, d_min_rel=d_min_rel)
-    return cond[["localizer", "condition", "P_succ_mean", "E_rel_mean"]]
+    return cond[cols]
 
 
 def summary_table(trials, frames, d_min_rel: float = 0.2):
@@ -444,8 +458,8 @@ def report(summary, out: Path, exp: Experiment, capture: CaptureSpec) -> str:
              f"docked = the camera/nose crosses the dock face plane within {capture.capture_radius_m:.2f} m of its "
              f"centre, |heading error| <= {capture.max_heading_deg:g} deg, |lateral speed| <= "
              f"{capture.max_lateral_speed_mps:g} m/s; success rate with a Wilson 95% CI; 'truth' = ground-truth "
-             "guidance (baseline); P_succ_mean / E_rel_mean: per-frame localization of the same run "
-             "(frames with 0 <= d_true <= 10 m)", "", to_markdown(summary, floatfmt=".3g")]
+             "guidance (baseline); P_detect_mean / P_succ_mean / E_rel_mean: per-frame localization of the "
+             "same run scored by evalkit (frames with 0 <= d_true <= 10 m)", "", to_markdown(summary, floatfmt=".3g")]
     text = "\n".join(lines) + "\n"
     (out / "summary.md").write_text(text)
     return text
@@ -485,7 +499,8 @@ def _specs(localizers, params, isolate, frame_timeout, preprocess) -> list[Local
     names = list(localizers)
     if TRUTH in names:
         raise ConfigError(f"-l {TRUTH}: the ground-truth baseline is always run (omit it with --no-baseline)")
-    return [LocalizerSpec(n, params_for(n, p, names), isolate, frame_timeout, preprocess) for n in names]
+    return [LocalizerSpec(n, params_for(n, p, names), True if isolate else None, frame_timeout, preprocess)
+            for n in names]
 
 
 import click  # noqa: E402  (the command sits below the library functions it drives)
@@ -503,7 +518,7 @@ import click  # noqa: E402  (the command sits below the library functions it dri
 @click.option("--images", is_flag=True, help="keep every camera image (OUT/images/<trial>/)")
 @click.option("--no-baseline", is_flag=True, help="skip the ground-truth-guidance baseline")
 @click.option("--threads", type=click.IntRange(0, 256), default=0, help="Cycles threads (0: all cores)")
-@click.option("--isolate", is_flag=True, help="run Python localizers in a child process")
+@click.option("--isolate", is_flag=True, help="run built-in localizers in a child process too (plugins always are)")
 @click.option("--frame-timeout", type=click.FloatRange(min=0.001), default=None, help="s per frame")
 @click.option("--preprocess", default=None, metavar="STEPS", help="image preprocessing (see evaluate)")
 @click.option("--report-only", is_flag=True, help="only summarise and plot the tables already in OUT")

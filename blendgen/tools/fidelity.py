@@ -93,9 +93,9 @@ def load_frames(ds_path: Path) -> dict:
         for f in ds.iter_frames(seq["id"]):
             rec = {"rgb": srgb_to_linear(ds.load_image(f)), "d_true": f["d_true"]}
             if f.get("object_index"):
-                rec["index"] = cv2.imread(str(ds.root / f["object_index"]), cv2.IMREAD_UNCHANGED)
+                rec["index"] = cv2.imread(str(ds.frame_file(f, "object_index")), cv2.IMREAD_UNCHANGED)
             if f.get("depth"):
-                rec["range"] = np.load(ds.root / f["depth"])["range_m"]
+                rec["range"] = np.load(ds.frame_file(f, "depth"))["range_m"]
             out[(seq["condition"], f["index"])] = rec
     return out
 
@@ -333,68 +333,3 @@ def pareto_plot(df, path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
-
-
-# --------------------------------------------------------------------------- commands
-
-def _size_options(fn):
-    import click
-    fn = click.option("--frames", type=click.IntRange(2, 50), default=4, show_default=True,
-                      help="frames of the approach, evenly spaced from 10 m to 1 m")(fn)
-    fn = click.option("--ref-samples", type=click.IntRange(1, 65536), default=64, show_default=True,
-                      help="reference spp (the medium is single-scatter and low-noise)")(fn)
-    fn = click.option("--height", type=click.IntRange(16, 4096), default=240, show_default=True)(fn)
-    fn = click.option("--width", type=click.IntRange(16, 4096), default=320, show_default=True)(fn)
-    return fn
-
-
-def _fidelity_cmd():
-    import click
-
-    @click.command("fidelity")
-    @_size_options
-    @click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
-                  default=Path("out/bench_fidelity"), show_default=True)
-    def fidelity_cmd(width, height, ref_samples, frames, out):
-        """Time vs image error vs localization change of fast water settings against the reference.
-
-        Renders the held-in set (clear/mild/moderate/jerlov_1C, 10 m -> 1 m) once as a
-        Cycles medium and once per fast setting; writes OUT/fidelity.csv and
-        OUT/fidelity_pareto.png. Defaults take ~5-10 min on 2 cores."""
-        from evalkit.reports.tables import print_table
-        df = run_bench(out, width, height, frames, ref_samples, echo=lambda m: click.echo(m, err=True))
-        cols = ["setting", "condition", "width", "ms_per_frame", "psnr_db", "mae",
-                "dP_succ_led", "de_rel_led", "dP_succ_qr", "de_rel_qr"]
-        print_table(df[cols], floatfmt=".3g")
-        click.echo(f"\n{out / 'fidelity.csv'}\n{out / 'fidelity_pareto.png'}\n(ms are medians on shared cores: noisy; "
-                   "errors in linear RGB over the marker region; d* = fast - reference)")
-    return fidelity_cmd
-
-
-def _calibrate_cmd():
-    import click
-    from blendgen.physics import optics
-
-    @click.command("calibrate-water")
-    @_size_options
-    @click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
-                  default=Path("out/bench_fidelity"), show_default=True, help="work directory for the renders")
-    @click.option("--data", type=click.Path(dir_okay=False, path_type=Path), default=optics.CALIBRATION_PATH,
-                  show_default=True, help="calibration file to write")
-    def calibrate_water_cmd(width, height, ref_samples, frames, out, data):
-        """Fit the fast model's B_inf and depth light to reference renders; write the calibration file."""
-        d = run_calibration(out, data, width, height, frames, ref_samples, echo=lambda m: click.echo(m, err=True))
-        for name, e in d["presets"].items():
-            r = e["residual"]
-            click.echo(f"{name:10s} B_inf={e['B_inf']} Kd={e['Kd']}  MAE uncalibrated {r['uncalibrated']['mae']:.4f}"
-                       f" -> calibrated {r['calibrated']['mae']:.4f} (rel {r['calibrated']['rel_mae']:.1%})")
-        click.echo(f"wrote {data}")
-    return calibrate_water_cmd
-
-
-def __getattr__(name):     # click commands built lazily: importing this module needs no click
-    if name == "fidelity_cmd":
-        return _fidelity_cmd()
-    if name == "calibrate_water_cmd":
-        return _calibrate_cmd()
-    raise AttributeError(name)

@@ -72,26 +72,3 @@ def make_preview(out_png: Path, width: int = 320, height: int = 240, samples: in
     out_png.parent.mkdir(parents=True, exist_ok=True)
     cv2.imwrite(str(out_png), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR))
     return out_png
-
-
-def _preview_cmd():
-    import click
-
-    @click.command("preview")
-    @click.option("-o", "--out", "out", type=click.Path(dir_okay=False, path_type=Path),
-                  default=Path("out/preview.png"), show_default=True)
-    @click.option("--width", type=click.IntRange(16, 4096), default=320, show_default=True)
-    @click.option("--height", type=click.IntRange(16, 4096), default=240, show_default=True)
-    @click.option("--samples", type=click.IntRange(1, 65536), default=4, show_default=True)
-    @click.option("--fidelity", type=click.Choice(["fast", "reference"]), default="fast", show_default=True)
-    def preview_cmd(out, width, height, samples, fidelity):
-        """Contact sheet: clear/mild/moderate x depth 0/1/5 m, LED at 5 m and QR at 1 m."""
-        p = make_preview(out, width, height, samples, fidelity)
-        click.echo(f"wrote {p}")
-    return preview_cmd
-
-
-def __getattr__(name):     # the click command is built lazily: importing needs no click
-    if name == "preview_cmd":
-        return _preview_cmd()
-    raise AttributeError(name)

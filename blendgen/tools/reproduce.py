@@ -16,11 +16,12 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-import click
 import pandas as pd
 
-from blendgen.config.models import load_experiment
+from pydantic import ValidationError
+
 from blendgen.config.bundled import bundled_file
+from blendgen.config.models import ConfigError, format_validation_error, load_experiment
 
 EXPERIMENTS = ("turbidity", "depth", "current", "occlusion")
 LOCALIZERS = ("led", "qr", "hybrid")
@@ -28,27 +29,35 @@ LOCALIZERS = ("led", "qr", "hybrid")
 
 def experiment(name: str, trials: int | None):
     """The paper config, optionally with fewer trials (the dataset name records it)."""
-    exp = load_experiment(bundled_file("configs", f"paper_{name}.yaml"))
-    if trials is not None:
-        exp.trials = trials
-        exp.name = f"{exp.name}-{trials}trials"
+    path = bundled_file("configs", f"paper_{name}.yaml")
+    exp = load_experiment(path)
+    if trials is not None:         # re-validated: the trials and frame limits apply here too
+        raw = {**exp.model_dump(), "trials": trials, "name": f"{exp.name}-{trials}trials"}
+        try:
+            exp = type(exp).model_validate(raw)
+        except ValidationError as e:
+            raise ConfigError(format_validation_error(Path(f"{path} with --trials {trials}"), e)) from None
     return exp
 
 
 def evaluate(dataset_dir: Path, out: Path, localizers=LOCALIZERS) -> dict:
     """Run the localizers over the dataset and save the full run record."""
-    from evalkit.reports.results import evaluate_dataset
-    return evaluate_dataset(dataset_dir, localizers, out)[1]
+    from evalkit.reports.results import EvalRequest, evaluate_dataset
+    return evaluate_dataset(EvalRequest(dataset_dir, list(localizers), out, overwrite=True))[1]
 
 
 def report(name: str, paths: dict) -> str:
     """Article table, per-marker usable range and where the plots are."""
-    m = pd.read_csv(paths["metrics"]) if "metrics" in paths else pd.read_csv(Path(paths["summary"]).parent / "metrics.csv")
+    m = pd.read_csv(paths["metrics"], keep_default_na=False, na_values=[""])
+    group = ["localizer", "trajectory", "condition"]
+    rt = pd.read_csv(paths["runtime"], keep_default_na=False, na_values=[""])
+    m = m.merge(rt[group + ["ms_median"]], on=group, how="left")
     lines = [f"## {name}", "", Path(paths["article_md"]).read_text().strip(), "",
              "breakdown by localizer (marker): usable range = largest 1 m bin with P_succ >= 0.9", ""]
     for _, r in m.iterrows():
         rng = "-" if pd.isna(r["max_range_m"]) else f"{r['max_range_m']:.0f} m"
-        lines.append(f"- {r['localizer']:7s} {r['condition']:12s} P_succ {100 * r['P_succ_mean']:5.1f}%  "
+        lines.append(f"- {r['localizer']:7s} {r['trajectory']}/{r['condition']:12s} "
+                     f"P_succ {100 * r['P_succ_mean']:5.1f}%  P_detect {100 * r['P_detect_mean']:5.1f}%  "
                      f"E_rel {100 * r['E_rel_mean']:.2f}%  usable range {rng}  "
                      f"{r['ms_median']:.1f} ms/frame")
     plots = Path(paths["article_md"]).parent.parent / "plots"
@@ -77,17 +86,3 @@ def reproduce(names: tuple[str, ...], out_root: Path, trials: int | None, worker
         (b / "report.md").write_text(text)
         reports.append(text)
     return reports
-
-
-@click.command("reproduce")
-@click.argument("name", type=click.Choice(EXPERIMENTS + ("all",)))
-@click.option("--trials", type=click.IntRange(1, 100000), default=None,
-              help="trials per condition (default: the config's 100)")
-@click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
-              default=Path("out/reproduce"), show_default=True)
-@click.option("--workers", type=click.IntRange(1, 256), default=None)
-@click.option("--overwrite", is_flag=True, help="replace a dataset made from an older version of the config")
-def reproduce_cmd(name: str, trials: int | None, out: Path, workers: int | None, overwrite: bool):
-    """Run one of the article's experiments (or all): generate, evaluate, report."""
-    for text in reproduce(EXPERIMENTS if name == "all" else (name,), out, trials, workers, overwrite):
-        click.echo(text)

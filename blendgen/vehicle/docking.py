@@ -296,17 +296,31 @@ class _TrialLog:
                 "heading_error_deg": np.array(he)}
 
 
-def _control_steps(plant: Plant, ap: Autopilot, sensors: Sensors, axes: DockAxesNED, guidance: LosGuidance,
-                   gusts: Gusts, n_sub: int, dt: float, stop_distance_m: float) -> None:
-    """Advance the plant one frame period: ``n_sub`` steps of LOS guidance + cross-track PID."""
-    for _ in range(n_sub):
-        eta, nu = plant.s[:6], plant.s[6:]
-        sens = sensors.read(eta)
-        psi_ref, depth_ref, u_ref, e_lat = los_references(axes, guidance, eta, stop_distance_m)
-        v_n = ap._R(eta) @ np.asarray(nu[:3])
-        f_lat = ap.sway_pid.update(-e_lat, -float(v_n @ axes.lateral_h), dt)
-        tau = ap.track(eta, nu, sens, depth_ref, psi_ref, u_ref, dt, cross_force_ned=f_lat * axes.lateral_h)
-        plant.step(ap.thruster_command(tau), gusts.next(), dt)
+@dataclass
+class _ClosedLoop:
+    """Plant, autopilot and guidance of one trial; ``advance`` integrates one frame period."""
+    plant: Plant
+    autopilot: Autopilot
+    sensors: Sensors
+    axes: DockAxesNED
+    guidance: LosGuidance
+    gusts: Gusts
+    n_sub: int            # integration steps per frame
+    dt: float             # s per step
+    stop_distance_m: float
+
+    def advance(self) -> None:
+        """``n_sub`` steps of LOS guidance + cross-track PID (lateral thrusters) on the true state."""
+        ap, plant = self.autopilot, self.plant
+        for _ in range(self.n_sub):
+            eta, nu = plant.s[:6], plant.s[6:]
+            sens = self.sensors.read(eta)
+            psi_ref, depth_ref, u_ref, e_lat = los_references(self.axes, self.guidance, eta, self.stop_distance_m)
+            v_n = ap._R(eta) @ np.asarray(nu[:3])
+            f_lat = ap.sway_pid.update(-e_lat, -float(v_n @ self.axes.lateral_h), self.dt)
+            tau = ap.track(eta, nu, sens, depth_ref, psi_ref, u_ref, self.dt,
+                           cross_force_ned=f_lat * self.axes.lateral_h)
+            plant.step(ap.thruster_command(tau), self.gusts.next(), self.dt)
 
 
 def simulate_docking_trial(T_world_dock: np.ndarray, start: dict,
@@ -352,6 +366,7 @@ def simulate_docking_trial(T_world_dock: np.ndarray, start: dict,
     sensors = Sensors()
     n_frames_max = int(math.floor(max_time_s * fps + 1e-9)) + 1
     gusts = Gusts(rng, F_WORLD_NED @ np.asarray(current_world, float), turbulence, dt, (n_frames_max - 1) * n_sub)
+    loop = _ClosedLoop(plant, ap, sensors, axes, guidance, gusts, n_sub, dt, stop_distance_m)
     log, stop_reason = _TrialLog(), "timeout"
     for frame in range(n_frames_max):
         eta = plant.s[:6]
@@ -363,7 +378,7 @@ def simulate_docking_trial(T_world_dock: np.ndarray, start: dict,
             break
         if frame == n_frames_max - 1:
             break
-        _control_steps(plant, ap, sensors, axes, guidance, gusts, n_sub, dt, stop_distance_m)
+        loop.advance()
         if not all(map(math.isfinite, plant.s)):
             raise FloatingPointError("docking simulation diverged")
     out = log.arrays()

@@ -47,6 +47,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from blendgen.geometry import R_to_rpy, rpy_to_R
+
 from blendgen.vehicle.thrusters import ThrusterSet
 
 GRAVITY = 9.81
@@ -65,19 +67,9 @@ def ned_to_world_vec(v) -> np.ndarray:
 world_to_ned_vec = ned_to_world_vec  # the map is an involution
 
 
-def _R_zyx(phi: float, theta: float, psi: float) -> np.ndarray:
-    cph, sph = math.cos(phi), math.sin(phi)
-    cth, sth = math.cos(theta), math.sin(theta)
-    cps, sps = math.cos(psi), math.sin(psi)
-    return np.array([
-        [cps * cth, -sps * cph + cps * sth * sph, sps * sph + cps * cph * sth],
-        [sps * cth, cps * cph + sph * sth * sps, -cps * sph + sth * sps * cph],
-        [-sth, cth * sph, cth * cph]])
-
-
 def R_ned_frd(phi: float, theta: float, psi: float) -> np.ndarray:
     """Body(FRD)->NED rotation for Fossen's ZYX Euler angles (rad)."""
-    return _R_zyx(phi, theta, psi)
+    return rpy_to_R(phi, theta, psi)
 
 
 def eta_to_T_world_body(eta) -> np.ndarray:
@@ -85,7 +77,7 @@ def eta_to_T_world_body(eta) -> np.ndarray:
     +z up, body FLU). p_world = F p_ned, R_world_flu = F R_ned_frd F, F = diag(1,-1,-1)."""
     eta = np.asarray(eta, float)
     T = np.eye(4)
-    T[:3, :3] = F_WORLD_NED @ _R_zyx(*eta[3:6]) @ F_WORLD_NED
+    T[:3, :3] = F_WORLD_NED @ rpy_to_R(*eta[3:6]) @ F_WORLD_NED
     T[:3, 3] = F_WORLD_NED @ eta[:3]
     return T
 
@@ -94,9 +86,7 @@ def T_world_body_to_eta(T) -> np.ndarray:
     """Inverse of :func:`eta_to_T_world_body`: 4x4 world/FLU pose -> NED eta (6,)."""
     T = np.asarray(T, float)
     R = F_WORLD_NED @ T[:3, :3] @ F_WORLD_NED
-    theta = -math.asin(float(np.clip(R[2, 0], -1.0, 1.0)))
-    phi = math.atan2(R[2, 1], R[2, 2])
-    psi = math.atan2(R[1, 0], R[0, 0])
+    phi, theta, psi = R_to_rpy(R)
     return np.concatenate([F_WORLD_NED @ T[:3, 3], [phi, theta, psi]])
 
 

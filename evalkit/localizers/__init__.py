@@ -1,9 +1,14 @@
 """Built-in marker localizers of evalkit.
 
 Each is a class with ``reset(camera: dict)`` (once per sequence) and
-``localize(image: HxWx3 uint8 RGB) -> dict | None``; see SPEC.md section 7.
-- ``evalkit.localizers.led:LedLocalizer``     4-LED array, reference LED by colour, IPPE PnP
-- ``evalkit.localizers.qr:QrLocalizer``       QR code, payload-checked, finder-corner PnP
+``localize(image: HxWx3 uint8 RGB) -> dict | None``; see SPEC.md section 7. The class
+attribute ``outputs`` lists the result fields it fills: ``distance`` (m), ``T_cam_dock``
+(full 6-DoF pose) and ``marker_id`` (the identity-checked marker that produced it).
+- ``evalkit.localizers.led:LedLocalizer``     N >= 4 LEDs, reference LED(s) by colour, IPPE PnP
+- ``evalkit.localizers.qr:QrLocalizer``       QR code (zxing-cpp by default), payload-checked, ECC-aligned corners
 - ``evalkit.localizers.aruco:ArucoLocalizer`` ArUco / AprilTag (OpenCV dictionaries), IPPE_SQUARE
-Shared code: ``pnp`` (planar PnP + disambiguation), ``square`` (square markers).
+- ``evalkit.localizers.apriltag:AprilTagLocalizer`` AprilTag with pupil-apriltags
+- ``evalkit.localizers.hybrid:HybridLocalizer`` QR whenever it decodes, LED otherwise
+Shared code: ``pnp`` (planar PnP + disambiguation), ``square`` (the square-marker base
+class: marker pick, grey image, ``detect`` hook, ROI search, best pose).
 """

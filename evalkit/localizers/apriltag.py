@@ -14,9 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from evalkit.localizers.pnp import camera_matrices
-from evalkit.localizers.square import (linear_gray, refine_corners, square_pose_estimate, to_gray,
-                                       valid_quad)
+from evalkit.localizers.square import SquareMarkerLocalizer, linear_gray, refine_corners, square_pose_estimate
 
 FAMILIES = {"DICT_APRILTAG_16h5": "tag16h5", "DICT_APRILTAG_16H5": "tag16h5",
             "DICT_APRILTAG_25h9": "tag25h9", "DICT_APRILTAG_25H9": "tag25h9",
@@ -53,24 +51,25 @@ def _import_pupil():
     return pupil_apriltags
 
 
-class AprilTagLocalizer:
+class AprilTagLocalizer(SquareMarkerLocalizer):
     """AprilTag (pupil-apriltags detector) -> corners -> IPPE_SQUARE pose of the dock."""
 
     name = "apriltag"
+    kinds = ("apriltag", "aruco")
 
     def __init__(self, marker_id: str | None = None, refine: str = "linear", quad_decimate: float = 1.0,
                  quad_sigma: float = 0.0, decode_sharpening: float = 0.25, max_hamming: int = 1,
-                 max_shift_px: float = 1.0, nthreads: int = 1):
+                 max_shift_px: float = 1.0, nthreads: int = 1, roi: bool = True):
         """marker_id: manifest id (None: first apriltag marker, else an aruco marker with an
         AprilTag dictionary). refine: "linear" (cornerSubPix on sRGB-decoded intensity,
         accepted per corner within max_shift_px of the detector's corner) or "none"
         (the detector's edge-refined corners). quad_decimate, quad_sigma,
         decode_sharpening, nthreads: pupil-apriltags detector settings.
-        max_hamming: corrected bits accepted."""
+        max_hamming: corrected bits accepted. roi: see SquareMarkerLocalizer."""
         if str(refine) not in ("linear", "none"):
             raise ValueError(f"refine must be linear or none, got {refine!r}")
         self._pa = _import_pupil()
-        self.marker_id = marker_id
+        super().__init__(marker_id, roi)
         self.refine = str(refine)
         self.quad_decimate = float(quad_decimate)
         self.quad_sigma = float(quad_sigma)
@@ -79,50 +78,43 @@ class AprilTagLocalizer:
         self.max_shift_px = float(max_shift_px)
         self.nthreads = int(nthreads)
         self._detectors: dict[str, object] = {}
-        self._marker = None
         self._family = None
-        self._K = self._dist = None
 
     def reset(self, camera: dict) -> None:
-        """Pick the marker and its family; the detector is built once per family."""
-        self._K, self._dist = camera_matrices(camera)
-        self._marker = _pick_marker(camera.get("markers"), self.marker_id)
-        self._family = None if self._marker is None else family_of(self._marker)
+        """Pick the marker (an apriltag, else an aruco marker with an AprilTag dictionary)."""
+        cam = dict(camera)
+        if self.marker_id is None:
+            m = _pick_marker(camera.get("markers"), None)
+            cam["markers"] = [] if m is None else [m]
+        super().reset(cam)
+
+    def setup(self, marker: dict) -> dict | None:
+        """The marker's family; the detector is built once per family."""
+        self._family = family_of(marker)
         if self._family is None:
-            self._marker = None
-            return
+            return None
         if self._family not in PUPIL_FAMILIES:
-            raise ValueError(f"marker {self._marker.get('id')!r}: AprilTag family {self._family!r} is not "
+            raise ValueError(f"marker {marker.get('id')!r}: AprilTag family {self._family!r} is not "
                              f"supported by pupil-apriltags ({', '.join(PUPIL_FAMILIES)})")
         if self._family not in self._detectors:
             self._detectors[self._family] = self._pa.Detector(
                 families=self._family, nthreads=self.nthreads, quad_decimate=self.quad_decimate,
                 quad_sigma=self.quad_sigma, refine_edges=1, decode_sharpening=self.decode_sharpening)
+        return marker
 
-    def localize(self, image: np.ndarray) -> dict | None:
-        """Dock pose from one RGB uint8 image (H,W,3), or None."""
-        if self._marker is None:
-            return None
-        gray = to_gray(image)
-        if gray is None or min(gray.shape) < 8:
-            return None
-        dets = self._detectors[self._family].detect(gray)
+    def detect(self, gray: np.ndarray) -> list[np.ndarray]:
+        """Quads (4,2) TL, TR, BR, BL of the wanted tag id within max_hamming."""
         want = int(self._marker["marker_id"])
-        h, w = gray.shape
-        best = None
-        lin = None
-        for det in dets:
-            if int(det.tag_id) != want or int(det.hamming) > self.max_hamming:
-                continue
-            c = np.asarray(det.corners, np.float64).reshape(4, 2)[_TO_FORMAT_ORDER] - 0.5
-            if not valid_quad(c, w, h):
-                continue
-            if self.refine == "linear":
-                lin = linear_gray(gray) if lin is None else lin
-                r = refine_corners(lin, c)
-                ok = np.linalg.norm(r - c, axis=1) <= self.max_shift_px
-                c = np.where(ok[:, None], r, c)
-            est = square_pose_estimate(c, self._marker, self._K, self._dist)
-            if est is not None and (best is None or est["reproj_err_px"] < best["reproj_err_px"]):
-                best = est
-        return best
+        return [np.asarray(det.corners, np.float64).reshape(4, 2)[_TO_FORMAT_ORDER] - 0.5
+                for det in self._detectors[self._family].detect(np.ascontiguousarray(gray))
+                if int(det.tag_id) == want and int(det.hamming) <= self.max_hamming]
+
+    def quad_pose(self, gray: np.ndarray, quad: np.ndarray) -> dict | None:
+        """IPPE_SQUARE; with refine=linear each corner moves to its cornerSubPix position
+        when that is within max_shift_px."""
+        c = quad
+        if self.refine == "linear":
+            r = refine_corners(linear_gray(gray), c)
+            ok = np.linalg.norm(r - c, axis=1) <= self.max_shift_px
+            c = np.where(ok[:, None], r, c)
+        return square_pose_estimate(c, self._marker, self._K, self._dist)

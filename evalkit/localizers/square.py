@@ -10,7 +10,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from evalkit.localizers.pnp import estimate_dict, invert_T, solve_planar
+from evalkit.localizers.pnp import camera_matrices, estimate_dict, invert_T, solve_planar
 
 SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 100, 0.001)
 
@@ -106,3 +106,137 @@ def square_pose_estimate(corners, marker: dict, K, dist) -> dict | None:
     T_dock_marker = np.asarray(marker.get("T_dock_marker", np.eye(4)), np.float64).reshape(4, 4)
     T_cam_dock = pose.T_cam_target @ invert_T(T_dock_marker)
     return estimate_dict(T_cam_dock, marker["id"], pose)
+
+
+# Which of the result fields a localizer fills (class attribute ``outputs``, listed by
+# ``dockbench localizers``-style tools and used by the hybrid): ``distance`` only, a full
+# 6-DoF ``T_cam_dock``, and ``marker_id`` (the marker that produced the estimate, whose
+# identity the detector checked: QR payload, ArUco/AprilTag id, LED colour pattern).
+FULL_POSE_WITH_ID = ("distance", "T_cam_dock", "marker_id")
+
+
+class SquareMarkerLocalizer:
+    """Square-marker localizer base: marker pick, grey image, ``detect`` hook, best pose."""
+
+    name = ""
+    kinds: tuple[str, ...] = ()          # manifest marker kinds it reads, preferred first
+    outputs = FULL_POSE_WITH_ID
+    roi_margin = 1.0                      # ROI = previous quad's box grown by this x its size
+    roi_upscale = 1.0                     # ROI resampled by this factor (bicubic) before detect
+    roi_keep_frames = 5                   # frames without a detection before the ROI is dropped
+    min_image_px = 8                      # smaller images give None without detection
+
+    def __init__(self, marker_id: str | None = None, roi: bool = True):
+        """marker_id: manifest id of the marker (None: first marker of the first kind in
+        ``kinds``). roi: search first in a window around the previous frame's quad (grown
+        by ``roi_margin`` times its size on each side, at least 32 px, resampled by
+        ``roi_upscale``; kept for ``roi_keep_frames`` frames without a detection), then in
+        the whole frame if that finds nothing."""
+        self.marker_id = marker_id
+        self.roi = _as_bool(roi)
+        self._marker = None
+        self._K = self._dist = None
+        self._last_quad = None
+        self._misses = 0
+
+    # ---- hooks -----------------------------------------------------------------
+    def setup(self, marker: dict) -> dict | None:
+        """Prepare for ``marker`` (build the detector...); return the marker or None to ignore it."""
+        return marker
+
+    def detect(self, gray: np.ndarray) -> list[np.ndarray]:
+        """Corner quads (4,2) TL, TR, BR, BL (px, pixel centres at integers) of the chosen
+        marker in ``gray`` (H,W uint8), identity already checked. Subclasses implement it."""
+        raise NotImplementedError
+
+    def quad_pose(self, gray: np.ndarray, quad: np.ndarray) -> dict | None:
+        """Estimate from one detected quad; default: IPPE_SQUARE on the 4 corners."""
+        return square_pose_estimate(quad, self._marker, self._K, self._dist)
+
+    # ---- shared preamble -------------------------------------------------------
+    def reset(self, camera: dict) -> None:
+        """Camera matrices, the marker (``find_marker``) and the subclass ``setup``."""
+        self._K, self._dist = camera_matrices(camera)
+        m = find_marker(camera.get("markers"), self.kinds, self.marker_id)
+        self._marker = self.setup(m) if m is not None and m.get("kind") in self.kinds else None
+        self._last_quad, self._misses = None, 0
+
+    def localize(self, image: np.ndarray) -> dict | None:
+        """Dock pose from one RGB uint8 image (H,W,3), or None: the lowest-reprojection
+        estimate over the detected quads."""
+        if self._marker is None:
+            return None
+        gray = to_gray(image)
+        if gray is None or min(gray.shape) < self.min_image_px:
+            return None
+        best, quad = None, None
+        for q in self._detect_roi_first(gray):
+            if not valid_quad(q, gray.shape[1], gray.shape[0]):
+                continue
+            try:
+                est = self.quad_pose(gray, np.asarray(q, np.float64).reshape(4, 2))
+            except cv2.error:
+                est = None
+            if est is not None and (best is None or est["reproj_err_px"] < best["reproj_err_px"]):
+                best, quad = est, q
+        if best is not None:
+            self._last_quad, self._misses = np.asarray(quad, np.float64).reshape(4, 2), 0
+        else:
+            self._misses += 1
+            if self._misses > self.roi_keep_frames:
+                self._last_quad = None
+        return best
+
+    def set_roi_hint(self, T_cam_dock: np.ndarray) -> None:
+        """Search the next frame first around the marker as projected with a dock pose
+        (4,4) from elsewhere (the hybrid's LED estimate); ignored when roi is off or the
+        marker is not in front of the camera."""
+        if not self.roi or self._marker is None:
+            return
+        kp = np.asarray(self._marker["keypoints"], np.float64).reshape(-1, 3)
+        T = np.asarray(T_cam_dock, np.float64).reshape(4, 4)
+        if not np.all(kp @ T[:3, :3].T[:, 2] + T[2, 3] > 1e-3):
+            return
+        rvec = cv2.Rodrigues(T[:3, :3])[0]
+        uv = cv2.projectPoints(kp.reshape(-1, 1, 3), rvec, T[:3, 3], self._K, self._dist)[0].reshape(-1, 2)
+        if np.all(np.isfinite(uv)):
+            self._last_quad = uv
+
+    def _detect_roi_first(self, gray: np.ndarray) -> list[np.ndarray]:
+        """``detect`` in the ROI around the last quad (when enabled; resampled by
+        roi_upscale), else in the whole image."""
+        if self.roi and self._last_quad is not None:
+            x0, y0, x1, y1 = roi_box(self._last_quad, gray.shape, self.roi_margin)
+            if 0 < (x1 - x0) * (y1 - y0) < 0.5 * gray.size:
+                s = float(self.roi_upscale)
+                crop = np.ascontiguousarray(gray[y0:y1, x0:x1])
+                if s > 1.0:
+                    crop = cv2.resize(crop, None, fx=s, fy=s, interpolation=cv2.INTER_CUBIC)
+                try:
+                    quads = self.detect(crop)
+                except cv2.error:
+                    quads = []
+                if quads:  # resampled pixel centre j is original (j + 0.5) / s - 0.5
+                    return [(np.asarray(q, np.float64).reshape(4, 2) + 0.5) / s - 0.5 + (x0, y0) for q in quads]
+        try:
+            return [np.asarray(q, np.float64).reshape(4, 2) for q in self.detect(gray)]
+        except cv2.error:
+            return []
+
+
+def roi_box(quad: np.ndarray, shape: tuple[int, int], margin: float, min_margin_px: int = 32):
+    """Integer window (x0, y0, x1, y1) around a quad (4,2) px grown by ``margin`` times its
+    size (and at least ``min_margin_px``) on each side, clipped to the image (H, W)."""
+    lo, hi = quad.min(axis=0), quad.max(axis=0)
+    grow = np.maximum(margin * (hi - lo), min_margin_px)
+    h, w = shape[:2]
+    x0, y0 = (int(max(0, np.floor(v))) for v in lo - grow)
+    x1, y1 = int(min(w, np.ceil(hi[0] + grow[0]))), int(min(h, np.ceil(hi[1] + grow[1])))
+    return x0, y0, x1, y1
+
+
+def _as_bool(v) -> bool:
+    """bool from a --param string ("true"/"false"/"1"/"0") or a bool."""
+    if isinstance(v, str):
+        return v.strip().lower() in ("1", "true", "yes", "on")
+    return bool(v)

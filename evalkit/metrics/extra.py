@@ -1,124 +1,77 @@
-"""Metrics beyond the article (SPEC.md section 7 stays the headline: ``P_succ``, ``E_rel``).
+"""Every table of a run from one scored frame table: the single metrics path.
 
-Input is the runner's per-frame estimate table (:data:`evalkit.runner.COLUMNS`)
-optionally joined with the dataset's ground truth (:func:`attach_truth` with
-:func:`evalkit.metrics.truth.frame_truth_table`). Units: metres, degrees, milliseconds;
-rates and probabilities are fractions.
+:func:`compute_all` takes the runner's per-frame table (:data:`evalkit.runner.COLUMNS`,
+which carries the ground truth the scoring needs), scores every frame once
+(:func:`evalkit.metrics.core.score_frames`), and derives from it the per-trial table,
+the per-(localizer, trajectory, condition) metrics with CIs, pose-level recall,
+distance bins, false positives and runtime. Units: metres, degrees,
+milliseconds; rates are fractions.
 
-* **Pose errors** (needs the estimate column ``T_cam_dock_est``, 16 floats
-  row-major, and the truth ``T_cam_dock``): ``e_trans`` = |t_est - t_true| (m)
-  of the dock origin in the camera frame; ``e_rot_deg`` = angle of
-  ``R_true^T R_est`` (deg); the position error split along the viewing ray to
-  the true dock origin, ``u = t_true/|t_true|``: ``e_range = (t_est - t_true).u``
-  (signed, + = estimated too far) and ``e_lateral`` = norm of the perpendicular
-  part (m). Only successful frames with a pose have them.
-* **False positives** (over *all* frames, the 0..10 m window does not apply): a
-  successful frame where no marker is in view (``in_view`` false), or whose
-  reported ``marker_id`` is not among the markers in view
-  (``markers_in_fov`` from the truth). ``fp_rate`` = false / all estimates,
-  ``fp_rate_no_view`` = estimates on frames with no marker in view / such frames.
-* **Distance bins** (1 m by default) pooling the counted frames of a
-  condition; **usable range** = upper edge of the farthest bin whose
-  ``P_succ >= 0.9`` (not required to be contiguous with the near bins).
-* **Bootstrap CIs** over trials (percentile method, seeded numpy, each
-  (localizer, condition, metric) its own stream so results do not depend on
-  row order) for ``P_succ_mean`` and ``E_rel_mean``.
-* **Runtime**: ``ms`` per ``localize`` call, median and 95th percentile
-  (frames that never reached ``localize`` because ``reset`` failed excluded).
+* **Groups** are (localizer, trajectory, condition): M = the number of trials (seeded
+  repetitions) in the group; trajectories are never pooled as trials.
+* **CIs** over the M trials by :func:`scipy.stats.bootstrap` (BCa; percentile where BCa
+  is undefined, e.g. all trials equal), one seeded stream per (group, metric) so results
+  do not depend on row order. No CI for M < 2; ``few_trials`` flags M < :data:`MIN_TRIALS_FOR_CI`.
+* **False positives** (over *all* frames, the 0..10 m window does not apply):
+  ``fp_rate`` = false / detected, ``fp_rate_no_view`` = detections on frames with no
+  marker in view / such frames.
+* **Distance bins** (1 m by default) pool the counted frames of a group; **usable
+  range** = upper edge of the farthest bin whose ``P_succ >= 0.9``.
+* **Runtime**: ``ms`` per ``localize`` call, median and 95th percentile (frames that
+  never reached ``localize`` because ``reset`` failed excluded).
 """
 from __future__ import annotations
 
+import warnings
 import zlib
-from typing import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Sequence
 
 import numpy as np
 import pandas as pd
 
-from evalkit.metrics import core as metrics
-from evalkit.metrics.truth import as_matrices
+from evalkit.metrics import core
+from evalkit.metrics import recall as rec
+from evalkit.metrics.core import GROUP, SuccessCriteria
 
-EST_POSE = "T_cam_dock_est"
-TRUE_POSE = "T_cam_dock"
-POSE_ERROR_COLUMNS = ["e_trans", "e_rot_deg", "e_range", "e_lateral"]
-GROUP = ["localizer", "condition"]
-BIN_COLUMNS = GROUP + ["bin_lo", "bin_hi", "n_total", "n_succ", "P_succ", "e_abs_mean", "e_rel_mean"]
+MIN_TRIALS_FOR_CI = 10
+CI_METRICS = {"P_succ": "P_succ", "P_detect": "P_detect", "e_rel_mean": "E_rel"}
+BIN_COLUMNS = GROUP + ["bin_lo", "bin_hi", "n_total", "n_detect", "n_succ", "P_detect", "P_succ",
+                       "e_abs_mean", "e_rel_mean"]
 METRIC_COLUMNS = GROUP + [
-    "n_trials", "P_succ_mean", "P_succ_lo", "P_succ_hi", "E_rel_mean", "E_rel_lo", "E_rel_hi",
-    "e_abs_mean", "e_trans_mean", "e_rot_deg_mean", "e_range_abs_mean", "e_lateral_mean",
-    "n_est", "n_fp", "fp_rate", "fp_rate_no_view", "max_range_m", "ms_median", "ms_p95"]
+    "n_trials", "few_trials", "P_succ_mean", "P_succ_lo", "P_succ_hi", "P_detect_mean", "P_detect_lo",
+    "P_detect_hi", "E_rel_mean", "E_rel_lo", "E_rel_hi", "e_abs_mean", "e_trans_mean", "e_rot_deg_mean",
+    "e_range_abs_mean", "e_lateral_mean", "AR", "AR_MSSD", "AR_MSPD", "n_targets", "n_frames", "n_est",
+    "n_fp", "fp_rate", "fp_rate_no_view", "max_range_m"]
 RUNTIME_COLUMNS = ["localizer", "n_calls", "ms_median", "ms_p95", "ms_mean"]
 
 
-# -- joining the truth -------------------------------------------------------
-def attach_truth(estimates: pd.DataFrame, truth: pd.DataFrame) -> pd.DataFrame:
-    """Left-join truth columns (``T_cam_dock``, ``markers_in_fov``, per-marker) on (sequence, index).
+@dataclass(frozen=True)
+class EvalSettings:
+    """How a run is scored and summarised (all recorded in run.json).
 
-    Columns already in ``estimates`` (``d_true``, ``in_view``, ...) are kept
-    from ``estimates``. Row order and index of ``estimates`` are preserved.
-    """
-    keys = ["sequence", "index"]
-    add = [c for c in truth.columns if c not in estimates.columns or c in keys]
-    right = truth[add].copy()
-    right["index"] = pd.to_numeric(right["index"]).astype("int64")
-    right["sequence"] = right["sequence"].astype(str)
-    left = estimates.copy()
-    left["_row"] = np.arange(len(left))
-    left["index"] = pd.to_numeric(left["index"]).astype("int64")
-    left["sequence"] = left["sequence"].astype(str)
-    out = left.merge(right, on=keys, how="left", validate="many_to_one")
-    out = out.sort_values("_row").drop(columns="_row")
-    out.index = estimates.index
-    out.attrs.update(estimates.attrs)
-    return out
+    ``d_max_m`` / ``d_min_rel_m``: counted window and e_rel floor (m); ``criteria``:
+    thresholded success; ``bin_m``: distance bin width (m); ``usable_threshold``:
+    P_succ a bin needs to count as usable; bootstrap ``n_boot`` resamples at ``level``
+    with ``seed``."""
 
+    d_max_m: float = core.D_MAX_M
+    d_min_rel_m: float = core.D_MIN_REL_M
+    criteria: SuccessCriteria = field(default_factory=SuccessCriteria)
+    bin_m: float = 1.0
+    usable_threshold: float = 0.9
+    n_boot: int = 2000
+    level: float = 0.95
+    seed: int = 0
 
-# -- per-frame quantities -----------------------------------------------------
-def pose_errors(df: pd.DataFrame) -> pd.DataFrame:
-    """Per-frame ``e_trans`` (m), ``e_rot_deg`` (deg), ``e_range`` (m, signed), ``e_lateral`` (m).
-
-    NaN where the frame failed, has no estimated pose (column ``T_cam_dock_est``
-    missing or None) or no true pose (``T_cam_dock``). Same index as ``df``.
-    """
-    out = pd.DataFrame(np.nan, index=df.index, columns=POSE_ERROR_COLUMNS)
-    if EST_POSE not in df.columns or TRUE_POSE not in df.columns or df.empty:
-        return out
-    est, true = as_matrices(df[EST_POSE]), as_matrices(df[TRUE_POSE])
-    ok = metrics.success_mask(df).to_numpy() & np.isfinite(est).all(axis=(1, 2)) \
-        & np.isfinite(true).all(axis=(1, 2))
-    if not ok.any():
-        return out
-    e, t = est[ok], true[ok]
-    dt = e[:, :3, 3] - t[:, :3, 3]
-    norm = np.linalg.norm(t[:, :3, 3], axis=1, keepdims=True)
-    ray = np.divide(t[:, :3, 3], norm, out=np.zeros_like(dt), where=norm > 0)
-    along = np.einsum("ij,ij->i", dt, ray)
-    lateral = np.linalg.norm(dt - along[:, None] * ray, axis=1)
-    rel = np.einsum("nji,njk->nik", t[:, :3, :3], e[:, :3, :3])  # R_true^T R_est
-    cos = np.clip((np.trace(rel, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
-    out.loc[ok, "e_trans"] = np.linalg.norm(dt, axis=1)
-    out.loc[ok, "e_rot_deg"] = np.degrees(np.arccos(cos))
-    out.loc[ok, "e_range"] = along
-    out.loc[ok, "e_lateral"] = lateral
-    return out
-
-
-def false_positive_mask(df: pd.DataFrame) -> pd.Series:
-    """True for a successful frame with no marker in view, or with a ``marker_id`` not in view.
-
-    The wrong-id test needs ``markers_in_fov`` (comma-joined ids, from
-    :func:`attach_truth`); without it only the no-view test applies. An
-    estimate without ``marker_id`` is never a wrong-id false positive.
-    """
-    succ = metrics.success_mask(df)
-    no_view = ~df["in_view"].fillna(False).astype(bool)
-    wrong = pd.Series(False, index=df.index)
-    if "marker_id" in df.columns and "markers_in_fov" in df.columns:
-        ids = df["marker_id"]
-        has = ids.notna() & (ids.astype(str) != "")
-        visible = df["markers_in_fov"].fillna("").astype(str)
-        wrong = pd.Series([bool(h) and str(m) not in v.split(",")
-                           for h, m, v in zip(has, ids, visible)], index=df.index)
-    return succ & (no_view | wrong)
+    def as_dict(self) -> dict:
+        """JSON-able form."""
+        return {"d_max_m": self.d_max_m, "d_min_rel_m": self.d_min_rel_m,
+                "success": self.criteria.as_dict(), "bin_m": self.bin_m,
+                "usable_threshold": self.usable_threshold,
+                "bootstrap": {"method": "scipy.stats.bootstrap BCa (percentile if BCa undefined)",
+                              "n_boot": self.n_boot, "level": self.level, "seed": self.seed,
+                              "min_trials_for_ci": MIN_TRIALS_FOR_CI}}
 
 
 # -- bootstrap ---------------------------------------------------------------
@@ -127,99 +80,96 @@ def _rng(seed: int, *key: str) -> np.random.Generator:
     return np.random.default_rng([int(seed), zlib.crc32("\0".join(map(str, key)).encode())])
 
 
-def bootstrap_ci(values, n_boot: int = 2000, level: float = 0.95, seed: int | np.random.Generator = 0,
-                 stat: Callable[[np.ndarray], np.ndarray] | None = None) -> tuple[float, float]:
-    """Percentile bootstrap CI ``(lo, hi)`` of ``stat`` (default mean) of ``values``.
+def bootstrap_ci(values, n_boot: int = 2000, level: float = 0.95,
+                 seed: int | np.random.Generator = 0) -> tuple[float, float]:
+    """CI ``(lo, hi)`` of the mean of ``values`` by :func:`scipy.stats.bootstrap`.
 
-    NaNs are dropped first; no value gives ``(nan, nan)``, one value ``(v, v)``.
-    ``stat`` maps an ``(n_boot, n)`` resample array to ``n_boot`` statistics.
-    ``seed`` is an int or a numpy Generator; the same seed gives the same CI.
-    """
+    NaNs are dropped; fewer than 2 values give ``(nan, nan)`` (no CI from one trial).
+    BCa, or the percentile method where BCa is undefined (degenerate data)."""
+    from scipy import stats
+
     v = np.asarray(values, dtype=float)
     v = v[np.isfinite(v)]
-    if v.size == 0:
+    if v.size < 2:
         return float("nan"), float("nan")
-    if v.size == 1:
+    if np.all(v == v[0]):
         return float(v[0]), float(v[0])
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
-    samples = v[rng.integers(0, v.size, size=(int(n_boot), v.size))]
-    stats = stat(samples) if stat is not None else samples.mean(axis=1)
-    alpha = (1.0 - level) / 2.0
-    lo, hi = np.quantile(stats, [alpha, 1.0 - alpha])
-    return float(lo), float(hi)
+    state = rng.bit_generator.state
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ci = stats.bootstrap((v,), np.mean, n_resamples=int(n_boot), confidence_level=level,
+                             method="BCa", rng=rng).confidence_interval
+        if not (np.isfinite(ci.low) and np.isfinite(ci.high)):
+            rng.bit_generator.state = state
+            ci = stats.bootstrap((v,), np.mean, n_resamples=int(n_boot), confidence_level=level,
+                                 method="percentile", rng=rng).confidence_interval
+    return float(ci.low), float(ci.high)
 
 
-def condition_cis(trials: pd.DataFrame, columns: dict[str, str] | None = None, n_boot: int = 2000,
-                  level: float = 0.95, seed: int = 0) -> pd.DataFrame:
-    """Bootstrap CIs over the trials of each (localizer, condition), from :func:`metrics.per_trial`.
-
-    ``columns`` maps a per-trial column to the output prefix (default
-    ``P_succ -> P_succ``, ``e_rel_mean -> E_rel``); output columns
-    ``<prefix>_lo, <prefix>_hi``. Trials with ``n_total == 0`` are left out,
-    as in :func:`metrics.per_condition`; NaN values (no success) are dropped.
-    """
-    columns = columns or {"P_succ": "P_succ", "e_rel_mean": "E_rel"}
+def condition_cis(trials: pd.DataFrame, settings: EvalSettings) -> pd.DataFrame:
+    """Per group: ``<prefix>_lo, <prefix>_hi`` for :data:`CI_METRICS` over the group's trials
+    (``n_total > 0`` only; NaN values dropped)."""
     valid = trials[trials["n_total"] > 0]
     rows = []
-    for (loc, cond), g in valid.groupby(GROUP, sort=True, dropna=False):
-        row = {"localizer": loc, "condition": cond}
+    for key, g in valid.groupby(GROUP, sort=True, dropna=False):
+        row = dict(zip(GROUP, key))
         g = g.sort_values("sequence", kind="stable")   # resample in a fixed order
-        for col, prefix in columns.items():
-            lo, hi = bootstrap_ci(g[col].to_numpy(float), n_boot, level, _rng(seed, loc, cond, col))
+        for col, prefix in CI_METRICS.items():
+            lo, hi = bootstrap_ci(g[col].to_numpy(float), settings.n_boot, settings.level,
+                                  _rng(settings.seed, *key, col))
             row[f"{prefix}_lo"], row[f"{prefix}_hi"] = lo, hi
         rows.append(row)
-    cols = GROUP + [f"{p}_{s}" for p in columns.values() for s in ("lo", "hi")]
+    cols = GROUP + [f"{p}_{s}" for p in CI_METRICS.values() for s in ("lo", "hi")]
     return pd.DataFrame(rows, columns=cols)
 
 
 # -- distance bins and usable range ------------------------------------------
-def distance_bins(df: pd.DataFrame, bin_m: float = 1.0, d_max: float = metrics.D_MAX_M,
-                  d_min_rel: float = metrics.D_MIN_REL_M) -> pd.DataFrame:
-    """Per (localizer, condition, distance bin): counted frames pooled over trials.
+def distance_bins(frames: pd.DataFrame, bin_m: float = 1.0, d_max: float = core.D_MAX_M) -> pd.DataFrame:
+    """Per group and distance bin: counted frames pooled over trials (scored table in).
 
-    Bins are ``[k*bin_m, (k+1)*bin_m)`` for ``0 <= d_true <= d_max``; ``d_true
-    == d_max`` falls in the last bin. Every bin appears for every group (empty
-    ones with ``n_total = 0`` and NaN rates). Columns :data:`BIN_COLUMNS`.
-    """
+    Bins are ``[k*bin_m, (k+1)*bin_m)`` for ``0 <= d_true <= d_max``; ``d_true == d_max``
+    falls in the last bin. Every bin appears for every group (empty ones with
+    ``n_total = 0`` and NaN rates). Columns :data:`BIN_COLUMNS`."""
     n_bins = int(np.ceil(d_max / bin_m - 1e-9))
-    counted = metrics.counted_mask(df["d_true"], d_max)
-    frames = df.loc[counted, GROUP].copy()
-    d = df.loc[counted, "d_true"].astype(float)
-    frames["_bin"] = np.minimum((d / bin_m + 1e-12).astype(int), n_bins - 1)
-    frames["_succ"] = metrics.success_mask(df)[counted]
-    frames[["e_abs", "e_rel"]] = metrics.frame_errors(df, d_min_rel)[counted]
-    stats = frames.groupby(GROUP + ["_bin"], dropna=False).agg(
-        n_total=("_succ", "size"), n_succ=("_succ", "sum"),
+    counted = core.counted_mask(frames["d_true"], d_max)
+    x = frames.loc[counted, GROUP + ["e_abs", "e_rel"]].copy()
+    x["_bin"] = np.minimum((frames.loc[counted, "d_true"].astype(float) / bin_m + 1e-12).astype(int),
+                           n_bins - 1)
+    x["_det"] = core.detected_mask(frames)[counted]
+    x["_succ"] = frames.loc[counted, "success"].astype(bool)
+    stats = x.groupby(GROUP + ["_bin"], dropna=False).agg(
+        n_total=("_det", "size"), n_detect=("_det", "sum"), n_succ=("_succ", "sum"),
         e_abs_mean=("e_abs", "mean"), e_rel_mean=("e_rel", "mean")).reset_index()
-    groups = df[GROUP].drop_duplicates()
-    full = groups.merge(pd.DataFrame({"_bin": np.arange(n_bins)}), how="cross")
+    full = frames[GROUP].drop_duplicates().merge(pd.DataFrame({"_bin": np.arange(n_bins)}), how="cross")
     out = full.merge(stats, on=GROUP + ["_bin"], how="left")
-    out["n_total"] = out["n_total"].fillna(0).astype("int64")
-    out["n_succ"] = out["n_succ"].fillna(0).astype("int64")
-    out["P_succ"] = out["n_succ"] / out["n_total"].where(out["n_total"] > 0)
+    for c in ("n_total", "n_detect", "n_succ"):
+        out[c] = out[c].fillna(0).astype("int64")
+    total = out["n_total"].where(out["n_total"] > 0)
+    out["P_detect"], out["P_succ"] = out["n_detect"] / total, out["n_succ"] / total
     out["bin_lo"] = out["_bin"] * bin_m
     out["bin_hi"] = np.minimum((out["_bin"] + 1) * bin_m, d_max)
     out = out.sort_values(GROUP + ["_bin"], kind="stable").reset_index(drop=True)
-    return out[BIN_COLUMNS].astype({"P_succ": float, "e_abs_mean": float, "e_rel_mean": float,
-                                    "bin_lo": float, "bin_hi": float})
+    return out[BIN_COLUMNS].astype({c: float for c in ("P_detect", "P_succ", "e_abs_mean", "e_rel_mean",
+                                                        "bin_lo", "bin_hi")})
 
 
 def max_usable_range(bins: pd.DataFrame, threshold: float = 0.9, min_frames: int = 1) -> pd.DataFrame:
-    """Per (localizer, condition): ``max_range_m``, the ``bin_hi`` (m) of the farthest bin
-    with at least ``min_frames`` frames and ``P_succ >= threshold``; NaN if there is none."""
+    """Per group: ``max_range_m``, the ``bin_hi`` (m) of the farthest bin with at least
+    ``min_frames`` frames and ``P_succ >= threshold``; NaN if there is none."""
     ok = bins[(bins["n_total"] >= min_frames) & (bins["P_succ"] >= threshold)]
     best = ok.groupby(GROUP, dropna=False)["bin_hi"].max().rename("max_range_m")
-    groups = bins[GROUP].drop_duplicates()
-    return groups.merge(best.reset_index(), on=GROUP, how="left").reset_index(drop=True)
+    return bins[GROUP].drop_duplicates().merge(best.reset_index(), on=GROUP, how="left") \
+        .reset_index(drop=True)
 
 
 # -- false positives and runtime ---------------------------------------------
-def false_positive_table(df: pd.DataFrame) -> pd.DataFrame:
-    """Per (localizer, condition), all frames: ``n_frames, n_est, n_fp, fp_rate, n_no_view, fp_rate_no_view``."""
-    x = df[GROUP].copy()
-    x["_est"] = metrics.success_mask(df)
-    x["_fp"] = false_positive_mask(df)
-    x["_no_view"] = ~df["in_view"].fillna(False).astype(bool)
+def false_positive_table(frames: pd.DataFrame) -> pd.DataFrame:
+    """Per group, all frames: ``n_frames, n_est, n_fp, fp_rate, n_no_view, fp_rate_no_view``."""
+    x = frames[GROUP].copy()
+    x["_est"] = core.detected_mask(frames)
+    x["_fp"] = frames["fp"].astype(bool)
+    x["_no_view"] = ~frames["in_view"].fillna(False).astype(bool)
     x["_fp_nv"] = x["_est"] & x["_no_view"]
     out = x.groupby(GROUP, dropna=False, sort=True).agg(
         n_frames=("_est", "size"), n_est=("_est", "sum"), n_fp=("_fp", "sum"),
@@ -241,62 +191,56 @@ def _timed(df: pd.DataFrame) -> pd.DataFrame:
 def runtime_table(df: pd.DataFrame, by: Sequence[str] = ("localizer",)) -> pd.DataFrame:
     """Per ``by`` group: ``n_calls, ms_median, ms_p95, ms_mean`` (ms per frame)."""
     by = list(by)
-    t = _timed(df)
-    out = t.groupby(by, dropna=False, sort=True)["ms"].agg(
+    out = _timed(df).groupby(by, dropna=False, sort=True)["ms"].agg(
         n_calls="size", ms_median="median", ms_p95=lambda s: float(np.quantile(s, 0.95)),
         ms_mean="mean").reset_index()
     return out[by + ["n_calls", "ms_median", "ms_p95", "ms_mean"]]
 
 
 # -- everything together -------------------------------------------------------
-def _pose_per_trial(df: pd.DataFrame, d_max: float) -> pd.DataFrame:
-    """Per trial means of the pose errors over counted successful frames."""
-    errs = pose_errors(df)
-    x = df[metrics.TRIAL_KEYS].copy()
-    x["e_trans"] = errs["e_trans"]
-    x["e_rot_deg"] = errs["e_rot_deg"]
-    x["e_range_abs"] = errs["e_range"].abs()
-    x["e_lateral"] = errs["e_lateral"]
-    x = x[metrics.counted_mask(df["d_true"], d_max)]
-    return x.groupby(metrics.TRIAL_KEYS, dropna=False).agg(
-        e_trans_mean=("e_trans", "mean"), e_rot_deg_mean=("e_rot_deg", "mean"),
-        e_range_abs_mean=("e_range_abs", "mean"), e_lateral_mean=("e_lateral", "mean")).reset_index()
+def score(estimates: pd.DataFrame, settings: EvalSettings, model: rec.DockModel | None = None) -> pd.DataFrame:
+    """``estimates`` with :data:`~evalkit.metrics.core.SCORE_COLUMNS` (re)computed under
+    ``settings`` and, with a ``model``, ``mssd_m``/``mspd_px``."""
+    frames = core._with_defaults(estimates)
+    frames = frames.drop(columns=[c for c in core.SCORE_COLUMNS if c in frames.columns])
+    frames = pd.concat([frames, core.score_frames(frames, settings.criteria, settings.d_min_rel_m)], axis=1)
+    if model is not None:
+        frames[["mssd_m", "mspd_px"]] = rec.mssd_mspd(frames, model)
+    return frames
 
 
-def compute_all(estimates: pd.DataFrame, truth: pd.DataFrame | None = None,
-                d_max: float | None = None, d_min_rel: float | None = None, bin_m: float = 1.0,
-                usable_threshold: float = 0.9, n_boot: int = 2000, level: float = 0.95,
-                seed: int = 0) -> dict[str, pd.DataFrame]:
-    """Every table of a run: ``frames, trials, conditions, metrics, bins, fp, runtime``.
+def _group_means(trials: pd.DataFrame) -> pd.DataFrame:
+    """Per group: ``n_trials`` and the means over trials with counted frames."""
+    valid = trials[trials["n_total"] > 0]
+    return valid.groupby(GROUP, dropna=False, sort=True).agg(
+        n_trials=("sequence", "size"), P_succ_mean=("P_succ", "mean"), P_detect_mean=("P_detect", "mean"),
+        E_rel_mean=("e_rel_mean", "mean"), e_abs_mean=("e_abs_mean", "mean"),
+        e_trans_mean=("e_trans_mean", "mean"), e_rot_deg_mean=("e_rot_deg_mean", "mean"),
+        e_range_abs_mean=("e_range_abs_mean", "mean"), e_lateral_mean=("e_lateral_mean", "mean")).reset_index()
 
-    ``frames`` is ``estimates`` joined with ``truth`` (if given) plus the pose
-    error columns; ``trials``/``conditions`` are the article's tables
-    (:mod:`evalkit.metrics.core`); ``metrics`` is one row per (localizer,
-    condition) with :data:`METRIC_COLUMNS` (condition values are means of the
-    per-trial values, like ``E_rel_mean``; FP and runtime pool frames).
-    ``d_max``/``d_min_rel`` default to ``estimates.attrs`` then the metrics defaults.
-    """
-    d_max = d_max if d_max is not None else estimates.attrs.get("d_max_m", metrics.D_MAX_M)
-    d_min_rel = d_min_rel if d_min_rel is not None else estimates.attrs.get("d_min_rel_m", metrics.D_MIN_REL_M)
-    frames = attach_truth(estimates, truth) if truth is not None else estimates.copy()
-    frames[POSE_ERROR_COLUMNS] = pose_errors(frames)
-    trials = metrics.per_trial(frames, d_max, d_min_rel)
-    conditions = metrics.per_condition(trials)
-    trials_x = trials.merge(_pose_per_trial(frames, d_max), on=metrics.TRIAL_KEYS, how="left")
-    valid = trials_x[trials_x["n_total"] > 0]
-    pose_means = valid.groupby(GROUP, dropna=False).agg(
-        e_abs_mean=("e_abs_mean", "mean"), e_trans_mean=("e_trans_mean", "mean"),
-        e_rot_deg_mean=("e_rot_deg_mean", "mean"), e_range_abs_mean=("e_range_abs_mean", "mean"),
-        e_lateral_mean=("e_lateral_mean", "mean")).reset_index()
-    bins = distance_bins(frames, bin_m, d_max, d_min_rel)
+
+def compute_all(estimates: pd.DataFrame, settings: EvalSettings | None = None,
+                model: rec.DockModel | None = None) -> dict[str, pd.DataFrame]:
+    """Every table of a run: ``frames, trials, metrics, bins, fp, recall, runtime``.
+
+    ``frames`` is the scored per-frame table; ``trials`` one row per trial
+    (:data:`~evalkit.metrics.core.TRIAL_COLUMNS`); ``metrics`` one row per group with
+    :data:`METRIC_COLUMNS` (means over the group's trials with CIs; FP and recall pool
+    frames; no timings, so the same inputs give the same table: ``runtime`` is apart);
+    ``model`` (the dock's marker models) enables AR."""
+    settings = settings or EvalSettings()
+    frames = score(estimates, settings, model)
+    trials = core.per_trial(frames, settings.d_max_m)
+    bins = distance_bins(frames, settings.bin_m, settings.d_max_m)
     fp = false_positive_table(frames)
-    runtime = runtime_table(frames, GROUP)
-    out = conditions
-    for part in (condition_cis(trials, n_boot=n_boot, level=level, seed=seed), pose_means,
-                 fp[GROUP + ["n_est", "n_fp", "fp_rate", "fp_rate_no_view"]],
-                 max_usable_range(bins, usable_threshold), runtime[GROUP + ["ms_median", "ms_p95"]]):
+    recall = rec.recall_table(frames, model, settings.d_max_m)
+    out = frames[GROUP].drop_duplicates().merge(_group_means(trials), on=GROUP, how="left")
+    for part in (condition_cis(trials, settings), recall,
+                 fp[GROUP + ["n_frames", "n_est", "n_fp", "fp_rate", "fp_rate_no_view"]],
+                 max_usable_range(bins, settings.usable_threshold)):
         out = out.merge(part, on=GROUP, how="left")
+    out["n_trials"] = out["n_trials"].fillna(0).astype("int64")
+    out["few_trials"] = out["n_trials"] < MIN_TRIALS_FOR_CI
     out = out.sort_values(GROUP, kind="stable").reset_index(drop=True)
-    return {"frames": frames, "trials": trials, "conditions": conditions,
-            "metrics": out[METRIC_COLUMNS], "bins": bins, "fp": fp,
-            "runtime": runtime_table(frames)}
+    return {"frames": frames, "trials": trials, "metrics": out[METRIC_COLUMNS], "bins": bins,
+            "fp": fp, "recall": recall, "runtime": runtime_table(frames, GROUP)}

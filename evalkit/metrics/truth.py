@@ -6,13 +6,13 @@ column back into an ``(N, 4, 4)`` array (NaN where missing).
 """
 from __future__ import annotations
 
-import math
 from typing import Iterable
 
 import numpy as np
 import pandas as pd
 
 from evalkit.dataset import Dataset
+from evalkit.metrics.core import as_matrices  # noqa: F401  (re-exported)
 
 BASE_COLUMNS = ["sequence", "condition", "trial", "index", "t", "d_true", "T_cam_dock",
                 "in_view", "markers_in_fov"]
@@ -77,16 +77,3 @@ def frame_truth_table(dataset: Dataset, sequences: Iterable[str] | None = None) 
     extra = [c for c in df.columns if c not in BASE_COLUMNS]
     df = df[BASE_COLUMNS + extra]
     return df.astype({"d_true": float, "t": float, "in_view": bool})
-
-
-def as_matrices(column: pd.Series | Iterable) -> np.ndarray:
-    """A column of flattened poses (16 floats, 4x4 array, or None/NaN) as ``(N, 4, 4)``; NaN if missing."""
-    values = list(column)
-    out = np.full((len(values), 4, 4), np.nan)
-    for i, v in enumerate(values):
-        if v is None or (isinstance(v, float) and math.isnan(v)):
-            continue
-        arr = np.asarray(v, dtype=float)
-        if arr.size == 16:
-            out[i] = arr.reshape(4, 4)
-    return out

@@ -3,25 +3,45 @@
 ``dockbench export-bop DATASET -o DIR`` writes::
 
     DIR/camera.json                     fx, fy, cx, cy, width, height, depth_scale
-    DIR/models/obj_XXXXXX.ply           one flat rectangle per marker (mm, marker frame)
-    DIR/models/models_info.json         diameter, min_*, size_* (mm)
+    DIR/models/obj_XXXXXX.ply           one closed mesh per marker (mm, marker frame)
+    DIR/models/models_info.json         diameter, min_*, size_* (mm); no symmetries
+    DIR/models_eval/                    the same meshes (bop_toolkit evaluates with these)
+    DIR/test_targets_bop19.json         [{scene_id, im_id, obj_id, inst_count}]: markers with
+                                        visib_fract >= 0.1 (BOP's own annotation threshold)
     DIR/dockbench_objects.json          obj_id -> marker id, kind, keypoints (mm, marker frame)
-    DIR/dockbench_scenes.json           scene id -> sequence id, condition, trial; dataset identity
+    DIR/dockbench_scenes.json           scene id -> sequence id, condition, trial; dataset identity;
+                                        where visib_fract came from
     DIR/<split>/<scene:06d>/            one scene per sequence (manifest order)
         scene_camera.json   per image: cam_K (row-major 9), depth_scale, cam_R_w2c, cam_t_w2c (mm)
         scene_gt.json       per image: [{obj_id, cam_R_m2c (row-major 9), cam_t_m2c (mm)}] per marker
-        scene_gt_info.json  per image: [{visib_fract, bbox_obj, bbox_visib, px_count_visib}]
+        scene_gt_info.json  per image: [{visib_fract, bbox_obj, bbox_visib, px_count_all,
+                            px_count_valid, px_count_visib}]
         rgb/<im:06d>.png    symlink to the dataset image (or a copy)
         depth/<im:06d>.png  uint16 planar depth z, ``z_mm = value * depth_scale`` (0 = no data)
-        mask_visib/<im:06d>_<gt:06d>.png  visible pixels of each marker (from the object index)
+        mask/<im:06d>_<gt:06d>.png        the model's silhouette (unoccluded)
+        mask_visib/<im:06d>_<gt:06d>.png  its visible pixels (silhouette and the object index)
 
 Objects are the dataset's markers (``obj_id`` = 1-based position in the manifest),
-posed by the frame's ``T_cam_marker``. ``visib_fract`` is the dataset's
-``visible_fraction``. Depth: the dataset stores the *range* along each pixel ray
-(m); BOP wants planar ``z``: ``z = range / |K^-1 [u, v, 1]|`` (rays undistorted
-with OpenCV when the camera has distortion). With ``depth_scale`` 1.0 (default)
-a PNG unit is 1 mm, so depths beyond 65.535 m become 0 (no data); 0.1 gives
-0.1 mm units but only 6.5 m. Image ids are the frame indices.
+posed by the frame's ``T_cam_marker``. Models (:func:`evalkit.metrics.recall.marker_model`,
+the same meshes ``evaluate`` computes MSSD/MSPD with): printed markers are plates 5 mm
+deep (bop_toolkit's MSSD/MSPD use the vertices; a closed mesh also renders for VSD);
+LED arrays are one cube per LED. **visib_fract** is computed from the rendered
+object-index pass as in bop_toolkit's ``calc_gt_info``: the silhouette of the model in
+its GT pose (convex hull of each box's projected vertices) is ``mask``
+(``px_count_all``), the part of it where the index shows that marker is
+``mask_visib``; ``visib_fract = px_count_visib / px_count_all``. Without an index
+pass the dataset's ``visible_fraction`` is copied and ``dockbench_scenes.json`` says so.
+For LED arrays the silhouette is that of the cubes around the LEDs, which the rendered
+LED discs only partly fill: an unoccluded LED array reads about 0.45 on the quickstart
+demo (printed markers read 1.0), still well above BOP's 0.1 target threshold.
+Checked against bop_toolkit (thodan/bop_toolkit cea62d6): its ``inout`` loaders read the
+export and its ``pose_error.mssd``/``mspd`` on ``models_eval`` reproduce ``evaluate``'s
+per-frame MSSD/MSPD to 1e-13.
+Depth: the dataset stores the *range* along each pixel ray (m); BOP wants planar
+``z``: ``z = range / |K^-1 [u, v, 1]|`` (rays undistorted with OpenCV when the camera
+has distortion). With ``depth_scale`` 1.0 (default) a PNG unit is 1 mm, so depths
+beyond 65.535 m become 0 (no data); 0.1 gives 0.1 mm units but only 6.5 m. Image ids
+are the frame indices.
 """
 from __future__ import annotations
 
@@ -29,12 +49,16 @@ import json
 import os
 import shutil
 import sys
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import click
 import numpy as np
 
 from evalkit.dataset import Dataset, DatasetError
+from evalkit.metrics.recall import marker_model, marker_points
+
+MIN_TARGET_VISIB = 0.1
 
 
 def _inv(T: np.ndarray) -> np.ndarray:
@@ -73,38 +97,19 @@ def range_to_depth_png(range_m: np.ndarray, norms: np.ndarray, depth_scale: floa
     return img, int(too_far.sum())
 
 
-def _marker_points(marker: dict) -> np.ndarray:
-    """Keypoints of a marker in its own frame (m), ``(N, 3)``."""
-    kp = np.asarray(marker.get("keypoints") or [], dtype=float).reshape(-1, 3)
-    T_marker_dock = _inv(np.asarray(marker.get("T_dock_marker", np.eye(4)), dtype=float))
-    return kp @ T_marker_dock[:3, :3].T + T_marker_dock[:3, 3]
-
-
-def _model_rectangle(marker: dict) -> np.ndarray:
-    """Corners (m, marker frame) of the flat model: the keypoints' bounding rectangle in z = 0,
-    grown by the LED radius for LED arrays; ``(4, 3)`` TL, TR, BR, BL."""
-    pts = _marker_points(marker)
-    if len(pts) == 0:
-        s = float(marker.get("size_m", 0.1)) / 2
-        pts = np.array([[-s, -s, 0], [s, s, 0]])
-    pad = float(marker.get("led_radius_m", 0.0))
-    x0, y0 = pts[:, 0].min() - pad, pts[:, 1].min() - pad
-    x1, y1 = pts[:, 0].max() + pad, pts[:, 1].max() + pad
-    return np.array([[x0, y1, 0], [x1, y1, 0], [x1, y0, 0], [x0, y0, 0]])
-
-
-def _write_ply(path: Path, corners_mm: np.ndarray) -> None:
-    """ASCII PLY of a two-sided rectangle (4 vertices, 4 triangles), mm."""
-    lines = ["ply", "format ascii 1.0", "element vertex 4", "property float x", "property float y",
-             "property float z", "element face 4", "property list uchar int vertex_indices", "end_header"]
-    lines += [" ".join(f"{c:.6f}" for c in p) for p in corners_mm]
-    lines += ["3 0 3 2", "3 0 2 1", "3 0 1 2", "3 0 2 3"]
+def _write_ply(path: Path, vertices_mm: np.ndarray, faces: np.ndarray) -> None:
+    """ASCII PLY of a triangle mesh (mm)."""
+    lines = ["ply", "format ascii 1.0", f"element vertex {len(vertices_mm)}", "property float x",
+             "property float y", "property float z", f"element face {len(faces)}",
+             "property list uchar int vertex_indices", "end_header"]
+    lines += [" ".join(f"{c:.6f}" for c in p) for p in vertices_mm]
+    lines += ["3 " + " ".join(str(int(i)) for i in f) for f in faces]
     path.write_text("\n".join(lines) + "\n")
 
 
-def _model_info(corners_mm: np.ndarray) -> dict:
-    lo, hi = corners_mm.min(axis=0), corners_mm.max(axis=0)
-    diam = max(float(np.linalg.norm(a - b)) for a in corners_mm for b in corners_mm)
+def _model_info(vertices_mm: np.ndarray) -> dict:
+    lo, hi = vertices_mm.min(axis=0), vertices_mm.max(axis=0)
+    diam = float(np.max(np.linalg.norm(vertices_mm[:, None] - vertices_mm[None], axis=2)))
     return {"diameter": diam, "min_x": float(lo[0]), "min_y": float(lo[1]), "min_z": float(lo[2]),
             "size_x": float(hi[0] - lo[0]), "size_y": float(hi[1] - lo[1]), "size_z": float(hi[2] - lo[2])}
 
@@ -154,115 +159,184 @@ def _json(path: Path, obj) -> None:
     path.write_text(json.dumps(obj, indent=1) + "\n")
 
 
+@dataclass
+class _Export:
+    """What every scene of one export shares."""
+
+    ds: Dataset
+    out: Path
+    split: str
+    copy_images: bool
+    depth_scale: float
+    masks: bool
+    obj_ids: dict = field(default_factory=dict)        # marker id -> obj_id
+    models: dict = field(default_factory=dict)         # obj_id -> vertices (m, marker frame)
+    index_values: dict = field(default_factory=dict)   # marker id -> object-index value
+    norms: np.ndarray | None = None
+    clipped: int = 0
+    visib_from_index: int = 0
+    visib_copied: int = 0
+    targets: list = field(default_factory=list)
+
+    @property
+    def K(self) -> np.ndarray:
+        return self.ds.camera["K"]
+
+
+def _write_models(ex: _Export) -> None:
+    """models/ and models_eval/ (PLY + models_info.json) and dockbench_objects.json."""
+    infos, objects = {}, {}
+    for i, m in enumerate(ex.ds.markers):
+        oid = ex.obj_ids[str(m["id"])] = i + 1
+        vertices, faces = marker_model(m)
+        ex.models[oid] = vertices
+        for sub in ("models", "models_eval"):
+            (ex.out / sub).mkdir(exist_ok=True)
+            _write_ply(ex.out / sub / f"obj_{oid:06d}.ply", vertices * 1000.0, faces)
+        infos[str(oid)] = _model_info(vertices * 1000.0)
+        objects[str(oid)] = {"marker_id": str(m["id"]), "kind": m.get("kind"),
+                             "keypoints_mm": (marker_points(m) * 1000.0).tolist()}
+    for sub in ("models", "models_eval"):
+        _json(ex.out / sub / "models_info.json", infos)
+    _json(ex.out / "dockbench_objects.json", objects)
+
+
+def _silhouette(vertices: np.ndarray, T: np.ndarray, K: np.ndarray, dist, shape: tuple[int, int]):
+    """Pixels covered by the model (boxes of 8 vertices, m) in pose ``T`` (4x4, marker to
+    camera): a bool ``(H, W)`` mask, or None when a vertex is behind the camera."""
+    import cv2
+    uv = _project(vertices @ T[:3, :3].T + T[:3, 3], K, dist)
+    if uv is None:
+        return None
+    canvas = np.zeros(shape, np.uint8)
+    for box in uv.reshape(-1, 8, 2):
+        hull = cv2.convexHull(np.round(box * 16).astype(np.int32))   # 4 bits of sub-pixel precision
+        cv2.fillConvexPoly(canvas, hull, 1, lineType=cv2.LINE_8, shift=4)
+    return canvas.astype(bool)
+
+
+def _gt_info(ex: _Export, mid: str, T: np.ndarray, frame_marker: dict, index, depth) -> tuple[dict, tuple]:
+    """scene_gt_info entry of one marker in one image and its ``(mask, mask_visib)`` (or Nones)."""
+    oid = ex.obj_ids[mid]
+    cam = ex.ds.camera
+    info = {"bbox_obj": [-1, -1, -1, -1], "bbox_visib": [-1, -1, -1, -1]}
+    uv = _project(ex.models[oid] @ T[:3, :3].T + T[:3, 3], ex.K, cam["dist"])
+    if uv is not None:
+        info["bbox_obj"] = _bbox(np.floor(uv[:, 0].min()), np.floor(uv[:, 1].min()),
+                                 np.floor(uv[:, 0].max()), np.floor(uv[:, 1].max()))
+    if index is None or mid not in ex.index_values:
+        ex.visib_copied += 1
+        return {**info, "visib_fract": float(frame_marker.get("visible_fraction") or 0.0)}, (None, None)
+    ex.visib_from_index += 1
+    sil = _silhouette(ex.models[oid], T, ex.K, cam["dist"], index.shape[:2])
+    if sil is None:
+        sil = np.zeros(index.shape[:2], bool)
+    visib = sil & (index == ex.index_values[mid])
+    n_all, n_visib = int(sil.sum()), int(visib.sum())
+    info.update(px_count_all=n_all, px_count_valid=int((sil & (depth > 0)).sum()) if depth is not None else n_all,
+                px_count_visib=n_visib, visib_fract=n_visib / n_all if n_all else 0.0)
+    if n_visib:
+        ys, xs = np.nonzero(visib)
+        info["bbox_visib"] = _bbox(xs.min(), ys.min(), xs.max(), ys.max())
+    return info, (sil, visib)
+
+
+def _frame_depth(ex: _Export, frame: dict, path: Path):
+    """Write the frame's depth PNG; return it (uint16) or None without a depth file."""
+    import cv2
+    if not frame.get("depth"):
+        return None
+    with np.load(ex.ds.frame_file(frame, "depth")) as z:
+        rng = z["range_m"]
+    if ex.norms is None:
+        cam = ex.ds.camera
+        ex.norms = ray_norms(ex.K, cam["width"], cam["height"], cam["dist"])
+    img, n = range_to_depth_png(rng, ex.norms, ex.depth_scale)
+    ex.clipped += n
+    cv2.imwrite(str(path), img)
+    return img
+
+
+def _export_frame(ex: _Export, sdir: Path, scene_id: int, frame: dict) -> tuple[dict, list, list]:
+    """Write one image's files; return its ``(scene_camera, scene_gt, scene_gt_info)`` entries."""
+    import cv2
+    im = int(frame["index"])
+    _link_or_copy(ex.ds.image_path(frame), sdir / "rgb" / f"{im:06d}.png", ex.copy_images)
+    cam_entry = {"cam_K": [float(v) for v in ex.K.ravel()], "depth_scale": ex.depth_scale}
+    if frame.get("T_world_cam") is not None:
+        T_cam_world = _inv(np.asarray(frame["T_world_cam"], dtype=float))
+        cam_entry["cam_R_w2c"] = [float(v) for v in T_cam_world[:3, :3].ravel()]
+        cam_entry["cam_t_w2c"] = [float(v) * 1000.0 for v in T_cam_world[:3, 3]]
+    depth = _frame_depth(ex, frame, sdir / "depth" / f"{im:06d}.png")
+    index = None
+    if frame.get("object_index"):
+        index = cv2.imread(str(ex.ds.frame_file(frame, "object_index")), cv2.IMREAD_UNCHANGED)
+    T_cam_dock = np.asarray(frame.get("T_cam_dock", np.eye(4)), dtype=float)
+    fmarkers = frame.get("markers") or {}
+    gts, infos = [], []
+    for m in ex.ds.markers:
+        mid = str(m["id"])
+        fm = fmarkers.get(mid) or {}
+        T = (np.asarray(fm["T_cam_marker"], dtype=float) if fm.get("T_cam_marker") is not None
+             else T_cam_dock @ np.asarray(m.get("T_dock_marker", np.eye(4)), dtype=float))
+        gts.append({"obj_id": ex.obj_ids[mid], "cam_R_m2c": [float(v) for v in T[:3, :3].ravel()],
+                    "cam_t_m2c": [float(v) * 1000.0 for v in T[:3, 3]]})
+        info, (sil, visib) = _gt_info(ex, mid, T, fm, index, depth)
+        if ex.masks and sil is not None:
+            name = f"{im:06d}_{len(infos):06d}.png"
+            cv2.imwrite(str(sdir / "mask" / name), sil.astype(np.uint8) * 255)
+            cv2.imwrite(str(sdir / "mask_visib" / name), visib.astype(np.uint8) * 255)
+        if info["visib_fract"] >= MIN_TARGET_VISIB:
+            ex.targets.append({"scene_id": scene_id, "im_id": im, "obj_id": ex.obj_ids[mid], "inst_count": 1})
+        infos.append(info)
+    return cam_entry, gts, infos
+
+
+def _export_scene(ex: _Export, scene_id: int, seq: dict) -> int:
+    """Write one sequence as a BOP scene; returns its number of images."""
+    sdir = ex.out / ex.split / f"{scene_id:06d}"
+    for sub in ("rgb", "depth", "mask", "mask_visib"):
+        (sdir / sub).mkdir(parents=True, exist_ok=True)
+    scene_camera, scene_gt, scene_gt_info = {}, {}, {}
+    for frame in ex.ds.iter_frames(seq["id"]):
+        key = str(int(frame["index"]))
+        scene_camera[key], scene_gt[key], scene_gt_info[key] = _export_frame(ex, sdir, scene_id, frame)
+    _json(sdir / "scene_camera.json", scene_camera)
+    _json(sdir / "scene_gt.json", scene_gt)
+    _json(sdir / "scene_gt_info.json", scene_gt_info)
+    return len(scene_camera)
+
+
 def export_bop(dataset: Dataset | str | Path, out_dir: str | Path, split: str = "test",
                copy_images: bool = False, depth_scale: float = 1.0, masks: bool = True,
                sequences: list[str] | None = None) -> dict:
     """Write ``dataset`` as a BOP dataset into ``out_dir`` (see the module docstring).
 
     Returns a summary ``{scenes, images, objects, depth_clipped_px}``."""
-    import cv2
-
     ds = dataset if isinstance(dataset, Dataset) else Dataset.open(dataset)
-    out = Path(out_dir)
     if depth_scale <= 0:
         raise ValueError("depth_scale must be > 0")
+    ex = _Export(ds, Path(out_dir), split, copy_images, depth_scale, masks, index_values=_index_values(ds))
+    ex.out.mkdir(parents=True, exist_ok=True)
     cam = ds.camera
-    K, dist, W, H = cam["K"], cam["dist"], cam["width"], cam["height"]
-    out.mkdir(parents=True, exist_ok=True)
-    _json(out / "camera.json", {"cx": float(K[0, 2]), "cy": float(K[1, 2]), "fx": float(K[0, 0]),
-                                "fy": float(K[1, 1]), "width": W, "height": H,
-                                "depth_scale": depth_scale})
-    markers = ds.markers
-    obj_ids = {str(m["id"]): i + 1 for i, m in enumerate(markers)}
-    models = out / "models"
-    models.mkdir(exist_ok=True)
-    infos, objects, model_corners = {}, {}, {}
-    for m in markers:
-        oid = obj_ids[str(m["id"])]
-        corners_mm = _model_rectangle(m) * 1000.0
-        model_corners[oid] = corners_mm / 1000.0
-        _write_ply(models / f"obj_{oid:06d}.ply", corners_mm)
-        infos[str(oid)] = _model_info(corners_mm)
-        objects[str(oid)] = {"marker_id": str(m["id"]), "kind": m.get("kind"),
-                             "keypoints_mm": (_marker_points(m) * 1000.0).tolist()}
-    _json(models / "models_info.json", infos)
-    _json(out / "dockbench_objects.json", objects)
-    index_values = _index_values(ds)
-    norms = None
-    scenes, n_images, clipped = {}, 0, 0
+    _json(ex.out / "camera.json", {"cx": float(ex.K[0, 2]), "cy": float(ex.K[1, 2]), "fx": float(ex.K[0, 0]),
+                                   "fy": float(ex.K[1, 1]), "width": cam["width"], "height": cam["height"],
+                                   "depth_scale": depth_scale})
+    _write_models(ex)
+    scenes, n_images = {}, 0
     for scene_id, seq in enumerate(ds.sequences):
-        if sequences is not None and seq["id"] not in sequences:
-            continue
-        sdir = out / split / f"{scene_id:06d}"
-        for sub in ("rgb", "depth", "mask_visib"):
-            (sdir / sub).mkdir(parents=True, exist_ok=True)
-        scenes[f"{scene_id:06d}"] = {"sequence": seq["id"], "condition": seq.get("condition"),
-                                     "trial": seq.get("trial")}
-        scene_camera, scene_gt, scene_gt_info = {}, {}, {}
-        for frame in ds.iter_frames(seq["id"]):
-            im = int(frame["index"])
-            key = str(im)
-            _link_or_copy(ds.image_path(frame), sdir / "rgb" / f"{im:06d}.png", copy_images)
-            cam_entry = {"cam_K": [float(v) for v in K.ravel()], "depth_scale": depth_scale}
-            if frame.get("T_world_cam") is not None:
-                T_cam_world = _inv(np.asarray(frame["T_world_cam"], dtype=float))
-                cam_entry["cam_R_w2c"] = [float(v) for v in T_cam_world[:3, :3].ravel()]
-                cam_entry["cam_t_w2c"] = [float(v) * 1000.0 for v in T_cam_world[:3, 3]]
-            scene_camera[key] = cam_entry
-            if frame.get("depth"):
-                with np.load(ds.root / frame["depth"]) as z:
-                    rng = z["range_m"]
-                if norms is None:
-                    norms = ray_norms(K, W, H, dist)
-                img, n = range_to_depth_png(rng, norms, depth_scale)
-                clipped += n
-                cv2.imwrite(str(sdir / "depth" / f"{im:06d}.png"), img)
-            index = None
-            if frame.get("object_index"):
-                index = cv2.imread(str(ds.root / frame["object_index"]), cv2.IMREAD_UNCHANGED)
-            T_cam_dock = np.asarray(frame.get("T_cam_dock", np.eye(4)), dtype=float)
-            fmarkers = frame.get("markers") or {}
-            gts, gt_infos = [], []
-            for m in markers:
-                mid = str(m["id"])
-                oid = obj_ids[mid]
-                fm = fmarkers.get(mid) or {}
-                if fm.get("T_cam_marker") is not None:
-                    T = np.asarray(fm["T_cam_marker"], dtype=float)
-                else:
-                    T = T_cam_dock @ np.asarray(m.get("T_dock_marker", np.eye(4)), dtype=float)
-                gt_id = len(gts)
-                gts.append({"obj_id": oid, "cam_R_m2c": [float(v) for v in T[:3, :3].ravel()],
-                            "cam_t_m2c": [float(v) * 1000.0 for v in T[:3, 3]]})
-                info = {"visib_fract": float(fm.get("visible_fraction") or 0.0),
-                        "bbox_obj": [-1, -1, -1, -1], "bbox_visib": [-1, -1, -1, -1]}
-                corners_cam = model_corners[oid] @ T[:3, :3].T + T[:3, 3]
-                uv = _project(corners_cam, K, dist)
-                if uv is not None:
-                    info["bbox_obj"] = _bbox(np.floor(uv[:, 0].min()), np.floor(uv[:, 1].min()),
-                                             np.floor(uv[:, 0].max()), np.floor(uv[:, 1].max()))
-                if index is not None and mid in index_values:
-                    mask = index == index_values[mid]
-                    info["px_count_visib"] = int(mask.sum())
-                    if mask.any():
-                        ys, xs = np.nonzero(mask)
-                        info["bbox_visib"] = _bbox(xs.min(), ys.min(), xs.max(), ys.max())
-                    if masks:
-                        cv2.imwrite(str(sdir / "mask_visib" / f"{im:06d}_{gt_id:06d}.png"),
-                                    mask.astype(np.uint8) * 255)
-                gt_infos.append(info)
-            scene_gt[key], scene_gt_info[key] = gts, gt_infos
-            n_images += 1
-        _json(sdir / "scene_camera.json", scene_camera)
-        _json(sdir / "scene_gt.json", scene_gt)
-        _json(sdir / "scene_gt_info.json", scene_gt_info)
+        if sequences is None or seq["id"] in sequences:
+            scenes[f"{scene_id:06d}"] = {"sequence": seq["id"], "condition": seq.get("condition"),
+                                         "trajectory": seq.get("trajectory"), "trial": seq.get("trial")}
+            n_images += _export_scene(ex, scene_id, seq)
+    _json(ex.out / "test_targets_bop19.json", ex.targets)
     m = ds.manifest
-    _json(out / "dockbench_scenes.json", {
-        "dataset": {"name": m.get("name"), "version": m.get("version"),
-                    "content_hash": m.get("content_hash")},
-        "split": split, "depth_scale": depth_scale, "scenes": scenes})
-    return {"scenes": len(scenes), "images": n_images, "objects": len(markers),
-            "depth_clipped_px": clipped}
+    _json(ex.out / "dockbench_scenes.json", {
+        "dataset": {"name": m.get("name"), "version": m.get("version"), "content_hash": m.get("content_hash")},
+        "split": split, "depth_scale": depth_scale, "scenes": scenes,
+        "visib_fract": {"from_object_index": ex.visib_from_index, "copied_from_dataset": ex.visib_copied}})
+    return {"scenes": len(scenes), "images": n_images, "objects": len(ds.markers),
+            "depth_clipped_px": ex.clipped}
 
 
 @click.command("export-bop")
@@ -284,6 +358,10 @@ def export_bop_cmd(dataset: Path, out: Path, split: str, copy_images: bool, dept
         click.echo(f"error: {exc}", err=True)
         sys.exit(2)
     click.echo(f"BOP export: {s['scenes']} scenes, {s['images']} images, {s['objects']} objects -> {out}")
+    info = json.loads((out / "dockbench_scenes.json").read_text())["visib_fract"]
+    if info["copied_from_dataset"]:
+        click.echo(f"note: {info['copied_from_dataset']} visib_fract values copied from the dataset's "
+                   "visible_fraction (no object-index pass to compute them from)", err=True)
     if s["depth_clipped_px"]:
         click.echo(f"note: {s['depth_clipped_px']} depth pixels beyond {65535 * depth_scale / 1000:.1f} m "
                    f"written as 0 (use a larger --depth-scale)", err=True)

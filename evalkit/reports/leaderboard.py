@@ -1,17 +1,21 @@
 """A single static HTML leaderboard from result directories (no server, no internet).
 
 ``dockbench leaderboard RESULTS_DIR... -o board.html``: runs are grouped by the
-dataset content they were computed on (``content_hash``; runs on different
-data are never ranked together), then per condition the localizers are ranked
-by ``P_succ_mean`` (descending), ties by ``E_rel_mean`` (ascending). 95 %
-bootstrap CIs over trials are shown in brackets and as whiskers in an inline SVG
-chart. Inline CSS and a little inline JS (click a header to sort; the URL
-fragment ``#sort=<column>&dir=asc|desc`` sorts every table on load).
+dataset content they were computed on (``content_hash``) *and* their success
+thresholds (runs on different data or judged by different thresholds are never
+ranked together). Per dataset the page shows a localizer x (trajectory / condition)
+matrix of ``P_succ``, then per (trajectory, condition) a ranked table and the
+``P_succ`` per range bin. Ranking: ``P_succ_mean`` (thresholded success) descending,
+ties by the rate of wrong answers ``P_detect - P_succ`` ascending (a wrong answer is
+worse than none: the controller acts on it), then ``E_rel_mean`` ascending; NaN last.
+Rendered by jinja2 (autoescape on) from ``templates/leaderboard.html.j2``; inline CSS
+and a little inline JS (click a header to sort; ``#sort=<column>&dir=asc|desc`` sorts
+every table on load). Laid out to fit a 1280 px wide window.
 """
 from __future__ import annotations
 
 import datetime as _dt
-import html
+import json
 import math
 import shutil
 import subprocess
@@ -30,39 +34,37 @@ if TYPE_CHECKING:
 # pandas and evalkit.reports.results are imported inside the functions so that wiring
 # ``leaderboard_cmd`` into the CLI keeps ``dockbench --help`` fast.
 
-# (key, header, kind): kind "pct" = fraction shown in %, "num" = plain number, "text"
-COLUMNS: list[tuple[str, str, str]] = [
-    ("rank", "#", "int"),
-    ("label", "localizer", "text"),
-    ("run", "run", "text"),
-    ("P_succ_mean", "P_succ (%)", "pct_ci"),
-    ("E_rel_mean", "E_rel (%)", "pct_ci"),
-    ("e_abs_mean", "e_abs (m)", "num"),
-    ("e_trans_mean", "e_trans (m)", "num"),
-    ("e_rot_deg_mean", "e_rot (deg)", "num"),
-    ("e_lateral_mean", "lateral (m)", "num"),
-    ("e_range_abs_mean", "range (m)", "num"),
-    ("fp_rate", "FP rate (%)", "pct"),
-    ("max_range_m", "usable range (m)", "num"),
-    ("ms_median", "ms median", "num"),
-    ("ms_p95", "ms p95", "num"),
-    ("n_trials", "trials", "int"),
+# (key, header, kind, help): kind "pct_ci"/"pct" = fraction shown in %, "num", "int", "text"
+COLUMNS: list[tuple[str, str, str, str]] = [
+    ("rank", "#", "int", "rank in this trajectory / condition"),
+    ("label", "localizer", "text", "localizer (hover: full spec and run)"),
+    ("P_succ_mean", "P_succ %", "pct_ci", "frames localized within the success thresholds"),
+    ("P_detect_mean", "P_detect %", "pct", "frames with any answer (the article's success rate)"),
+    ("E_rel_mean", "E_rel %", "pct_ci", "mean relative distance error over answered frames"),
+    ("AR", "AR", "num", "BOP average recall, mean of AR_MSSD and AR_MSPD (pose localizers)"),
+    ("e_rot_deg_mean", "rot deg", "num", "mean rotation error (deg)"),
+    ("n_fp", "FP", "int", "false positives: answers with no marker in view or a wrong id"),
+    ("max_range_m", "range m", "num", "usable range: farthest 1 m bin with P_succ >= 90%"),
+    ("ms_median", "ms", "num", "median ms per frame"),
+    ("n_trials", "M", "int", "independent trials"),
 ]
 CI_PREFIX = {"P_succ_mean": "P_succ", "E_rel_mean": "E_rel"}
+TEMPLATE = "leaderboard.html.j2"
 
 CSS = """
-body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:24px;color:#1b1f24;background:#fff}
-h1{font-size:22px;margin:0 0 4px}h2{font-size:18px;margin:28px 0 4px;border-bottom:2px solid #d0d7de;padding-bottom:4px}
-h3{font-size:15px;margin:18px 0 6px}.meta{color:#57606a;font-size:12px}
-table.lb{border-collapse:collapse;font-size:13px;margin:6px 0 4px}
-table.lb th,table.lb td{border:1px solid #d0d7de;padding:3px 8px;white-space:nowrap}
-table.lb th{background:#f6f8fa;cursor:pointer;user-select:none}
+body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:16px;color:#1b1f24;
+background:#fff;max-width:1240px}
+h1{font-size:21px;margin:0 0 4px}h2{font-size:17px;margin:22px 0 4px;border-bottom:2px solid #d0d7de;padding-bottom:3px}
+h3{font-size:14px;margin:14px 0 4px}.meta{color:#57606a;font-size:12px;margin:2px 0}
+.warn{color:#9a6700;font-size:12px}b.warn{color:#cf222e}
+table{border-collapse:collapse;font-size:12px;margin:4px 0}
+th,td{border:1px solid #d0d7de;padding:2px 6px;white-space:nowrap}
+th{background:#f6f8fa}table.lb th{cursor:pointer;user-select:none}
 table.lb th.sorted-asc::after{content:" \\25B2"}table.lb th.sorted-desc::after{content:" \\25BC"}
-table.lb td.n{text-align:right;font-variant-numeric:tabular-nums}
-table.lb tr:nth-child(even) td{background:#fbfcfd}
-table.lb tr.first td{background:#eaf5ea}
-.ci{color:#6e7781;font-size:11px}.cond{display:flex;flex-wrap:wrap;gap:18px;align-items:flex-start}
-svg text{font-family:inherit;font-size:11px}code{font-size:12px}
+td.n{text-align:right;font-variant-numeric:tabular-nums}td.lbl{max-width:190px;overflow:hidden;text-overflow:ellipsis}
+table.lb tr.first td{background:#eaf5ea}td.bar-cell{position:relative}
+.bar{position:absolute;left:0;bottom:0;height:3px;background:#2da44e}
+.ci{color:#6e7781;font-size:10px}code{font-size:11px}
 """
 
 JS = """
@@ -104,117 +106,195 @@ def _finite(v) -> bool:
         return False
 
 
-def _cell(row: pd.Series, key: str, kind: str) -> str:
-    """One ``<td>`` with a ``data-v`` sort value."""
+def short_name(spec: str, limit: int = 24) -> str:
+    """A short display name for a ``-l`` spec: ``file.py:Class`` for a path target,
+    ``exec:prog`` for an external program, else the spec (cut to ``limit`` characters)."""
+    if spec.startswith("exec:"):
+        words = spec[5:].split()
+        prog = Path(words[0]).name if words else ""
+        script = next((Path(w).name for w in words[1:] if "/" in w or "." in w), "")
+        text = f"exec:{prog}" + (f" {script}" if script else "")
+    elif ":" in spec and ("/" in spec.rpartition(":")[0] or spec.rpartition(":")[0].endswith(".py")):
+        file_part, _, attr = spec.rpartition(":")
+        text = f"{Path(file_part).name}:{attr}"
+    else:
+        text = spec
+    return text if len(text) <= limit else text[:limit - 1] + "\u2026"
+
+
+def _pct_text(v) -> str:
+    return f"{100 * float(v):.1f}" if _finite(v) else "-"
+
+
+def _ci_text(row, key: str) -> str | None:
+    """``[lo, hi]`` in % with the mean's digits (rounding is monotonic: the printed mean stays inside)."""
+    p = CI_PREFIX.get(key)
+    if p is None or not (_finite(row.get(f"{p}_lo")) and _finite(row.get(f"{p}_hi"))):
+        return None
+    return f"[{100 * float(row[f'{p}_lo']):.1f}, {100 * float(row[f'{p}_hi']):.1f}]"
+
+
+def _cell(row, key: str, kind: str) -> dict:
+    """One table cell: text, sort value, CI, bar width (% for P_succ)."""
     v = row.get(key)
+    out = {"cls": "n", "v": "", "text": "-", "ci": None, "bar": None, "title": None}
     if kind == "text":
-        t = html.escape(str(v))
-        return f'<td data-v="{t}">{t}</td>'
+        return {**out, "cls": "lbl", "v": str(v), "text": str(v), "title": row.get("full")}
     if not _finite(v):
-        return '<td class="n" data-v="">-</td>'
+        return out
     f = float(v)
+    out["v"] = f"{f:.9g}"
     if kind == "int":
-        return f'<td class="n" data-v="{f:g}">{int(f)}</td>'
-    if kind == "num":
-        return f'<td class="n" data-v="{f:.9g}">{f:.3g}</td>'
-    text = f"{100 * f:.1f}"
-    if kind == "pct_ci":
-        p = CI_PREFIX[key]
-        lo, hi = row.get(f"{p}_lo"), row.get(f"{p}_hi")
-        if _finite(lo) and _finite(hi):
-            text += f' <span class="ci">[{100 * float(lo):.1f}, {100 * float(hi):.1f}]</span>'
-    return f'<td class="n" data-v="{f:.9g}">{text}</td>'
+        out["text"] = f"{int(f)}" + ("*" if key == "n_trials" and bool(row.get("few_trials")) else "")
+        if key == "n_fp" and _finite(row.get("n_est")):
+            out["title"] = f"{int(f)} of {int(row['n_est'])} answers"
+    elif kind == "num":
+        out["text"] = f"{f:.3g}"
+    else:
+        out["text"], out["ci"] = _pct_text(f), _ci_text(row, key)
+        if key == "P_succ_mean":
+            out["cls"], out["bar"] = "n bar-cell", round(100 * min(max(f, 0.0), 1.0), 1)
+    return out
 
 
 def rank(df: pd.DataFrame) -> pd.DataFrame:
-    """Rows of one (dataset, condition) sorted by ``P_succ_mean`` desc, ``E_rel_mean`` asc,
-    with a ``rank`` column (1 = best; NaN metrics last)."""
-    key_p = -df["P_succ_mean"].astype(float).fillna(-math.inf)
-    key_e = df["E_rel_mean"].astype(float).fillna(math.inf)
-    out = df.assign(_p=key_p, _e=key_e).sort_values(["_p", "_e", "label"], kind="stable")
-    out = out.drop(columns=["_p", "_e"]).reset_index(drop=True)
+    """Rows of one (dataset, trajectory, condition) in rank order with a ``rank`` column (1 = best):
+    ``P_succ_mean`` desc, wrong-answer rate ``P_detect_mean - P_succ_mean`` asc, ``E_rel_mean`` asc,
+    label; NaN metrics last."""
+    p = df["P_succ_mean"].astype(float)
+    wrong = (df["P_detect_mean"].astype(float) - p).fillna(math.inf)
+    out = df.assign(_p=-p.fillna(-math.inf), _w=wrong, _e=df["E_rel_mean"].astype(float).fillna(math.inf))
+    out = out.sort_values(["_p", "_w", "_e", "label"], kind="stable").drop(columns=["_p", "_w", "_e"])
+    out = out.reset_index(drop=True)
     out.insert(0, "rank", range(1, len(out) + 1))
     return out
 
 
-def svg_chart(df: pd.DataFrame, width: int = 360) -> str:
-    """Inline SVG: horizontal ``P_succ`` bars with CI whiskers, one per ranked row."""
-    bar_h, gap, left, right, top = 16, 6, 120, 44, 18
-    height = top + len(df) * (bar_h + gap) + 18
-    plot_w = width - left - right
-    parts = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" '
-             f'role="img" aria-label="P_succ chart">',
-             f'<text x="{left}" y="12" fill="#57606a">P_succ (%) with 95% CI</text>']
-    for tick in (0, 50, 100):
-        x = left + plot_w * tick / 100
-        parts.append(f'<line x1="{x:.1f}" y1="{top - 2}" x2="{x:.1f}" y2="{height - 16}" stroke="#d0d7de"/>'
-                     f'<text x="{x:.1f}" y="{height - 4}" text-anchor="middle" fill="#57606a">{tick}</text>')
-    for i, (_, r) in enumerate(df.iterrows()):
-        y = top + i * (bar_h + gap)
-        p = float(r["P_succ_mean"]) if _finite(r.get("P_succ_mean")) else 0.0
-        name = html.escape(str(r["label"]))[:18]
-        parts.append(f'<text x="{left - 6}" y="{y + bar_h - 4}" text-anchor="end">{name}</text>')
-        parts.append(f'<rect x="{left}" y="{y}" width="{plot_w * p:.1f}" height="{bar_h}" '
-                     f'fill="{"#2da44e" if i == 0 else "#54aeff"}"/>')
-        lo, hi = r.get("P_succ_lo"), r.get("P_succ_hi")
-        end = max(p, float(hi)) if _finite(hi) else p
-        parts.append(f'<text x="{left + plot_w * end + 5:.1f}" y="{y + bar_h - 4}">{100 * p:.0f}</text>')
-        if _finite(lo) and _finite(hi):
-            x0, x1, ym = left + plot_w * float(lo), left + plot_w * float(hi), y + bar_h / 2
-            parts.append(f'<path d="M{x0:.1f} {ym - 4}v8M{x0:.1f} {ym}H{x1:.1f}M{x1:.1f} {ym - 4}v8" '
-                         f'stroke="#1b1f24" stroke-width="1.2" fill="none"/>')
-    parts.append("</svg>")
-    return "".join(parts)
+def _shade(p) -> str:
+    """Background for a P_succ cell: white (0) to green (1)."""
+    if not _finite(p):
+        return "#fff"
+    a = min(max(float(p), 0.0), 1.0)
+    return f"rgba(45,164,78,{0.08 + 0.5 * a:.2f})"
 
 
-def _table(df: pd.DataFrame, table_id: str) -> str:
-    """The ranked rows of one condition as a sortable table."""
-    head = "".join(f'<th data-col="{k}" data-kind="{"text" if kind == "text" else "num"}">'
-                   f'{html.escape(h)}</th>' for k, h, kind in COLUMNS)
+def _matrix(table: pd.DataFrame) -> dict:
+    """Localizer x (trajectory / condition) of P_succ, rows by mean P_succ (then label)."""
+    table = table.assign(_col=table["trajectory"].astype(str) + " / " + table["condition"].astype(str))
+    cols = sorted(table["_col"].unique())
     rows = []
-    for i, (_, r) in enumerate(df.iterrows()):
-        cls = "lb-row first" if i == 0 else "lb-row"
-        cells = "".join(_cell(r, k, kind) for k, _, kind in COLUMNS)
-        rows.append(f'<tr class="{cls}" data-localizer="{html.escape(str(r["label"]))}">{cells}</tr>')
-    return (f'<table class="lb" id="{table_id}"><thead><tr>{head}</tr></thead>'
-            f'<tbody>{"".join(rows)}</tbody></table>')
+    for label, g in table.groupby("label", sort=True):
+        by = g.set_index("_col")
+        cells = []
+        for c in cols:
+            r = by.loc[c] if c in by.index else None
+            p = None if r is None else r["P_succ_mean"]
+            star = "*" if r is not None and bool(r.get("few_trials")) else ""
+            cells.append({"text": _pct_text(p) + star if r is not None else "", "shade": _shade(p)})
+        mean = g["P_succ_mean"].astype(float).mean()
+        rows.append({"label": label, "full": g["full"].iloc[0], "cells": cells, "_m": mean,
+                     "mean": _pct_text(mean)})
+    rows.sort(key=lambda r: (-(r["_m"] if _finite(r["_m"]) else -1.0), r["label"]))
+    for i, r in enumerate(rows, start=1):
+        r["rank"] = i
+    return {"columns": cols, "rows": rows}
+
+
+def _bins(bins: pd.DataFrame | None) -> dict | None:
+    """P_succ per range bin of one group: rows per label, columns per bin."""
+    if bins is None or bins.empty:
+        return None
+    used = bins[bins["n_total"] > 0]          # bins no frame of this group reaches are left out
+    edges = sorted(set(zip(used["bin_lo"], used["bin_hi"])))
+    if not edges:
+        return None
+    rows = []
+    for label, g in bins.groupby("label", sort=True):
+        by = {(lo, hi): r for lo, hi, r in zip(g["bin_lo"], g["bin_hi"], g.to_dict("records"))}
+        cells = []
+        for e in edges:
+            r = by.get(e)
+            n = int(r["n_total"]) if r is not None else 0
+            p = r["P_succ"] if r is not None and n else None
+            cells.append({"text": f"{100 * float(p):.0f}" if _finite(p) else "", "shade": _shade(p),
+                          "title": f"{n} frames"})
+        rows.append({"label": label, "cells": cells})
+    return {"edges": [f"{lo:g}-{hi:g}" for lo, hi in edges], "rows": rows}
+def _criteria(run: Run) -> dict:
+    """The success thresholds a run was scored with (``{}`` for runs that predate them)."""
+    return (run.run.get("settings") or {}).get("success") or {}
 
 
 def group_runs(runs: Sequence[Run]) -> list[list[Run]]:
-    """Runs grouped by dataset ``content_hash`` (order of first appearance)."""
+    """Runs grouped by dataset ``content_hash`` and success thresholds (order of first appearance)."""
     from evalkit.reports.results import ResultsError
-    groups: dict[str, list[Run]] = {}
+    groups: dict[tuple[str, str], list[Run]] = {}
     for r in runs:
         if not r.content_hash:
             raise ResultsError(f"{r.path}: run.json has no dataset content_hash")
-        groups.setdefault(r.content_hash, []).append(r)
+        groups.setdefault((r.content_hash, json.dumps(_criteria(r), sort_keys=True)), []).append(r)
     return list(groups.values())
 
 
+def _labelled_bins(group: Sequence[Run], table: pd.DataFrame) -> pd.DataFrame | None:
+    """bins.csv of every run with the board's labels."""
+    import pandas as pd
+    names = dict(zip(zip(table["run"], table["localizer"]), table["label"]))
+    parts = []
+    for r, run_label in zip(group, dict.fromkeys(table["run"])):
+        if r.bins is None or not len(r.bins):
+            continue
+        b = r.bins.assign(**{c: r.bins[c].fillna("").astype(str) for c in ("localizer", "trajectory", "condition")})
+        parts.append(b.assign(label=[names.get((run_label, loc), loc) for loc in b["localizer"]]))
+    return pd.concat(parts, ignore_index=True) if parts else None
+
+
+def _section(group: Sequence[Run], index: int) -> dict:
+    """View model of one dataset (and thresholds) for the template."""
+    from evalkit.metrics.extra import MIN_TRIALS_FOR_CI
+    from evalkit.reports.results import compare_runs
+    table = compare_runs(group)
+    table["full"] = table["localizer"] + " (" + table["run"] + ")"
+    table["label"] = [short_name(loc) + (lbl[len(loc):] if lbl.startswith(loc) else "")
+                      for loc, lbl in zip(table["localizer"], table["label"])]
+    bins = _labelled_bins(group, table)
+    groups = []
+    for gi, ((traj, cond), g) in enumerate(table.groupby(["trajectory", "condition"], sort=True)):
+        ranked = rank(g)
+        rows = [{"label": r["label"], "cells": [_cell({**r, "full": r["full"]}, k, kind) for k, _, kind, _ in COLUMNS]}
+                for r in ranked.to_dict("records")]
+        gb = None if bins is None else bins[(bins["trajectory"] == traj) & (bins["condition"] == cond)]
+        groups.append({"title": f"trajectory {traj or '-'} / condition {cond or '-'}", "id": f"t{index}-{gi}",
+                       "rows": rows, "bins": _bins(gb)})
+    crit = _criteria(group[0])
+    ds = group[0].dataset
+    return {"name": ds.get("name"), "version": ds.get("version"), "content_hash": group[0].content_hash,
+            "criteria": {"max_rel_dist_pct": f"{100 * crit.get('max_rel_dist', math.nan):g}",
+                         "max_rel_trans_pct": f"{100 * crit.get('max_rel_trans', math.nan):g}",
+                         "min_tol_cm": f"{100 * crit.get('min_tol_m', math.nan):g}",
+                         "max_rot_deg": f"{crit.get('max_rot_deg', math.nan):g}"},
+            "runs": [{"label": lbl, "path": str(r.path), "timestamp": r.run.get("timestamp", ""),
+                      "verified": (r.dataset.get("verified") is not False)}
+                     for r, lbl in zip(group, dict.fromkeys(table["run"]))],
+            "few_trials": bool((table["n_trials"] < MIN_TRIALS_FOR_CI).any()),
+            "matrix": _matrix(table), "groups": groups}
+
+
 def build_html(runs: Sequence[Run], title: str = "dockbench leaderboard") -> str:
-    """The whole page as a string."""
-    from evalkit.reports.results import compare_runs, dockbench_version
+    """The whole page as a string (jinja2, autoescaped)."""
+    import jinja2
+
+    from evalkit.metrics.extra import MIN_TRIALS_FOR_CI
+    from evalkit.reports.results import dockbench_version
+    env = jinja2.Environment(loader=jinja2.FileSystemLoader(Path(__file__).parent / "templates"),
+                             autoescape=True, undefined=jinja2.StrictUndefined)
+    columns = [{"key": k, "header": h, "kind": "text" if kind == "text" else "num", "help": hp}
+               for k, h, kind, hp in COLUMNS]
+    sections = [_section(g, i) for i, g in enumerate(group_runs(runs))]
     now = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
-    body = [f"<h1>{html.escape(title)}</h1>",
-            f'<p class="meta">generated {now} by dockbench {html.escape(dockbench_version())} '
-            f"from {len(runs)} run(s). Ranked per condition by P_succ (desc), ties by E_rel (asc); "
-            "brackets: 95% bootstrap CI over trials. Click a header to sort.</p>"]
-    for gi, group in enumerate(group_runs(runs)):
-        table = compare_runs(group)
-        ds = group[0].dataset
-        body.append(f'<section class="dataset" data-content-hash="{html.escape(ds.get("content_hash", ""))}">'
-                    f'<h2>dataset {html.escape(str(ds.get("name")))} {html.escape(str(ds.get("version")))}</h2>'
-                    f'<p class="meta">content_hash <code>{html.escape(ds.get("content_hash", ""))}</code>; runs: '
-                    + ", ".join(f'<code>{html.escape(r.label)}</code> ({html.escape(str(r.run.get("timestamp", "")))})'
-                                for r in group) + "</p>")
-        for ci, (cond, g) in enumerate(table.groupby("condition", sort=True)):
-            ranked = rank(g)
-            body.append(f'<h3>condition: {html.escape(str(cond))}</h3><div class="cond">'
-                        f'{_table(ranked, f"t{gi}-{ci}")}{svg_chart(ranked)}</div>')
-        body.append("</section>")
-    return ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
-            f"<title>{html.escape(title)}</title><style>{CSS}</style></head>"
-            f"<body>{''.join(body)}<script>{JS}</script></body></html>\n")
+    return env.get_template(TEMPLATE).render(
+        title=title, css=CSS, js=JS, now=now, version=dockbench_version(), n_runs=len(runs),
+        sections=sections, columns=columns, min_trials=MIN_TRIALS_FOR_CI)
 
 
 def build_leaderboard(result_dirs: Iterable[str | Path], out: str | Path,
@@ -257,7 +337,7 @@ def chromium(html_path: str | Path, *args: str, timeout: float = 60.0, fragment:
     return res.stdout
 
 
-def screenshot(html_path: str | Path, png: str | Path, size: tuple[int, int] = (1400, 900)) -> Path:
+def screenshot(html_path: str | Path, png: str | Path, size: tuple[int, int] = (1280, 900)) -> Path:
     """Render ``html_path`` to ``png`` with headless Chromium."""
     png = Path(png).resolve()
     png.parent.mkdir(parents=True, exist_ok=True)

@@ -2,7 +2,8 @@
 
 * :func:`plot_error_vs_distance` -- the article's Figures 18-21 style: the
   positioning error against ``d_true`` for **one representative trial per
-  condition**, conditions overlaid, one panel per localizer.
+  (trajectory, condition)**, the *same* trial in every localizer's panel, one
+  panel per localizer, each panel with its own y axis.
 * :func:`plot_success_vs_distance` -- ``P_succ`` per distance bin (frames of
   all trials pooled), one line per condition, one panel per localizer.
 """
@@ -32,7 +33,7 @@ def _panels(plt, n: int):
     ncols = max(1, min(3, n))
     nrows = -(-max(n, 1) // ncols)
     fig, axes = plt.subplots(nrows, ncols, figsize=(5.2 * ncols, 3.8 * nrows), squeeze=False,
-                             sharey=True)
+                             sharey=False)
     flat = list(axes.ravel())
     for ax in flat[n:]:
         ax.set_visible(False)
@@ -40,9 +41,9 @@ def _panels(plt, n: int):
 
 
 def _save(plt, fig, axes, ylabel: str, title: str | None, path: Path) -> Path:
-    """Label the first column of panels, title, write the PNG, free the figure."""
-    for ax in axes[::3]:
-        ax.set_ylabel(ylabel)
+    """Label every panel (each has its own y axis), title, write the PNG, free the figure."""
+    for ax in axes:
+        ax.set_ylabel(ylabel, fontsize=8)
     if title:
         fig.suptitle(title)
     fig.tight_layout()
@@ -52,44 +53,42 @@ def _save(plt, fig, axes, ylabel: str, title: str | None, path: Path) -> Path:
     return path
 
 
-def representative_trials(estimates: pd.DataFrame, d_max: float = metrics.D_MAX_M,
-                          d_min_rel: float = metrics.D_MIN_REL_M) -> pd.DataFrame:
-    """Per (localizer, condition) the sequence whose ``e_rel_mean`` is closest to the
-    median over the condition's trials (ties: smallest sequence id); the first trial
-    when no trial has an ``e_rel_mean``. Columns ``localizer, condition, sequence``."""
-    trials = metrics.per_trial(estimates, d_max, d_min_rel)
+def representative_trials(trials: pd.DataFrame) -> pd.DataFrame:
+    """Per (trajectory, condition) one sequence, the same for every localizer: the trial
+    whose ``P_succ`` averaged over the localizers is closest to the median over the
+    trials (ties: smallest sequence id). ``trials`` is the per-trial table
+    (:func:`evalkit.metrics.core.per_trial`). Columns ``trajectory, condition, sequence``."""
     rows = []
-    for (loc, cond), g in trials.groupby(["localizer", "condition"], sort=True, dropna=False):
-        g = g.sort_values("sequence")
-        vals = g["e_rel_mean"]
-        if vals.notna().any():
-            dist = (vals - vals.median()).abs()
-            seq = g.loc[dist.idxmin(), "sequence"] if dist.notna().any() else g["sequence"].iloc[0]
+    for (traj, cond), g in trials.groupby(["trajectory", "condition"], sort=True, dropna=False):
+        per_seq = g.groupby("sequence", sort=True)["P_succ"].mean()
+        if per_seq.notna().any():
+            dist = (per_seq - per_seq.median()).abs()
+            seq = dist[dist == dist.min()].index.min()
         else:
-            seq = g["sequence"].iloc[0]
-        rows.append({"localizer": loc, "condition": cond, "sequence": seq})
-    return pd.DataFrame(rows, columns=["localizer", "condition", "sequence"])
+            seq = per_seq.index.min()
+        rows.append({"trajectory": traj, "condition": cond, "sequence": seq})
+    return pd.DataFrame(rows, columns=["trajectory", "condition", "sequence"])
 
 
-def plot_error_vs_distance(estimates: pd.DataFrame, path: str | Path, error: str = "e_abs",
-                           d_max: float = metrics.D_MAX_M, d_min_rel: float = metrics.D_MIN_REL_M,
+def plot_error_vs_distance(frames: pd.DataFrame, path: str | Path, trials: pd.DataFrame,
+                           error: str = "e_abs", d_max: float = metrics.D_MAX_M,
                            title: str | None = None) -> Path:
-    """Error (``e_abs`` m or ``e_rel`` %) vs ``d_true`` of one representative trial per
-    condition, conditions overlaid; one panel per localizer. Writes ``path`` (PNG)."""
+    """Error (``e_abs`` m or ``e_rel`` %) vs ``d_true`` of the representative trial of each
+    (trajectory, condition) (:func:`representative_trials`), one line each; one panel per
+    localizer. ``frames`` is the scored per-frame table. Writes ``path`` (PNG)."""
     plt = _pyplot()
     path = Path(path)
-    errs = metrics.frame_errors(estimates, d_min_rel)
-    df = estimates.assign(_err=errs[error] * (100.0 if error == "e_rel" else 1.0))
+    df = frames.assign(_err=frames[error] * (100.0 if error == "e_rel" else 1.0))
     df = df[metrics.counted_mask(df["d_true"], d_max)]
-    reps = representative_trials(estimates, d_max, d_min_rel)
-    locs = sorted(reps["localizer"].unique()) or ["(none)"]
+    reps = representative_trials(trials)
+    locs = sorted(df["localizer"].unique()) or ["(none)"]
     fig, axes = _panels(plt, len(locs))
     for ax, loc in zip(axes, locs):
-        for _, r in reps[reps["localizer"] == loc].iterrows():
+        for _, r in reps.iterrows():
             s = df[(df["localizer"] == loc) & (df["sequence"] == r["sequence"])].sort_values("d_true")
             ok = s["_err"].notna()
             ax.plot(s.loc[ok, "d_true"], s.loc[ok, "_err"], marker=".", ms=3, lw=0.8,
-                    label=f"{r['condition']} ({r['sequence']})")
+                    label=f"{r['trajectory']}/{r['condition']} ({r['sequence']})")
         ax.set_title(str(loc))
         ax.set_xlabel("d_true (m)")
         ax.set_xlim(0, d_max)
@@ -102,16 +101,16 @@ def plot_error_vs_distance(estimates: pd.DataFrame, path: str | Path, error: str
 def plot_success_vs_distance(bins: pd.DataFrame, path: str | Path, threshold: float | None = 0.9,
                              title: str | None = None) -> Path:
     """``P_succ`` per distance bin (from :func:`evalkit.metrics.extra.distance_bins`),
-    one line per condition, one panel per localizer; ``threshold`` drawn dashed."""
+    one line per (trajectory, condition), one panel per localizer; ``threshold`` drawn dashed."""
     plt = _pyplot()
     path = Path(path)
     locs = sorted(bins["localizer"].unique()) or ["(none)"]
     fig, axes = _panels(plt, len(locs))
     for ax, loc in zip(axes, locs):
         b = bins[bins["localizer"] == loc]
-        for cond, g in b.groupby("condition", sort=True):
+        for (traj, cond), g in b.groupby(["trajectory", "condition"], sort=True):
             centre = (g["bin_lo"] + g["bin_hi"]) / 2.0
-            ax.plot(centre, 100.0 * g["P_succ"], marker="o", ms=3, label=str(cond))
+            ax.plot(centre, 100.0 * g["P_succ"], marker="o", ms=3, label=f"{traj}/{cond}")
         if threshold is not None:
             ax.axhline(100.0 * threshold, ls="--", lw=0.8, color="grey")
         ax.set_title(str(loc))

@@ -1,26 +1,28 @@
 """Results of one evaluation run on disk, tied to the dataset they were computed on.
 
-A run directory (written by :func:`save_run`)::
+A run directory (written by :func:`save_run`, atomically via
+:func:`evalkit.reports.outdir.results_dir`)::
 
-    run.json           dataset name/version/content_hash, localizers, dockbench version,
-                       timestamp, settings, per-condition metrics, runtime
-    estimates.parquet  per-frame estimates (runner columns; CSV if parquet is unavailable)
-    summary.csv        per trial (the article's P_succ, e_abs_mean, e_rel_mean)
-    conditions.csv     per condition (the article's P_succ_mean, E_rel_mean)
-    metrics.csv        per condition, everything (CIs, pose errors, FP rate, usable range, runtime)
-    bins.csv           per condition and 1 m distance bin
-    false_positives.csv, runtime.csv
+    run.json           command line, environment (versions, git commit), dataset identity
+                       (content hash recomputed), localizers (spec, params as given, code
+                       sha256), options, scoring settings, per-group metrics
+    estimates.parquet  per-frame estimates, truth and scores (CSV if parquet is unavailable)
+    summary.csv        per trial (P_succ, P_detect, errors)
+    metrics.csv        per (localizer, trajectory, condition): CIs, pose errors, AR, FP, usable range
+    bins.csv, false_positives.csv, recall.csv, runtime.csv
     tables/article.md|tex, tables/metrics.md|tex
     plots/error_vs_distance.png, plots/success_vs_distance.png
 
-Runs are comparable only when computed on the same dataset content:
-:func:`compare_runs` refuses runs whose ``content_hash`` differ.
+summary.csv and metrics.csv hold no timings, so the same inputs give byte-identical
+files; runtimes are in runtime.csv. Runs are comparable only when computed on the
+same dataset content: :func:`compare_runs` refuses runs whose ``content_hash`` differ.
 """
 from __future__ import annotations
 
 import datetime as _dt
 import json
 import math
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
@@ -28,13 +30,12 @@ from typing import Any, Iterable
 import pandas as pd
 
 from evalkit.metrics import core as metrics
-
 from evalkit.metrics import extra as metrics_extra
-
+from evalkit.metrics.extra import EvalSettings
 from evalkit.reports import tables
 
 RUN_FORMAT = "dockbench-results"
-RUN_FORMAT_VERSION = "1"
+RUN_FORMAT_VERSION = "2"
 RUN_JSON = "run.json"
 
 
@@ -74,102 +75,155 @@ def _records(df: pd.DataFrame) -> list[dict]:
     return [_json_safe(r) for r in df.to_dict(orient="records")]
 
 
-def localizer_info(spec: Any) -> dict:
-    """``{name, class, params}`` of a ``(name, localizer)`` pair (or a bare name).
+def dataset_info(dataset, content_hash: str | None = None) -> dict:
+    """Identity of a :class:`~evalkit.dataset.Dataset` for run.json.
 
-    ``params`` are the localizer's public attributes of simple types (its
-    constructor settings, by convention)."""
-    if isinstance(spec, str):
-        return {"name": spec, "class": None, "params": {}}
-    name, obj = spec
-    cls = type(obj)
-    params = {k: v for k, v in vars(obj).items()
-              if not k.startswith("_") and isinstance(v, (str, int, float, bool, type(None)))} \
-        if hasattr(obj, "__dict__") else {}
-    return {"name": str(name), "class": f"{cls.__module__}:{cls.__qualname__}",
-            "params": _json_safe(params)}
+    ``content_hash`` is recomputed: from the manifest's verified ``files`` map, or
+    (``dataset.verify`` false) from the bytes on disk; ``manifest_content_hash`` is the
+    manifest's own value, ``verified`` whether every file read was checked."""
+    from datasets_spec.io import content_hash as hash_files
+    from evalkit.reports.provenance import disk_content_hash
 
-
-def dataset_info(dataset) -> dict:
-    """``{name, version, content_hash, spec_version, path}`` of a :class:`~evalkit.dataset.Dataset`."""
     m = dataset.manifest
-    return {"name": m.get("name"), "version": m.get("version"), "content_hash": m.get("content_hash"),
+    files = m.get("files") or {}
+    if content_hash is None:
+        content_hash = hash_files(files) if dataset.verify else disk_content_hash(Path(dataset.root), files)
+    return {"name": m.get("name"), "version": m.get("version"), "content_hash": content_hash,
+            "manifest_content_hash": m.get("content_hash"), "verified": bool(dataset.verify),
             "spec_version": m.get("spec_version"), "path": str(Path(dataset.root).resolve())}
 
 
-def save_run(estimates_df: pd.DataFrame, out_dir: str | Path, dataset, localizer_specs: Iterable[Any],
-             extra: dict | None = None, truth: pd.DataFrame | None = None, n_boot: int = 2000,
-             level: float = 0.95, seed: int = 0, bin_m: float = 1.0, usable_threshold: float = 0.9,
-             make_plots: bool = True) -> dict[str, Path]:
-    """Compute every metric of ``estimates_df`` (from :func:`evalkit.runner.evaluate`) and write
-    the run directory ``out_dir`` (see the module docstring). Returns the written paths.
+@dataclass
+class RunRecord:
+    """Everything about a run that is not the per-frame estimates.
 
-    ``dataset`` is the :class:`~evalkit.dataset.Dataset` evaluated (its manifest's
-    name/version/content_hash go into ``run.json``; its frames give the truth
-    unless ``truth`` from :func:`evalkit.metrics.truth.frame_truth_table` is passed).
-    ``localizer_specs``: the ``(name, localizer)`` pairs (or names) that were run.
-    ``extra``: free JSON-able dict stored under ``run.json["extra"]`` (e.g. CLI params).
-    Bootstrap: ``n_boot`` resamples of the trials, ``level`` CI, ``seed``.
-    """
-    from evalkit import runner
-    from evalkit.metrics.truth import frame_truth_table
+    ``dataset``: the :class:`~evalkit.dataset.Dataset` evaluated; ``localizers``: records
+    from :func:`evalkit.reports.provenance.localizer_record` (or plain names);
+    ``settings``: scoring; ``command``: the command line (argv) or None for API use;
+    ``options``: evaluation options (isolate, frame_timeout_s, preprocess, verify);
+    ``make_plots``: write the PNGs; ``environment``: versions (default: collected now)."""
+
+    dataset: Any
+    localizers: list = field(default_factory=list)
+    settings: EvalSettings = field(default_factory=EvalSettings)
+    command: list[str] | None = None
+    options: dict = field(default_factory=dict)
+    make_plots: bool = True
+    environment: dict | None = None
+
+
+def _localizer_entry(item: Any) -> dict:
+    """A plain name, a ``(name, object)`` pair or a provenance record as a run.json entry."""
+    if isinstance(item, dict):
+        return item
+    if isinstance(item, str):
+        return {"name": item, "params": {}, "class": None, "code": []}
+    name, obj = item
+    cls = type(obj)
+    return {"name": str(name), "params": {}, "class": f"{cls.__module__}:{cls.__qualname__}", "code": []}
+
+
+def _write_tables(res: dict, out: Path, label: str) -> dict[str, Path]:
+    """CSV and Markdown/LaTeX tables of ``res`` (from :func:`compute_all`) into ``out``."""
+    paths = {"summary": out / "summary.csv", "metrics": out / "metrics.csv", "bins": out / "bins.csv",
+             "fp": out / "false_positives.csv", "recall": out / "recall.csv", "runtime": out / "runtime.csv"}
+    for key, df in (("summary", res["trials"]), ("metrics", res["metrics"]), ("bins", res["bins"]),
+                    ("fp", res["fp"]), ("recall", res["recall"]), ("runtime", res["runtime"])):
+        tables.write_csv(df, paths[key])
+    tdir = out / "tables"
+    tdir.mkdir(exist_ok=True)
+    caption = (f"Successful localization rate (P_succ, error within the success thresholds), "
+               f"answer rate (P_detect) and average relative distance error (E_rel) per trajectory "
+               f"and condition, {label}; 95% bootstrap CI over the M trials in brackets.")
+    paths["article_md"] = _write(tdir / "article.md", tables.article_markdown(res["metrics"]))
+    paths["article_tex"] = _write(tdir / "article.tex", tables.article_latex(
+        res["metrics"], caption=caption, label="tab:dockbench-article"))
+    paths["metrics_md"] = _write(tdir / "metrics.md", tables.to_markdown(res["metrics"]))
+    paths["metrics_tex"] = _write(tdir / "metrics.tex", tables.to_latex(res["metrics"]))
+    return paths
+
+
+def _write_plots(res: dict, out: Path, settings: EvalSettings, label: str) -> dict[str, Path]:
+    """The two PNGs of a run."""
+    from evalkit.reports import plots
+    pdir = out / "plots"
+    return {"plot_error": plots.plot_error_vs_distance(
+                res["frames"], pdir / "error_vs_distance.png", trials=res["trials"],
+                d_max=settings.d_max_m, title=f"error vs distance, one representative trial ({label})"),
+            "plot_success": plots.plot_success_vs_distance(
+                res["bins"], pdir / "success_vs_distance.png", threshold=settings.usable_threshold,
+                title=f"P_succ per {settings.bin_m:g} m bin ({label})")}
+
+
+def save_run(estimates_df: pd.DataFrame, out_dir: str | Path, record: RunRecord) -> tuple[dict[str, Path], dict]:
+    """Compute every metric of ``estimates_df`` (from :func:`evalkit.runner.evaluate`) and
+    write the run directory ``out_dir`` (see the module docstring; the caller provides an
+    empty folder, normally from :func:`~evalkit.reports.outdir.results_dir`).
+
+    Returns ``(paths, tables)``: the written files and :func:`compute_all`'s tables."""
+    from evalkit.metrics.recall import DockModel
+    from evalkit.reports import provenance
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    d_max = float(estimates_df.attrs.get("d_max_m", metrics.D_MAX_M))
-    d_min_rel = float(estimates_df.attrs.get("d_min_rel_m", dataset.d_min_rel_m))
-    if truth is None:
-        seqs = sorted(set(estimates_df["sequence"].astype(str))) if len(estimates_df) else []
-        truth = frame_truth_table(dataset, seqs)
-    res = metrics_extra.compute_all(estimates_df, truth, d_max=d_max, d_min_rel=d_min_rel,
-                                    bin_m=bin_m, usable_threshold=usable_threshold,
-                                    n_boot=n_boot, level=level, seed=seed)
-    paths = dict(runner.write_results(estimates_df, out, d_max=d_max, d_min_rel=d_min_rel))
-    for key, name in (("metrics", "metrics.csv"), ("bins", "bins.csv"), ("fp", "false_positives.csv"),
-                      ("runtime", "runtime.csv")):
-        paths[key] = tables.write_csv(res[key], out / name)
-    tdir = out / "tables"
-    tdir.mkdir(exist_ok=True)
-    ds_label = f"{dataset.manifest.get('name')} {dataset.manifest.get('version')}"
-    caption = (f"Average positioning error (E_rel) and successful docking location rate (P_succ) "
-               f"per condition, {ds_label}; 95% bootstrap CI over trials in brackets.")
-    paths["article_md"] = _write(tdir / "article.md", tables.article_markdown(res["metrics"]))
-    paths["article_tex"] = _write(tdir / "article.tex",
-                                  tables.article_latex(res["metrics"], caption=caption,
-                                                       label="tab:dockbench-article"))
-    paths["metrics_md"] = _write(tdir / "metrics.md", tables.to_markdown(res["metrics"]))
-    paths["metrics_tex"] = _write(tdir / "metrics.tex", tables.to_latex(res["metrics"]))
-    if make_plots:
-        from evalkit.reports import plots
-        pdir = out / "plots"
-        paths["plot_error"] = plots.plot_error_vs_distance(
-            estimates_df, pdir / "error_vs_distance.png", d_max=d_max, d_min_rel=d_min_rel,
-            title=f"error vs distance, one trial per condition ({ds_label})")
-        paths["plot_success"] = plots.plot_success_vs_distance(
-            res["bins"], pdir / "success_vs_distance.png", threshold=usable_threshold,
-            title=f"P_succ per {bin_m:g} m bin ({ds_label})")
+    ds, settings = record.dataset, record.settings
+    cam = ds.camera
+    model = DockModel.from_markers(ds.markers, cam["K"], cam["width"])
+    res = metrics_extra.compute_all(estimates_df, settings, model)
+    label = f"{ds.manifest.get('name')} {ds.manifest.get('version')}"
+    paths = {"estimates": _write_estimates(res["frames"], out / "estimates.parquet")}
+    paths.update(_write_tables(res, out, label))
+    if record.make_plots:
+        paths.update(_write_plots(res, out, settings, label))
     run = {
         "format": RUN_FORMAT, "format_version": RUN_FORMAT_VERSION,
-        "dataset": dataset_info(dataset),
-        "localizers": [localizer_info(s) for s in localizer_specs],
+        "command": record.command, "dataset": dataset_info(ds),
+        "localizers": [_localizer_entry(s) for s in record.localizers],
+        "options": record.options, "settings": settings.as_dict(),
+        "dock_model": None if model is None else {
+            "n_vertices": int(len(model.points)), "diameter_m": model.diameter_m,
+            "mssd_thresholds_m": model.mssd_thresholds().tolist(),
+            "mspd_thresholds_px": model.mspd_thresholds().tolist()},
         "dockbench_version": dockbench_version(),
+        "environment": record.environment or provenance.environment(),
         "timestamp": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-        "settings": {"d_max_m": d_max, "d_min_rel_m": d_min_rel, "bin_m": bin_m,
-                     "usable_threshold": usable_threshold,
-                     "bootstrap": {"n_boot": n_boot, "level": level, "seed": seed}},
         "n_frames": int(len(estimates_df)),
         "metrics": _records(res["metrics"]),
-        "runtime": _records(res["runtime"]),
         "files": {k: p.relative_to(out).as_posix() for k, p in paths.items()},
-        "extra": _json_safe(extra or {}),
     }
-    paths["run"] = _write(out / RUN_JSON, json.dumps(run, indent=1) + "\n")
-    return paths
+    paths["run"] = _write(out / RUN_JSON, json.dumps(_json_safe(run), indent=1) + "\n")
+    return paths, res
 
 
 def _write(path: Path, text: str) -> Path:
     path.write_text(text, encoding="utf-8")
     return path
+
+
+def _write_estimates(df: pd.DataFrame, path: Path) -> Path:
+    """Write ``path`` (parquet); if no parquet engine imports, write CSV beside it and warn.
+
+    Returns the path actually written, so a long run never loses its results
+    to a broken optional dependency.
+    """
+    try:
+        df.to_parquet(path, index=False)
+        return path
+    except ImportError as exc:
+        csv_path = path.with_suffix(".csv")
+        print(f"warning: cannot write {path.name} ({_parquet_problem(exc)}); "
+              f"wrote {csv_path.name} instead", file=sys.stderr)
+        df.to_csv(csv_path, index=False, lineterminator="\n")
+        return csv_path
+
+
+def _parquet_problem(exc: ImportError) -> str:
+    """Short reason why parquet is unavailable (pyarrow's own import error if any)."""
+    try:
+        import pyarrow  # noqa: F401
+    except ImportError as pa_exc:
+        return f"pyarrow: {pa_exc}"
+    return str(exc).strip().splitlines()[0]
 
 
 @dataclass
@@ -179,7 +233,7 @@ class Run:
     path: Path
     run: dict
     metrics: pd.DataFrame
-    conditions: pd.DataFrame | None = None
+    runtime: pd.DataFrame | None = None
     summary: pd.DataFrame | None = None
     bins: pd.DataFrame | None = None
     _estimates: pd.DataFrame | None = field(default=None, repr=False)
@@ -206,22 +260,68 @@ class Run:
         return self._estimates
 
 
-def evaluate_dataset(dataset_dir: str | Path, localizers: Iterable[str], out_dir: str | Path,
-                     params: Iterable[str] = (), isolate: bool = False, frame_timeout_s: float | None = None,
-                     preprocess: str | None = None, progress: bool = True) -> tuple[Any, dict[str, Path]]:
-    """Open a dataset, build the localizers (``-l`` specs with ``-p`` params), run them
-    and save the run record; returns ``(dataset, paths)``. What ``dockbench evaluate``
-    and ``dockbench reproduce`` both do."""
-    from evalkit import registry, runner
+@dataclass
+class EvalRequest:
+    """One ``dockbench evaluate``: what to run on what, and where the results go.
+
+    ``localizers``: ``-l`` specs; ``params``: ``-p`` items (``key=value``); ``isolate`` /
+    ``frame_timeout_s`` / ``preprocess``: see :func:`evalkit.assemble.build`;
+    ``verify``: check every file read against the manifest; ``overwrite``: replace a
+    non-empty ``out_dir``; ``command``: argv recorded in run.json."""
+
+    dataset_dir: Path
+    localizers: list[str]
+    out_dir: Path
+    params: list[str] = field(default_factory=list)
+    isolate: bool | None = None     # None: plugins isolated, built-ins in process
+    frame_timeout_s: float | None = None
+    preprocess: str | None = None
+    verify: bool = True
+    overwrite: bool = False
+    progress: bool = True
+    settings: EvalSettings = field(default_factory=EvalSettings)
+    command: list[str] | None = None
+
+
+def evaluate_dataset(req: EvalRequest) -> tuple[Any, dict[str, Path], dict]:
+    """Lock the results folder, open (and verify) the dataset, build the localizers, run
+    them and save the run record atomically; returns ``(dataset, paths, tables)``. What
+    ``dockbench evaluate`` and ``dockbench reproduce`` both do."""
+    from dataclasses import replace
+
+    from evalkit import assemble, registry, runner
     from evalkit.dataset import Dataset
-    ds = Dataset.open(dataset_dir)
-    names, params = list(localizers), list(params)
-    kw = registry.parse_params(params)
-    specs = [(n, registry.build(n, registry.params_for(n, kw, names), isolate=isolate,
-                                timeout_s=frame_timeout_s, preprocess=preprocess)) for n in names]
-    df = runner.evaluate(ds, specs, frame_timeout_s=frame_timeout_s, progress=progress)
-    extra = {"localizers": names, "params": params, "frame_timeout_s": frame_timeout_s}
-    return ds, save_run(df, out_dir, ds, specs, extra=extra)
+    from evalkit.reports.outdir import results_dir
+    from evalkit.reports.provenance import localizer_record
+
+    out = Path(req.out_dir)
+    ds = Dataset.open(req.dataset_dir, verify=req.verify)   # dataset errors before anything is written
+    for seq in ds.sequences:   # ground truth checked before any localizer runs (images: as read)
+        ds.check_file(ds.frames_path(seq["id"]))
+    with results_dir(out, req.overwrite) as tmp:
+        names = list(req.localizers)
+        kw = registry.parse_params(list(req.params))
+        given = {n: registry.params_for(n, kw, names) for n in names}
+        specs = [(n, assemble.build(n, given[n], isolate=req.isolate, timeout_s=req.frame_timeout_s,
+                                    preprocess=req.preprocess)) for n in names]
+        records = [localizer_record(n, given[n], obj) for n, obj in specs]
+        df = runner.evaluate(ds, specs, frame_timeout_s=req.frame_timeout_s, progress=req.progress)
+        settings = replace(req.settings, d_min_rel_m=ds.d_min_rel_m)
+        options = {"params": list(req.params), "isolate": req.isolate, "frame_timeout_s": req.frame_timeout_s,
+                   "preprocess": req.preprocess, "verify": req.verify, "overwrite": req.overwrite}
+        record = RunRecord(ds, records, settings, req.command, options)
+        paths, res = save_run(df, tmp, record)
+    return ds, {k: out / p.relative_to(tmp) for k, p in paths.items()}, res
+
+
+def json_summary(run_json: Path) -> str:
+    """The machine-readable summary ``evaluate --json`` prints: results folder, dataset,
+    settings and the per-group metrics from run.json (no timings, no timestamp)."""
+    run = json.loads(Path(run_json).read_text(encoding="utf-8"))
+    keep = {"results": str(Path(run_json).parent), "dataset": run["dataset"], "settings": run["settings"],
+            "localizers": [{"name": loc["name"], "params": loc.get("params")} for loc in run["localizers"]],
+            "metrics": run["metrics"]}
+    return json.dumps(keep, indent=1, sort_keys=True)
 
 
 def _read_csv(path: Path) -> pd.DataFrame | None:
@@ -241,12 +341,16 @@ def load_run(path: str | Path) -> Run:
         raise ResultsError(f"{rj}: invalid JSON: {exc}") from None
     if not isinstance(run, dict) or run.get("format") != RUN_FORMAT:
         raise ResultsError(f"{rj}: \"format\" is not {RUN_FORMAT!r}")
+    if str(run.get("format_version")) != RUN_FORMAT_VERSION:
+        raise ResultsError(f"{rj}: results format {run.get('format_version')!r}, this dockbench reads "
+                           f"{RUN_FORMAT_VERSION!r} (format 1 counted any answer as a success); "
+                           "re-run dockbench evaluate")
     m = _read_csv(root / "metrics.csv")
     if m is None:
         m = pd.DataFrame(run.get("metrics") or [], columns=metrics_extra.METRIC_COLUMNS)
-    for col in ("localizer", "condition"):
-        m[col] = m[col].astype(str)
-    return Run(root, run, m, _read_csv(root / "conditions.csv"), _read_csv(root / "summary.csv"),
+    for col in metrics.GROUP:
+        m[col] = m[col].fillna("").astype(str) if col in m.columns else ""
+    return Run(root, run, m, _read_csv(root / "runtime.csv"), _read_csv(root / "summary.csv"),
                _read_csv(root / "bins.csv"))
 
 
@@ -257,8 +361,9 @@ def _describe(run: Run) -> str:
 
 
 def compare_runs(runs: Iterable[Run | str | Path]) -> pd.DataFrame:
-    """Per-condition metrics of several runs side by side (columns ``run, dataset, version,
-    content_hash, label`` + :data:`~evalkit.metrics.extra.METRIC_COLUMNS`).
+    """Per-group metrics of several runs side by side (columns ``run, dataset, version,
+    content_hash, label`` + :data:`~evalkit.metrics.extra.METRIC_COLUMNS` + ``ms_median, ms_p95``
+    from runtime.csv).
 
     ``label`` is the localizer name, with ``" [run]"`` appended when several runs
     contain the same name. Raises :class:`ResultsError` if the runs were not all
@@ -278,10 +383,16 @@ def compare_runs(runs: Iterable[Run | str | Path]) -> pd.DataFrame:
                            + "\n  ".join(_describe(r) for r in loaded))
     labels = [r.label for r in loaded]
     if len(set(labels)) < len(labels):
+        labels = [f"{r.path.parent.name}/{r.path.name}" for r in loaded]
+    if len(set(labels)) < len(labels):
         labels = [str(r.path) for r in loaded]
     frames = []
     for r, run_label in zip(loaded, labels):
         m = r.metrics.copy()
+        rt = r.runtime
+        if rt is not None and set(metrics.GROUP) <= set(rt.columns):
+            rt = rt.assign(**{c: rt[c].fillna("").astype(str) for c in metrics.GROUP})
+            m = m.merge(rt[metrics.GROUP + ["ms_median", "ms_p95"]], on=metrics.GROUP, how="left")
         m.insert(0, "run", run_label)
         m.insert(1, "dataset", r.dataset.get("name"))
         m.insert(2, "version", r.dataset.get("version"))

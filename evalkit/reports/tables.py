@@ -1,8 +1,10 @@
-"""Result tables: CSV, Markdown, terminal and LaTeX output.
+"""Result tables: CSV, Markdown, terminal and LaTeX output of the metrics of
+:func:`evalkit.metrics.extra.compute_all` (column names live there and in
+:mod:`evalkit.metrics.core`, not here).
 
-No optional dependencies: ``tabulate`` and ``jinja2`` (needed by pandas'
-``to_markdown`` / ``to_latex``) are not installed, so the formatters are
-written here.
+LaTeX goes through pandas' ``Styler.to_latex`` (jinja2); ``tabulate`` (needed by
+pandas' ``to_markdown``) is not a dependency, so the small Markdown/text formatters
+are written here.
 """
 from __future__ import annotations
 
@@ -12,23 +14,7 @@ from typing import Sequence
 
 import pandas as pd
 
-from evalkit.metrics import core as metrics
-
-SUMMARY_COLUMNS = ["localizer", "sequence", "condition", "n_total", "n_succ", "P_succ",
-                   "e_abs_mean", "e_rel_mean"]
-CONDITION_COLUMNS = ["localizer", "condition", "n_trials", "P_succ_mean", "E_rel_mean"]
-
-
-def summary_table(estimates: pd.DataFrame, d_max: float = metrics.D_MAX_M,
-                  d_min_rel: float = metrics.D_MIN_REL_M) -> pd.DataFrame:
-    """Per-trial table with exactly :data:`SUMMARY_COLUMNS` (see :func:`metrics.per_trial`)."""
-    return metrics.per_trial(estimates, d_max, d_min_rel)[SUMMARY_COLUMNS]
-
-
-def condition_table(summary: pd.DataFrame) -> pd.DataFrame:
-    """Per-condition table with exactly :data:`CONDITION_COLUMNS` (see :func:`metrics.per_condition`)."""
-    return metrics.per_condition(summary)[CONDITION_COLUMNS]
-
+from evalkit.metrics.extra import MIN_TRIALS_FOR_CI
 
 def write_csv(df: pd.DataFrame, path: str | Path) -> Path:
     """Write ``df`` as CSV without the index; floats at full precision, NaN as empty."""
@@ -113,73 +99,90 @@ _LATEX_SPECIAL = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$",
 
 
 def latex_escape(text: str) -> str:
-    """Escape LaTeX special characters."""
+    """Escape LaTeX special characters (for captions; cells go through pandas' own escaping)."""
     return "".join(_LATEX_SPECIAL.get(ch, ch) for ch in text)
 
 
 def to_latex(df: pd.DataFrame, floatfmt: str = ".4g", caption: str | None = None,
-             label: str | None = None) -> str:
-    """A ``booktabs`` tabular (wrapped in a table float if ``caption``/``label`` is given)."""
-    header, body = _cells(df, floatfmt)
-    spec = "".join("r" if r else "l" for r in _numeric_columns(df))
-    rows = [" & ".join(latex_escape(c) for c in header) + r" \\", r"\midrule"]
-    rows += [" & ".join(latex_escape(c) for c in r) + r" \\" for r in body]
-    tabular = "\n".join([rf"\begin{{tabular}}{{{spec}}}", r"\toprule", *rows, r"\bottomrule",
-                         r"\end{tabular}"])
-    if caption is None and label is None:
-        return tabular + "\n"
-    parts = [r"\begin{table}[t]", r"\centering"]
-    if caption:
-        parts.append(rf"\caption{{{latex_escape(caption)}}}")
-    if label:
-        parts.append(rf"\label{{{label}}}")
-    return "\n".join(parts + [tabular, r"\end{table}"]) + "\n"
+             label: str | None = None, column_format: str | None = None) -> str:
+    """A ``booktabs`` tabular by pandas' ``Styler.to_latex`` (cells and headers LaTeX-escaped;
+    numbers right-aligned unless ``column_format``), in a ``table`` float when
+    ``caption``/``label`` is given."""
+    spec = column_format or "".join("r" if r else "l" for r in _numeric_columns(df))
+    text = df.astype(object).map(lambda v: format_cell(v, floatfmt))
+    styler = text.style.hide(axis="index").format(escape="latex").format_index(escape="latex", axis=1)
+    kw = {"hrules": True, "column_format": spec}
+    if caption is not None or label is not None:
+        kw.update(position="t", position_float="centering", label=label,
+                  caption=latex_escape(caption) if caption else None)
+    return styler.to_latex(**kw)
 
 
 # -- the article's table shape --------------------------------------------------
-ARTICLE_ERROR = "average positioning error (%)"
-ARTICLE_SUCCESS = "successful docking location rate (%)"
+ARTICLE_SUCCESS = "P_succ (%)"
+ARTICLE_DETECT = "P_detect (%)"
+ARTICLE_ERROR = "E_rel (%)"
+FEW_TRIALS_NOTE = (f"* M < {MIN_TRIALS_FOR_CI} trials: the bootstrap CI is unreliable "
+                   "(M = 1: no CI at all); generate more trials (config `trials:`).")
 
 
-def _pct(value, lo=None, hi=None, digits: int = 2) -> str:
-    """``12.34`` or ``12.34 [11.0, 13.9]`` (fractions shown in percent); ``-`` for NaN."""
+def _pct(value, lo=None, hi=None, digits: int = 1) -> str:
+    """``12.3`` or ``12.3 [11.0, 13.9]`` (fractions shown in percent); ``-`` for NaN.
+
+    Value and bounds are rounded to the same number of digits: rounding is monotonic, so
+    a mean inside its CI is printed inside it (the old table printed the bounds with one
+    digit less, which could put the mean outside)."""
     if value is None or pd.isna(value):
         return "-"
     text = f"{100 * float(value):.{digits}f}"
     if lo is not None and hi is not None and not (pd.isna(lo) or pd.isna(hi)):
-        text += f" [{100 * float(lo):.{max(digits - 1, 0)}f}, {100 * float(hi):.{max(digits - 1, 0)}f}]"
+        text += f" [{100 * float(lo):.{digits}f}, {100 * float(hi):.{digits}f}]"
     return text
 
 
-def article_table(conditions: pd.DataFrame, with_ci: bool = True, digits: int = 2) -> pd.DataFrame:
-    """The article's table: one row per (localizer, condition) with
-    :data:`ARTICLE_ERROR` (``E_rel_mean``) and :data:`ARTICLE_SUCCESS` (``P_succ_mean``),
-    both in percent, text cells. With ``with_ci`` and the ``*_lo``/``*_hi`` columns of
-    :func:`evalkit.metrics.extra.compute_all`, the 95 % bootstrap CI follows in brackets.
-    Accepts :func:`condition_table` output as well (no CIs then).
-    """
-    def ci(row, prefix):
-        if not with_ci:
-            return None, None
-        return row.get(f"{prefix}_lo"), row.get(f"{prefix}_hi")
-
+def article_table(metrics: pd.DataFrame, with_ci: bool = True, digits: int = 1) -> pd.DataFrame:
+    """One row per (trajectory, condition, localizer): ``M`` (trials, ``*`` below
+    :data:`MIN_TRIALS_FOR_CI`), :data:`ARTICLE_SUCCESS`, :data:`ARTICLE_DETECT`,
+    :data:`ARTICLE_ERROR` in percent with the bootstrap CI in brackets (text cells).
+    ``metrics`` is :func:`evalkit.metrics.extra.compute_all`'s ``metrics`` table."""
     rows = []
-    for _, r in conditions.iterrows():
-        rows.append({"localizer": r["localizer"], "condition": r["condition"],
-                     ARTICLE_ERROR: _pct(r["E_rel_mean"], *ci(r, "E_rel"), digits=digits),
-                     ARTICLE_SUCCESS: _pct(r["P_succ_mean"], *ci(r, "P_succ"), digits=digits)})
-    return pd.DataFrame(rows, columns=["localizer", "condition", ARTICLE_ERROR, ARTICLE_SUCCESS])
+    order = metrics.sort_values(["trajectory", "condition", "localizer"], kind="stable")
+    for _, r in order.iterrows():
+        def cell(mean_col, prefix):
+            lo, hi = (r.get(f"{prefix}_lo"), r.get(f"{prefix}_hi")) if with_ci else (None, None)
+            return _pct(r.get(mean_col), lo, hi, digits)
+        m = int(r["n_trials"])
+        rows.append({"trajectory": r["trajectory"], "condition": r["condition"], "localizer": r["localizer"],
+                     "M": f"{m}*" if m < MIN_TRIALS_FOR_CI else str(m),
+                     ARTICLE_SUCCESS: cell("P_succ_mean", "P_succ"),
+                     ARTICLE_DETECT: cell("P_detect_mean", "P_detect"),
+                     ARTICLE_ERROR: cell("E_rel_mean", "E_rel")})
+    return pd.DataFrame(rows, columns=["trajectory", "condition", "localizer", "M", ARTICLE_SUCCESS,
+                                       ARTICLE_DETECT, ARTICLE_ERROR])
 
 
-def article_markdown(conditions: pd.DataFrame, with_ci: bool = True) -> str:
-    """:func:`article_table` as Markdown."""
-    return to_markdown(article_table(conditions, with_ci))
+def _few(metrics: pd.DataFrame) -> bool:
+    return bool(len(metrics)) and bool((metrics["n_trials"] < MIN_TRIALS_FOR_CI).any())
 
 
-def article_latex(conditions: pd.DataFrame, with_ci: bool = True, caption: str | None = None,
+def article_markdown(metrics: pd.DataFrame, with_ci: bool = True) -> str:
+    """:func:`article_table` as Markdown, one table per trajectory (never pooled)."""
+    art = article_table(metrics, with_ci)
+    parts = []
+    for traj, g in art.groupby("trajectory", sort=True):
+        parts.append(f"### trajectory {traj or '(unnamed)'}\n\n" + to_markdown(g.drop(columns="trajectory")))
+    if _few(metrics):
+        parts.append(FEW_TRIALS_NOTE + "\n")
+    return "\n".join(parts)
+
+
+def article_latex(metrics: pd.DataFrame, with_ci: bool = True, caption: str | None = None,
                   label: str | None = None) -> str:
-    """:func:`article_table` as a LaTeX ``booktabs`` tabular (``%`` escaped)."""
-    df = article_table(conditions, with_ci)
-    # text cells are left-aligned by to_latex; numbers are right-aligned in the article
-    out = to_latex(df, caption=caption, label=label)
-    return out.replace(r"\begin{tabular}{llll}", r"\begin{tabular}{llrr}", 1)
+    """:func:`article_table` as a LaTeX ``booktabs`` tabular (``%`` escaped); a footnote
+    row when some group has fewer than :data:`MIN_TRIALS_FOR_CI` trials."""
+    df = article_table(metrics, with_ci)
+    out = to_latex(df, caption=caption, label=label, column_format="lllrrrr")
+    if _few(metrics):
+        note = latex_escape(FEW_TRIALS_NOTE)
+        out = out.replace(r"\bottomrule", r"\bottomrule" + "\n" + rf"\multicolumn{{7}}{{l}}{{\footnotesize {note}}} \\", 1)
+    return out
