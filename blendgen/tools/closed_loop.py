@@ -382,9 +382,10 @@ def _with_camera_xy(frames, T_world_dock: np.ndarray, cam_forward_m: float):
 
 
 def plot_paths(trials, frames, capture: CaptureSpec, T_world_dock: np.ndarray, path: Path,
-               cam_forward_m: float = 0.65) -> Path:
+               cam_forward_m: float = 0.65, pool_xy_m: tuple[float, float] | None = None) -> Path:
     """Top-down paths of the camera (= nose; world x, y) per condition, one colour per localizer;
-    the dock face and its capture mouth drawn; last points: o docked, x any failure."""
+    the dock face and its capture mouth drawn, and the pool walls (length, width centred on the
+    origin) when given; last points: o docked, x any failure."""
     from evalkit.reports.plots import _pyplot
     plt = _pyplot()
     frames = _with_camera_xy(frames, T_world_dock, cam_forward_m)
@@ -407,6 +408,9 @@ def plot_paths(trials, frames, capture: CaptureSpec, T_world_dock: np.ndarray, p
         ax.plot(face[:, 0], face[:, 1], color="k", lw=3)
         mouth = np.array([o - xd * capture.capture_radius_m, o + xd * capture.capture_radius_m])
         ax.plot(mouth[:, 0], mouth[:, 1], color="limegreen", lw=3)
+        if pool_xy_m is not None:
+            lx, ly = pool_xy_m[0] / 2, pool_xy_m[1] / 2
+            ax.plot([-lx, lx, lx, -lx, -lx], [-ly, -ly, ly, ly, -ly], color="0.5", lw=1, ls="--")
         ax.set_title(cond)
         ax.set_xlabel("world x (m)")
         ax.set_ylabel("world y (m)")
@@ -416,7 +420,8 @@ def plot_paths(trials, frames, capture: CaptureSpec, T_world_dock: np.ndarray, p
     for ax in axes.ravel()[len(conds):]:
         ax.set_visible(False)
     fig.suptitle("closed-loop docking, camera/nose paths (top view): o docked, x failed\n"
-                 "black: dock face + hull radius (collision), green: capture radius", fontsize=10)
+                 "black: dock face + hull radius (collision), green: capture radius, dashed: pool walls "
+                 "(not obstacles to the dynamics)", fontsize=10)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
@@ -483,8 +488,9 @@ def run_dock(exp: Experiment, specs: list[LocalizerSpec], trials: int, out: Path
     summary = summary_table(tr, fr, exp.d_min_rel_m)
     summary.to_csv(out / "summary.csv", index=False)
     paths["summary"] = out / "summary.csv"
+    pool = exp.scene.pool if exp.scene.kind == "pool" else None
     paths["plot"] = plot_paths(tr, fr, bench.capture, bench.T_world_dock, out / "paths.png",
-                               float(bench.T_body_cam[0, 3]))
+                               float(bench.T_body_cam[0, 3]), None if pool is None else (pool.length_m, pool.width_m))
     paths["report"] = out / "summary.md"
     report(summary, out, exp, bench.capture)
     (out / "run.json").write_text(json.dumps({"config": exp.model_dump(mode="json"), "trials": trials,
