@@ -209,7 +209,8 @@ def docking_paths_cmd(currents: tuple[float, ...], seed: int, out: Path):
     from blendgen.tools.dynamics_report import docking_paths, plot_docking_paths
     runs = docking_paths(currents or (0.0, 0.5, 1.0), seed=seed)
     for r in runs:
-        click.echo(f"current {r['current_mps']:.2f} m/s: {r['stop_reason']} after {r['t'][-1]:.1f} s, "
+        click.echo(f"current {r['current_mps']:.2f} m/s: {r['stop_reason']} (stop range) after {r['t'][-1]:.1f} s, "
+                   f"by geometry: {r['verdict']}, "
                    f"heading std {np.std(r['heading_error_deg']):.2f} deg, "
                    f"final lateral {r['p_dock'][-1, 0]:+.2f} m, {r['ms_per_sim_s']:.2f} ms CPU per simulated s")
     click.echo(f"plot: {plot_docking_paths(runs, out)}")
@@ -396,6 +397,11 @@ def _register() -> None:
     from evalkit.reports.leaderboard import leaderboard_cmd
     main.add_command(leaderboard_cmd)
     main.add_command(export_bop_cmd)
+    from blendgen.tools.closed_loop import bench_cmd as closed_loop_bench_cmd, dock_cmd
+    dock_cmd.callback = _user_errors(dock_cmd.callback)
+    main.add_command(dock_cmd)
+    closed_loop_bench_cmd.callback = _user_errors(closed_loop_bench_cmd.callback)
+    bench.add_command(closed_loop_bench_cmd, "closed-loop")
 
 
 _register()

@@ -1,0 +1,105 @@
+"""Warm render server: ``python -m blendgen.blender.serve LOG_FILE``.
+
+One Blender process builds the scene once and then renders one camera frame per request,
+for closed-loop runs where the next pose depends on the last image. It speaks JSON lines:
+requests on stdin, one reply line per request on the original stdout (Blender's own chatter
+goes to ``LOG_FILE``):
+
+- ``{"cmd": "init", "scene": ..., "camera": ..., "render": ...}`` (the same scene, camera and
+  render records a dataset job file holds, :mod:`blendgen.pipeline.plan`) ->
+  ``{"ok": true, "scene_build_s": s}``;
+- ``{"cmd": "render", "T_world_cam": 4x4, "roi": [x0, y0, x1, y1] | null, "out": path}`` ->
+  the clean passes written to ``path`` as an uncompressed ``.npz`` (``rgb`` (H,W,3) float32
+  linear, ``depth_z`` (H,W) float32 planar depth m, ``index`` (H,W) uint8), reply
+  ``{"ok": true, "ms": render + read time}``;
+- ``{"cmd": "quit"}`` or end of input -> exit 0.
+
+A failing request replies ``{"ok": false, "error": "..."}`` and the server keeps serving.
+The frame is rendered exactly as the dataset worker renders it (``render.render_roi_frame``);
+the image-space stages (water, particles, sensor) run in the client with
+:mod:`blendgen.pipeline.compose`.
+"""
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+import traceback
+
+import numpy as np
+
+
+class _Server:
+    def __init__(self):
+        self.sc = self.cam = self.cfg = None
+        self.exr = None
+
+    def init(self, req: dict) -> dict:
+        from blendgen.blender import render, scene as scn
+        t0 = time.perf_counter()
+        self.sc = scn.build(req["scene"])
+        self.cam = render.setup_camera(self.sc, req["camera"])
+        render.setup_cycles(self.sc, req["render"])
+        self.cfg = req["render"]
+        self.size = (int(req["camera"]["width"]), int(req["camera"]["height"]))
+        self.exr = os.path.join(render.scratch_dir(), f"dockbench-serve-{os.getpid()}.exr")
+        return {"ok": True, "scene_build_s": time.perf_counter() - t0}
+
+    def render(self, req: dict) -> dict:
+        from blendgen.blender import render
+        if self.sc is None:
+            raise RuntimeError("render before init")
+        t0 = time.perf_counter()
+        frame = {"T_world_cam": req["T_world_cam"], "roi": req.get("roi")}
+        passes = render.render_roi_frame(self.sc, self.cam, frame, self.cfg, *self.size, self.exr)
+        with open(req["out"] + ".tmp", "wb") as fh:
+            np.savez(fh, rgb=passes["rgb"], depth_z=passes["depth_z"], index=passes["index"])
+        os.replace(req["out"] + ".tmp", req["out"])
+        return {"ok": True, "ms": 1e3 * (time.perf_counter() - t0)}
+
+    def close(self) -> None:
+        if self.exr and os.path.exists(self.exr):
+            os.remove(self.exr)
+
+
+def serve(requests, reply) -> int:
+    """Answer each JSON request line of ``requests`` with ``reply(dict)`` until quit/EOF."""
+    srv = _Server()
+    try:
+        for line in requests:
+            if not line.strip():
+                continue
+            try:
+                req = json.loads(line)
+                cmd = req.get("cmd")
+                if cmd == "quit":
+                    break
+                if cmd not in ("init", "render"):
+                    raise ValueError(f"unknown cmd {cmd!r}; expected init, render or quit")
+                reply(getattr(srv, cmd)(req))
+            except Exception as e:  # noqa: BLE001 - one bad request must not stop the server
+                traceback.print_exc(file=sys.stderr)
+                reply({"ok": False, "error": f"{type(e).__name__}: {e}"})
+    finally:
+        srv.close()
+    return 0
+
+
+def main(argv: list[str]) -> int:
+    proto = os.fdopen(os.dup(1), "w", buffering=1)
+    log = argv[1] if len(argv) > 1 else os.devnull
+    fd = os.open(log, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+    os.dup2(fd, 1)
+    os.dup2(fd, 2)
+    os.close(fd)
+
+    def reply(msg: dict) -> None:
+        proto.write(json.dumps(msg) + "\n")
+        proto.flush()
+
+    return serve(sys.stdin, reply)
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv))
