@@ -19,7 +19,8 @@ seed: 5
 scene: {template: pool_15x5x8}
 camera: {width: 160, height: 120, hfov_deg: 60, fps: 10}
 render: {fidelity: fast, samples: 1}
-water: {preset: clear, model: article, calibrated: false}
+image_formation: article
+water: {preset: clear}
 trajectories:
   - {kind: docking, id: dock, max_time_s: 1.5, start: {range_m: [3.0, 3.5], lateral_m: 0.2, vertical_m: 0.1,
      heading_error_deg: 3}}

@@ -163,6 +163,7 @@ class VisionCamera:
                  image_dir: Path | None = None):
         self.b, self.client, self.loc, self.executor, self.post = bench, client, localizer, executor, post
         self.state = compose.SequenceState.start(post)
+        self.ambient = plan.ambient_radiance(bench.exp)   # the same ambient term datasets get
         self.box = plan.dock_corners(bench.exp) if bench.exp.render.roi else None
         self.by_file = callable(getattr(localizer, "localize_file", None))
         self.image_dir = image_dir
@@ -175,11 +176,11 @@ class VisionCamera:
         T_cd = invert_T(T_wc) @ b.T_world_dock
         roi = None if self.box is None else groundtruth.dock_roi(T_cd, b.K, c.width, c.height, self.box)
         t0 = time.perf_counter()
-        passes = compose.add_range(self.client.render(T_wc, roi), b.K)
+        passes = compose.add_ambient(compose.add_range(self.client.render(T_wc, roi), b.K), self.ambient)
         t1 = time.perf_counter()
         gt = groundtruth.frame_truth(T_wc, b.T_world_dock, b.markers, b.K, c.width, c.height)
         seen, occluded = compose.add_particles(passes, self.state, b.K, T_wc)
-        img = compose.camera_image(seen, self.post, b.K, b.markers, self.state.rng, "fast", occluded)
+        img = compose.camera_image(seen, self.state, b.K, {"T_world_cam": T_wc}, b.markers, "fast", occluded)
         self.state.advance()
         times = {"render_ms": 1e3 * (t1 - t0), "compose_ms": 1e3 * (time.perf_counter() - t1)}
         return img, gt, times
