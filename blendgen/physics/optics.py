@@ -262,7 +262,16 @@ def light_field_veil(water: WaterOptics, mean_cosine_down: float = MEAN_COSINE_D
     with the mean radiance ``L_mean = E_0 / (4 pi)`` and the scalar irradiance
     ``E_0 = E_d / mu_d`` (mean cosine of downwelling light). It includes multiple
     scattering, which the 0-bounce reference medium leaves out (OPTICS.md: 1.5-7x
-    single scatter). Zero where the water is clear."""
+    single scatter). Zero where the water is clear.
+
+    Measured residual (2026-11-23, ``blendgen.blender.oracle_scenes``, physical ``mild``:
+    sigma_a (.176, .04, .08), sigma_s (.024, .16, .12), HG g .9; sun 3 W/m^2 overhead,
+    horizontal view at 2 m depth, black target at 40 m, 512 spp): the reference gives
+    (.0015, .0100, .0110) with 0 volume bounces and (.0018, .045, .041) with 64; this
+    estimate gives (.020, .216, .168), 4-5x the multiple-scattering reference in G and B
+    (11x in R): the isotropic-equivalent light field overstates the horizontal radiance
+    when scattering is forward-peaked. Fitting it per preset to multiple-scattering
+    references is open."""
     return water.albedo / (4.0 * math.pi * float(mean_cosine_down))
 
 
