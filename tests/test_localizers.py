@@ -353,3 +353,27 @@ def test_property_rendered_scenes_never_raise(d, yaw, pitch, roll, noise, seed):
     img = synth.render(K, _true_pose(d, yaw, pitch, roll), ALL, ss=1, noise_std=noise, seed=seed)
     for loc in _LOCS.values():
         _check(loc.localize(img))
+
+
+def test_led_array_not_confused_with_tinted_marker_plates():
+    """Blobs measured on a physical-mode frame 9.5 m from the dock: the QR and ArUco plates,
+    tinted cyan by the water's light, are brighter than the LEDs and, with two LEDs, fit a
+    pose 78 deg off the line of sight within 0.02 px. The best-fitting subset seen within
+    max_view_deg must win: the four LEDs (9.5 m), not the plates (1.9 m)."""
+    from evalkit.localizers.led import LedLocalizer
+    K = np.array([[554.2562584220408, 0.0, 319.5], [0.0, 554.2562584220408, 239.5], [0.0, 0.0, 1.0]])
+    marker = {"id": "led", "kind": "led_array", "reference_index": 0, "reference_indices": [0],
+              "keypoints": [[-0.3, 0.3, 0.0], [0.3, 0.3, 0.0], [0.3, -0.3, 0.0], [-0.3, -0.3, 0.0]],
+              "colors": [[1.0, 0.35, 0.0], [0.0, 0.85, 0.6], [0.0, 0.85, 0.6], [0.0, 0.85, 0.6]]}
+    loc = LedLocalizer()
+    loc.reset({"width": 640, "height": 480, "K": K, "dist": None, "markers": [marker]})
+    cents = np.array([[312.43, 239.53], [327.59, 239.57], [337.0, 256.83], [336.91, 222.09],
+                      [302.0, 222.0], [302.0, 257.0], [327.25, 239.49]])
+    masses = np.array([18199.0, 10536.0, 6708.0, 6612.0, 6482.0, 6434.0, 2215.0])
+    chroma = np.array([[-0.9799, -0.1996], [-0.9796, -0.2012], [-0.9992, -0.0404], [-0.9992, -0.0407],
+                       [0.1316, 0.9913], [-0.9990, -0.0436], [-0.9800, -0.1988]])
+    est = loc._best_pose(cents, masses, chroma)
+    assert est is not None and est["distance"] == pytest.approx(9.5, rel=0.01)
+    loose = LedLocalizer(max_view_deg=89.0)
+    loose.reset({"width": 640, "height": 480, "K": K, "dist": None, "markers": [marker]})
+    assert loose._best_pose(cents, masses, chroma)["distance"] < 2.5   # the lookalike fits better

@@ -27,9 +27,12 @@ checks it), so the colour pattern fixes the order. Pipeline (640x480: ~0.5 ms + 
 
 Particles and reflections (more than N blobs): an assignment search with a geometric
 consistency check. The N-subsets of the ``max_candidates`` brightest blobs (N + 3 by
-default) are tried in order of total brightness; a subset must be in convex position,
+default) are all tried; a subset must be in convex position,
 show the colour pattern at exactly one rotation, and its PnP pose must reproject all N
-LEDs within ``max_reproj_px`` (RMS): the first that passes wins. Chosen over RANSAC
+LEDs within ``max_reproj_px`` (RMS); the best fit wins. (The first passing subset by
+brightness lost to tinted QR/ArUco patches under water light: four points in convex
+position admit a strongly tilted pose within a fraction of a pixel, so the best fit, not
+the brightest, separates the array from lookalikes.) Chosen over RANSAC
 because N is small (C(7,4) = 35 subsets, most rejected by the cheap convexity and
 colour tests before any PnP) and the search is exhaustive within the candidates, where
 RANSAC's minimal samples would still need the same colour/order bookkeeping.
@@ -101,7 +104,7 @@ class LedLocalizer:
                  min_area_px: int = 1, max_area_frac: float = 0.05, min_circularity: float = 0.4,
                  ref_hue: float | None = None, max_candidates: int | None = None, max_blobs: int = 200,
                  max_reproj_px: float = 3.0, min_chroma: float = 12.0, max_hue_err_deg: float = 60.0,
-                 centroid: str = "core"):
+                 centroid: str = "core", max_view_deg: float = 70.0):
         """threshold: brightness (max channel, 0-255) that LED cores exceed; lowered to
         rel_threshold * image max (not below min_threshold) for dim images.
         min_area_px / max_area_frac: blob area limits (px / fraction of the image).
@@ -113,6 +116,10 @@ class LedLocalizer:
         coloured LED, so white/grey highlights (marker plates, walls) are not taken for
         LEDs. max_hue_err_deg: hue distance allowed between a blob and its expected LED
         colour. centroid: "core" or "weighted" (see the module docstring).
+        max_view_deg: largest angle (deg) between the array's normal and the line of sight
+        to it that a pose may have; flat LED discs seen beyond ~70 deg are foreshortened
+        below a third of their width, and lookalike blob sets (tinted marker plates plus two
+        LEDs) fit only at ~78 deg (measured on the physical-mode demo).
         Reason for > 8 params: every threshold of the blob pipeline is a documented knob."""
         if centroid not in ("weighted", "core"):
             raise ValueError(f"centroid must be weighted or core, got {centroid!r}")
@@ -130,6 +137,7 @@ class LedLocalizer:
         self.min_chroma = float(min_chroma)
         self.cos_hue = math.cos(math.radians(float(max_hue_err_deg)))
         self.centroid = centroid
+        self.cos_view = math.cos(math.radians(float(max_view_deg)))
         self._marker = None
 
     def reset(self, camera: dict) -> None:
@@ -241,16 +249,16 @@ class LedLocalizer:
         return (cu, cv_), s, np.array([ca, cb]) / norm
 
     def _best_pose(self, cents, masses, chroma):
-        """First N-subset (by total brightness) that passes the convexity, colour-pattern
-        and reprojection checks (the assignment search of the module docstring)."""
+        """The N-subset with the smallest reprojection error among those that pass the
+        convexity, colour-pattern and reprojection checks (the assignment search of the
+        module docstring). Exactly N candidates: the one subset, no search."""
         n = self._n
-        combos = itertools.combinations(range(len(cents)), n)
-        combos = sorted(combos, key=lambda c: -masses[list(c)].sum()) if len(cents) > n else list(combos)
-        for combo in combos:
+        best = None
+        for combo in itertools.combinations(range(len(cents)), n):
             est = self._solve(cents[list(combo)], chroma[list(combo)])
-            if est is not None:
-                return est
-        return None
+            if est is not None and (best is None or est["reproj_err_px"] < best["reproj_err_px"]):
+                best = est
+        return best
 
     def _solve(self, uv, chroma):
         """Pose from N blob centroids (N,2) and their chroma directions (N,2), or None."""
@@ -271,9 +279,15 @@ class LedLocalizer:
         img_pts = np.empty((self._n, 2))
         img_pts[self._kp_ccw] = uv[np.roll(ccw, -k)]
         pose = solve_planar(self._kp, img_pts, self._K, self._dist)
-        if pose is None or pose.reproj_err_px > self.max_reproj_px:
+        if pose is None or pose.reproj_err_px > self.max_reproj_px or not self._seen_frontally(pose.T_cam_target):
             return None
         return estimate_dict(pose.T_cam_target, self._marker["id"], pose)
+
+    def _seen_frontally(self, T_cam_target: np.ndarray) -> bool:
+        """The array's normal within ``max_view_deg`` of the line of sight to its centre."""
+        centre = T_cam_target[:3, :3] @ self._kp.mean(axis=0) + T_cam_target[:3, 3]
+        cos_view = float(-T_cam_target[:3, 2] @ centre) / max(float(np.linalg.norm(centre)), 1e-12)
+        return cos_view >= self.cos_view
 
 
 def _unit(h_deg: float) -> np.ndarray:
