@@ -34,6 +34,7 @@ from pathlib import Path
 import click
 import numpy as np
 
+from datasets_spec.io import load_index, load_range
 from evalkit.dataset import Dataset, DatasetError
 
 
@@ -210,8 +211,7 @@ def export_bop(dataset: Dataset | str | Path, out_dir: str | Path, split: str = 
                 cam_entry["cam_t_w2c"] = [float(v) * 1000.0 for v in T_cam_world[:3, 3]]
             scene_camera[key] = cam_entry
             if frame.get("depth"):
-                with np.load(ds.root / frame["depth"]) as z:
-                    rng = z["range_m"]
+                rng = load_range(ds.root / frame["depth"])
                 if norms is None:
                     norms = ray_norms(K, W, H, dist)
                 img, n = range_to_depth_png(rng, norms, depth_scale)
@@ -219,7 +219,7 @@ def export_bop(dataset: Dataset | str | Path, out_dir: str | Path, split: str = 
                 cv2.imwrite(str(sdir / "depth" / f"{im:06d}.png"), img)
             index = None
             if frame.get("object_index"):
-                index = cv2.imread(str(ds.root / frame["object_index"]), cv2.IMREAD_UNCHANGED)
+                index = load_index(ds.root / frame["object_index"])
             T_cam_dock = np.asarray(frame.get("T_cam_dock", np.eye(4)), dtype=float)
             fmarkers = frame.get("markers") or {}
             gts, gt_infos = [], []
