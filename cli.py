@@ -188,6 +188,10 @@ def _register() -> None:
     main.add_command(calibrate_water_cmd)
     main.add_command(preview_cmd)
     bench.add_command(fidelity_cmd, "fidelity")
+    from blendgen.tools import suitebench
+    suite_cmd = suitebench.make_command()
+    suite_cmd.callback = _user_errors(suite_cmd.callback)
+    bench.add_command(suite_cmd, "suite")
     from blendgen.tools.calibration import calibrate_cmd
     calibrate_cmd.callback = _user_errors(calibrate_cmd.callback)
     main.add_command(calibrate_cmd)

@@ -35,10 +35,11 @@ def experiment(name: str, trials: int | None):
     return exp
 
 
-def evaluate(dataset_dir: Path, out: Path, localizers=LOCALIZERS) -> dict:
-    """Run the localizers over the dataset and save the full run record."""
-    from evalkit.reports.results import evaluate_dataset
-    return evaluate_dataset(dataset_dir, localizers, out)[1]
+def evaluate(dataset_dir: Path, out: Path, localizers=LOCALIZERS, workers: int | None = None) -> dict:
+    """Run the localizers over the dataset (one process per core, split by sequence) and
+    save the full run record."""
+    from evalkit.parallel import evaluate_dataset
+    return evaluate_dataset(dataset_dir, localizers, out, workers=workers)[1]
 
 
 def report(name: str, paths: dict) -> str:
