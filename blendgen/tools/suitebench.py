@@ -141,13 +141,18 @@ class SuiteRun:
     disk: dict = field(default_factory=dict)
 
 
-def configure(names: tuple[str, ...], trials: int, size: tuple[int, int] | None, particles: int | None):
-    """The paper experiments with ``trials``, optionally another resolution and, for the
-    occlusion experiment, a single condition with ``particles`` small obstacles."""
+def configure(names: tuple[str, ...], trials: int, size: tuple[int, int] | None, particles: int | None,
+              max_distance_m: float | None = None):
+    """The paper experiments with ``trials``, optionally another resolution, for the
+    occlusion experiment a single condition with ``particles`` small obstacles, and only
+    the frames within ``max_distance_m`` of the dock (``render.max_distance_m``)."""
     from blendgen.tools.reproduce import experiment
     exps = []
     for n in names:
         e = experiment(n, trials)
+        if max_distance_m is not None:
+            e.render.max_distance_m = max_distance_m
+            e.name += f"-within{max_distance_m:g}m"
         if size is not None:
             e.camera.width, e.camera.height = size
             e.name += f"-{size[0]}x{size[1]}"
@@ -272,9 +277,25 @@ def print_run(run: SuiteRun) -> None:
                f"peak RSS {x['peak_rss_mb']:.0f} MB (does not grow with trials: one job per worker)")
 
 
+def print_recorded(out: Path) -> None:
+    """Print the scaling table of every run recorded in ``out/bench_suite.jsonl``."""
+    import click
+    import pandas as pd
+    from evalkit.reports.tables import print_table
+    path = out / "bench_suite.jsonl"
+    if not path.is_file():
+        raise click.UsageError(f"{path}: no recorded runs; run `dockbench bench suite -o {out}` first")
+    runs = [SuiteRun(**json.loads(line)) for line in path.read_text().splitlines() if line.strip()]
+    df = pd.DataFrame([scaling_row(r) for r in runs])
+    click.echo(f"runs recorded in {path} (CPU seconds; wall on a shared machine):")
+    print_table(df, floatfmt=".1f")
+    df.to_csv(out / "bench_scaling.csv", index=False)
+
+
 def bench_suite(trials: int, names: tuple[str, ...], size, particles, out: Path, workers, scaling: bool,
-                evaluate: bool) -> None:
-    """The ``bench suite`` command body (see the module docstring); parameters are its options."""
+                evaluate: bool, max_distance_m: float | None = None) -> None:
+    """The ``bench suite`` command body (see the module docstring); parameters are its options.
+    (9 parameters: one per command-line option.)"""
     import click
     import pandas as pd
     from evalkit.reports.tables import print_table
@@ -282,16 +303,21 @@ def bench_suite(trials: int, names: tuple[str, ...], size, particles, out: Path,
         rows = []
         for label, exps, n, sz, p in SCALING:
             click.echo(f"scaling run: {label} ...", err=True)
-            run = run_suite(configure(exps, n, sz, p), out / "scaling" / label.replace(" ", "_"), label,
-                            workers, evaluate)
+            run = run_suite(configure(exps, n, sz, p, max_distance_m), out / "scaling" / label.replace(" ", "_"),
+                            label, workers, evaluate)
             save(run, out)
             rows.append(scaling_row(run))
         df = pd.DataFrame(rows)
-        click.echo("\nscaling (one factor at a time; CPU seconds; wall on a shared machine):")
+        within = "" if max_distance_m is None else f"; only frames within {max_distance_m:g} m of the dock"
+        click.echo(f"\nscaling (one factor at a time; CPU seconds; wall on a shared machine{within}):")
         print_table(df, floatfmt=".1f")
         df.to_csv(out / "bench_scaling.csv", index=False)
         return
-    run = run_suite(configure(names, trials, size, particles), out / "suite", "suite", workers, evaluate)
+    label = "-".join([f"t{trials}", *names] + ([f"{size[0]}x{size[1]}"] if size else [])
+                     + ([f"p{particles}"] if particles is not None else [])
+                     + ([f"within{max_distance_m:g}m"] if max_distance_m else []))
+    run = run_suite(configure(names, trials, size, particles, max_distance_m), out / "suite", label, workers,
+                    evaluate)
     save(run, out)
     print_run(run)
     stage_table(run).to_csv(out / "bench_suite.csv", index=False)
@@ -325,9 +351,16 @@ def make_command():
     @click.option("--scaling", is_flag=True, help="run the scaling table instead (trials 1/3, 640x480 vs "
                   "1280x720 on turbidity; particles 0/6000/60000 on occlusion; 1 trial each)")
     @click.option("--no-evaluate", is_flag=True, help="generate only")
+    @click.option("--table", is_flag=True, help="only print the table of the runs recorded in OUT")
+    @click.option("--max-distance", "max_distance_m", type=click.FloatRange(0.5, 100.0), default=None,
+                  help="render only the frames within this distance (m) of the dock (a cheaper, "
+                       "close-range-heavy workload for scaling runs)")
     @click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
                   default=Path("out/bench"), show_default=True)
-    def suite_cmd(trials, names, size, particles, workers, scaling, no_evaluate, out):
+    def suite_cmd(trials, names, size, particles, workers, scaling, no_evaluate, table, max_distance_m, out):
         """Generate and evaluate the article's suite at N trials; CPU/wall per stage, RSS, disk, 100-trial estimate."""
-        bench_suite(trials, names or EXPERIMENTS, size, particles, out, workers, scaling, not no_evaluate)
+        if table:
+            return print_recorded(out)
+        bench_suite(trials, names or EXPERIMENTS, size, particles, out, workers, scaling, not no_evaluate,
+                    max_distance_m)
     return suite_cmd
