@@ -174,7 +174,7 @@ def run_suite(exps: list, out: Path, label: str, workers: int | None, evaluate: 
         shutil.rmtree(out)
     dsets = [out / e.name / "dataset" for e in exps]
     c = exps[0].camera
-    occ = [str(cnd.occlusion.n_total) for e in exps for cnd in e.conditions if cnd.occlusion]
+    occ = [f"{cnd.occlusion.n_total:g}" for e in exps for cnd in e.conditions if cnd.occlusion]
     run = SuiteRun(label, exps[0].trials, c.width, c.height, "/".join(occ) or "-",
                    ",".join(e.name.split("-")[0].removeprefix("paper_") for e in exps))
     with TreeRSS() as rss:
