@@ -51,7 +51,8 @@ def test_extrapolation_is_linear_in_trials():
 
 
 def test_configure_overrides_size_and_particles():
-    exps = sb.configure(("turbidity", "occlusion"), 2, (1280, 720), 6000)
+    exps = sb.configure(("turbidity", "occlusion"), 2, sb.Overrides((1280, 720), 6000, 4.0, 2))
+    assert all(e.render.samples == 2 and e.render.max_distance_m == 4.0 for e in exps)
     assert [e.trials for e in exps] == [2, 2]
     assert all((e.camera.width, e.camera.height) == (1280, 720) for e in exps)
     assert [c.occlusion.n_total for c in exps[1].conditions] == [6000]

@@ -141,27 +141,44 @@ class SuiteRun:
     disk: dict = field(default_factory=dict)
 
 
-def configure(names: tuple[str, ...], trials: int, size: tuple[int, int] | None, particles: int | None,
-              max_distance_m: float | None = None):
-    """The paper experiments with ``trials``, optionally another resolution, for the
-    occlusion experiment a single condition with ``particles`` small obstacles, and only
-    the frames within ``max_distance_m`` of the dock (``render.max_distance_m``)."""
+@dataclass(frozen=True)
+class Overrides:
+    """Changes to the paper configs for one measured run (None = as configured).
+
+    ``size`` (width, height) px; ``particles``: the occlusion experiment keeps one
+    condition with this many small obstacles; ``max_distance_m``: only frames within this
+    distance of the dock are rendered; ``samples``: Cycles samples in the dock's region."""
+    size: tuple[int, int] | None = None
+    particles: int | None = None
+    max_distance_m: float | None = None
+    samples: int | None = None
+
+    def tag(self) -> str:
+        parts = [f"{self.size[0]}x{self.size[1]}"] if self.size else []
+        parts += [f"p{self.particles}"] if self.particles is not None else []
+        parts += [f"within{self.max_distance_m:g}m"] if self.max_distance_m else []
+        parts += [f"s{self.samples}"] if self.samples else []
+        return "-".join(parts)
+
+
+def configure(names: tuple[str, ...], trials: int, ov: Overrides = Overrides()):
+    """The paper experiments with ``trials`` and the overrides ``ov``."""
     from blendgen.tools.reproduce import experiment
     exps = []
     for n in names:
         e = experiment(n, trials)
-        if max_distance_m is not None:
-            e.render.max_distance_m = max_distance_m
-            e.name += f"-within{max_distance_m:g}m"
-        if size is not None:
-            e.camera.width, e.camera.height = size
-            e.name += f"-{size[0]}x{size[1]}"
-        if particles is not None and n == "occlusion":
+        if ov.max_distance_m is not None:
+            e.render.max_distance_m = ov.max_distance_m
+        if ov.samples is not None:
+            e.render.samples = ov.samples
+        if ov.size is not None:
+            e.camera.width, e.camera.height = ov.size
+        if ov.particles is not None and n == "occlusion":
             c = e.conditions[0].model_copy(deep=True)
-            c.label = f"n{particles}"
-            c.occlusion.n_total = particles
+            c.label = f"n{ov.particles}"
+            c.occlusion.n_total = ov.particles
             e.conditions = [c]
-            e.name += f"-p{particles}"
+        e.name += f"-{ov.tag()}" if ov.tag() else ""
         exps.append(e)
     return exps
 
@@ -292,10 +309,9 @@ def print_recorded(out: Path) -> None:
     df.to_csv(out / "bench_scaling.csv", index=False)
 
 
-def bench_suite(trials: int, names: tuple[str, ...], size, particles, out: Path, workers, scaling: bool,
-                evaluate: bool, max_distance_m: float | None = None) -> None:
-    """The ``bench suite`` command body (see the module docstring); parameters are its options.
-    (9 parameters: one per command-line option.)"""
+def bench_suite(trials: int, names: tuple[str, ...], ov: Overrides, out: Path, workers: int | None,
+                scaling: bool, evaluate: bool) -> None:
+    """The ``bench suite`` command body (see the module docstring); parameters are its options."""
     import click
     import pandas as pd
     from evalkit.reports.tables import print_table
@@ -303,21 +319,18 @@ def bench_suite(trials: int, names: tuple[str, ...], size, particles, out: Path,
         rows = []
         for label, exps, n, sz, p in SCALING:
             click.echo(f"scaling run: {label} ...", err=True)
-            run = run_suite(configure(exps, n, sz, p, max_distance_m), out / "scaling" / label.replace(" ", "_"),
-                            label, workers, evaluate)
+            row_ov = Overrides(sz, p, ov.max_distance_m, ov.samples)
+            run = run_suite(configure(exps, n, row_ov), out / "scaling" / label.replace(" ", "_"), label,
+                            workers, evaluate)
             save(run, out)
             rows.append(scaling_row(run))
         df = pd.DataFrame(rows)
-        within = "" if max_distance_m is None else f"; only frames within {max_distance_m:g} m of the dock"
-        click.echo(f"\nscaling (one factor at a time; CPU seconds; wall on a shared machine{within}):")
+        click.echo(f"\nscaling (one factor at a time; CPU seconds; wall on a shared machine; {ov.tag() or '-'}):")
         print_table(df, floatfmt=".1f")
         df.to_csv(out / "bench_scaling.csv", index=False)
         return
-    label = "-".join([f"t{trials}", *names] + ([f"{size[0]}x{size[1]}"] if size else [])
-                     + ([f"p{particles}"] if particles is not None else [])
-                     + ([f"within{max_distance_m:g}m"] if max_distance_m else []))
-    run = run_suite(configure(names, trials, size, particles, max_distance_m), out / "suite", label, workers,
-                    evaluate)
+    label = "-".join([f"t{trials}", *names] + ([ov.tag()] if ov.tag() else []))
+    run = run_suite(configure(names, trials, ov), out / "suite", label, workers, evaluate)
     save(run, out)
     print_run(run)
     stage_table(run).to_csv(out / "bench_suite.csv", index=False)
@@ -355,12 +368,15 @@ def make_command():
     @click.option("--max-distance", "max_distance_m", type=click.FloatRange(0.5, 100.0), default=None,
                   help="render only the frames within this distance (m) of the dock (a cheaper, "
                        "close-range-heavy workload for scaling runs)")
+    @click.option("--samples", type=click.IntRange(1, 4096), default=None,
+                  help="Cycles samples in the dock's region (default: the configs' 4)")
     @click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
                   default=Path("out/bench"), show_default=True)
-    def suite_cmd(trials, names, size, particles, workers, scaling, no_evaluate, table, max_distance_m, out):
+    def suite_cmd(trials, names, size, particles, workers, scaling, no_evaluate, table, max_distance_m,
+                  samples, out):
         """Generate and evaluate the article's suite at N trials; CPU/wall per stage, RSS, disk, 100-trial estimate."""
         if table:
             return print_recorded(out)
-        bench_suite(trials, names or EXPERIMENTS, size, particles, out, workers, scaling, not no_evaluate,
-                    max_distance_m)
+        bench_suite(trials, names or EXPERIMENTS, Overrides(size, particles, max_distance_m, samples), out,
+                    workers, scaling, not no_evaluate)
     return suite_cmd
