@@ -402,6 +402,8 @@ def _register() -> None:
     main.add_command(dock_cmd)
     closed_loop_bench_cmd.callback = _user_errors(closed_loop_bench_cmd.callback)
     bench.add_command(closed_loop_bench_cmd, "closed-loop")
+    from blendgen.tools import suitebench
+    bench.add_command(suitebench.make_command(), "suite")
 
 
 _register()

@@ -75,9 +75,10 @@ def _mat4_problem(v: Any) -> str | None:
     return None
 
 
-def _path_problem(v: Any, suffix: str) -> str | None:
+def _path_problem(v: Any, suffix: tuple[str, ...]) -> str | None:
     if not isinstance(v, str) or not v or not RELPATH.match(v) or not v.endswith(suffix):
-        return f"{v!r} {RELPATH_RULE.replace('(allowed: ', f'(allowed: a name ending in {suffix}, ')}"
+        ends = " or ".join(suffix)
+        return f"{v!r} {RELPATH_RULE.replace('(allowed: ', f'(allowed: a name ending in {ends}, ')}"
     return None
 
 
@@ -119,7 +120,8 @@ def frame_problem(frame: Any) -> tuple[str, str] | None:
             return key, "must be a finite number (s)"
     if not (_is_number(frame["d_true"]) and frame["d_true"] >= 0):
         return "d_true", "must be a finite number >= 0 (m)"
-    for key, suffix in (("image", ".png"), ("depth", ".npz"), ("object_index", ".png")):
+    # depth: 1.1 writes uint16 millimetre PNGs, 1.0 wrote float32 NPZ (both readable)
+    for key, suffix in (("image", (".png",)), ("depth", (".png", ".npz")), ("object_index", (".png",))):
         if key in frame and _path_problem(frame[key], suffix):
             return key, _path_problem(frame[key], suffix)
     for key in ("T_world_cam", "T_cam_dock"):

@@ -6,11 +6,11 @@ agree closely (differences: sub-pixel edges, the sphere's exact perspective outl
 and the 0.5-coverage threshold of the image-space mask)."""
 import json
 
-import cv2
 import numpy as np
 import pytest
 import yaml
 
+from datasets_spec.io import load_index, load_range
 from blendgen.physics import particles as occlusion
 
 from blendgen.pipeline import compose as postprocess
@@ -55,9 +55,9 @@ def test_image_space_mask_matches_real_spheres(pair):
     ious = []
     for line in (root / seq["path"] / "frames.jsonl").read_text().splitlines():
         f = json.loads(line)
-        index = cv2.imread(str(root / f["object_index"]), cv2.IMREAD_UNCHANGED)
+        index = load_index(root / f["object_index"])
         real = index == 250
-        rng = np.load(root / f["depth"])["range_m"]
+        rng = load_range(root / f["depth"])
         # the image model on the scene without particles: hide nothing the spheres hid
         _, mask, _ = occlusion.render_particles(np.zeros(rng.shape + (3,), np.float32),
                                                np.full(rng.shape, np.inf, np.float32), state.field, K,

@@ -20,6 +20,7 @@ from click.testing import CliRunner
 
 import cli
 from blendgen.geometry import project, transform_points
+from datasets_spec.io import load_index, load_range
 from evalkit.dataset import Dataset
 from evalkit.localizers.square import linear_gray
 
@@ -60,7 +61,7 @@ def frames(ds):
 def test_manifest_and_frames_follow_format(tiny):
     _, out = tiny
     man = json.loads((out / "manifest.json").read_text())
-    assert man["format"] == "dockbench-dataset" and man["spec_version"] == "1.0"
+    assert man["format"] == "dockbench-dataset" and man["spec_version"] == "1.1"
     assert man["generator"]["bpy"] == importlib.metadata.version("bpy")
     K = np.array(man["camera"]["K"])
     assert K.shape == (3, 3) and K[0, 2] == 319.5 and K[1, 2] == 239.5
@@ -130,8 +131,8 @@ def test_background_range_and_index(tiny):
     _, out = tiny
     ds = Dataset.open(out)
     f = next(frames(ds))
-    r = np.load(out / f["depth"])["range_m"]
-    index = cv2.imread(str(out / f["object_index"]), cv2.IMREAD_UNCHANGED)
+    r = load_range(out / f["depth"])
+    index = load_index(out / f["object_index"])
     T = np.array(f["T_cam_dock"])
     centre = T[:3, 3]  # dock face centre in the camera frame
     uv = project(ds.camera["K"], centre[None])[0]

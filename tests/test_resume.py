@@ -187,6 +187,9 @@ def test_resume_a_shared_render_with_one_sequence_already_committed(tmp_path):
     out = tmp_path / "ds"
     man0 = _run(cfg, out)
     assert len(man0["sequences"]) == 2 and len(list((out / ".work" / "jobs").glob("*.json"))) == 1
+    f0, f1 = (json.loads((out / s["path"] / "frames.jsonl").read_text().splitlines()[0]) for s in man0["sequences"])
+    assert f0["depth"] == f1["depth"] and f0["depth"].startswith("renders/")    # one copy for both
+    assert f0["object_index"] == f1["object_index"] and f0["image"] != f1["image"]
     clean = {p: p.read_bytes() for p in out.rglob("*") if p.is_file() and ".work" not in p.parts}
     kept, lost = (out / s["path"] for s in man0["sequences"])
     kept_inode = (kept / "frames.jsonl").stat().st_ino
@@ -214,3 +217,6 @@ def test_datasets_generated_together_share_renders_and_equal_separate_runs(tmp_p
     assert len(jobs) == 1  # one render for both datasets
     apart = generate(exp_b, tmp_path / "B2", workers=1, progress=False)
     assert together[1]["content_hash"] == apart["content_hash"]
+    depth = [p for p in together[0]["files"] if p.startswith("renders/") and "/depth/" in p]
+    assert depth and all((tmp_path / "A" / p).stat().st_ino == (tmp_path / "B" / p).stat().st_ino
+                         for p in depth)           # written once, hard-linked into the other dataset

@@ -82,7 +82,7 @@ def test_schema_keys_match_format_md():
     # the documented required keys (optional: d_min_rel_m has a default; depth/object_index may be absent)
     assert set(m["properties"]) - set(m["required"]) == {"d_min_rel_m"}
     assert set(f["properties"]) - set(f["required"]) == {"depth", "object_index"}
-    assert m["properties"]["spec_version"] == {"const": "1.0"}
+    assert m["properties"]["spec_version"]["enum"] == ["1.0", "1.1"]     # 1.1 written, 1.0 still read
 
 
 # ------------------------------------------------------------------ datasets
@@ -101,6 +101,7 @@ def _writer_dataset(tmp_path: Path, n_frames: int = 3) -> Path:
     from blendgen.pipeline import compose as pp
     from blendgen.config.models import load_experiment
     from blendgen.pipeline.writer import DatasetWriter
+    from blendgen.pipeline.passstore import PassStore, job_entry
 
     cfg = yaml.safe_load((ROOT / "configs" / "quickstart.yaml").read_text())
     cfg["camera"].update(width=64, height=48, noise_std=2.0)
@@ -120,10 +121,11 @@ def _writer_dataset(tmp_path: Path, n_frames: int = 3) -> Path:
     for job in jobs:
         job.frames = job.frames[:n_frames]
         handles = []
+        store = PassStore.from_job({"passes": job_entry(job.key, [(writer.render_tmp_dir(job.key), True)],
+                                                        True, True)})
         for s in job.sequences:
             d = writer.tmp_dir(s.id)
-            for sub in ("rgb", "depth", "index"):
-                (d / sub).mkdir(parents=True, exist_ok=True)
+            (d / "rgb").mkdir(parents=True, exist_ok=True)
             handles.append((s, d, open(d / "frames.jsonl", "w"), pp.SequenceState.start(s.post)))
         for fr in job.frames:
             index = np.zeros((H, W), np.uint8)
@@ -131,12 +133,14 @@ def _writer_dataset(tmp_path: Path, n_frames: int = 3) -> Path:
             passes = pp.add_range({"rgb": np.full((H, W, 3), 0.3, np.float32),
                                    "depth_z": np.full((H, W), 4.0, np.float32), "index": index}, K)
             rec = pp.frame_record(fr, T_wd, markers, K, W, H, passes["index"])
+            pass_paths = store.write(fr["index"], passes)
             for s, d, fh, st in handles:
                 seen, occluded = pp.add_particles(passes, st, K, fr["T_world_cam"])
                 img = pp.camera_image(seen, st, K, fr, markers, exp.render.fidelity, occluded)
-                paths = pp.write_frame_files(d, f"sequences/{s.id}", fr["index"], img, passes, True, True)
+                paths = {**pp.write_image(d, f"sequences/{s.id}", fr["index"], img), **pass_paths}
                 fh.write(json.dumps({**rec, **paths}) + "\n")
                 st.advance()
+        writer.commit_render(job.key)
         for s, _, fh, _ in handles:
             fh.close()
             writer.commit_sequence(s.id, len(job.frames))
@@ -191,7 +195,7 @@ BAD_MANIFESTS = [
 ]
 BAD_FRAMES = [
     ("d_true", _DEL), ("d_true", -1.0), ("index", -1), ("index", 1.5), ("image", "rgb/000000.jpg"),
-    ("image", "/tmp/x.png"), ("depth", "a/b.png"), ("T_cam_dock", [[1, 0, 0], [0, 1, 0], [0, 0, 1]]),
+    ("image", "/tmp/x.png"), ("depth", "a/b.exr"), ("T_cam_dock", [[1, 0, 0], [0, 1, 0], [0, 0, 1]]),
     ("markers.0.visible_fraction", 1.5), ("markers.0.in_fov", "yes"), ("markers.0.T_cam_marker", _DEL),
     ("markers.0.extra", 0), ("extra_key", 1), ("t", "0.1"),
 ]

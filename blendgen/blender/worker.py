@@ -48,8 +48,7 @@ def _open_outputs(job) -> list[tuple[object, Path, object]]:
     outs = []
     for o in job.outputs:
         d = Path(o.seq_dir)
-        for sub in ("rgb", "depth", "index"):
-            (d / sub).mkdir(parents=True, exist_ok=True)
+        (d / "rgb").mkdir(parents=True, exist_ok=True)    # range/index: the job's shared pass store
         outs.append((o, d, _FramesFile(d / "frames.jsonl")))
     return outs
 
@@ -77,10 +76,22 @@ def _geometry_particles(job: dict, states: list):
     return _Geo(particles.add_particles(st.field.positions, st.field.radii, p["object_index"])), st
 
 
+def _shared_distortion(job):
+    """The lens distortion of every output (the shared range/index passes are written once,
+    distorted like the images they sit beside): outputs of one render must agree."""
+    dists = {json.dumps(o.post.distortion) for o in job.outputs}
+    if len(dists) > 1:
+        raise RuntimeError("outputs of one render job have different lens distortion; their shared "
+                           "range/index passes cannot match every image (render them as separate jobs)")
+    return job.outputs[0].post.distortion if job.outputs else None
+
+
 def run(job) -> dict:
     """Render the job (a ``plan.JobRecord``); returns timing figures (s) per stage."""
     from blendgen.pipeline import compose as pp
+    from blendgen.pipeline.passstore import PassStore
     from blendgen.blender import render, scene as scn
+    from blendgen.pipeline.stagetimer import StageTimer
 
     t0 = time.perf_counter()
     sc = scn.build(job.scene)
@@ -91,36 +102,46 @@ def run(job) -> dict:
     T_wd = np.asarray(job.gt.T_world_dock, float)
     markers = job.gt.markers
     outs = _open_outputs(job)
+    store = PassStore.from_job(job)
+    distortion = _shared_distortion(job)
     states = [pp.SequenceState.start(o.post) for o, _, _ in outs]
     exr = os.path.join(render.scratch_dir(), f"dockbench-{os.getpid()}.exr")
     geo = _geometry_particles(job, states)
     # "render" includes reading the EXR passes back (the ROI path reads two renders);
     # "depth_to_range" turns the planar depth pass into range along each ray
     times = {"scene_build": time.perf_counter() - t0, "render": [], "depth_to_range": [], "post_write": []}
+    clock = StageTimer()        # CPU and wall per stage (render, compose, write) for `bench suite`
     try:
         for fr in job.frames:
             t1 = time.perf_counter()
             if geo is not None:
                 geo[0].move(geo[1].field.positions)
-            raw = render.render_roi_frame(sc, cam, fr, job.render, W, H, exr)
+            with clock("render"):
+                raw = render.render_roi_frame(sc, cam, fr, job.render, W, H, exr)
             t2 = time.perf_counter()
-            passes = pp.add_ambient(pp.add_range(raw, K), job.render.get("ambient_radiance", 0.0))
+            with clock("compose"):
+                passes = pp.add_ambient(pp.add_range(raw, K), job.render.get("ambient_radiance", 0.0))
             t3 = time.perf_counter()
-            rec = pp.frame_record(fr, T_wd, markers, K, W, H, passes["index"])
+            with clock("write"):
+                pass_paths = store.write(fr["index"], pp.output_passes(passes, K, distortion)) if store else {}
+            with clock("compose"):
+                rec = pp.frame_record(fr, T_wd, markers, K, W, H, passes["index"])
             for (o, d, fh), st in zip(outs, states):
-                seen, occluded = pp.add_particles(passes, st, K, fr["T_world_cam"])
-                img = pp.camera_image(seen, st, K, fr, markers, job.fidelity, occluded)
-                paths = pp.write_frame_files(d, o.rel, fr["index"], img, pp.output_passes(passes, K, o.post.distortion),
-                                             job.render["write_depth"], job.render["write_index"])
-                r = rec if occluded is None else pp.with_visibility(rec, markers, K, passes["index"], occluded)
-                fh.write(json.dumps({**r, **paths}) + "\n")
-                fh.flush()
+                with clock("compose"):
+                    seen, occluded = pp.add_particles(passes, st, K, fr["T_world_cam"])
+                    img = pp.camera_image(seen, st, K, fr, markers, job.fidelity, occluded)
+                    r = rec if occluded is None else pp.with_visibility(rec, markers, K, passes["index"], occluded)
+                with clock("write"):
+                    paths = {**pp.write_image(d, o.rel, fr["index"], img), **pass_paths}
+                    fh.write(json.dumps({**r, **paths}) + "\n")
+                    fh.flush()
                 st.advance()
             if geo is not None and geo[1] not in states:
                 geo[1].advance()
             times["render"].append(t2 - t1)
             times["depth_to_range"].append(t3 - t2)
             times["post_write"].append(time.perf_counter() - t3)
+        times.update(clock.totals())
     finally:
         for _, _, fh in outs:
             fh.close()

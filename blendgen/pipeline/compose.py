@@ -22,6 +22,7 @@ from blendgen.physics import optics, sensor
 from blendgen.physics import particles as occlusion
 from blendgen.pipeline import groundtruth
 from blendgen.pipeline.plan import INDEX_PARTICLES, SequencePost
+from datasets_spec.io import save_image
 
 
 def emissive_mask(index: np.ndarray, markers: list[dict]) -> np.ndarray:
@@ -228,17 +229,10 @@ def add_range(passes: dict, K: np.ndarray) -> dict:
     return passes
 
 
-def write_frame_files(seq_dir: Path, rel: str, i: int, img: np.ndarray, passes: dict,
-                      write_depth: bool, write_index: bool) -> dict:
-    """Write the PNG (and optional range NPZ / index PNG); returns the paths for the record."""
-    name = f"{i:06d}"
-    paths = {"image": f"{rel}/rgb/{name}.png"}
-    cv2.imwrite(str(seq_dir / "rgb" / f"{name}.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR),
-                [cv2.IMWRITE_PNG_COMPRESSION, 1])
-    if write_depth:
-        np.savez_compressed(seq_dir / "depth" / f"{name}.npz", range_m=passes["range_m"])
-        paths["depth"] = f"{rel}/depth/{name}.npz"
-    if write_index:
-        cv2.imwrite(str(seq_dir / "index" / f"{name}.png"), passes["index"])
-        paths["object_index"] = f"{rel}/index/{name}.png"
-    return paths
+def write_image(seq_dir: Path, rel: str, i: int, img: np.ndarray) -> dict:
+    """Write the sequence's camera image (H,W,3) uint8 RGB as ``rgb/<i>.png``; returns the
+    record's ``image`` path. Range and index passes are shared per render
+    (:mod:`blendgen.pipeline.passstore`), not written per sequence."""
+    name = f"{i:06d}.png"
+    save_image(seq_dir / "rgb" / name, img)
+    return {"image": f"{rel}/rgb/{name}"}

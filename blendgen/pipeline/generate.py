@@ -23,6 +23,7 @@ from blendgen import markers as mk
 from blendgen.pipeline import executor as ex
 
 from blendgen.pipeline import plan
+from blendgen.pipeline import passstore
 from blendgen.config.models import Experiment, OutputDirError
 from datasets_spec.io import path_inside
 from blendgen.pipeline.writer import FORMAT, SPEC_VERSION, DatasetWriter
@@ -56,12 +57,16 @@ def _job_record(t: "_Target", job: plan.RenderJob, render: dict, parts: list) ->
     every dataset fed by this render (a resumed shared job may have committed some)."""
     c = t.exp.camera
     first = job.sequences[0].id
+    datasets = list({id(pt): pt for pt, _, _ in parts}.values())
+    passes = passstore.job_entry(job.key, [(pt.writer.render_tmp_dir(job.key), not pt.writer.has_render(job.key))
+                                           for pt in datasets], render["write_depth"], render["write_index"])
     return plan.JobRecord(
         scene=job.scene, fidelity=t.exp.render.fidelity, render=render, frames=job.frames,
         camera=plan.JobCamera(width=c.width, height=c.height, hfov_rad=math.radians(c.hfov_deg), K=t.K.tolist()),
         gt=plan.JobTruth(T_world_dock=job.scene["dock"]["T_world_dock"], markers=t.markers),
         outputs=[plan.JobOutput(seq_dir=str(pt.writer.tmp_dir(s.id).resolve()), rel=f"sequences/{s.id}",
                                 post=s.post) for pt, _, seqs in parts for s in seqs],
+        passes=plan.JobPasses(**passes),
         log=str(path_inside(t.work, f"logs/{first}.blender.log", "render log")),
         timing_out=str(path_inside(t.work, f"timing/{first}.json", "timing file")))
 
@@ -170,6 +175,7 @@ def _render(targets: list[_Target], workers: int | None, progress: bool, kind: s
     for parts in merged.values():
         t, j, _ = parts[0]
         for pt, _, seqs in parts:
+            shutil.rmtree(pt.writer.render_tmp_dir(j.key), ignore_errors=True)
             for s in seqs:
                 shutil.rmtree(pt.writer.tmp_dir(s.id), ignore_errors=True)
         render = plan.render_settings(t.exp, threads)
@@ -180,6 +186,7 @@ def _render(targets: list[_Target], workers: int | None, progress: bool, kind: s
 
     def on_done(jf: Path):
         for pt, j, seqs in files[jf]:
+            pt.writer.commit_render(j.key)      # before the sequences that reference it
             for s in seqs:
                 pt.writer.commit_sequence(s.id, len(j.frames))
 

@@ -78,6 +78,16 @@ class JobOutput(Strict):
     post: SequencePost
 
 
+class JobPasses(Strict):
+    """Where a job writes the passes it shares with every sequence it feeds (FORMAT.md 1.1):
+    ``rel`` the dataset-relative ``renders/<key16>`` folder, ``dirs`` the absolute temp
+    folders still to fill, ``depth``/``index`` which passes are written at all."""
+    rel: str
+    depth: bool
+    index: bool
+    dirs: list[str]
+
+
 class JobRecord(Strict):
     """What a render worker process is given (JSON on disk, parsed once by the worker).
     ``scene``, ``render`` and ``frames`` are the plain data of :func:`scene_description`,
@@ -90,6 +100,7 @@ class JobRecord(Strict):
     camera: JobCamera
     gt: JobTruth
     outputs: list[JobOutput]
+    passes: Optional[JobPasses] = None
     log: Optional[str] = None
     timing_out: Optional[str] = None
 

@@ -1,5 +1,7 @@
 """Atomic, resumable dataset writing (datasets_spec/FORMAT.md).
 
+- the passes of one render (range, object index) go to ``renders/.<key16>.tmp/`` and
+  are renamed into place before the sequences that reference them are committed;
 - a sequence is rendered into ``sequences/.<id>.tmp/`` and renamed into place only
   when complete, so ``sequences/<id>/`` is always whole; a re-run skips it;
 - leftovers of an interrupted run (``.tmp`` dirs) are removed before resuming;
@@ -12,8 +14,8 @@ import os
 import shutil
 from pathlib import Path
 
-from datasets_spec.io import (FORMAT_NAME, DatasetError, MANIFEST, SPEC_VERSION, content_hash, dataset_files, path_inside,
-                              save_json_atomic, sha256_file)
+from datasets_spec.io import (FORMAT_NAME, DatasetError, MANIFEST, RENDERS, SPEC_VERSION, content_hash, dataset_files,
+                              path_inside, render_dir_name, save_json_atomic, sha256_file)
 
 FORMAT = FORMAT_NAME
 
@@ -28,7 +30,7 @@ class DatasetWriter:
     def prepare(self) -> None:
         """Create the layout and drop partial sequences of an interrupted run."""
         self.seq_root.mkdir(parents=True, exist_ok=True)
-        for d in self.seq_root.glob(".*.tmp"):
+        for d in (*self.seq_root.glob(".*.tmp"), *(self.root / RENDERS).glob(".*.tmp")):
             shutil.rmtree(d, ignore_errors=True)
         (self.root / MANIFEST).unlink(missing_ok=True)
 
@@ -50,6 +52,25 @@ class DatasetWriter:
     def tmp_dir(self, seq_id: str) -> Path:
         """``sequences/.<id>.tmp`` (proven inside the dataset folder)."""
         return self._child(f".{seq_id}.tmp", "sequence work folder")
+
+    def render_dir(self, render_key: str) -> Path:
+        """Final directory of one render's shared passes (``renders/<key16>``)."""
+        return self.root / render_dir_name(render_key)
+
+    def render_tmp_dir(self, render_key: str) -> Path:
+        d = self.render_dir(render_key)
+        return d.with_name(f".{d.name}.tmp")
+
+    def has_render(self, render_key: str) -> bool:
+        return self.render_dir(render_key).is_dir()
+
+    def commit_render(self, render_key: str) -> None:
+        """Rename a finished render's temp pass dir into place (no-op if it was not written)."""
+        tmp = self.render_tmp_dir(render_key)
+        if tmp.is_dir() and not self.has_render(render_key):
+            os.replace(tmp, self.render_dir(render_key))
+        elif tmp.is_dir():
+            shutil.rmtree(tmp, ignore_errors=True)
 
     def commit_sequence(self, seq_id: str, n_frames: int) -> None:
         """Check the temp sequence is whole, then rename it into place."""

@@ -85,7 +85,7 @@ def srgb_to_linear(img_u8: np.ndarray) -> np.ndarray:
 
 def load_frames(ds_path: Path) -> dict:
     """{(condition, frame index): {"rgb" linear, "index", "range", "d_true"}} of a dataset."""
-    import cv2
+    from datasets_spec.io import load_index, load_range
     from evalkit.dataset import Dataset
     ds = Dataset.open(ds_path)
     out = {}
@@ -93,9 +93,9 @@ def load_frames(ds_path: Path) -> dict:
         for f in ds.iter_frames(seq["id"]):
             rec = {"rgb": srgb_to_linear(ds.load_image(f)), "d_true": f["d_true"]}
             if f.get("object_index"):
-                rec["index"] = cv2.imread(str(ds.frame_file(f, "object_index")), cv2.IMREAD_UNCHANGED)
+                rec["index"] = load_index(ds.frame_file(f, "object_index"))
             if f.get("depth"):
-                rec["range"] = np.load(ds.frame_file(f, "depth"))["range_m"]
+                rec["range"] = load_range(ds.frame_file(f, "depth"))
             out[(seq["condition"], f["index"])] = rec
     return out
 

@@ -44,10 +44,12 @@ def experiment(name: str, trials: int | None, mode: str | None = None):
     return exp
 
 
-def evaluate(dataset_dir: Path, out: Path, localizers=LOCALIZERS) -> dict:
-    """Run the localizers over the dataset and save the full run record."""
+def evaluate(dataset_dir: Path, out: Path, localizers=LOCALIZERS, workers: int | None = None) -> dict:
+    """Run the localizers over the dataset (one process per core, split by sequence) and
+    save the full run record."""
     from evalkit.reports.results import EvalRequest, evaluate_dataset
-    return evaluate_dataset(EvalRequest(dataset_dir, list(localizers), out, overwrite=True))[1]
+    req = EvalRequest(dataset_dir, list(localizers), out, overwrite=True, workers=workers)
+    return evaluate_dataset(req)[1]
 
 
 def report(name: str, paths: dict) -> str:

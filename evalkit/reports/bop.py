@@ -55,6 +55,7 @@ from pathlib import Path
 import click
 import numpy as np
 
+from datasets_spec.io import load_index, load_range
 from evalkit.dataset import Dataset, DatasetError
 from evalkit.metrics.recall import marker_model, marker_points
 
@@ -246,8 +247,7 @@ def _frame_depth(ex: _Export, frame: dict, path: Path):
     import cv2
     if not frame.get("depth"):
         return None
-    with np.load(ex.ds.frame_file(frame, "depth")) as z:
-        rng = z["range_m"]
+    rng = load_range(ex.ds.frame_file(frame, "depth"))      # 1.1 mm PNG or 1.0 float NPZ
     if ex.norms is None:
         cam = ex.ds.camera
         ex.norms = ray_norms(ex.K, cam["width"], cam["height"], cam["dist"])
@@ -270,7 +270,7 @@ def _export_frame(ex: _Export, sdir: Path, scene_id: int, frame: dict) -> tuple[
     depth = _frame_depth(ex, frame, sdir / "depth" / f"{im:06d}.png")
     index = None
     if frame.get("object_index"):
-        index = cv2.imread(str(ex.ds.frame_file(frame, "object_index")), cv2.IMREAD_UNCHANGED)
+        index = load_index(ex.ds.frame_file(frame, "object_index"))
     T_cam_dock = np.asarray(frame.get("T_cam_dock", np.eye(4)), dtype=float)
     fmarkers = frame.get("markers") or {}
     gts, infos = [], []

@@ -281,6 +281,7 @@ class EvalRequest:
     progress: bool = True
     settings: EvalSettings = field(default_factory=EvalSettings)
     command: list[str] | None = None
+    workers: int | None = 1          # evaluation processes (split by sequence); None: one per core
 
 
 def evaluate_dataset(req: EvalRequest) -> tuple[Any, dict[str, Path], dict]:
@@ -305,7 +306,12 @@ def evaluate_dataset(req: EvalRequest) -> tuple[Any, dict[str, Path], dict]:
         specs = [(n, assemble.build(n, given[n], isolate=req.isolate, timeout_s=req.frame_timeout_s,
                                     preprocess=req.preprocess)) for n in names]
         records = [localizer_record(n, given[n], obj) for n, obj in specs]
-        df = runner.evaluate(ds, specs, frame_timeout_s=req.frame_timeout_s, progress=req.progress)
+        if req.workers == 1:
+            df = runner.evaluate(ds, specs, frame_timeout_s=req.frame_timeout_s, progress=req.progress)
+        else:   # the same per-frame table from one process per core (evalkit.parallel)
+            from evalkit.parallel import evaluate_frames
+            df = evaluate_frames(req.dataset_dir, names, list(req.params), req.workers, req.isolate,
+                                 req.frame_timeout_s, req.preprocess, verify=req.verify)
         settings = replace(req.settings, d_min_rel_m=ds.d_min_rel_m)
         options = {"params": list(req.params), "isolate": req.isolate, "frame_timeout_s": req.frame_timeout_s,
                    "preprocess": req.preprocess, "verify": req.verify, "overwrite": req.overwrite}
