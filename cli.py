@@ -391,22 +391,186 @@ def bench_localizers(dataset: Path, out: Path) -> None:
     run_localizer_bench(dataset, out)
 
 
-def _register() -> None:
-    """Commands defined next to their code (imports inside them stay lazy)."""
-    from evalkit.reports.bop import export_bop_cmd
-    from evalkit.reports.leaderboard import leaderboard_cmd
-    main.add_command(leaderboard_cmd)
-    main.add_command(export_bop_cmd)
-    from blendgen.tools.closed_loop import bench_cmd as closed_loop_bench_cmd, dock_cmd
-    dock_cmd.callback = _user_errors(dock_cmd.callback)
-    main.add_command(dock_cmd)
-    closed_loop_bench_cmd.callback = _user_errors(closed_loop_bench_cmd.callback)
-    bench.add_command(closed_loop_bench_cmd, "closed-loop")
-    from blendgen.tools import suitebench
-    bench.add_command(suitebench.make_command(), "suite")
+@main.command("leaderboard")
+@click.argument("results_dirs", nargs=-1, required=True,
+                type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("-o", "--out", "out", type=click.Path(dir_okay=False, path_type=Path),
+              default=Path("leaderboard.html"), show_default=True, help="HTML file to write")
+@click.option("--title", default="dockbench leaderboard", show_default=True)
+@click.option("--screenshot", "shot", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="also render the page to this PNG (needs chromium)")
+def leaderboard(results_dirs: tuple[Path, ...], out: Path, title: str, shot: Path | None):
+    """Rank localizers per dataset and condition from RESULTS_DIRS (of `dockbench evaluate`)
+    into one static HTML page."""
+    import subprocess
+    from evalkit.reports.leaderboard import build_leaderboard, screenshot
+    from evalkit.reports.results import ResultsError
+    try:
+        path = build_leaderboard(results_dirs, out, title)
+    except ResultsError as exc:
+        click.echo(f"error: {exc}", err=True)
+        sys.exit(2)
+    click.echo(f"leaderboard: {path}")
+    if shot is not None:
+        try:
+            click.echo(f"screenshot: {screenshot(path, shot)}")
+        except (RuntimeError, subprocess.TimeoutExpired) as exc:
+            click.echo(f"error: screenshot: {exc}", err=True)
+            sys.exit(2)
 
 
-_register()
+@main.command("export-bop")
+@click.argument("dataset", type=click.Path(file_okay=False, path_type=Path))
+@click.option("-o", "--out", "out", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="BOP dataset directory to write")
+@click.option("--split", default="test", show_default=True, help="BOP split folder name")
+@click.option("--copy", "copy_images", is_flag=True, help="copy RGB images instead of symlinking them")
+@click.option("--depth-scale", type=click.FloatRange(min=0.0, min_open=True), default=1.0,
+              show_default=True, help="mm per depth PNG unit (1.0: up to 65.5 m; 0.1: up to 6.5 m)")
+@click.option("--no-masks", is_flag=True, help="do not write mask_visib PNGs")
+def export_bop(dataset: Path, out: Path, split: str, copy_images: bool, depth_scale: float,
+                   no_masks: bool):
+    """Export DATASET in the BOP format (scene_camera/scene_gt/scene_gt_info, rgb, depth) to OUT."""
+    import json
+    from evalkit.dataset import DatasetError
+    from evalkit.reports.bop import export_bop as run
+    try:
+        s = run(dataset, out, split=split, copy_images=copy_images, depth_scale=depth_scale,
+                       masks=not no_masks)
+    except DatasetError as exc:
+        click.echo(f"error: {exc}", err=True)
+        sys.exit(2)
+    click.echo(f"BOP export: {s['scenes']} scenes, {s['images']} images, {s['objects']} objects -> {out}")
+    info = json.loads((out / "dockbench_scenes.json").read_text())["visib_fract"]
+    if info["copied_from_dataset"]:
+        click.echo(f"note: {info['copied_from_dataset']} visib_fract values copied from the dataset's "
+                   "visible_fraction (no object-index pass to compute them from)", err=True)
+    if s["depth_clipped_px"]:
+        click.echo(f"note: {s['depth_clipped_px']} depth pixels beyond {65535 * depth_scale / 1000:.1f} m "
+                   f"written as 0 (use a larger --depth-scale)", err=True)
+
+
+@main.command("dock")
+@click.argument("experiment")
+@click.option("-l", "--localizer", "localizers", multiple=True, default=("led", "aruco", "hybrid"),
+              show_default=True, help="localizer spec as for `dockbench evaluate` (repeatable)")
+@click.option("-p", "--param", "params", multiple=True, help="key=value or NAME.key=value for localizers")
+@click.option("--trials", type=click.IntRange(1, 100000), default=10, show_default=True,
+              help="seeded trials per condition and localizer")
+@click.option("--condition", "conditions", multiple=True, help="only these condition labels (repeatable)")
+@click.option("--size", default=None, metavar="WxH", help="override the camera resolution, e.g. 320x240")
+@click.option("--images", is_flag=True, help="keep every camera image (OUT/images/<trial>/)")
+@click.option("--no-baseline", is_flag=True, help="skip the ground-truth-guidance baseline")
+@click.option("--threads", type=click.IntRange(0, 256), default=0, help="Cycles threads (0: all cores)")
+@click.option("--isolate", is_flag=True, help="run built-in localizers in a child process too (plugins always are)")
+@click.option("--frame-timeout", type=click.FloatRange(min=0.001), default=None, help="s per frame")
+@click.option("--preprocess", default=None, metavar="STEPS", help="image preprocessing (see evaluate)")
+@click.option("--report-only", is_flag=True, help="only summarise and plot the tables already in OUT")
+@click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="output directory (default out/dock/NAME)")
+def dock(experiment, localizers, params, trials, conditions, size, images, no_baseline, threads, isolate,
+             frame_timeout, preprocess, report_only, out):
+    """Closed-loop docking: each localizer steers the vehicle from seeded starts.
+
+    EXPERIMENT is turbidity, depth, current, occlusion (the paper configs) or a config file.
+    Writes trials.parquet, frames.parquet, summary.csv/.md and paths.png (top view)."""
+    from blendgen.pipeline.executor import require_render_stack
+    from blendgen.tools.closed_loop import _specs, load_bench_experiment, run_dock
+    from evalkit.reports.tables import print_table
+    exp = load_bench_experiment(experiment, size, conditions)
+    specs = _specs(localizers, params, isolate, frame_timeout, preprocess)
+    if specs and not report_only:
+        require_render_stack()
+        for s in specs:                      # user errors before the first trial
+            loc = s.build()
+            getattr(loc, "close", lambda: None)()
+    out = out or Path("out/dock") / exp.name
+    paths = run_dock(exp, specs, trials, out, images, threads, not no_baseline,
+                     progress=lambda m: click.echo(m, err=True), report_only=report_only)
+    import pandas as pd
+    print_table(pd.read_csv(paths["summary"]), floatfmt=".3g")
+    click.echo("\n".join(f"{k}: {v}" for k, v in paths.items()))
+
+
+@bench.command("closed-loop")
+@click.option("--experiment", default="turbidity", show_default=True, help="paper experiment or config file")
+@click.option("-l", "--localizer", default="led", show_default=True)
+@click.option("--trials", type=click.IntRange(1, 1000), default=2, show_default=True)
+@click.option("--size", default=None, metavar="WxH", help="override the resolution (default: the config's)")
+@click.option("--open-loop-frames", type=click.IntRange(0, 10000), default=30, show_default=True,
+              help="frames of the open-loop stage bench to compare with (0: skip)")
+@click.option("--threads", type=click.IntRange(0, 256), default=0, help="Cycles threads (0: all cores)")
+@click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
+              default=Path("out/bench_closed_loop"), show_default=True)
+def bench_closed_loop(experiment, localizer, trials, size, open_loop_frames, threads, out):
+    """Seconds per closed-loop trial (fast fidelity) vs the open-loop cost per frame."""
+    import os
+    import pandas as pd
+    from blendgen.pipeline.executor import require_render_stack
+    from blendgen.tools.closed_loop import closed_loop_cost, cpu_seconds, load_bench_experiment
+    from evalkit.reports.tables import print_table
+    require_render_stack()
+    exp = load_bench_experiment(experiment, size, ())
+    row = closed_loop_cost(exp, localizer, trials, out, threads)
+    click.echo("\nclosed loop (one warm Blender process, render -> compose -> localize -> guide):")
+    print_table(pd.DataFrame([row]), floatfmt=".1f")
+    pd.DataFrame([row]).to_csv(out / "bench_closed_loop.csv", index=False)
+    if open_loop_frames:
+        from blendgen.tools.bench import render_stages
+        c0 = cpu_seconds()
+        ol = render_stages(out / "open_loop", open_loop_frames, exp.render.samples)
+        ol_cpu = 1e3 * (cpu_seconds() - c0) / ol["frames"]
+        click.echo(f"\nopen loop (dockbench generate, quickstart approach, 640x480, {exp.render.samples} spp): "
+                   f"{ol['wall_ms_per_frame']:.1f} ms/frame wall incl. process start and scene build, "
+                   f"{ol['render+write_ms']:.1f} ms/frame render+post+write, {ol_cpu:.1f} CPU ms/frame "
+                   f"(load average {os.getloadavg()[0]:.1f})")
+        click.echo(f"closed loop: {row['ms_per_frame']:.1f} ms/frame wall, {row['cpu_ms_per_frame']:.1f} CPU ms/frame "
+                   f"-> {row['s_per_trial']:.1f} s per trial of {row['frames'] / row['trials']:.0f} frames")
+
+
+def _suite_size(ctx, param, value):
+    """``--size WxH`` -> (width, height) px, each 16..8192."""
+    if value is None:
+        return None
+    try:
+        w, h = (int(v) for v in value.lower().split("x"))
+    except ValueError:
+        w = h = 0
+    if not (16 <= w <= 8192 and 16 <= h <= 8192):
+        raise click.BadParameter(f"{value!r}: expected WIDTHxHEIGHT, each 16..8192, e.g. 1280x720")
+    return w, h
+
+
+@bench.command("suite")
+@click.option("--trials", type=click.IntRange(1, 100000), default=1, show_default=True)
+@click.option("-e", "--experiment", "names", multiple=True,
+              type=click.Choice(("turbidity", "depth", "current", "occlusion")),
+              help="experiments to run together (repeatable; default all four)")
+@click.option("--size", callback=_suite_size, default=None, help="override the camera, e.g. 1280x720")
+@click.option("--particles", type=click.IntRange(0, 10_000_000), default=None,
+              help="occlusion experiment: one condition with this many small obstacles")
+@click.option("--workers", type=click.IntRange(1, 256), default=None)
+@click.option("--scaling", is_flag=True, help="run the scaling table instead (trials 1/3, 640x480 vs "
+              "1280x720 on turbidity; particles 0/6000/60000 on occlusion; 1 trial each)")
+@click.option("--no-evaluate", is_flag=True, help="generate only")
+@click.option("--table", is_flag=True, help="only print the table of the runs recorded in OUT")
+@click.option("--max-distance", "max_distance_m", type=click.FloatRange(0.5, 100.0), default=None,
+              help="render only the frames within this distance (m) of the dock (a cheaper, "
+                   "close-range-heavy workload for scaling runs)")
+@click.option("--samples", type=click.IntRange(1, 4096), default=None,
+              help="Cycles samples in the dock's region (default: the configs' 4)")
+@click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
+              default=Path("out/bench"), show_default=True)
+def bench_suite(trials, names, size, particles, workers, scaling, no_evaluate, table, max_distance_m,
+                samples, out):
+    """Generate and evaluate the article's suite at N trials; CPU/wall per stage, RSS, disk, 100-trial estimate."""
+    from blendgen.tools.reproduce import EXPERIMENTS
+    from blendgen.tools.suitebench import Overrides, bench_suite as run, print_recorded
+    if table:
+        return print_recorded(out)
+    run(trials, names or EXPERIMENTS, Overrides(size, particles, max_distance_m, samples), out,
+        workers, scaling, not no_evaluate)
+
 
 if __name__ == "__main__":
     main()

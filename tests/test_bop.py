@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+import cli
+
 from evalkit.reports import bop
 from evalkit.dataset import Dataset
 
@@ -177,8 +179,8 @@ def test_range_to_depth_clipping():
 
 def test_cli(tmp_path):
     root = write_fake_dataset(tmp_path / "ds")
-    res = CliRunner().invoke(bop.export_bop_cmd, [str(root), "-o", str(tmp_path / "b"), "--copy"])
+    res = CliRunner().invoke(cli.main, ["export-bop", str(root), "-o", str(tmp_path / "b"), "--copy"])
     assert res.exit_code == 0, res.output
     assert not (tmp_path / "b" / "test" / "000000" / "rgb" / "000000.png").is_symlink()
-    res = CliRunner().invoke(bop.export_bop_cmd, [str(tmp_path / "nope"), "-o", str(tmp_path / "c")])
+    res = CliRunner().invoke(cli.main, ["export-bop", str(tmp_path / "nope"), "-o", str(tmp_path / "c")])
     assert res.exit_code == 2 and "error:" in res.output

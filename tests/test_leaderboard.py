@@ -6,6 +6,8 @@ import re
 import pytest
 from click.testing import CliRunner
 
+import cli
+
 from evalkit.dataset import Dataset
 from evalkit.metrics.extra import EvalSettings
 from evalkit.reports import leaderboard, results
@@ -83,10 +85,10 @@ def test_runs_with_different_thresholds_are_not_ranked_together(runs, tmp_path):
 
 def test_cli_and_errors(runs, tmp_path):
     root, dirs = runs
-    res = CliRunner().invoke(leaderboard.leaderboard_cmd, [str(dirs["runA"]), "-o", str(tmp_path / "b.html")])
+    res = CliRunner().invoke(cli.main, ["leaderboard", str(dirs["runA"]), "-o", str(tmp_path / "b.html")])
     assert res.exit_code == 0, res.output
     assert (tmp_path / "b.html").is_file()
-    res = CliRunner().invoke(leaderboard.leaderboard_cmd, [str(root / "ds"), "-o", str(tmp_path / "c.html")])
+    res = CliRunner().invoke(cli.main, ["leaderboard", str(root / "ds"), "-o", str(tmp_path / "c.html")])
     assert res.exit_code == 2 and "not a dockbench results directory" in res.output
 
 

@@ -510,50 +510,6 @@ def _specs(localizers, params, isolate, frame_timeout, preprocess) -> list[Local
             for n in names]
 
 
-import click  # noqa: E402  (the command sits below the library functions it drives)
-
-
-@click.command("dock")
-@click.argument("experiment")
-@click.option("-l", "--localizer", "localizers", multiple=True, default=("led", "aruco", "hybrid"),
-              show_default=True, help="localizer spec as for `dockbench evaluate` (repeatable)")
-@click.option("-p", "--param", "params", multiple=True, help="key=value or NAME.key=value for localizers")
-@click.option("--trials", type=click.IntRange(1, 100000), default=10, show_default=True,
-              help="seeded trials per condition and localizer")
-@click.option("--condition", "conditions", multiple=True, help="only these condition labels (repeatable)")
-@click.option("--size", default=None, metavar="WxH", help="override the camera resolution, e.g. 320x240")
-@click.option("--images", is_flag=True, help="keep every camera image (OUT/images/<trial>/)")
-@click.option("--no-baseline", is_flag=True, help="skip the ground-truth-guidance baseline")
-@click.option("--threads", type=click.IntRange(0, 256), default=0, help="Cycles threads (0: all cores)")
-@click.option("--isolate", is_flag=True, help="run built-in localizers in a child process too (plugins always are)")
-@click.option("--frame-timeout", type=click.FloatRange(min=0.001), default=None, help="s per frame")
-@click.option("--preprocess", default=None, metavar="STEPS", help="image preprocessing (see evaluate)")
-@click.option("--report-only", is_flag=True, help="only summarise and plot the tables already in OUT")
-@click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="output directory (default out/dock/NAME)")
-def dock_cmd(experiment, localizers, params, trials, conditions, size, images, no_baseline, threads, isolate,
-             frame_timeout, preprocess, report_only, out):
-    """Closed-loop docking: each localizer steers the vehicle from seeded starts.
-
-    EXPERIMENT is turbidity, depth, current, occlusion (the paper configs) or a config file.
-    Writes trials.parquet, frames.parquet, summary.csv/.md and paths.png (top view)."""
-    from evalkit.reports.tables import print_table
-    from blendgen.pipeline.executor import require_render_stack
-    exp = load_bench_experiment(experiment, size, conditions)
-    specs = _specs(localizers, params, isolate, frame_timeout, preprocess)
-    if specs and not report_only:
-        require_render_stack()
-        for s in specs:                      # user errors before the first trial
-            loc = s.build()
-            getattr(loc, "close", lambda: None)()
-    out = out or Path("out/dock") / exp.name
-    paths = run_dock(exp, specs, trials, out, images, threads, not no_baseline,
-                     progress=lambda m: click.echo(m, err=True), report_only=report_only)
-    import pandas as pd
-    print_table(pd.read_csv(paths["summary"]), floatfmt=".3g")
-    click.echo("\n".join(f"{k}: {v}" for k, v in paths.items()))
-
-
 # ------------------------------------------------------------------ cost ---------------
 def cpu_seconds() -> float:
     """CPU seconds (user + system) of this process and its finished children."""
@@ -572,7 +528,7 @@ def closed_loop_cost(exp: Experiment, localizer: str, trials: int, out: Path, th
     exp.conditions = exp.conditions[:1]
     t0, c0 = time.perf_counter(), cpu_seconds()
     rows, frames = run_suite(bench, [LocalizerSpec(localizer, {})], trials, out, baseline=False,
-                             threads=threads, progress=lambda m: click.echo(m, err=True))
+                             threads=threads, progress=lambda m: print(m, file=sys.stderr))
     wall, cpu = time.perf_counter() - t0, cpu_seconds() - c0
     f, tr = pd.DataFrame(frames), pd.DataFrame(rows)
     n = len(f)
@@ -585,37 +541,3 @@ def closed_loop_cost(exp: Experiment, localizer: str, trials: int, out: Path, th
             "other_ms": per_frame - sum(stages.values()), "wall_s_incl_server_start": wall,
             "cpu_ms_per_frame": 1e3 * cpu / n, "load_avg_1min": os.getloadavg()[0],
             "outcomes": ", ".join(tr["outcome"])}
-
-
-@click.command("closed-loop")
-@click.option("--experiment", default="turbidity", show_default=True, help="paper experiment or config file")
-@click.option("-l", "--localizer", default="led", show_default=True)
-@click.option("--trials", type=click.IntRange(1, 1000), default=2, show_default=True)
-@click.option("--size", default=None, metavar="WxH", help="override the resolution (default: the config's)")
-@click.option("--open-loop-frames", type=click.IntRange(0, 10000), default=30, show_default=True,
-              help="frames of the open-loop stage bench to compare with (0: skip)")
-@click.option("--threads", type=click.IntRange(0, 256), default=0, help="Cycles threads (0: all cores)")
-@click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
-              default=Path("out/bench_closed_loop"), show_default=True)
-def bench_cmd(experiment, localizer, trials, size, open_loop_frames, threads, out):
-    """Seconds per closed-loop trial (fast fidelity) vs the open-loop cost per frame."""
-    import pandas as pd
-    from evalkit.reports.tables import print_table
-    from blendgen.pipeline.executor import require_render_stack
-    require_render_stack()
-    exp = load_bench_experiment(experiment, size, ())
-    row = closed_loop_cost(exp, localizer, trials, out, threads)
-    click.echo("\nclosed loop (one warm Blender process, render -> compose -> localize -> guide):")
-    print_table(pd.DataFrame([row]), floatfmt=".1f")
-    pd.DataFrame([row]).to_csv(out / "bench_closed_loop.csv", index=False)
-    if open_loop_frames:
-        from blendgen.tools.bench import render_stages
-        c0 = cpu_seconds()
-        ol = render_stages(out / "open_loop", open_loop_frames, exp.render.samples)
-        ol_cpu = 1e3 * (cpu_seconds() - c0) / ol["frames"]
-        click.echo(f"\nopen loop (dockbench generate, quickstart approach, 640x480, {exp.render.samples} spp): "
-                   f"{ol['wall_ms_per_frame']:.1f} ms/frame wall incl. process start and scene build, "
-                   f"{ol['render+write_ms']:.1f} ms/frame render+post+write, {ol_cpu:.1f} CPU ms/frame "
-                   f"(load average {os.getloadavg()[0]:.1f})")
-        click.echo(f"closed loop: {row['ms_per_frame']:.1f} ms/frame wall, {row['cpu_ms_per_frame']:.1f} CPU ms/frame "
-                   f"-> {row['s_per_trial']:.1f} s per trial of {row['frames'] / row['trials']:.0f} frames")

@@ -52,7 +52,6 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import click
 import numpy as np
 
 from datasets_spec.io import load_index, load_range
@@ -337,31 +336,3 @@ def export_bop(dataset: Dataset | str | Path, out_dir: str | Path, split: str = 
         "visib_fract": {"from_object_index": ex.visib_from_index, "copied_from_dataset": ex.visib_copied}})
     return {"scenes": len(scenes), "images": n_images, "objects": len(ds.markers),
             "depth_clipped_px": ex.clipped}
-
-
-@click.command("export-bop")
-@click.argument("dataset", type=click.Path(file_okay=False, path_type=Path))
-@click.option("-o", "--out", "out", required=True, type=click.Path(file_okay=False, path_type=Path),
-              help="BOP dataset directory to write")
-@click.option("--split", default="test", show_default=True, help="BOP split folder name")
-@click.option("--copy", "copy_images", is_flag=True, help="copy RGB images instead of symlinking them")
-@click.option("--depth-scale", type=click.FloatRange(min=0.0, min_open=True), default=1.0,
-              show_default=True, help="mm per depth PNG unit (1.0: up to 65.5 m; 0.1: up to 6.5 m)")
-@click.option("--no-masks", is_flag=True, help="do not write mask_visib PNGs")
-def export_bop_cmd(dataset: Path, out: Path, split: str, copy_images: bool, depth_scale: float,
-                   no_masks: bool):
-    """Export DATASET in the BOP format (scene_camera/scene_gt/scene_gt_info, rgb, depth) to OUT."""
-    try:
-        s = export_bop(dataset, out, split=split, copy_images=copy_images, depth_scale=depth_scale,
-                       masks=not no_masks)
-    except DatasetError as exc:
-        click.echo(f"error: {exc}", err=True)
-        sys.exit(2)
-    click.echo(f"BOP export: {s['scenes']} scenes, {s['images']} images, {s['objects']} objects -> {out}")
-    info = json.loads((out / "dockbench_scenes.json").read_text())["visib_fract"]
-    if info["copied_from_dataset"]:
-        click.echo(f"note: {info['copied_from_dataset']} visib_fract values copied from the dataset's "
-                   "visible_fraction (no object-index pass to compute them from)", err=True)
-    if s["depth_clipped_px"]:
-        click.echo(f"note: {s['depth_clipped_px']} depth pixels beyond {65535 * depth_scale / 1000:.1f} m "
-                   f"written as 0 (use a larger --depth-scale)", err=True)

@@ -24,7 +24,6 @@ import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING, Iterable, Sequence
 
-import click
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -344,29 +343,3 @@ def screenshot(html_path: str | Path, png: str | Path, size: tuple[int, int] = (
     chromium(html_path, f"--screenshot={png}", f"--window-size={size[0]},{size[1]}",
              "--hide-scrollbars")
     return png
-
-
-@click.command("leaderboard")
-@click.argument("results_dirs", nargs=-1, required=True,
-                type=click.Path(exists=True, file_okay=False, path_type=Path))
-@click.option("-o", "--out", "out", type=click.Path(dir_okay=False, path_type=Path),
-              default=Path("leaderboard.html"), show_default=True, help="HTML file to write")
-@click.option("--title", default="dockbench leaderboard", show_default=True)
-@click.option("--screenshot", "shot", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="also render the page to this PNG (needs chromium)")
-def leaderboard_cmd(results_dirs: tuple[Path, ...], out: Path, title: str, shot: Path | None):
-    """Rank localizers per dataset and condition from RESULTS_DIRS (of `dockbench evaluate`)
-    into one static HTML page."""
-    from evalkit.reports.results import ResultsError
-    try:
-        path = build_leaderboard(results_dirs, out, title)
-    except ResultsError as exc:
-        click.echo(f"error: {exc}", err=True)
-        sys.exit(2)
-    click.echo(f"leaderboard: {path}")
-    if shot is not None:
-        try:
-            click.echo(f"screenshot: {screenshot(path, shot)}")
-        except (RuntimeError, subprocess.TimeoutExpired) as exc:
-            click.echo(f"error: screenshot: {exc}", err=True)
-            sys.exit(2)
