@@ -23,7 +23,6 @@ Nothing is asserted: the numbers are printed and written to ``OUT/pnp.csv`` and 
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass
 from pathlib import Path
 

@@ -253,7 +253,6 @@ def timing_summary(out: Path) -> dict:
 
 def config_digest(exp: Experiment) -> str:
     """sha256 of the resolved config: what a resumable output directory must match."""
-    import hashlib
     return hashlib.sha256(json.dumps(exp.model_dump(mode="json"), sort_keys=True).encode()).hexdigest()
 
 

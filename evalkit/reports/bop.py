@@ -48,14 +48,13 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from datasets_spec.io import load_index, load_range
-from evalkit.dataset import Dataset, DatasetError
+from evalkit.dataset import Dataset
 from evalkit.metrics.recall import marker_model, marker_points
 
 MIN_TARGET_VISIB = 0.1

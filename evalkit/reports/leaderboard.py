@@ -19,7 +19,6 @@ import json
 import math
 import shutil
 import subprocess
-import sys
 import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING, Iterable, Sequence
