@@ -240,6 +240,26 @@ class Camera(Strict):
     sensor: Sensor = Sensor()
 
 
+class Lamp(Strict):
+    """A lamp on the vehicle (issue 14): a spot of radiant flux ``power_w`` spread over a cone.
+
+    Mounted at ``offset_m`` in the camera frame (OpenCV: x right, y down, z forward), aimed
+    ``yaw_deg`` right and ``pitch_deg`` down of the optical axis. Physics: ``physics/lights.py``."""
+    id: SafeId = "lamp"
+    offset_m: Vec3 = Field([0.0, 0.3, 0.0], description="position in the camera frame (m)")
+    yaw_deg: float = Field(0.0, ge=-90.0, le=90.0, description="aim right of the optical axis")
+    pitch_deg: float = Field(0.0, ge=-90.0, le=90.0, description="aim below the optical axis")
+    half_angle_deg: float = Field(30.0, gt=1.0, le=90.0, description="cone half-angle")
+    edge_deg: float = Field(5.0, ge=0.0, le=45.0, description="soft edge inside the cone")
+    power_w: float = Field(10.0, gt=0.0, le=1e4, description="radiant flux into the cone (W)")
+    color: Color = [1.0, 1.0, 1.0]
+
+
+class Vehicle(Strict):
+    """What the vehicle carries besides the camera."""
+    lamps: list[Lamp] = Field(default_factory=list, max_length=8)
+
+
 class Render(Strict):
     fidelity: Literal["fast", "reference"] = "fast"
     samples: int = Field(4, ge=1, le=65536)
@@ -442,6 +462,7 @@ class Experiment(Strict):
     seed: int = Field(0, ge=0, le=2**32 - 1)
     scene: Scene = Scene()
     camera: Camera = Camera()
+    vehicle: Vehicle = Vehicle()
     render: Render = Render()
     water: Water = Water()
     fluid: Fluid = Fluid()

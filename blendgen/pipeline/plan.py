@@ -25,7 +25,8 @@ from blendgen import markers as mk
 from blendgen.pipeline import groundtruth
 from blendgen.vehicle import trajectories as tj
 from blendgen.geometry import intrinsics_from_hfov, make_T, rpy_to_R
-from blendgen.config.models import ConfigError, Experiment, ImageFormation, Occlusion, Sensor, Strict, Vec3, Water
+from blendgen.config.models import (ConfigError, Experiment, ImageFormation, Lamp, Occlusion, Sensor, Strict, Vec3,
+                                    Water)
 
 INDEX_POOL, INDEX_DOCK, INDEX_MARKER0, INDEX_OBSTACLE0, INDEX_PARTICLES = 1, 2, 10, 100, 250
 #: Version of :class:`JobRecord`, the file a render worker reads.
@@ -58,6 +59,7 @@ class SequencePost(Strict):
     sensor: Sensor = Sensor()
     distortion: Optional[list[float]] = None
     occlusion: Optional[OcclusionPost] = None
+    lamps: list[Lamp] = Field(default_factory=list, description="the vehicle's lamps (camera frame)")
 
 
 class JobCamera(Strict):
@@ -346,7 +348,7 @@ def condition_post(exp: Experiment, cond, seed: int) -> SequencePost:
                         surface_z_m=-exp.scene.dock.water_depth_m + depth,
                         irradiance_w_m2=downwelling_irradiance(exp), noise_std=exp.camera.noise_std,
                         sensor=exp.camera.sensor,
-                        distortion=exp.camera.distortion, occlusion=occ_post)
+                        distortion=exp.camera.distortion, occlusion=occ_post, lamps=exp.vehicle.lamps)
 
 
 @functools.lru_cache(maxsize=256)
