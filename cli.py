@@ -251,15 +251,33 @@ def _size_options(fn):
 @_size_options
 @click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
               default=Path("out/bench_fidelity"), show_default=True)
-def bench_fidelity(width: int, height: int, ref_samples: int, frames: int, out: Path):
+@click.option("--volume-bounces", type=click.IntRange(0, 128), default=32, show_default=True,
+              help="multiple scattering of the reference medium (32 converge the veil)")
+@click.option("--veil-only", is_flag=True, help="only the veil residual table (no renders)")
+def bench_fidelity(width: int, height: int, ref_samples: int, frames: int, out: Path, volume_bounces: int,
+                   veil_only: bool):
     """Time vs image error vs localization change of fast water settings against the reference.
 
-    Renders the held-in set (clear/mild/moderate/jerlov_1C, 10 m -> 1 m) once as a
-    Cycles medium and once per fast setting; writes OUT/fidelity.csv and
-    OUT/fidelity_pareto.png. Defaults take ~5-10 min on 2 cores."""
-    from blendgen.tools.fidelity import run_bench
+    First the physical veil: the fast model vs the stored multiple-scattering Cycles references
+    of `calibrate-veil` per preset, depth, view elevation and channel (OUT/veil.csv). Then renders
+    the held-in set (clear/mild/moderate/jerlov_1C, 10 m -> 1 m) once as a Cycles medium with
+    VOLUME_BOUNCES and once per fast setting; writes OUT/fidelity.csv and OUT/fidelity_pareto.png."""
+    from blendgen.tools.fidelity import run_bench, veil_residual_table
     from evalkit.reports.tables import print_table
-    df = run_bench(out, width, height, frames, ref_samples, echo=lambda m: click.echo(m, err=True))
+    out.mkdir(parents=True, exist_ok=True)
+    vt = veil_residual_table()
+    vt.to_csv(out / "veil.csv", index=False)
+    wide = vt.pivot_table(index=["preset", "depth_m", "elev_deg"], columns="ch", values="rel_err", sort=False)
+    print_table(wide.reset_index(), floatfmt=".3f")
+    ok = vt[vt["reference"] > 1e-4]
+    click.echo(f"\nveil fast/reference - 1 over {len(ok)} points x channels with reference > 1e-4: max |.| "
+               f"{ok['rel_err'].abs().max():.3f}, median |.| {ok['rel_err'].abs().median():.3f} "
+               f"(isotropic-equivalent estimate before: median |.| {ok['rel_err_isotropic'].abs().median():.2f}, "
+               f"max {ok['rel_err_isotropic'].abs().max():.1f}); {out / 'veil.csv'}\n")
+    if veil_only:
+        return
+    df = run_bench(out, width, height, frames, ref_samples, echo=lambda m: click.echo(m, err=True),
+                   volume_bounces=volume_bounces)
     cols = ["setting", "condition", "width", "ms_per_frame", "psnr_db", "mae",
             "dP_succ_led", "de_rel_led", "dP_succ_qr", "de_rel_qr"]
     print_table(df[cols], floatfmt=".3g")
@@ -319,6 +337,25 @@ def calibrate_water(width: int, height: int, ref_samples: int, frames: int, out:
         r = e["residual"]
         click.echo(f"{name:10s} B_inf={e['B_inf']} Kd={e['Kd']}  MAE uncalibrated {r['uncalibrated']['mae']:.4f}"
                    f" -> calibrated {r['calibrated']['mae']:.4f} (rel {r['calibrated']['rel_mae']:.1%})")
+    click.echo(f"wrote {data}")
+
+
+@main.command("calibrate-veil")
+@click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
+              default=Path("out/calibrate_veil"), show_default=True, help="work directory for the render specs")
+@click.option("--data", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="calibration file to update (default: the package's water_calibration.json)")
+@click.option("--preset", "presets", multiple=True, help="presets to measure (repeatable; default all)")
+def calibrate_veil(out: Path, data: Path | None, presets: tuple[str, ...]):
+    """Fit the physical veil model (kappa, K_v per channel, eta) to Cycles references with 64 volume
+    bounces at depths 1/3/6 m and views -30/0/+30 deg; ~6 renders of ~10 s per preset."""
+    from blendgen.physics import optics
+    from blendgen.tools import veil_calibration as vc
+    data = data or optics.CALIBRATION_PATH
+    d = vc.run(out, data, presets or vc.PRESETS, echo=lambda m: click.echo(m, err=True))
+    for name, e in d["presets"].items():
+        click.echo(f"{name:10s} kappa={e['kappa']} K_v={e['K_v']} eta={e['eta']} "
+                   f"max |fast/ref - 1| {e['max_abs_rel_residual']:.3f}")
     click.echo(f"wrote {data}")
 
 

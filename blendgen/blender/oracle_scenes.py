@@ -6,8 +6,8 @@ read back from the material. SPEC keys:
 
 - ``water``: a ``plan.water_volume``-style dict (sigma_a, sigma_s, phase, g, ...,
   box_min, box_max), or null for no medium;
-- ``camera``: ``{"ortho_scale": m, "z": m, "clip_start": m}`` -- an orthographic
-  camera at (0, 0, z) looking along +x;
+- ``camera``: ``{"ortho_scale": m, "z": m, "clip_start": m, "pitch_deg": 0}`` -- an
+  orthographic camera at (0, 0, z) looking along +x, tilted ``pitch_deg`` up (negative: down);
 - ``target``: ``{"kind": "emitter"|"black"|"grey", "x": m, "radiance": 1, "albedo": 0.5}`` -- a large plane
   at x facing -x; the emitter is seen by the camera only (hidden from scatter rays,
   never sampled as a light);
@@ -56,7 +56,8 @@ def build(spec: dict):
     sc.collection.objects.link(cam)
     sc.camera = cam
     cam.location = (0.0, 0.0, float(c.get("z", 0.0)))
-    cam.rotation_euler = (math.pi / 2, 0.0, -math.pi / 2)   # Blender -Z view axis -> world +x
+    pitch = math.radians(float(c.get("pitch_deg", 0.0)))
+    cam.rotation_euler = (math.pi / 2 + pitch, 0.0, -math.pi / 2)   # -Z view axis -> (cos p, 0, sin p)
     r = spec["render"]
     sc.render.resolution_x, sc.render.resolution_y = int(r["width"]), int(r["height"])
     sc.render.resolution_percentage = 100

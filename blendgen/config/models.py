@@ -267,6 +267,9 @@ class Render(Strict):
     threads: int = Field(0, ge=0, le=256, description="Cycles threads per worker; 0 = cores / workers")
     diffuse_bounces: int = Field(0, ge=0, le=16,
                                  description="Cycles diffuse bounces (interreflection; noisy at few samples)")
+    volume_bounces: int = Field(0, ge=0, le=128,
+                                description="reference fidelity: Cycles volume bounces in the water medium "
+                                            "(0 = single scattering; 32 converge the veil to 0.1 %)")
     write_depth: bool = True
     write_index: bool = True
     roi: bool = Field(True, description="fast fidelity: full samples only in the dock's image region")

@@ -36,8 +36,9 @@ reference Cycles renders:
 - forward-scatter halo/blur energy (about +9% at 1 m with sigma_s 0.3): the
   optional blur here only redistributes the attenuated direct signal, it adds
   no forward-scattered energy;
-- the multiple-scattering level of the veiling light (1.5-7x single scatter) and
-  its dependence on view direction / sun elevation (``B_inf`` is one colour);
+- the veiling light is one colour per frame: the calibrated model of
+  :mod:`blendgen.physics.veil` (physical mode, bare presets) evaluates it at the camera's
+  depth and optical-axis elevation, not per pixel ray;
 - depth falloff with ``Kd`` is the multiply-scattered limit; the reference with
   0 bounces attenuates the sun by ``c`` along its refracted path;
 - volumetric shadows and light shafts (no 3-D light field here);
@@ -270,8 +271,9 @@ def light_field_veil(water: WaterOptics, mean_cosine_down: float = MEAN_COSINE_D
     (.0015, .0100, .0110) with 0 volume bounces and (.0018, .045, .041) with 64; this
     estimate gives (.020, .216, .168), 4-5x the multiple-scattering reference in G and B
     (11x in R): the isotropic-equivalent light field overstates the horizontal radiance
-    when scattering is forward-peaked. Fitting it per preset to multiple-scattering
-    references is open."""
+    when scattering is forward-peaked. In ``physical`` mode a bare preset now uses the
+    calibrated beam + diffuse model instead (:mod:`blendgen.physics.veil`,
+    :func:`veil_parameters`); this estimate remains for waters with overridden coefficients."""
     return water.albedo / (4.0 * math.pi * float(mean_cosine_down))
 
 
@@ -293,16 +295,18 @@ def water_for_mode(spec, mode: str) -> WaterOptics:
     return water
 
 
-def fast_water(spec, mode: str, irradiance: float, calibration: dict | None = None
-               ) -> tuple[WaterOptics, dict]:
+def fast_water(spec, mode: str, irradiance: float, calibration: dict | None = None,
+               veil: dict | None = None) -> tuple[WaterOptics, dict]:
     """Water and ``apply_water`` options for the fast fidelity of one condition.
 
     ``spec`` a validated water section (``config.models.Water``); ``mode`` 'physical'
     or 'article'; ``irradiance`` the downwelling irradiance just below the surface
     (W/m^2, sun + sky on a horizontal plane). The veiling light is, in this order: the
     config's ``B_inf`` (per unit irradiance); the reference calibration when
-    ``calibrated`` is set and the preset is bare and listed; else
-    :func:`light_field_veil`. In ``article`` mode it is the water colour ``C`` (the
+    ``calibrated`` is set and the preset is bare and listed; the calibrated veil model
+    ``veil`` (:func:`veil_parameters`; returned as ``opts["veil"]`` and evaluated per frame
+    by :func:`veil_radiance_at` at the camera's depth and view elevation, ``B_inf`` then
+    holds its value at the surface, horizontal, for the record); else :func:`light_field_veil`. In ``article`` mode it is the water colour ``C`` (the
     article presets' colour, or the veil above times the irradiance) and is used as is.
     Coefficients: :func:`water_for_mode`.
     Returns ``(water, {"irradiance", "blur", "calibrated"})``."""
@@ -315,13 +319,50 @@ def fast_water(spec, mode: str, irradiance: float, calibration: dict | None = No
         # the calibration's B_inf is per unit sun strength at its sun elevation
         per_ed = np.asarray(entry["B_inf"], float) / math.sin(math.radians(cal.get("sun_elevation_deg", 90.0)))
         water = water.replace(B_inf=per_ed, provenance=water.provenance + "; calibrated: " + str(cal.get("method", "")))
+    elif veil is not None and mode == "physical" and spec.B_inf is None:
+        water = water.replace(B_inf=np.clip(veil_radiance_at(water, veil, 0.0), *B_INF_RANGE),
+                              provenance=water.provenance + "; B_inf: calibrated beam + diffuse veil model "
+                              "(physics.veil, water_calibration.json 'veil')")
     elif spec.B_inf is None and not article_colour:
         water = water.replace(B_inf=light_field_veil(water),
                               provenance=water.provenance + "; B_inf: light-field estimate (b/c)/(4 pi mu_d)")
     irr = float(irradiance)
     if mode == "article" and not article_colour:
         water = water.replace(B_inf=water.B_inf * irr)     # a colour, used as is
-    return water, {"irradiance": 1.0 if mode == "article" else irr, "blur": bool(spec.blur), "calibrated": use}
+    on = veil is not None and mode == "physical" and spec.B_inf is None and not use
+    return water, {"irradiance": 1.0 if mode == "article" else irr, "blur": bool(spec.blur), "calibrated": use,
+                   "veil": veil if on else None}
+
+
+def veil_parameters(spec, mode: str, calibration: dict | None = None) -> dict | None:
+    """The calibrated veil model's numbers for a water section in ``physical`` mode:
+    ``{"kappa", "K_v", "eta", "max_abs_rel_residual", "method"}`` from the calibration
+    file's ``"veil"`` section (``dockbench calibrate-veil``), or None: another mode, an
+    explicit ``B_inf``, the older ``calibrated`` flag, coefficients overridden (the fit
+    belongs to the preset's own coefficients), clear water, or no entry for the preset."""
+    if mode != "physical" or spec.B_inf is not None or spec.calibrated or not spec.is_bare:
+        return None
+    cal = calibration if calibration is not None else load_calibration()
+    section = cal.get("veil") or {}
+    entry = (section.get("presets") or {}).get(spec.preset)
+    if not entry or water_for_mode(spec, mode).is_clear:
+        return None
+    return {"kappa": list(entry["kappa"]), "K_v": list(entry["K_v"]), "eta": float(entry["eta"]),
+            "max_abs_rel_residual": float(entry.get("max_abs_rel_residual", float("nan"))),
+            "method": f"{section.get('method', '')} ({section.get('date', '')})"}
+
+
+def veil_radiance_at(water: WaterOptics, veil: dict, depth_m: float, view_elevation_rad: float = 0.0,
+                     sun_elevation_deg: float = 90.0, sun_share: float = 1.0) -> np.ndarray:
+    """Veiling radiance per unit ``E_d0`` (3,) of the calibrated model (:mod:`physics.veil`)
+    for a camera at ``depth_m`` looking at ``view_elevation_rad``: the sun's beam term (its
+    share ``sun_share`` of ``E_d0``, at ``sun_elevation_deg``, 90 deg of azimuth from the
+    view) plus the fitted diffuse term (sky light joins the diffuse field)."""
+    from blendgen.physics import veil as vm
+    beam, diffuse = vm.veil_radiance(water.sigma_a, water.sigma_s, veil["K_v"], lambda t: phase_value(water, t),
+                                     veil["kappa"], depth_m, view_elevation_rad, eta=veil["eta"],
+                                     sun_elevation_rad=math.radians(sun_elevation_deg), parts=True)
+    return float(sun_share) * beam + diffuse
 
 
 # --------------------------------------------------------------------------- phase functions

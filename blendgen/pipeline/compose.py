@@ -52,7 +52,7 @@ class SequenceState:
             pfield = occlusion.ParticleField.sample(
                 rng, occ.region_min, occ.region_max, n_total=occ.n_total, r_min=occ.r_min_m,
                 r_max=occ.r_max_m, count_dist=occ.count_dist, n_max=occ.n_max)
-        water, opts = optics.fast_water(post.water, post.image_formation, post.irradiance_w_m2)
+        water, opts = optics.fast_water(post.water, post.image_formation, post.irradiance_w_m2, veil=post.veil)
         return cls(post, rng, pfield, water, opts, sensor_model(post))
 
     def advance(self) -> None:
@@ -116,15 +116,30 @@ def water_image(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, 
     if occluded is not None:
         emissive &= ~occluded
     fx = float(K[0, 0])
+    water = state.water
     if post.image_formation == "physical":
         depth, veil_depth = surface_depth(passes["range_m"], K, T_world_cam, post.surface_z_m)
+        if state.water_opts.get("veil"):        # calibrated veil at this camera depth and view elevation
+            water, veil_depth = frame_veil(state, T_world_cam, veil_depth), 0.0
     else:
         depth, veil_depth = post.light_depth_m, None
-    return optics.apply_water(passes["rgb"], passes["range_m"], emissive, state.water, depth,
+    return optics.apply_water(passes["rgb"], passes["range_m"], emissive, water, depth,
                               model=post.image_formation, veil_depth_m=veil_depth,
                               irradiance=state.water_opts["irradiance"], blur=state.water_opts["blur"],
                               blur_px_per_tau=optics.BLUR_RAD_PER_TAU * fx, blur_max_px=optics.BLUR_MAX_RAD * fx,
                               glow_fx=fx)
+
+
+def frame_veil(state: SequenceState, T_world_cam, cam_depth_m: float) -> optics.WaterOptics:
+    """The sequence's water with ``B_inf`` = the calibrated veil (per unit ``E_d0``) of a camera
+    at ``cam_depth_m`` whose optical axis (OpenCV +z, world z up) has the frame's elevation."""
+    import math
+    axis_z = float(np.asarray(T_world_cam, float)[2, 2])
+    elev = math.asin(max(-1.0, min(1.0, axis_z)))
+    post = state.post
+    B = optics.veil_radiance_at(state.water, state.water_opts["veil"], cam_depth_m, elev,
+                                post.sun_elevation_deg, post.sun_share)
+    return state.water.replace(B_inf=np.clip(B, *optics.B_INF_RANGE))
 
 
 def sensor_model(post: SequencePost) -> sensor.SensorModel:

@@ -60,6 +60,10 @@ class SequencePost(Strict):
     distortion: Optional[list[float]] = None
     occlusion: Optional[OcclusionPost] = None
     lamps: list[Lamp] = Field(default_factory=list, description="the vehicle's lamps (camera frame)")
+    sun_elevation_deg: float = Field(90.0, ge=0.0, le=90.0, description="the sun's elevation (physical veil)")
+    sun_share: float = Field(1.0, ge=0.0, le=1.0, description="direct sun's share of the downwelling irradiance")
+    veil: Optional[dict] = Field(None, description="physical mode: the calibrated veil model's numbers "
+                                                   "(optics.veil_parameters), None: not used")
 
 
 class JobCamera(Strict):
@@ -343,12 +347,15 @@ def condition_post(exp: Experiment, cond, seed: int) -> SequencePost:
         lo, hi = occlusion_region(exp, occ)
         occ_post = OcclusionPost(**occ.model_dump(exclude={"region_min", "region_max"}), region_min=lo,
                                  region_max=hi, v_flow=list(fluid.current_mps))
+    from blendgen.physics import optics
     return SequencePost(seed=seed, fps=exp.camera.fps, image_formation=exp.image_formation,
                         water=cond.water or exp.water, light_depth_m=depth,
                         surface_z_m=-exp.scene.dock.water_depth_m + depth,
                         irradiance_w_m2=downwelling_irradiance(exp), noise_std=exp.camera.noise_std,
                         sensor=exp.camera.sensor,
-                        distortion=exp.camera.distortion, occlusion=occ_post, lamps=exp.vehicle.lamps)
+                        distortion=exp.camera.distortion, occlusion=occ_post, lamps=exp.vehicle.lamps,
+                        sun_elevation_deg=exp.scene.sun_elevation_deg, sun_share=1.0 / (1.0 + sky_fraction(exp)),
+                        veil=optics.veil_parameters(cond.water or exp.water, exp.image_formation))
 
 
 @functools.lru_cache(maxsize=256)
@@ -443,8 +450,9 @@ def render_settings(exp: Experiment, threads: int) -> dict:
     """Cycles settings for the chosen fidelity."""
     r = exp.render
     samples = r.samples if r.fidelity == "fast" else r.reference_samples
-    return {"samples": samples, "threads": threads, "max_bounces": r.diffuse_bounces,
-            "diffuse_bounces": r.diffuse_bounces, "seed": exp.seed,
+    vb = r.volume_bounces if r.fidelity == "reference" else 0
+    return {"samples": samples, "threads": threads, "max_bounces": max(r.diffuse_bounces, vb),
+            "diffuse_bounces": r.diffuse_bounces, "volume_bounces": vb, "seed": exp.seed,
             "ambient_radiance": ambient_radiance(exp) if r.fidelity == "fast" else 0.0,
             "albedo_pass": r.fidelity == "fast" and ambient_on(exp),
             "write_depth": r.write_depth, "write_index": r.write_index,

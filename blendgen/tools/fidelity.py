@@ -44,8 +44,10 @@ D_FAR, D_NEAR = 10.0, 1.0
 # --------------------------------------------------------------------------- experiments
 
 def held_in_experiment(width: int, height: int, frames: int, conditions=CONDITIONS, *,
-                       fidelity: str = "fast", samples: int = 4, water_opts: dict | None = None):
-    """The held-in set: quickstart pool, one approach 10 m -> 1 m in ``frames`` frames."""
+                       fidelity: str = "fast", samples: int = 4, water_opts: dict | None = None,
+                       volume_bounces: int = 0):
+    """The held-in set: quickstart pool, one approach 10 m -> 1 m in ``frames`` frames
+    (``volume_bounces``: the reference medium's multiple scattering)."""
     from blendgen.config.models import Condition, Water, load_experiment
     exp = load_experiment(bundled_file("configs", "quickstart.yaml"))
     traj = exp.trajectories[0]
@@ -56,6 +58,7 @@ def held_in_experiment(width: int, height: int, frames: int, conditions=CONDITIO
     exp.camera.width, exp.camera.height = int(width), int(height)
     exp.render.fidelity = fidelity
     exp.render.samples = exp.render.reference_samples = int(samples)
+    exp.render.volume_bounces = int(volume_bounces)
     exp.conditions = [Condition(label=c, water=Water(preset=c, **(water_opts or {}))) for c in conditions]
     exp.name = f"fidelity-{fidelity}"
     return exp
@@ -223,16 +226,44 @@ def run_calibration(work: Path, data_path: Path, width: int, height: int, frames
 # --------------------------------------------------------------------------- bench
 
 def default_ladder(width: int, height: int) -> list[dict]:
-    """Fast settings compared with the reference."""
+    """Fast settings compared with the reference. ``calibrated: False`` is the physical default
+    (the calibrated veil model, :mod:`blendgen.physics.veil`); ``True`` the older per-condition
+    fit to a 0-bounce reference (``calibrate-water``)."""
     half = (max(16, width // 2), max(16, height // 2))
     return [
-        {"setting": "fast s1", "samples": 1, "size": (width, height), "blur": False, "calibrated": True},
-        {"setting": "fast s4", "samples": 4, "size": (width, height), "blur": False, "calibrated": True},
-        {"setting": "fast s16", "samples": 16, "size": (width, height), "blur": False, "calibrated": True},
-        {"setting": "fast s4 blur", "samples": 4, "size": (width, height), "blur": True, "calibrated": True},
-        {"setting": "fast s4 uncal", "samples": 4, "size": (width, height), "blur": False, "calibrated": False},
-        {"setting": "fast s4 half-res", "samples": 4, "size": half, "blur": False, "calibrated": True},
+        {"setting": "fast s1", "samples": 1, "size": (width, height), "blur": False, "calibrated": False},
+        {"setting": "fast s4", "samples": 4, "size": (width, height), "blur": False, "calibrated": False},
+        {"setting": "fast s16", "samples": 16, "size": (width, height), "blur": False, "calibrated": False},
+        {"setting": "fast s4 blur", "samples": 4, "size": (width, height), "blur": True, "calibrated": False},
+        {"setting": "fast s4 0-bounce fit", "samples": 4, "size": (width, height), "blur": False, "calibrated": True},
+        {"setting": "fast s4 half-res", "samples": 4, "size": half, "blur": False, "calibrated": False},
     ]
+
+
+def veil_residual_table(calibration: dict | None = None):
+    """Fast veil model (today's code, stored kappa/K_v/eta) vs the stored Cycles references
+    (``calibrate-veil``), per preset, camera depth, view elevation and channel: DataFrame with
+    reference, fast, their relative difference and the old isotropic-equivalent estimate's."""
+    import pandas as pd
+    from blendgen.physics import optics
+    from blendgen.tools import veil_calibration as vc
+    cal = calibration if calibration is not None else optics.load_calibration()
+    rows = []
+    for name, e in sorted(((cal.get("veil") or {}).get("presets") or {}).items()):
+        if name in vc.ALIASES:
+            continue
+        w = vc.physical_water(name)
+        for p in e["points"]:
+            ref = np.array(p["reference"])
+            fast = vc.model_value(w, p["depth_m"], p["elevation_deg"], np.array(e["kappa"]), np.array(e["K_v"]),
+                                  e["eta"])
+            iso = vc.model_value(w, p["depth_m"], p["elevation_deg"], 1.0, w.Kd)
+            for ch, c in enumerate("RGB"):
+                rows.append({"preset": name, "depth_m": p["depth_m"], "elev_deg": p["elevation_deg"], "ch": c,
+                             "reference": ref[ch], "fast": fast[ch],
+                             "rel_err": (fast[ch] - ref[ch]) / ref[ch] if ref[ch] > 0 else float("nan"),
+                             "rel_err_isotropic": (iso[ch] - ref[ch]) / ref[ch] if ref[ch] > 0 else float("nan")})
+    return pd.DataFrame(rows)
 
 
 def ms_per_image(timing: dict, n_conditions_sharing: int) -> float:
@@ -255,15 +286,18 @@ def localization(ds_path: Path) -> "pd.DataFrame":
 
 
 def run_bench(out: Path, width: int, height: int, frames: int, ref_samples: int,
-              ladder: list[dict] | None = None, conditions=CONDITIONS, echo=print):
-    """Render reference and ladder; returns the table (also written to OUT/fidelity.csv)."""
+              ladder: list[dict] | None = None, conditions=CONDITIONS, echo=print, volume_bounces: int = 32):
+    """Render reference (``volume_bounces`` multiple scattering) and ladder; returns the table
+    (also written to OUT/fidelity.csv)."""
     import pandas as pd
     from evalkit.dataset import Dataset
     out.mkdir(parents=True, exist_ok=True)
     ladder = ladder or default_ladder(width, height)
-    echo(f"reference: {len(conditions)} conditions x {frames} frames at {width}x{height}, {ref_samples} spp ...")
-    ref_exp = held_in_experiment(width, height, frames, conditions, fidelity="reference", samples=ref_samples)
-    ref_path, ref_t = render(ref_exp, out / f"reference-{width}x{height}-s{ref_samples}")
+    echo(f"reference: {len(conditions)} conditions x {frames} frames at {width}x{height}, {ref_samples} spp, "
+         f"{volume_bounces} volume bounces ...")
+    ref_exp = held_in_experiment(width, height, frames, conditions, fidelity="reference", samples=ref_samples,
+                                 volume_bounces=volume_bounces)
+    ref_path, ref_t = render(ref_exp, out / f"reference-{width}x{height}-s{ref_samples}-vb{volume_bounces}")
     ref = load_frames(ref_path)
     markers = Dataset.open(ref_path).markers
     ref_loc = localization(ref_path)
@@ -274,7 +308,7 @@ def run_bench(out: Path, width: int, height: int, frames: int, ref_samples: int,
         ref_ms[cond] = 1e3 * float(np.median(np.add(np.add(t["render"], t["depth_to_range"]), t["post_write"])))
     rows = []
     for cond in conditions:
-        rows.append({"setting": f"reference s{ref_samples}", "condition": cond, "width": width, "height": height,
+        rows.append({"setting": f"reference s{ref_samples} vb{volume_bounces}", "condition": cond, "width": width, "height": height,
                      "ms_per_frame": ref_ms.get(cond, float("nan")), "psnr_db": float("inf"), "mae": 0.0,
                      **{f"{m}_{n}": ref_loc.loc[(n, cond), c] for n in LOCALIZERS
                         for m, c in (("P_succ", "P_succ"), ("e_rel", "e_rel_mean"))},
