@@ -20,8 +20,9 @@ from blendgen.tools import veil_calibration as vc
 
 CAL = optics.load_calibration()
 VEIL = CAL.get("veil", {}).get("presets", {})
-#: The residual the calibration claims (docs, report): every stored point within 35 %.
-STATED_MAX_REL = 0.35
+#: The residual the calibration claims (docs, report), channels with a veil > 1e-4 per unit
+#: E_d0: within 30 % looking horizontally or down (the docking cameras), 50 % looking up 30 deg.
+STATED_MAX_REL = {"level_or_down": 0.30, "up": 0.50}
 
 
 def hg(g):
@@ -42,14 +43,16 @@ def test_stored_calibration_reproduces_references(name):
     Cycles references (64 volume bounces): within the entry's residual and the stated bound."""
     e = VEIL[name]
     w = vc.physical_water(name)
-    rel = []
+    worst = {"level_or_down": 0.0, "up": 0.0}
     for p in e["points"]:
         ref = np.array(p["reference"])
         fast = vc.model_value(w, p["depth_m"], p["elevation_deg"], np.array(e["kappa"]), np.array(e["K_v"]), e["eta"])
         ok = ref > 1e-4                                   # channels with a measurable veil
-        rel.extend(np.abs(fast[ok] - ref[ok]) / ref[ok])
-    assert max(rel) <= e["max_abs_rel_residual"] + 1e-3
-    assert max(rel) <= STATED_MAX_REL
+        key = "up" if p["elevation_deg"] > 0 else "level_or_down"
+        worst[key] = max(worst[key], float(np.max(np.abs(fast[ok] - ref[ok]) / ref[ok], initial=0.0)))
+    assert max(worst.values()) <= e["max_abs_rel_residual"] + 1e-3
+    for key, bound in STATED_MAX_REL.items():
+        assert worst[key] <= bound, (key, worst[key])
 
 
 @pytest.mark.parametrize("name", sorted(vc.PRESETS))
