@@ -94,8 +94,28 @@ class LedArray(Strict):
     reference_color: Color = [1.0, 0.35, 0.0]
     reference_index: Union[int, list[int]] = Field(
         0, description="index (or indices) of the reference LED(s), which have reference_color")
-    strength: float = Field(20.0, gt=0.0, le=1e5, description="emission strength (W/m^2 radiance scale)")
+    intensity_w_sr: float = Field(
+        0.1, gt=0.0, le=1e3,
+        description="on-axis radiant intensity of each LED per unit colour weight (W/sr; channel k emits "
+                    "intensity_w_sr * color[k]); a flat Lambertian disc of radiance I/(pi r^2) in both "
+                    "fidelities (physics/leds.py). 0.1 = the former strength 20 at r = 0.04 m")
     center_m: Annotated[list[float], Field(min_length=2, max_length=2)] = [0.0, 0.0]
+
+    @model_validator(mode="before")
+    @classmethod
+    def _old_strength(cls, data):
+        """Configs before issue 13 gave ``strength`` (radiance per colour weight, W/m^2/sr):
+        read as ``intensity_w_sr = strength * pi * led_radius_m^2`` (exact)."""
+        if isinstance(data, dict) and "strength" in data:
+            if "intensity_w_sr" in data:
+                raise ValueError("give intensity_w_sr (W/sr) only: strength is its old radiance form")
+            data = dict(data)
+            s = data.pop("strength")
+            if not isinstance(s, (int, float)) or isinstance(s, bool) or not (0 < s <= 1e5):
+                raise ValueError(f"strength (old key, radiance scale) must be a number in (0, 1e5], got {s!r}")
+            from blendgen.physics.leds import intensity_from_strength
+            data["intensity_w_sr"] = intensity_from_strength(s, float(data.get("led_radius_m", 0.04)))
+        return data
 
     @property
     def reference_indices(self) -> list[int]:

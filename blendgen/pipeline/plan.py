@@ -429,7 +429,8 @@ def plan_jobs(exp: Experiment, scene: dict) -> list[RenderJob]:
                 frames = paths[mkey]
                 post = condition_post(exp, c, seed)
                 sq = SequencePlan(f"{traj.id}-t{trial:03d}-{c.label}", traj.id, trial, c.label, post)
-                sc = scene if exp.render.fidelity == "fast" else {**scene, "water_volume": water_volume(exp, post)}
+                sc = scene if exp.render.fidelity == "fast" else {**scene, "water_volume": water_volume(exp, post),
+                                                                  "led_lights": True}
                 if post.occlusion and post.occlusion.geometry == "blender":
                     # real geometry is part of the render: keyed by its config and seed
                     sc = {**sc, "particles": {**post.occlusion.model_dump(), "seed": seed, "fps": exp.camera.fps,

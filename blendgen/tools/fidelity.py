@@ -366,6 +366,29 @@ def glow_reference(water, range_m: float, out: Path, size: int = 96, hfov_deg: f
     return np.load(npy)
 
 
+def led_reference(water, range_m: float, radiance, radius_m: float, out: Path, size: int = 96,
+                  hfov_deg: float = 40.0, samples: int = 64, lights_scene: bool = True) -> np.ndarray:
+    """Render the dataset's disc LED (radiance (3,), radius) ``range_m`` ahead, facing the camera,
+    through ``water`` (None: no medium) with Blender in a subprocess; linear RGB (size, size, 3)."""
+    import subprocess
+    import sys
+    spec = {"water": None if water is None else {
+                "sigma_a": water.sigma_a.tolist(), "sigma_s": water.sigma_s.tolist(), "phase": water.phase,
+                "g": float(water.g), "ff_ior": float(water.ff_ior), "ff_backscatter": float(water.ff_backscatter)},
+            "range_m": range_m, "led": {"radiance": [float(v) for v in radiance], "radius_m": radius_m,
+                                        "lights_scene": lights_scene},
+            "hfov_deg": hfov_deg, "width": size, "height": size, "samples": samples, "seed": 1}
+    out.mkdir(parents=True, exist_ok=True)
+    tag = f"led-{'air' if water is None else water.name}-{range_m:g}-{int(lights_scene)}"
+    sp, npy = out / f"{tag}.json", out / f"{tag}.npy"
+    sp.write_text(json.dumps(spec))
+    res = subprocess.run([sys.executable, "-m", "blendgen.blender.glow_scene", str(sp), str(npy)],
+                         capture_output=True, text=True, timeout=600)
+    if res.returncode != 0:
+        raise RuntimeError(f"LED reference render failed: {res.stderr[-1500:]}")
+    return np.load(npy)
+
+
 def encircled_glow(img: np.ndarray, fx: float, radii_px) -> np.ndarray:
     """(len(radii), 3): sum of radiance x pixel solid angle within each radius of the image
     centre (pixel solid angle ``cos^3(theta) / fx^2``)."""
