@@ -131,6 +131,8 @@ def run(job) -> dict:
                     seen, occluded = pp.add_particles(passes, st, K, fr["T_world_cam"])
                     img = pp.camera_image(seen, st, K, fr, markers, job.fidelity, occluded)
                     r = rec if occluded is None else pp.with_visibility(rec, markers, K, passes["index"], occluded)
+                    if st.auto_exposure is not None:
+                        r = {**r, "exposure_s": st.exposure_s}
                 with clock("write"):
                     paths = {**pp.write_image(d, o.rel, fr["index"], img), **pass_paths}
                     fh.write(json.dumps({**r, **paths}) + "\n")

@@ -226,6 +226,26 @@ class Scene(Strict):
                           "null: on in physical mode, off in article mode")
 
 
+class AutoExposureConfig(Strict):
+    """Auto-exposure (``physics/sensor.AutoExposure``): meter the previous frame's brightest
+    channel per pixel (``mean`` or a ``percentile``), aim it at ``target`` x full well, follow
+    with time constant ``time_constant_s``, clamp to the exposure limits."""
+    metering: Literal["mean", "percentile"] = Field(
+        "percentile", description="mean: average metering (target ~0.18); percentile: highlight "
+                                  "metering (99.9 and target 0.9 keep small LEDs just below saturation)")
+    percentile: float = Field(99.9, ge=0.0, le=100.0, description="percentile metered (percentile metering)")
+    target: float = Field(0.9, gt=0.0, le=1.0, description="metered value as a share of the full well")
+    min_exposure_s: float = Field(1e-5, gt=0.0, le=1.0, description="shortest exposure (s)")
+    max_exposure_s: float = Field(0.05, gt=0.0, le=1.0, description="longest exposure (s)")
+    time_constant_s: float = Field(0.3, ge=0.0, le=60.0, description="AE loop time constant (s); 0: at once")
+
+    @model_validator(mode="after")
+    def _limits(self):
+        if self.min_exposure_s > self.max_exposure_s:
+            raise ValueError(f"min_exposure_s {self.min_exposure_s} > max_exposure_s {self.max_exposure_s}")
+        return self
+
+
 class Sensor(Strict):
     """The camera's sensor (EMVA 1288 photon-transfer model, OPTICS.md): radiance -> electrons
     over the exposure -> saturation at the full well -> digital numbers with system gain
@@ -241,11 +261,16 @@ class Sensor(Strict):
     noise: Optional[bool] = Field(None, description="shot and read noise; null: on in physical mode, off in "
                                                     "article mode (which uses noise_std only)")
     response: Literal["srgb", "linear"] = Field("srgb", description="response curve to 8 bits")
-    bloom_fraction: float = Field(0.0, ge=0.0, le=1.0,
-                                  description="share of the charge above the full well that spills into "
-                                              "neighbouring pixels (0: perfect anti-blooming drain)")
+    bloom_fraction: Optional[float] = Field(
+        None, ge=0.0, le=1.0,
+        description="share of the charge above the full well that spills into neighbouring pixels (0: "
+                    "perfect anti-blooming drain); null: 0.05 in physical mode (saturated LEDs spread "
+                    "their own colour around the clipped core), 0 in article mode")
     bloom_sigma_px: float = Field(2.0, gt=0.0, le=50.0, description="spread of the spilled charge (px)")
     motion_blur: bool = Field(False, description="blur by the camera's motion over the exposure")
+    auto_exposure: Optional[AutoExposureConfig] = Field(
+        None, description="exposure control between frames (null: fixed exposure_s, the first frame's "
+                          "exposure when on); each frame's exposure is recorded in its frame record")
 
 
 class Camera(Strict):

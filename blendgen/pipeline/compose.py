@@ -42,6 +42,8 @@ class SequenceState:
     water: optics.WaterOptics | None = None
     water_opts: dict = dataclasses.field(default_factory=dict)
     camera: sensor.SensorModel = dataclasses.field(default_factory=sensor.SensorModel)
+    auto_exposure: sensor.AutoExposure | None = None
+    exposure_s: float | None = None          # the exposure of the last image (recorded with auto-exposure)
 
     @classmethod
     def start(cls, post: SequencePost) -> "SequenceState":
@@ -53,7 +55,9 @@ class SequenceState:
                 rng, occ.region_min, occ.region_max, n_total=occ.n_total, r_min=occ.r_min_m,
                 r_max=occ.r_max_m, count_dist=occ.count_dist, n_max=occ.n_max)
         water, opts = optics.fast_water(post.water, post.image_formation, post.irradiance_w_m2)
-        return cls(post, rng, pfield, water, opts, sensor_model(post))
+        ae = post.sensor.auto_exposure
+        auto = sensor.AutoExposure(**ae.model_dump()) if ae is not None else None
+        return cls(post, rng, pfield, water, opts, sensor_model(post), auto)
 
     def advance(self) -> None:
         """Drift the particles by one frame: p += v_flow dt + eta, eta ~ N(0, sigma^2 I)."""
@@ -127,13 +131,22 @@ def water_image(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, 
                               glow_fx=fx)
 
 
+#: Default share of the charge above the full well that spills into neighbours in physical mode:
+#: a documented choice, not a measured camera (CMOS anti-blooming drains remove most of it;
+#: a few % keeps a saturated LED's own colour in a halo around its clipped core, as cameras show).
+BLOOM_FRACTION_PHYSICAL = 0.05
+
+
 def sensor_model(post: SequencePost) -> sensor.SensorModel:
-    """The sequence's camera sensor; shot/read noise default on in physical mode only."""
+    """The sequence's camera sensor; shot/read noise and blooming (``BLOOM_FRACTION_PHYSICAL``)
+    default on in physical mode only."""
     s = post.sensor
-    noise = s.noise if s.noise is not None else post.image_formation == "physical"
+    physical = post.image_formation == "physical"
+    noise = s.noise if s.noise is not None else physical
+    bloom = s.bloom_fraction if s.bloom_fraction is not None else (BLOOM_FRACTION_PHYSICAL if physical else 0.0)
     return sensor.SensorModel(exposure_s=s.exposure_s, responsivity_e_per_s=s.responsivity_e_per_s,
                               full_well_e=s.full_well_e, read_noise_e=s.read_noise_e, gain=s.gain, noise=noise,
-                              response=s.response, bloom_fraction=s.bloom_fraction,
+                              response=s.response, bloom_fraction=bloom,
                               bloom_sigma_px=s.bloom_sigma_px, noise_std=post.noise_std)
 
 
@@ -148,7 +161,12 @@ def camera_image(passes: dict, state: SequenceState, K: np.ndarray, frame: dict,
         rgb = sensor.motion_blur(rgb, frame["blur_px"])
     if state.post.distortion:
         rgb = sensor.distort_image(rgb, K, state.post.distortion)
-    return state.camera.apply(rgb, state.rng)
+    img = state.camera.apply(rgb, state.rng)
+    state.exposure_s = state.camera.exposure_s
+    if state.auto_exposure is not None:              # the AE loop sets the next frame's exposure
+        t = state.auto_exposure.next_exposure(rgb, state.camera.exposure_s, state.camera, 1.0 / state.post.fps)
+        state.camera = dataclasses.replace(state.camera, exposure_s=t)
+    return img
 
 
 def output_passes(passes: dict, K: np.ndarray, distortion) -> dict:
