@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from blendgen.geometry import planar_depth_to_range, project, transform_points
-from blendgen.physics import optics, sensor
+from blendgen.physics import leds, optics, sensor
 from blendgen.physics import particles as occlusion
 from blendgen.pipeline import groundtruth
 from blendgen.pipeline.plan import INDEX_PARTICLES, SequencePost
@@ -111,10 +111,28 @@ def surface_depth(range_m: np.ndarray, K: np.ndarray, T_world_cam, surface_z_m: 
     return np.maximum(depth, np.float32(0.0)), cam_depth
 
 
+def led_light(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, markers: list[dict],
+              T_world_dock) -> np.ndarray | None:
+    """Fast fidelity, physical mode: radiance (H,W,3) the dock's LEDs put on the surfaces the
+    camera sees (``physics/leds.surface_radiance``), before the view path's attenuation; None
+    (no cost) without LEDs, without the albedo pass, in article mode or when it is negligible."""
+    arrays = [m for m in markers if m["kind"] == "led_array" and "intensity_w_sr" in m]
+    if (not arrays or T_world_dock is None or "albedo" not in passes
+            or state.post.image_formation != "physical"):
+        return None
+    T_cd = np.linalg.inv(np.asarray(T_world_cam, float)) @ np.asarray(T_world_dock, float)
+    lights = [li for m in arrays for li in leds.led_lights(m, T_cd)]
+    h, w = passes["range_m"].shape
+    rays = _unit_rays(tuple(np.asarray(K, float).ravel()), w, h)
+    return leds.surface_radiance(lights, passes["range_m"], rays, passes["albedo"], state.water.c)
+
+
 def water_image(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, markers: list[dict],
-                occluded: np.ndarray | None = None) -> np.ndarray:
+                occluded: np.ndarray | None = None, T_world_dock=None) -> np.ndarray:
     """Fast fidelity: the clean linear render (H,W,3) seen through the condition's water
-    with light at depth, in the sequence's image-formation mode (optics module docstring)."""
+    with light at depth, in the sequence's image-formation mode (optics module docstring);
+    in physical mode plus the LEDs' light on nearby surfaces (:func:`led_light`), attenuated
+    along the view ray only."""
     post = state.post
     emissive = emissive_mask(passes["index"], markers)
     if occluded is not None:
@@ -124,11 +142,16 @@ def water_image(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, 
         depth, veil_depth = surface_depth(passes["range_m"], K, T_world_cam, post.surface_z_m)
     else:
         depth, veil_depth = post.light_depth_m, None
-    return optics.apply_water(passes["rgb"], passes["range_m"], emissive, state.water, depth,
-                              model=post.image_formation, veil_depth_m=veil_depth,
-                              irradiance=state.water_opts["irradiance"], blur=state.water_opts["blur"],
-                              blur_px_per_tau=optics.BLUR_RAD_PER_TAU * fx, blur_max_px=optics.BLUR_MAX_RAD * fx,
-                              glow_fx=fx)
+    img = optics.apply_water(passes["rgb"], passes["range_m"], emissive, state.water, depth,
+                             model=post.image_formation, veil_depth_m=veil_depth,
+                             irradiance=state.water_opts["irradiance"], blur=state.water_opts["blur"],
+                             blur_px_per_tau=optics.BLUR_RAD_PER_TAU * fx, blur_max_px=optics.BLUR_MAX_RAD * fx,
+                             glow_fx=fx)
+    lit = led_light(passes, state, K, T_world_cam, markers, T_world_dock)
+    if lit is not None:
+        lit *= optics.transmittance(state.water, passes["range_m"]).reshape(lit.shape)
+        img += lit
+    return img
 
 
 #: Default share of the charge above the full well that spills into neighbours in physical mode:
@@ -151,12 +174,13 @@ def sensor_model(post: SequencePost) -> sensor.SensorModel:
 
 
 def camera_image(passes: dict, state: SequenceState, K: np.ndarray, frame: dict, markers: list[dict],
-                 fidelity: str, occluded: np.ndarray | None = None) -> np.ndarray:
+                 fidelity: str, occluded: np.ndarray | None = None, T_world_dock=None) -> np.ndarray:
     """Linear clean RGB (H,W,3) -> uint8 image (H,W,3) for one condition; ``frame`` is the
-    planned frame (``T_world_cam``, optional ``blur_px`` motion over the exposure)."""
+    planned frame (``T_world_cam``, optional ``blur_px`` motion over the exposure);
+    ``T_world_dock`` places the LEDs that light nearby surfaces (None: they light nothing)."""
     rgb = passes["rgb"]
     if fidelity == "fast":
-        rgb = water_image(passes, state, K, frame["T_world_cam"], markers, occluded)
+        rgb = water_image(passes, state, K, frame["T_world_cam"], markers, occluded, T_world_dock)
     if frame.get("blur_px") is not None:
         rgb = sensor.motion_blur(rgb, frame["blur_px"])
     if state.post.distortion:
