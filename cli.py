@@ -428,15 +428,17 @@ def leaderboard(results_dirs: tuple[Path, ...], out: Path, title: str, shot: Pat
 @click.option("--depth-scale", type=click.FloatRange(min=0.0, min_open=True), default=1.0,
               show_default=True, help="mm per depth PNG unit (1.0: up to 65.5 m; 0.1: up to 6.5 m)")
 @click.option("--no-masks", is_flag=True, help="do not write mask_visib PNGs")
+@click.option("--undistort", is_flag=True, help="camera with lens distortion: remap images, depth and masks "
+                                                "to the pinhole camera of the same K (else refused)")
 def export_bop(dataset: Path, out: Path, split: str, copy_images: bool, depth_scale: float,
-                   no_masks: bool):
+                   no_masks: bool, undistort: bool):
     """Export DATASET in the BOP format (scene_camera/scene_gt/scene_gt_info, rgb, depth) to OUT."""
     import json
     from evalkit.dataset import DatasetError
     from evalkit.reports.bop import export_bop as run
     try:
         s = run(dataset, out, split=split, copy_images=copy_images, depth_scale=depth_scale,
-                       masks=not no_masks)
+                       masks=not no_masks, undistort=undistort)
     except DatasetError as exc:
         click.echo(f"error: {exc}", err=True)
         sys.exit(2)
