@@ -290,13 +290,16 @@ def bench_pnp(trials: int, seed: int, out: Path):
 @bench.command("glow")
 @click.option("--samples", type=click.IntRange(1, 65536), default=64, show_default=True)
 @click.option("--size", type=click.IntRange(16, 1024), default=96, show_default=True)
+@click.option("--volume-bounces", type=click.IntRange(0, 1024), default=0, show_default=True,
+              help="0: single-scatter model vs single-scatter Cycles; > 0: the widening multiple-scatter "
+                   "kernel vs Cycles with that many volume bounces")
 @click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
               default=Path("out/bench_glow"), show_default=True)
-def bench_glow(samples: int, size: int, out: Path):
-    """Emitter glow: fast single-scatter PSF vs the Cycles medium (HG g 0.9), mild/moderate x 2/5/8 m."""
+def bench_glow(samples: int, size: int, volume_bounces: int, out: Path):
+    """Emitter glow: fast PSF vs the Cycles medium (HG g 0.9), mild/moderate x 2/5/8 m: energy and radius."""
     from blendgen.tools.fidelity import glow_comparison
     from evalkit.reports.tables import print_table
-    df = glow_comparison(out, size=size, samples=samples)
+    df = glow_comparison(out, size=size, samples=samples, volume_bounces=volume_bounces)
     print_table(df, floatfmt=".4g")
     df.to_csv(out / "glow.csv", index=False)
     click.echo(f"\n{out / 'glow.csv'} (green channel; EE relative to the unscattered irradiance; "

@@ -8,7 +8,8 @@ reached by next-event estimation). The image then holds only the forward-scatter
 OUT.npy is its linear RGB (H, W, 3) float32. SPEC keys: ``water``, ``range_m``, ``power_w``,
 ``light_radius_m``, ``hfov_deg``, ``width``, ``height``, ``samples``, ``seed``; optional ``led``
 (``{"radiance": [3], "radius_m": a, "lights_scene": bool}``: the dataset's disc LED instead of
-the point light) and ``water`` null (no medium).
+the point light), ``water`` null (no medium) and ``volume_bounces`` (default 0: single
+scattering; > 0: multiple scattering).
 """
 from __future__ import annotations
 
@@ -42,7 +43,7 @@ def build(spec: dict):
                                    "hfov_rad": math.radians(spec["hfov_deg"]), "clip_start": 0.001})
     cam.rotation_euler = (math.pi / 2, 0.0, -math.pi / 2)   # Blender -Z view axis -> world +x
     render.setup_cycles(sc, {"samples": spec["samples"], "seed": spec.get("seed", 0), "max_bounces": 0})
-    water.reference_settings(sc, 0)
+    water.reference_settings(sc, int(spec.get("volume_bounces", 0)))
     return sc
 
 

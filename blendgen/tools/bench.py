@@ -88,6 +88,7 @@ def term_costs(dataset: Path) -> pd.DataFrame:
               "index": cv2.imread(str(ds.root / f["object_index"]), cv2.IMREAD_UNCHANGED)}
     frame = {"T_world_cam": f["T_world_cam"]}
     markers = ds.markers
+    T_wd = np.asarray(ds.manifest["dock"]["T_world_dock"], float)
 
     def state(mode, **sens):
         return compose.SequenceState.start(SequencePost(
@@ -107,6 +108,11 @@ def term_costs(dataset: Path) -> pd.DataFrame:
         ("sensor, no noise", lambda: phys.camera.apply(rgb, phys.rng)),
         ("sensor, shot + read noise", lambda: noisy.camera.apply(rgb, noisy.rng)),
         ("sensor, blooming", lambda: bloom.camera.apply(rgb * 20, bloom.rng)),
+        ("LEDs light nearby surfaces (physical)", lambda: compose.led_light(
+            passes, phys, K, frame["T_world_cam"], markers, T_wd)),
+        ("  LEDs light: no LED array (off)", lambda: compose.led_light(passes, phys, K, frame["T_world_cam"], [], T_wd)),
+        ("auto-exposure metering (99.9 percentile)", lambda: sensor.AutoExposure().next_exposure(
+            rgb, 0.004, phys.camera, 0.1)),
         ("motion blur 5 px", lambda: sensor.motion_blur(rgb, (5.0, 1.0))),
         ("distortion RGB + index + range", lambda: (sensor.distort_image(rgb, K, dist),
                                                     compose.output_passes(passes, K, dist))),
