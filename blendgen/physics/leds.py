@@ -105,7 +105,7 @@ def surface_radiance(lights: list[PointLight], range_m: np.ndarray, rays: np.nda
     nrm = surface_normals(pts)
     E = np.zeros(pts.shape, np.float64)
     E[ok] = irradiance(lights, pts[ok], np.asarray(c_per_m, float), nrm[ok])
-    a_max = float(np.max(albedo)) if albedo.size else 0.0
+    a_max = float(np.max(albedo[::step, ::step])) if albedo.size else 0.0   # albedo is piecewise flat
     if E.max() * a_max / math.pi < min_radiance:
         return None
     mx, my = _upsample_maps(h, w, step)

@@ -38,8 +38,13 @@ class PointLight:
     def profile(self, cos_theta: np.ndarray) -> np.ndarray:
         """Relative intensity (N,) at angles from the axis given by their cosines (N,)."""
         if self.cosine_power > 0:
+            lam = np.clip(cos_theta, 0.0, None)
+            if self.cosine_power != 1:
+                lam = lam ** self.cosine_power
+            if self.half_angle_rad >= math.pi / 2 and self.edge_rad <= 0:
+                return lam                          # the cosine is already 0 behind the emitter
             base = PointLight(self.position_m, self.axis, self.intensity_w_sr, self.half_angle_rad, self.edge_rad)
-            return base.profile(cos_theta) * np.clip(cos_theta, 0.0, None) ** self.cosine_power
+            return base.profile(cos_theta) * lam
         if self.half_angle_rad >= math.pi:
             return np.ones_like(cos_theta)
         theta = np.arccos(np.clip(cos_theta, -1.0, 1.0))

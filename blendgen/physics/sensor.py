@@ -314,8 +314,10 @@ class AutoExposure:
     time_constant_s: float = 0.3
 
     def metered(self, linear: np.ndarray) -> float:
-        """The metered radiance ``m`` of an (H, W, 3) linear image."""
-        v = np.max(np.asarray(linear, np.float32), axis=-1).ravel()
+        """The metered radiance ``m`` of an (H, W, 3) linear image, on every 2nd pixel in each
+        direction (a camera's AE meters a reduced grid; a quarter of the cost)."""
+        x = np.asarray(linear, np.float32)[::2, ::2]
+        v = np.maximum(np.maximum(x[..., 0], x[..., 1]), x[..., 2]).ravel()
         if self.metering == "mean":
             return float(np.mean(v, dtype=np.float64))
         k = int(round(self.percentile / 100.0 * (v.size - 1)))
