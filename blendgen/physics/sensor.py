@@ -206,6 +206,11 @@ def pose_timestamp(t_frame, latency_s: float):
 
 DN_MAX = 255
 
+#: Default share of the charge above the full well that spills into neighbours in physical mode:
+#: a documented choice, not a measured camera (CMOS anti-blooming drains remove most of it;
+#: a few % keeps a saturated LED's own colour in a halo around its clipped core, as cameras show).
+BLOOM_FRACTION_PHYSICAL = 0.05
+
 
 @dataclass(frozen=True)
 class SensorModel:

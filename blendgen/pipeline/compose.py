@@ -154,10 +154,7 @@ def water_image(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, 
     return img
 
 
-#: Default share of the charge above the full well that spills into neighbours in physical mode:
-#: a documented choice, not a measured camera (CMOS anti-blooming drains remove most of it;
-#: a few % keeps a saturated LED's own colour in a halo around its clipped core, as cameras show).
-BLOOM_FRACTION_PHYSICAL = 0.05
+BLOOM_FRACTION_PHYSICAL = sensor.BLOOM_FRACTION_PHYSICAL
 
 
 def sensor_model(post: SequencePost) -> sensor.SensorModel:

@@ -330,6 +330,17 @@ def occlusion_region(exp: Experiment, occ) -> tuple[list[float], list[float]]:
     return list(c - [7.5, 2.5, 4.0]), list(c + [7.5, 2.5, 4.0])
 
 
+def resolved_sensor(exp: Experiment):
+    """The camera's sensor with the mode-dependent blooming default filled in (so every
+    sequence's manifest entry records the value used)."""
+    from blendgen.physics.sensor import BLOOM_FRACTION_PHYSICAL
+    s = exp.camera.sensor
+    if s.bloom_fraction is not None:
+        return s
+    bloom = BLOOM_FRACTION_PHYSICAL if exp.image_formation == "physical" else 0.0
+    return s.model_copy(update={"bloom_fraction": bloom})
+
+
 def condition_post(exp: Experiment, cond, seed: int) -> SequencePost:
     """Image-space processing of one condition: water, depth light, particles, sensor.
 
@@ -347,7 +358,7 @@ def condition_post(exp: Experiment, cond, seed: int) -> SequencePost:
                         water=cond.water or exp.water, light_depth_m=depth,
                         surface_z_m=-exp.scene.dock.water_depth_m + depth,
                         irradiance_w_m2=downwelling_irradiance(exp), noise_std=exp.camera.noise_std,
-                        sensor=exp.camera.sensor,
+                        sensor=resolved_sensor(exp),
                         distortion=exp.camera.distortion, occlusion=occ_post, lamps=exp.vehicle.lamps)
 
 
