@@ -308,13 +308,16 @@ def bench_pnp(trials: int, seed: int, out: Path):
 @bench.command("glow")
 @click.option("--samples", type=click.IntRange(1, 65536), default=64, show_default=True)
 @click.option("--size", type=click.IntRange(16, 1024), default=96, show_default=True)
+@click.option("--volume-bounces", type=click.IntRange(0, 1024), default=0, show_default=True,
+              help="0: single-scatter model vs single-scatter Cycles; > 0: the widening multiple-scatter "
+                   "kernel vs Cycles with that many volume bounces")
 @click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
               default=Path("out/bench_glow"), show_default=True)
-def bench_glow(samples: int, size: int, out: Path):
-    """Emitter glow: fast single-scatter PSF vs the Cycles medium (HG g 0.9), mild/moderate x 2/5/8 m."""
+def bench_glow(samples: int, size: int, volume_bounces: int, out: Path):
+    """Emitter glow: fast PSF vs the Cycles medium (HG g 0.9), mild/moderate x 2/5/8 m: energy and radius."""
     from blendgen.tools.fidelity import glow_comparison
     from evalkit.reports.tables import print_table
-    df = glow_comparison(out, size=size, samples=samples)
+    df = glow_comparison(out, size=size, samples=samples, volume_bounces=volume_bounces)
     print_table(df, floatfmt=".4g")
     df.to_csv(out / "glow.csv", index=False)
     click.echo(f"\n{out / 'glow.csv'} (green channel; EE relative to the unscattered irradiance; "
@@ -465,15 +468,17 @@ def leaderboard(results_dirs: tuple[Path, ...], out: Path, title: str, shot: Pat
 @click.option("--depth-scale", type=click.FloatRange(min=0.0, min_open=True), default=1.0,
               show_default=True, help="mm per depth PNG unit (1.0: up to 65.5 m; 0.1: up to 6.5 m)")
 @click.option("--no-masks", is_flag=True, help="do not write mask_visib PNGs")
+@click.option("--undistort", is_flag=True, help="camera with lens distortion: remap images, depth and masks "
+                                                "to the pinhole camera of the same K (else refused)")
 def export_bop(dataset: Path, out: Path, split: str, copy_images: bool, depth_scale: float,
-                   no_masks: bool):
+                   no_masks: bool, undistort: bool):
     """Export DATASET in the BOP format (scene_camera/scene_gt/scene_gt_info, rgb, depth) to OUT."""
     import json
     from evalkit.dataset import DatasetError
     from evalkit.reports.bop import export_bop as run
     try:
         s = run(dataset, out, split=split, copy_images=copy_images, depth_scale=depth_scale,
-                       masks=not no_masks)
+                       masks=not no_masks, undistort=undistort)
     except DatasetError as exc:
         click.echo(f"error: {exc}", err=True)
         sys.exit(2)

@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 
 from blendgen.geometry import make_T
+from blendgen.physics.leds import led_radiance
 
 QR_QUIET_MODULES = 4      # ISO/IEC 18004 default (config: quiet_zone_modules)
 ARUCO_QUIET_CELLS = 1     # default white margin of ArUco/AprilTag, in cells
@@ -126,7 +127,8 @@ def manifest_marker(spec) -> dict:
         colors = [list(spec.reference_color if i in refs else spec.color) for i in range(len(local))]
         extra = {"led_radius_m": spec.led_radius_m, "colors": colors, "reference_index": refs[0],
                  "reference_indices": refs, "layout": spec.layout, "size_m": spec.size_m,
-                 "strength": spec.strength}
+                 "intensity_w_sr": spec.intensity_w_sr,
+                 "radiance": [led_radiance(spec.intensity_w_sr, c, spec.led_radius_m) for c in colors]}
     else:
         local = square_corners(spec.size_m)
         extra = {"size_m": spec.size_m}

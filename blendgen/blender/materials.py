@@ -64,14 +64,15 @@ def emissive_texture(name: str, path: str, black: float, white: float) -> bpy.ty
     return mat
 
 
-def emission(name: str, color, strength: float) -> bpy.types.Material:
+def emission(name: str, color, strength: float, sampled: bool = False) -> bpy.types.Material:
     """Self-lit LED: emission of linear colour (3,) times ``strength``.
 
-    Not sampled as a light: the LEDs are seen, but do not light the dock (their
-    share of the face's irradiance is small and would add Monte Carlo noise at the
-    few samples of the fast path)."""
+    Not sampled as a light unless ``sampled`` (reference fidelity: the LEDs light the water
+    and what faces them; front side only, the side that faces out of the dock). Unsampled,
+    the LEDs are seen but light nothing (no Monte Carlo noise at the few samples of the fast
+    path, which adds their light itself)."""
     mat, nt = _fresh(name)
-    mat.cycles.emission_sampling = "NONE"
+    mat.cycles.emission_sampling = "FRONT" if sampled else "NONE"
     out = nt.nodes.new("ShaderNodeOutputMaterial")
     em = nt.nodes.new("ShaderNodeEmission")
     em.inputs["Color"].default_value = (*color, 1.0)

@@ -103,16 +103,20 @@ def disc(radius: float, segments: int = 48):
     return verts, [tuple(range(segments))]
 
 
-def add_led_array(m: dict, T_world_dock) -> None:
+def add_led_array(m: dict, T_world_dock, lights_scene: bool = False) -> None:
     """One flat emitting disc of radius ``led_radius_m`` per LED, centred on its keypoint
     in the marker plane, facing out of the dock: its image centroid is the projected
-    keypoint (a dome would shift it under oblique views)."""
+    keypoint (a dome would shift it under oblique views). Radiance ``m["radiance"]``
+    (``physics/leds.py``: intensity / (pi r^2)). ``lights_scene`` (reference fidelity):
+    the discs are lights (sampled, seen by scatter rays: they light the water and the
+    surfaces in front of them); else camera-only (fast fidelity adds their light itself)."""
     v, f = disc(m["led_radius_m"])
     T = np.asarray(T_world_dock, float)
-    for i, (kp, col) in enumerate(zip(m["keypoints"], m["colors"])):
+    for i, (kp, rad) in enumerate(zip(m["keypoints"], m["radiance"])):
         obj = mesh_object(f"led_{m['id']}_{i}", v, f, index=m["object_index"])
-        obj.data.materials.append(materials.emission(f"led_{m['id']}_{i}", col, m["strength"]))
-        camera_only(obj)
+        obj.data.materials.append(materials.emission(f"led_{m['id']}_{i}", rad, 1.0, sampled=lights_scene))
+        if not lights_scene:
+            camera_only(obj)
         set_matrix(obj, T @ np.vstack([np.column_stack([np.eye(3), kp]), [0, 0, 0, 1]]))
 
 
@@ -164,7 +168,7 @@ def build(desc: dict) -> bpy.types.Scene:
     T_wd = np.asarray(desc["dock"]["T_world_dock"], float)
     for m in desc["markers"]:
         if m["kind"] == "led_array":
-            add_led_array(m, T_wd)
+            add_led_array(m, T_wd, bool(desc.get("led_lights")))
         else:
             add_square_marker(m, T_wd @ np.asarray(m["T_dock_marker"], float))
     for o in desc.get("obstacles", []):

@@ -129,8 +129,10 @@ def run(job) -> dict:
             for (o, d, fh), st in zip(outs, states):
                 with clock("compose"):
                     seen, occluded = pp.add_particles(passes, st, K, fr["T_world_cam"])
-                    img = pp.camera_image(seen, st, K, fr, markers, job.fidelity, occluded)
+                    img = pp.camera_image(seen, st, K, fr, markers, job.fidelity, occluded, T_world_dock=T_wd)
                     r = rec if occluded is None else pp.with_visibility(rec, markers, K, passes["index"], occluded)
+                    if st.auto_exposure is not None:
+                        r = {**r, "exposure_s": st.exposure_s}
                 with clock("write"):
                     paths = {**pp.write_image(d, o.rel, fr["index"], img), **pass_paths}
                     fh.write(json.dumps({**r, **paths}) + "\n")

@@ -94,8 +94,28 @@ class LedArray(Strict):
     reference_color: Color = [1.0, 0.35, 0.0]
     reference_index: Union[int, list[int]] = Field(
         0, description="index (or indices) of the reference LED(s), which have reference_color")
-    strength: float = Field(20.0, gt=0.0, le=1e5, description="emission strength (W/m^2 radiance scale)")
+    intensity_w_sr: float = Field(
+        0.1, gt=0.0, le=1e3,
+        description="on-axis radiant intensity of each LED per unit colour weight (W/sr; channel k emits "
+                    "intensity_w_sr * color[k]); a flat Lambertian disc of radiance I/(pi r^2) in both "
+                    "fidelities (physics/leds.py). 0.1 = the former strength 20 at r = 0.04 m")
     center_m: Annotated[list[float], Field(min_length=2, max_length=2)] = [0.0, 0.0]
+
+    @model_validator(mode="before")
+    @classmethod
+    def _old_strength(cls, data):
+        """Configs before issue 13 gave ``strength`` (radiance per colour weight, W/m^2/sr):
+        read as ``intensity_w_sr = strength * pi * led_radius_m^2`` (exact)."""
+        if isinstance(data, dict) and "strength" in data:
+            if "intensity_w_sr" in data:
+                raise ValueError("give intensity_w_sr (W/sr) only: strength is its old radiance form")
+            data = dict(data)
+            s = data.pop("strength")
+            if not isinstance(s, (int, float)) or isinstance(s, bool) or not (0 < s <= 1e5):
+                raise ValueError(f"strength (old key, radiance scale) must be a number in (0, 1e5], got {s!r}")
+            from blendgen.physics.leds import intensity_from_strength
+            data["intensity_w_sr"] = intensity_from_strength(s, float(data.get("led_radius_m", 0.04)))
+        return data
 
     @property
     def reference_indices(self) -> list[int]:
@@ -206,11 +226,35 @@ class Scene(Strict):
                           "null: on in physical mode, off in article mode")
 
 
+class AutoExposureConfig(Strict):
+    """Auto-exposure (``physics/sensor.AutoExposure``): meter the previous frame's brightest
+    channel per pixel (``mean`` or a ``percentile``), aim it at ``target`` x full well, follow
+    with time constant ``time_constant_s``, clamp to the exposure limits."""
+    metering: Literal["mean", "percentile"] = Field(
+        "percentile", description="mean: average metering (target ~0.18); percentile: highlight "
+                                  "metering (99.9 and target 0.9 keep small LEDs just below saturation)")
+    percentile: float = Field(99.9, ge=0.0, le=100.0, description="percentile metered (percentile metering)")
+    target: float = Field(0.9, gt=0.0, le=1.0, description="metered value as a share of the full well")
+    min_exposure_s: float = Field(1e-5, gt=0.0, le=1.0, description="shortest exposure (s)")
+    max_exposure_s: float = Field(0.05, gt=0.0, le=1.0, description="longest exposure (s)")
+    time_constant_s: float = Field(0.3, ge=0.0, le=60.0, description="AE loop time constant (s); 0: at once")
+
+    @model_validator(mode="after")
+    def _limits(self):
+        if self.min_exposure_s > self.max_exposure_s:
+            raise ValueError(f"min_exposure_s {self.min_exposure_s} > max_exposure_s {self.max_exposure_s}")
+        return self
+
+
 class Sensor(Strict):
     """The camera's sensor (EMVA 1288 photon-transfer model, OPTICS.md): radiance -> electrons
     over the exposure -> saturation at the full well -> digital numbers with system gain
     ``K = gain * 255 / full_well_e`` DN/e- -> response curve -> 8 bits."""
-    exposure_s: float = Field(0.01, gt=0.0, le=1.0, description="exposure time (s)")
+    exposure_s: float = Field(
+        0.004, gt=0.0, le=1.0,
+        description="exposure time (s). Default 4 ms: average metering (18 % grey) of the `dockbench preview` "
+                    "frames picks 4.4-12 ms (the shortest at 2 m in clear water); at 4 ms an LED of 0.1 W/sr "
+                    "and colour [0.1, 0.3, 1.0] keeps its red channel below the full well (no white disc)")
     responsivity_e_per_s: float = Field(
         1e6, gt=0.0, le=1e12, description="electrons per second per unit linear radiance of the render "
                                           "(quantum efficiency, aperture and pixel area folded in); 1e6 "
@@ -221,11 +265,16 @@ class Sensor(Strict):
     noise: Optional[bool] = Field(None, description="shot and read noise; null: on in physical mode, off in "
                                                     "article mode (which uses noise_std only)")
     response: Literal["srgb", "linear"] = Field("srgb", description="response curve to 8 bits")
-    bloom_fraction: float = Field(0.0, ge=0.0, le=1.0,
-                                  description="share of the charge above the full well that spills into "
-                                              "neighbouring pixels (0: perfect anti-blooming drain)")
+    bloom_fraction: Optional[float] = Field(
+        None, ge=0.0, le=1.0,
+        description="share of the charge above the full well that spills into neighbouring pixels (0: "
+                    "perfect anti-blooming drain); null: 0.05 in physical mode (saturated LEDs spread "
+                    "their own colour around the clipped core), 0 in article mode")
     bloom_sigma_px: float = Field(2.0, gt=0.0, le=50.0, description="spread of the spilled charge (px)")
     motion_blur: bool = Field(False, description="blur by the camera's motion over the exposure")
+    auto_exposure: Optional[AutoExposureConfig] = Field(
+        None, description="exposure control between frames (null: fixed exposure_s, the first frame's "
+                          "exposure when on); each frame's exposure is recorded in its frame record")
 
 
 class Camera(Strict):

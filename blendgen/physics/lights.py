@@ -25,15 +25,26 @@ import numpy as np
 class PointLight:
     """One source. ``position_m`` (3,) and unit ``axis`` (3,) in the camera frame;
     ``intensity_w_sr`` (3,) on-axis radiant intensity per channel; ``half_angle_rad`` in
-    (0, pi] (pi: isotropic); ``edge_rad`` the width of the soft edge inside it."""
+    (0, pi] (pi: isotropic); ``edge_rad`` the width of the soft edge inside it;
+    ``cosine_power`` m multiplies the profile by ``cos(theta)^m`` (1 with half angle pi/2: a
+    flat Lambertian emitter such as an LED disc, ``physics/leds.py``; 0: none)."""
     position_m: np.ndarray
     axis: np.ndarray
     intensity_w_sr: np.ndarray
     half_angle_rad: float = math.pi
     edge_rad: float = 0.0
+    cosine_power: float = 0.0
 
     def profile(self, cos_theta: np.ndarray) -> np.ndarray:
         """Relative intensity (N,) at angles from the axis given by their cosines (N,)."""
+        if self.cosine_power > 0:
+            lam = np.clip(cos_theta, 0.0, None)
+            if self.cosine_power != 1:
+                lam = lam ** self.cosine_power
+            if self.half_angle_rad >= math.pi / 2 and self.edge_rad <= 0:
+                return lam                          # the cosine is already 0 behind the emitter
+            base = PointLight(self.position_m, self.axis, self.intensity_w_sr, self.half_angle_rad, self.edge_rad)
+            return base.profile(cos_theta) * lam
         if self.half_angle_rad >= math.pi:
             return np.ones_like(cos_theta)
         theta = np.arccos(np.clip(cos_theta, -1.0, 1.0))

@@ -42,10 +42,11 @@ reference Cycles renders:
 - depth falloff with ``Kd`` is the multiply-scattered limit; the reference with
   0 bounces attenuates the sun by ``c`` along its refracted path;
 - volumetric shadows and light shafts (no 3-D light field here);
-- the glow of emitters (``physical`` mode, :func:`glow_kernel`) has the single
-  small-angle scattering shape, whose angular profile does not change with range;
-  multiple forward scattering would widen it (Wells' small-angle model); its energy
-  includes all scattered, unabsorbed light;
+- the glow of emitters (``physical`` mode, :func:`glow_kernel_multiple`) is the
+  small-angle approximation of multiple forward scattering (Poisson orders of the
+  single-scatter point-spread, Wells 1973): it widens and grows with ``b r``; light
+  scattered beyond 96 px of the emitter and large-angle (non-small-angle) paths are not
+  modelled;
 - backscatter cones from artificial lights (LEDs, AUV lamp): they light no water;
 - the veil's change of depth along a slanted ray (it uses the camera's depth);
 - ``beta_D != beta_B`` and their range/reflectance dependence (A&T 2018).
@@ -454,12 +455,90 @@ def glow_encircled_energy(water: WaterOptics, range_m: float, psi, n_steps: int 
     return single * boost
 
 
+def _ring_kernel(ring_energy: np.ndarray, R: int) -> np.ndarray:
+    """(2R+1, 2R+1, C) kernel spreading ``ring_energy[k]`` (K, C) evenly over the pixels whose
+    rounded distance from the centre is k (k = 0..R)."""
+    yy, xx = np.mgrid[-R:R + 1, -R:R + 1]
+    ring = np.rint(np.hypot(xx, yy)).astype(int)
+    counts = np.bincount(ring.ravel(), minlength=R + 2)[: R + 1]
+    k = np.zeros(ring.shape + (ring_energy.shape[1],))
+    ok = ring <= R
+    k[ok] = ring_energy[ring[ok]] / counts[ring[ok], None]
+    return k
+
+
+def glow_kernel_multiple(water: WaterOptics, range_m: float, fx: float, max_radius_px: int = 96,
+                         keep_centre: bool = False) -> np.ndarray:
+    """Like :func:`glow_kernel`, but the glow widens with ``b r`` by multiple forward scattering.
+
+    Small-angle approximation (Wells 1973; Mobley's Ocean Optics Web Book, "The small-angle
+    approximation"): tracing a camera ray back to the source, each scattering at distance u from
+    the source moves the apparent direction by ``theta u / r``; the n scatterings along the path
+    form a Poisson process (positions iid uniform on [0, r]), so the n-th order's apparent-angle
+    distribution is the n-fold 2-D convolution of the single-scatter one ``k1`` (unit mass) and
+    its energy relative to the direct light is ``(b r)^n / n!``. Summed over n >= 1 in Fourier
+    space: ``PSF = F^-1[exp(b r F[k1]) - 1]``, total ``exp(b r) - 1`` (what :func:`glow_kernel`
+    puts in the single-scatter shape). The centre pixel is 0 (the direct term keeps it); light
+    scattered beyond ``max_radius_px`` is dropped."""
+    b = np.asarray(water.sigma_s, float)
+    r = float(range_m)
+    if r <= 0 or not np.any(b > 0):
+        return np.zeros((1, 1, 3), np.float32)
+    R = int(max_radius_px)
+    edges = glow_encircled_energy(water, r, (np.arange(R + 2) - 0.5).clip(0) / float(fx))   # (R+2, 3)
+    br = b * r
+    single = edges / np.where(br > 0, np.expm1(br), 1.0)                 # unit-mass single scatter (CDF)
+    k1 = _ring_kernel(np.diff(single, axis=0), R)                        # (2R+1, 2R+1, 3)
+    from scipy import fft as sfft
+    n = sfft.next_fast_len(3 * R + 2, real=True)   # what wraps around comes from > 2R px away
+    pad = np.zeros((3, n, n), np.float32)
+    for c in range(3):                               # centre at (0, 0)
+        pad[c][np.ix_(np.arange(-R, R + 1) % n, np.arange(-R, R + 1) % n)] = k1[..., c]
+    F = sfft.rfft2(pad, axes=(1, 2))
+    F *= br.astype(np.float32)[:, None, None]
+    psf = sfft.irfft2(np.expm1(F), s=(n, n), axes=(1, 2))
+    idx = np.arange(-R, R + 1) % n
+    psf = np.moveaxis(psf[:, idx][:, :, idx], 0, -1).astype(np.float64)
+    psf = np.clip(psf, 0.0, None)
+    if keep_centre:                                  # the glow inside the emitter's own pixel (for checks)
+        return psf.astype(np.float32)
+    psf[R, R] = 0.0
+    ring = np.ceil(np.hypot(*np.mgrid[-R:R + 1, -R:R + 1])).astype(int).ravel()
+    enc = np.cumsum(np.stack([np.bincount(ring, psf[..., c].ravel(), minlength=2 * R + 2)
+                              for c in range(3)], axis=-1), axis=0)[: R + 1]   # energy within radius q
+    inside = np.nonzero(np.all(enc >= 0.99 * psf.sum(axis=(0, 1)), axis=-1))[0]
+    Rk = max(int(inside[0]) if inside.size else R, 1)
+    return psf[R - Rk: R + Rk + 1, R - Rk: R + Rk + 1].astype(np.float32)
+
+
+#: Ranges are binned in steps of this fraction (log scale) for the kernel cache: the glow's
+#: shape and energy change slowly with range (b r changes by < 5 % within a bin).
+GLOW_RANGE_BIN = 0.05
+
+
+def cached_glow_kernel(water: WaterOptics, range_m: float, fx: float) -> np.ndarray:
+    """:func:`glow_kernel_multiple` at ``range_m`` rounded to a ``GLOW_RANGE_BIN`` log step, cached
+    per water, range bin and focal length (read-only array)."""
+    rbin = round(math.log(max(float(range_m), 1e-3)) / math.log1p(GLOW_RANGE_BIN))
+    key = (json.dumps(water.to_dict(), sort_keys=True, default=float), rbin, round(float(fx), 3))
+    k = _GLOW_CACHE.get(key)
+    if k is None:
+        if len(_GLOW_CACHE) >= 512:
+            _GLOW_CACHE.clear()
+        k = _GLOW_CACHE[key] = glow_kernel_multiple(water, math.exp(rbin * math.log1p(GLOW_RANGE_BIN)), fx)
+        k.setflags(write=False)
+    return k
+
+
+_GLOW_CACHE: dict = {}
+
+
 def glow_kernel(water: WaterOptics, range_m: float, fx: float, max_radius_px: int = 96) -> np.ndarray:
     """(2R+1, 2R+1, 3) float32 point-spread of the forward-scattered glow around an emitter at
     ``range_m`` (camera ``fx`` px/rad): pixel weights relative to the emitter's direct image
     (a direct image of total 1 gets a glow of total ``kernel.sum()``). The centre pixel is 0
     (the direct term keeps it). R grows with range until 99 % of the glow is inside, at most
-    ``max_radius_px``."""
+    ``max_radius_px``. Single-scatter shape (see :func:`glow_kernel_multiple` for the widening)."""
     rad = np.arange(0.0, max_radius_px + 1.5)
     ee = glow_encircled_energy(water, range_m, rad / float(fx))           # (R+2, 3) at ring edges
     total = glow_encircled_energy(water, range_m, np.array(np.pi))
@@ -663,7 +742,7 @@ def add_emitter_glow(img: np.ndarray, emissive: np.ndarray, range_m: np.ndarray,
     r = r[np.isfinite(r)]
     if r.size == 0:
         return img
-    k = glow_kernel(water, float(np.median(r)), fx)
+    k = cached_glow_kernel(water, float(np.median(r)), fx)
     R = k.shape[0] // 2
     if R == 0 or not np.any(k):
         return img

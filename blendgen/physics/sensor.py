@@ -14,6 +14,7 @@ puts it. Images are treated as undistorted unless distortion is configured.
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -205,6 +206,11 @@ def pose_timestamp(t_frame, latency_s: float):
 
 DN_MAX = 255
 
+#: Default share of the charge above the full well that spills into neighbours in physical mode:
+#: a documented choice, not a measured camera (CMOS anti-blooming drains remove most of it;
+#: a few % keeps a saturated LED's own colour in a halo around its clipped core, as cameras show).
+BLOOM_FRACTION_PHYSICAL = 0.05
+
 
 @dataclass(frozen=True)
 class SensorModel:
@@ -286,3 +292,50 @@ class SensorModel:
                 v += rng.standard_normal(v.shape, dtype=np.float32) * np.float32(self.noise_std)
             return np.clip(np.rint(v), 0, DN_MAX).astype(np.uint8)
         return to_uint8(y, self.noise_std, rng)
+
+
+# --------------------------------------------------------------------------- auto-exposure
+
+@dataclass(frozen=True)
+class AutoExposure:
+    """Exposure control between frames (what a camera's AE loop does; ISO 2720 / camera
+    practice: meter the previous frame, aim a statistic at a share of the full scale, follow
+    with a first-order lag, clamp to the shutter's limits).
+
+    The metered value ``m`` is a statistic of the per-pixel brightest channel of the frame's
+    linear radiance (the signal before clipping; a real AE meters clipped DN, which only
+    under-estimates ``m`` when pixels saturate): its ``mean`` (average metering, ``target``
+    ~0.18: middle grey) or its ``percentile`` (highlight metering, e.g. 99.9 with target 0.9:
+    the brightest 0.1 % of the pixels, small bright emitters such as LEDs, just below the full
+    well). The exposure that puts ``m`` at ``target * full_well`` is
+    ``t* = target * full_well / (m * responsivity)``; the next frame's exposure moves toward
+    it in log space with ``alpha = 1 - exp(-dt / time_constant_s)`` (0: at once), clamped to
+    ``[min_exposure_s, max_exposure_s]``."""
+    metering: str = "percentile"
+    percentile: float = 99.9
+    target: float = 0.9
+    min_exposure_s: float = 1e-5
+    max_exposure_s: float = 0.05
+    time_constant_s: float = 0.3
+
+    def metered(self, linear: np.ndarray) -> float:
+        """The metered radiance ``m`` of an (H, W, 3) linear image, on every 2nd pixel in each
+        direction (a camera's AE meters a reduced grid; a quarter of the cost)."""
+        x = np.asarray(linear, np.float32)[::2, ::2]
+        v = np.maximum(np.maximum(x[..., 0], x[..., 1]), x[..., 2]).ravel()
+        if self.metering == "mean":
+            return float(np.mean(v, dtype=np.float64))
+        k = int(round(self.percentile / 100.0 * (v.size - 1)))
+        return float(np.partition(v, k)[k])
+
+    def next_exposure(self, linear: np.ndarray, exposure_s: float, camera: "SensorModel", dt_s: float) -> float:
+        """The exposure (s) of the next frame, after a frame of ``linear`` radiance taken at ``exposure_s``."""
+        m = self.metered(linear)
+        if not (m > 0 and math.isfinite(m)):
+            want = self.max_exposure_s
+        else:
+            want = self.target * camera.full_well_e / (m * camera.responsivity_e_per_s)
+        want = min(max(want, self.min_exposure_s), self.max_exposure_s)
+        alpha = 1.0 if self.time_constant_s <= 0 else 1.0 - math.exp(-dt_s / self.time_constant_s)
+        t = math.exp(math.log(exposure_s) + alpha * (math.log(want) - math.log(exposure_s)))
+        return min(max(t, self.min_exposure_s), self.max_exposure_s)

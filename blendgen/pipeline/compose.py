@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from blendgen.geometry import planar_depth_to_range, project, transform_points
-from blendgen.physics import optics, sensor
+from blendgen.physics import leds, optics, sensor
 from blendgen.physics import particles as occlusion
 from blendgen.pipeline import groundtruth
 from blendgen.pipeline.plan import INDEX_PARTICLES, SequencePost
@@ -42,6 +42,8 @@ class SequenceState:
     water: optics.WaterOptics | None = None
     water_opts: dict = dataclasses.field(default_factory=dict)
     camera: sensor.SensorModel = dataclasses.field(default_factory=sensor.SensorModel)
+    auto_exposure: sensor.AutoExposure | None = None
+    exposure_s: float | None = None          # the exposure of the last image (recorded with auto-exposure)
 
     @classmethod
     def start(cls, post: SequencePost) -> "SequenceState":
@@ -53,7 +55,9 @@ class SequenceState:
                 rng, occ.region_min, occ.region_max, n_total=occ.n_total, r_min=occ.r_min_m,
                 r_max=occ.r_max_m, count_dist=occ.count_dist, n_max=occ.n_max)
         water, opts = optics.fast_water(post.water, post.image_formation, post.irradiance_w_m2, veil=post.veil)
-        return cls(post, rng, pfield, water, opts, sensor_model(post))
+        ae = post.sensor.auto_exposure
+        auto = sensor.AutoExposure(**ae.model_dump()) if ae is not None else None
+        return cls(post, rng, pfield, water, opts, sensor_model(post), auto)
 
     def advance(self) -> None:
         """Drift the particles by one frame: p += v_flow dt + eta, eta ~ N(0, sigma^2 I)."""
@@ -107,10 +111,28 @@ def surface_depth(range_m: np.ndarray, K: np.ndarray, T_world_cam, surface_z_m: 
     return np.maximum(depth, np.float32(0.0)), cam_depth
 
 
+def led_light(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, markers: list[dict],
+              T_world_dock) -> np.ndarray | None:
+    """Fast fidelity, physical mode: radiance (H,W,3) the dock's LEDs put on the surfaces the
+    camera sees (``physics/leds.surface_radiance``), before the view path's attenuation; None
+    (no cost) without LEDs, without the albedo pass, in article mode or when it is negligible."""
+    arrays = [m for m in markers if m["kind"] == "led_array" and "intensity_w_sr" in m]
+    if (not arrays or T_world_dock is None or "albedo" not in passes
+            or state.post.image_formation != "physical"):
+        return None
+    T_cd = np.linalg.inv(np.asarray(T_world_cam, float)) @ np.asarray(T_world_dock, float)
+    lights = [li for m in arrays for li in leds.led_lights(m, T_cd)]
+    h, w = passes["range_m"].shape
+    rays = _unit_rays(tuple(np.asarray(K, float).ravel()), w, h)
+    return leds.surface_radiance(lights, passes["range_m"], rays, passes["albedo"], state.water.c)
+
+
 def water_image(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, markers: list[dict],
-                occluded: np.ndarray | None = None) -> np.ndarray:
+                occluded: np.ndarray | None = None, T_world_dock=None) -> np.ndarray:
     """Fast fidelity: the clean linear render (H,W,3) seen through the condition's water
-    with light at depth, in the sequence's image-formation mode (optics module docstring)."""
+    with light at depth, in the sequence's image-formation mode (optics module docstring);
+    in physical mode plus the LEDs' light on nearby surfaces (:func:`led_light`), attenuated
+    along the view ray only."""
     post = state.post
     emissive = emissive_mask(passes["index"], markers)
     if occluded is not None:
@@ -123,11 +145,19 @@ def water_image(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, 
             water, veil_depth = frame_veil(state, T_world_cam, veil_depth), 0.0
     else:
         depth, veil_depth = post.light_depth_m, None
-    return optics.apply_water(passes["rgb"], passes["range_m"], emissive, water, depth,
-                              model=post.image_formation, veil_depth_m=veil_depth,
-                              irradiance=state.water_opts["irradiance"], blur=state.water_opts["blur"],
-                              blur_px_per_tau=optics.BLUR_RAD_PER_TAU * fx, blur_max_px=optics.BLUR_MAX_RAD * fx,
-                              glow_fx=fx)
+    img = optics.apply_water(passes["rgb"], passes["range_m"], emissive, water, depth,
+                             model=post.image_formation, veil_depth_m=veil_depth,
+                             irradiance=state.water_opts["irradiance"], blur=state.water_opts["blur"],
+                             blur_px_per_tau=optics.BLUR_RAD_PER_TAU * fx, blur_max_px=optics.BLUR_MAX_RAD * fx,
+                             glow_fx=fx)
+    lit = led_light(passes, state, K, T_world_cam, markers, T_world_dock)
+    if lit is not None:
+        lit *= optics.transmittance(state.water, passes["range_m"]).reshape(lit.shape)
+        img += lit
+    return img
+
+
+BLOOM_FRACTION_PHYSICAL = sensor.BLOOM_FRACTION_PHYSICAL
 
 
 def frame_veil(state: SequenceState, T_world_cam, cam_depth_m: float) -> optics.WaterOptics:
@@ -143,27 +173,36 @@ def frame_veil(state: SequenceState, T_world_cam, cam_depth_m: float) -> optics.
 
 
 def sensor_model(post: SequencePost) -> sensor.SensorModel:
-    """The sequence's camera sensor; shot/read noise default on in physical mode only."""
+    """The sequence's camera sensor; shot/read noise and blooming (``BLOOM_FRACTION_PHYSICAL``)
+    default on in physical mode only."""
     s = post.sensor
-    noise = s.noise if s.noise is not None else post.image_formation == "physical"
+    physical = post.image_formation == "physical"
+    noise = s.noise if s.noise is not None else physical
+    bloom = s.bloom_fraction if s.bloom_fraction is not None else (BLOOM_FRACTION_PHYSICAL if physical else 0.0)
     return sensor.SensorModel(exposure_s=s.exposure_s, responsivity_e_per_s=s.responsivity_e_per_s,
                               full_well_e=s.full_well_e, read_noise_e=s.read_noise_e, gain=s.gain, noise=noise,
-                              response=s.response, bloom_fraction=s.bloom_fraction,
+                              response=s.response, bloom_fraction=bloom,
                               bloom_sigma_px=s.bloom_sigma_px, noise_std=post.noise_std)
 
 
 def camera_image(passes: dict, state: SequenceState, K: np.ndarray, frame: dict, markers: list[dict],
-                 fidelity: str, occluded: np.ndarray | None = None) -> np.ndarray:
+                 fidelity: str, occluded: np.ndarray | None = None, T_world_dock=None) -> np.ndarray:
     """Linear clean RGB (H,W,3) -> uint8 image (H,W,3) for one condition; ``frame`` is the
-    planned frame (``T_world_cam``, optional ``blur_px`` motion over the exposure)."""
+    planned frame (``T_world_cam``, optional ``blur_px`` motion over the exposure);
+    ``T_world_dock`` places the LEDs that light nearby surfaces (None: they light nothing)."""
     rgb = passes["rgb"]
     if fidelity == "fast":
-        rgb = water_image(passes, state, K, frame["T_world_cam"], markers, occluded)
+        rgb = water_image(passes, state, K, frame["T_world_cam"], markers, occluded, T_world_dock)
     if frame.get("blur_px") is not None:
         rgb = sensor.motion_blur(rgb, frame["blur_px"])
     if state.post.distortion:
         rgb = sensor.distort_image(rgb, K, state.post.distortion)
-    return state.camera.apply(rgb, state.rng)
+    img = state.camera.apply(rgb, state.rng)
+    state.exposure_s = state.camera.exposure_s
+    if state.auto_exposure is not None:              # the AE loop sets the next frame's exposure
+        t = state.auto_exposure.next_exposure(rgb, state.camera.exposure_s, state.camera, 1.0 / state.post.fps)
+        state.camera = dataclasses.replace(state.camera, exposure_s=t)
+    return img
 
 
 def output_passes(passes: dict, K: np.ndarray, distortion) -> dict:

@@ -334,6 +334,17 @@ def occlusion_region(exp: Experiment, occ) -> tuple[list[float], list[float]]:
     return list(c - [7.5, 2.5, 4.0]), list(c + [7.5, 2.5, 4.0])
 
 
+def resolved_sensor(exp: Experiment):
+    """The camera's sensor with the mode-dependent blooming default filled in (so every
+    sequence's manifest entry records the value used)."""
+    from blendgen.physics.sensor import BLOOM_FRACTION_PHYSICAL
+    s = exp.camera.sensor
+    if s.bloom_fraction is not None:
+        return s
+    bloom = BLOOM_FRACTION_PHYSICAL if exp.image_formation == "physical" else 0.0
+    return s.model_copy(update={"bloom_fraction": bloom})
+
+
 def condition_post(exp: Experiment, cond, seed: int) -> SequencePost:
     """Image-space processing of one condition: water, depth light, particles, sensor.
 
@@ -352,7 +363,7 @@ def condition_post(exp: Experiment, cond, seed: int) -> SequencePost:
                         water=cond.water or exp.water, light_depth_m=depth,
                         surface_z_m=-exp.scene.dock.water_depth_m + depth,
                         irradiance_w_m2=downwelling_irradiance(exp), noise_std=exp.camera.noise_std,
-                        sensor=exp.camera.sensor,
+                        sensor=resolved_sensor(exp),
                         distortion=exp.camera.distortion, occlusion=occ_post, lamps=exp.vehicle.lamps,
                         sun_elevation_deg=exp.scene.sun_elevation_deg, sun_share=1.0 / (1.0 + sky_fraction(exp)),
                         veil=optics.veil_parameters(cond.water or exp.water, exp.image_formation))
@@ -436,7 +447,8 @@ def plan_jobs(exp: Experiment, scene: dict) -> list[RenderJob]:
                 frames = paths[mkey]
                 post = condition_post(exp, c, seed)
                 sq = SequencePlan(f"{traj.id}-t{trial:03d}-{c.label}", traj.id, trial, c.label, post)
-                sc = scene if exp.render.fidelity == "fast" else {**scene, "water_volume": water_volume(exp, post)}
+                sc = scene if exp.render.fidelity == "fast" else {**scene, "water_volume": water_volume(exp, post),
+                                                                  "led_lights": True}
                 if post.occlusion and post.occlusion.geometry == "blender":
                     # real geometry is part of the render: keyed by its config and seed
                     sc = {**sc, "particles": {**post.occlusion.model_dump(), "seed": seed, "fps": exp.camera.fps,

@@ -77,6 +77,7 @@ def term_costs(dataset: Path) -> pd.DataFrame:
     from blendgen.physics import optics, sensor
     from blendgen.pipeline import compose
     from blendgen.pipeline.plan import SequencePost
+    from datasets_spec.io import load_index, load_range
     from evalkit.dataset import Dataset
     ds = Dataset.open(dataset)
     frames = list(ds.iter_frames(ds.sequences[0]["id"]))
@@ -84,10 +85,11 @@ def term_costs(dataset: Path) -> pd.DataFrame:
     K = np.asarray(ds.manifest["camera"]["K"], float)
     rgb = sensor.srgb_decode(ds.load_image(f)).astype(np.float32)
     passes = {"rgb": rgb, "albedo": np.full_like(rgb, 0.5),
-              "range_m": np.load(ds.root / f["depth"])["range_m"].astype(np.float32),
-              "index": cv2.imread(str(ds.root / f["object_index"]), cv2.IMREAD_UNCHANGED)}
+              "range_m": np.asarray(load_range(ds.frame_file(f, "depth")), np.float32),   # 1.1 PNG or 1.0 NPZ
+              "index": load_index(ds.frame_file(f, "object_index"))}
     frame = {"T_world_cam": f["T_world_cam"]}
     markers = ds.markers
+    T_wd = np.asarray(ds.manifest["dock"]["T_world_dock"], float)
 
     def state(mode, **sens):
         return compose.SequenceState.start(SequencePost(
@@ -107,6 +109,11 @@ def term_costs(dataset: Path) -> pd.DataFrame:
         ("sensor, no noise", lambda: phys.camera.apply(rgb, phys.rng)),
         ("sensor, shot + read noise", lambda: noisy.camera.apply(rgb, noisy.rng)),
         ("sensor, blooming", lambda: bloom.camera.apply(rgb * 20, bloom.rng)),
+        ("LEDs light nearby surfaces (physical)", lambda: compose.led_light(
+            passes, phys, K, frame["T_world_cam"], markers, T_wd)),
+        ("  LEDs light: no LED array (off)", lambda: compose.led_light(passes, phys, K, frame["T_world_cam"], [], T_wd)),
+        ("auto-exposure metering (99.9 percentile)", lambda: sensor.AutoExposure().next_exposure(
+            rgb, 0.004, phys.camera, 0.1)),
         ("motion blur 5 px", lambda: sensor.motion_blur(rgb, (5.0, 1.0))),
         ("distortion RGB + index + range", lambda: (sensor.distort_image(rgb, K, dist),
                                                     compose.output_passes(passes, K, dist))),

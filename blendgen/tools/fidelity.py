@@ -381,7 +381,7 @@ GLOW_RADII_PX = (3, 6, 12, 24, 40)
 
 
 def glow_reference(water, range_m: float, out: Path, size: int = 96, hfov_deg: float = 40.0,
-                   samples: int = 64, power_w: float = 100.0) -> np.ndarray:
+                   samples: int = 64, power_w: float = 100.0, volume_bounces: int = 0) -> np.ndarray:
     """Render the reference glow of a point light ``range_m`` ahead (``blendgen.blender.glow_scene``,
     Blender in a subprocess); returns its linear RGB (size, size, 3)."""
     import subprocess
@@ -389,14 +389,38 @@ def glow_reference(water, range_m: float, out: Path, size: int = 96, hfov_deg: f
     spec = {"water": {"sigma_a": water.sigma_a.tolist(), "sigma_s": water.sigma_s.tolist(), "phase": water.phase,
                       "g": float(water.g), "ff_ior": float(water.ff_ior), "ff_backscatter": float(water.ff_backscatter)},
             "range_m": range_m, "power_w": power_w, "light_radius_m": 0.005, "hfov_deg": hfov_deg,
-            "width": size, "height": size, "samples": samples, "seed": 1}
+            "width": size, "height": size, "samples": samples, "seed": 1, "volume_bounces": int(volume_bounces)}
     out.mkdir(parents=True, exist_ok=True)
-    sp, npy = out / f"glow-{water.name}-{range_m:g}.json", out / f"glow-{water.name}-{range_m:g}.npy"
+    tag = f"glow-{water.name}-{range_m:g}-b{int(volume_bounces)}"
+    sp, npy = out / f"{tag}.json", out / f"{tag}.npy"
     sp.write_text(json.dumps(spec))
     res = subprocess.run([sys.executable, "-m", "blendgen.blender.glow_scene", str(sp), str(npy)],
                          capture_output=True, text=True, timeout=600)
     if res.returncode != 0:
         raise RuntimeError(f"glow reference render failed: {res.stderr[-1500:]}")
+    return np.load(npy)
+
+
+def led_reference(water, range_m: float, radiance, radius_m: float, out: Path, size: int = 96,
+                  hfov_deg: float = 40.0, samples: int = 64, lights_scene: bool = True) -> np.ndarray:
+    """Render the dataset's disc LED (radiance (3,), radius) ``range_m`` ahead, facing the camera,
+    through ``water`` (None: no medium) with Blender in a subprocess; linear RGB (size, size, 3)."""
+    import subprocess
+    import sys
+    spec = {"water": None if water is None else {
+                "sigma_a": water.sigma_a.tolist(), "sigma_s": water.sigma_s.tolist(), "phase": water.phase,
+                "g": float(water.g), "ff_ior": float(water.ff_ior), "ff_backscatter": float(water.ff_backscatter)},
+            "range_m": range_m, "led": {"radiance": [float(v) for v in radiance], "radius_m": radius_m,
+                                        "lights_scene": lights_scene},
+            "hfov_deg": hfov_deg, "width": size, "height": size, "samples": samples, "seed": 1}
+    out.mkdir(parents=True, exist_ok=True)
+    tag = f"led-{'air' if water is None else water.name}-{range_m:g}-{int(lights_scene)}"
+    sp, npy = out / f"{tag}.json", out / f"{tag}.npy"
+    sp.write_text(json.dumps(spec))
+    res = subprocess.run([sys.executable, "-m", "blendgen.blender.glow_scene", str(sp), str(npy)],
+                         capture_output=True, text=True, timeout=600)
+    if res.returncode != 0:
+        raise RuntimeError(f"LED reference render failed: {res.stderr[-1500:]}")
     return np.load(npy)
 
 
@@ -411,26 +435,53 @@ def encircled_glow(img: np.ndarray, fx: float, radii_px) -> np.ndarray:
     return np.array([(img * omega[..., None])[rho <= R].sum(axis=0) for R in radii_px])
 
 
+def glow_radius_px(ee: np.ndarray, share: float = 0.5) -> float:
+    """Radius (px, linear interpolation) holding ``share`` of the last value of the encircled
+    energy ``ee`` (n,) sampled at radii 1..n px: the glow's size, independent of its level."""
+    ee = np.asarray(ee, float)
+    radii = np.arange(1, ee.size + 1, dtype=float)
+    return float(np.interp(share * ee[-1], ee, radii))
+
+
+def _fast_encircled(w, r: float, fx: float, radii, multiple: bool) -> np.ndarray:
+    """(len(radii), 3) fast-model glow within each pixel radius, relative to the direct light:
+    single scattering (analytic, without the multiple-scatter energy) or the widened kernel."""
+    from blendgen.physics import optics
+    radii = np.asarray(radii, float)
+    if not multiple:
+        single = optics.glow_encircled_energy(w, r, radii / fx)
+        return single / (np.expm1(w.sigma_s * r) / (w.sigma_s * r))
+    k = optics.glow_kernel_multiple(w, r, fx, keep_centre=True).astype(np.float64)
+    R = k.shape[0] // 2
+    rho = np.hypot(*np.mgrid[-R:R + 1, -R:R + 1])
+    return np.array([k[rho <= q].sum(axis=0) for q in radii])
+
+
 def glow_comparison(work: Path, waters=GLOW_WATERS, ranges=GLOW_RANGES, size: int = 96, samples: int = 64,
-                    power_w: float = 100.0, hfov_deg: float = 40.0):
-    """Fast single-scatter glow model vs the reference medium (0 volume bounces), per water,
-    range and radius: encircled glow relative to the unscattered irradiance of the source,
-    ``EE = sum(L Omega) / (I exp(-c r) / r^2)`` with Cycles' point-light intensity
-    ``I = P / (4 pi)`` W/sr. Returns a DataFrame (green channel) with both and their ratio."""
+                    power_w: float = 100.0, hfov_deg: float = 40.0, volume_bounces: int = 0):
+    """Fast glow model vs the reference medium, per water, range and radius: encircled glow
+    relative to the unscattered irradiance of the source, ``EE = sum(L Omega) / (I exp(-c r) / r^2)``
+    with Cycles' point-light intensity ``I = P / (4 pi)`` W/sr, and the glow radius r50 (px
+    holding half of the glow within 40 px). ``volume_bounces`` 0: the single-scatter model vs
+    single-scatter Cycles; > 0: the multiple-scatter (widening) kernel vs Cycles with that many
+    volume bounces. Returns a DataFrame (green channel)."""
     import pandas as pd
     from blendgen.config.models import Water
     from blendgen.physics import optics
     fx = (size / 2) / math.tan(math.radians(hfov_deg) / 2)
+    fine = np.arange(1, max(GLOW_RADII_PX) + 1)
     rows = []
     for name in waters:
         w = optics.water_for_mode(Water(preset=name), "physical")
         for r in ranges:
-            img = glow_reference(w, r, work, size, hfov_deg, samples, power_w)
+            img = glow_reference(w, r, work, size, hfov_deg, samples, power_w, volume_bounces)
             direct = power_w / (4 * math.pi) * np.exp(-w.c * r) / r ** 2
-            ref = encircled_glow(img.astype(np.float64), fx, GLOW_RADII_PX) / direct
-            single = optics.glow_encircled_energy(w, r, np.array(GLOW_RADII_PX) / fx)
-            single /= (np.expm1(w.sigma_s * r) / (w.sigma_s * r))            # the reference is single scatter
-            for R, e_ref, e_fast in zip(GLOW_RADII_PX, ref[:, 1], single[:, 1]):
+            ref = encircled_glow(img.astype(np.float64), fx, fine)[:, 1] / direct[1]
+            fast = _fast_encircled(w, r, fx, fine, volume_bounces > 0)[:, 1]
+            r50_ref, r50_fast = glow_radius_px(ref), glow_radius_px(fast)
+            for R in GLOW_RADII_PX:
+                e_ref, e_fast = ref[R - 1], fast[R - 1]
                 rows.append({"water": name, "range_m": r, "radius_px": R, "EE_reference": e_ref,
-                             "EE_fast_single": e_fast, "ratio": e_fast / e_ref if e_ref > 0 else float("nan")})
+                             "EE_fast": e_fast, "ratio": e_fast / e_ref if e_ref > 0 else float("nan"),
+                             "r50_reference_px": r50_ref, "r50_fast_px": r50_fast})
     return pd.DataFrame(rows)

@@ -37,6 +37,13 @@ demo (printed markers read 1.0), still well above BOP's 0.1 target threshold.
 Checked against bop_toolkit (thodan/bop_toolkit cea62d6): its ``inout`` loaders read the
 export and its ``pose_error.mssd``/``mspd`` on ``models_eval`` reproduce ``evaluate``'s
 per-frame MSSD/MSPD to 1e-13.
+Lens distortion: BOP cameras are pinhole (``cam_K`` only). A dataset whose camera has
+distortion is refused unless ``undistort=True`` (``--undistort``): then every image, the
+range and the object-index pass are remapped to the pinhole camera of the same K with
+OpenCV's undistortion maps (``cv2.initUndistortRectifyMap``; RGB bilinear, index and range
+nearest, so labels and depths are not blended), written as files (never links), and the
+ground truth is projected without distortion. Pixels whose ideal ray falls outside the
+distorted image are black RGB, index 0 and no depth.
 Depth: the dataset stores the *range* along each pixel ray (m); BOP wants planar
 ``z``: ``z = range / |K^-1 [u, v, 1]|`` (rays undistorted with OpenCV when the camera
 has distortion). With ``depth_scale`` 1.0 (default) a PNG unit is 1 mm, so depths
@@ -54,7 +61,7 @@ from pathlib import Path
 import numpy as np
 
 from datasets_spec.io import load_index, load_range
-from evalkit.dataset import Dataset
+from evalkit.dataset import Dataset, DatasetError
 from evalkit.metrics.recall import marker_model, marker_points
 
 MIN_TARGET_VISIB = 0.1
@@ -172,6 +179,7 @@ class _Export:
     models: dict = field(default_factory=dict)         # obj_id -> vertices (m, marker frame)
     index_values: dict = field(default_factory=dict)   # marker id -> object-index value
     norms: np.ndarray | None = None
+    undistort_maps: tuple | None = None                  # (map_x, map_y) when undistorting
     clipped: int = 0
     visib_from_index: int = 0
     visib_copied: int = 0
@@ -180,6 +188,33 @@ class _Export:
     @property
     def K(self) -> np.ndarray:
         return self.ds.camera["K"]
+
+    @property
+    def dist(self):
+        """The distortion the exported files have (None once undistorted)."""
+        return None if self.undistort_maps is not None else self.ds.camera["dist"]
+
+    def remap(self, img: np.ndarray, nearest: bool, border=0) -> np.ndarray:
+        """``img`` on the pinhole camera (identity without undistortion)."""
+        if self.undistort_maps is None:
+            return img
+        import cv2
+        return cv2.remap(img, *self.undistort_maps, cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR,
+                         borderMode=cv2.BORDER_CONSTANT, borderValue=border)
+
+
+def has_distortion(dataset: Dataset) -> bool:
+    """True when the dataset's camera has non-zero lens distortion."""
+    d = dataset.camera["dist"]
+    return d is not None and bool(np.any(np.asarray(d, float) != 0))
+
+
+def _undistort_maps(dataset: Dataset) -> tuple:
+    import cv2
+    cam = dataset.camera
+    K = np.asarray(cam["K"], float)
+    return cv2.initUndistortRectifyMap(K, np.asarray(cam["dist"], float), None, K,
+                                       (int(cam["width"]), int(cam["height"])), cv2.CV_32FC1)
 
 
 def _write_models(ex: _Export) -> None:
@@ -219,7 +254,7 @@ def _gt_info(ex: _Export, mid: str, T: np.ndarray, frame_marker: dict, index, de
     oid = ex.obj_ids[mid]
     cam = ex.ds.camera
     info = {"bbox_obj": [-1, -1, -1, -1], "bbox_visib": [-1, -1, -1, -1]}
-    uv = _project(ex.models[oid] @ T[:3, :3].T + T[:3, 3], ex.K, cam["dist"])
+    uv = _project(ex.models[oid] @ T[:3, :3].T + T[:3, 3], ex.K, ex.dist)
     if uv is not None:
         info["bbox_obj"] = _bbox(np.floor(uv[:, 0].min()), np.floor(uv[:, 1].min()),
                                  np.floor(uv[:, 0].max()), np.floor(uv[:, 1].max()))
@@ -227,7 +262,7 @@ def _gt_info(ex: _Export, mid: str, T: np.ndarray, frame_marker: dict, index, de
         ex.visib_copied += 1
         return {**info, "visib_fract": float(frame_marker.get("visible_fraction") or 0.0)}, (None, None)
     ex.visib_from_index += 1
-    sil = _silhouette(ex.models[oid], T, ex.K, cam["dist"], index.shape[:2])
+    sil = _silhouette(ex.models[oid], T, ex.K, ex.dist, index.shape[:2])
     if sil is None:
         sil = np.zeros(index.shape[:2], bool)
     visib = sil & (index == ex.index_values[mid])
@@ -246,9 +281,10 @@ def _frame_depth(ex: _Export, frame: dict, path: Path):
     if not frame.get("depth"):
         return None
     rng = load_range(ex.ds.frame_file(frame, "depth"))      # 1.1 mm PNG or 1.0 float NPZ
+    rng = ex.remap(np.asarray(rng, np.float32), nearest=True, border=float("inf"))
     if ex.norms is None:
         cam = ex.ds.camera
-        ex.norms = ray_norms(ex.K, cam["width"], cam["height"], cam["dist"])
+        ex.norms = ray_norms(ex.K, cam["width"], cam["height"], ex.dist)
     img, n = range_to_depth_png(rng, ex.norms, ex.depth_scale)
     ex.clipped += n
     cv2.imwrite(str(path), img)
@@ -259,7 +295,11 @@ def _export_frame(ex: _Export, sdir: Path, scene_id: int, frame: dict) -> tuple[
     """Write one image's files; return its ``(scene_camera, scene_gt, scene_gt_info)`` entries."""
     import cv2
     im = int(frame["index"])
-    _link_or_copy(ex.ds.image_path(frame), sdir / "rgb" / f"{im:06d}.png", ex.copy_images)
+    if ex.undistort_maps is None:
+        _link_or_copy(ex.ds.image_path(frame), sdir / "rgb" / f"{im:06d}.png", ex.copy_images)
+    else:
+        rgb = cv2.imread(str(ex.ds.image_path(frame)), cv2.IMREAD_UNCHANGED)
+        cv2.imwrite(str(sdir / "rgb" / f"{im:06d}.png"), ex.remap(rgb, nearest=False))
     cam_entry = {"cam_K": [float(v) for v in ex.K.ravel()], "depth_scale": ex.depth_scale}
     if frame.get("T_world_cam") is not None:
         T_cam_world = _inv(np.asarray(frame["T_world_cam"], dtype=float))
@@ -268,7 +308,7 @@ def _export_frame(ex: _Export, sdir: Path, scene_id: int, frame: dict) -> tuple[
     depth = _frame_depth(ex, frame, sdir / "depth" / f"{im:06d}.png")
     index = None
     if frame.get("object_index"):
-        index = load_index(ex.ds.frame_file(frame, "object_index"))
+        index = ex.remap(load_index(ex.ds.frame_file(frame, "object_index")), nearest=True)
     T_cam_dock = np.asarray(frame.get("T_cam_dock", np.eye(4)), dtype=float)
     fmarkers = frame.get("markers") or {}
     gts, infos = [], []
@@ -307,14 +347,21 @@ def _export_scene(ex: _Export, scene_id: int, seq: dict) -> int:
 
 def export_bop(dataset: Dataset | str | Path, out_dir: str | Path, split: str = "test",
                copy_images: bool = False, depth_scale: float = 1.0, masks: bool = True,
-               sequences: list[str] | None = None) -> dict:
+               sequences: list[str] | None = None, undistort: bool = False) -> dict:
     """Write ``dataset`` as a BOP dataset into ``out_dir`` (see the module docstring).
+    A camera with lens distortion raises :class:`DatasetError` unless ``undistort``.
 
-    Returns a summary ``{scenes, images, objects, depth_clipped_px}``."""
+    Returns a summary ``{scenes, images, objects, depth_clipped_px, undistorted}``."""
     ds = dataset if isinstance(dataset, Dataset) else Dataset.open(dataset)
     if depth_scale <= 0:
         raise ValueError("depth_scale must be > 0")
-    ex = _Export(ds, Path(out_dir), split, copy_images, depth_scale, masks, index_values=_index_values(ds))
+    distorted = has_distortion(ds)
+    if distorted and not undistort:
+        raise DatasetError(f"{ds.root}: the camera has lens distortion {ds.camera['dist'].tolist()} but BOP "
+                           "cameras are pinhole (cam_K only); export with --undistort (undistort=True) to "
+                           "remap images, depth and masks to the pinhole camera of the same K")
+    ex = _Export(ds, Path(out_dir), split, copy_images, depth_scale, masks, index_values=_index_values(ds),
+                 undistort_maps=_undistort_maps(ds) if distorted else None)
     ex.out.mkdir(parents=True, exist_ok=True)
     cam = ds.camera
     _json(ex.out / "camera.json", {"cx": float(ex.K[0, 2]), "cy": float(ex.K[1, 2]), "fx": float(ex.K[0, 0]),
@@ -332,6 +379,7 @@ def export_bop(dataset: Dataset | str | Path, out_dir: str | Path, split: str = 
     _json(ex.out / "dockbench_scenes.json", {
         "dataset": {"name": m.get("name"), "version": m.get("version"), "content_hash": m.get("content_hash")},
         "split": split, "depth_scale": depth_scale, "scenes": scenes,
+        "undistorted_from": ds.camera["dist"].tolist() if distorted else None,
         "visib_fract": {"from_object_index": ex.visib_from_index, "copied_from_dataset": ex.visib_copied}})
     return {"scenes": len(scenes), "images": n_images, "objects": len(ds.markers),
-            "depth_clipped_px": ex.clipped}
+            "depth_clipped_px": ex.clipped, "undistorted": distorted}
