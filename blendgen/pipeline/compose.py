@@ -108,7 +108,7 @@ def surface_depth(range_m: np.ndarray, K: np.ndarray, T_world_cam, surface_z_m: 
 
 
 def water_image(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, markers: list[dict],
-                occluded: np.ndarray | None = None) -> np.ndarray:
+                occluded: np.ndarray | None = None, t: float = 0.0) -> np.ndarray:
     """Fast fidelity: the clean linear render (H,W,3) seen through the condition's water
     with light at depth, in the sequence's image-formation mode (optics module docstring)."""
     post = state.post
@@ -120,11 +120,29 @@ def water_image(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, 
         depth, veil_depth = surface_depth(passes["range_m"], K, T_world_cam, post.surface_z_m)
     else:
         depth, veil_depth = post.light_depth_m, None
-    return optics.apply_water(passes["rgb"], passes["range_m"], emissive, state.water, depth,
+    rgb, range_m = passes["rgb"], passes["range_m"]
+    if post.world is not None and post.image_formation == "physical":
+        rgb, range_m, depth = _world(passes, state, K, T_world_cam, depth, veil_depth, t)
+    return optics.apply_water(rgb, range_m, emissive, state.water, depth,
                               model=post.image_formation, veil_depth_m=veil_depth,
                               irradiance=state.water_opts["irradiance"], blur=state.water_opts["blur"],
                               blur_px_per_tau=optics.BLUR_RAD_PER_TAU * fx, blur_max_px=optics.BLUR_MAX_RAD * fx,
                               glow_fx=fx)
+
+
+def _world(passes: dict, state: SequenceState, K, T_world_cam, depth, veil_depth: float, t: float):
+    """Caustics, then the surface seen from below (``pipeline/world_post.py``); (rgb, range, depth)."""
+    from blendgen.pipeline import world_post
+    wp, w = state.post.world, state.water
+    rgb, range_m = passes["rgb"], passes["range_m"]
+    if wp.caustics:
+        rgb = world_post.add_caustics(rgb, passes.get("albedo"), range_m, depth, wp, K, T_world_cam, t,
+                                      float(np.mean(w.sigma_s)))
+    if wp.surface:
+        below = w.B_inf * state.water_opts["irradiance"] * optics.depth_light(w, veil_depth)
+        rgb, range_m, depth = world_post.add_surface(rgb, range_m, depth, wp, K, T_world_cam,
+                                                     state.post.surface_z_m, t, below)
+    return rgb, range_m, depth
 
 
 def sensor_model(post: SequencePost) -> sensor.SensorModel:
@@ -143,7 +161,7 @@ def camera_image(passes: dict, state: SequenceState, K: np.ndarray, frame: dict,
     planned frame (``T_world_cam``, optional ``blur_px`` motion over the exposure)."""
     rgb = passes["rgb"]
     if fidelity == "fast":
-        rgb = water_image(passes, state, K, frame["T_world_cam"], markers, occluded)
+        rgb = water_image(passes, state, K, frame["T_world_cam"], markers, occluded, float(frame.get("t", 0.0)))
     if frame.get("blur_px") is not None:
         rgb = sensor.motion_blur(rgb, frame["blur_px"])
     if state.post.distortion:

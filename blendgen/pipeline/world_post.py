@@ -1,0 +1,88 @@
+"""Fast fidelity: the water surface seen from below and caustics, in image space.
+
+Runs before the water model (:func:`blendgen.physics.optics.apply_water`), on the clean
+passes of one frame; physics in :mod:`blendgen.physics.surface`. Both steps are skipped
+entirely when the sequence has them off (``SequencePost.world`` None or False).
+
+- Surface: a pixel whose ray hits nothing and points up meets the surface at
+  ``r = (z_s - z_cam) / d_z``; its clean radiance becomes Snell's window
+  (``surface.window_radiance``, with the local wave normal) at that range, with depth 0
+  (sky light is not dimmed by depth light), so the water model then attenuates it along the
+  path and veils it like any surface. What the surface reflects from below is taken as the
+  veiling light of open water at the camera's depth (the pool's mirrored walls are not
+  traced: a known difference from the reference, which reflects the real scene).
+- Caustics: each surface point's sun-lit part ``J - albedo L_amb`` is multiplied by the
+  focusing factor of its sun ray (``surface.caustic_factor``) at its depth, with the
+  water's scattering coefficient (mean over RGB) as the turbidity.
+"""
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+
+from blendgen.physics import surface as sf
+
+
+@functools.lru_cache(maxsize=8)
+def waves_of(seed: int, wind_mps: float) -> sf.WaveField:
+    """The sequence's surface waves (cached: the same for every frame); wind 0 is a flat mirror
+    (a still indoor pool; Cox-Munk's 0.003 intercept is the open sea's residual slope)."""
+    return sf.WaveField.sample(seed, wind_mps, mss=None if wind_mps > 0 else 0.0)
+
+
+def world_rays(K: np.ndarray, T_world_cam, shape) -> np.ndarray:
+    """(H, W, 3) float32 unit ray directions in the world frame."""
+    from blendgen.pipeline.compose import _unit_rays
+    h, w = shape
+    rays = _unit_rays(tuple(np.asarray(K, float).ravel()), w, h)
+    return rays @ np.asarray(T_world_cam, float)[:3, :3].T.astype(np.float32)
+
+
+def add_surface(rgb, range_m, depth, wp, K, T_world_cam, surface_z_m: float, t: float, below_radiance):
+    """Pixels that see the surface from below: (rgb, range_m, depth) new arrays with the
+    window radiance at the surface's range and depth 0 there; the inputs when none does.
+    ``below_radiance`` (3,) what the surface reflects (the veil at the camera's depth)."""
+    T = np.asarray(T_world_cam, float)
+    d = world_rays(K, T, range_m.shape)
+    up = ~np.isfinite(range_m) & (d[..., 2] > 1e-4)
+    if not up.any():
+        return rgb, range_m, depth
+    dz = d[..., 2][up]
+    r = np.maximum(np.float32(surface_z_m - T[2, 3]), 0) / dz
+    x = np.float32(T[0, 3]) + r * d[..., 0][up]
+    y = np.float32(T[1, 3]) + r * d[..., 1][up]
+    sx, sy = waves_of(wp.wave_seed, wp.wind_mps).slope(x, y, t)
+    n = np.stack([-sx, -sy, np.ones_like(sx)], -1)
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    cos_up = np.einsum("ij,ij->i", d[up], n)
+    rgb, range_m = rgb.copy(), range_m.copy()
+    rgb[up] = sf.window_radiance(cos_up, [wp.sky_radiance] * 3, below_radiance)
+    range_m[up] = r
+    depth = np.array(np.broadcast_to(depth, range_m.shape), np.float32)
+    depth[up] = 0.0
+    return rgb, range_m, depth
+
+
+def add_caustics(rgb, albedo, range_m, depth, wp, K, T_world_cam, t: float, scattering: float):
+    """Sun-lit surfaces times their focusing factor (module docstring); a new (H, W, 3) array.
+    ``depth`` (H, W) metres below the surface of each pixel's surface point."""
+    T = np.asarray(T_world_cam, float)
+    hit = np.isfinite(range_m) & (depth > 0)
+    if not hit.any():
+        return rgb
+    d = world_rays(K, T, range_m.shape)[hit]
+    r = range_m[hit].astype(np.float32)
+    h = depth[hit].astype(np.float32)
+    sun = sf.refracted_sun(wp.sun_travel_dir)
+    back = (-sun[:2] / -sun[2]).astype(np.float32)            # horizontal run per metre of rise
+    x = np.float32(T[0, 3]) + r * d[:, 0] + h * back[0]
+    y = np.float32(T[1, 3]) + r * d[:, 1] + h * back[1]
+    path = h / np.float32(-sun[2])                             # slant path of the beam to the point
+    m = sf.caustic_factor(waves_of(wp.wave_seed, wp.wind_mps), x, y, path, t, scattering)
+    sun_lit = rgb[hit]
+    if albedo is not None and wp.ambient_radiance > 0:
+        sun_lit = np.maximum(sun_lit - albedo[hit] * np.float32(wp.ambient_radiance), 0)
+    out = rgb.copy()
+    out[hit] += sun_lit * (m - 1)[:, None]
+    return out

@@ -1,0 +1,142 @@
+"""The world around the dock (issue 14): Snell's window, caustics, their zero cost when off.
+
+Oracles: the critical angle asin(1/1.333) = 48.6 deg; Fresnel reflectance at normal incidence
+((n-1)/(n+1))^2; energy conservation (mean caustic irradiance = flat-surface value); the
+analytic contrast of the caustic model; monotone fall of contrast with depth in turbid water."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from blendgen.config.models import Experiment, Water
+from blendgen.physics import surface as sf
+from blendgen.pipeline import compose, plan
+from blendgen.pipeline.plan import SequencePost, WorldPost
+
+W, H = 161, 161
+F = (W - 1) / 2 / math.tan(math.radians(75))          # 150 deg field of view: sees the whole window
+K = np.array([[F, 0, (W - 1) / 2], [0, F, (H - 1) / 2], [0, 0, 1]])
+
+
+def _looking_up(cam_z: float) -> np.ndarray:
+    """OpenCV camera at (0, 0, cam_z) looking straight up: z_cam = +z_world, y_cam = -y_world."""
+    T = np.eye(4)
+    T[:3, :3] = np.diag([1.0, -1.0, 1.0])
+    T[2, 3] = cam_z
+    return T
+
+
+def _post(world: WorldPost | None, water=Water(preset="jerlov_IB")) -> SequencePost:
+    return SequencePost(seed=0, fps=10, image_formation="physical", water=water, light_depth_m=3.0,
+                        surface_z_m=0.0, irradiance_w_m2=3.0, world=world)
+
+
+def _world(surface=True, caustics=False, wind=0.0) -> WorldPost:
+    return WorldPost(surface=surface, caustics=caustics, wind_mps=wind, wave_seed=7, sky_radiance=0.2,
+                     ambient_radiance=0.0, sun_travel_dir=[0.0, 0.0, -1.0])
+
+
+def _open_water_up(post, t=0.0):
+    passes = {"rgb": np.zeros((H, W, 3), np.float32), "range_m": np.full((H, W), np.inf, np.float32),
+              "index": np.zeros((H, W), np.uint8)}
+    return compose.water_image(passes, compose.SequenceState.start(post), K, _looking_up(-3.0), [], t=t)
+
+
+def _zenith_angle_deg() -> np.ndarray:
+    u, v = np.meshgrid(np.arange(W), np.arange(H))
+    return np.degrees(np.arctan(np.hypot(u - K[0, 2], v - K[1, 2]) / F))
+
+
+def test_fresnel_normal_incidence_and_total_internal_reflection():
+    assert sf.fresnel_reflectance(1.0)[()] == pytest.approx(((1.333 - 1) / (1.333 + 1)) ** 2, rel=1e-4)
+    assert sf.fresnel_reflectance(math.cos(math.radians(48.7)))[()] == 1.0
+    assert math.degrees(sf.critical_angle_rad()) == pytest.approx(48.6, abs=0.05)
+
+
+def test_snells_window_half_angle_within_1_deg_looking_up():
+    """Fast path, flat surface, open water, camera 3 m deep looking up: the bright disc's edge
+    (radiance halfway between the zenith's and the totally reflected veil) sits at 48.6 +- 1 deg."""
+    img = _open_water_up(_post(_world()))[..., 1]
+    ang = _zenith_angle_deg()
+    zen, far = float(img[H // 2, W // 2]), float(np.median(img[ang > 60]))
+    assert zen > 2 * far > 0                              # bright window over a veil, never black
+    inside = ang[img > (zen + far) / 2]
+    assert abs(inside.max() - 48.6) < 1.0
+
+
+def test_outside_the_window_is_the_veil_not_black():
+    """Open water: total internal reflection returns the veiling light at the camera's depth."""
+    img = _open_water_up(_post(_world()))
+    ref = _open_water_up(_post(None))                      # without surface: the veil everywhere
+    out = _zenith_angle_deg() > 55
+    np.testing.assert_allclose(img[out], ref[out], rtol=1e-5)
+    assert img[out].min() > 0
+
+
+def test_rough_surface_moves_with_time():
+    a = _open_water_up(_post(_world(wind=3.0)), t=0.0)
+    b = _open_water_up(_post(_world(wind=3.0)), t=0.5)
+    assert np.abs(a - b).max() > 0.01
+
+
+def test_world_off_costs_nothing_and_changes_nothing(monkeypatch):
+    """SequencePost.world None: the surface/caustic module is never entered."""
+    from blendgen.pipeline import world_post
+
+    def boom(*a, **k):
+        raise AssertionError("world_post called while off")
+    monkeypatch.setattr(world_post, "add_surface", boom)
+    monkeypatch.setattr(world_post, "add_caustics", boom)
+    _open_water_up(_post(None))
+
+
+def test_caustics_conserve_energy_and_match_the_analytic_contrast():
+    waves = sf.WaveField.sample(3, 2.0)
+    x, y = np.meshgrid(np.linspace(0, 30, 600, dtype=np.float32), np.linspace(0, 30, 600, dtype=np.float32))
+    for h in (0.5, 2.0, 6.0):
+        m = sf.caustic_factor(waves, x, y, h, 0.0, 0.05)
+        assert m.min() > 0
+        assert m.mean() == pytest.approx(1.0, abs=0.02)
+        assert m.std() == pytest.approx(sf.caustic_contrast(waves, h, 0.05), rel=0.15)
+
+
+@pytest.mark.parametrize("b", [0.05, 0.3])
+def test_caustic_contrast_falls_with_depth(b):
+    """Beyond the focal depths, contrast falls monotonically with depth; more turbid: lower."""
+    waves = sf.WaveField.sample(3, 1.0)
+    x, y = np.meshgrid(np.linspace(0, 30, 400, dtype=np.float32), np.linspace(0, 30, 400, dtype=np.float32))
+    cv = [float(sf.caustic_factor(waves, x, y, h, 0.0, b).std()) for h in (3.0, 5.0, 8.0, 12.0, 20.0)]
+    assert all(c1 > c2 for c1, c2 in zip(cv, cv[1:])), cv
+    assert sf.caustic_contrast(waves, 5.0, 0.3) < sf.caustic_contrast(waves, 5.0, 0.05)
+
+
+def test_flat_surface_has_no_caustics():
+    flat = sf.WaveField.sample(3, 0.0, mss=0.0)
+    m = sf.caustic_factor(flat, np.linspace(0, 5, 50), np.zeros(50), 4.0, 0.0)
+    np.testing.assert_allclose(m, 1.0, atol=1e-6)
+
+
+def test_caustics_move_the_floor_light_and_keep_its_mean():
+    """Fast path: a sun-lit floor 4 m down gets a moving pattern, mean preserved (2 %)."""
+    post = _post(_world(surface=False, caustics=True, wind=2.0), Water(preset="jerlov_IB"))
+    T = _looking_up(-3.0)
+    T[:3, :3] = np.diag([1.0, -1.0, -1.0])                    # looking down at the floor 1 m below
+    passes = {"rgb": np.full((H, W, 3), 0.3, np.float32), "index": np.ones((H, W), np.uint8)}
+    passes["depth_z"] = np.ones((H, W), np.float32)
+    compose.add_range(passes, K)
+    st = compose.SequenceState.start(post)
+    a = compose.water_image(passes, st, K, T, [], t=0.0)
+    b = compose.water_image(passes, st, K, T, [], t=0.3)
+    off = compose.water_image(passes, compose.SequenceState.start(_post(None)), K, T, [])
+    assert a.std() > 0.2 * off.mean() and np.abs(a - b).mean() > 0.01 * off.mean()
+    assert a.mean() == pytest.approx(off.mean(), rel=0.05)
+
+
+def test_world_defaults_on_in_physical_off_in_article_and_recorded():
+    traj = [{"kind": "linear", "id": "a"}]
+    phys = Experiment.model_validate({"name": "w", "image_formation": "physical", "trajectories": traj})
+    art = Experiment.model_validate({"name": "w", "image_formation": "article", "trajectories": traj})
+    assert plan.world_post(phys) is not None and plan.world_post(art) is None
+    assert plan.world_look(phys)["textures"] and not plan.world_look(art)["textures"]
