@@ -140,3 +140,34 @@ def test_world_defaults_on_in_physical_off_in_article_and_recorded():
     art = Experiment.model_validate({"name": "w", "image_formation": "article", "trajectories": traj})
     assert plan.world_post(phys) is not None and plan.world_post(art) is None
     assert plan.world_look(phys)["textures"] and not plan.world_look(art)["textures"]
+
+
+def _reference_up(tmp_path, depth=3.0, size=97, samples=16) -> np.ndarray:
+    import json
+    import subprocess
+    import sys
+    spec = {"depth_m": depth, "hfov_deg": 150, "size": size, "samples": samples, "sky_radiance": 0.2,
+            "water": None}
+    p, out = tmp_path / "spec.json", tmp_path / "up.npy"
+    p.write_text(json.dumps(spec))
+    subprocess.run([sys.executable, "-m", "blendgen.blender.surface_oracle", str(p), str(out)], check=True,
+                   capture_output=True, timeout=300)
+    return np.load(out)
+
+
+def test_reference_snells_window_half_angle_and_radiance(tmp_path):
+    """Cycles, glass surface IOR 1.333 seen from 3 m below (no medium): the window's edge at
+    48.6 +- 1 deg; inside, the radiance T(theta) n^2 L_sky of the fast formula within 5 %
+    (ring means over 0-40 deg)."""
+    img = _reference_up(tmp_path)[..., 1]
+    n = img.shape[0]
+    f = (n - 1) / 2 / math.tan(math.radians(75))
+    u, v = np.meshgrid(np.arange(n), np.arange(n))
+    ang = np.degrees(np.arctan(np.hypot(u - (n - 1) / 2, v - (n - 1) / 2) / f))
+    centre = float(img[ang < 20].mean())
+    assert abs(ang[img > centre / 2].max() - 48.6) < 1.0
+    assert float(img[ang > 50].max()) == 0.0                 # total internal reflection of a black pool
+    for lo in (0, 20, 30):
+        ring = (ang >= lo) & (ang < lo + 10)
+        fast = sf.window_radiance(np.cos(np.radians(ang[ring])), [0.2] * 3, [0.0] * 3)[:, 1].mean()
+        assert float(img[ring].mean()) == pytest.approx(float(fast), rel=0.05)

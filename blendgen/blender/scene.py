@@ -28,12 +28,18 @@ def set_matrix(obj: bpy.types.Object, T) -> None:
     obj.matrix_world = Matrix(np.asarray(T, float).tolist())
 
 
-def add_pool(pool: dict, index: int) -> None:
-    """Open-top box: floor and four walls, normals facing inward."""
+def add_pool(pool: dict, index: int, look: dict | None = None) -> None:
+    """Open-top box: floor and four walls, normals facing inward; tiled when ``look`` says
+    so (``blender/world.py``), else flat colours."""
     L, W, D = pool["length_m"] / 2, pool["width_m"] / 2, pool["depth_m"]
     v = [(-L, -W, -D), (L, -W, -D), (L, W, -D), (-L, W, -D), (-L, -W, 0), (L, -W, 0), (L, W, 0), (-L, W, 0)]
     floor = mesh_object("pool_floor", v, [(0, 1, 2, 3)], index=index)
     walls = mesh_object("pool_walls", v, [(0, 4, 5, 1), (1, 5, 6, 2), (2, 6, 7, 3), (3, 7, 4, 0)], index=index)
+    if look and look.get("textures"):
+        from blendgen.blender import world
+        floor.data.materials.append(world.tiles("floor", pool["floor_color"], look, "xy"))
+        walls.data.materials.append(world.tiles("walls", pool["wall_color"], look, "wall"))
+        return
     floor.data.materials.append(materials.diffuse("floor", pool["floor_color"]))
     walls.data.materials.append(materials.diffuse("walls", pool["wall_color"]))
 
@@ -47,13 +53,19 @@ def box_verts(sx: float, sy: float, sz: float, z0: float = 0.0):
     return v, f
 
 
-def add_dock(dock: dict, index: int) -> None:
-    """Dock body: a box whose front face lies 2 mm behind the marker plane (dock z = 0)."""
+def add_dock(dock: dict, index: int, look: dict | None = None) -> None:
+    """Dock body: a box whose front face lies 2 mm behind the marker plane (dock z = 0);
+    with textures, painted with dirt and held by an aluminium frame (``blender/world.py``)."""
     sx, sy, sz = dock["body_size_m"]
     v, f = box_verts(sx, sy, sz, z0=-0.002)
     obj = mesh_object("dock_body", v, f, index=index)
-    obj.data.materials.append(materials.diffuse("dock_face", dock["face_color"]))
     set_matrix(obj, dock["T_world_dock"])
+    if look and look.get("textures"):
+        from blendgen.blender import world
+        obj.data.materials.append(world.painted("dock_face", dock["face_color"], look))
+        world.dock_frame(dock, index, look)
+        return
+    obj.data.materials.append(materials.diffuse("dock_face", dock["face_color"]))
 
 
 def add_square_marker(m: dict, T_world_marker) -> None:
@@ -158,9 +170,13 @@ def build(desc: dict) -> bpy.types.Scene:
         materials.world_sky(world, sky["upper"], sky["lower"])
     else:
         materials.world_color(world, desc["world_color"])
+    look = desc.get("world")
     if desc.get("pool"):
-        add_pool(desc["pool"], desc["object_index"]["pool"])
-    add_dock(desc["dock"], desc["object_index"]["dock"])
+        add_pool(desc["pool"], desc["object_index"]["pool"], look)
+    elif look and look.get("textures"):      # open water: a sand-and-rock seabed template
+        from blendgen.blender import world as wld
+        wld.add_seabed(look, np.asarray(desc["dock"]["T_world_dock"], float)[:2, 3], desc["object_index"]["pool"])
+    add_dock(desc["dock"], desc["object_index"]["dock"], look)
     T_wd = np.asarray(desc["dock"]["T_world_dock"], float)
     for m in desc["markers"]:
         if m["kind"] == "led_array":
@@ -172,6 +188,10 @@ def build(desc: dict) -> bpy.types.Scene:
     if desc.get("water_volume"):  # reference fidelity: the water is a participating medium
         from blendgen.blender import water
         water.add_water_volume(desc["water_volume"])
+    if desc.get("water_surface"):  # reference fidelity: a refracting surface with the sky above
+        from blendgen.blender import world as wld
+        wld.add_water_surface(desc["water_surface"])
+        wld.world_sky_through_surface(world, desc["water_surface"]["sky_radiance"])
     add_sun("sun", desc["sun"]["direction"], desc["sun"]["strength"])
     if desc["fill"]["strength"] > 0:
         add_sun("fill", desc["fill"]["direction"], desc["fill"]["strength"], shadows=False)

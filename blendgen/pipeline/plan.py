@@ -507,6 +507,8 @@ def render_settings(exp: Experiment, threads: int) -> dict:
     samples = r.samples if r.fidelity == "fast" else r.reference_samples
     return {"samples": samples, "threads": threads, "max_bounces": r.diffuse_bounces,
             "diffuse_bounces": r.diffuse_bounces, "seed": exp.seed,
+            # the refracting surface: camera -> surface (transmission or total reflection) -> sky or wall
+            "specular_bounces": 2 if r.fidelity == "reference" and world_on(exp, "surface") else 0,
             "ambient_radiance": ambient_radiance(exp) if r.fidelity == "fast" else 0.0,
             "albedo_pass": r.fidelity == "fast" and ambient_on(exp),
             "write_depth": r.write_depth, "write_index": r.write_index,
