@@ -20,7 +20,7 @@ import bpy
 import numpy as np
 
 from blendgen.blender.materials import _fresh
-from blendgen.physics.surface import N_WATER
+from blendgen.physics.surface import N_WATER, waves_for
 from blendgen.blender.meshes import mesh_object
 
 
@@ -167,59 +167,6 @@ def rock(name: str, look: dict) -> bpy.types.Material:
     return mat
 
 
-def dock_frame(dock: dict, index: int, look: dict):
-    """Aluminium frame behind the marker plane: four corner posts along the body's depth and a
-    rim around its face, all outside the body's footprint and behind the face (dock z <
-    -2 mm), so no marker is ever covered. Returns the object."""
-    from blendgen.blender.scene import box_verts, set_matrix
-    sx, sy, sz = dock["body_size_m"]
-    t = 0.04
-    verts, faces = [], []
-
-    def bar(cx, cy, lx, ly, lz, z0):
-        v, f = box_verts(lx, ly, lz, z0=z0)
-        base = len(verts)
-        verts.extend((x + cx, y + cy, z) for x, y, z in v)
-        faces.extend(tuple(i + base for i in q) for q in f)
-    z_face = -0.003
-    for ex in (-1, 1):
-        for ey in (-1, 1):
-            bar(ex * (sx + t) / 2, ey * (sy + t) / 2, t, t, sz, z_face)
-    for ey in (-1, 1):
-        bar(0.0, ey * (sy + t) / 2, sx + 2 * t, t, t, z_face)
-    for ex in (-1, 1):
-        bar(ex * (sx + t) / 2, 0.0, t, sy, t, z_face)
-    obj = mesh_object("dock_frame", verts, faces, index=index)
-    obj.data.materials.append(metal("dock_metal"))
-    set_matrix(obj, dock["T_world_dock"])
-    return obj
-
-
-def add_seabed(look: dict, centre_xy, index: int, half: float = 60.0) -> None:
-    """Open water: a sand plane ``seabed_depth_m`` below the surface around the dock, with a
-    few seeded rocks (0.3-1.2 m) half buried in it."""
-    from blendgen.blender.scene import set_matrix, uv_sphere
-    z = -float(look["seabed_depth_m"])
-    cx, cy = (float(c) for c in centre_xy)
-    v = [(cx - half, cy - half, z), (cx + half, cy - half, z), (cx + half, cy + half, z), (cx - half, cy + half, z)]
-    bed = mesh_object("seabed", v, [(0, 1, 2, 3)], index=index)
-    bed.data.materials.append(sand("sand", look))
-    rng = np.random.default_rng(look["texture_seed"] + 5)
-    mat = rock("rock", look)
-    for i in range(24):
-        r = rng.uniform(0.3, 1.2)
-        sv, sf = uv_sphere(1.0, 16, 8)
-        scale = r * np.array([1.0, rng.uniform(0.6, 1.0), rng.uniform(0.35, 0.7)])
-        pts = [tuple(np.array(p) * scale * (1 + 0.12 * rng.standard_normal())) for p in sv]
-        obj = mesh_object(f"rock_{i}", pts, sf, index=index)
-        obj.data.materials.append(mat)
-        ang = rng.uniform(0, 2 * math.pi)
-        T = np.eye(4)
-        T[:2, :2] = [[math.cos(ang), -math.sin(ang)], [math.sin(ang), math.cos(ang)]]
-        T[:3, 3] = (cx + rng.uniform(-25, 25), cy + rng.uniform(-25, 25), z)
-        set_matrix(obj, T)
-
-
 def add_water_surface(desc: dict) -> bpy.types.Object:
     """Reference fidelity: the water surface as a refracting interface (Glass BSDF, IOR 1.333,
     normal up: a ray from below meets its back face and leaves water into air, so Cycles
@@ -236,6 +183,11 @@ def add_water_surface(desc: dict) -> bpy.types.Object:
     mat, nt = _fresh("water_surface")
     glass = _node(nt, "ShaderNodeBsdfGlass", Roughness=0.0, IOR=N_WATER)
     glass.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+    waves = waves_for(int(desc.get("wave_seed", 0)), float(desc.get("wind_mps", 0.0)))
+    if np.any(waves.amp > 0):
+        bump = _node(nt, "ShaderNodeBump", Strength=1.0, Distance=1.0)
+        nt.links.new(_wave_height(nt, waves), bump.inputs["Height"])
+        nt.links.new(bump.outputs["Normal"], glass.inputs["Normal"])
     out = nt.nodes.new("ShaderNodeOutputMaterial")
     nt.links.new(glass.outputs["BSDF"], out.inputs["Surface"])
     obj.data.materials.append(mat)
@@ -243,6 +195,45 @@ def add_water_surface(desc: dict) -> bpy.types.Object:
     obj.visible_diffuse = False
     obj.visible_volume_scatter = False
     return obj
+
+
+def _math(nt, op: str, a, b, c=None):
+    n = nt.nodes.new("ShaderNodeMath")
+    n.operation = op
+    for i, x in enumerate((a, b, c)[:3 if c is not None else 2]):
+        if isinstance(x, (int, float)):
+            n.inputs[i].default_value = float(x)
+        else:
+            nt.links.new(x, n.inputs[i])
+    return n.outputs["Value"]
+
+
+def _wave_height(nt, waves) -> "bpy.types.NodeSocket":
+    """Shader nodes of ``eta(x, y, t)`` (:class:`physics.surface.WaveField`, world = object
+    coordinates of the unrotated surface); time is the Value node ``wave_time`` (s), set per
+    frame by :func:`set_wave_time`."""
+    coord = nt.nodes.new("ShaderNodeTexCoord")
+    sep = nt.nodes.new("ShaderNodeSeparateXYZ")
+    nt.links.new(coord.outputs["Object"], sep.inputs["Vector"])
+    time = nt.nodes.new("ShaderNodeValue")
+    time.name = time.label = "wave_time"
+    time.outputs[0].default_value = 0.0
+    total = None
+    for a, (kx, ky), w, ph in zip(waves.amp, waves.k, waves.omega, waves.phase):
+        arg = _math(nt, "MULTIPLY_ADD", sep.outputs["X"], float(kx),
+                    _math(nt, "MULTIPLY_ADD", sep.outputs["Y"], float(ky),
+                          _math(nt, "MULTIPLY_ADD", time.outputs[0], -float(w), float(ph))))
+        term = _math(nt, "MULTIPLY", _math(nt, "SINE", arg, 0.0), float(a))
+        total = term if total is None else _math(nt, "ADD", total, term)
+    return total
+
+
+def set_wave_time(t: float) -> None:
+    """Move the reference surface's waves to time ``t`` (s); no-op without a wavy surface."""
+    mat = bpy.data.materials.get("water_surface")
+    node = mat.node_tree.nodes.get("wave_time") if mat is not None else None
+    if node is not None:
+        node.outputs[0].default_value = float(t)
 
 
 def world_sky_through_surface(world: bpy.types.World, sky_radiance: float) -> None:

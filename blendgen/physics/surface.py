@@ -109,6 +109,12 @@ class WaveField:
         return s @ (a * kx * kx), s @ (a * kx * ky), s @ (a * ky * ky)
 
 
+def waves_for(seed: int, wind_mps: float) -> WaveField:
+    """The scene's surface waves: Cox-Munk slope for wind > 0; wind 0 is a flat mirror (a still
+    indoor pool; the 0.003 intercept is the open sea's residual slope). Both fidelities use it."""
+    return WaveField.sample(seed, wind_mps, mss=None if wind_mps > 0 else 0.0)
+
+
 def window_radiance(cos_up, sky_radiance, below_radiance, n: float = N_WATER) -> np.ndarray:
     """Radiance (..., 3) seen along rays meeting the surface from below at incidence cosine
     ``cos_up`` (...) to the local normal: ``T n^2 L_sky + R L_below`` (module docstring);

@@ -135,12 +135,15 @@ def _world(passes: dict, state: SequenceState, K, T_world_cam, depth, veil_depth
     from blendgen.pipeline import world_post
     wp, w = state.post.world, state.water
     rgb, range_m = passes["rgb"], passes["range_m"]
+    h, wd = range_m.shape
+    rays = _unit_rays(tuple(np.asarray(K, float).ravel()), wd, h) @ np.asarray(T_world_cam, float)[:3, :3].T.astype(
+        np.float32)
     if wp.caustics:
-        rgb = world_post.add_caustics(rgb, passes.get("albedo"), range_m, depth, wp, K, T_world_cam, t,
+        rgb = world_post.add_caustics(rgb, passes.get("albedo"), range_m, depth, wp, rays, T_world_cam, t,
                                       float(np.mean(w.sigma_s)))
     if wp.surface:
         below = w.B_inf * state.water_opts["irradiance"] * optics.depth_light(w, veil_depth)
-        rgb, range_m, depth = world_post.add_surface(rgb, range_m, depth, wp, K, T_world_cam,
+        rgb, range_m, depth = world_post.add_surface(rgb, range_m, depth, wp, rays, T_world_cam,
                                                      state.post.surface_z_m, t, below)
     return rgb, range_m, depth
 

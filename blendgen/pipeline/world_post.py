@@ -26,25 +26,17 @@ from blendgen.physics import surface as sf
 
 @functools.lru_cache(maxsize=8)
 def waves_of(seed: int, wind_mps: float) -> sf.WaveField:
-    """The sequence's surface waves (cached: the same for every frame); wind 0 is a flat mirror
-    (a still indoor pool; Cox-Munk's 0.003 intercept is the open sea's residual slope)."""
-    return sf.WaveField.sample(seed, wind_mps, mss=None if wind_mps > 0 else 0.0)
+    """The sequence's surface waves (cached: the same for every frame)."""
+    return sf.waves_for(seed, wind_mps)
 
 
-def world_rays(K: np.ndarray, T_world_cam, shape) -> np.ndarray:
-    """(H, W, 3) float32 unit ray directions in the world frame."""
-    from blendgen.pipeline.compose import _unit_rays
-    h, w = shape
-    rays = _unit_rays(tuple(np.asarray(K, float).ravel()), w, h)
-    return rays @ np.asarray(T_world_cam, float)[:3, :3].T.astype(np.float32)
-
-
-def add_surface(rgb, range_m, depth, wp, K, T_world_cam, surface_z_m: float, t: float, below_radiance):
+def add_surface(rgb, range_m, depth, wp, rays, T_world_cam, surface_z_m: float, t: float, below_radiance):
     """Pixels that see the surface from below: (rgb, range_m, depth) new arrays with the
     window radiance at the surface's range and depth 0 there; the inputs when none does.
-    ``below_radiance`` (3,) what the surface reflects (the veil at the camera's depth)."""
+    ``rays`` (H, W, 3) unit world directions of the pixels; ``below_radiance`` (3,) what the
+    surface reflects (the veil at the camera's depth)."""
     T = np.asarray(T_world_cam, float)
-    d = world_rays(K, T, range_m.shape)
+    d = rays
     up = ~np.isfinite(range_m) & (d[..., 2] > 1e-4)
     if not up.any():
         return rgb, range_m, depth
@@ -64,14 +56,15 @@ def add_surface(rgb, range_m, depth, wp, K, T_world_cam, surface_z_m: float, t: 
     return rgb, range_m, depth
 
 
-def add_caustics(rgb, albedo, range_m, depth, wp, K, T_world_cam, t: float, scattering: float):
+def add_caustics(rgb, albedo, range_m, depth, wp, rays, T_world_cam, t: float, scattering: float):
     """Sun-lit surfaces times their focusing factor (module docstring); a new (H, W, 3) array.
-    ``depth`` (H, W) metres below the surface of each pixel's surface point."""
+    ``depth`` (H, W) metres below the surface of each pixel's surface point; ``rays`` (H, W, 3)
+    unit world directions."""
     T = np.asarray(T_world_cam, float)
     hit = np.isfinite(range_m) & (depth > 0)
     if not hit.any():
         return rgb
-    d = world_rays(K, T, range_m.shape)[hit]
+    d = rays[hit]
     r = range_m[hit].astype(np.float32)
     h = depth[hit].astype(np.float32)
     sun = sf.refracted_sun(wp.sun_travel_dir)
