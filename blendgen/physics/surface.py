@@ -20,15 +20,16 @@ Caustics (Schenck 1957, "On the focusing of sunlight by ocean waves"; the small-
 map of Zaneveld, Boss & Barnard 2001): a sun ray refracted at a surface of slope
 ``grad eta`` is deflected by ``alpha grad eta`` (``alpha = 1 - 1/n`` at normal incidence),
 so the point it reaches at depth ``h`` moves by ``h alpha grad eta`` and the irradiance is
-``E / E_0 = 1 / |det(I + h alpha Hess(eta))|`` (ray-tube area), to first order
-``1 - h alpha lap(eta)`` (closed log-normally, :func:`caustic_factor`). The pattern's contrast
+``E / E_0 = 1 / |det(I + h alpha Hess(eta))|`` (ray-tube area; bright lines where the
+determinant vanishes: the caustic network). The pattern's contrast
 falls with depth because (i) the sun's disc (radius 0.265 deg in air) blurs a wave of
 wavenumber ``k`` at depth ``h`` by ``exp(-(k h theta_sun / n)^2 / 2)``, and (ii) only the
 unscattered beam ``exp(-b h)`` carries it (``b`` the scattering coefficient): scattered
 light arrives from all directions. Measured irradiance fluctuations fall with depth the
-same way (Maritorena, Morel & Gentili 2000, Limnol. Oceanogr. 45(6)). The weak-focusing
-theory does not form sharp caustic lines beyond the first focal depth (their statistics
-are carried by the log-normal closure only).
+same way (Maritorena, Morel & Gentili 2000, Limnol. Oceanogr. 45(6)). Beyond the first
+focal depth the ray map folds; we evaluate one preimage per point (the point itself),
+clip the factor at folds to ``CAUSTIC_MAX`` and renormalise its area mean to 1 per depth
+(energy conservation), an approximation of summing over all preimages.
 """
 from __future__ import annotations
 
@@ -41,6 +42,7 @@ N_WATER = 1.333                     # refractive index of water (visible, 20 C)
 G = 9.81                            # m/s^2
 GAMMA_OVER_RHO = 7.3e-5             # surface tension / density of water, m^3/s^2
 SUN_RADIUS_RAD = math.radians(0.265)
+CAUSTIC_MAX = 8.0                   # clip of the ray-tube factor at a fold (before renormalising)
 
 
 def critical_angle_rad(n: float = N_WATER) -> float:
@@ -75,13 +77,17 @@ class WaveField:
     phase: np.ndarray
 
     @classmethod
-    def sample(cls, seed: int, wind_mps: float, n: int = 12, wind_dir_deg: float = 0.0,
-               lambda_min_m: float = 0.08, lambda_max_m: float = 1.5, mss: float | None = None) -> "WaveField":
-        """Waves whose total mean-square slope is ``mss`` (default :func:`cox_munk_mss`)."""
+    def sample(cls, seed: int, wind_mps: float, n: int = 24, wind_dir_deg: float = 0.0,
+               lambda_min_m: float = 0.25, lambda_max_m: float = 2.0, mss: float | None = None) -> "WaveField":
+        """``n`` waves, wavelengths log-uniform in [min, max] (equal slope variance per wave: a
+        slope spectrum flat in log k, Phillips' saturation range), headings uniform within
+        +-90 deg of the wind; total mean-square slope ``mss`` (default :func:`cox_munk_mss`).
+        Short capillary ripples (< 0.25 m) are left out: they are damped in a pool and
+        their focusing is blurred out within centimetres by the sun's disc."""
         rng = np.random.default_rng(seed)
-        lam = np.geomspace(lambda_min_m, lambda_max_m, n)
+        lam = np.exp(rng.uniform(math.log(lambda_min_m), math.log(lambda_max_m), n))
         kk = 2 * np.pi / lam
-        head = math.radians(wind_dir_deg) + rng.uniform(-math.pi / 3, math.pi / 3, n)
+        head = math.radians(wind_dir_deg) + rng.uniform(-math.pi / 2, math.pi / 2, n)
         s2 = cox_munk_mss(wind_mps) if mss is None else float(mss)
         amp = np.sqrt(2 * s2 / n) / kk              # each wave: slope variance (a k)^2 / 2 = s2 / n
         return cls(amp=amp, k=np.column_stack([kk * np.cos(head), kk * np.sin(head)]),
@@ -133,47 +139,45 @@ def sun_disc_damping(k_abs: np.ndarray, path_m, n: float = N_WATER) -> np.ndarra
     return np.exp(-0.5 * blur * blur)
 
 
-def caustic_factor(waves: WaveField, x, y, path_m, t: float, scattering: float = 0.0,
-                   n: float = N_WATER) -> np.ndarray:
-    """Sun irradiance at points over its flat-surface value (module docstring), (x.shape).
-
-    Linear ray-tube theory gives ``ln E/E0 ~ X = -h alpha lap(eta)`` for weak focusing, a sum
-    of sinusoids; each wave is damped by the sun's disc (:func:`sun_disc_damping`, exact for a
-    sinusoid convolved with the blur). ``exp(X - var(X)/2)`` keeps the irradiance positive
-    with mean exactly 1 (a log-normal closure: measured irradiance fluctuations are
-    log-normal-like with heavy bright tails, Darecki et al. 2011, JGR 116). Only the
-    unscattered share ``exp(-b h)`` of the beam carries the pattern. ``x``, ``y``: where each
-    point's sun ray crosses the surface; ``path_m`` its beam path below the surface (m)."""
+def _ray_tube_factor(waves: WaveField, x, y, path_m, t: float, n: float) -> np.ndarray:
+    """``1 / |det(I + h alpha H)|`` clipped to [0, CAUSTIC_MAX] (single-preimage ray map),
+    H the Hessian with each wave damped by the sun's disc."""
     h = np.maximum(np.asarray(path_m, np.float32), 0)
-    kk = np.hypot(waves.k[:, 0], waves.k[:, 1]).astype(np.float32)
-    damp = sun_disc_damping(kk, h, n)                                       # (..., n)
+    damp = sun_disc_damping(np.hypot(waves.k[:, 0], waves.k[:, 1]), h, n)
+    hxx, hxy, hyy = waves.hessian(x, y, t, damp)
     s = np.float32(1.0 - 1.0 / n) * h
-    hxx, _, hyy = waves.hessian(x, y, t, damp)
-    amp = s[..., None] * damp * (waves.amp.astype(np.float32) * kk * kk)    # each sinusoid's amplitude
-    var = 0.5 * np.sum(amp * amp, axis=-1)
-    sat = saturated_variance(var)
-    X = -s * (hxx + hyy) * np.sqrt(sat / np.maximum(var, np.float32(1e-30)))
-    m = np.exp(X - sat / 2)
+    det = (1 + s * hxx) * (1 + s * hyy) - (s * hxy) ** 2
+    return np.minimum(1.0 / np.maximum(np.abs(det), np.float32(1.0 / CAUSTIC_MAX)), np.float32(CAUSTIC_MAX))
+
+
+#: Beam paths (m) of the energy table of :func:`mean_ray_tube_factor`.
+MEAN_TABLE_PATHS = np.concatenate([[0.0], np.geomspace(0.05, 200.0, 47)]).astype(np.float32)
+
+
+def mean_ray_tube_factor(waves: WaveField, n: float = N_WATER, grid: int = 128) -> np.ndarray:
+    """Area mean of the ray-tube factor at each of ``MEAN_TABLE_PATHS`` (48,), over a patch
+    three longest wavelengths wide. Beyond the first focal depth the single-preimage map
+    counts the folded sheets wrongly and its mean leaves 1; dividing by this table restores
+    energy conservation (mean irradiance = the flat-surface value) depth by depth."""
+    side = 3 * 2 * np.pi / float(np.hypot(waves.k[:, 0], waves.k[:, 1]).min())
+    x, y = np.meshgrid(*(np.linspace(0, side, grid, endpoint=False, dtype=np.float32),) * 2)
+    return np.array([float(_ray_tube_factor(waves, x, y, h, 0.0, n).mean()) for h in MEAN_TABLE_PATHS],
+                    np.float32)
+
+
+def caustic_factor(waves: WaveField, x, y, path_m, t: float, scattering: float = 0.0,
+                   n: float = N_WATER, mean_table: np.ndarray | None = None) -> np.ndarray:
+    """Sun irradiance at points over its flat-surface value (module docstring), (x.shape):
+    ``1 + exp(-b h) (m / <m>(h) - 1)`` with ``m`` the ray-tube factor of the sun-disc-damped
+    surface, ``<m>(h)`` its area mean (:func:`mean_ray_tube_factor`: energy conservation) and
+    ``exp(-b h)`` the unscattered share of the beam, the only one that carries the pattern.
+    ``x``, ``y``: where each point's sun ray crosses the surface; ``path_m`` its beam path
+    below the surface (m); ``mean_table`` the cached table of these waves (else computed)."""
+    h = np.maximum(np.asarray(path_m, np.float32), 0)
+    table = mean_ray_tube_factor(waves, n) if mean_table is None else mean_table
+    mean = np.interp(h, MEAN_TABLE_PATHS, table).astype(np.float32)
+    m = _ray_tube_factor(waves, x, y, h, t, n) / mean
     return 1 + np.exp(-np.float32(scattering) * h) * (m - 1)
-
-
-def saturated_variance(var):
-    """Log-irradiance variance after saturation: ``ln(1 + v / (1 + v))``, so the contrast
-    (coefficient of variation) is ``sqrt(v / (1 + v))``: the weak-focusing value for small v,
-    tending to 1 beyond the focal depths, as the scintillation index of a light wave does in
-    the strong-fluctuation regime (Andrews & Phillips 2005, Laser Beam Propagation through
-    Random Media, ch. 9)."""
-    v = np.asarray(var, np.float32)
-    return np.log1p(v / (1 + v))
-
-
-def caustic_contrast(waves: WaveField, path_m: float, scattering: float = 0.0, n: float = N_WATER) -> float:
-    """Analytic coefficient of variation of :func:`caustic_factor` at one beam path (m):
-    ``exp(-b h) sqrt(v / (1 + v))``, v the linear theory's log-irradiance variance."""
-    kk = np.hypot(waves.k[:, 0], waves.k[:, 1])
-    amp = (1 - 1 / n) * path_m * sun_disc_damping(kk, path_m, n) * waves.amp * kk * kk
-    v = 0.5 * float(np.sum(amp * amp))
-    return float(math.exp(-scattering * path_m) * math.sqrt(v / (1 + v)))
 
 
 def refracted_sun(sun_travel_dir, n: float = N_WATER) -> np.ndarray:

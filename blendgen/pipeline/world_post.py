@@ -4,8 +4,8 @@ Runs before the water model (:func:`blendgen.physics.optics.apply_water`), on th
 passes of one frame; physics in :mod:`blendgen.physics.surface`. Both steps are skipped
 entirely when the sequence has them off (``SequencePost.world`` None or False).
 
-- Surface: a pixel whose ray hits nothing and points up meets the surface at
-  ``r = (z_s - z_cam) / d_z``; its clean radiance becomes Snell's window
+- Surface: a pixel whose ray points up meets the surface at ``r = (z_s - z_cam) / d_z``;
+  when it hits nothing before (or only pool rim above the water), its clean radiance becomes Snell's window
   (``surface.window_radiance``, with the local wave normal) at that range, with depth 0
   (sky light is not dimmed by depth light), so the water model then attenuates it along the
   path and veils it like any surface. What the surface reflects from below is taken as the
@@ -30,6 +30,13 @@ def waves_of(seed: int, wind_mps: float) -> sf.WaveField:
     return sf.waves_for(seed, wind_mps)
 
 
+@functools.lru_cache(maxsize=8)
+def caustic_table(seed: int, wind_mps: float) -> np.ndarray:
+    """Energy table of the sequence's caustics (``surface.mean_ray_tube_factor``), once per
+    sequence (~0.2 s)."""
+    return sf.mean_ray_tube_factor(waves_of(seed, wind_mps))
+
+
 def add_surface(rgb, range_m, depth, wp, rays, T_world_cam, surface_z_m: float, t: float, below_radiance):
     """Pixels that see the surface from below: (rgb, range_m, depth) new arrays with the
     window radiance at the surface's range and depth 0 there; the inputs when none does.
@@ -37,11 +44,15 @@ def add_surface(rgb, range_m, depth, wp, rays, T_world_cam, surface_z_m: float, 
     surface reflects (the veil at the camera's depth)."""
     T = np.asarray(T_world_cam, float)
     d = rays
-    up = ~np.isfinite(range_m) & (d[..., 2] > 1e-4)
+    rise = np.float32(max(surface_z_m - T[2, 3], 0.0))
+    with np.errstate(divide="ignore"):
+        r_all = np.where(d[..., 2] > 1e-4, rise / np.maximum(d[..., 2], np.float32(1e-4)), np.inf)
+    # the surface is hit first: nothing else on the ray, or only geometry above the water
+    # (a depth condition moves the surface, not the pool: its rim may stand above it)
+    up = np.isfinite(r_all) & ~(range_m < r_all)
     if not up.any():
         return rgb, range_m, depth
-    dz = d[..., 2][up]
-    r = np.maximum(np.float32(surface_z_m - T[2, 3]), 0) / dz
+    r = r_all[up].astype(np.float32)
     x = np.float32(T[0, 3]) + r * d[..., 0][up]
     y = np.float32(T[1, 3]) + r * d[..., 1][up]
     sx, sy = waves_of(wp.wave_seed, wp.wind_mps).slope(x, y, t)
@@ -72,7 +83,8 @@ def add_caustics(rgb, albedo, range_m, depth, wp, rays, T_world_cam, t: float, s
     x = np.float32(T[0, 3]) + r * d[:, 0] + h * back[0]
     y = np.float32(T[1, 3]) + r * d[:, 1] + h * back[1]
     path = h / np.float32(-sun[2])                             # slant path of the beam to the point
-    m = sf.caustic_factor(waves_of(wp.wave_seed, wp.wind_mps), x, y, path, t, scattering)
+    m = sf.caustic_factor(waves_of(wp.wave_seed, wp.wind_mps), x, y, path, t, scattering,
+                          mean_table=caustic_table(wp.wave_seed, wp.wind_mps))
     sun_lit = rgb[hit]
     if albedo is not None and wp.ambient_radiance > 0:
         sun_lit = np.maximum(sun_lit - albedo[hit] * np.float32(wp.ambient_radiance), 0)
