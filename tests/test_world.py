@@ -184,3 +184,66 @@ def test_reference_snells_window_half_angle_and_radiance(tmp_path):
         ring = (ang >= lo) & (ang < lo + 10)
         fast = sf.window_radiance(np.cos(np.radians(ang[ring])), [0.2] * 3, [0.0] * 3)[:, 1].mean()
         assert float(img[ring].mean()) == pytest.approx(float(fast), rel=0.05)
+
+
+def _albedo(tmp_path, seed: int) -> np.ndarray:
+    import json
+    import subprocess
+    import sys
+    p, out = tmp_path / f"a{seed}.json", tmp_path / f"a{seed}.npy"
+    p.write_text(json.dumps({"kind": "albedo", "size": 96, "height_m": 1.5, "seed": seed}))
+    subprocess.run([sys.executable, "-m", "blendgen.blender.surface_oracle", str(p), str(out)], check=True,
+                   capture_output=True, timeout=300)
+    return np.load(out)
+
+
+def test_albedo_pass_carries_the_tile_texture(tmp_path):
+    """The ambient term's albedo is textured: grout lines darker than tiles (the floor colour
+    0.5-0.55 x 0.55 in grout), mean near the configured colour, and the seed changes it."""
+    a = _albedo(tmp_path, 0)[..., 1]
+    assert np.percentile(a, 2) < 0.75 * np.median(a)           # grout and grime
+    assert 0.35 < float(np.median(a)) < 0.65                    # tiles near the floor colour 0.55
+    # 1.5 m above the floor, hfov 40 deg: ~1.1 m wide, 0.25 m tiles -> grout columns repeat
+    # every ~22 px; mean albedo per column dips at the grout
+    col = a.mean(axis=0)
+    assert col.max() - col.min() > 0.05
+    b = _albedo(tmp_path, 1)[..., 1]
+    assert np.abs(a - b).mean() > 0.01
+
+
+def test_pool_rim_above_a_moved_surface_shows_the_surface():
+    """A depth condition lowers the surface below the pool rim: rays that meet the rim above
+    the water meet the surface first (fast path), and get the window or its reflection."""
+    post = _post(_world()).model_copy(update={"surface_z_m": -1.0})
+    passes = {"rgb": np.full((H, W, 3), 0.5, np.float32), "range_m": np.full((H, W), 5.0, np.float32),
+              "index": np.ones((H, W), np.uint8)}           # a "wall" 5 m away along every ray
+    img = compose.water_image(passes, compose.SequenceState.start(post), K, _looking_up(-3.0), [])
+    ang = _zenith_angle_deg()
+    # the surface is 2 m up: rays within acos(2/5) = 66 deg of the zenith meet it before the wall
+    inside, beyond = ang < 60, ang > 70
+    ref = _open_water_up(post)
+    np.testing.assert_allclose(img[inside], ref[inside], rtol=1e-5)
+    assert not np.allclose(img[beyond], ref[beyond])
+
+
+def test_reference_jobs_carry_the_refracting_surface_and_specular_bounces():
+    traj = [{"kind": "linear", "id": "a"}]
+    exp = Experiment.model_validate({"name": "w", "image_formation": "physical", "trajectories": traj,
+                                     "render": {"fidelity": "reference"}})
+    post = plan.condition_post(exp, exp.conditions[0], 0)
+    surf = plan.water_surface(exp, post)
+    assert surf["z"] == post.surface_z_m and surf["half_xy"] == [7.5, 2.5]
+    assert plan.render_settings(exp, 1)["specular_bounces"] == 2
+    off = exp.model_copy(update={"scene": exp.scene.model_copy(update={"world": exp.scene.world.model_copy(
+        update={"surface": False, "caustics": False})})})
+    assert plan.water_surface(off, plan.condition_post(off, off.conditions[0], 0)) is None
+    assert plan.render_settings(off, 1)["specular_bounces"] == 0
+
+
+def test_article_mode_refuses_an_explicit_surface():
+    from blendgen.config.models import ConfigError
+    traj = [{"kind": "linear", "id": "a"}]
+    exp = Experiment.model_validate({"name": "w", "image_formation": "article", "trajectories": traj,
+                                     "scene": {"world": {"caustics": True}}})
+    with pytest.raises(ConfigError, match="scene.world"):
+        plan.world_post(exp)
