@@ -77,6 +77,7 @@ def term_costs(dataset: Path) -> pd.DataFrame:
     from blendgen.physics import optics, sensor
     from blendgen.pipeline import compose
     from blendgen.pipeline import world_post
+    from datasets_spec.io import load_range
     from blendgen.pipeline.plan import SequencePost, WorldPost
     from evalkit.dataset import Dataset
     ds = Dataset.open(dataset)
@@ -85,7 +86,7 @@ def term_costs(dataset: Path) -> pd.DataFrame:
     K = np.asarray(ds.manifest["camera"]["K"], float)
     rgb = sensor.srgb_decode(ds.load_image(f)).astype(np.float32)
     passes = {"rgb": rgb, "albedo": np.full_like(rgb, 0.5),
-              "range_m": np.load(ds.root / f["depth"])["range_m"].astype(np.float32),
+              "range_m": load_range(ds.root / f["depth"]),
               "index": cv2.imread(str(ds.root / f["object_index"]), cv2.IMREAD_UNCHANGED)}
     frame = {"T_world_cam": f["T_world_cam"]}
     markers = ds.markers
