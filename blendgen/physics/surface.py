@@ -101,9 +101,8 @@ class WaveField:
 
     def slope(self, x, y, t: float = 0.0):
         """(d eta/dx, d eta/dy) at points x, y (same shape), time t."""
-        c = np.cos(self._arg(x, y, t))
-        ak = (self.amp[:, None] * self.k).astype(np.float32)
-        return c @ ak[:, 0], c @ ak[:, 1]
+        g = np.cos(self._arg(x, y, t)) @ (self.amp[:, None] * self.k).astype(np.float32)
+        return g[..., 0], g[..., 1]
 
     def hessian(self, x, y, t: float = 0.0, damping=None):
         """(eta_xx, eta_xy, eta_yy) at x, y, t; ``damping`` (..., n) or (n,) multiplies each wave."""

@@ -70,24 +70,31 @@ def add_surface(rgb, range_m, depth, wp, rays, T_world_cam, surface_z_m: float, 
 def add_caustics(rgb, albedo, range_m, depth, wp, rays, T_world_cam, t: float, scattering: float):
     """Sun-lit surfaces times their focusing factor (module docstring); a new (H, W, 3) array.
     ``depth`` (H, W) metres below the surface of each pixel's surface point; ``rays`` (H, W, 3)
-    unit world directions."""
+    unit world directions. The factor is evaluated on every second pixel in x and y and
+    interpolated bilinearly (4x cheaper; the network's lines are several pixels wide but
+    for the farthest floor)."""
+    import cv2
     T = np.asarray(T_world_cam, float)
-    hit = np.isfinite(range_m) & (depth > 0)
-    if not hit.any():
+    depth = np.broadcast_to(np.asarray(depth, np.float32), range_m.shape)
+    hit_full = np.isfinite(range_m) & (depth > 0)
+    if not hit_full.any():
         return rgb
-    d = rays[hit]
-    r = range_m[hit].astype(np.float32)
-    h = depth[hit].astype(np.float32)
+    hit = hit_full[::2, ::2]
+    d = rays[::2, ::2][hit]
+    r = range_m[::2, ::2][hit].astype(np.float32)
+    h = depth[::2, ::2][hit]
     sun = sf.refracted_sun(wp.sun_travel_dir)
     back = (-sun[:2] / -sun[2]).astype(np.float32)            # horizontal run per metre of rise
     x = np.float32(T[0, 3]) + r * d[:, 0] + h * back[0]
     y = np.float32(T[1, 3]) + r * d[:, 1] + h * back[1]
     path = h / np.float32(-sun[2])                             # slant path of the beam to the point
-    m = sf.caustic_factor(waves_of(wp.wave_seed, wp.wind_mps), x, y, path, t, scattering,
-                          mean_table=caustic_table(wp.wave_seed, wp.wind_mps))
-    sun_lit = rgb[hit]
+    gain = np.zeros(hit.shape, np.float32)                     # m - 1 on the half grid
+    gain[hit] = sf.caustic_factor(waves_of(wp.wave_seed, wp.wind_mps), x, y, path, t, scattering,
+                                  mean_table=caustic_table(wp.wave_seed, wp.wind_mps)) - 1
+    hgt, wid = range_m.shape
+    gain = cv2.resize(gain, (wid, hgt), interpolation=cv2.INTER_LINEAR)
+    gain[~hit_full] = 0
+    sun_lit = np.asarray(rgb, np.float32)
     if albedo is not None and wp.ambient_radiance > 0:
-        sun_lit = np.maximum(sun_lit - albedo[hit] * np.float32(wp.ambient_radiance), 0)
-    out = rgb.copy()
-    out[hit] += sun_lit * (m - 1)[:, None]
-    return out
+        sun_lit = np.maximum(sun_lit - albedo * np.float32(wp.ambient_radiance), 0)
+    return rgb + sun_lit * cv2.cvtColor(gain, cv2.COLOR_GRAY2BGR)
