@@ -247,3 +247,23 @@ def test_article_mode_refuses_an_explicit_surface():
                                      "scene": {"world": {"caustics": True}}})
     with pytest.raises(ConfigError, match="scene.world"):
         plan.world_post(exp)
+
+
+def test_total_internal_reflection_mirrors_the_pool():
+    """Flat surface 1 m above a horizontal camera, clear beam (c = 0): a totally reflected
+    pixel shows what the camera sees at the mirrored elevation (the floor), not the veil."""
+    water = Water(preset="jerlov_IB", sigma_a=0.0, sigma_s=0.0, B_inf=0.0)
+    post = _post(_world(), water)
+    T = np.eye(4)
+    T[:3, :3] = np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0]], float)   # looking along +x
+    T[2, 3] = -1.0
+    h, w = 61, 81
+    k = np.array([[60.0, 0, (w - 1) / 2], [0, 60.0, (h - 1) / 2], [0, 0, 1]])
+    ramp = np.linspace(0.1, 0.9, w, dtype=np.float32)[None, :, None] * np.ones((h, w, 3), np.float32)
+    rng = np.full((h, w), np.inf, np.float32)
+    rng[h // 2 + 1:] = 6.0                                   # the lower half sees a "floor" 6 m away
+    passes = {"rgb": ramp, "range_m": rng, "index": np.ones((h, w), np.uint8)}
+    img = compose.water_image(passes, compose.SequenceState.start(post), k, T, [])
+    top, mirror = img[2:h // 2 - 1], img[h - 3:h // 2 + 1:-1]
+    np.testing.assert_allclose(top, mirror, rtol=1e-4)
+    assert img[: h // 2].max() > 0.5                          # not the (zero) veil

@@ -9,7 +9,7 @@ pass (the fast path's ambient term, ``compose.add_ambient``) carries it.
 
 Albedos (linear, visible): ceramic pool tile 0.5-0.7 and grout ~0.3 (pool finishes are
 light-coloured), sand 0.25-0.45 (dry quartz sand ~0.4; wet darker), basalt/granite rock
-0.08-0.2, painted steel 0.3-0.6 by colour, aluminium diffuse part ~0.3 plus a rough
+0.08-0.2, painted steel 0.3-0.6 by colour, aluminium diffuse part 0.24 plus a rough
 specular lobe (metals reflect ~0.6-0.9 specularly; Principled metallic).
 """
 from __future__ import annotations

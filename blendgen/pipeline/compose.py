@@ -143,7 +143,7 @@ def _world(passes: dict, state: SequenceState, K, T_world_cam, depth, veil_depth
                                       float(np.mean(w.sigma_s)))
     if wp.surface:
         below = w.B_inf * state.water_opts["irradiance"] * optics.depth_light(w, veil_depth)
-        rgb, range_m, depth = world_post.add_surface(rgb, range_m, depth, wp, rays, T_world_cam,
+        rgb, range_m, depth = world_post.add_surface(rgb, range_m, depth, wp, rays, K, T_world_cam,
                                                      state.post.surface_z_m, t, below)
     return rgb, range_m, depth
 

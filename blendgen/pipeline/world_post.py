@@ -8,9 +8,10 @@ entirely when the sequence has them off (``SequencePost.world`` None or False).
   when it hits nothing before (or only pool rim above the water), its clean radiance becomes Snell's window
   (``surface.window_radiance``, with the local wave normal) at that range, with depth 0
   (sky light is not dimmed by depth light), so the water model then attenuates it along the
-  path and veils it like any surface. What the surface reflects from below is taken as the
-  veiling light of open water at the camera's depth (the pool's mirrored walls are not
-  traced: a known difference from the reference, which reflects the real scene).
+  path and veils it like any surface. Totally reflected pixels show the clean scene along
+  the mirrored ray where the camera's own image holds it (screen-space reflection, at the
+  summed path length), else the veiling light of open water at the camera's depth; the
+  reference traces the real reflection.
 - Caustics: each surface point's sun-lit part ``J - albedo L_amb`` is multiplied by the
   focusing factor of its sun ray (``surface.caustic_factor``) at its depth, with the
   water's scattering coefficient (mean over RGB) as the turbidity.
@@ -37,11 +38,13 @@ def caustic_table(seed: int, wind_mps: float) -> np.ndarray:
     return sf.mean_ray_tube_factor(waves_of(seed, wind_mps))
 
 
-def add_surface(rgb, range_m, depth, wp, rays, T_world_cam, surface_z_m: float, t: float, below_radiance):
-    """Pixels that see the surface from below: (rgb, range_m, depth) new arrays with the
-    window radiance at the surface's range and depth 0 there; the inputs when none does.
-    ``rays`` (H, W, 3) unit world directions of the pixels; ``below_radiance`` (3,) what the
-    surface reflects (the veil at the camera's depth)."""
+def add_surface(rgb, range_m, depth, wp, rays, K, T_world_cam, surface_z_m: float, t: float, below_radiance):
+    """Pixels that see the surface from below: (rgb, range_m, depth) new arrays; the inputs
+    when none does. ``rays`` (H, W, 3) unit world directions of the pixels; K (3, 3);
+    ``below_radiance`` (3,) the veil at the camera's depth. Inside Snell's window: the window
+    radiance at the surface's range, depth 0. Totally reflected pixels: the clean scene along
+    the mirrored ray when the camera's own image holds that direction (:func:`_mirror`),
+    else ``below_radiance`` (open water)."""
     T = np.asarray(T_world_cam, float)
     d = rays
     rise = np.float32(max(surface_z_m - T[2, 3], 0.0))
@@ -53,18 +56,42 @@ def add_surface(rgb, range_m, depth, wp, rays, T_world_cam, surface_z_m: float, 
     if not up.any():
         return rgb, range_m, depth
     r = r_all[up].astype(np.float32)
-    x = np.float32(T[0, 3]) + r * d[..., 0][up]
-    y = np.float32(T[1, 3]) + r * d[..., 1][up]
+    du = d[up]
+    x = np.float32(T[0, 3]) + r * du[:, 0]
+    y = np.float32(T[1, 3]) + r * du[:, 1]
     sx, sy = waves_of(wp.wave_seed, wp.wind_mps).slope(x, y, t)
     n = np.stack([-sx, -sy, np.ones_like(sx)], -1)
     n /= np.linalg.norm(n, axis=-1, keepdims=True)
-    cos_up = np.einsum("ij,ij->i", d[up], n)
-    rgb, range_m = rgb.copy(), range_m.copy()
-    rgb[up] = sf.window_radiance(cos_up, [wp.sky_radiance] * 3, below_radiance)
-    range_m[up] = r
+    cos_up = np.einsum("ij,ij->i", du, n)
     depth = np.array(np.broadcast_to(depth, range_m.shape), np.float32)
-    depth[up] = 0.0
+    J = sf.window_radiance(cos_up, [wp.sky_radiance] * 3, below_radiance)
+    rr, hh = r.copy(), np.zeros_like(r)
+    tir = sf.fresnel_reflectance(cos_up) >= 1.0
+    if tir.any():
+        m_rgb, m_r, m_h, ok = _mirror(du[tir] - 2 * cos_up[tir, None] * n[tir], K, T, rgb, range_m, depth)
+        idx = np.flatnonzero(tir)[ok]
+        J[idx], rr[idx], hh[idx] = m_rgb, r[idx] + m_r, m_h
+    rgb, range_m = rgb.copy(), range_m.copy()
+    rgb[up], range_m[up], depth[up] = J, rr, hh
     return rgb, range_m, depth
+
+
+def _mirror(d_refl, K, T, rgb, range_m, depth):
+    """Screen-space reflection: the clean radiance (n, 3), range (n,) and depth (n,) of the
+    surface the camera itself sees in each reflected direction ``d_refl`` (n, 3) (world),
+    and which of them it sees (n,) bool (in the image, a surface below the water). The
+    reflected ray starts at the surface point, not the camera: the parallax (the camera's
+    depth) is ignored, as the mirrored pool is metres away."""
+    h, w = range_m.shape
+    c = d_refl @ T[:3, :3].astype(np.float32)                  # camera frame
+    front = c[:, 2] > 1e-3
+    uv = (c @ np.asarray(K, np.float32).T)[:, :2] / np.where(front, c[:, 2], 1)[:, None]
+    u, v = np.rint(uv[:, 0]).astype(np.int64), np.rint(uv[:, 1]).astype(np.int64)
+    ok = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    u, v = u[ok], v[ok]
+    ok[ok] = np.isfinite(range_m[v, u]) & (depth[v, u] > 0)
+    u, v = np.rint(uv[ok, 0]).astype(np.int64), np.rint(uv[ok, 1]).astype(np.int64)
+    return rgb[v, u], range_m[v, u], depth[v, u], ok
 
 
 def add_caustics(rgb, albedo, range_m, depth, wp, rays, T_world_cam, t: float, scattering: float):
