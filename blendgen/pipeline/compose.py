@@ -139,7 +139,7 @@ def _world(passes: dict, state: SequenceState, K, T_world_cam, depth, veil_depth
     rays = _unit_rays(tuple(np.asarray(K, float).ravel()), wd, h) @ np.asarray(T_world_cam, float)[:3, :3].T.astype(
         np.float32)
     if wp.caustics:
-        rgb = world_post.add_caustics(rgb, passes.get("albedo"), range_m, depth, wp, rays, T_world_cam, t,
+        rgb = world_post.add_caustics(rgb, passes.get("albedo"), range_m, depth, wp, rays, K, T_world_cam, t,
                                       float(np.mean(w.sigma_s)))
     if wp.surface:
         below = w.B_inf * state.water_opts["irradiance"] * optics.depth_light(w, veil_depth)

@@ -94,7 +94,28 @@ def _mirror(d_refl, K, T, rgb, range_m, depth):
     return rgb[v, u], range_m[v, u], depth[v, u], ok
 
 
-def add_caustics(rgb, albedo, range_m, depth, wp, rays, T_world_cam, t: float, scattering: float):
+#: Width (m) of the caustic network's cells for waves of 0.25 m and up: the pattern averages
+#: out over a pixel footprint much wider than this.
+CAUSTIC_CELL_M = 0.1
+
+
+def footprint_fade(rays, range_m, px_rad: float) -> np.ndarray:
+    """(h, w) factor ``exp(-(f / CAUSTIC_CELL_M)^2 / 2)`` of each sample's footprint
+    ``f = r px_rad / |cos(incidence)|`` (``px_rad`` the sample spacing in radians; the
+    surface normal from the cross product of the neighbouring hit points): the contrast a
+    pixel keeps of a pattern finer than it (anti-aliasing: grazing, distant floors go grey,
+    not speckled). Object edges (no consistent normal) fade too."""
+    P = rays * np.where(np.isfinite(range_m), range_m, 0)[..., None]
+    n = np.cross(np.gradient(P, axis=1), np.gradient(P, axis=0))
+    norm = np.linalg.norm(n, axis=-1)
+    cos = np.abs(np.einsum("ijk,ijk->ij", rays, n)) / np.maximum(norm, 1e-12)
+    f = range_m * np.float32(px_rad) / np.maximum(cos, 1e-3)
+    with np.errstate(invalid="ignore"):
+        fade = np.exp(-0.5 * (f / CAUSTIC_CELL_M) ** 2)
+    return np.where(np.isfinite(fade), fade, 0).astype(np.float32)
+
+
+def add_caustics(rgb, albedo, range_m, depth, wp, rays, K, T_world_cam, t: float, scattering: float):
     """Sun-lit surfaces times their focusing factor (module docstring); a new (H, W, 3) array.
     ``depth`` (H, W) metres below the surface of each pixel's surface point; ``rays`` (H, W, 3)
     unit world directions. The factor is evaluated on every second pixel in x and y and
@@ -118,6 +139,7 @@ def add_caustics(rgb, albedo, range_m, depth, wp, rays, T_world_cam, t: float, s
     gain = np.zeros(hit.shape, np.float32)                     # m - 1 on the half grid
     gain[hit] = sf.caustic_factor(waves_of(wp.wave_seed, wp.wind_mps), x, y, path, t, scattering,
                                   mean_table=caustic_table(wp.wave_seed, wp.wind_mps)) - 1
+    gain *= footprint_fade(rays[::2, ::2], range_m[::2, ::2], 2.0 / float(K[0, 0]))
     hgt, wid = range_m.shape
     gain = cv2.resize(gain, (wid, hgt), interpolation=cv2.INTER_LINEAR)
     gain[~hit_full] = 0
