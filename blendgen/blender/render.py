@@ -47,9 +47,10 @@ def setup_cycles(scene: bpy.types.Scene, r: dict) -> None:
     cy.samples = int(r["samples"])
     cy.use_adaptive_sampling = False
     cy.use_denoising = False
-    cy.max_bounces = int(r.get("max_bounces", 0))
+    specular = int(r.get("specular_bounces", 0))                # the water surface (reference fidelity)
+    cy.max_bounces = max(int(r.get("max_bounces", 0)), specular)
     cy.diffuse_bounces = int(r.get("diffuse_bounces", 0))      # light that bounces off walls and floor
-    cy.glossy_bounces = cy.transmission_bounces = 0
+    cy.glossy_bounces = cy.transmission_bounces = specular
     cy.volume_bounces = int(r.get("volume_bounces", 0))
     cy.caustics_reflective = cy.caustics_refractive = False
     cy.seed = int(r.get("seed", 0))

@@ -12,7 +12,7 @@ import bpy
 import numpy as np
 from mathutils import Matrix
 
-from blendgen.blender import materials
+from blendgen.blender import materials, world
 from blendgen.blender.meshes import _link, mesh_object  # noqa: F401  (scene builders use both)
 
 
@@ -28,12 +28,17 @@ def set_matrix(obj: bpy.types.Object, T) -> None:
     obj.matrix_world = Matrix(np.asarray(T, float).tolist())
 
 
-def add_pool(pool: dict, index: int) -> None:
-    """Open-top box: floor and four walls, normals facing inward."""
+def add_pool(pool: dict, index: int, look: dict | None = None) -> None:
+    """Open-top box: floor and four walls, normals facing inward; tiled when ``look`` says
+    so (``blender/world.py``), else flat colours."""
     L, W, D = pool["length_m"] / 2, pool["width_m"] / 2, pool["depth_m"]
     v = [(-L, -W, -D), (L, -W, -D), (L, W, -D), (-L, W, -D), (-L, -W, 0), (L, -W, 0), (L, W, 0), (-L, W, 0)]
     floor = mesh_object("pool_floor", v, [(0, 1, 2, 3)], index=index)
     walls = mesh_object("pool_walls", v, [(0, 4, 5, 1), (1, 5, 6, 2), (2, 6, 7, 3), (3, 7, 4, 0)], index=index)
+    if look and look.get("textures"):
+        floor.data.materials.append(world.tiles("floor", pool["floor_color"], look, "xy"))
+        walls.data.materials.append(world.tiles("walls", pool["wall_color"], look, "wall"))
+        return
     floor.data.materials.append(materials.diffuse("floor", pool["floor_color"]))
     walls.data.materials.append(materials.diffuse("walls", pool["wall_color"]))
 
@@ -47,13 +52,18 @@ def box_verts(sx: float, sy: float, sz: float, z0: float = 0.0):
     return v, f
 
 
-def add_dock(dock: dict, index: int) -> None:
-    """Dock body: a box whose front face lies 2 mm behind the marker plane (dock z = 0)."""
+def add_dock(dock: dict, index: int, look: dict | None = None) -> None:
+    """Dock body: a box whose front face lies 2 mm behind the marker plane (dock z = 0);
+    with textures, painted with dirt and held by an aluminium frame (``blender/world.py``)."""
     sx, sy, sz = dock["body_size_m"]
     v, f = box_verts(sx, sy, sz, z0=-0.002)
     obj = mesh_object("dock_body", v, f, index=index)
-    obj.data.materials.append(materials.diffuse("dock_face", dock["face_color"]))
     set_matrix(obj, dock["T_world_dock"])
+    if look and look.get("textures"):
+        obj.data.materials.append(world.painted("dock_face", dock["face_color"], look))
+        dock_frame(dock, index, look)
+        return
+    obj.data.materials.append(materials.diffuse("dock_face", dock["face_color"]))
 
 
 def add_square_marker(m: dict, T_world_marker) -> None:
@@ -152,19 +162,73 @@ def add_sun(name: str, travel_dir, strength: float, shadows: bool = True) -> Non
     obj.rotation_euler = (0.0, math.acos(np.clip(d[2], -1, 1)), math.atan2(d[1], d[0]))
 
 
+def dock_frame(dock: dict, index: int, look: dict):
+    """Aluminium frame behind the marker plane: four corner posts along the body's depth and a
+    rim around its face, all outside the body's footprint and behind the face (dock z <
+    -2 mm), so no marker is ever covered. Returns the object."""
+    sx, sy, sz = dock["body_size_m"]
+    t = 0.04
+    verts, faces = [], []
+
+    def bar(cx, cy, lx, ly, lz, z0):
+        v, f = box_verts(lx, ly, lz, z0=z0)
+        base = len(verts)
+        verts.extend((x + cx, y + cy, z) for x, y, z in v)
+        faces.extend(tuple(i + base for i in q) for q in f)
+    z_face = -0.003
+    for ex in (-1, 1):
+        for ey in (-1, 1):
+            bar(ex * (sx + t) / 2, ey * (sy + t) / 2, t, t, sz, z_face)
+    for ey in (-1, 1):
+        bar(0.0, ey * (sy + t) / 2, sx + 2 * t, t, t, z_face)
+    for ex in (-1, 1):
+        bar(ex * (sx + t) / 2, 0.0, t, sy, t, z_face)
+    obj = mesh_object("dock_frame", verts, faces, index=index)
+    obj.data.materials.append(world.metal("dock_metal"))
+    set_matrix(obj, dock["T_world_dock"])
+    return obj
+
+
+def add_seabed(look: dict, centre_xy, index: int, half: float = 60.0) -> None:
+    """Open water: a sand plane ``seabed_depth_m`` below the surface around the dock, with a
+    few seeded rocks (0.3-1.2 m) half buried in it."""
+    z = -float(look["seabed_depth_m"])
+    cx, cy = (float(c) for c in centre_xy)
+    v = [(cx - half, cy - half, z), (cx + half, cy - half, z), (cx + half, cy + half, z), (cx - half, cy + half, z)]
+    bed = mesh_object("seabed", v, [(0, 1, 2, 3)], index=index)
+    bed.data.materials.append(world.sand("sand", look))
+    rng = np.random.default_rng(look["texture_seed"] + 5)
+    mat = world.rock("rock", look)
+    for i in range(24):
+        r = rng.uniform(0.3, 1.2)
+        sv, sf = uv_sphere(1.0, 16, 8)
+        scale = r * np.array([1.0, rng.uniform(0.6, 1.0), rng.uniform(0.35, 0.7)])
+        pts = [tuple(np.array(p) * scale * (1 + 0.12 * rng.standard_normal())) for p in sv]
+        obj = mesh_object(f"rock_{i}", pts, sf, index=index)
+        obj.data.materials.append(mat)
+        ang = rng.uniform(0, 2 * math.pi)
+        T = np.eye(4)
+        T[:2, :2] = [[math.cos(ang), -math.sin(ang)], [math.sin(ang), math.cos(ang)]]
+        T[:3, 3] = (cx + rng.uniform(-25, 25), cy + rng.uniform(-25, 25), z)
+        set_matrix(obj, T)
+
+
 def build(desc: dict) -> bpy.types.Scene:
     """Whole scene from a description; returns the Blender scene."""
     scene = reset()
-    world = bpy.data.worlds.new("water")
-    scene.world = world
+    env = bpy.data.worlds.new("water")
+    scene.world = env
     sky = desc.get("sky")
     if sky:       # reference fidelity: the diffuse light field as a hidden environment
-        materials.world_sky(world, sky["upper"], sky["lower"])
+        materials.world_sky(env, sky["upper"], sky["lower"])
     else:
-        materials.world_color(world, desc["world_color"])
+        materials.world_color(env, desc["world_color"])
+    look = desc.get("world")
     if desc.get("pool"):
-        add_pool(desc["pool"], desc["object_index"]["pool"])
-    add_dock(desc["dock"], desc["object_index"]["dock"])
+        add_pool(desc["pool"], desc["object_index"]["pool"], look)
+    elif look and look.get("textures"):      # open water: a sand-and-rock seabed template
+        add_seabed(look, np.asarray(desc["dock"]["T_world_dock"], float)[:2, 3], desc["object_index"]["pool"])
+    add_dock(desc["dock"], desc["object_index"]["dock"], look)
     T_wd = np.asarray(desc["dock"]["T_world_dock"], float)
     for m in desc["markers"]:
         if m["kind"] == "led_array":
@@ -176,6 +240,9 @@ def build(desc: dict) -> bpy.types.Scene:
     if desc.get("water_volume"):  # reference fidelity: the water is a participating medium
         from blendgen.blender import water
         water.add_water_volume(desc["water_volume"])
+    if desc.get("water_surface"):  # reference fidelity: a refracting surface with the sky above
+        world.add_water_surface(desc["water_surface"])
+        world.world_sky_through_surface(env, desc["water_surface"]["sky_radiance"])
     add_sun("sun", desc["sun"]["direction"], desc["sun"]["strength"])
     if desc["fill"]["strength"] > 0:
         add_sun("fill", desc["fill"]["direction"], desc["fill"]["strength"], shadows=False)

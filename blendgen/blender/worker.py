@@ -116,6 +116,9 @@ def run(job) -> dict:
             t1 = time.perf_counter()
             if geo is not None:
                 geo[0].move(geo[1].field.positions)
+            if job.scene.get("water_surface"):
+                from blendgen.blender.world import set_wave_time
+                set_wave_time(fr.get("t", 0.0))
             with clock("render"):
                 raw = render.render_roi_frame(sc, cam, fr, job.render, W, H, exr)
             t2 = time.perf_counter()

@@ -205,6 +205,25 @@ class Dock(Strict):
         return self
 
 
+class WorldLook(Strict):
+    """What surrounds the dock (issue 14): the water surface seen from below, textured pool
+    and dock, caustics. ``null`` switches: on in ``physical`` mode, off in ``article`` mode
+    (which keeps the article's flat look). Physics: ``physics/surface.py``."""
+    surface: Optional[bool] = Field(None, description="water surface seen from below (Snell's window, "
+                                                       "total internal reflection outside it)")
+    caustics: Optional[bool] = Field(None, description="sunlight focused by the surface waves on floor, "
+                                                        "walls and dock")
+    textures: Optional[bool] = Field(None, description="tiled pool, painted/metal dock, sand-and-rock seabed")
+    wind_mps: float = Field(1.0, ge=0.0, le=20.0, description="wind speed setting the surface slope "
+                                                              "(Cox-Munk mean-square slope 0.003 + 5.12e-3 U)")
+    wave_seed: Optional[int] = Field(None, ge=0, description="seed of the surface waves; null: the experiment seed")
+    texture_seed: Optional[int] = Field(None, ge=0, description="seed of texture randomisation (tile colour, "
+                                                                "grime, rocks); null: the experiment seed")
+    tile_size_m: float = Field(0.25, ge=0.02, le=2.0, description="pool tile edge (m)")
+    grime: float = Field(0.35, ge=0.0, le=1.0, description="strength of the dirt on tiles and dock (0: clean)")
+    seabed_depth_m: float = Field(12.0, gt=0.5, le=1000.0, description="open water: seabed depth below the surface")
+
+
 class Scene(Strict):
     template: Optional[str] = None
     kind: Literal["pool", "open_water"] = "pool"
@@ -224,6 +243,7 @@ class Scene(Strict):
     ambient: Optional[bool] = Field(
         None, description="light of the water's diffuse light field on every surface (no black shadows); "
                           "null: on in physical mode, off in article mode")
+    world: WorldLook = WorldLook()
 
 
 class AutoExposureConfig(Strict):

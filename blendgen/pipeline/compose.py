@@ -128,7 +128,7 @@ def led_light(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, ma
 
 
 def water_image(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, markers: list[dict],
-                occluded: np.ndarray | None = None, T_world_dock=None) -> np.ndarray:
+                occluded: np.ndarray | None = None, T_world_dock=None, t: float = 0.0) -> np.ndarray:
     """Fast fidelity: the clean linear render (H,W,3) seen through the condition's water
     with light at depth, in the sequence's image-formation mode (optics module docstring);
     in physical mode plus the LEDs' light on nearby surfaces (:func:`led_light`), attenuated
@@ -145,7 +145,10 @@ def water_image(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, 
             water, veil_depth = frame_veil(state, T_world_cam, veil_depth), 0.0
     else:
         depth, veil_depth = post.light_depth_m, None
-    img = optics.apply_water(passes["rgb"], passes["range_m"], emissive, water, depth,
+    rgb, range_m = passes["rgb"], passes["range_m"]
+    if post.world is not None and post.image_formation == "physical":
+        rgb, range_m, depth = _world(passes, state, water, K, T_world_cam, depth, veil_depth, t)
+    img = optics.apply_water(rgb, range_m, emissive, water, depth,
                              model=post.image_formation, veil_depth_m=veil_depth,
                              irradiance=state.water_opts["irradiance"], blur=state.water_opts["blur"],
                              blur_px_per_tau=optics.BLUR_RAD_PER_TAU * fx, blur_max_px=optics.BLUR_MAX_RAD * fx,
@@ -172,6 +175,26 @@ def frame_veil(state: SequenceState, T_world_cam, cam_depth_m: float) -> optics.
     return state.water.replace(B_inf=np.clip(B, *optics.B_INF_RANGE))
 
 
+def _world(passes: dict, state: SequenceState, w: optics.WaterOptics, K, T_world_cam, depth, veil_depth: float,
+           t: float):
+    """Caustics, then the surface seen from below (``pipeline/world_post.py``) in water ``w``
+    (the frame's veil); (rgb, range, depth)."""
+    from blendgen.pipeline import world_post
+    wp = state.post.world
+    rgb, range_m = passes["rgb"], passes["range_m"]
+    h, wd = range_m.shape
+    rays = _unit_rays(tuple(np.asarray(K, float).ravel()), wd, h) @ np.asarray(T_world_cam, float)[:3, :3].T.astype(
+        np.float32)
+    if wp.caustics:
+        rgb = world_post.add_caustics(rgb, passes.get("albedo"), range_m, depth, wp, rays, K, T_world_cam, t,
+                                      float(np.mean(w.sigma_s)))
+    if wp.surface:
+        below = w.B_inf * state.water_opts["irradiance"] * optics.depth_light(w, veil_depth)
+        rgb, range_m, depth = world_post.add_surface(rgb, range_m, depth, wp, rays, K, T_world_cam,
+                                                     state.post.surface_z_m, t, below)
+    return rgb, range_m, depth
+
+
 def sensor_model(post: SequencePost) -> sensor.SensorModel:
     """The sequence's camera sensor; shot/read noise and blooming (``BLOOM_FRACTION_PHYSICAL``)
     default on in physical mode only."""
@@ -192,7 +215,8 @@ def camera_image(passes: dict, state: SequenceState, K: np.ndarray, frame: dict,
     ``T_world_dock`` places the LEDs that light nearby surfaces (None: they light nothing)."""
     rgb = passes["rgb"]
     if fidelity == "fast":
-        rgb = water_image(passes, state, K, frame["T_world_cam"], markers, occluded, T_world_dock)
+        rgb = water_image(passes, state, K, frame["T_world_cam"], markers, occluded, T_world_dock,
+                          float(frame.get("t", 0.0)))
     if frame.get("blur_px") is not None:
         rgb = sensor.motion_blur(rgb, frame["blur_px"])
     if state.post.distortion:

@@ -45,6 +45,18 @@ class OcclusionPost(Occlusion):
     v_flow: Vec3
 
 
+class WorldPost(Strict):
+    """The surface and caustics of one sequence, resolved from ``scene.world`` (fast path:
+    ``pipeline/world_post.py``; physics: ``physics/surface.py``). Radiances W/m^2/sr."""
+    surface: bool
+    caustics: bool
+    wind_mps: float
+    wave_seed: int
+    sky_radiance: float = Field(ge=0.0, description="uniform sky radiance above the surface")
+    ambient_radiance: float = Field(ge=0.0, description="the ambient term already in the clean render")
+    sun_travel_dir: Vec3 = Field(description="direction the sunlight travels in (world, unit, in air)")
+
+
 class SequencePost(Strict):
     """Image-space processing of one sequence (typed; recorded in the manifest as its
     ``conditions``). Depths in metres below the surface, world z up, irradiance W/m^2."""
@@ -64,6 +76,7 @@ class SequencePost(Strict):
     sun_share: float = Field(1.0, ge=0.0, le=1.0, description="direct sun's share of the downwelling irradiance")
     veil: Optional[dict] = Field(None, description="physical mode: the calibrated veil model's numbers "
                                                    "(optics.veil_parameters), None: not used")
+    world: Optional[WorldPost] = Field(None, description="surface and caustics (None: both off, no cost)")
 
 
 class JobCamera(Strict):
@@ -174,6 +187,7 @@ def scene_description(exp: Experiment, markers: list[dict], textures: dict[str, 
         "fill": {"direction": _sun_dir(0.0, s.sun_azimuth_deg), "strength": s.fill_strength},
         "world_color": [0.0, 0.0, 0.0],
         "sky": sky_radiance(exp) if exp.render.fidelity == "reference" else None,
+        "world": world_look(exp),
     }
 
 
@@ -366,7 +380,54 @@ def condition_post(exp: Experiment, cond, seed: int) -> SequencePost:
                         sensor=resolved_sensor(exp),
                         distortion=exp.camera.distortion, occlusion=occ_post, lamps=exp.vehicle.lamps,
                         sun_elevation_deg=exp.scene.sun_elevation_deg, sun_share=1.0 / (1.0 + sky_fraction(exp)),
-                        veil=optics.veil_parameters(cond.water or exp.water, exp.image_formation))
+                        veil=optics.veil_parameters(cond.water or exp.water, exp.image_formation),
+                        world=world_post(exp))
+
+
+def world_on(exp: Experiment, what: str) -> bool:
+    """``scene.world.<what>`` (surface, caustics, textures): null means on in physical mode only."""
+    v = getattr(exp.scene.world, what)
+    return v if v is not None else exp.image_formation == "physical"
+
+
+def world_post(exp: Experiment) -> WorldPost | None:
+    """Surface and caustics of the fast path, None when both are off (zero cost)."""
+    surface, caustics = world_on(exp, "surface"), world_on(exp, "caustics")
+    if not (surface or caustics):
+        return None
+    if exp.image_formation != "physical":
+        raise ConfigError("scene.world: surface and caustics need image_formation: physical "
+                          "(the article's formulas have no surface light); set them false or null")
+    w, s = exp.scene.world, exp.scene
+    sky = sky_fraction(exp) * sun_horizontal_irradiance(exp) / math.pi     # uniform sky: E = pi L
+    return WorldPost(surface=surface, caustics=caustics, wind_mps=w.wind_mps,
+                     wave_seed=w.wave_seed if w.wave_seed is not None else exp.seed, sky_radiance=sky,
+                     ambient_radiance=ambient_radiance(exp) if exp.render.fidelity == "fast" else 0.0,
+                     sun_travel_dir=_sun_dir(s.sun_elevation_deg, s.sun_azimuth_deg))
+
+
+def world_look(exp: Experiment) -> dict:
+    """Blender side of ``scene.world``: textures (both fidelities share the scene)."""
+    w = exp.scene.world
+    return {"textures": world_on(exp, "textures"),
+            "texture_seed": w.texture_seed if w.texture_seed is not None else exp.seed,
+            "tile_size_m": w.tile_size_m, "grime": w.grime, "seabed_depth_m": w.seabed_depth_m}
+
+
+def water_surface(exp: Experiment, post: SequencePost) -> dict | None:
+    """Reference fidelity: the refracting surface (glass, IOR 1.333) at the condition's surface
+    height with the sky above it; None when the surface is off."""
+    wp = post.world
+    if wp is None or not wp.surface:
+        return None
+    s = exp.scene
+    if s.kind == "pool":
+        half = [s.pool.length_m / 2, s.pool.width_m / 2]
+        centre = [0.0, 0.0]
+    else:
+        half, centre = [60.0, 60.0], list(s.dock.position_xy_m)
+    return {"z": post.surface_z_m, "centre_xy": centre, "half_xy": half, "sky_radiance": wp.sky_radiance,
+            "wind_mps": wp.wind_mps, "wave_seed": wp.wave_seed}
 
 
 @functools.lru_cache(maxsize=256)
@@ -448,7 +509,8 @@ def plan_jobs(exp: Experiment, scene: dict) -> list[RenderJob]:
                 post = condition_post(exp, c, seed)
                 sq = SequencePlan(f"{traj.id}-t{trial:03d}-{c.label}", traj.id, trial, c.label, post)
                 sc = scene if exp.render.fidelity == "fast" else {**scene, "water_volume": water_volume(exp, post),
-                                                                  "led_lights": True}
+                                                                  "led_lights": True,
+                                                                  "water_surface": water_surface(exp, post)}
                 if post.occlusion and post.occlusion.geometry == "blender":
                     # real geometry is part of the render: keyed by its config and seed
                     sc = {**sc, "particles": {**post.occlusion.model_dump(), "seed": seed, "fps": exp.camera.fps,
@@ -463,8 +525,11 @@ def render_settings(exp: Experiment, threads: int) -> dict:
     r = exp.render
     samples = r.samples if r.fidelity == "fast" else r.reference_samples
     vb = r.volume_bounces if r.fidelity == "reference" else 0
-    return {"samples": samples, "threads": threads, "max_bounces": max(r.diffuse_bounces, vb),
+    # the refracting surface: camera -> surface (transmission or total reflection) -> sky or wall
+    spec = 2 if r.fidelity == "reference" and world_on(exp, "surface") else 0
+    return {"samples": samples, "threads": threads, "max_bounces": max(r.diffuse_bounces, vb, spec),
             "diffuse_bounces": r.diffuse_bounces, "volume_bounces": vb, "seed": exp.seed,
+            "specular_bounces": spec,
             "ambient_radiance": ambient_radiance(exp) if r.fidelity == "fast" else 0.0,
             "albedo_pass": r.fidelity == "fast" and ambient_on(exp),
             "write_depth": r.write_depth, "write_index": r.write_index,

@@ -76,7 +76,8 @@ def term_costs(dataset: Path) -> pd.DataFrame:
     from blendgen.config.models import Sensor, Water
     from blendgen.physics import optics, sensor
     from blendgen.pipeline import compose
-    from blendgen.pipeline.plan import SequencePost
+    from blendgen.pipeline import world_post
+    from blendgen.pipeline.plan import SequencePost, WorldPost
     from datasets_spec.io import load_index, load_range
     from evalkit.dataset import Dataset
     ds = Dataset.open(dataset)
@@ -91,11 +92,15 @@ def term_costs(dataset: Path) -> pd.DataFrame:
     markers = ds.markers
     T_wd = np.asarray(ds.manifest["dock"]["T_world_dock"], float)
 
-    def state(mode, **sens):
+    def state(mode, world=None, **sens):
         return compose.SequenceState.start(SequencePost(
             seed=0, fps=10, image_formation=mode, water=Water(preset="mild"), light_depth_m=1.0, surface_z_m=0.0,
-            irradiance_w_m2=3.2, sensor=Sensor(**sens)))
+            irradiance_w_m2=3.2, sensor=Sensor(**sens), world=world))
     phys, art = state("physical", noise=False), state("article")
+    surf, caus = (state("physical", WorldPost(surface=s, caustics=not s, wind_mps=1.0, wave_seed=0, sky_radiance=0.21,
+                                              ambient_radiance=0.34, sun_travel_dir=[0.0, -0.5, -0.866]),
+                        noise=False) for s in (True, False))
+    world_post.caustic_table(0, 1.0)                    # once per sequence, not per frame
     noisy, bloom = state("physical", noise=True), state("physical", noise=False, bloom_fraction=0.05)
     dist = [-0.2, 0.05, 0.0, 0.0, 0.0]
     rows = [
@@ -103,6 +108,9 @@ def term_costs(dataset: Path) -> pd.DataFrame:
         ("surface depth map", lambda: compose.surface_depth(passes["range_m"], K, frame["T_world_cam"], 0.0)),
         ("water physical (incl. depth map)", lambda: compose.water_image(passes, phys, K, frame["T_world_cam"], markers)),
         ("water article", lambda: compose.water_image(passes, art, K, frame["T_world_cam"], markers)),
+        ("water physical + surface (Snell's window)",
+         lambda: compose.water_image(passes, surf, K, frame["T_world_cam"], markers, t=0.3)),
+        ("water physical + caustics", lambda: compose.water_image(passes, caus, K, frame["T_world_cam"], markers, t=0.3)),
         ("  of which LED glow", lambda: optics.add_emitter_glow(
             rgb, compose.emissive_mask(passes["index"], markers), passes["range_m"], phys.water, float(K[0, 0]))),
         ("8-bit sRGB encode only (before: to_uint8)", lambda: sensor.to_uint8(rgb)),

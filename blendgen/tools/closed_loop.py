@@ -180,7 +180,7 @@ class VisionCamera:
         t1 = time.perf_counter()
         gt = groundtruth.frame_truth(T_wc, b.T_world_dock, b.markers, b.K, c.width, c.height)
         seen, occluded = compose.add_particles(passes, self.state, b.K, T_wc)
-        img = compose.camera_image(seen, self.state, b.K, {"T_world_cam": T_wc}, b.markers, "fast", occluded,
+        img = compose.camera_image(seen, self.state, b.K, {"T_world_cam": T_wc, "t": t}, b.markers, "fast", occluded,
                                    T_world_dock=b.T_world_dock)
         self.state.advance()
         times = {"render_ms": 1e3 * (t1 - t0), "compose_ms": 1e3 * (time.perf_counter() - t1)}

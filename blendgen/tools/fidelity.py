@@ -60,6 +60,9 @@ def held_in_experiment(width: int, height: int, frames: int, conditions=CONDITIO
     exp.render.samples = exp.render.reference_samples = int(samples)
     exp.render.volume_bounces = int(volume_bounces)
     exp.conditions = [Condition(label=c, water=Water(preset=c, **(water_opts or {}))) for c in conditions]
+    # caustics are a fast-path model with no Cycles counterpart (a delta sun through a specular
+    # surface cannot be path traced; Cycles' MNEE ignores sun lamps): compare without them
+    exp.scene.world.caustics = False
     exp.name = f"fidelity-{fidelity}"
     return exp
 

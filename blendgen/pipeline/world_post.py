@@ -1,0 +1,149 @@
+"""Fast fidelity: the water surface seen from below and caustics, in image space.
+
+Runs before the water model (:func:`blendgen.physics.optics.apply_water`), on the clean
+passes of one frame; physics in :mod:`blendgen.physics.surface`. Both steps are skipped
+entirely when the sequence has them off (``SequencePost.world`` None or False).
+
+- Surface: a pixel whose ray points up meets the surface at ``r = (z_s - z_cam) / d_z``;
+  when it hits nothing before (or only pool rim above the water), its clean radiance becomes Snell's window
+  (``surface.window_radiance``, with the local wave normal) at that range, with depth 0
+  (sky light is not dimmed by depth light), so the water model then attenuates it along the
+  path and veils it like any surface. Totally reflected pixels show the clean scene along
+  the mirrored ray where the camera's own image holds it (screen-space reflection, at the
+  summed path length), else the veiling light of open water at the camera's depth; the
+  reference traces the real reflection.
+- Caustics: each surface point's sun-lit part ``J - albedo L_amb`` is multiplied by the
+  focusing factor of its sun ray (``surface.caustic_factor``) at its depth, with the
+  water's scattering coefficient (mean over RGB) as the turbidity.
+"""
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+
+from blendgen.physics import surface as sf
+
+
+@functools.lru_cache(maxsize=8)
+def waves_of(seed: int, wind_mps: float) -> sf.WaveField:
+    """The sequence's surface waves (cached: the same for every frame)."""
+    return sf.waves_for(seed, wind_mps)
+
+
+@functools.lru_cache(maxsize=8)
+def caustic_table(seed: int, wind_mps: float) -> np.ndarray:
+    """Energy table of the sequence's caustics (``surface.mean_ray_tube_factor``), once per
+    sequence (~0.2 s)."""
+    return sf.mean_ray_tube_factor(waves_of(seed, wind_mps))
+
+
+def add_surface(rgb, range_m, depth, wp, rays, K, T_world_cam, surface_z_m: float, t: float, below_radiance):
+    """Pixels that see the surface from below: (rgb, range_m, depth) new arrays; the inputs
+    when none does. ``rays`` (H, W, 3) unit world directions of the pixels; K (3, 3);
+    ``below_radiance`` (3,) the veil at the camera's depth. Inside Snell's window: the window
+    radiance at the surface's range, depth 0. Totally reflected pixels: the clean scene along
+    the mirrored ray when the camera's own image holds that direction (:func:`_mirror`),
+    else ``below_radiance`` (open water)."""
+    T = np.asarray(T_world_cam, float)
+    d = rays
+    rise = np.float32(max(surface_z_m - T[2, 3], 0.0))
+    with np.errstate(divide="ignore"):
+        r_all = np.where(d[..., 2] > 1e-4, rise / np.maximum(d[..., 2], np.float32(1e-4)), np.inf)
+    # the surface is hit first: nothing else on the ray, or only geometry above the water
+    # (a depth condition moves the surface, not the pool: its rim may stand above it)
+    up = np.isfinite(r_all) & ~(range_m < r_all)
+    if not up.any():
+        return rgb, range_m, depth
+    r = r_all[up].astype(np.float32)
+    du = d[up]
+    x = np.float32(T[0, 3]) + r * du[:, 0]
+    y = np.float32(T[1, 3]) + r * du[:, 1]
+    sx, sy = waves_of(wp.wave_seed, wp.wind_mps).slope(x, y, t)
+    n = np.stack([-sx, -sy, np.ones_like(sx)], -1)
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    cos_up = np.einsum("ij,ij->i", du, n)
+    depth = np.array(np.broadcast_to(depth, range_m.shape), np.float32)
+    J = sf.window_radiance(cos_up, [wp.sky_radiance] * 3, below_radiance)
+    rr, hh = r.copy(), np.zeros_like(r)
+    tir = sf.fresnel_reflectance(cos_up) >= 1.0
+    if tir.any():
+        m_rgb, m_r, m_h, ok = _mirror(du[tir] - 2 * cos_up[tir, None] * n[tir], K, T, rgb, range_m, depth)
+        idx = np.flatnonzero(tir)[ok]
+        J[idx], rr[idx], hh[idx] = m_rgb, r[idx] + m_r, m_h
+    rgb, range_m = rgb.copy(), range_m.copy()
+    rgb[up], range_m[up], depth[up] = J, rr, hh
+    return rgb, range_m, depth
+
+
+def _mirror(d_refl, K, T, rgb, range_m, depth):
+    """Screen-space reflection: the clean radiance (n, 3), range (n,) and depth (n,) of the
+    surface the camera itself sees in each reflected direction ``d_refl`` (n, 3) (world),
+    and which of them it sees (n,) bool (in the image, a surface below the water). The
+    reflected ray starts at the surface point, not the camera: the parallax (the camera's
+    depth) is ignored, as the mirrored pool is metres away."""
+    h, w = range_m.shape
+    c = d_refl @ T[:3, :3].astype(np.float32)                  # camera frame
+    front = c[:, 2] > 1e-3
+    uv = (c @ np.asarray(K, np.float32).T)[:, :2] / np.where(front, c[:, 2], 1)[:, None]
+    u, v = np.rint(uv[:, 0]).astype(np.int64), np.rint(uv[:, 1]).astype(np.int64)
+    ok = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    u, v = u[ok], v[ok]
+    ok[ok] = np.isfinite(range_m[v, u]) & (depth[v, u] > 0)
+    u, v = np.rint(uv[ok, 0]).astype(np.int64), np.rint(uv[ok, 1]).astype(np.int64)
+    return rgb[v, u], range_m[v, u], depth[v, u], ok
+
+
+#: Width (m) of the caustic network's cells for waves of 0.25 m and up: the pattern averages
+#: out over a pixel footprint much wider than this.
+CAUSTIC_CELL_M = 0.1
+
+
+def footprint_fade(rays, range_m, px_rad: float) -> np.ndarray:
+    """(h, w) factor ``exp(-(f / CAUSTIC_CELL_M)^2 / 2)`` of each sample's footprint
+    ``f = r px_rad / |cos(incidence)|`` (``px_rad`` the sample spacing in radians; the
+    surface normal from the cross product of the neighbouring hit points): the contrast a
+    pixel keeps of a pattern finer than it (anti-aliasing: grazing, distant floors go grey,
+    not speckled). Object edges (no consistent normal) fade too."""
+    P = rays * np.where(np.isfinite(range_m), range_m, 0)[..., None]
+    n = np.cross(np.gradient(P, axis=1), np.gradient(P, axis=0))
+    norm = np.linalg.norm(n, axis=-1)
+    cos = np.abs(np.einsum("ijk,ijk->ij", rays, n)) / np.maximum(norm, 1e-12)
+    f = range_m * np.float32(px_rad) / np.maximum(cos, 1e-3)
+    with np.errstate(invalid="ignore"):
+        fade = np.exp(-0.5 * (f / CAUSTIC_CELL_M) ** 2)
+    return np.where(np.isfinite(fade), fade, 0).astype(np.float32)
+
+
+def add_caustics(rgb, albedo, range_m, depth, wp, rays, K, T_world_cam, t: float, scattering: float):
+    """Sun-lit surfaces times their focusing factor (module docstring); a new (H, W, 3) array.
+    ``depth`` (H, W) metres below the surface of each pixel's surface point; ``rays`` (H, W, 3)
+    unit world directions. The factor is evaluated on every second pixel in x and y and
+    interpolated bilinearly (4x cheaper; the network's lines are several pixels wide but
+    for the farthest floor)."""
+    import cv2
+    T = np.asarray(T_world_cam, float)
+    depth = np.broadcast_to(np.asarray(depth, np.float32), range_m.shape)
+    hit_full = np.isfinite(range_m) & (depth > 0)
+    if not hit_full.any():
+        return rgb
+    hit = hit_full[::2, ::2]
+    d = rays[::2, ::2][hit]
+    r = range_m[::2, ::2][hit].astype(np.float32)
+    h = depth[::2, ::2][hit]
+    sun = sf.refracted_sun(wp.sun_travel_dir)
+    back = (-sun[:2] / -sun[2]).astype(np.float32)            # horizontal run per metre of rise
+    x = np.float32(T[0, 3]) + r * d[:, 0] + h * back[0]
+    y = np.float32(T[1, 3]) + r * d[:, 1] + h * back[1]
+    path = h / np.float32(-sun[2])                             # slant path of the beam to the point
+    gain = np.zeros(hit.shape, np.float32)                     # m - 1 on the half grid
+    gain[hit] = sf.caustic_factor(waves_of(wp.wave_seed, wp.wind_mps), x, y, path, t, scattering,
+                                  mean_table=caustic_table(wp.wave_seed, wp.wind_mps)) - 1
+    gain *= footprint_fade(rays[::2, ::2], range_m[::2, ::2], 2.0 / float(K[0, 0]))
+    hgt, wid = range_m.shape
+    gain = cv2.resize(gain, (wid, hgt), interpolation=cv2.INTER_LINEAR)
+    gain[~hit_full] = 0
+    sun_lit = np.asarray(rgb, np.float32)
+    if albedo is not None and wp.ambient_radiance > 0:
+        sun_lit = np.maximum(sun_lit - albedo * np.float32(wp.ambient_radiance), 0)
+    return rgb + sun_lit * cv2.cvtColor(gain, cv2.COLOR_GRAY2BGR)

@@ -1,0 +1,285 @@
+"""The world around the dock (issue 14): Snell's window, caustics, their zero cost when off.
+
+Oracles: the critical angle asin(1/1.333) = 48.6 deg; Fresnel reflectance at normal incidence
+((n-1)/(n+1))^2; energy conservation (mean caustic irradiance = flat-surface value); the
+analytic contrast of the caustic model; monotone fall of contrast with depth in turbid water."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from blendgen.config.models import Experiment, Water
+from blendgen.physics import surface as sf
+from blendgen.pipeline import compose, plan
+from blendgen.pipeline.plan import SequencePost, WorldPost
+
+W, H = 161, 161
+F = (W - 1) / 2 / math.tan(math.radians(75))          # 150 deg field of view: sees the whole window
+K = np.array([[F, 0, (W - 1) / 2], [0, F, (H - 1) / 2], [0, 0, 1]])
+
+
+def _looking_up(cam_z: float) -> np.ndarray:
+    """OpenCV camera at (0, 0, cam_z) looking straight up: z_cam = +z_world, y_cam = -y_world."""
+    T = np.eye(4)
+    T[:3, :3] = np.diag([1.0, -1.0, 1.0])
+    T[2, 3] = cam_z
+    return T
+
+
+def _post(world: WorldPost | None, water=Water(preset="jerlov_IB")) -> SequencePost:
+    return SequencePost(seed=0, fps=10, image_formation="physical", water=water, light_depth_m=3.0,
+                        surface_z_m=0.0, irradiance_w_m2=3.0, world=world)
+
+
+def _world(surface=True, caustics=False, wind=0.0) -> WorldPost:
+    return WorldPost(surface=surface, caustics=caustics, wind_mps=wind, wave_seed=7, sky_radiance=0.2,
+                     ambient_radiance=0.0, sun_travel_dir=[0.0, 0.0, -1.0])
+
+
+def _open_water_up(post, t=0.0):
+    passes = {"rgb": np.zeros((H, W, 3), np.float32), "range_m": np.full((H, W), np.inf, np.float32),
+              "index": np.zeros((H, W), np.uint8)}
+    return compose.water_image(passes, compose.SequenceState.start(post), K, _looking_up(-3.0), [], t=t)
+
+
+def _zenith_angle_deg() -> np.ndarray:
+    u, v = np.meshgrid(np.arange(W), np.arange(H))
+    return np.degrees(np.arctan(np.hypot(u - K[0, 2], v - K[1, 2]) / F))
+
+
+def test_fresnel_normal_incidence_and_total_internal_reflection():
+    assert sf.fresnel_reflectance(1.0)[()] == pytest.approx(((1.333 - 1) / (1.333 + 1)) ** 2, rel=1e-4)
+    assert sf.fresnel_reflectance(math.cos(math.radians(48.7)))[()] == 1.0
+    assert math.degrees(sf.critical_angle_rad()) == pytest.approx(48.6, abs=0.05)
+
+
+def test_snells_window_half_angle_within_1_deg_looking_up():
+    """Fast path, flat surface, open water, camera 3 m deep looking up: the bright disc's edge
+    (radiance halfway between the zenith's and the totally reflected veil) sits at 48.6 +- 1 deg."""
+    img = _open_water_up(_post(_world()))[..., 1]
+    ang = _zenith_angle_deg()
+    zen, far = float(img[H // 2, W // 2]), float(np.median(img[ang > 60]))
+    assert zen > 2 * far > 0                              # bright window over a veil, never black
+    inside = ang[img > (zen + far) / 2]
+    assert abs(inside.max() - 48.6) < 1.0
+
+
+def test_outside_the_window_is_the_veil_not_black():
+    """Open water: total internal reflection returns the veiling light at the camera's depth."""
+    img = _open_water_up(_post(_world()))
+    ref = _open_water_up(_post(None))                      # without surface: the veil everywhere
+    out = _zenith_angle_deg() > 55
+    np.testing.assert_allclose(img[out], ref[out], rtol=1e-5)
+    assert img[out].min() > 0
+
+
+def test_rough_surface_moves_with_time():
+    a = _open_water_up(_post(_world(wind=3.0)), t=0.0)
+    b = _open_water_up(_post(_world(wind=3.0)), t=0.5)
+    assert np.abs(a - b).max() > 0.01
+
+
+def test_world_off_costs_nothing_and_changes_nothing(monkeypatch):
+    """SequencePost.world None: the surface/caustic module is never entered."""
+    from blendgen.pipeline import world_post
+
+    def boom(*a, **k):
+        raise AssertionError("world_post called while off")
+    monkeypatch.setattr(world_post, "add_surface", boom)
+    monkeypatch.setattr(world_post, "add_caustics", boom)
+    _open_water_up(_post(None))
+
+
+def test_caustics_conserve_energy():
+    """Mean irradiance = the flat surface's (2 %), on a patch other than the table's, at depths
+    before and after the first focus; never negative."""
+    waves = sf.WaveField.sample(3, 2.0)
+    table = sf.mean_ray_tube_factor(waves)
+    x, y = np.meshgrid(np.linspace(37, 77, 500, dtype=np.float32), np.linspace(-20, 20, 500, dtype=np.float32))
+    for h in (0.5, 2.0, 6.0, 15.0):
+        m = sf.caustic_factor(waves, x, y, h, 1.7, 0.05, mean_table=table)
+        assert m.min() >= 0
+        assert m.mean() == pytest.approx(1.0, abs=0.03), h
+
+
+@pytest.mark.parametrize("b", [0.1, 0.3])
+def test_caustic_contrast_falls_with_depth(b):
+    """Beyond the first focus (3 m), contrast (std of E/E0) falls monotonically with depth;
+    at the same depth, more turbid water has lower contrast."""
+    waves = sf.WaveField.sample(3, 1.0)
+    table = sf.mean_ray_tube_factor(waves)
+    x, y = np.meshgrid(np.linspace(0, 30, 400, dtype=np.float32), np.linspace(0, 30, 400, dtype=np.float32))
+    cv = [float(sf.caustic_factor(waves, x, y, h, 0.0, b, mean_table=table).std()) for h in (3, 5, 8, 12, 20)]
+    assert all(c1 > c2 for c1, c2 in zip(cv, cv[1:])), cv
+    clearer = float(sf.caustic_factor(waves, x, y, 5.0, 0.0, b / 3, mean_table=table).std())
+    assert clearer > cv[1]
+
+
+def test_caustics_rise_from_zero_at_the_surface():
+    """At the surface there is no focusing yet: the pattern grows with depth at first."""
+    waves = sf.WaveField.sample(3, 1.0)
+    x, y = np.meshgrid(np.linspace(0, 30, 300, dtype=np.float32), np.linspace(0, 30, 300, dtype=np.float32))
+    cv = [float(sf.caustic_factor(waves, x, y, h, 0.0, 0.0).std()) for h in (0.0, 0.2, 1.0)]
+    assert cv[0] < 1e-6 < cv[1] < cv[2]
+
+
+def test_flat_surface_has_no_caustics():
+    flat = sf.WaveField.sample(3, 0.0, mss=0.0)
+    m = sf.caustic_factor(flat, np.linspace(0, 5, 50), np.zeros(50), 4.0, 0.0)
+    np.testing.assert_allclose(m, 1.0, atol=1e-6)
+
+
+def test_caustics_move_the_floor_light_and_keep_its_mean():
+    """Fast path: a sun-lit floor 4 m down gets a moving pattern, mean preserved (2 %)."""
+    post = _post(_world(surface=False, caustics=True, wind=2.0), Water(preset="jerlov_IB"))
+    T = _looking_up(-3.0)
+    T[:3, :3] = np.diag([1.0, -1.0, -1.0])                    # looking down at the floor 1 m below
+    passes = {"rgb": np.full((H, W, 3), 0.3, np.float32), "index": np.ones((H, W), np.uint8)}
+    passes["depth_z"] = np.ones((H, W), np.float32)
+    compose.add_range(passes, K)
+    st = compose.SequenceState.start(post)
+    a = compose.water_image(passes, st, K, T, [], t=0.0)
+    b = compose.water_image(passes, st, K, T, [], t=0.3)
+    off = compose.water_image(passes, compose.SequenceState.start(_post(None)), K, T, [])
+    assert a.std() > 0.2 * off.mean() and np.abs(a - b).mean() > 0.01 * off.mean()
+    assert a.mean() == pytest.approx(off.mean(), rel=0.05)
+
+
+def test_world_defaults_on_in_physical_off_in_article_and_recorded():
+    traj = [{"kind": "linear", "id": "a"}]
+    phys = Experiment.model_validate({"name": "w", "image_formation": "physical", "trajectories": traj})
+    art = Experiment.model_validate({"name": "w", "image_formation": "article", "trajectories": traj})
+    assert plan.world_post(phys) is not None and plan.world_post(art) is None
+    assert plan.world_look(phys)["textures"] and not plan.world_look(art)["textures"]
+
+
+def _reference_up(tmp_path, depth=3.0, size=97, samples=16) -> np.ndarray:
+    import json
+    import subprocess
+    import sys
+    spec = {"depth_m": depth, "hfov_deg": 150, "size": size, "samples": samples, "sky_radiance": 0.2,
+            "water": None}
+    p, out = tmp_path / "spec.json", tmp_path / "up.npy"
+    p.write_text(json.dumps(spec))
+    subprocess.run([sys.executable, "-m", "blendgen.blender.surface_oracle", str(p), str(out)], check=True,
+                   capture_output=True, timeout=300)
+    return np.load(out)
+
+
+def test_reference_snells_window_half_angle_and_radiance(tmp_path):
+    """Cycles, glass surface IOR 1.333 seen from 3 m below (no medium): the window's edge at
+    48.6 +- 1 deg; inside, the radiance T(theta) n^2 L_sky of the fast formula within 5 %
+    (ring means over 0-40 deg)."""
+    img = _reference_up(tmp_path)[..., 1]
+    n = img.shape[0]
+    f = (n - 1) / 2 / math.tan(math.radians(75))
+    u, v = np.meshgrid(np.arange(n), np.arange(n))
+    ang = np.degrees(np.arctan(np.hypot(u - (n - 1) / 2, v - (n - 1) / 2) / f))
+    centre = float(img[ang < 20].mean())
+    assert abs(ang[img > centre / 2].max() - 48.6) < 1.0
+    assert float(img[ang > 50].max()) == 0.0                 # total internal reflection of a black pool
+    for lo in (0, 20, 30):
+        ring = (ang >= lo) & (ang < lo + 10)
+        fast = sf.window_radiance(np.cos(np.radians(ang[ring])), [0.2] * 3, [0.0] * 3)[:, 1].mean()
+        assert float(img[ring].mean()) == pytest.approx(float(fast), rel=0.05)
+
+
+def _albedo(tmp_path, seed: int) -> np.ndarray:
+    import json
+    import subprocess
+    import sys
+    p, out = tmp_path / f"a{seed}.json", tmp_path / f"a{seed}.npy"
+    p.write_text(json.dumps({"kind": "albedo", "size": 96, "height_m": 1.5, "seed": seed}))
+    subprocess.run([sys.executable, "-m", "blendgen.blender.surface_oracle", str(p), str(out)], check=True,
+                   capture_output=True, timeout=300)
+    return np.load(out)
+
+
+def test_albedo_pass_carries_the_tile_texture(tmp_path):
+    """The ambient term's albedo is textured: grout lines darker than tiles (the floor colour
+    0.5-0.55 x 0.55 in grout), mean near the configured colour, and the seed changes it."""
+    a = _albedo(tmp_path, 0)[..., 1]
+    assert np.percentile(a, 2) < 0.75 * np.median(a)           # grout and grime
+    assert 0.35 < float(np.median(a)) < 0.65                    # tiles near the floor colour 0.55
+    # 1.5 m above the floor, hfov 40 deg: ~1.1 m wide, 0.25 m tiles -> grout columns repeat
+    # every ~22 px; mean albedo per column dips at the grout
+    col = a.mean(axis=0)
+    assert col.max() - col.min() > 0.05
+    b = _albedo(tmp_path, 1)[..., 1]
+    assert np.abs(a - b).mean() > 0.01
+
+
+def test_pool_rim_above_a_moved_surface_shows_the_surface():
+    """A depth condition lowers the surface below the pool rim: rays that meet the rim above
+    the water meet the surface first (fast path), and get the window or its reflection."""
+    post = _post(_world()).model_copy(update={"surface_z_m": -1.0})
+    passes = {"rgb": np.full((H, W, 3), 0.5, np.float32), "range_m": np.full((H, W), 5.0, np.float32),
+              "index": np.ones((H, W), np.uint8)}           # a "wall" 5 m away along every ray
+    img = compose.water_image(passes, compose.SequenceState.start(post), K, _looking_up(-3.0), [])
+    ang = _zenith_angle_deg()
+    # the surface is 2 m up: rays within acos(2/5) = 66 deg of the zenith meet it before the wall
+    inside, beyond = ang < 60, ang > 70
+    ref = _open_water_up(post)
+    np.testing.assert_allclose(img[inside], ref[inside], rtol=1e-5)
+    assert not np.allclose(img[beyond], ref[beyond])
+
+
+def test_reference_jobs_carry_the_refracting_surface_and_specular_bounces():
+    traj = [{"kind": "linear", "id": "a"}]
+    exp = Experiment.model_validate({"name": "w", "image_formation": "physical", "trajectories": traj,
+                                     "render": {"fidelity": "reference"}})
+    post = plan.condition_post(exp, exp.conditions[0], 0)
+    surf = plan.water_surface(exp, post)
+    assert surf["z"] == post.surface_z_m and surf["half_xy"] == [7.5, 2.5]
+    assert plan.render_settings(exp, 1)["specular_bounces"] == 2
+    off = exp.model_copy(update={"scene": exp.scene.model_copy(update={"world": exp.scene.world.model_copy(
+        update={"surface": False, "caustics": False})})})
+    assert plan.water_surface(off, plan.condition_post(off, off.conditions[0], 0)) is None
+    assert plan.render_settings(off, 1)["specular_bounces"] == 0
+
+
+def test_article_mode_refuses_an_explicit_surface():
+    from blendgen.config.models import ConfigError
+    traj = [{"kind": "linear", "id": "a"}]
+    exp = Experiment.model_validate({"name": "w", "image_formation": "article", "trajectories": traj,
+                                     "scene": {"world": {"caustics": True}}})
+    with pytest.raises(ConfigError, match="scene.world"):
+        plan.world_post(exp)
+
+
+def test_total_internal_reflection_mirrors_the_pool():
+    """Flat surface 1 m above a horizontal camera, clear beam (c = 0): a totally reflected
+    pixel shows what the camera sees at the mirrored elevation (the floor), not the veil."""
+    water = Water(preset="jerlov_IB", sigma_a=0.0, sigma_s=0.0, B_inf=0.0)
+    post = _post(_world(), water)
+    T = np.eye(4)
+    T[:3, :3] = np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0]], float)   # looking along +x
+    T[2, 3] = -1.0
+    h, w = 61, 81
+    k = np.array([[60.0, 0, (w - 1) / 2], [0, 60.0, (h - 1) / 2], [0, 0, 1]])
+    ramp = np.linspace(0.1, 0.9, w, dtype=np.float32)[None, :, None] * np.ones((h, w, 3), np.float32)
+    rng = np.full((h, w), np.inf, np.float32)
+    rng[h // 2 + 1:] = 6.0                                   # the lower half sees a "floor" 6 m away
+    passes = {"rgb": ramp, "range_m": rng, "index": np.ones((h, w), np.uint8)}
+    img = compose.water_image(passes, compose.SequenceState.start(post), k, T, [])
+    top, mirror = img[2:h // 2 - 1], img[h - 3:h // 2 + 1:-1]
+    np.testing.assert_allclose(top, mirror, rtol=1e-4)
+    assert img[: h // 2].max() > 0.5                          # not the (zero) veil
+
+
+def test_caustics_fade_with_the_pixel_footprint():
+    """Face-on floor: the fade is exp(-(r px / cell)^2 / 2) of the footprint r px (analytic, 2 %):
+    ~1 at 1 m, ~0.49 at 30 m (footprint 0.12 m), ~0 at 100 m (anti-aliasing)."""
+    from blendgen.pipeline import world_post
+    rays = np.zeros((9, 9, 3), np.float32)
+    rays[..., 2] = -1.0
+    rays[..., 0] = np.linspace(-0.01, 0.01, 9)[None, :]
+    rays[..., 1] = np.linspace(-0.01, 0.01, 9)[:, None]
+    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+    for dist in (1.0, 30.0, 100.0):
+        rng = (dist / -rays[..., 2]).astype(np.float32)
+        fade = world_post.footprint_fade(rays, rng, 2.0 / 500.0)[4, 4]
+        expect = math.exp(-0.5 * (dist * 2.0 / 500.0 / world_post.CAUSTIC_CELL_M) ** 2)
+        assert fade == pytest.approx(expect, rel=0.02, abs=1e-3), dist
