@@ -18,8 +18,9 @@ import cv2
 import numpy as np
 
 from blendgen.geometry import planar_depth_to_range, project, transform_points
-from blendgen.physics import optics, sensor
+from blendgen.physics import lamp_water, optics, sensor
 from blendgen.physics import particles as occlusion
+from blendgen.physics.lights import lamp_lights
 from blendgen.pipeline import groundtruth
 from blendgen.pipeline.plan import INDEX_PARTICLES, SequencePost
 from datasets_spec.io import save_image
@@ -42,6 +43,7 @@ class SequenceState:
     water: optics.WaterOptics | None = None
     water_opts: dict = dataclasses.field(default_factory=dict)
     camera: sensor.SensorModel = dataclasses.field(default_factory=sensor.SensorModel)
+    lamp: lamp_water.LampWater | None = None
 
     @classmethod
     def start(cls, post: SequencePost) -> "SequenceState":
@@ -53,7 +55,8 @@ class SequenceState:
                 rng, occ.region_min, occ.region_max, n_total=occ.n_total, r_min=occ.r_min_m,
                 r_max=occ.r_max_m, count_dist=occ.count_dist, n_max=occ.n_max)
         water, opts = optics.fast_water(post.water, post.image_formation, post.irradiance_w_m2)
-        return cls(post, rng, pfield, water, opts, sensor_model(post))
+        lamp = lamp_water.LampWater.build(lamp_lights(post.lamps), water) if post.lamps else None
+        return cls(post, rng, pfield, water, opts, sensor_model(post), lamp)
 
     def advance(self) -> None:
         """Drift the particles by one frame: p += v_flow dt + eta, eta ~ N(0, sigma^2 I)."""
@@ -120,11 +123,30 @@ def water_image(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, 
         depth, veil_depth = surface_depth(passes["range_m"], K, T_world_cam, post.surface_z_m)
     else:
         depth, veil_depth = post.light_depth_m, None
-    return optics.apply_water(passes["rgb"], passes["range_m"], emissive, state.water, depth,
-                              model=post.image_formation, veil_depth_m=veil_depth,
-                              irradiance=state.water_opts["irradiance"], blur=state.water_opts["blur"],
-                              blur_px_per_tau=optics.BLUR_RAD_PER_TAU * fx, blur_max_px=optics.BLUR_MAX_RAD * fx,
-                              glow_fx=fx)
+    img = optics.apply_water(passes["rgb"], passes["range_m"], emissive, state.water, depth,
+                             model=post.image_formation, veil_depth_m=veil_depth,
+                             irradiance=state.water_opts["irradiance"], blur=state.water_opts["blur"],
+                             blur_px_per_tau=optics.BLUR_RAD_PER_TAU * fx, blur_max_px=optics.BLUR_MAX_RAD * fx,
+                             glow_fx=fx)
+    if state.lamp is not None:                     # no lamp: no call, no cost
+        img += lamp_image(passes, state.lamp, K, T_world_cam)
+    return img
+
+
+def lamp_image(passes: dict, lamp: lamp_water.LampWater, K: np.ndarray, T_world_cam) -> np.ndarray:
+    """Fast fidelity: what the vehicle's lamps add to the camera image (H, W, 3): lamp-lit
+    surfaces (albedo pass, normal pass rotated into the camera frame) and the backscatter
+    veil (:mod:`blendgen.physics.lamp_water`)."""
+    rng = passes["range_m"]
+    h, w = rng.shape
+    rays = _unit_rays(tuple(np.asarray(K, float).ravel()), w, h)
+    albedo = passes.get("albedo")
+    if albedo is None:
+        albedo = np.zeros((h, w, 3), np.float32)
+    normals = passes.get("normal")
+    if normals is not None:                        # world -> camera: n_cam = R^T n_world
+        normals = normals @ np.asarray(T_world_cam, float)[:3, :3].astype(np.float32)
+    return lamp_water.lamp_radiance(lamp, K, rays, rng, albedo, normals)
 
 
 def sensor_model(post: SequencePost) -> sensor.SensorModel:

@@ -160,7 +160,7 @@ def scene_description(exp: Experiment, markers: list[dict], textures: dict[str, 
         R = rpy_to_R(*(math.radians(a) for a in o.pose.rpy_deg))
         obstacles.append({"kind": o.kind, "T_world": make_T(R, o.pose.xyz).tolist(), "size_m": o.size_m,
                           "color": o.color, "object_index": INDEX_OBSTACLE0 + i})
-    return {
+    desc = {
         "pool": s.pool.model_dump() if s.kind == "pool" else None,
         "dock": {"T_world_dock": T_wd.tolist(), "body_size_m": s.dock.body_size_m, "face_color": s.dock.face_color},
         "markers": [{**m, "texture": textures.get(m["id"])} for m in markers],
@@ -171,6 +171,9 @@ def scene_description(exp: Experiment, markers: list[dict], textures: dict[str, 
         "world_color": [0.0, 0.0, 0.0],
         "sky": sky_radiance(exp) if exp.render.fidelity == "reference" else None,
     }
+    if exp.vehicle.lamps and exp.render.fidelity == "reference":   # Cycles spots on the camera
+        desc["lamps"] = [lamp.model_dump(mode="json") for lamp in exp.vehicle.lamps]
+    return desc
 
 
 def sky_fraction(exp: Experiment) -> float:
@@ -443,10 +446,14 @@ def render_settings(exp: Experiment, threads: int) -> dict:
     """Cycles settings for the chosen fidelity."""
     r = exp.render
     samples = r.samples if r.fidelity == "fast" else r.reference_samples
-    return {"samples": samples, "threads": threads, "max_bounces": r.diffuse_bounces,
+    lamps = bool(exp.vehicle.lamps) and r.fidelity == "fast"    # fast lamp: albedo and normal passes
+    out = {"samples": samples, "threads": threads, "max_bounces": r.diffuse_bounces,
             "diffuse_bounces": r.diffuse_bounces, "seed": exp.seed,
             "ambient_radiance": ambient_radiance(exp) if r.fidelity == "fast" else 0.0,
-            "albedo_pass": r.fidelity == "fast" and ambient_on(exp),
+            "albedo_pass": r.fidelity == "fast" and (ambient_on(exp) or lamps),
             "write_depth": r.write_depth, "write_index": r.write_index,
             "roi": r.roi and r.fidelity == "fast", "background_scale": r.background_scale,
             "background_samples": r.background_samples, "roi_max_fraction": 0.5}
+    if lamps:
+        out["normal_pass"] = True
+    return out
