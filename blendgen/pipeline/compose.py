@@ -55,7 +55,8 @@ class SequenceState:
                 rng, occ.region_min, occ.region_max, n_total=occ.n_total, r_min=occ.r_min_m,
                 r_max=occ.r_max_m, count_dist=occ.count_dist, n_max=occ.n_max)
         water, opts = optics.fast_water(post.water, post.image_formation, post.irradiance_w_m2)
-        lamp = lamp_water.LampWater.build(lamp_lights(post.lamps), water) if post.lamps else None
+        lamp = (lamp_water.LampWater.build(lamp_lights(post.lamps), water, post.lamp_forward_kept)
+                if post.lamps else None)
         return cls(post, rng, pfield, water, opts, sensor_model(post), lamp)
 
     def advance(self) -> None:

@@ -60,6 +60,7 @@ class SequencePost(Strict):
     distortion: Optional[list[float]] = None
     occlusion: Optional[OcclusionPost] = None
     lamps: list[Lamp] = Field(default_factory=list, description="the vehicle's lamps (camera frame)")
+    lamp_forward_kept: Optional[float] = Field(None, description="fast lamp model's F (set with lamps)")
 
 
 class JobCamera(Strict):
@@ -351,7 +352,8 @@ def condition_post(exp: Experiment, cond, seed: int) -> SequencePost:
                         surface_z_m=-exp.scene.dock.water_depth_m + depth,
                         irradiance_w_m2=downwelling_irradiance(exp), noise_std=exp.camera.noise_std,
                         sensor=exp.camera.sensor,
-                        distortion=exp.camera.distortion, occlusion=occ_post, lamps=exp.vehicle.lamps)
+                        distortion=exp.camera.distortion, occlusion=occ_post, lamps=exp.vehicle.lamps,
+                        lamp_forward_kept=exp.vehicle.lamp_forward_kept if exp.vehicle.lamps else None)
 
 
 @functools.lru_cache(maxsize=256)

@@ -89,11 +89,17 @@ def term_costs(dataset: Path) -> pd.DataFrame:
     frame = {"T_world_cam": f["T_world_cam"]}
     markers = ds.markers
 
-    def state(mode, **sens):
+    def state(mode, lamps=(), **sens):
         return compose.SequenceState.start(SequencePost(
             seed=0, fps=10, image_formation=mode, water=Water(preset="mild"), light_depth_m=1.0, surface_z_m=0.0,
-            irradiance_w_m2=3.2, sensor=Sensor(**sens)))
+            irradiance_w_m2=3.2, sensor=Sensor(**sens), lamps=list(lamps),
+            lamp_forward_kept=0.85 if lamps else None))
     phys, art = state("physical", noise=False), state("article")
+    from blendgen.config.models import Lamp
+    from blendgen.physics import lamp_water
+    from blendgen.tools.lamp_bench import DEMO_LAMP
+    lamp = state("physical", lamps=[Lamp(**DEMO_LAMP)], noise=False)
+    lit = {**passes, "normal": np.broadcast_to(np.float32([0, 0, 1]), rgb.shape).copy()}
     noisy, bloom = state("physical", noise=True), state("physical", noise=False, bloom_fraction=0.05)
     dist = [-0.2, 0.05, 0.0, 0.0, 0.0]
     rows = [
@@ -101,6 +107,9 @@ def term_costs(dataset: Path) -> pd.DataFrame:
         ("surface depth map", lambda: compose.surface_depth(passes["range_m"], K, frame["T_world_cam"], 0.0)),
         ("water physical (incl. depth map)", lambda: compose.water_image(passes, phys, K, frame["T_world_cam"], markers)),
         ("water article", lambda: compose.water_image(passes, art, K, frame["T_world_cam"], markers)),
+        ("water physical + vehicle lamp", lambda: compose.water_image(lit, lamp, K, frame["T_world_cam"], markers)),
+        ("  vehicle lamp (surfaces + veil)", lambda: compose.lamp_image(lit, lamp.lamp, K, frame["T_world_cam"])),
+        ("  of which backscatter veil", lambda: lamp_water.backscatter(lamp.lamp, K, passes["range_m"])),
         ("  of which LED glow", lambda: optics.add_emitter_glow(
             rgb, compose.emissive_mask(passes["index"], markers), passes["range_m"], phys.water, float(K[0, 0]))),
         ("8-bit sRGB encode only (before: to_uint8)", lambda: sensor.to_uint8(rgb)),
