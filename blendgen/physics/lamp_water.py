@@ -18,8 +18,7 @@ The Jaffe (1990) / McGlamery (1980) decomposition of an image under artificial l
   with ``theta`` the scattering angle between the lamp's ray and the direction to the
   camera, ``p`` the water's phase function (1/sr; ``optics.hg_phase`` or ``ff_phase``),
   evaluated on a coarse grid of rays at geometric range nodes, accumulated (trapezoid)
-  and interpolated per pixel bilinearly in the image and linearly at the pixel's own
-  range (:func:`backscatter_table`, :func:`veil_at_range`).
+  and interpolated per pixel at its own range (:func:`backscatter_table`, :func:`backscatter`).
 - **multiple scattering**: ``c' = c - F b``, one documented factor ``F``
   (:data:`FORWARD_KEPT`): the share of scattered light that is not lost to a smooth light
   field because ocean scattering is forward-peaked (Petzold's mean cosine ~0.92; the
@@ -48,7 +47,7 @@ from blendgen.physics.lights import PointLight
 FORWARD_KEPT = 0.85
 
 #: Geometric range nodes of the veil integral (m): first node, last node, count.
-T_MIN_M, T_MAX_M, N_NODES = 0.02, 60.0, 96
+T_MIN_M, T_MAX_M, N_NODES = 0.02, 60.0, 64
 #: Coarse grid step (px) of the veil's rays.
 GRID_PX = 16
 #: Closest approach to a lamp counted (m): a ray grazing the source stays finite.
@@ -91,77 +90,75 @@ def range_nodes() -> np.ndarray:
     return np.concatenate([[0.0], np.geomspace(T_MIN_M, T_MAX_M, N_NODES)])
 
 
-def _light_terms(light: PointLight, x: np.ndarray, c_lamp: np.ndarray):
-    """For points x (..., 3): unit direction lamp->x (..., 3) and I(psi) exp(-c' d) / d^2 (..., 3)."""
-    v = x - np.asarray(light.position_m, x.dtype)
-    d = np.maximum(np.linalg.norm(v, axis=-1), MIN_LAMP_DISTANCE_M)
-    w = v / d[..., None]
-    prof = light.profile(w @ np.asarray(light.axis, x.dtype)) / (d * d)
-    gain = prof[..., None] * np.asarray(light.intensity_w_sr, x.dtype) * np.exp(-d[..., None] * c_lamp.astype(x.dtype))
-    return w, gain
-
-
 def backscatter_table(model: LampWater, rays: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Cumulative single-scatter veil (N, T, 3) along unit rays (N, 3) up to each node t (T,)."""
-    x = rays[:, None, :] * t[None, :, None]                       # (N, T, 3)
-    f = np.zeros(x.shape, np.float64)
+    """Cumulative single-scatter veil (N, T, 3) float32 along unit rays (N, 3) up to each node t (T,)
+    (trapezoid rule; scalar geometry (N, T) first, the RGB attenuation once per light)."""
+    rays32, t32 = rays.astype(np.float32), t.astype(np.float32)
+    x = rays32[:, None, :] * t32[None, :, None]                   # (N, T, 3)
+    f = np.zeros(x.shape, np.float32)
     for light in model.lights:
-        w, gain = _light_terms(light, x, model.c_lamp)
-        cos_scatter = -(w * rays[:, None, :]).sum(axis=-1)        # lamp ray vs direction to camera
-        f += gain * model.phase(cos_scatter)[..., None]
-    f *= model.sigma_s * np.exp(-t[None, :, None] * model.c_lamp)
-    dt = np.diff(t)[None, :, None]
-    steps = 0.5 * (f[:, 1:] + f[:, :-1]) * dt
-    return np.concatenate([np.zeros_like(f[:, :1]), np.cumsum(steps, axis=1)], axis=1)
+        v = x - np.asarray(light.position_m, np.float32)
+        d = np.maximum(np.sqrt(np.einsum("ntk,ntk->nt", v, v)), np.float32(MIN_LAMP_DISTANCE_M))
+        v /= d[..., None]
+        cos_scatter = -np.einsum("ntk,nk->nt", v, rays32)           # lamp ray vs direction to camera
+        geo = light.profile(v @ np.asarray(light.axis, np.float32)) / (d * d)
+        geo *= model.phase(cos_scatter).astype(np.float32)
+        path = (d + t32[None, :])[..., None] * model.c_lamp.astype(np.float32)   # c' (d + t)
+        f += geo[..., None] * np.exp(-path) * np.asarray(light.intensity_w_sr * model.sigma_s, np.float32)
+    steps = 0.5 * (f[:, 1:] + f[:, :-1]) * np.diff(t32)[None, :, None]
+    out = np.zeros_like(f)
+    np.cumsum(steps, axis=1, out=out[:, 1:])
+    return out
 
 
 @functools.lru_cache(maxsize=4)
-def _grid(K_t: tuple, width: int, height: int, step: int):
-    """Coarse rays (gh*gw, 3) and, per pixel (H*W,), the 4 cell indices and bilinear weights."""
+def _block_rays(K_t: tuple, gw: int, gh: int, step: int) -> np.ndarray:
+    """(gh*gw, 3) unit rays through the centres of ``step`` x ``step`` pixel blocks."""
     K = np.array(K_t).reshape(3, 3)
-    gu = np.linspace(0.0, width - 1.0, max(2, math.ceil((width - 1) / step) + 1))
-    gv = np.linspace(0.0, height - 1.0, max(2, math.ceil((height - 1) / step) + 1))
-    u, v = np.meshgrid(gu, gv)
+    u, v = np.meshgrid((np.arange(gw) + 0.5) * step - 0.5, (np.arange(gh) + 0.5) * step - 0.5)
     y = (v - K[1, 2]) / K[1, 1]
     x = (u - K[0, 2] - K[0, 1] * y) / K[0, 0]
     rays = np.dstack([x, y, np.ones_like(x)]).reshape(-1, 3)
-    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
-    fu = np.arange(width) / (gu[1] - gu[0])
-    fv = np.arange(height) / (gv[1] - gv[0])
-    iu = np.minimum(fu.astype(int), len(gu) - 2)
-    iv = np.minimum(fv.astype(int), len(gv) - 2)
-    au, av = (fu - iu).astype(np.float32), (fv - iv).astype(np.float32)
-    c00 = (iv[:, None] * len(gu) + iu[None, :]).ravel()
-    cells = np.stack([c00, c00 + 1, c00 + len(gu), c00 + len(gu) + 1])
-    wts = np.stack([np.outer(1 - av, 1 - au), np.outer(1 - av, au), np.outer(av, 1 - au), np.outer(av, au)])
-    return rays, cells, wts.reshape(4, -1).astype(np.float32)
+    return rays / np.linalg.norm(rays, axis=1, keepdims=True)
 
 
-def veil_at_range(table: np.ndarray, t: np.ndarray, cells: np.ndarray, wts: np.ndarray,
-                  range_m: np.ndarray) -> np.ndarray:
-    """Per-pixel veil (H, W, 3): the table (N, T, 3) at the pixel's range (H, W) (inf: last
-    node), bilinear over the 4 coarse rays ``cells`` (4, H*W) with weights ``wts`` (4, H*W)."""
-    h, w = range_m.shape
-    r = np.nan_to_num(range_m.reshape(-1).astype(np.float64), nan=t[-1], posinf=t[-1])
-    r = np.clip(r, 0.0, t[-1])
+def _block_min_max(r: np.ndarray, step: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per ``step`` x ``step`` block (edge-padded) min and max of r (H, W) -> 2 x (gh, gw)."""
+    h, w = r.shape
+    gh, gw = -(-h // step), -(-w // step)
+    p = np.pad(r, ((0, gh * step - h), (0, gw * step - w)), mode="edge").reshape(gh, step, gw, step)
+    return p.min(axis=(1, 3)), p.max(axis=(1, 3))
+
+
+def _table_at(table: np.ndarray, t: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """The cumulative table (N, T, 3) at one range per ray r (N,), linear between nodes -> (N, 3)."""
     k = np.clip(np.searchsorted(t, r, side="right") - 1, 0, len(t) - 2)
-    frac = ((r - t[k]) / (t[k + 1] - t[k])).astype(np.float32)[:, None]
-    flat = table.astype(np.float32).reshape(-1, 3)
-    nt = len(t)
-    out = np.zeros((h * w, 3), np.float32)
-    for cell, wt in zip(cells, wts):
-        base = cell * nt + k
-        out += wt[:, None] * (flat[base] * (1 - frac) + flat[base + 1] * frac)
-    return out.reshape(h, w, 3)
+    frac = ((r - t[k]) / (t[k + 1] - t[k]))[:, None]
+    n = np.arange(len(r))
+    return table[n, k] * (1 - frac) + table[n, k + 1] * frac
 
 
 def backscatter(model: LampWater, K: np.ndarray, range_m: np.ndarray, step: int = GRID_PX) -> np.ndarray:
-    """The lamps' backscatter veil (H, W, 3) in front of surfaces at ``range_m`` (H, W)."""
+    """The lamps' backscatter veil (H, W, 3) in front of surfaces at ``range_m`` (H, W).
+
+    On ``step``-px blocks: one ray per block, its cumulative veil read at the block's nearest
+    and farthest surface; both maps and both ranges are upsampled bilinearly and each pixel
+    interpolates between them at its own range (exact at both ends of a depth edge, e.g. the
+    dock's outline against open water)."""
+    import cv2
     h, w = range_m.shape
     step = int(min(step, max(4, min(w, h) // 24)))      # at least ~24 rays across small images
-    rays, cells, wts = _grid(tuple(np.asarray(K, float).ravel()), w, h, step)
     t = range_nodes()
-    return veil_at_range(backscatter_table(model, rays, t), t, cells, wts, range_m)
+    r = np.fmin(range_m.astype(np.float32, copy=False), np.float32(t[-1]))   # inf, NaN -> the last node
+    rmin, rmax = _block_min_max(r, step)
+    gh, gw = rmin.shape
+    table = backscatter_table(model, _block_rays(tuple(np.asarray(K, float).ravel()), gw, gh, step), t)
+    vmin = _table_at(table, t, rmin.ravel().astype(np.float64)).reshape(gh, gw, 3).astype(np.float32)
+    vmax = _table_at(table, t, rmax.ravel().astype(np.float64)).reshape(gh, gw, 3).astype(np.float32)
+    size = (gw * step, gh * step)
+    up = [cv2.resize(a, size, interpolation=cv2.INTER_LINEAR)[:h, :w] for a in (vmin, vmax, rmin, rmax)]
+    a = np.clip((r - up[2]) / np.maximum(up[3] - up[2], np.float32(1e-3)), 0.0, 1.0)[..., None]
+    return up[0] + a * (up[1] - up[0])
 
 
 def surface_radiance(model: LampWater, rays: np.ndarray, range_m: np.ndarray, albedo: np.ndarray,
@@ -172,19 +169,21 @@ def surface_radiance(model: LampWater, rays: np.ndarray, range_m: np.ndarray, al
     rays (H, W, 3) unit pixel rays; range_m (H, W) (inf/NaN: no surface, 0); albedo (H, W, 3);
     normals (H, W, 3) unit, camera frame (None: the surface faces the lamp, cos(i) = 1)."""
     hit = np.isfinite(range_m) & (range_m > 0)
+    r = np.where(hit, range_m, 0.0).astype(np.float32)
+    x = rays * r[..., None]
     out = np.zeros(albedo.shape, np.float32)
-    if not hit.any():
-        return out
-    r = range_m[hit].astype(np.float32)
-    x = rays[hit] * r[:, None]
-    e = np.zeros(x.shape, np.float32)
+    cam = r[..., None] * model.c.astype(np.float32)                 # c r, (H, W, 3)
     for light in model.lights:
-        wdir, gain = _light_terms(light, x, model.c_lamp)
+        v = x - np.asarray(light.position_m, np.float32)
+        d = np.maximum(np.sqrt(np.einsum("hwk,hwk->hw", v, v)), np.float32(MIN_LAMP_DISTANCE_M))
+        v /= d[..., None]
+        gain = light.profile(v @ np.asarray(light.axis, np.float32)) / (d * d)
         if normals is not None:
-            gain = gain * np.clip(-(wdir * normals[hit]).sum(axis=1), 0.0, None)[:, None]
-        e += gain
-    e *= albedo[hit] * np.float32(1.0 / math.pi) * np.exp(-r[:, None] * model.c.astype(np.float32))
-    out[hit] = e
+            gain *= np.clip(-np.einsum("hwk,hwk->hw", v, normals), 0.0, None)
+        att = np.exp(-(d[..., None] * model.c_lamp.astype(np.float32) + cam))
+        out += (gain * hit)[..., None] * att * np.asarray(light.intensity_w_sr, np.float32)
+    out *= albedo
+    out *= np.float32(1.0 / math.pi)
     return out
 
 
