@@ -148,3 +148,18 @@ def test_lamp_lights_from_namespace():
     ns = SimpleNamespace(offset_m=[0, 0.3, 0], yaw_deg=0, pitch_deg=0, half_angle_deg=30, edge_deg=5, power_w=10,
                          color=[1, 1, 1])
     assert lamp_lights([ns])[0].intensity_w_sr[0] == pytest.approx(10 / (2 * math.pi * (1 - math.cos(math.pi / 6))))
+
+
+def test_lamp_config_errors_name_the_key(tmp_path):
+    """An out-of-range lamp key is a one-line config error naming it (CLI exit 2)."""
+    import yaml
+    from blendgen.config.models import ConfigError, load_experiment
+    root = __import__("pathlib").Path(__file__).resolve().parent.parent
+    cfg = yaml.safe_load((root / "configs" / "lamp_night.yaml").read_text())
+    assert load_experiment(root / "configs" / "lamp_night.yaml").vehicle.lamps[0].power_w == 20.0
+    for key, bad in (("lamp_forward_kept", 1.5), ("lamps", [{"half_angle_deg": 120}])):
+        p = tmp_path / f"{key}.yaml"
+        p.write_text(yaml.safe_dump({**cfg, "vehicle": {**cfg["vehicle"], key: bad}}))
+        with pytest.raises(ConfigError) as e:
+            load_experiment(p)
+        assert key in str(e.value) and "\n" not in str(e.value).strip()
