@@ -324,6 +324,32 @@ def bench_glow(samples: int, size: int, volume_bounces: int, out: Path):
                f"max |ratio - 1| = {(df['ratio'] - 1).abs().max():.3f})")
 
 
+@bench.command("lamp")
+@click.option("--samples", type=click.IntRange(1, 65536), default=256, show_default=True,
+              help="Cycles samples of the veil renders (the card renders use the same)")
+@click.option("--bounces", type=click.IntRange(1, 1024), default=32, show_default=True,
+              help="volume bounces of the multiple-scattering reference")
+@click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
+              default=Path("out/bench_lamp"), show_default=True)
+def bench_lamp(samples: int, bounces: int, out: Path):
+    """Vehicle lamp: grey card vs inverse square x attenuation, and the backscatter veil, fast vs Cycles."""
+    from blendgen.tools.lamp_bench import card_table, veil_table
+    from evalkit.reports.tables import print_table
+    out.mkdir(parents=True, exist_ok=True)
+    card = card_table(out / "renders", samples=samples)
+    click.echo("grey card (albedo 0.5) centre radiance, green, lamp 0.3 m off the camera; card - black card:")
+    print_table(card, floatfmt=".4g")
+    veil = veil_table(out / "renders", bounces=(0, bounces), samples=samples)
+    click.echo("\nbackscatter veil, no surface (green; F = 0 vs the 0-bounce reference, "
+               "F = lamp_forward_kept vs the multi-bounce one; block errors over 8x6 blocks):")
+    print_table(veil, floatfmt=".4g")
+    card.to_csv(out / "lamp_card.csv", index=False)
+    veil.to_csv(out / "lamp_veil.csv", index=False)
+    click.echo(f"\nmax |card/law - 1|: reference {(card['ref/law'] - 1).abs().max():.4f}, "
+               f"fast {(card['fast/law'] - 1).abs().max():.4f}; veil mean ratio fast/reference "
+               f"{veil['ratio'].min():.3f}..{veil['ratio'].max():.3f} -> {out}")
+
+
 @main.command("calibrate-water")
 @_size_options
 @click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),

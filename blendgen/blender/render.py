@@ -68,7 +68,8 @@ def setup_cycles(scene: bpy.types.Scene, r: dict) -> None:
     vl = scene.view_layers[0]
     vl.use_pass_z = True
     vl.use_pass_object_index = True
-    vl.use_pass_diffuse_color = bool(r.get("albedo_pass"))    # the ambient term's albedo
+    vl.use_pass_diffuse_color = bool(r.get("albedo_pass"))    # the ambient and lamp terms' albedo
+    vl.use_pass_normal = bool(r.get("normal_pass"))           # the fast lamp's incidence (world frame)
     s = scene.render.image_settings
     s.media_type = "MULTI_LAYER_IMAGE"
     s.file_format = "OPEN_EXR_MULTILAYER"
@@ -101,6 +102,8 @@ def read_passes(path: str) -> dict:
                 out["index"] = np.rint(px[:, :, 0]).clip(0, 255).astype(np.uint8)
             elif any(n.endswith(("DiffCol.R", "Diffuse Color.R")) for n in names):
                 out["albedo"] = np.ascontiguousarray(px[:, :, :3], dtype=np.float32)
+            elif any(n.endswith("Normal.X") for n in names):
+                out["normal"] = np.ascontiguousarray(px[:, :, :3], dtype=np.float32)
             sub += 1
     finally:
         inp.close()
@@ -138,7 +141,7 @@ def _border(scene: bpy.types.Scene, box, width: int, height: int) -> None:
 def _upsample(passes: dict, width: int, height: int) -> dict:
     """Background passes to full size: colour bilinear, depth and index nearest."""
     import cv2
-    linear = {"rgb", "albedo"}
+    linear = {"rgb", "albedo", "normal"}
     return {k: cv2.resize(v, (width, height), interpolation=cv2.INTER_LINEAR if k in linear else cv2.INTER_NEAREST)
             for k, v in passes.items()}
 

@@ -36,10 +36,11 @@ class _Server:
         self.exr = None
 
     def init(self, req: dict) -> dict:
-        from blendgen.blender import render, scene as scn
+        from blendgen.blender import lamps, render, scene as scn
         t0 = time.perf_counter()
         self.sc = scn.build(req["scene"])
         self.cam = render.setup_camera(self.sc, req["camera"])
+        lamps.add_lamps(self.cam, req["scene"].get("lamps") or [])
         render.setup_cycles(self.sc, req["render"])
         self.cfg = req["render"]
         self.size = (int(req["camera"]["width"]), int(req["camera"]["height"]))
@@ -54,7 +55,7 @@ class _Server:
         frame = {"T_world_cam": req["T_world_cam"], "roi": req.get("roi")}
         passes = render.render_roi_frame(self.sc, self.cam, frame, self.cfg, *self.size, self.exr)
         with open(req["out"] + ".tmp", "wb") as fh:
-            np.savez(fh, rgb=passes["rgb"], depth_z=passes["depth_z"], index=passes["index"])
+            np.savez(fh, **passes)             # rgb, depth_z, index (+ albedo, normal when asked)
         os.replace(req["out"] + ".tmp", req["out"])
         return {"ok": True, "ms": 1e3 * (time.perf_counter() - t0)}
 

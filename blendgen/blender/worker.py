@@ -90,12 +90,13 @@ def run(job) -> dict:
     """Render the job (a ``plan.JobRecord``); returns timing figures (s) per stage."""
     from blendgen.pipeline import compose as pp
     from blendgen.pipeline.passstore import PassStore
-    from blendgen.blender import render, scene as scn
+    from blendgen.blender import lamps, render, scene as scn
     from blendgen.pipeline.stagetimer import StageTimer
 
     t0 = time.perf_counter()
     sc = scn.build(job.scene)
     cam = render.setup_camera(sc, job.camera.model_dump())
+    lamps.add_lamps(cam, job.scene.get("lamps") or [])       # reference fidelity only
     render.setup_cycles(sc, job.render)
     K = np.asarray(job.camera.K, float)
     W, H = job.camera.width, job.camera.height

@@ -5,7 +5,9 @@ z forward), metres. Radiometry per linear RGB channel:
 
 - a point light has a radiant intensity ``I(theta) = I0 * profile(theta)`` (W/sr), theta
   the angle from its axis; ``profile`` is 1 inside ``half_angle - edge``, 0 outside
-  ``half_angle``, a smoothstep between (Blender's spot blend);
+  ``half_angle``, a smoothstep in ``cos theta`` between (Cycles' spot blend,
+  kernel/light/spot.h: ``smoothstep((cos t - cos a) / ((1 - cos a) blend))``, with
+  :func:`blender_spot_blend` giving the blend);
 - the irradiance it gives a point at distance ``d`` is ``I(theta) cos(incidence) / d^2 *
   exp(-c d)``: inverse square and beam attenuation ``c`` (1/m) along the light's path
   (Jaffe 1990's direct term; forward-scattered light near the beam is not added back).
@@ -47,18 +49,25 @@ class PointLight:
             return base.profile(cos_theta) * lam
         if self.half_angle_rad >= math.pi:
             return np.ones_like(cos_theta)
-        theta = np.arccos(np.clip(cos_theta, -1.0, 1.0))
-        inner = self.half_angle_rad - self.edge_rad
+        cos_half = math.cos(self.half_angle_rad)
         if self.edge_rad <= 0:
-            return (theta <= self.half_angle_rad).astype(cos_theta.dtype)
-        t = np.clip((self.half_angle_rad - theta) / self.edge_rad, 0.0, 1.0)
-        out = t * t * (3.0 - 2.0 * t)
-        return np.where(theta <= inner, 1.0, out).astype(cos_theta.dtype)
+            return (cos_theta >= cos_half).astype(cos_theta.dtype)
+        cos_inner = math.cos(max(self.half_angle_rad - self.edge_rad, 0.0))
+        t = np.clip((cos_theta - cos_half) / (cos_inner - cos_half), 0.0, 1.0)
+        return (t * t * (3.0 - 2.0 * t)).astype(cos_theta.dtype)
 
 
 def cone_intensity(power_w: float, half_angle_rad: float) -> float:
     """On-axis radiant intensity (W/sr) of flux ``power_w`` (W) spread evenly over a cone."""
     return float(power_w) / (2.0 * math.pi * (1.0 - math.cos(half_angle_rad)))
+
+
+def blender_spot_blend(half_angle_rad: float, edge_rad: float) -> float:
+    """Cycles ``spot_blend`` whose mask is :meth:`PointLight.profile`: full intensity inside
+    ``half_angle - edge``, 0 outside ``half_angle`` (smoothstep in cos between)."""
+    cos_half = math.cos(half_angle_rad)
+    cos_inner = math.cos(max(half_angle_rad - edge_rad, 0.0))
+    return float(np.clip((cos_inner - cos_half) / (1.0 - cos_half), 0.0, 1.0)) if cos_half < 1.0 else 0.0
 
 
 def irradiance(lights: list[PointLight], points_m: np.ndarray, c_per_m: np.ndarray,

@@ -18,8 +18,9 @@ import cv2
 import numpy as np
 
 from blendgen.geometry import planar_depth_to_range, project, transform_points
-from blendgen.physics import leds, optics, sensor
+from blendgen.physics import lamp_water, leds, optics, sensor
 from blendgen.physics import particles as occlusion
+from blendgen.physics.lights import lamp_lights
 from blendgen.pipeline import groundtruth
 from blendgen.pipeline.plan import INDEX_PARTICLES, SequencePost
 from datasets_spec.io import save_image
@@ -44,6 +45,7 @@ class SequenceState:
     camera: sensor.SensorModel = dataclasses.field(default_factory=sensor.SensorModel)
     auto_exposure: sensor.AutoExposure | None = None
     exposure_s: float | None = None          # the exposure of the last image (recorded with auto-exposure)
+    lamp: lamp_water.LampWater | None = None
 
     @classmethod
     def start(cls, post: SequencePost) -> "SequenceState":
@@ -57,7 +59,9 @@ class SequenceState:
         water, opts = optics.fast_water(post.water, post.image_formation, post.irradiance_w_m2, veil=post.veil)
         ae = post.sensor.auto_exposure
         auto = sensor.AutoExposure(**ae.model_dump()) if ae is not None else None
-        return cls(post, rng, pfield, water, opts, sensor_model(post), auto)
+        lamp = (lamp_water.LampWater.build(lamp_lights(post.lamps), water, post.lamp_forward_kept)
+                if post.lamps else None)
+        return cls(post, rng, pfield, water, opts, sensor_model(post), auto, lamp=lamp)
 
     def advance(self) -> None:
         """Drift the particles by one frame: p += v_flow dt + eta, eta ~ N(0, sigma^2 I)."""
@@ -157,6 +161,8 @@ def water_image(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, 
     if lit is not None:
         lit *= optics.transmittance(state.water, passes["range_m"]).reshape(lit.shape)
         img += lit
+    if state.lamp is not None:                     # no lamp: no call, no cost
+        img += lamp_image(passes, state.lamp, K, T_world_cam)
     return img
 
 
@@ -193,6 +199,22 @@ def _world(passes: dict, state: SequenceState, w: optics.WaterOptics, K, T_world
         rgb, range_m, depth = world_post.add_surface(rgb, range_m, depth, wp, rays, K, T_world_cam,
                                                      state.post.surface_z_m, t, below)
     return rgb, range_m, depth
+
+
+def lamp_image(passes: dict, lamp: lamp_water.LampWater, K: np.ndarray, T_world_cam) -> np.ndarray:
+    """Fast fidelity: what the vehicle's lamps add to the camera image (H, W, 3): lamp-lit
+    surfaces (albedo pass, normal pass rotated into the camera frame) and the backscatter
+    veil (:mod:`blendgen.physics.lamp_water`)."""
+    rng = passes["range_m"]
+    h, w = rng.shape
+    rays = _unit_rays(tuple(np.asarray(K, float).ravel()), w, h)
+    albedo = passes.get("albedo")
+    if albedo is None:
+        albedo = np.zeros((h, w, 3), np.float32)
+    normals = passes.get("normal")
+    if normals is not None:                        # world -> camera: n_cam = R^T n_world
+        normals = normals @ np.asarray(T_world_cam, float)[:3, :3].astype(np.float32)
+    return lamp_water.lamp_radiance(lamp, K, rays, rng, albedo, normals)
 
 
 def sensor_model(post: SequencePost) -> sensor.SensorModel:

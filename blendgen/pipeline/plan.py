@@ -77,6 +77,7 @@ class SequencePost(Strict):
     veil: Optional[dict] = Field(None, description="physical mode: the calibrated veil model's numbers "
                                                    "(optics.veil_parameters), None: not used")
     world: Optional[WorldPost] = Field(None, description="surface and caustics (None: both off, no cost)")
+    lamp_forward_kept: Optional[float] = Field(None, description="fast lamp model's F (set with lamps)")
 
 
 class JobCamera(Strict):
@@ -177,7 +178,7 @@ def scene_description(exp: Experiment, markers: list[dict], textures: dict[str, 
         R = rpy_to_R(*(math.radians(a) for a in o.pose.rpy_deg))
         obstacles.append({"kind": o.kind, "T_world": make_T(R, o.pose.xyz).tolist(), "size_m": o.size_m,
                           "color": o.color, "object_index": INDEX_OBSTACLE0 + i})
-    return {
+    desc = {
         "pool": s.pool.model_dump() if s.kind == "pool" else None,
         "dock": {"T_world_dock": T_wd.tolist(), "body_size_m": s.dock.body_size_m, "face_color": s.dock.face_color},
         "markers": [{**m, "texture": textures.get(m["id"])} for m in markers],
@@ -189,6 +190,9 @@ def scene_description(exp: Experiment, markers: list[dict], textures: dict[str, 
         "sky": sky_radiance(exp) if exp.render.fidelity == "reference" else None,
         "world": world_look(exp),
     }
+    if exp.vehicle.lamps and exp.render.fidelity == "reference":   # Cycles spots on the camera
+        desc["lamps"] = [lamp.model_dump(mode="json") for lamp in exp.vehicle.lamps]
+    return desc
 
 
 def sky_fraction(exp: Experiment) -> float:
@@ -381,7 +385,8 @@ def condition_post(exp: Experiment, cond, seed: int) -> SequencePost:
                         distortion=exp.camera.distortion, occlusion=occ_post, lamps=exp.vehicle.lamps,
                         sun_elevation_deg=exp.scene.sun_elevation_deg, sun_share=1.0 / (1.0 + sky_fraction(exp)),
                         veil=optics.veil_parameters(cond.water or exp.water, exp.image_formation),
-                        world=world_post(exp))
+                        world=world_post(exp),
+                        lamp_forward_kept=exp.vehicle.lamp_forward_kept if exp.vehicle.lamps else None)
 
 
 def world_on(exp: Experiment, what: str) -> bool:
@@ -527,11 +532,15 @@ def render_settings(exp: Experiment, threads: int) -> dict:
     vb = r.volume_bounces if r.fidelity == "reference" else 0
     # the refracting surface: camera -> surface (transmission or total reflection) -> sky or wall
     spec = 2 if r.fidelity == "reference" and world_on(exp, "surface") else 0
-    return {"samples": samples, "threads": threads, "max_bounces": max(r.diffuse_bounces, vb, spec),
-            "diffuse_bounces": r.diffuse_bounces, "volume_bounces": vb, "seed": exp.seed,
-            "specular_bounces": spec,
+    lamps = bool(exp.vehicle.lamps) and r.fidelity == "fast"    # fast lamp: albedo and normal passes
+    out = {"samples": samples, "threads": threads, "max_bounces": max(r.diffuse_bounces, vb, spec),
+           "diffuse_bounces": r.diffuse_bounces, "volume_bounces": vb, "seed": exp.seed,
+           "specular_bounces": spec,
             "ambient_radiance": ambient_radiance(exp) if r.fidelity == "fast" else 0.0,
-            "albedo_pass": r.fidelity == "fast" and ambient_on(exp),
+            "albedo_pass": r.fidelity == "fast" and (ambient_on(exp) or lamps),
             "write_depth": r.write_depth, "write_index": r.write_index,
             "roi": r.roi and r.fidelity == "fast", "background_scale": r.background_scale,
             "background_samples": r.background_samples, "roi_max_fraction": 0.5}
+    if lamps:
+        out["normal_pass"] = True
+    return out

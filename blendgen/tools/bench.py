@@ -68,6 +68,17 @@ def _median_ms(fn, repeats: int = 15) -> float:
     return 1e3 * float(np.median(ts))
 
 
+def _median_cpu_ms(fn, repeats: int = 15) -> float:
+    """Median CPU time (ms, all threads of this process) of fn: less inflated than wall time
+    when other processes share the cores."""
+    ts = []
+    for _ in range(repeats):
+        t0 = time.process_time()
+        fn()
+        ts.append(time.process_time() - t0)
+    return 1e3 * float(np.median(ts))
+
+
 def term_costs(dataset: Path) -> pd.DataFrame:
     """Median ms of each image-formation term on one frame of a rendered bench dataset
     (its range and index passes, its image as the clean render, albedo 0.5). A term that
@@ -92,15 +103,21 @@ def term_costs(dataset: Path) -> pd.DataFrame:
     markers = ds.markers
     T_wd = np.asarray(ds.manifest["dock"]["T_world_dock"], float)
 
-    def state(mode, world=None, **sens):
+    def state(mode, world=None, lamps=(), **sens):
         return compose.SequenceState.start(SequencePost(
             seed=0, fps=10, image_formation=mode, water=Water(preset="mild"), light_depth_m=1.0, surface_z_m=0.0,
-            irradiance_w_m2=3.2, sensor=Sensor(**sens), world=world))
+            irradiance_w_m2=3.2, sensor=Sensor(**sens), world=world, lamps=list(lamps),
+            lamp_forward_kept=0.85 if lamps else None))
     phys, art = state("physical", noise=False), state("article")
     surf, caus = (state("physical", WorldPost(surface=s, caustics=not s, wind_mps=1.0, wave_seed=0, sky_radiance=0.21,
                                               ambient_radiance=0.34, sun_travel_dir=[0.0, -0.5, -0.866]),
                         noise=False) for s in (True, False))
     world_post.caustic_table(0, 1.0)                    # once per sequence, not per frame
+    from blendgen.config.models import Lamp
+    from blendgen.physics import lamp_water
+    from blendgen.tools.lamp_bench import DEMO_LAMP
+    lamp = state("physical", lamps=[Lamp(**DEMO_LAMP)], noise=False)
+    lit = {**passes, "normal": np.broadcast_to(np.float32([0, 0, 1]), rgb.shape).copy()}
     noisy, bloom = state("physical", noise=True), state("physical", noise=False, bloom_fraction=0.05)
     dist = [-0.2, 0.05, 0.0, 0.0, 0.0]
     rows = [
@@ -111,6 +128,9 @@ def term_costs(dataset: Path) -> pd.DataFrame:
         ("water physical + surface (Snell's window)",
          lambda: compose.water_image(passes, surf, K, frame["T_world_cam"], markers, t=0.3)),
         ("water physical + caustics", lambda: compose.water_image(passes, caus, K, frame["T_world_cam"], markers, t=0.3)),
+        ("water physical + vehicle lamp", lambda: compose.water_image(lit, lamp, K, frame["T_world_cam"], markers)),
+        ("  vehicle lamp (surfaces + veil)", lambda: compose.lamp_image(lit, lamp.lamp, K, frame["T_world_cam"])),
+        ("  of which backscatter veil", lambda: lamp_water.backscatter(lamp.lamp, K, passes["range_m"])),
         ("  of which LED glow", lambda: optics.add_emitter_glow(
             rgb, compose.emissive_mask(passes["index"], markers), passes["range_m"], phys.water, float(K[0, 0]))),
         ("8-bit sRGB encode only (before: to_uint8)", lambda: sensor.to_uint8(rgb)),
@@ -126,7 +146,8 @@ def term_costs(dataset: Path) -> pd.DataFrame:
         ("distortion RGB + index + range", lambda: (sensor.distort_image(rgb, K, dist),
                                                     compose.output_passes(passes, K, dist))),
     ]
-    return pd.DataFrame([{"term": name, "ms_per_frame": _median_ms(fn)} for name, fn in rows])
+    return pd.DataFrame([{"term": name, "ms_per_frame": _median_ms(fn), "cpu_ms_per_frame": _median_cpu_ms(fn)}
+                         for name, fn in rows])
 
 
 def localizer_speed(dataset: Path) -> pd.DataFrame:

@@ -80,7 +80,7 @@ class RenderClient:
         self._ask({"cmd": "render", "T_world_cam": np.asarray(T_world_cam).tolist(),
                    "roi": None if roi is None else [int(v) for v in roi], "out": out})
         with np.load(out) as z:
-            return {k: z[k] for k in ("rgb", "depth_z", "index")}
+            return {k: z[k] for k in z.files}
 
     def close(self) -> None:
         if self.proc.poll() is None:

@@ -1,0 +1,69 @@
+"""Reference renders of the vehicle lamp: a pinhole camera with its lamps in a water box.
+
+``python -m blendgen.blender.lamp_scene SPEC.json OUT.npy`` renders the camera at the world
+origin looking along +x (OpenCV camera frame: x_cam = -y, y_cam = -z, z_cam = +x world), its
+config lamps (:mod:`blendgen.blender.lamps`) parented to it, inside a water box
+(``plan.water_volume``-style ``water`` dict, or null for no medium), optionally facing a
+Lambertian ``card`` (a large plane at ``z_cam = distance_m`` of albedo ``albedo``) and
+nothing else (the world is black). OUT.npy holds the linear RGB (H, W, 3) float32.
+SPEC keys: ``water``, ``lamps`` (list of ``Lamp`` dicts), ``card`` ({distance_m, albedo} or
+null), ``hfov_deg``, ``width``, ``height``, ``samples``, ``volume_bounces``, ``seed``.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+
+BOX = {"box_min": [-2.0, -30.0, -30.0], "box_max": [60.0, 30.0, 30.0]}
+
+
+def build(spec: dict):
+    import bpy
+    from blendgen.blender import lamps, materials, render, scene as scn, water
+
+    sc = scn.reset()
+    world = bpy.data.worlds.new("black")
+    sc.world = world
+    materials.world_color(world, [0.0, 0.0, 0.0])
+    if spec.get("water"):
+        water.add_water_volume({**spec["water"], **BOX})
+    card = spec.get("card")
+    if card:
+        x, h, a = float(card["distance_m"]), 40.0, float(card["albedo"])
+        plane = scn.mesh_object("card", [(x, -h, -h), (x, h, -h), (x, h, h), (x, -h, h)], [(0, 3, 2, 1)], index=1)
+        plane.data.materials.append(materials.diffuse("card", [a, a, a]))
+    cam = render.setup_camera(sc, {"width": spec["width"], "height": spec["height"],
+                                   "hfov_rad": math.radians(spec["hfov_deg"]), "clip_start": 0.001})
+    cam.rotation_euler = (math.pi / 2, 0.0, -math.pi / 2)   # Blender -Z view axis -> world +x
+    lamps.add_lamps(cam, spec["lamps"])
+    bounces = int(spec.get("volume_bounces", 0))
+    render.setup_cycles(sc, {"samples": spec["samples"], "seed": spec.get("seed", 0), "max_bounces": bounces,
+                             "volume_bounces": bounces})
+    water.reference_settings(sc, bounces)
+    return sc
+
+
+def main(argv: list[str]) -> int:
+    import bpy
+    import numpy as np
+    from blendgen.blender import render
+
+    spec = json.loads(open(argv[1]).read())
+    null = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(null, 1)                      # Blender's render log -> /dev/null
+    sc = build(spec)
+    path = os.path.join(render.scratch_dir(), f"dockbench-lamp-{os.getpid()}.exr")
+    sc.render.filepath = path
+    try:
+        bpy.ops.render.render(write_still=True)
+        np.save(argv[2], render.read_passes(path)["rgb"])
+    finally:
+        if os.path.exists(path):
+            os.remove(path)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv))
