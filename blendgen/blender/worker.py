@@ -128,7 +128,8 @@ def run(job) -> dict:
                 rec = pp.frame_record(fr, T_wd, markers, K, W, H, passes["index"])
             for (o, d, fh), st in zip(outs, states):
                 with clock("compose"):
-                    seen, occluded = pp.add_particles(passes, st, K, fr["T_world_cam"])
+                    seen, occluded = pp.add_particles(passes, st, K, fr["T_world_cam"], markers, rec["T_cam_dock"],
+                                                      fr["t"])
                     img = pp.camera_image(seen, st, K, fr, markers, job.fidelity, occluded)
                     r = rec if occluded is None else pp.with_visibility(rec, markers, K, passes["index"], occluded)
                 with clock("write"):

@@ -25,7 +25,7 @@ from blendgen import markers as mk
 from blendgen.pipeline import groundtruth
 from blendgen.vehicle import trajectories as tj
 from blendgen.geometry import intrinsics_from_hfov, make_T, rpy_to_R
-from blendgen.config.models import (ConfigError, Experiment, ImageFormation, Lamp, Occlusion, Sensor, Strict, Vec3,
+from blendgen.config.models import (ConfigError, Experiment, ImageFormation, Lamp, Lens, Occlusion, Sensor, Strict, Vec3,
                                     Water)
 
 INDEX_POOL, INDEX_DOCK, INDEX_MARKER0, INDEX_OBSTACLE0, INDEX_PARTICLES = 1, 2, 10, 100, 250
@@ -60,6 +60,7 @@ class SequencePost(Strict):
     distortion: Optional[list[float]] = None
     occlusion: Optional[OcclusionPost] = None
     lamps: list[Lamp] = Field(default_factory=list, description="the vehicle's lamps (camera frame)")
+    lens: Optional[Lens] = Field(None, description="thin lens (particle defocus); null: pinhole")
 
 
 class JobCamera(Strict):
@@ -348,7 +349,8 @@ def condition_post(exp: Experiment, cond, seed: int) -> SequencePost:
                         surface_z_m=-exp.scene.dock.water_depth_m + depth,
                         irradiance_w_m2=downwelling_irradiance(exp), noise_std=exp.camera.noise_std,
                         sensor=exp.camera.sensor,
-                        distortion=exp.camera.distortion, occlusion=occ_post, lamps=exp.vehicle.lamps)
+                        distortion=exp.camera.distortion, occlusion=occ_post, lamps=exp.vehicle.lamps,
+                        lens=exp.camera.lens)
 
 
 @functools.lru_cache(maxsize=256)
