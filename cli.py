@@ -287,6 +287,22 @@ def bench_pnp(trials: int, seed: int, out: Path):
     click.echo(f"\n{len(df)} cells in {time.perf_counter() - t0:.1f} s -> {out / 'pnp.csv'}, {out / 'pnp.png'}")
 
 
+@bench.command("particles")
+@click.option("-n", "--count", "counts", type=click.IntRange(0, 20_000_000), multiple=True,
+              help="particles in the 600 m^3 pool (repeatable; default 600, 6000, 60000)")
+@click.option("--size", type=(click.IntRange(16, 8192), click.IntRange(16, 8192)), default=(640, 480),
+              show_default=True)
+@click.option("--frames", type=click.IntRange(1, 1000), default=10, show_default=True)
+def bench_particles(counts: tuple[int, ...], size: tuple[int, int], frames: int):
+    """Fast-path cost of small obstacles per frame (add_particles: cull, light, blur, draw), wall ms."""
+    import os
+    from blendgen.tools.particle_bench import format_row, run
+    click.echo(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (wall times are upper bounds)")
+    for n in counts or (600, 6000, 60000):
+        for dist in ("power_law", "uniform"):
+            click.echo(format_row(run(n, size[0], size[1], frames, dist)))
+
+
 @bench.command("glow")
 @click.option("--samples", type=click.IntRange(1, 65536), default=64, show_default=True)
 @click.option("--size", type=click.IntRange(16, 1024), default=96, show_default=True)
