@@ -194,3 +194,12 @@ def test_no_particles_costs_nothing():
     ps = passes()
     out, occ = compose.add_particles(ps, st, K, T_WC)
     assert out is ps and occ is None
+
+
+def test_fast_light_terms_agree_with_shared_irradiance():
+    lamp = popt.lt.lamp_lights([Lamp(offset_m=[0.1, 0.3, 0.0], yaw_deg=5.0, half_angle_deg=30.0, edge_deg=5.0)])[0]
+    pts = np.random.default_rng(0).uniform([-2, -2, 0.5], [2, 2, 8], (500, 3)).astype(np.float32)
+    view = -pts / np.linalg.norm(pts, axis=1, keepdims=True)
+    E, _ = popt._light_terms(lamp, pts.copy(), view, np.array([0.1, 0.05, 0.2], np.float32))
+    ref = popt.lt.irradiance([lamp], pts, [0.1, 0.05, 0.2])
+    assert np.allclose(E, ref, rtol=1e-4, atol=1e-7)

@@ -87,15 +87,17 @@ def power_law_mean_area(r_min: float, r_max: float, slope: float) -> float:
 # ----------------------------------------------------------------------------- phase
 def lambert_sphere_phase(cos_theta: np.ndarray) -> np.ndarray:
     """Phase function (1/sr, integral 1) of a Lambertian sphere; theta = scattering angle
-    (0 forward). ``p = 2/(3 pi^2) (sin a + (pi - a) cos a)``, a = pi - theta the phase angle."""
-    a = np.arccos(np.clip(-np.asarray(cos_theta, np.float64), -1.0, 1.0))
-    return 2.0 / (3.0 * math.pi ** 2) * (np.sin(a) + (math.pi - a) * np.cos(a))
+    (0 forward). ``p = 2/(3 pi^2) (sin a + (pi - a) cos a)``, a = pi - theta the phase angle
+    (so cos a = -cos theta, pi - a = theta). Keeps the input's float dtype."""
+    mu = np.clip(np.asarray(cos_theta), -1.0, 1.0)
+    return (2.0 / (3.0 * math.pi ** 2)) * (np.sqrt(1.0 - mu * mu) - np.arccos(mu) * mu)
 
 
 def hg_phase(cos_theta: np.ndarray, g: float) -> np.ndarray:
-    """Henyey-Greenstein phase function (1/sr, integral 1)."""
-    mu = np.asarray(cos_theta, np.float64)
-    return (1.0 - g * g) / (4.0 * math.pi * (1.0 + g * g - 2.0 * g * mu) ** 1.5)
+    """Henyey-Greenstein phase function (1/sr, integral 1). Keeps the input's float dtype."""
+    mu = np.asarray(cos_theta)
+    base = (1.0 + g * g) - (2.0 * g) * mu
+    return ((1.0 - g * g) / (4.0 * math.pi)) / (base * np.sqrt(base))
 
 
 @dataclass(frozen=True)
@@ -107,9 +109,24 @@ class ParticleMaterial:
     forward_g: float = 0.9
 
     def phase(self, cos_theta: np.ndarray) -> np.ndarray:
+        """Mixed phase function (1/sr) at the cosines of the scattering angles."""
         f = self.forward_fraction
-        out = (1.0 - f) * lambert_sphere_phase(cos_theta)
-        return out + f * hg_phase(cos_theta, self.forward_g) if f > 0 else out
+        out = lambert_sphere_phase(cos_theta) * (1.0 - f)
+        return out + hg_phase(cos_theta, self.forward_g) * f if f > 0 else out
+
+
+def _light_terms(light, pts: np.ndarray, view: np.ndarray, c: np.ndarray):
+    """(irradiance (M, 3), cos of the scattering angle (M,)) of one point light at particles
+    pts (M, 3) float32: ``lights.irradiance``'s law (inverse square, cone profile,
+    exp(-c d), normals None) in float32, sharing the light->particle directions."""
+    ray = pts - np.asarray(light.position_m, np.float32)
+    d = np.sqrt(np.einsum("ij,ij->i", ray, ray))
+    np.maximum(d, np.float32(1e-3), out=d)
+    ray /= d[:, None]
+    prof = light.profile(ray @ np.asarray(light.axis, np.float32)).astype(np.float32)
+    E = (prof / (d * d))[:, None] * np.asarray(light.intensity_w_sr, np.float32)[None, :]
+    E *= np.exp(-d[:, None] * c[None, :])
+    return E, np.einsum("ij,ij->i", ray, view)
 
 
 def particle_radiance(points_cam: np.ndarray, material: ParticleMaterial, ambient_rgb,
@@ -119,23 +136,23 @@ def particle_radiance(points_cam: np.ndarray, material: ParticleMaterial, ambien
     points_cam (M, 3) particle centres; ambient_rgb (3,) mean radiance of the light field at
     the particles (already dimmed for their depth by the caller, or to be dimmed later);
     point_lights: lights.PointLight list (lamps, LEDs); c_per_m (3,) beam attenuation along
-    the lights' paths; light_gain (M,) factor on the point lights' part (the caller's
+    the lights' paths; light_gain (M,) or (M, 3) factor on the point lights' part (the caller's
     compensation for a depth factor the water model applies to every surface later)."""
-    pts = np.asarray(points_cam, np.float64).reshape(-1, 3)
-    out = np.broadcast_to(material.albedo * np.asarray(ambient_rgb, np.float64), (pts.shape[0], 3)).copy()
+    pts = np.asarray(points_cam, np.float32).reshape(-1, 3)
+    amb = np.float32(material.albedo) * np.asarray(ambient_rgb, np.float32)
+    out = np.broadcast_to(amb, (pts.shape[0], 3)).copy()
     if not point_lights or pts.shape[0] == 0:
-        return out.astype(np.float32)
-    view = -pts / np.maximum(np.linalg.norm(pts, axis=1, keepdims=True), 1e-9)   # particle -> camera
+        return out
+    view = -pts / np.maximum(np.sqrt(np.einsum("ij,ij->i", pts, pts)), np.float32(1e-9))[:, None]
+    c = np.asarray(c_per_m, np.float32).reshape(3)
     art = np.zeros_like(out)
     for light in point_lights:
-        E = lt.irradiance([light], pts, c_per_m)                                   # (M, 3) W/m^2
-        ray = pts - np.asarray(light.position_m, np.float64)
-        ray /= np.maximum(np.linalg.norm(ray, axis=1, keepdims=True), 1e-9)        # light -> particle
-        art += E * material.phase(np.einsum("ij,ij->i", ray, view))[:, None]
-    art *= material.albedo
+        E, mu = _light_terms(light, pts, view, c)
+        art += E * material.phase(mu)[:, None]
+    art *= np.float32(material.albedo)
     if light_gain is not None:
-        art *= np.asarray(light_gain, np.float64).reshape(pts.shape[0], -1)
-    return (out + art).astype(np.float32)
+        art *= np.asarray(light_gain, np.float32).reshape(pts.shape[0], -1)
+    return out + art
 
 
 def led_point_lights(markers: list[dict], T_cam_dock: np.ndarray, strength_scale: float = 1.0) -> list:

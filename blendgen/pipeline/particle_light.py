@@ -42,10 +42,10 @@ def _depth_gain(post, water, T_world_cam: np.ndarray, p: ProjectedParticles) -> 
     if post.image_formation != "physical":
         return np.broadcast_to(1.0 / optics.depth_light(water, post.light_depth_m), (p.u.size, 3))
     T = np.asarray(T_world_cam, float)
-    unit = p.pc / np.maximum(np.linalg.norm(p.pc, axis=1, keepdims=True), 1e-9)
-    dir_z = unit @ T[2, :3]
-    depth = np.maximum(post.surface_z_m - T[2, 3] - p.surf_range * dir_z, 0.0)
-    return np.exp(np.asarray(water.Kd, float)[None, :] * depth[:, None])
+    dist = np.sqrt(np.einsum("ij,ij->i", p.pc, p.pc))
+    dir_z = (p.pc @ T[2, :3].astype(np.float32)) / np.maximum(dist, np.float32(1e-9))
+    depth = np.maximum(np.float32(post.surface_z_m - T[2, 3]) - p.surf_range * dir_z, np.float32(0.0))
+    return np.exp(np.asarray(water.Kd, np.float32)[None, :] * depth[:, None])
 
 
 def shader(post, water, T_world_cam, markers=None, T_cam_dock=None):
