@@ -52,11 +52,6 @@ DEFAULT_R_MAX_M = 0.02
 DEFAULT_AMBIENT_RGB = (0.60, 0.70, 0.62)  # light grey-green veiling/ambient light (linear)
 SILHOUETTE_ALBEDO = 0.05
 _SPLAT_BELOW_PX = 0.5                 # semi-axis below which a particle is a bilinear speck
-#: ``lit`` particles whose whole footprint is below this area (px^2; pi a b, which blur spreads
-#: but keeps) are skipped: at 30 % contrast on mid-grey such a speck moves its pixel by < 0.2 of
-#: an 8-bit level (sRGB slope ~290 DN per unit linear radiance at 0.2), and the skipped specks
-#: together cover < 1e-3 of the image in the 60000-particle pool (bench particles).
-NEGLIGIBLE_AREA_PX2 = 2e-3
 _NORMALISE_BELOW_PX = 4.0             # small ellipses: rescale coverage to the exact area
 _GROUP_MAX_PX = 16                    # boxes up to this size are drawn in broadcast blocks
 _ALPHA_MAX = 1.0 - 1e-6               # keeps log(1 - alpha) finite
@@ -496,8 +491,7 @@ def _particle_colour(mode: str, colour, ambient) -> np.ndarray:
 def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: ParticleField,
                      K: np.ndarray, T_world_cam: np.ndarray, water=None, mode: str = "backscatter",
                      z_near: float = 0.05, colour=None, ambient=DEFAULT_AMBIENT_RGB,
-                     shade: Callable | None = None, shape: Callable | None = None, margin_px: float = 0.0,
-                     min_area_px2: float = NEGLIGIBLE_AREA_PX2):
+                     shade: Callable | None = None, shape: Callable | None = None, margin_px: float = 0.0):
     """Draw the particle field into a linear RGB image with a depth test.
 
     image_linear (H,W,3) float, range_m (H,W) float (range along each pixel ray to
@@ -511,8 +505,7 @@ def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: Parti
     "backscatter" = ``ambient`` (a bright speck lit by the veiling light) or "silhouette" =
     0.05 * ambient (dark). ``shape(projected) -> projected`` changes the footprints before
     drawing (defocus, motion streaks: particle_optics.blurred_shapes); ``margin_px`` keeps
-    particles up to that far outside the image for it. With ``shade``, particles whose
-    footprint is under ``min_area_px2`` are skipped (NEGLIGIBLE_AREA_PX2; 0 keeps all).
+    particles up to that far outside the image for it.
 
     Compositing: coverage T = prod(1 - alpha_i) is exact and order-independent; with one
     colour ``out = img T + colour (1 - T)`` equals painter's "over". With per-particle
@@ -539,35 +532,45 @@ def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: Parti
     col = _particle_colour(mode, colour, ambient)
     water_fn = _water_callable(water)
     p = project_particles(field, K, T_world_cam, w, h, z_near, margin_px)
-    if shade is not None and min_area_px2 > 0:
-        p = p.subset(np.flatnonzero(p.a * p.b >= np.float32(min_area_px2 / np.pi)))
     if shape is not None and p.u.size:
         p = shape(p)
     surf = np.asarray(range_m, np.float32).reshape(-1)
     if np.isnan(surf).any():                            # NaN = no surface hit = background
         surf = np.where(np.isnan(surf), np.float32(np.inf), surf)
     pix, alpha, d, owner = _in_front(_all_samples(p, w, h), p, surf)
-    n_pix = h * w
-    log_t = np.bincount(pix, np.log1p(-np.minimum(alpha, np.float32(_ALPHA_MAX))), n_pix)
-    prange = np.full(n_pix, np.inf, np.float32)
-    np.minimum.at(prange, pix, d)                      # nearest covering particle per pixel
-    hit = np.flatnonzero(log_t < 0)
-    cov = (1.0 - np.exp(log_t[hit])).astype(np.float32)
+    hit, cpix = _compress(pix, h * w)                   # covered pixels, sample -> their slot
+    n_hit = hit.size
+    log_t = np.bincount(cpix, np.log1p(-np.minimum(alpha, np.float32(_ALPHA_MAX))), n_hit)
+    prange_hit = np.full(n_hit, np.inf, np.float32)
+    np.minimum.at(prange_hit, cpix, d)                  # nearest covering particle per pixel
+    cov = (1.0 - np.exp(log_t)).astype(np.float32)
     if shade is not None:
-        c = _mean_colours(np.asarray(shade(p), np.float32), pix, alpha, d, owner, hit, n_pix)
+        c = _mean_colours(np.asarray(shade(p), np.float32), cpix, alpha, d, owner, n_hit)
     else:
-        c = np.broadcast_to(col, (hit.size, 3))
+        c = np.broadcast_to(col, (n_hit, 3))
     if water_fn is not None:
-        c = np.asarray(water_fn(np.ascontiguousarray(c), prange[hit]), np.float32)
+        c = np.asarray(water_fn(np.ascontiguousarray(c), prange_hit), np.float32)
     out = img.copy()
     flat = out.reshape(-1, 3)
     keep = 1.0 - cov
     for ch in range(3):                                   # out = img T + colour (1 - T)
         v = flat[:, ch]
         v[hit] = v[hit] * keep + c[:, ch] * cov
-    mask = np.zeros(n_pix, bool)
+    mask = np.zeros(h * w, bool)
     mask[hit] = cov >= 0.5
+    prange = np.full(h * w, np.inf, np.float32)
+    prange[hit] = prange_hit
     return out, mask.reshape(h, w), prange.reshape(h, w)
+
+
+def _compress(pix: np.ndarray, n_pix: int) -> tuple[np.ndarray, np.ndarray]:
+    """Sorted distinct pixels ``hit`` among the samples and each sample's slot in it."""
+    seen = np.zeros(n_pix, bool)
+    seen[pix] = True
+    hit = np.flatnonzero(seen)
+    slot = np.empty(n_pix, np.int32)
+    slot[hit] = np.arange(hit.size, dtype=np.int32)
+    return hit, slot.take(pix)
 
 
 def _all_samples(p: ProjectedParticles, w: int, h: int) -> list:
@@ -576,12 +579,13 @@ def _all_samples(p: ProjectedParticles, w: int, h: int) -> list:
     return [_speck_samples(p, np.flatnonzero(speck), w, h)] + _ellipse_samples(p, np.flatnonzero(~speck), w, h)
 
 
-def _mean_colours(colours: np.ndarray, pix, alpha, d, owner, hit, n_pix: int) -> np.ndarray:
-    """(len(hit), 3) weighted mean particle colour per covered pixel (weights alpha / d^2)."""
+def _mean_colours(colours: np.ndarray, cpix, alpha, d, owner, n_hit: int) -> np.ndarray:
+    """(n_hit, 3) weighted mean particle colour per covered pixel slot (weights alpha / d^2)."""
     wgt = alpha / np.maximum(d, np.float32(1e-3)) ** 2
-    den = np.bincount(pix, wgt, n_pix)[hit]
+    den = np.bincount(cpix, wgt, n_hit)
     den = np.where(den > 0, den, 1.0)
-    return np.stack([np.bincount(pix, wgt * colours[owner, ch], n_pix)[hit] / den for ch in range(3)],
+    cs = colours.take(owner, axis=0)
+    return np.stack([np.bincount(cpix, wgt * cs[:, ch], n_hit) / den for ch in range(3)],
                     axis=1).astype(np.float32)
 
 
