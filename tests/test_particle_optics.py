@@ -24,10 +24,14 @@ T_WC = make_T(R_WC, [0.0, 0.0, -1.0])
 BOX = (np.array([-20.0, -20.0, -20.0]), np.array([20.0, 20.0, 20.0]))
 
 
-def post(lamps=(), water="mild", lens=None, mode="physical", exposure=0.01, **occ):
+AMBIENT = 2.6 / (4 * math.pi * 0.75)       # E_d0 / (4 pi mu_d), plan.ambient_radiance
+
+
+def post(lamps=(), water="mild", lens=None, mode="physical", exposure=0.01, suns=(), **occ):
     o = OcclusionPost(n_total=0, region_min=BOX[0].tolist(), region_max=BOX[1].tolist(), v_flow=[0, 0, 0], **occ)
     p = SequencePost(seed=1, fps=10.0, image_formation=mode, water=Water(preset=water), light_depth_m=1.0,
-                     surface_z_m=0.0, irradiance_w_m2=2.6, occlusion=o, lamps=list(lamps), lens=lens)
+                     surface_z_m=0.0, irradiance_w_m2=2.6, occlusion=o, lamps=list(lamps), lens=lens,
+                     ambient_w_m2_sr=AMBIENT, suns=suns)
     return p.model_copy(update={"sensor": p.sensor.model_copy(update={"exposure_s": exposure})})
 
 
@@ -203,3 +207,13 @@ def test_fast_light_terms_agree_with_shared_irradiance():
     E, _ = popt._light_terms(lamp, pts.copy(), view, np.array([0.1, 0.05, 0.2], np.float32))
     ref = popt.lt.irradiance([lamp], pts, [0.1, 0.05, 0.2])
     assert np.allclose(E, ref, rtol=1e-4, atol=1e-7)
+
+
+def test_sun_lit_particle_radiance_is_lambert_sphere_reflection():
+    sun_down = ([0.0, 0.0, -1.0], 3.0)                 # straight down; camera looks horizontally
+    st = state_with(one([2.0, 0.0, -1.0], 0.08), suns=[sun_down])
+    st.post.ambient_w_m2_sr = 0.0
+    p = project_particles(st.field, K, T_WC, W, H)
+    J = particle_light.shader(st.post, st.water, T_WC)(p)
+    # theta = 90 deg: p_lambert = 2/(3 pi^2); half the scattering is in the forward lobe
+    assert np.allclose(J, 0.3 * 0.5 * 3.0 * 2 / (3 * math.pi ** 2), rtol=1e-4)

@@ -155,6 +155,20 @@ def particle_radiance(points_cam: np.ndarray, material: ParticleMaterial, ambien
     return out + art
 
 
+def sun_radiance(points_cam: np.ndarray, material: ParticleMaterial, suns_cam) -> np.ndarray:
+    """(M, 3) float32 radiance of Lambertian-sphere reflection of collimated lights, e.g. the
+    sun: ``omega E (1 - f) p_lambert(theta)`` per light (``suns_cam``: (travel direction (3,)
+    camera frame, irradiance normal to the beam W/m^2)). Only the reflecting part: the
+    forward lobe would need the light behind the particle, i.e. looking toward the sun."""
+    pts = np.asarray(points_cam, np.float32).reshape(-1, 3)
+    out = np.zeros((pts.shape[0], 1), np.float32)
+    view = -pts / np.maximum(np.sqrt(np.einsum("ij,ij->i", pts, pts)), np.float32(1e-9))[:, None]
+    for direction, strength in suns_cam:
+        mu = view @ np.asarray(direction, np.float32)
+        out[:, 0] += np.float32(strength) * lambert_sphere_phase(mu)
+    return np.float32(material.albedo * (1.0 - material.forward_fraction)) * out
+
+
 def led_point_lights(markers: list[dict], T_cam_dock: np.ndarray, strength_scale: float = 1.0) -> list:
     """The LED arrays' LEDs as point lights in the camera frame.
 

@@ -1,11 +1,13 @@
 """Per-sequence glue between the particle renderer and the frame's light and camera.
 
 ``shader`` gives each particle its clean radiance J (before the water model, like the
-clean render of any surface): the ambient light field's mean radiance just below the
-surface, ``E_d0 / (4 pi mu_d)`` (plan.ambient_radiance's law), which the water model then
-dims by the particle's own depth (physical) or the dock depth (article), plus the lamps'
-and LEDs' light (particle_optics.particle_radiance), pre-divided by that same depth factor
-so that it reaches the camera with inverse square and ``exp(-c d)`` along its own path only.
+clean render of any surface): what the render's lights give a surface -- the sun and fill
+(Lambertian-sphere reflection of collimated light, radiometric: a white plane facing a sun of
+strength S has radiance S / pi) and the ambient light field's mean radiance just below the
+surface (``E_d0 / (4 pi mu_d)``, plan.ambient_radiance, 0 where the ambient is off) -- which
+the water model then dims by the particle's own depth (physical) or the dock depth
+(article), plus the lamps' and LEDs' light (particle_optics.particle_radiance), pre-divided
+by that same depth factor so that it reaches the camera with inverse square and ``exp(-c d)`` along its own path only.
 Then compose's water model attenuates and veils the particle over its own range.
 
 ``shaper`` blurs each footprint: thin-lens defocus (camera ``lens``, none = pinhole) and
@@ -13,8 +15,6 @@ the streak of the particle's motion relative to the camera over the exposure (it
 ``v_flow`` and the camera's motion between the previous and this frame).
 """
 from __future__ import annotations
-
-import math
 
 import numpy as np
 
@@ -28,11 +28,6 @@ MARGIN_PX = 8.0     # particles centred this far outside the image may still blu
 
 def material(occ) -> popt.ParticleMaterial:
     return popt.ParticleMaterial(occ.albedo, occ.forward_fraction, occ.forward_g)
-
-
-def ambient_radiance(post) -> float:
-    """Mean radiance (W/m^2/sr) of the light field just below the surface."""
-    return post.irradiance_w_m2 / (4.0 * math.pi * optics.MEAN_COSINE_DOWN)
 
 
 def _depth_gain(post, water, T_world_cam: np.ndarray, p: ProjectedParticles) -> np.ndarray:
@@ -54,11 +49,14 @@ def shader(post, water, T_world_cam, markers=None, T_cam_dock=None):
     if markers and T_cam_dock is not None:
         lights += popt.led_point_lights(markers, T_cam_dock)
     mat = material(post.occlusion)
-    amb = ambient_radiance(post)
+    amb = post.ambient_w_m2_sr
+    R = np.asarray(T_world_cam, float)[:3, :3]
+    suns = [(R.T @ np.asarray(d, float), e) for d, e in post.suns]
 
     def shade(p: ProjectedParticles) -> np.ndarray:
         gain = _depth_gain(post, water, T_world_cam, p) if lights else None
-        return popt.particle_radiance(p.pc, mat, [amb] * 3, lights, water.c, gain)
+        out = popt.particle_radiance(p.pc, mat, [amb] * 3, lights, water.c, gain)
+        return out + popt.sun_radiance(p.pc, mat, suns) if suns else out
     return shade
 
 

@@ -61,6 +61,10 @@ class SequencePost(Strict):
     occlusion: Optional[OcclusionPost] = None
     lamps: list[Lamp] = Field(default_factory=list, description="the vehicle's lamps (camera frame)")
     lens: Optional[Lens] = Field(None, description="thin lens (particle defocus); null: pinhole")
+    suns: list[tuple[Vec3, float]] = Field(default_factory=list, description="the render's directional "
+                                           "lights (world travel direction, W/m^2), lighting fast particles")
+    ambient_w_m2_sr: float = Field(0.0, ge=0.0, description="the render's ambient light field (fast "
+                                   "fidelity: plan.ambient_radiance), lighting fast particles")
 
 
 class JobCamera(Strict):
@@ -150,6 +154,14 @@ def _sun_dir(elev_deg: float, azim_deg: float) -> list[float]:
     """Travel direction (unit, world) of light coming from elevation/azimuth (deg)."""
     e, a = math.radians(elev_deg), math.radians(azim_deg)
     return [-math.cos(e) * math.cos(a), -math.cos(e) * math.sin(a), -math.sin(e)]
+
+
+def sun_lights(exp: Experiment) -> list[tuple[list[float], float]]:
+    """The render's sun and fill as (world travel direction, strength W/m^2), strength > 0."""
+    s = exp.scene
+    out = [(_sun_dir(s.sun_elevation_deg, s.sun_azimuth_deg), s.sun_strength),
+           (_sun_dir(0.0, s.sun_azimuth_deg), s.fill_strength)]
+    return [(d, float(e)) for d, e in out if e > 0]
 
 
 def scene_description(exp: Experiment, markers: list[dict], textures: dict[str, str]) -> dict:
@@ -350,7 +362,7 @@ def condition_post(exp: Experiment, cond, seed: int) -> SequencePost:
                         irradiance_w_m2=downwelling_irradiance(exp), noise_std=exp.camera.noise_std,
                         sensor=exp.camera.sensor,
                         distortion=exp.camera.distortion, occlusion=occ_post, lamps=exp.vehicle.lamps,
-                        lens=exp.camera.lens)
+                        lens=exp.camera.lens, suns=sun_lights(exp), ambient_w_m2_sr=ambient_radiance(exp))
 
 
 @functools.lru_cache(maxsize=256)

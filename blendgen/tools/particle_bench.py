@@ -28,7 +28,8 @@ def _state(n: int, size_dist: str, lamp: bool, seed: int = 0):
     post = SequencePost(seed=seed, fps=10.0, image_formation="physical", water=Water(preset="mild"),
                         light_depth_m=1.0, surface_z_m=3.0, irradiance_w_m2=2.6, occlusion=occ,
                         lamps=[Lamp(power_w=20.0)] if lamp else [],
-                        lens=Lens(focal_length_mm=4.0, f_number=2.8, focus_m=5.0))
+                        lens=Lens(focal_length_mm=4.0, f_number=2.8, focus_m=5.0),
+                        suns=[([0.0, -0.5, -0.866], 3.0)], ambient_w_m2_sr=2.6 / (4 * math.pi * 0.75))
     return compose.SequenceState.start(post)
 
 
