@@ -235,6 +235,12 @@ class Lens(Strict):
     f_number: float = Field(2.8, ge=0.5, le=64.0, description="f-number N (aperture diameter f/N)")
     focus_m: float = Field(5.0, gt=0.05, le=1000.0, description="focus distance (m), > focal length")
 
+    @model_validator(mode="after")
+    def _focus_beyond_focal_length(self):
+        if self.focus_m <= self.focal_length_mm * 1e-3:
+            raise ValueError(f"focus_m ({self.focus_m}) must exceed the focal length ({self.focal_length_mm} mm)")
+        return self
+
 
 class Camera(Strict):
     width: int = Field(640, ge=16, le=8192)
