@@ -74,7 +74,7 @@ def _geometry_particles(job: dict, states: list):
         states[0].post.model_copy(update={"seed": p["seed"], "fps": p["fps"], "occlusion": plan.OcclusionPost(
             **{k: v for k, v in p.items() if k not in ("seed", "fps", "object_index")})}))
     return _Geo(particles.add_particles(st.field.positions, st.field.radii, p["object_index"],
-                                                color=[p.get("albedo", 0.3)] * 3)), st
+                                        color=[p.get("albedo", 0.3)] * 3)), st
 
 
 def _shared_distortion(job):
