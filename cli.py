@@ -305,6 +305,33 @@ def bench_pnp(trials: int, seed: int, out: Path):
     click.echo(f"\n{len(df)} cells in {time.perf_counter() - t0:.1f} s -> {out / 'pnp.csv'}, {out / 'pnp.png'}")
 
 
+@bench.command("particles")
+@click.option("-n", "--count", "counts", type=click.IntRange(0, 20_000_000), multiple=True,
+              help="particles in the 600 m^3 pool (repeatable; default 600, 6000, 60000)")
+@click.option("--size", type=(click.IntRange(16, 8192), click.IntRange(16, 8192)), default=(640, 480),
+              show_default=True)
+@click.option("--frames", type=click.IntRange(1, 1000), default=10, show_default=True)
+@click.option("--fidelity", "fidelity_out", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="instead: fast particles vs real spheres in the render (Blender), datasets under this dir")
+def bench_particles(counts: tuple[int, ...], size: tuple[int, int], frames: int, fidelity_out: Path | None):
+    """Fast-path cost of small obstacles per frame (add_particles: cull, light, blur, draw), wall ms;
+    or, with --fidelity, fast vs reference particles (coverage, IoU, contrast, visible fractions)."""
+    import os
+    if fidelity_out is not None:
+        import pandas as pd
+        from blendgen.tools.particle_fidelity import compare
+        from evalkit.reports.tables import print_table
+        df = pd.DataFrame(compare(fidelity_out, *size))
+        print_table(df, floatfmt=".3g")
+        click.echo("mean: " + ", ".join(f"{k} {v:.3g}" for k, v in df.drop(columns="frame").mean().items()))
+        return
+    from blendgen.tools.particle_bench import format_row, run
+    click.echo(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (wall times are upper bounds)")
+    for n in counts or (600, 6000, 60000):
+        for dist in ("power_law", "uniform"):
+            click.echo(format_row(run(n, size[0], size[1], frames, dist)))
+
+
 @bench.command("glow")
 @click.option("--samples", type=click.IntRange(1, 65536), default=64, show_default=True)
 @click.option("--size", type=click.IntRange(16, 1024), default=96, show_default=True)

@@ -241,6 +241,10 @@ BAD_CONFIGS = [
     ("occlusion", {"r_min_m": 0.05, "r_max_m": 0.01}, "r_min_m"),
     ("occlusion", {"region_min": [0, 0, 0]}, "region_max"),
     ("occlusion", {"n_total": NAN}, "n_total"),
+    ("occlusion", {"size_slope": 7}, "size_slope"),
+    ("occlusion", {"albedo": 1.5}, "albedo"),
+    ("occlusion", {"size_dist": "lognormal"}, "size_dist"),
+    ("camera.lens", {"focal_length_mm": 200, "focus_m": 0.1}, "focus_m"),
     ("fluid", {"current_mps": [3, 0, 0]}, "current"),
     ("fluid", {"density_kg_m3": NAN}, "density_kg_m3"),
     # NaN/inf anywhere and degenerate regions (were accepted before Strict got allow_inf_nan=False)

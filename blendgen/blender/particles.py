@@ -1,9 +1,10 @@
 """Small obstacles as real 3D geometry (validation of the image-space particle model).
 
 One object holds a point cloud (world positions, a per-point ``radius`` attribute);
-a geometry-nodes modifier instances an icosphere of radius 1 on every point, scaled
-by ``radius``. Moving the particles between frames rewrites the point positions only.
-Particles are grey diffuse spheres lit by the scene's sun (what a camera would see),
+a geometry-nodes modifier instances a smooth-shaded icosphere of radius 1 (subdivision 4:
+2562 vertices, shared by every instance) on every point, scaled by ``radius``. Moving the particles between frames rewrites the point positions only.
+Particles are grey diffuse spheres of the config's albedo lit by the scene's lights (the
+fast path's Lambertian-sphere part; its forward lobe has no counterpart here),
 and every instance carries the object's pass index, so the object-index pass shows
 exactly which pixels real geometry hides.
 """
@@ -14,6 +15,8 @@ import numpy as np
 
 from blendgen.blender import materials
 
+SUBDIVISIONS = 4        # facets ~4 deg: smooth silhouettes and shading, not gravel
+
 
 def _node_group(material: bpy.types.Material) -> bpy.types.NodeTree:
     ng = bpy.data.node_groups.new("dockbench_particles", "GeometryNodeTree")
@@ -23,7 +26,8 @@ def _node_group(material: bpy.types.Material) -> bpy.types.NodeTree:
     gin, gout = n.new("NodeGroupInput"), n.new("NodeGroupOutput")
     sphere = n.new("GeometryNodeMeshIcoSphere")
     sphere.inputs["Radius"].default_value = 1.0
-    sphere.inputs["Subdivisions"].default_value = 2
+    sphere.inputs["Subdivisions"].default_value = SUBDIVISIONS
+    smooth = n.new("GeometryNodeSetShadeSmooth")
     radius = n.new("GeometryNodeInputNamedAttribute")
     radius.data_type = "FLOAT"
     radius.inputs["Name"].default_value = "radius"
@@ -32,7 +36,8 @@ def _node_group(material: bpy.types.Material) -> bpy.types.NodeTree:
     mat.inputs["Material"].default_value = material
     ln = ng.links
     ln.new(gin.outputs[0], inst.inputs["Points"])
-    ln.new(sphere.outputs["Mesh"], inst.inputs["Instance"])
+    ln.new(sphere.outputs["Mesh"], smooth.inputs["Geometry"])
+    ln.new(smooth.outputs["Geometry"], inst.inputs["Instance"])
     ln.new(radius.outputs["Attribute"], inst.inputs["Scale"])
     ln.new(inst.outputs["Instances"], mat.inputs["Geometry"])
     ln.new(mat.outputs["Geometry"], gout.inputs[0])

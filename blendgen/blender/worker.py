@@ -73,7 +73,8 @@ def _geometry_particles(job: dict, states: list):
     st = next((s for s in states if s.field is not None), None) or pp.SequenceState.start(
         states[0].post.model_copy(update={"seed": p["seed"], "fps": p["fps"], "occlusion": plan.OcclusionPost(
             **{k: v for k, v in p.items() if k not in ("seed", "fps", "object_index")})}))
-    return _Geo(particles.add_particles(st.field.positions, st.field.radii, p["object_index"])), st
+    return _Geo(particles.add_particles(st.field.positions, st.field.radii, p["object_index"],
+                                        color=[p.get("albedo", 0.3)] * 3)), st
 
 
 def _shared_distortion(job):
@@ -132,7 +133,8 @@ def run(job) -> dict:
                 rec = pp.frame_record(fr, T_wd, markers, K, W, H, passes["index"])
             for (o, d, fh), st in zip(outs, states):
                 with clock("compose"):
-                    seen, occluded = pp.add_particles(passes, st, K, fr["T_world_cam"])
+                    seen, occluded = pp.add_particles(passes, st, K, fr["T_world_cam"], markers, rec["T_cam_dock"],
+                                                      fr["t"])
                     img = pp.camera_image(seen, st, K, fr, markers, job.fidelity, occluded, T_world_dock=T_wd)
                     r = rec if occluded is None else pp.with_visibility(rec, markers, K, passes["index"], occluded)
                     if st.auto_exposure is not None:

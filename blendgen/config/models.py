@@ -297,6 +297,20 @@ class Sensor(Strict):
                           "exposure when on); each frame's exposure is recorded in its frame record")
 
 
+class Lens(Strict):
+    """Thin lens (issue 15: defocus of small obstacles). The pixel pitch follows from
+    ``focal_length_mm`` and the focal length in pixels (hfov, width)."""
+    focal_length_mm: float = Field(4.0, gt=0.1, le=500.0, description="focal length (mm)")
+    f_number: float = Field(2.8, ge=0.5, le=64.0, description="f-number N (aperture diameter f/N)")
+    focus_m: float = Field(5.0, gt=0.05, le=1000.0, description="focus distance (m), > focal length")
+
+    @model_validator(mode="after")
+    def _focus_beyond_focal_length(self):
+        if self.focus_m <= self.focal_length_mm * 1e-3:
+            raise ValueError(f"focus_m ({self.focus_m}) must exceed the focal length ({self.focal_length_mm} mm)")
+        return self
+
+
 class Camera(Strict):
     width: int = Field(640, ge=16, le=8192)
     height: int = Field(480, ge=16, le=8192)
@@ -307,6 +321,7 @@ class Camera(Strict):
     distortion: Optional[Annotated[list[float], Field(min_length=5, max_length=5)]] = None
     noise_std: float = Field(0.0, ge=0.0, le=256.0, description="Gaussian noise std in 8-bit units")
     sensor: Sensor = Sensor()
+    lens: Optional[Lens] = Field(None, description="thin lens for particle defocus; null: pinhole (sharp)")
 
 
 class Lamp(Strict):
@@ -492,16 +507,30 @@ class Fluid(Strict):
 
 
 class Occlusion(Strict):
-    """The article's small obstacles (section 2.2.3): N_total particles in a region of
-    volume V_env (default: the pool, 600 m^3 for 15x5x8), radii in [r_min, r_max],
-    drifting with the current plus Gaussian noise."""
+    """Small obstacles / marine snow (the article's section 2.2.3, made physical: issue 15):
+    N_total particles in a region of volume V_env (default: the pool, 600 m^3 for 15x5x8),
+    radii from ``size_dist`` in [r_min, r_max], drifting with the current plus Gaussian
+    noise, lit by the light field (physics/particle_optics.py)."""
     n_total: float = Field(600, ge=0.0, le=2e7)
     count_dist: Literal["poisson", "uniform", "fixed"] = "poisson"
     n_max: Optional[int] = Field(None, ge=0, le=20_000_000)
-    r_min_m: float = Field(0.005, gt=0.0, le=1.0)
-    r_max_m: float = Field(0.02, gt=0.0, le=1.0)
+    size_dist: Literal["power_law", "uniform"] = Field(
+        "power_law", description="power_law: marine-snow number spectrum dN/dr ~ r^-size_slope (Stemmann & "
+                                 "Boss 2012); uniform: the article's radius uniform in [r_min_m, r_max_m]")
+    size_slope: float = Field(3.5, ge=0.0, le=6.0, description="power-law slope xi of dN/dr ~ r^-xi")
+    r_min_m: Optional[float] = Field(None, gt=0.0, le=1.0, description="smallest radius (m); default "
+                                     "0.00025 for power_law, 0.005 for uniform (the article)")
+    r_max_m: Optional[float] = Field(None, gt=0.0, le=1.0, description="largest radius (m); default "
+                                     "0.015 for power_law, 0.02 for uniform")
+    albedo: float = Field(0.3, ge=0.0, le=1.0, description="share of the geometric cross-section scattered")
+    forward_fraction: float = Field(0.5, ge=0.0, le=1.0,
+                                    description="share of the scattered light in the forward HG lobe "
+                                                "(the rest: Lambertian-sphere reflection)")
+    forward_g: float = Field(0.9, ge=0.0, lt=1.0, description="HG asymmetry of the forward lobe")
     drift_sigma_m: float = Field(0.002, ge=0.0, le=1.0, description="per-frame Gaussian step std")
-    mode: Literal["backscatter", "silhouette"] = "backscatter"
+    mode: Literal["backscatter", "silhouette", "lit"] = Field(
+        "lit", description="lit: radiance from the light field (ambient at depth, lamps, LEDs); "
+                           "backscatter / silhouette: the former constant bright / dark colour")
     geometry: Literal["image", "blender"] = Field(
         "image", description="image: depth-tested blobs drawn on the clean render (fast, shared renders); "
                              "blender: the same particles as instanced spheres in the scene (validation)")
@@ -510,6 +539,10 @@ class Occlusion(Strict):
 
     @model_validator(mode="after")
     def _ranges(self):
+        if self.r_min_m is None:
+            self.r_min_m = 0.00025 if self.size_dist == "power_law" else 0.005
+        if self.r_max_m is None:
+            self.r_max_m = 0.015 if self.size_dist == "power_law" else 0.02
         if self.r_min_m > self.r_max_m:
             raise ValueError(f"r_min_m ({self.r_min_m}) must be <= r_max_m ({self.r_max_m})")
         if self.n_max is not None and self.count_dist != "uniform" and self.n_total > self.n_max:

@@ -42,6 +42,8 @@ from typing import Callable
 
 import numpy as np
 
+from blendgen.physics import particle_optics as popt
+
 COUNT_DISTS = ("poisson", "uniform", "fixed")
 MODES = ("backscatter", "silhouette")
 MAX_PARTICLES = 20_000_000            # 240 MB of float32 positions
@@ -140,7 +142,8 @@ class ParticleField:
     def sample(cls, rng, region_min, region_max, n_total: float | None = None,
                density: float | None = None, r_min: float = DEFAULT_R_MIN_M,
                r_max: float = DEFAULT_R_MAX_M, count_dist: str = "poisson",
-               n_max: int | None = None) -> "ParticleField":
+               n_max: int | None = None, size_dist: str = "uniform",
+               size_slope: float = 3.5) -> "ParticleField":
         """Draw a field. Give exactly one of ``n_total`` (expected/total count in the
         region) or ``density`` (rho, 1/m^3; then the mean count is rho * V_env).
 
@@ -148,6 +151,8 @@ class ParticleField:
         "uniform" -> N uniform on {0..n_max} (n_max defaults to n_total);
         "fixed" -> N = n_total exactly (must be an integer <= n_max).
         ``rng`` is a numpy Generator or a seed; the same seed gives the same field.
+        size_dist: "uniform" radii in [r_min, r_max] (the article) or "power_law"
+        dN/dr ~ r^-size_slope on [r_min, r_max] (marine snow, particle_optics.sample_radii).
         """
         rng = _as_rng(rng)
         lo, hi = _check_region(region_min, region_max)
@@ -166,10 +171,7 @@ class ParticleField:
         pos *= (hi - lo).astype(np.float32)
         pos += lo.astype(np.float32)
         _clamp32(pos, lo, hi)                                # float32 rounding stays inside
-        radii = rng.random(n, dtype=np.float32)
-        radii *= np.float32(r_max - r_min)
-        radii += np.float32(r_min)
-        return cls(pos, radii, lo, hi)
+        return cls(pos, popt.sample_radii(rng, n, size_dist, r_min, r_max, size_slope), lo, hi)
 
     def step(self, dt: float, v_flow, sigma, rng) -> "ParticleField":
         """Drift one time step: ``p + v_flow*dt + eta``, eta ~ N(0, Sigma), wrapped
@@ -284,32 +286,50 @@ class ProjectedParticles:
     c: np.ndarray        # (M,) cos of the radial direction in the image
     s: np.ndarray        # (M,) sin of the radial direction
     surf_range: np.ndarray  # (M,) range to the particle surface, ||p|| - r (m)
+    pc: np.ndarray | None = None       # (M, 3) centres in the camera frame (m)
+    index: np.ndarray | None = None    # (M,) indices into the field
+    opacity: np.ndarray | None = None  # (M,) peak opacity after blur (None: 1)
+
+    def subset(self, keep: np.ndarray) -> "ProjectedParticles":
+        """The particles selected by ``keep`` (bool mask or indices)."""
+        return ProjectedParticles(*(None if x is None else x[keep] for x in (
+            self.u, self.v, self.a, self.b, self.c, self.s, self.surf_range, self.pc, self.index,
+            self.opacity)))
 
 
 def project_particles(field: ParticleField, K: np.ndarray, T_world_cam: np.ndarray, width: int,
-                      height: int, z_near: float = 0.05) -> ProjectedParticles:
-    """Project the particles that can touch the image (vectorised culling).
+                      height: int, z_near: float = 0.05, margin_px: float = 0.0) -> ProjectedParticles:
+    """Project the particles that can touch the image (vectorised culling, float32).
 
     Keeps particles with Z > z_near, the camera outside the sphere, and the ellipse
-    overlapping the image (1.5 px margin)."""
-    idx, pc = _to_camera(field, T_world_cam, z_near, np.inf)
+    overlapping the image (1.5 px + ``margin_px`` margin: room for blur added later)."""
+    T = np.asarray(T_world_cam, float)
+    if T.shape != (4, 4):
+        raise ValueError(f"T_world_cam must be 4x4, got {T.shape}")
+    pc = field.positions - T[:3, 3].astype(np.float32)
+    pc = pc @ T[:3, :3].astype(np.float32)                # (N, 3) camera frame, one small GEMM
+    idx = np.flatnonzero(pc[:, 2] > np.float32(z_near))
+    pc = pc[idx]
+    x, y, z = pc[:, 0], pc[:, 1], pc[:, 2]
+    iz = np.float32(1.0) / z
+    xn, yn = x * iz, y * iz
+    u = np.float32(K[0, 0]) * xn + np.float32(K[0, 1]) * yn + np.float32(K[0, 2])
+    v = np.float32(K[1, 1]) * yn + np.float32(K[1, 2])
     r = field.radii[idx]
-    dist = np.sqrt(np.einsum("ij,ij->i", pc, pc))
-    ok = dist > r
-    pc, r, dist = pc[ok], r[ok], dist[ok]
-    u, v = _project(K, pc)
-    z = pc[:, 2]
-    b = (0.5 * (K[0, 0] + K[1, 1]) * r / z).astype(np.float32)
-    a = (b * dist / z).astype(np.float32)
-    m = 1.5 + a
-    keep = (u > -0.5 - m) & (u < width - 0.5 + m) & (v > -0.5 - m) & (v < height - 0.5 + m)
-    du, dv = u[keep] - np.float32(K[0, 2]), v[keep] - np.float32(K[1, 2])
+    b = np.float32(0.5 * (K[0, 0] + K[1, 1])) * r * iz
+    sec = np.sqrt(xn * xn + yn * yn + np.float32(1.0))   # dist / z
+    a = b * sec
+    m = a + np.float32(2.0 + margin_px)
+    keep = (u > -m) & (u < m + np.float32(width - 1)) & (v > -m) & (v < m + np.float32(height - 1))
+    keep &= z * sec > r
+    k = np.flatnonzero(keep)
+    u, v, a, b, pc, idx = u[k], v[k], a[k], b[k], pc[k], idx[k]
+    du, dv = u - np.float32(K[0, 2]), v - np.float32(K[1, 2])
     norm = np.hypot(du, dv)
-    safe = np.where(norm > 1e-6, norm, 1.0)
-    return ProjectedParticles(u[keep], v[keep], a[keep], b[keep],
-                      np.where(norm > 1e-6, du / safe, 1.0).astype(np.float32),
-                      np.where(norm > 1e-6, dv / safe, 0.0).astype(np.float32),
-                      (dist - r)[keep].astype(np.float32))
+    ok = norm > 1e-6
+    inv = np.where(ok, np.float32(1.0) / np.where(ok, norm, np.float32(1.0)), np.float32(0.0))
+    c = np.where(ok, du * inv, np.float32(1.0))
+    return ProjectedParticles(u, v, a, b, c, dv * inv, pc[:, 2] * sec[k] - r[k], pc, idx)
 
 
 def _speck_samples(p: ProjectedParticles, sel: np.ndarray, width: int, height: int):
@@ -424,14 +444,20 @@ def _ellipse_samples(p: ProjectedParticles, sel: np.ndarray, width: int, height:
 
 
 def _in_front(parts, p: ProjectedParticles, range_flat: np.ndarray):
-    """Depth test: keep samples whose particle surface is nearer than the scene surface."""
+    """Depth test: keep samples whose particle surface is nearer than the scene surface.
+
+    Returns flat pixel, alpha (times the particle's blur opacity), surface range and owner."""
     out = []
     for pix, alpha, owner in parts:
         d = p.surf_range.take(owner)
         front = np.flatnonzero(range_flat.take(pix) > d)
-        out.append((pix.take(front), alpha.take(front), d.take(front)))
+        own = owner.take(front)
+        al = alpha.take(front)
+        if p.opacity is not None:
+            al = al * p.opacity.take(own)
+        out.append((pix.take(front), al, d.take(front), own))
     if not out:
-        return np.zeros(0, np.int64), np.zeros(0, np.float32), np.zeros(0, np.float32)
+        return np.zeros(0, np.int64), np.zeros(0, np.float32), np.zeros(0, np.float32), np.zeros(0, np.int64)
     return tuple(np.concatenate(z) for z in zip(*out))
 
 
@@ -464,27 +490,35 @@ def _particle_colour(mode: str, colour, ambient) -> np.ndarray:
 
 def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: ParticleField,
                      K: np.ndarray, T_world_cam: np.ndarray, water=None, mode: str = "backscatter",
-                     z_near: float = 0.05, colour=None, ambient=DEFAULT_AMBIENT_RGB):
+                     z_near: float = 0.05, colour=None, ambient=DEFAULT_AMBIENT_RGB,
+                     shade: Callable | None = None, shape: Callable | None = None, margin_px: float = 0.0):
     """Draw the particle field into a linear RGB image with a depth test.
 
     image_linear (H,W,3) float, range_m (H,W) float (range along each pixel ray to
     the rendered surface, inf or NaN = background). Returns (image_out (H,W,3) float32,
     occluder_mask (H,W) bool = particle coverage >= 0.5, particle_range (H,W)
     float32 = range of the nearest particle covering the pixel, inf elsewhere).
-    Inputs are not modified. Compositing equals drawing the particles far to near
-    (painter's order) with "over"; per-pixel depth test as in the module docstring.
+    Inputs are not modified.
 
-    Colour: ``colour`` (3,) linear RGB, else "backscatter" = ``ambient`` (a bright
-    speck lit by the veiling light) or "silhouette" = 0.05 * ambient (dark).
+    Colour: ``shade(projected) -> (M, 3)`` linear radiance per particle (the physical
+    light field: particle_optics.particle_radiance); else ``colour`` (3,) linear RGB, else
+    "backscatter" = ``ambient`` (a bright speck lit by the veiling light) or "silhouette" =
+    0.05 * ambient (dark). ``shape(projected) -> projected`` changes the footprints before
+    drawing (defocus, motion streaks: particle_optics.blurred_shapes); ``margin_px`` keeps
+    particles up to that far outside the image for it.
+
+    Compositing: coverage T = prod(1 - alpha_i) is exact and order-independent; with one
+    colour ``out = img T + colour (1 - T)`` equals painter's "over". With per-particle
+    colours the covered part takes the weighted mean colour, weights alpha_i / d_i^2
+    (weighted blended order-independent transparency, McGuire & Bavoil 2013, JCGT 2(2)):
+    exact where particles do not overlap, nearer ones dominate where they do.
 
     Water: particles must be attenuated by *their own* range, not the surface's.
     Either (a) pass ``image_linear`` already through the water model and give
     ``water`` -- a callable ``water(rgb (M,3), range (M,)) -> (M,3)`` or an object /
     mapping with ``beta`` (1/m, scalar or per RGB) and ``colour`` (the article's
     blend ``c (1-w) + colour w``, ``w = 1 - exp(-beta d)``) -- and each covered
-    pixel gets the colour at its nearest particle's range. With blendgen.physics.optics:
-    ``water=lambda rgb, r: optics.apply_water(rgb[None], r[None], None, w, depth)[0]``.
-    Or (b) keep ``water=None``
+    pixel gets the colour at its nearest particle's range. Or (b) keep ``water=None``
     on a clean image and apply water to ``image_out`` with the merged range
     ``np.where(particle_range < inf, particle_range, range_m)`` (approximate on
     partly covered pixels).
@@ -497,31 +531,62 @@ def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: Parti
         raise ValueError(f"z_near must be > 0 m, got {z_near}")
     col = _particle_colour(mode, colour, ambient)
     water_fn = _water_callable(water)
-    p = project_particles(field, K, T_world_cam, w, h, z_near)
-    speck = p.a < _SPLAT_BELOW_PX
-    parts = [_speck_samples(p, np.flatnonzero(speck), w, h)]
-    parts += _ellipse_samples(p, np.flatnonzero(~speck), w, h)
+    p = project_particles(field, K, T_world_cam, w, h, z_near, margin_px)
+    if shape is not None and p.u.size:
+        p = shape(p)
     surf = np.asarray(range_m, np.float32).reshape(-1)
     if np.isnan(surf).any():                            # NaN = no surface hit = background
         surf = np.where(np.isnan(surf), np.float32(np.inf), surf)
-    pix, alpha, d = _in_front(parts, p, surf)
-    log_t = np.zeros(h * w, np.float32)                # log transmittance, sum of log(1 - alpha)
-    np.add.at(log_t, pix, np.log1p(-np.minimum(alpha, np.float32(_ALPHA_MAX))))
-    prange = np.full(h * w, np.inf, np.float32)
-    np.minimum.at(prange, pix, d)                      # nearest covering particle per pixel
+    pix, alpha, d, owner = _in_front(_all_samples(p, w, h), p, surf)
+    hit, cpix = _compress(pix, h * w)                   # covered pixels, sample -> their slot
+    n_hit = hit.size
+    log_t = np.bincount(cpix, np.log1p(-np.minimum(alpha, np.float32(_ALPHA_MAX))), n_hit)
+    prange_hit = np.full(n_hit, np.inf, np.float32)
+    np.minimum.at(prange_hit, cpix, d)                  # nearest covering particle per pixel
+    cov = (1.0 - np.exp(log_t)).astype(np.float32)
+    if shade is not None:
+        c = _mean_colours(np.asarray(shade(p), np.float32), cpix, alpha, d, owner, n_hit)
+    else:
+        c = np.broadcast_to(col, (n_hit, 3))
+    if water_fn is not None:
+        c = np.asarray(water_fn(np.ascontiguousarray(c), prange_hit), np.float32)
     out = img.copy()
     flat = out.reshape(-1, 3)
-    hit = np.flatnonzero(log_t < 0)
-    cov = (1.0 - np.exp(log_t[hit])).astype(np.float32)
-    c = np.broadcast_to(col, (hit.size, 3)) if water_fn is None else np.asarray(
-        water_fn(np.broadcast_to(col, (hit.size, 3)), prange[hit]), np.float32)
     keep = 1.0 - cov
     for ch in range(3):                                   # out = img T + colour (1 - T)
         v = flat[:, ch]
         v[hit] = v[hit] * keep + c[:, ch] * cov
     mask = np.zeros(h * w, bool)
     mask[hit] = cov >= 0.5
+    prange = np.full(h * w, np.inf, np.float32)
+    prange[hit] = prange_hit
     return out, mask.reshape(h, w), prange.reshape(h, w)
+
+
+def _compress(pix: np.ndarray, n_pix: int) -> tuple[np.ndarray, np.ndarray]:
+    """Sorted distinct pixels ``hit`` among the samples and each sample's slot in it."""
+    seen = np.zeros(n_pix, bool)
+    seen[pix] = True
+    hit = np.flatnonzero(seen)
+    slot = np.empty(n_pix, np.int32)
+    slot[hit] = np.arange(hit.size, dtype=np.int32)
+    return hit, slot.take(pix)
+
+
+def _all_samples(p: ProjectedParticles, w: int, h: int) -> list:
+    """Coverage samples of every particle: bilinear specks below half a pixel, ellipses above."""
+    speck = p.a < _SPLAT_BELOW_PX
+    return [_speck_samples(p, np.flatnonzero(speck), w, h)] + _ellipse_samples(p, np.flatnonzero(~speck), w, h)
+
+
+def _mean_colours(colours: np.ndarray, cpix, alpha, d, owner, n_hit: int) -> np.ndarray:
+    """(n_hit, 3) weighted mean particle colour per covered pixel slot (weights alpha / d^2)."""
+    wgt = alpha / np.maximum(d, np.float32(1e-3)) ** 2
+    den = np.bincount(cpix, wgt, n_hit)
+    den = np.where(den > 0, den, 1.0)
+    cs = colours.take(owner, axis=0)
+    return np.stack([np.bincount(cpix, wgt * cs[:, ch], n_hit) / den for ch in range(3)],
+                    axis=1).astype(np.float32)
 
 
 # ----------------------------------------------------------------------------- visibility

@@ -21,7 +21,7 @@ from blendgen.geometry import planar_depth_to_range, project, transform_points
 from blendgen.physics import lamp_water, leds, optics, sensor
 from blendgen.physics import particles as occlusion
 from blendgen.physics.lights import lamp_lights
-from blendgen.pipeline import groundtruth
+from blendgen.pipeline import groundtruth, particle_light
 from blendgen.pipeline.plan import INDEX_PARTICLES, SequencePost
 from datasets_spec.io import save_image
 
@@ -46,6 +46,7 @@ class SequenceState:
     auto_exposure: sensor.AutoExposure | None = None
     exposure_s: float | None = None          # the exposure of the last image (recorded with auto-exposure)
     lamp: lamp_water.LampWater | None = None
+    prev_pose: tuple | None = None                  # (t s, T_world_cam) of the last frame (particle streaks)
 
     @classmethod
     def start(cls, post: SequencePost) -> "SequenceState":
@@ -55,7 +56,8 @@ class SequenceState:
         if occ:
             pfield = occlusion.ParticleField.sample(
                 rng, occ.region_min, occ.region_max, n_total=occ.n_total, r_min=occ.r_min_m,
-                r_max=occ.r_max_m, count_dist=occ.count_dist, n_max=occ.n_max)
+                r_max=occ.r_max_m, count_dist=occ.count_dist, n_max=occ.n_max, size_dist=occ.size_dist,
+                size_slope=occ.size_slope)
         water, opts = optics.fast_water(post.water, post.image_formation, post.irradiance_w_m2, veil=post.veil)
         ae = post.sensor.auto_exposure
         auto = sensor.AutoExposure(**ae.model_dump()) if ae is not None else None
@@ -70,17 +72,26 @@ class SequenceState:
             self.field = self.field.step(1.0 / self.post.fps, occ.v_flow, [occ.drift_sigma_m] * 3, self.rng)
 
 
-def add_particles(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam) -> tuple[dict, np.ndarray | None]:
+def add_particles(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, markers: list[dict] | None = None,
+                  T_cam_dock=None, t_s: float | None = None) -> tuple[dict, np.ndarray | None]:
     """Composite the sequence's particles over the clean passes, depth-tested against the
     range pass; returns passes with rgb/range of the nearest surface or particle, and
-    the occluder mask (H,W) bool (None without particles)."""
+    the occluder mask (H,W) bool (None without particles). ``lit`` particles take their
+    radiance from the light field (the LEDs need ``markers`` and ``T_cam_dock``) and are
+    blurred by defocus and motion relative to the camera's pose at the previous call, ``t_s``
+    the frame time (s; None: one frame period later) (pipeline/particle_light.py)."""
     if state.field is None:
         return passes, None
     if state.post.occlusion.geometry == "blender":  # already in the render
         return passes, passes["index"] == INDEX_PARTICLES
-    rgb, occ_mask, prange = occlusion.render_particles(
-        passes["rgb"], passes["range_m"], state.field, K, np.asarray(T_world_cam, float),
-        mode=state.post.occlusion.mode)
+    T = np.asarray(T_world_cam, float)
+    kw = {"mode": state.post.occlusion.mode}
+    if state.post.occlusion.mode == "lit":
+        kw = {"shade": particle_light.shader(state.post, state.water, T, markers, T_cam_dock),
+              "shape": particle_light.shaper(state.post, K, state.field, T, state.prev_pose, t_s),
+              "margin_px": particle_light.MARGIN_PX}
+    rgb, occ_mask, prange = occlusion.render_particles(passes["rgb"], passes["range_m"], state.field, K, T, **kw)
+    state.prev_pose = (t_s, T)
     rng_eff = np.where(np.isfinite(prange), prange, passes["range_m"]).astype(np.float32)
     return {**passes, "rgb": rgb, "range_m": rng_eff}, occ_mask
 

@@ -25,7 +25,7 @@ from blendgen import markers as mk
 from blendgen.pipeline import groundtruth
 from blendgen.vehicle import trajectories as tj
 from blendgen.geometry import intrinsics_from_hfov, make_T, rpy_to_R
-from blendgen.config.models import (ConfigError, Experiment, ImageFormation, Lamp, Occlusion, Sensor, Strict, Vec3,
+from blendgen.config.models import (ConfigError, Experiment, ImageFormation, Lamp, Lens, Occlusion, Sensor, Strict, Vec3,
                                     Water)
 
 INDEX_POOL, INDEX_DOCK, INDEX_MARKER0, INDEX_OBSTACLE0, INDEX_PARTICLES = 1, 2, 10, 100, 250
@@ -78,6 +78,11 @@ class SequencePost(Strict):
                                                    "(optics.veil_parameters), None: not used")
     world: Optional[WorldPost] = Field(None, description="surface and caustics (None: both off, no cost)")
     lamp_forward_kept: Optional[float] = Field(None, description="fast lamp model's F (set with lamps)")
+    lens: Optional[Lens] = Field(None, description="thin lens (particle defocus); null: pinhole")
+    suns: list[tuple[Vec3, float]] = Field(default_factory=list, description="the render's directional "
+                                           "lights (world travel direction, W/m^2), lighting fast particles")
+    ambient_w_m2_sr: float = Field(0.0, ge=0.0, description="the render's ambient light field (fast "
+                                   "fidelity: plan.ambient_radiance), lighting fast particles")
 
 
 class JobCamera(Strict):
@@ -167,6 +172,14 @@ def _sun_dir(elev_deg: float, azim_deg: float) -> list[float]:
     """Travel direction (unit, world) of light coming from elevation/azimuth (deg)."""
     e, a = math.radians(elev_deg), math.radians(azim_deg)
     return [-math.cos(e) * math.cos(a), -math.cos(e) * math.sin(a), -math.sin(e)]
+
+
+def sun_lights(exp: Experiment) -> list[tuple[list[float], float]]:
+    """The render's sun and fill as (world travel direction, strength W/m^2), strength > 0."""
+    s = exp.scene
+    out = [(_sun_dir(s.sun_elevation_deg, s.sun_azimuth_deg), s.sun_strength),
+           (_sun_dir(0.0, s.sun_azimuth_deg), s.fill_strength)]
+    return [(d, float(e)) for d, e in out if e > 0]
 
 
 def scene_description(exp: Experiment, markers: list[dict], textures: dict[str, str]) -> dict:
@@ -386,7 +399,8 @@ def condition_post(exp: Experiment, cond, seed: int) -> SequencePost:
                         sun_elevation_deg=exp.scene.sun_elevation_deg, sun_share=1.0 / (1.0 + sky_fraction(exp)),
                         veil=optics.veil_parameters(cond.water or exp.water, exp.image_formation),
                         world=world_post(exp),
-                        lamp_forward_kept=exp.vehicle.lamp_forward_kept if exp.vehicle.lamps else None)
+                        lamp_forward_kept=exp.vehicle.lamp_forward_kept if exp.vehicle.lamps else None,
+                        lens=exp.camera.lens, suns=sun_lights(exp), ambient_w_m2_sr=ambient_radiance(exp))
 
 
 def world_on(exp: Experiment, what: str) -> bool:

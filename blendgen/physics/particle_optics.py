@@ -1,0 +1,229 @@
+"""Marine snow / small obstacles as physical particles: sizes, radiance and camera optics.
+
+Pure numpy. Camera frame = OpenCV (x right, y down, z forward), metres.
+
+Sizes (:func:`sample_radii`)
+    ``power_law``: the number size spectrum of marine particles and aggregates is a power
+    law ``n(D) = dN/dD ~ D^-xi`` over sub-millimetre to centimetre sizes (Jackson et al.
+    1997, Deep-Sea Res. I 44:1739, aggregates; Stemmann & Boss 2012, Annu. Rev. Mar. Sci.
+    4:263, review of in-situ camera spectra, slopes roughly 2 to 4.5; Lombard et al. 2019,
+    Front. Mar. Sci. 6:196, the Underwater Vision Profiler's ~0.1 mm to a few cm range).
+    Default ``xi = 3.5`` (inside the reported range), radii 0.25 mm to 15 mm (diameters
+    0.5 mm to 3 cm). Sampled by the inverse CDF of the truncated law.
+    ``uniform``: the article's radius uniform in ``[r_min, r_max]`` (SPEC section 4).
+
+Radiance (:func:`particle_radiance`)
+    A particle of albedo ``omega`` under irradiance ``E`` (W/m^2) coming from one direction
+    scatters ``I = E pi r^2 omega p(theta)`` W/sr (``p`` the phase function, 1/sr,
+    integral 1, ``theta`` the scattering angle, 0 = forward), so its projected disc has
+    the mean radiance ``L = omega E p(theta)`` (W/m^2/sr), independent of its size.
+    ``p = (1 - f) p_lambert + f p_HG(g)``: the reflection of a Lambertian sphere (van de
+    Hulst 1957, Light Scattering by Small Particles, sec. 12.41: backward-peaked, fully
+    lit face toward the light) plus a forward Henyey-Greenstein lobe (Henyey & Greenstein
+    1941) for light transmitted through and diffracted around the porous, nearly
+    index-matched aggregates. Under the isotropic-equivalent ambient light field of mean
+    radiance ``L_amb`` (scalar irradiance ``4 pi L_amb``) any such particle has
+    ``L = omega L_amb``. Lamps and LEDs are ``lights.PointLight``: inverse square, cone
+    profile and beam attenuation ``exp(-c d)`` along the light's path. Attenuation and
+    veiling between particle and camera are the water model's, as for any surface.
+
+Optics (:func:`coc_px`, :func:`blurred_shapes`)
+    Thin-lens circle of confusion (e.g. Potmesil & Chakravarty 1981, ACM TOG): an object
+    at distance ``s`` with the lens focused at ``s_f`` blurs to a disc of diameter
+    ``c = A |s - s_f| / s * f / (s_f - f)`` on the sensor, ``A = f / N``; in pixels
+    ``c_px = c / pitch = c f_px / f``. The particle's disc, the defocus disc and its
+    motion streak (a segment of length ``L`` px over the exposure) are combined by adding
+    their second moments (exact for convolution): a disc of radius ``R`` has ``R^2 / 4``
+    per axis, a segment ``L^2 / 12`` along itself, so the footprint is the ellipse of the
+    summed moments and its opacity falls by the area ratio (the light is spread, not
+    created).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from blendgen.physics import lights as lt
+
+SIZE_DISTS = ("power_law", "uniform")
+MARINE_SNOW_R_MIN_M = 0.00025      # 0.5 mm diameter
+MARINE_SNOW_R_MAX_M = 0.015        # 3 cm diameter
+MARINE_SNOW_SLOPE = 3.5            # n(D) ~ D^-3.5 (Stemmann & Boss 2012: ~2 to 4.5)
+ARTICLE_R_MIN_M = 0.005
+ARTICLE_R_MAX_M = 0.02
+
+
+# ----------------------------------------------------------------------------- sizes
+def sample_radii(rng: np.random.Generator, n: int, dist: str, r_min: float, r_max: float,
+                 slope: float = MARINE_SNOW_SLOPE) -> np.ndarray:
+    """(n,) float32 radii (m): ``uniform`` in [r_min, r_max] or the truncated ``power_law``
+    ``dN/dr ~ r^-slope`` on [r_min, r_max] (inverse CDF; slope 1 is log-uniform)."""
+    if dist not in SIZE_DISTS:
+        raise ValueError(f"size_dist must be one of {SIZE_DISTS}, got {dist!r}")
+    u = rng.random(n, dtype=np.float32)
+    if dist == "uniform" or r_max <= r_min:
+        u *= np.float32(r_max - r_min)
+        u += np.float32(r_min)
+        return u
+    if r_min <= 0:
+        raise ValueError(f"power_law sizes need r_min_m > 0, got {r_min}")
+    if abs(slope - 1.0) < 1e-9:
+        return (r_min * (r_max / r_min) ** u.astype(np.float64)).astype(np.float32)
+    k = 1.0 - slope
+    lo, hi = r_min ** k, r_max ** k
+    return ((lo + u.astype(np.float64) * (hi - lo)) ** (1.0 / k)).astype(np.float32)
+
+
+def power_law_mean_area(r_min: float, r_max: float, slope: float) -> float:
+    """E[pi r^2] (m^2) of the truncated power law (for coverage expectations)."""
+    def moment(j):
+        e = j + 1.0 - slope
+        return math.log(r_max / r_min) if abs(e) < 1e-12 else (r_max ** e - r_min ** e) / e
+    return math.pi * moment(2) / moment(0)
+
+
+# ----------------------------------------------------------------------------- phase
+def lambert_sphere_phase(cos_theta: np.ndarray) -> np.ndarray:
+    """Phase function (1/sr, integral 1) of a Lambertian sphere; theta = scattering angle
+    (0 forward). ``p = 2/(3 pi^2) (sin a + (pi - a) cos a)``, a = pi - theta the phase angle
+    (so cos a = -cos theta, pi - a = theta). Keeps the input's float dtype."""
+    mu = np.clip(np.asarray(cos_theta), -1.0, 1.0)
+    return (2.0 / (3.0 * math.pi ** 2)) * (np.sqrt(1.0 - mu * mu) - np.arccos(mu) * mu)
+
+
+def hg_phase(cos_theta: np.ndarray, g: float) -> np.ndarray:
+    """Henyey-Greenstein phase function (1/sr, integral 1). Keeps the input's float dtype."""
+    mu = np.asarray(cos_theta)
+    base = (1.0 + g * g) - (2.0 * g) * mu
+    return ((1.0 - g * g) / (4.0 * math.pi)) / (base * np.sqrt(base))
+
+
+@dataclass(frozen=True)
+class ParticleMaterial:
+    """Albedo (fraction of the geometric cross-section scattered), share of that in the
+    forward lobe and the lobe's HG asymmetry."""
+    albedo: float = 0.3
+    forward_fraction: float = 0.5
+    forward_g: float = 0.9
+
+    def phase(self, cos_theta: np.ndarray) -> np.ndarray:
+        """Mixed phase function (1/sr) at the cosines of the scattering angles."""
+        f = self.forward_fraction
+        out = lambert_sphere_phase(cos_theta) * (1.0 - f)
+        return out + hg_phase(cos_theta, self.forward_g) * f if f > 0 else out
+
+
+def _light_terms(light, pts: np.ndarray, view: np.ndarray, c: np.ndarray):
+    """(irradiance (M, 3), cos of the scattering angle (M,)) of one point light at particles
+    pts (M, 3) float32: ``lights.irradiance``'s law (inverse square, cone profile,
+    exp(-c d), normals None) in float32, sharing the light->particle directions."""
+    ray = pts - np.asarray(light.position_m, np.float32)
+    d = np.sqrt(np.einsum("ij,ij->i", ray, ray))
+    np.maximum(d, np.float32(1e-3), out=d)
+    ray /= d[:, None]
+    prof = light.profile(ray @ np.asarray(light.axis, np.float32)).astype(np.float32)
+    E = (prof / (d * d))[:, None] * np.asarray(light.intensity_w_sr, np.float32)[None, :]
+    E *= np.exp(-d[:, None] * c[None, :])
+    return E, np.einsum("ij,ij->i", ray, view)
+
+
+def particle_radiance(points_cam: np.ndarray, material: ParticleMaterial, ambient_rgb,
+                      point_lights: list, c_per_m, light_gain: np.ndarray | None = None) -> np.ndarray:
+    """Mean radiance (M, 3) float32 of each particle's disc toward the camera (at the origin).
+
+    points_cam (M, 3) particle centres; ambient_rgb (3,) mean radiance of the light field at
+    the particles (already dimmed for their depth by the caller, or to be dimmed later);
+    point_lights: lights.PointLight list (lamps, LEDs); c_per_m (3,) beam attenuation along
+    the lights' paths; light_gain (M,) or (M, 3) factor on the point lights' part (the caller's
+    compensation for a depth factor the water model applies to every surface later)."""
+    pts = np.asarray(points_cam, np.float32).reshape(-1, 3)
+    amb = np.float32(material.albedo) * np.asarray(ambient_rgb, np.float32)
+    out = np.broadcast_to(amb, (pts.shape[0], 3)).copy()
+    if not point_lights or pts.shape[0] == 0:
+        return out
+    view = -pts / np.maximum(np.sqrt(np.einsum("ij,ij->i", pts, pts)), np.float32(1e-9))[:, None]
+    c = np.asarray(c_per_m, np.float32).reshape(3)
+    art = np.zeros_like(out)
+    for light in point_lights:
+        E, mu = _light_terms(light, pts, view, c)
+        art += E * material.phase(mu)[:, None]
+    art *= np.float32(material.albedo)
+    if light_gain is not None:
+        art *= np.asarray(light_gain, np.float32).reshape(pts.shape[0], -1)
+    return out + art
+
+
+def sun_radiance(points_cam: np.ndarray, material: ParticleMaterial, suns_cam) -> np.ndarray:
+    """(M, 3) float32 radiance of Lambertian-sphere reflection of collimated lights, e.g. the
+    sun: ``omega E (1 - f) p_lambert(theta)`` per light (``suns_cam``: (travel direction (3,)
+    camera frame, irradiance normal to the beam W/m^2)). Only the reflecting part: the
+    forward lobe would need the light behind the particle, i.e. looking toward the sun."""
+    pts = np.asarray(points_cam, np.float32).reshape(-1, 3)
+    out = np.zeros((pts.shape[0], 1), np.float32)
+    view = -pts / np.maximum(np.sqrt(np.einsum("ij,ij->i", pts, pts)), np.float32(1e-9))[:, None]
+    for direction, strength in suns_cam:
+        mu = view @ np.asarray(direction, np.float32)
+        out[:, 0] += np.float32(strength) * lambert_sphere_phase(mu)
+    return np.float32(material.albedo * (1.0 - material.forward_fraction)) * out
+
+
+def led_point_lights(markers: list[dict], T_cam_dock: np.ndarray, strength_scale: float = 1.0) -> list:
+    """The LED arrays' LEDs as point lights in the camera frame.
+
+    A flat Lambertian LED disc of radius r and radiance ``L = strength x colour`` (the
+    render's emission, W/m^2/sr) has on-axis intensity ``I = L pi r^2`` (W/sr); it faces
+    the dock's +z. Modelled as a hemisphere emitter (half-angle 90 deg) without the
+    cos falloff (an upper bound off-axis). ``strength_scale`` is the hook for a physical
+    LED intensity (issue 13): multiply the manifest's strength by it."""
+    T = np.asarray(T_cam_dock, float)
+    axis = T[:3, 2] / np.linalg.norm(T[:3, 2])
+    out = []
+    for m in markers:
+        if m.get("kind") != "led_array":
+            continue
+        pts = np.asarray(m["keypoints"], float) @ T[:3, :3].T + T[:3, 3]
+        area = math.pi * float(m["led_radius_m"]) ** 2
+        strength = float(m.get("strength", 1.0)) * strength_scale
+        for p, col in zip(pts, m.get("colors") or [[1.0, 1.0, 1.0]] * len(pts)):
+            out.append(lt.PointLight(p, axis, strength * area * np.asarray(col, float), math.pi / 2, 0.0))
+    return out
+
+
+# ----------------------------------------------------------------------------- optics
+def coc_px(z_m: np.ndarray, focal_length_m: float, f_number: float, focus_m: float, fx_px: float) -> np.ndarray:
+    """Thin-lens circle-of-confusion diameter (px) at object distances z_m (module doc)."""
+    if not (focus_m > focal_length_m > 0 and f_number > 0):
+        raise ValueError(f"need focus_m > focal_length > 0 and f_number > 0, got {focus_m}, "
+                         f"{focal_length_m}, {f_number}")
+    z = np.asarray(z_m, np.float64)
+    aperture = focal_length_m / f_number
+    c_m = aperture * np.abs(z - focus_m) / z * focal_length_m / (focus_m - focal_length_m)
+    return c_m * fx_px / focal_length_m
+
+
+def blurred_shapes(a, b, c, s, extra_iso_r2=None, streak_uv=None):
+    """Ellipse (a radial, b tangential semi-axes px, radial direction (c, s)) convolved with a
+    disc of squared radius ``extra_iso_r2`` (M,) px^2 and a streak ``streak_uv`` (M, 2) px
+    (full length over the exposure): returns (a', b', c', s', opacity) float32, opacity =
+    a b / (a' b'). Second moments add (module doc): disc R^2/4 per axis, segment L^2/12."""
+    a, b, c, s = (np.asarray(x, np.float32) for x in (a, b, c, s))
+    sxx = a * a * c * c + b * b * s * s          # 4 x second-moment matrix (disc: R^2 I)
+    syy = a * a * s * s + b * b * c * c
+    sxy = (a * a - b * b) * c * s
+    if extra_iso_r2 is not None:
+        sxx = sxx + extra_iso_r2
+        syy = syy + extra_iso_r2
+    if streak_uv is not None:
+        du, dv = streak_uv[:, 0], streak_uv[:, 1]
+        k = np.float32(4.0 / 12.0)              # L^2/12 per axis, times 4 to match R^2/4
+        sxx, syy, sxy = sxx + k * du * du, syy + k * dv * dv, sxy + k * du * dv
+    half_tr = 0.5 * (sxx + syy)
+    root = np.sqrt(0.25 * (sxx - syy) ** 2 + sxy * sxy)
+    a2 = np.sqrt(half_tr + root)
+    b2 = np.sqrt(np.maximum(half_tr - root, 1e-12))
+    phi = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
+    opacity = np.minimum(a * b / np.maximum(a2 * b2, 1e-12), 1.0)
+    return (a2.astype(np.float32), b2.astype(np.float32), np.cos(phi).astype(np.float32),
+            np.sin(phi).astype(np.float32), opacity.astype(np.float32))

@@ -1,0 +1,104 @@
+"""Per-sequence glue between the particle renderer and the frame's light and camera.
+
+``shader`` gives each particle its clean radiance J (before the water model, like the
+clean render of any surface): what the render's lights give a surface -- the sun and fill
+(Lambertian-sphere reflection of collimated light, radiometric: a white plane facing a sun of
+strength S has radiance S / pi) and the ambient light field's mean radiance just below the
+surface (``E_d0 / (4 pi mu_d)``, plan.ambient_radiance, 0 where the ambient is off) -- which
+the water model then dims by the particle's own depth (physical) or the dock depth
+(article), plus the lamps' and LEDs' light (particle_optics.particle_radiance), pre-divided
+by that same depth factor so that it reaches the camera with inverse square and ``exp(-c d)`` along its own path only.
+Then compose's water model attenuates and veils the particle over its own range.
+
+``shaper`` blurs each footprint: thin-lens defocus (camera ``lens``, none = pinhole) and
+the streak of the particle's motion relative to the camera over the exposure (its drift
+``v_flow`` and the camera's motion between the previous and this frame).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from blendgen.physics import lights as lt
+from blendgen.physics import optics
+from blendgen.physics import particle_optics as popt
+from blendgen.physics.particles import ProjectedParticles
+
+MARGIN_PX = 8.0     # particles centred this far outside the image may still blur into it
+
+
+def material(occ) -> popt.ParticleMaterial:
+    return popt.ParticleMaterial(occ.albedo, occ.forward_fraction, occ.forward_g)
+
+
+def _depth_gain(post, water, T_world_cam: np.ndarray, p: ProjectedParticles) -> np.ndarray:
+    """(M, 3) inverse of the depth factor the water model will apply to each particle's pixels
+    (physical: exp(-Kd depth) at the depth compose.surface_depth computes from the range along
+    the ray; article: exp(-Kd d) at the dock depth)."""
+    if post.image_formation != "physical":
+        return np.broadcast_to(1.0 / optics.depth_light(water, post.light_depth_m), (p.u.size, 3))
+    T = np.asarray(T_world_cam, float)
+    dist = np.sqrt(np.einsum("ij,ij->i", p.pc, p.pc))
+    dir_z = (p.pc @ T[2, :3].astype(np.float32)) / np.maximum(dist, np.float32(1e-9))
+    depth = np.maximum(np.float32(post.surface_z_m - T[2, 3]) - p.surf_range * dir_z, np.float32(0.0))
+    return np.exp(np.asarray(water.Kd, np.float32)[None, :] * depth[:, None])
+
+
+def shader(post, water, T_world_cam, markers=None, T_cam_dock=None):
+    """Callable(projected) -> (M, 3) clean radiance of each particle (module doc)."""
+    lights = lt.lamp_lights(post.lamps)
+    if markers and T_cam_dock is not None:
+        lights += popt.led_point_lights(markers, T_cam_dock)
+    mat = material(post.occlusion)
+    amb = post.ambient_w_m2_sr
+    R = np.asarray(T_world_cam, float)[:3, :3]
+    suns = [(R.T @ np.asarray(d, float), e) for d, e in post.suns]
+
+    def shade(p: ProjectedParticles) -> np.ndarray:
+        gain = _depth_gain(post, water, T_world_cam, p) if lights else None
+        out = popt.particle_radiance(p.pc, mat, [amb] * 3, lights, water.c, gain)
+        return out + popt.sun_radiance(p.pc, mat, suns) if suns else out
+    return shade
+
+
+def frame_interval(post, prev_pose, t_s) -> tuple[float, np.ndarray | None]:
+    """(dt s, previous pose or None) from the last call's (t, T) and this frame's time."""
+    if prev_pose is None:
+        return 1.0 / post.fps, None
+    t0, T0 = prev_pose
+    if t0 is None or t_s is None or not t_s > t0:
+        return 1.0 / post.fps, T0
+    return float(t_s - t0), T0
+
+
+def streaks(post, K: np.ndarray, field, T_world_cam, p: ProjectedParticles, dt: float,
+            T_prev=None) -> np.ndarray:
+    """(M, 2) image displacement (px) of each particle over the exposure: its position now minus
+    where it was ``dt`` earlier (drifted back by v_flow, seen from the previous pose, or from
+    this pose when there is none), times exposure / dt (motion assumed uniform over dt)."""
+    T0 = np.asarray(T_prev if T_prev is not None else T_world_cam, float)
+    pw = field.positions[p.index].astype(np.float64) - np.asarray(post.occlusion.v_flow, float) * dt
+    pc0 = (pw - T0[:3, 3]) @ T0[:3, :3]
+    z0 = np.maximum(pc0[:, 2], 1e-3)
+    u0 = K[0, 0] * pc0[:, 0] / z0 + K[0, 1] * pc0[:, 1] / z0 + K[0, 2]
+    v0 = K[1, 1] * pc0[:, 1] / z0 + K[1, 2]
+    scale = min(post.sensor.exposure_s / dt, 1.0)
+    out = np.stack([p.u - u0, p.v - v0], axis=1) * scale
+    out[pc0[:, 2] <= 1e-3] = 0.0
+    return out.astype(np.float32)
+
+
+def shaper(post, K: np.ndarray, field, T_world_cam, prev_pose=None, t_s: float | None = None):
+    """Callable(projected) -> projected with defocus and motion streaks (module doc)."""
+    lens = post.lens
+    K = np.asarray(K, float)
+    dt, T_prev = frame_interval(post, prev_pose, t_s)
+
+    def shape(p: ProjectedParticles) -> ProjectedParticles:
+        iso = None
+        if lens is not None:
+            c = popt.coc_px(p.pc[:, 2], lens.focal_length_mm * 1e-3, lens.f_number, lens.focus_m, K[0, 0])
+            iso = (0.25 * c * c).astype(np.float32)
+        st = streaks(post, K, field, T_world_cam, p, dt, T_prev)
+        a, b, c_, s_, op = popt.blurred_shapes(p.a, p.b, p.c, p.s, iso, st)
+        return ProjectedParticles(p.u, p.v, a, b, c_, s_, p.surf_range, p.pc, p.index, op)
+    return shape
