@@ -10,7 +10,7 @@ from scipy import stats
 
 from blendgen.config.models import Lamp, Lens, Water
 from blendgen.geometry import intrinsics_from_hfov, make_T
-from blendgen.physics import optics
+from blendgen.physics import lamp_water, optics
 from blendgen.physics import particle_optics as popt
 from blendgen.physics.particles import ParticleField, project_particles, render_particles
 from blendgen.pipeline import compose, particle_light
@@ -84,6 +84,8 @@ def test_lit_particle_mean_radiance_in_water_matches_analytic(z, lamp_on):
         theta = math.pi - theta
         J = J + 0.3 * i0 * np.exp(-w.c * d) / d ** 2 * (0.5 * lambert_sphere(theta) + 0.5 * hg(theta, 0.9))
     expect = J * np.exp(-w.c * R) + w.B_inf * E * np.exp(-w.Kd * depth) * (1 - np.exp(-w.c * R))
+    if lamp_on:     # plus the lamp's own backscatter veil in front of the particle (its oracle: test_lamp_water)
+        expect = expect + lamp_water.backscatter(st.lamp, K, np.full((H, W), R, np.float32))[inner].mean(axis=0)
     assert f > 10 and inner.sum() > 100
     assert np.allclose(measured, expect, rtol=0.05), (measured, expect)
 
