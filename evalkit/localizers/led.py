@@ -4,7 +4,13 @@ The array has N >= 4 LEDs in convex position; one or more reference LEDs have an
 colour, and the cyclic reference/other pattern has no rotational symmetry (blendgen
 checks it), so the colour pattern fixes the order. Pipeline (640x480: ~0.5 ms + PnP):
 1. brightness = max(R, G, B); threshold at ``min(threshold, rel_threshold * max)`` (not
-   below ``min_threshold``) so dim (attenuated) arrays still pass;
+   below ``min_threshold``) so dim (attenuated) arrays still pass; when no pose comes out
+   of that level (too many blobs, or no subset passes the checks), the threshold climbs a
+   ladder (``ladder``: fractions of the frame's maximum, default 0.8 and 0.97) and the search
+   repeats: LED cores are the brightest things in the frame, so a high level keeps them and
+   drops sunlit clutter (caustic networks on tiled walls, the surface's bright ripples:
+   on the physical demo pool 823 blobs at 0.6 x max, 7-16 at 0.97 x max). Frames that
+   succeed at the first level are unchanged;
 2. connected components (8-connected) with area and circularity limits;
 3. centroid of each blob (``centroid=``): ``core`` (default: intensity-weighted over
    the pixels above the middle of the blob's range, (threshold/2 + peak)/2, i.e. the
@@ -104,7 +110,7 @@ class LedLocalizer:
                  min_area_px: int = 1, max_area_frac: float = 0.05, min_circularity: float = 0.4,
                  ref_hue: float | None = None, max_candidates: int | None = None, max_blobs: int = 200,
                  max_reproj_px: float = 3.0, min_chroma: float = 12.0, max_hue_err_deg: float = 60.0,
-                 centroid: str = "core", max_view_deg: float = 70.0):
+                 centroid: str = "core", max_view_deg: float = 70.0, ladder: tuple = (0.8, 0.97)):
         """threshold: brightness (max channel, 0-255) that LED cores exceed; lowered to
         rel_threshold * image max (not below min_threshold) for dim images.
         min_area_px / max_area_frac: blob area limits (px / fraction of the image).
@@ -120,6 +126,8 @@ class LedLocalizer:
         to it that a pose may have; flat LED discs seen beyond ~70 deg are foreshortened
         below a third of their width, and lookalike blob sets (tinted marker plates plus two
         LEDs) fit only at ~78 deg (measured on the physical-mode demo).
+        ladder: higher thresholds (fractions of the frame's max brightness) tried in turn
+        when the first level gives no pose (module docstring, step 1); () disables it.
         Reason for > 8 params: every threshold of the blob pipeline is a documented knob."""
         if centroid not in ("weighted", "core"):
             raise ValueError(f"centroid must be weighted or core, got {centroid!r}")
@@ -138,6 +146,11 @@ class LedLocalizer:
         self.cos_hue = math.cos(math.radians(float(max_hue_err_deg)))
         self.centroid = centroid
         self.cos_view = math.cos(math.radians(float(max_view_deg)))
+        if isinstance(ladder, str):          # from ``-p led.ladder=0.8,0.97``
+            ladder = [x for x in ladder.replace("(", "").replace(")", "").split(",") if x.strip()]
+        self.ladder = tuple(sorted(float(f) for f in ladder))
+        if any(not 0.0 < f <= 1.0 for f in self.ladder):
+            raise ValueError(f"ladder fractions must be in (0, 1], got {self.ladder}")
         self._marker = None
 
     def reset(self, camera: dict) -> None:
@@ -173,20 +186,27 @@ class LedLocalizer:
         if a.dtype != np.uint8 or a.ndim != 3 or a.shape[2] != 3 or min(a.shape[:2]) < 8:
             return None
         try:
-            blobs = self._blobs(np.ascontiguousarray(a))
-            if blobs is None:
-                return None
-            return self._best_pose(*blobs)
+            rgb = np.ascontiguousarray(a)
+            v = cv2.max(cv2.max(rgb[:, :, 0], rgb[:, :, 1]), rgb[:, :, 2])
+            for t in self._levels(float(v.max())):
+                blobs = self._blobs(rgb, v, t)
+                est = self._best_pose(*blobs) if blobs is not None else None
+                if est is not None:
+                    return est
+            return None
         except (cv2.error, ValueError, FloatingPointError, np.linalg.LinAlgError):
             return None
 
-    def _blobs(self, rgb: np.ndarray):
-        """Candidate blobs: centroids (M,2) px, masses (M,), unit chroma directions (M,2)."""
-        v = cv2.max(cv2.max(rgb[:, :, 0], rgb[:, :, 1]), rgb[:, :, 2])
-        vmax = float(v.max())
-        t = max(self.min_threshold, min(self.threshold, self.rel_threshold * vmax))
-        if vmax <= t:
-            return None
+    def _levels(self, vmax: float) -> list[float]:
+        """Brightness thresholds (0-255) to try in turn: the first level, then the ladder
+        above it (levels at or below the maximum brightness find nothing and are dropped)."""
+        t0 = max(self.min_threshold, min(self.threshold, self.rel_threshold * vmax))
+        levels = [t0] + [f * vmax for f in self.ladder if f * vmax > t0]
+        return [t for t in levels if t < vmax]
+
+    def _blobs(self, rgb: np.ndarray, v: np.ndarray, t: float):
+        """Candidate blobs above brightness ``t`` (``v`` the (H,W) max-channel image):
+        centroids (M,2) px, masses (M,), unit chroma directions (M,2); None if too few/many."""
         mask = cv2.threshold(v, t, 255, cv2.THRESH_BINARY)[1]
         # Labelling only the box around the bright pixels (2 px margin for _measure) skips
         # the dark rest of the frame: 0.02 ms instead of ~1.9 ms at 640x480.
