@@ -222,7 +222,11 @@ def test_pool_rim_above_a_moved_surface_shows_the_surface():
     # the surface is 2 m up: rays within acos(2/5) = 66 deg of the zenith meet it before the wall
     inside, beyond = ang < 60, ang > 70
     ref = _open_water_up(post)
-    np.testing.assert_allclose(img[inside], ref[inside], rtol=1e-5)
+    # inside Snell's window the sky dominates; its few % of Fresnel reflection show the scene
+    # below, which here (a wall in the frame) is the mirror fill, not open water's dark veil
+    window = ang < 40
+    np.testing.assert_allclose(img[window], ref[window], rtol=0.05)
+    assert not np.allclose(img[inside & ~window], img[beyond].mean(axis=0), rtol=0.05)   # surface, not wall
     assert not np.allclose(img[beyond], ref[beyond])
 
 

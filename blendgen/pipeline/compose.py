@@ -206,10 +206,26 @@ def _world(passes: dict, state: SequenceState, w: optics.WaterOptics, K, T_world
         rgb = world_post.add_caustics(rgb, passes.get("albedo"), range_m, depth, wp, rays, K, T_world_cam, t,
                                       float(np.mean(w.sigma_s)))
     if wp.surface:
-        below = w.B_inf * state.water_opts["irradiance"] * optics.depth_light(w, veil_depth)
+        veil = w.B_inf * state.water_opts["irradiance"] * optics.depth_light(w, veil_depth)
+        below = mirror_fill(rgb, range_m, depth, w, veil)
         rgb, range_m, depth = world_post.add_surface(rgb, range_m, depth, wp, rays, K, T_world_cam,
                                                      state.post.surface_z_m, t, below)
     return rgb, range_m, depth
+
+
+def mirror_fill(rgb: np.ndarray, range_m: np.ndarray, depth, w: optics.WaterOptics, veil) -> np.ndarray:
+    """Radiance (3,) the surface reflects where its mirror image is not in the frame: the
+    scene below seen through water. The frame's surfaces (clean ``rgb`` (H,W,3) dimmed by the
+    depth light at their own ``depth`` (H,W) m), averaged, carried over their median range L
+    and veiled: ``mean(J_lit) exp(-c L) + veil (1 - exp(-c L))``. Only the ``veil`` (3,) when
+    the frame holds no surface (open water looking up): the depths below are dark water.
+    Without it a pool's total reflection showed black blotches in clear water."""
+    hit = np.isfinite(range_m)
+    if not hit.any():
+        return np.asarray(veil, np.float32)
+    lit = rgb[hit] * optics.depth_light(w, np.broadcast_to(depth, range_m.shape)[hit])
+    tr = np.exp(-np.asarray(w.c, float) * float(np.median(range_m[hit])))
+    return (lit.mean(axis=0) * tr + np.asarray(veil, float) * (1.0 - tr)).astype(np.float32)
 
 
 def lamp_image(passes: dict, lamp: lamp_water.LampWater, K: np.ndarray, T_world_cam) -> np.ndarray:
