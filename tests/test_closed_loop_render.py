@@ -107,3 +107,11 @@ def test_dock_command_rejects_unknown_condition_with_exit_code_2(bench):
     r = CliRunner().invoke(cli.main, ["dock", str(d / "dock.yaml"), "--condition", "murky", "-o", str(d / "x")])
     assert r.exit_code == 2 and "murky" in r.output
     assert not (d / "x").exists()
+
+
+def test_dock_command_rejects_a_bad_compute_latency_with_exit_code_2(bench):
+    import cli
+    _, d = bench
+    r = CliRunner().invoke(cli.main, ["dock", str(d / "dock.yaml"), "--compute-latency", "soon", "-o", str(d / "y")])
+    assert r.exit_code == 2 and "--compute-latency" in r.output
+    assert not (d / "y").exists()

@@ -10,8 +10,12 @@ depth light, small obstacles and sensor noise are applied by
 with the same isolation options as ``dockbench evaluate``) returns its estimate, and
 guidance steers on it. ``truth`` is the ground-truth-guidance baseline (nothing rendered).
 
-Not modelled here (said so in the report): camera link latency (the frame shows the
-pose of its own time stamp), reference (volumetric) fidelity and ``geometry: blender``
+Latency: the estimate of a frame reaches guidance ``camera.latency_s`` (config) plus the
+localizer's compute time (``--compute-latency``: seconds, or ``measured`` = each frame's
+measured time, which makes a run depend on machine load) after the frame's capture; the
+filter treats it as a delayed measurement (:class:`blendgen.vehicle.closed_loop.DelayLine`).
+
+Not modelled here (said so in the report): reference (volumetric) fidelity and ``geometry: blender``
 particles; the config is rejected for the latter two.
 """
 from __future__ import annotations
@@ -107,6 +111,7 @@ class Bench:
     T_body_cam: np.ndarray
     traj: DockingTrajectory
     capture: CaptureSpec
+    compute_latency: float | str = 0.0     # localizer time added to camera.latency_s (s or "measured")
 
     @classmethod
     def prepare(cls, exp: Experiment, assets: Path) -> "Bench":
@@ -152,7 +157,8 @@ class Bench:
                           fps=self.exp.camera.fps, max_time_s=self.traj.max_time_s, seed=seed,
                           guidance=docking.LosGuidance(cruise_speed=self.traj.cruise_speed_mps,
                                                        final_speed=self.traj.final_speed_mps),
-                          filter=FilterParams())
+                          filter=FilterParams(), latency_s=self.exp.camera.latency_s,
+                          compute_latency=self.compute_latency)
 
 
 class VisionCamera:
@@ -472,12 +478,14 @@ def report(summary, out: Path, exp: Experiment, capture: CaptureSpec) -> str:
 
 
 def run_dock(exp: Experiment, specs: list[LocalizerSpec], trials: int, out: Path, images: bool = False,
-             threads: int = 0, baseline: bool = True, progress=print, report_only: bool = False) -> dict:
+             threads: int = 0, baseline: bool = True, progress=print, report_only: bool = False,
+             compute_latency: float | str = 0.0) -> dict:
     """Run the suite (unless ``report_only``: the tables already in ``out``) and write the
     summary and the path plot into ``out``; returns paths. Nine parameters (a reason): they
     are the ``dockbench dock`` run options, passed through by name."""
     import pandas as pd
     bench = Bench.prepare(exp, out / "assets")
+    bench.compute_latency = compute_latency
     if report_only:
         paths = {"trials": out / "trials.parquet", "frames": out / "frames.parquet"}
         if not paths["trials"].is_file():
@@ -496,8 +504,23 @@ def run_dock(exp: Experiment, specs: list[LocalizerSpec], trials: int, out: Path
     report(summary, out, exp, bench.capture)
     (out / "run.json").write_text(json.dumps({"config": exp.model_dump(mode="json"), "trials": trials,
                                               "localizers": [s.__dict__ for s in specs], "baseline": baseline,
-                                              "capture": bench.capture.__dict__}, indent=1, default=str))
+                                              "capture": bench.capture.__dict__,
+                                              "latency": {"camera_latency_s": exp.camera.latency_s,
+                                                          "compute_latency": compute_latency}}, indent=1, default=str))
     return paths
+
+
+def parse_compute_latency(text: str) -> float | str:
+    """``--compute-latency``: ``measured`` or seconds in [0, 10]; anything else is a ConfigError."""
+    if str(text).strip().lower() == "measured":
+        return "measured"
+    try:
+        v = float(text)
+    except ValueError:
+        v = math.nan
+    if not 0.0 <= v <= 10.0:
+        raise ConfigError(f"--compute-latency: expected seconds in [0, 10] or 'measured', got {text!r}")
+    return v
 
 
 def _specs(localizers, params, isolate, frame_timeout, preprocess) -> list[LocalizerSpec]:
