@@ -46,6 +46,24 @@ def test_capture_radius_default_from_dock_face_and_hull():
     assert CAPTURE.frame_half_m == pytest.approx((0.5955, 0.5955))
 
 
+def test_capture_limits_come_from_the_config_and_bad_values_are_refused():
+    from pydantic import ValidationError
+
+    from blendgen.config.models import DockingTrajectory
+    from blendgen.tools.closed_loop import capture_spec
+    default = capture_spec(DockingTrajectory(), [1.0, 1.0, 0.4], 0.0955)
+    assert default == CAPTURE
+    t = DockingTrajectory.model_validate({"capture": {"radius_m": 0.25, "max_heading_deg": 5,
+                                                      "max_lateral_speed_mps": 0.1}})
+    c = capture_spec(t, [1.0, 1.0, 0.4], 0.0955)
+    assert (c.capture_radius_m, c.max_heading_deg, c.max_lateral_speed_mps) == (0.25, 5.0, 0.1)
+    assert crossing_outcome(c, np.array([0.3, 0.0, 0.0]), 0.0, 0.0) == "collision"   # docked by default
+    assert crossing_outcome(c, np.zeros(3), 6.0, 0.0) == "misaligned"
+    for bad in ({"max_heading_deg": 0}, {"radius_m": -1}, {"max_lateral_speed_mps": 5}, {"funnel": 1}):
+        with pytest.raises(ValidationError):
+            DockingTrajectory.model_validate({"capture": bad})
+
+
 @pytest.mark.parametrize("nose, head, vlat, expected", [
     ((0.0, 0.0, 0.0), 0.0, 0.0, "docked"),
     ((0.28, 0.28, 0.0), 14.9, -0.24, "docked"),       # r = 0.396 < 0.4045, limits just met

@@ -131,7 +131,7 @@ class Bench:
         hull_r = VehicleParams().diameter / 2
         return cls(exp, plan.camera_K(exp), markers, scene, tj.T_world_dock_from_spec(exp.scene.dock),
                    tj.T_body_cam_from_spec(exp.camera.T_body_cam), traj,
-                   CaptureSpec.from_dock(exp.scene.dock.body_size_m, hull_r))
+                   capture_spec(traj, exp.scene.dock.body_size_m, hull_r))
 
     def camera_job(self) -> dict:
         c = self.exp.camera
@@ -159,6 +159,15 @@ class Bench:
                                                        final_speed=self.traj.final_speed_mps),
                           filter=FilterParams(), latency_s=self.exp.camera.latency_s,
                           compute_latency=self.compute_latency)
+
+
+def capture_spec(traj: DockingTrajectory, body_size_m, hull_radius_m: float) -> CaptureSpec:
+    """The trajectory's ``capture`` limits on the dock face; the radius defaults from the face."""
+    lim = traj.capture
+    kw = {"max_heading_deg": lim.max_heading_deg, "max_lateral_speed_mps": lim.max_lateral_speed_mps}
+    if lim.radius_m is not None:
+        kw["capture_radius_m"] = lim.radius_m
+    return CaptureSpec.from_dock(body_size_m, hull_radius_m, **kw)
 
 
 class VisionCamera:
@@ -477,6 +486,45 @@ def report(summary, out: Path, exp: Experiment, capture: CaptureSpec) -> str:
     return text
 
 
+RESULTS_FILE = "closed_loop.json"          # the leaderboard's interface (datasets_spec/CLOSED_LOOP.md)
+RESULTS_FORMAT, RESULTS_FORMAT_VERSION = "dockbench-closed-loop", "1"
+
+
+def _json_value(v):
+    """NaN/inf -> None, numpy scalars -> Python."""
+    if isinstance(v, (np.integer, np.floating, np.bool_)):
+        v = v.item()
+    return None if isinstance(v, float) and not math.isfinite(v) else v
+
+
+def write_results_file(summary, out: Path, exp: Experiment, capture: CaptureSpec, trials: int,
+                       compute_latency: float | str = 0.0) -> Path:
+    """``OUT/closed_loop.json``: the run's summary rows plus what they were measured under
+    (experiment + config hash, camera, latency, capture geometry); format in
+    datasets_spec/CLOSED_LOOP.md. ``truth`` rows carry ``"baseline": true``."""
+    import datetime as dt
+    import hashlib
+    from evalkit.reports.results import dockbench_version
+    cfg = exp.model_dump(mode="json")
+    c = exp.camera
+    rows = [{**{k: _json_value(v) for k, v in r.items()}, "baseline": r["localizer"] == TRUTH}
+            for r in summary.to_dict("records")]
+    doc = {"format": RESULTS_FORMAT, "format_version": RESULTS_FORMAT_VERSION,
+           "timestamp": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
+           "dockbench_version": dockbench_version(),
+           "experiment": {"name": exp.name, "version": exp.version,
+                          "config_hash": hashlib.sha256(json.dumps(cfg, sort_keys=True).encode()).hexdigest()},
+           "camera": {"width": c.width, "height": c.height, "fps": c.fps, "latency_s": c.latency_s},
+           "compute_latency": compute_latency, "fidelity": exp.render.fidelity, "trials_requested": trials,
+           "capture": {"capture_radius_m": capture.capture_radius_m, "max_heading_deg": capture.max_heading_deg,
+                       "max_lateral_speed_mps": capture.max_lateral_speed_mps,
+                       "frame_half_m": list(capture.frame_half_m), "entry_plane_m": capture.entry_plane_m},
+           "rows": rows}
+    path = out / RESULTS_FILE
+    path.write_text(json.dumps(doc, indent=1), encoding="utf-8")
+    return path
+
+
 def run_dock(exp: Experiment, specs: list[LocalizerSpec], trials: int, out: Path, images: bool = False,
              threads: int = 0, baseline: bool = True, progress=print, report_only: bool = False,
              compute_latency: float | str = 0.0) -> dict:
@@ -502,6 +550,7 @@ def run_dock(exp: Experiment, specs: list[LocalizerSpec], trials: int, out: Path
                                float(bench.T_body_cam[0, 3]), None if pool is None else (pool.length_m, pool.width_m))
     paths["report"] = out / "summary.md"
     report(summary, out, exp, bench.capture)
+    paths["results"] = write_results_file(summary, out, exp, bench.capture, trials, compute_latency)
     (out / "run.json").write_text(json.dumps({"config": exp.model_dump(mode="json"), "trials": trials,
                                               "localizers": [s.__dict__ for s in specs], "baseline": baseline,
                                               "capture": bench.capture.__dict__,
