@@ -400,8 +400,9 @@ def bench_localizers(dataset: Path, out: Path) -> None:
 @click.option("--screenshot", "shot", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="also render the page to this PNG (needs chromium)")
 def leaderboard(results_dirs: tuple[Path, ...], out: Path, title: str, shot: Path | None):
-    """Rank localizers per dataset and condition from RESULTS_DIRS (of `dockbench evaluate`)
-    into one static HTML page."""
+    """Rank localizers per dataset and condition from RESULTS_DIRS (of `dockbench evaluate`, and
+    `dockbench dock` outputs: their closed_loop.json, datasets_spec/CLOSED_LOOP.md) into one static
+    HTML page."""
     import subprocess
     from evalkit.reports.leaderboard import build_leaderboard, screenshot
     from evalkit.reports.results import ResultsError
