@@ -493,8 +493,9 @@ def bench_localizers(dataset: Path, out: Path) -> None:
 @click.option("--screenshot", "shot", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="also render the page to this PNG (needs chromium)")
 def leaderboard(results_dirs: tuple[Path, ...], out: Path, title: str, shot: Path | None):
-    """Rank localizers per dataset and condition from RESULTS_DIRS (of `dockbench evaluate`)
-    into one static HTML page."""
+    """Rank localizers per dataset and condition from RESULTS_DIRS (of `dockbench evaluate`, and
+    `dockbench dock` outputs: their closed_loop.json, datasets_spec/CLOSED_LOOP.md) into one static
+    HTML page."""
     import subprocess
     from evalkit.reports.leaderboard import build_leaderboard, screenshot
     from evalkit.reports.results import ResultsError
@@ -560,19 +561,23 @@ def export_bop(dataset: Path, out: Path, split: str, copy_images: bool, depth_sc
 @click.option("--isolate", is_flag=True, help="run built-in localizers in a child process too (plugins always are)")
 @click.option("--frame-timeout", type=click.FloatRange(min=0.001), default=None, help="s per frame")
 @click.option("--preprocess", default=None, metavar="STEPS", help="image preprocessing (see evaluate)")
+@click.option("--compute-latency", default="0", show_default=True, metavar="S|measured",
+              help="localizer compute time added to camera.latency_s before guidance sees an estimate: "
+                   "seconds (0..10), or 'measured' (each frame's measured time; depends on machine load)")
 @click.option("--report-only", is_flag=True, help="only summarise and plot the tables already in OUT")
 @click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="output directory (default out/dock/NAME)")
 def dock(experiment, localizers, params, trials, conditions, size, images, no_baseline, threads, isolate,
-             frame_timeout, preprocess, report_only, out):
+             frame_timeout, preprocess, compute_latency, report_only, out):
     """Closed-loop docking: each localizer steers the vehicle from seeded starts.
 
     EXPERIMENT is turbidity, depth, current, occlusion (the paper configs) or a config file.
     Writes trials.parquet, frames.parquet, summary.csv/.md and paths.png (top view)."""
     from blendgen.pipeline.executor import require_render_stack
-    from blendgen.tools.closed_loop import _specs, load_bench_experiment, run_dock
+    from blendgen.tools.closed_loop import _specs, load_bench_experiment, parse_compute_latency, run_dock
     from evalkit.reports.tables import print_table
     exp = load_bench_experiment(experiment, size, conditions)
+    compute_latency = parse_compute_latency(compute_latency)
     specs = _specs(localizers, params, isolate, frame_timeout, preprocess)
     if specs and not report_only:
         require_render_stack()
@@ -581,7 +586,8 @@ def dock(experiment, localizers, params, trials, conditions, size, images, no_ba
             getattr(loc, "close", lambda: None)()
     out = out or Path("out/dock") / exp.name
     paths = run_dock(exp, specs, trials, out, images, threads, not no_baseline,
-                     progress=lambda m: click.echo(m, err=True), report_only=report_only)
+                     progress=lambda m: click.echo(m, err=True), report_only=report_only,
+                     compute_latency=compute_latency)
     import pandas as pd
     print_table(pd.read_csv(paths["summary"]), floatfmt=".3g")
     click.echo("\n".join(f"{k}: {v}" for k, v in paths.items()))

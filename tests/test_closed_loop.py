@@ -10,7 +10,7 @@ import pytest
 from blendgen.config.models import Dock, Pose
 from blendgen.geometry import invert_T, make_T, rot_y, rot_z
 from blendgen.vehicle import trajectories as tj
-from blendgen.vehicle.closed_loop import Observation, TrialSetup, simulate_closed_loop
+from blendgen.vehicle.closed_loop import DelayLine, Observation, TrialSetup, simulate_closed_loop
 from blendgen.vehicle.docking import DockAxesNED
 from blendgen.vehicle.dynamics import F_WORLD_NED, T_world_body_to_eta
 from blendgen.vehicle.visual_nav import (CaptureSpec, DockFix, FilterParams, RelativePoseFilter,
@@ -44,6 +44,24 @@ def setup(**kw):
 def test_capture_radius_default_from_dock_face_and_hull():
     assert CAPTURE.capture_radius_m == pytest.approx(0.5 - 0.0955)
     assert CAPTURE.frame_half_m == pytest.approx((0.5955, 0.5955))
+
+
+def test_capture_limits_come_from_the_config_and_bad_values_are_refused():
+    from pydantic import ValidationError
+
+    from blendgen.config.models import DockingTrajectory
+    from blendgen.tools.closed_loop import capture_spec
+    default = capture_spec(DockingTrajectory(), [1.0, 1.0, 0.4], 0.0955)
+    assert default == CAPTURE
+    t = DockingTrajectory.model_validate({"capture": {"radius_m": 0.25, "max_heading_deg": 5,
+                                                      "max_lateral_speed_mps": 0.1}})
+    c = capture_spec(t, [1.0, 1.0, 0.4], 0.0955)
+    assert (c.capture_radius_m, c.max_heading_deg, c.max_lateral_speed_mps) == (0.25, 5.0, 0.1)
+    assert crossing_outcome(c, np.array([0.3, 0.0, 0.0]), 0.0, 0.0) == "collision"   # docked by default
+    assert crossing_outcome(c, np.zeros(3), 6.0, 0.0) == "misaligned"
+    for bad in ({"max_heading_deg": 0}, {"radius_m": -1}, {"max_lateral_speed_mps": 5}, {"funnel": 1}):
+        with pytest.raises(ValidationError):
+            DockingTrajectory.model_validate({"capture": bad})
 
 
 @pytest.mark.parametrize("nose, head, vlat, expected", [
@@ -208,6 +226,68 @@ def test_ground_truth_guidance_drifts_out_of_capture_in_a_strong_cross_current()
     r = simulate_closed_loop(setup(current_world=(0.0, 1.0, 0.0), seed=1))
     assert r["outcome"] in ("out_of_capture", "collision", "misaligned")
     assert abs(r["cross_lateral_m"]) > CAPTURE.capture_radius_m or abs(r["cross_heading_deg"]) > 15
+
+
+# ---------------------------------------------------------------- camera + localizer latency
+def test_delay_line_delivers_fixes_stamped_at_capture_in_capture_order():
+    class Rec:
+        def __init__(self):
+            self.calls = []
+
+        def update(self, t, fix):
+            self.calls.append((t, fix))
+    d, rec = DelayLine(0.3, "measured"), Rec()
+    d.push(0.0, "a", 250.0)           # arrives 0.55 s
+    d.push(0.1, "b", 10.0)            # would arrive 0.41 s: cannot overtake "a"
+    d.push(0.2, "c", float("nan"))    # no measured time: link latency only -> 0.5, still after "a"
+    d.deliver(rec, 0.54)
+    assert rec.calls == []
+    d.deliver(rec, 0.55)
+    assert rec.calls == [(0.0, "a"), (0.1, "b"), (0.2, "c")]     # stamped at capture, not arrival
+    d2 = DelayLine(0.0, 0.25)
+    d2.push(1.0, "x", 999.0)          # a configured compute time ignores the measured one
+    assert d2.queue[0][0] == pytest.approx(1.25)
+
+
+def test_latency_settings_are_checked_and_zero_latency_builds_no_delay_line(monkeypatch):
+    with pytest.raises(ValueError, match="latency_s"):
+        setup(latency_s=-0.1)
+    with pytest.raises(ValueError, match="compute_latency"):
+        setup(compute_latency="sometimes")
+    assert not setup().delayed and setup(compute_latency="measured").delayed
+
+    def boom(*a, **k):
+        raise AssertionError("the latency path ran with zero latency")
+    monkeypatch.setattr("blendgen.vehicle.closed_loop.DelayLine", boom)
+    assert simulate_closed_loop(setup(), oracle())["outcome"] == "docked"
+
+
+LATENCY_STARTS = [START, {**START, "range_m": 10.0, "lateral_m": -1.2}, {**START, "range_m": 6.0, "lateral_m": 1.5}]
+
+
+def _lateral_errors(latency_s: float) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Per start: |lateral offset| of the nose at the entry plane, RMS error of the estimate
+    guidance used (m), outcome; a perfect localizer, calm water."""
+    cross, rms, outcomes = [], [], []
+    for i, st in enumerate(LATENCY_STARTS):
+        r = simulate_closed_loop(setup(start=st, seed=i, latency_s=latency_s), oracle())
+        f = pd.DataFrame(r["frames"])
+        e = (f["est_lateral_m"] - f["lateral_m"]).dropna()
+        cross.append(abs(r["cross_lateral_m"]))
+        rms.append(float(np.sqrt(np.mean(e ** 2))))
+        outcomes.append(r["outcome"])
+    return np.array(cross), np.array(rms), outcomes
+
+
+def test_latency_small_still_docks_and_one_second_degrades_lateral_error():
+    c0, e0, o0 = _lateral_errors(0.0)
+    c2, e2, o2 = _lateral_errors(0.2)          # a typical camera link + PnP time
+    c10, e10, o10 = _lateral_errors(1.0)
+    assert o0 == ["docked"] * 3 and o2 == ["docked"] * 3
+    # 1 s of delay: the constant-velocity re-propagation cannot follow the vehicle's turns
+    assert e10.mean() > 3 * e0.mean() and np.all(e10 > e2)
+    assert c10.mean() > 2 * c0.mean() + 0.1
+    assert o10.count("docked") < 3
 
 
 def test_closed_loop_modules_never_import_bpy():

@@ -99,6 +99,18 @@ def test_dock_command_writes_outcomes_trajectories_metrics_and_plot(bench):
     loc = s[s["localizer"] == "led"].iloc[0]
     assert loc["P_detect_mean"] > 0.5 and loc["E_rel_mean"] < 0.1
     assert (out / "paths.png").stat().st_size > 10_000
+    from evalkit.reports.closed_loop import load_closed_loop      # the leaderboard's interface
+    doc = load_closed_loop(out).doc
+    assert {(r["localizer"], r["baseline"]) for r in doc["rows"]} == {("truth", True), ("led", False)}
+    assert doc["camera"]["width"] == 160 and doc["experiment"]["name"] == "dock_tiny"
+    assert "closed-loop docking: dock_tiny" in leaderboard_html(out, d)
+
+
+def leaderboard_html(run_dir, d) -> str:
+    import cli
+    r = CliRunner().invoke(cli.main, ["leaderboard", str(run_dir), "-o", str(d / "board.html")])
+    assert r.exit_code == 0, r.output
+    return (d / "board.html").read_text()
 
 
 def test_dock_command_rejects_unknown_condition_with_exit_code_2(bench):
@@ -107,3 +119,11 @@ def test_dock_command_rejects_unknown_condition_with_exit_code_2(bench):
     r = CliRunner().invoke(cli.main, ["dock", str(d / "dock.yaml"), "--condition", "murky", "-o", str(d / "x")])
     assert r.exit_code == 2 and "murky" in r.output
     assert not (d / "x").exists()
+
+
+def test_dock_command_rejects_a_bad_compute_latency_with_exit_code_2(bench):
+    import cli
+    _, d = bench
+    r = CliRunner().invoke(cli.main, ["dock", str(d / "dock.yaml"), "--compute-latency", "soon", "-o", str(d / "y")])
+    assert r.exit_code == 2 and "--compute-latency" in r.output
+    assert not (d / "y").exists()

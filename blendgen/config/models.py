@@ -478,6 +478,20 @@ class StartRanges(Strict):
         return self
 
 
+class CaptureLimits(Strict):
+    """When a closed-loop trial (``dockbench dock``) counts as docked: the nose crosses the dock's
+    entry plane within ``radius_m`` of the face centre with |heading error| and |lateral speed|
+    within limits. Entry offset, heading and lateral speed are the critical docking parameters
+    measured by Martin et al., "Characterizing the critical parameters for docking unmanned
+    underwater vehicles", OCEANS 2016; the 15 deg / 0.25 m/s defaults are round values for a
+    funnel-less 1 m face, not a measured dock's: set them from your dock."""
+    radius_m: Optional[float] = Field(None, gt=0.0, le=10.0, description="capture radius (m); none: the dock "
+                                      "face's inscribed circle minus the hull radius (0.40 m for the 1 m face)")
+    max_heading_deg: float = Field(15.0, gt=0.0, le=90.0, description="largest |heading error| at entry (deg)")
+    max_lateral_speed_mps: float = Field(0.25, gt=0.0, le=3.0, description="largest |speed across the dock "
+                                         "axis| at entry (m/s)")
+
+
 class DockingTrajectory(Strict):
     """Closed-loop docking trial of the 6-DOF vehicle (blendgen.vehicle.docking) from a seeded random start."""
     kind: Literal["docking"] = "docking"
@@ -487,6 +501,8 @@ class DockingTrajectory(Strict):
     max_time_s: float = Field(120.0, gt=0.0, le=3600.0)
     cruise_speed_mps: float = Field(0.5, gt=0.0, le=3.0)
     final_speed_mps: float = Field(0.2, gt=0.0, le=3.0)
+    capture: CaptureLimits = Field(default_factory=CaptureLimits, description="docking success limits "
+                                   "(closed loop only)")
 
 
 Trajectory = Annotated[Union[LinearTrajectory, CircleTrajectory, DockingTrajectory], Field(discriminator="kind")]

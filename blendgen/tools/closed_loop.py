@@ -10,8 +10,12 @@ depth light, small obstacles and sensor noise are applied by
 with the same isolation options as ``dockbench evaluate``) returns its estimate, and
 guidance steers on it. ``truth`` is the ground-truth-guidance baseline (nothing rendered).
 
-Not modelled here (said so in the report): camera link latency (the frame shows the
-pose of its own time stamp), reference (volumetric) fidelity and ``geometry: blender``
+Latency: the estimate of a frame reaches guidance ``camera.latency_s`` (config) plus the
+localizer's compute time (``--compute-latency``: seconds, or ``measured`` = each frame's
+measured time, which makes a run depend on machine load) after the frame's capture; the
+filter treats it as a delayed measurement (:class:`blendgen.vehicle.closed_loop.DelayLine`).
+
+Not modelled here (said so in the report): reference (volumetric) fidelity and ``geometry: blender``
 particles; the config is rejected for the latter two.
 """
 from __future__ import annotations
@@ -107,6 +111,7 @@ class Bench:
     T_body_cam: np.ndarray
     traj: DockingTrajectory
     capture: CaptureSpec
+    compute_latency: float | str = 0.0     # localizer time added to camera.latency_s (s or "measured")
 
     @classmethod
     def prepare(cls, exp: Experiment, assets: Path) -> "Bench":
@@ -126,7 +131,7 @@ class Bench:
         hull_r = VehicleParams().diameter / 2
         return cls(exp, plan.camera_K(exp), markers, scene, tj.T_world_dock_from_spec(exp.scene.dock),
                    tj.T_body_cam_from_spec(exp.camera.T_body_cam), traj,
-                   CaptureSpec.from_dock(exp.scene.dock.body_size_m, hull_r))
+                   capture_spec(traj, exp.scene.dock.body_size_m, hull_r))
 
     def camera_job(self) -> dict:
         c = self.exp.camera
@@ -152,7 +157,17 @@ class Bench:
                           fps=self.exp.camera.fps, max_time_s=self.traj.max_time_s, seed=seed,
                           guidance=docking.LosGuidance(cruise_speed=self.traj.cruise_speed_mps,
                                                        final_speed=self.traj.final_speed_mps),
-                          filter=FilterParams())
+                          filter=FilterParams(), latency_s=self.exp.camera.latency_s,
+                          compute_latency=self.compute_latency)
+
+
+def capture_spec(traj: DockingTrajectory, body_size_m, hull_radius_m: float) -> CaptureSpec:
+    """The trajectory's ``capture`` limits on the dock face; the radius defaults from the face."""
+    lim = traj.capture
+    kw = {"max_heading_deg": lim.max_heading_deg, "max_lateral_speed_mps": lim.max_lateral_speed_mps}
+    if lim.radius_m is not None:
+        kw["capture_radius_m"] = lim.radius_m
+    return CaptureSpec.from_dock(body_size_m, hull_radius_m, **kw)
 
 
 class VisionCamera:
@@ -472,13 +487,54 @@ def report(summary, out: Path, exp: Experiment, capture: CaptureSpec) -> str:
     return text
 
 
+RESULTS_FILE = "closed_loop.json"          # the leaderboard's interface (datasets_spec/CLOSED_LOOP.md)
+RESULTS_FORMAT, RESULTS_FORMAT_VERSION = "dockbench-closed-loop", "1"
+
+
+def _json_value(v):
+    """NaN/inf -> None, numpy scalars -> Python."""
+    if isinstance(v, (np.integer, np.floating, np.bool_)):
+        v = v.item()
+    return None if isinstance(v, float) and not math.isfinite(v) else v
+
+
+def write_results_file(summary, out: Path, exp: Experiment, capture: CaptureSpec, trials: int,
+                       compute_latency: float | str = 0.0) -> Path:
+    """``OUT/closed_loop.json``: the run's summary rows plus what they were measured under
+    (experiment + config hash, camera, latency, capture geometry); format in
+    datasets_spec/CLOSED_LOOP.md. ``truth`` rows carry ``"baseline": true``."""
+    import datetime as dt
+    import hashlib
+    from evalkit.reports.results import dockbench_version
+    cfg = exp.model_dump(mode="json")
+    c = exp.camera
+    rows = [{**{k: _json_value(v) for k, v in r.items()}, "baseline": r["localizer"] == TRUTH}
+            for r in summary.to_dict("records")]
+    doc = {"format": RESULTS_FORMAT, "format_version": RESULTS_FORMAT_VERSION,
+           "timestamp": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
+           "dockbench_version": dockbench_version(),
+           "experiment": {"name": exp.name, "version": exp.version,
+                          "config_hash": hashlib.sha256(json.dumps(cfg, sort_keys=True).encode()).hexdigest()},
+           "camera": {"width": c.width, "height": c.height, "fps": c.fps, "latency_s": c.latency_s},
+           "compute_latency": compute_latency, "fidelity": exp.render.fidelity, "trials_requested": trials,
+           "capture": {"capture_radius_m": capture.capture_radius_m, "max_heading_deg": capture.max_heading_deg,
+                       "max_lateral_speed_mps": capture.max_lateral_speed_mps,
+                       "frame_half_m": list(capture.frame_half_m), "entry_plane_m": capture.entry_plane_m},
+           "rows": rows}
+    path = out / RESULTS_FILE
+    path.write_text(json.dumps(doc, indent=1), encoding="utf-8")
+    return path
+
+
 def run_dock(exp: Experiment, specs: list[LocalizerSpec], trials: int, out: Path, images: bool = False,
-             threads: int = 0, baseline: bool = True, progress=print, report_only: bool = False) -> dict:
+             threads: int = 0, baseline: bool = True, progress=print, report_only: bool = False,
+             compute_latency: float | str = 0.0) -> dict:
     """Run the suite (unless ``report_only``: the tables already in ``out``) and write the
     summary and the path plot into ``out``; returns paths. Nine parameters (a reason): they
     are the ``dockbench dock`` run options, passed through by name."""
     import pandas as pd
     bench = Bench.prepare(exp, out / "assets")
+    bench.compute_latency = compute_latency
     if report_only:
         paths = {"trials": out / "trials.parquet", "frames": out / "frames.parquet"}
         if not paths["trials"].is_file():
@@ -495,10 +551,26 @@ def run_dock(exp: Experiment, specs: list[LocalizerSpec], trials: int, out: Path
                                float(bench.T_body_cam[0, 3]), None if pool is None else (pool.length_m, pool.width_m))
     paths["report"] = out / "summary.md"
     report(summary, out, exp, bench.capture)
+    paths["results"] = write_results_file(summary, out, exp, bench.capture, trials, compute_latency)
     (out / "run.json").write_text(json.dumps({"config": exp.model_dump(mode="json"), "trials": trials,
                                               "localizers": [s.__dict__ for s in specs], "baseline": baseline,
-                                              "capture": bench.capture.__dict__}, indent=1, default=str))
+                                              "capture": bench.capture.__dict__,
+                                              "latency": {"camera_latency_s": exp.camera.latency_s,
+                                                          "compute_latency": compute_latency}}, indent=1, default=str))
     return paths
+
+
+def parse_compute_latency(text: str) -> float | str:
+    """``--compute-latency``: ``measured`` or seconds in [0, 10]; anything else is a ConfigError."""
+    if str(text).strip().lower() == "measured":
+        return "measured"
+    try:
+        v = float(text)
+    except ValueError:
+        v = math.nan
+    if not 0.0 <= v <= 10.0:
+        raise ConfigError(f"--compute-latency: expected seconds in [0, 10] or 'measured', got {text!r}")
+    return v
 
 
 def _specs(localizers, params, isolate, frame_timeout, preprocess) -> list[LocalizerSpec]:

@@ -9,6 +9,11 @@ ground-truth trials (:func:`blendgen.vehicle.docking.los_references` + the cross
 runs on the filtered relative pose at the control rate. With ``observe=None`` guidance uses
 the true state: the baseline row (what perfect localization would give).
 
+Latency (``TrialSetup.latency_s`` camera link + ``compute_latency`` localizer time, both 0 by
+default): the estimate of a frame captured at ``t`` reaches the filter at ``t + latency``
+and is processed as a delayed measurement stamped ``t``, then re-propagated to now
+(:class:`DelayLine`); with both 0 the fix updates the filter at its capture time, as before.
+
 Docking is judged by geometry (:func:`blendgen.vehicle.visual_nav.crossing_outcome`) when
 the camera (at the nose) crosses the dock's entry plane; a trial also ends when the target
 is lost (no fix for ``lost_s``) or at ``max_time_s`` (``timeout``).
@@ -60,6 +65,52 @@ class TrialSetup:
     turbulence: Turbulence = Turbulence()
     filter: FilterParams = FilterParams()
     params: VehicleParams = VehicleParams()
+    latency_s: float = 0.0
+    compute_latency: float | str = 0.0
+
+    def __post_init__(self):
+        if not 0.0 <= self.latency_s <= 10.0:
+            raise ValueError(f"latency_s must be in [0, 10] s, got {self.latency_s}")
+        c = self.compute_latency
+        if c != "measured" and not (isinstance(c, (int, float)) and 0.0 <= float(c) <= 10.0):
+            raise ValueError(f"compute_latency must be 'measured' or in [0, 10] s, got {self.compute_latency!r}")
+
+    @property
+    def delayed(self) -> bool:
+        """True when estimates reach guidance later than the frame's capture (latency path)."""
+        return self.latency_s > 0 or self.compute_latency == "measured" or float(self.compute_latency) > 0
+
+
+class DelayLine:
+    """Estimates in flight between the camera and guidance (camera link + localizer compute).
+
+    A frame captured at ``t_capture`` reaches guidance at ``t_capture + latency_s + compute``
+    (``compute`` = the configured seconds, or the localizer's measured time of that frame when
+    ``compute_latency == "measured"``); arrivals are kept in capture order (a localizer works
+    on one frame at a time, so a frame cannot overtake the one before it). The filter is then
+    updated with the fix *stamped at its capture time* and guidance reads the state
+    dead-reckoned to now: delayed-measurement processing by re-propagation (exact for this
+    filter, whose only inputs are the fixes; Bar-Shalom, Li & Kirubarajan, *Estimation with
+    Applications to Tracking and Navigation*, 2001, sec. 10.5 and the out-of-sequence
+    measurement literature, here with in-sequence arrivals). The fix uses the attitude and
+    depth sensors of the capture instant."""
+
+    def __init__(self, latency_s: float, compute_latency: float | str):
+        self.latency_s, self.compute = latency_s, compute_latency
+        self.queue: list[tuple[float, float, object]] = []    # (t_arrive, t_capture, fix)
+        self.last_arrival = -math.inf
+
+    def push(self, t_capture: float, fix, measured_ms: float) -> None:
+        extra = (measured_ms / 1e3 if math.isfinite(measured_ms) else 0.0) if self.compute == "measured" \
+            else float(self.compute)
+        self.last_arrival = max(self.last_arrival, t_capture + self.latency_s + extra)
+        self.queue.append((self.last_arrival, t_capture, fix))
+
+    def deliver(self, filt: RelativePoseFilter, t: float) -> None:
+        """Update ``filt`` with every fix that has arrived by ``t`` (capture order)."""
+        while self.queue and self.queue[0][0] <= t + 1e-9:
+            _, t_cap, fix = self.queue.pop(0)
+            filt.update(t_cap, fix)
 
 
 class _TruthNav:
@@ -154,6 +205,7 @@ def simulate_closed_loop(setup: TrialSetup, observe: Observer | None = None) -> 
     filt = RelativePoseFilter(setup.filter)
     nav = (_TruthNav(axes, setup.guidance, stop_m) if observe is None else
            _EstimateNav(filt, np.asarray(setup.T_world_dock)[:2, 3], setup.guidance, stop_m))
+    delay = DelayLine(setup.latency_s, setup.compute_latency) if setup.delayed and observe is not None else None
     frames, res, prev = [], {"outcome": "timeout"}, None
     for k in range(n_max):
         t, eta = k / setup.fps, plant.s[:6].copy()
@@ -166,11 +218,7 @@ def simulate_closed_loop(setup: TrialSetup, observe: Observer | None = None) -> 
         row = _frame_row(t, eta, axes)
         row.update(x_cam_world=float(T_wc[0, 3]), y_cam_world=float(T_wc[1, 3]))
         if observe is not None:
-            obs = observe(k, t, T_wc)
-            fix = None if obs.estimate is None else fix_from_estimate(obs.estimate, setup.T_body_cam, sens)
-            filt.update(t, fix)
-            p_hat = filt.state(t, sens["depth_m"])[0] if filt.initialised else np.full(3, math.nan)
-            row.update(obs.info, fix=fix is not None, est_lateral_m=float(p_hat[0]), est_range_m=float(p_hat[2]))
+            _observe_frame(observe, setup, filt, delay, k, t, T_wc, sens, row)
             if filt.lost(t):
                 frames.append(row)
                 res = {"outcome": "lost_target"}
@@ -179,6 +227,8 @@ def simulate_closed_loop(setup: TrialSetup, observe: Observer | None = None) -> 
         if k == n_max - 1:
             break
         for j in range(n_sub):
+            if delay is not None and j:
+                delay.deliver(filt, t + j * dt)
             eta, nu = plant.s[:6], plant.s[6:]
             s = sensors.read(eta)
             psi_ref, depth_ref, u_ref, f_ned = nav.references(ap, t + j * dt, eta, nu, s, dt)
@@ -187,6 +237,23 @@ def simulate_closed_loop(setup: TrialSetup, observe: Observer | None = None) -> 
         if not all(map(math.isfinite, plant.s)):
             raise FloatingPointError("closed-loop docking simulation diverged")
     return _summary(res, frames, setup.fps, k)
+
+
+def _observe_frame(observe: Observer, setup: TrialSetup, filt: RelativePoseFilter, delay: DelayLine | None,
+                   k: int, t: float, T_wc: np.ndarray, sens: dict, row: dict) -> None:
+    """Frame ``k``: capture + localize, then update the filter now (no latency) or queue the fix
+    (:class:`DelayLine`); log the estimate guidance holds at ``t`` into ``row``."""
+    obs = observe(k, t, T_wc)
+    fix = None if obs.estimate is None else fix_from_estimate(obs.estimate, setup.T_body_cam, sens)
+    if delay is None:
+        filt.update(t, fix)
+    else:
+        filt.update(t, None)                 # starts the lost-target clock at the first frame
+        if fix is not None:
+            delay.push(t, fix, float(obs.info.get("ms", math.nan)))
+        delay.deliver(filt, t)
+    p_hat = filt.state(t, sens["depth_m"])[0] if filt.initialised else np.full(3, math.nan)
+    row.update(obs.info, fix=fix is not None, est_lateral_m=float(p_hat[0]), est_range_m=float(p_hat[2]))
 
 
 def _frame_row(t: float, eta, axes: DockAxesNED) -> dict:
@@ -208,4 +275,4 @@ def _summary(res: dict, frames: list[dict], fps: float, k_end: int) -> dict:
     return out
 
 
-__all__ = ["Observation", "Observer", "TrialSetup", "simulate_closed_loop"]
+__all__ = ["Observation", "Observer", "TrialSetup", "DelayLine", "simulate_closed_loop"]

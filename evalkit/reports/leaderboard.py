@@ -46,7 +46,7 @@ COLUMNS: list[tuple[str, str, str, str]] = [
     ("ms_median", "ms", "num", "median ms per frame"),
     ("n_trials", "M", "int", "independent trials"),
 ]
-CI_PREFIX = {"P_succ_mean": "P_succ", "E_rel_mean": "E_rel"}
+CI_PREFIX = {"P_succ_mean": "P_succ", "E_rel_mean": "E_rel", "success_rate": "success"}
 TEMPLATE = "leaderboard.html.j2"
 
 CSS = """
@@ -60,7 +60,7 @@ th,td{border:1px solid #d0d7de;padding:2px 6px;white-space:nowrap}
 th{background:#f6f8fa}table.lb th{cursor:pointer;user-select:none}
 table.lb th.sorted-asc::after{content:" \\25B2"}table.lb th.sorted-desc::after{content:" \\25BC"}
 td.n{text-align:right;font-variant-numeric:tabular-nums}td.lbl{max-width:190px;overflow:hidden;text-overflow:ellipsis}
-table.lb tr.first td{background:#eaf5ea}td.bar-cell{position:relative}
+table.lb tr.first td{background:#eaf5ea}table.lb tr.baseline td{background:#f3f0ff;font-style:italic}td.bar-cell{position:relative}
 .bar{position:absolute;left:0;bottom:0;height:3px;background:#2da44e}
 .ci{color:#6e7781;font-size:10px}code{font-size:11px}
 """
@@ -278,8 +278,49 @@ def _section(group: Sequence[Run], index: int) -> dict:
             "matrix": _matrix(table), "groups": groups}
 
 
-def build_html(runs: Sequence[Run], title: str = "dockbench leaderboard") -> str:
-    """The whole page as a string (jinja2, autoescaped)."""
+def _cl_matrix(rows: list[dict], conds: list[str]) -> dict:
+    """Localizer x condition of docking success (%, docked/M); the baseline first, then by mean."""
+    by: dict[str, dict] = {}
+    for r in rows:
+        by.setdefault(r["label"], {})[r["condition"]] = r
+    out = []
+    for label, cells in by.items():
+        mean = sum(float(c["success_rate"]) for c in cells.values()) / len(cells)
+        out.append({"label": label, "baseline": any(c.get("baseline") for c in cells.values()), "_m": mean,
+                    "mean": _pct_text(mean),
+                    "cells": [{"text": f"{_pct_text(cells[c]['success_rate'])} ({cells[c]['n_docked']}/"
+                                       f"{cells[c]['n_trials']})" if c in cells else "",
+                               "shade": _shade(cells[c]["success_rate"]) if c in cells else "#fff"}
+                              for c in conds]})
+    out.sort(key=lambda r: (not r["baseline"], -r["_m"], r["label"]))
+    return {"columns": conds, "rows": out}
+
+
+def _cl_section(group, index: int) -> dict:
+    """View model of one closed-loop benchmark (runs with the same config, capture and latency)."""
+    from evalkit.reports.closed_loop import CL_COLUMNS, _labelled_rows, rank_rows
+    rows = [dict(r, success_lo=r.get("ci_low"), success_hi=r.get("ci_high"),
+                 full=f"{r['localizer']} ({r['run']})") for r in _labelled_rows(group)]
+    conds = list(dict.fromkeys(r["condition"] for r in rows))
+    groups = []
+    for ci, cond in enumerate(conds):
+        ranked = rank_rows([r for r in rows if r["condition"] == cond])
+        groups.append({"title": f"condition {cond}", "id": f"cl{index}-{ci}",
+                       "rows": [{"label": r["label"], "baseline": bool(r.get("baseline")),
+                                 "cells": [_cell(r, k, kind) for k, _, kind, _ in CL_COLUMNS]} for r in ranked]})
+    d = group[0].doc
+    cam, cap = d["camera"], d["capture"]
+    return {"name": d["experiment"].get("name"), "version": d["experiment"].get("version"),
+            "config_hash": str(d["experiment"].get("config_hash") or ""), "camera": cam,
+            "compute_latency": d.get("compute_latency", 0), "fidelity": d.get("fidelity", "?"), "capture": cap,
+            "runs": [{"label": r.path.name, "path": str(r.path), "timestamp": r.doc.get("timestamp", "")}
+                     for r in group],
+            "matrix": _cl_matrix(rows, conds), "groups": groups}
+
+
+def build_html(runs: Sequence[Run], title: str = "dockbench leaderboard", closed_loop: Sequence = ()) -> str:
+    """The whole page as a string (jinja2, autoescaped): open-loop sections from ``runs``, then
+    closed-loop docking sections from ``closed_loop`` (:class:`evalkit.reports.closed_loop.ClosedLoopRun`)."""
     import jinja2
 
     from evalkit.metrics.extra import MIN_TRIALS_FOR_CI
@@ -288,23 +329,35 @@ def build_html(runs: Sequence[Run], title: str = "dockbench leaderboard") -> str
                              autoescape=True, undefined=jinja2.StrictUndefined)
     columns = [{"key": k, "header": h, "kind": "text" if kind == "text" else "num", "help": hp}
                for k, h, kind, hp in COLUMNS]
-    sections = [_section(g, i) for i, g in enumerate(group_runs(runs))]
+    from evalkit.reports.closed_loop import CL_COLUMNS, group_closed_loop
+    sections = [_section(g, i) for i, g in enumerate(group_runs(runs))] if runs else []
+    cl_sections = [_cl_section(g, i) for i, g in enumerate(group_closed_loop(closed_loop))]
+    cl_columns = [{"key": k, "header": h, "kind": "text" if kind == "text" else "num", "help": hp}
+                  for k, h, kind, hp in CL_COLUMNS]
     now = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
     return env.get_template(TEMPLATE).render(
-        title=title, css=CSS, js=JS, now=now, version=dockbench_version(), n_runs=len(runs),
-        sections=sections, columns=columns, min_trials=MIN_TRIALS_FOR_CI)
+        title=title, css=CSS, js=JS, now=now, version=dockbench_version(), n_runs=len(runs) + len(closed_loop),
+        sections=sections, columns=columns, min_trials=MIN_TRIALS_FOR_CI, cl_sections=cl_sections,
+        cl_columns=cl_columns)
 
 
 def build_leaderboard(result_dirs: Iterable[str | Path], out: str | Path,
                       title: str = "dockbench leaderboard") -> Path:
-    """Load the run directories and write the HTML page to ``out``."""
+    """Load the run directories (``dockbench evaluate`` results, or ``dockbench dock`` outputs
+    holding a ``closed_loop.json``) and write the HTML page to ``out``."""
+    from evalkit.reports.closed_loop import ClosedLoopError, is_closed_loop_dir, load_closed_loop
     from evalkit.reports.results import ResultsError, load_run
-    runs = [load_run(d) for d in result_dirs]
-    if not runs:
+    dirs = list(result_dirs)
+    if not dirs:
         raise ResultsError("no result directories given")
+    try:
+        closed = [load_closed_loop(d) for d in dirs if is_closed_loop_dir(d)]
+    except ClosedLoopError as exc:
+        raise ResultsError(str(exc)) from None
+    runs = [load_run(d) for d in dirs if not is_closed_loop_dir(d)]
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(build_html(runs, title), encoding="utf-8")
+    out.write_text(build_html(runs, title, closed), encoding="utf-8")
     return out
 
 
