@@ -13,9 +13,7 @@ scattering; > 0: multiple scattering).
 """
 from __future__ import annotations
 
-import json
 import math
-import os
 import sys
 
 
@@ -63,23 +61,8 @@ def add_disc_led(led: dict, r: float) -> None:
 
 
 def main(argv: list[str]) -> int:
-    import bpy
-    import numpy as np
     from blendgen.blender import render
-
-    spec = json.loads(open(argv[1]).read())
-    null = os.open(os.devnull, os.O_WRONLY)
-    os.dup2(null, 1)                      # Blender's render log -> /dev/null
-    sc = build(spec)
-    path = os.path.join(render.scratch_dir(), f"dockbench-glow-{os.getpid()}.exr")
-    sc.render.filepath = path
-    try:
-        bpy.ops.render.render(write_still=True)
-        np.save(argv[2], render.read_passes(path)["rgb"])
-    finally:
-        if os.path.exists(path):
-            os.remove(path)
-    return 0
+    return render.oracle_main(build, argv, "glow")
 
 
 if __name__ == "__main__":

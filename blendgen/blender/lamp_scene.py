@@ -11,9 +11,7 @@ null), ``hfov_deg``, ``width``, ``height``, ``samples``, ``volume_bounces``, ``s
 """
 from __future__ import annotations
 
-import json
 import math
-import os
 import sys
 
 BOX = {"box_min": [-2.0, -30.0, -30.0], "box_max": [60.0, 30.0, 30.0]}
@@ -46,23 +44,8 @@ def build(spec: dict):
 
 
 def main(argv: list[str]) -> int:
-    import bpy
-    import numpy as np
     from blendgen.blender import render
-
-    spec = json.loads(open(argv[1]).read())
-    null = os.open(os.devnull, os.O_WRONLY)
-    os.dup2(null, 1)                      # Blender's render log -> /dev/null
-    sc = build(spec)
-    path = os.path.join(render.scratch_dir(), f"dockbench-lamp-{os.getpid()}.exr")
-    sc.render.filepath = path
-    try:
-        bpy.ops.render.render(write_still=True)
-        np.save(argv[2], render.read_passes(path)["rgb"])
-    finally:
-        if os.path.exists(path):
-            os.remove(path)
-    return 0
+    return render.oracle_main(build, argv, "lamp")
 
 
 if __name__ == "__main__":

@@ -180,3 +180,25 @@ def render_roi_frame(scene: bpy.types.Scene, cam_obj: bpy.types.Object, frame: d
         return passes
     render_frame(scene, cam_obj, frame["T_world_cam"], path)
     return read_passes(path)
+
+
+def oracle_main(build, argv: list[str], tag: str) -> int:
+    """Entry point of a one-frame oracle scene: ``python -m MODULE SPEC.json OUT.npy``.
+
+    ``build(spec) -> scene`` builds it from the JSON spec; the linear RGB pass (H, W, 3)
+    float32 is saved to OUT.npy. Blender's render log goes to /dev/null; the scratch EXR
+    is removed whatever happens."""
+    import json
+    spec = json.loads(open(argv[1]).read())
+    null = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(null, 1)
+    sc = build(spec)
+    path = os.path.join(scratch_dir(), f"dockbench-{tag}-{os.getpid()}.exr")
+    sc.render.filepath = path
+    try:
+        bpy.ops.render.render(write_still=True)
+        np.save(argv[2], read_passes(path)["rgb"])
+    finally:
+        if os.path.exists(path):
+            os.remove(path)
+    return 0
