@@ -387,20 +387,32 @@ def glow_reference(water, range_m: float, out: Path, size: int = 96, hfov_deg: f
                    samples: int = 64, power_w: float = 100.0, volume_bounces: int = 0) -> np.ndarray:
     """Render the reference glow of a point light ``range_m`` ahead (``blendgen.blender.glow_scene``,
     Blender in a subprocess); returns its linear RGB (size, size, 3)."""
-    import subprocess
-    import sys
-    spec = {"water": {"sigma_a": water.sigma_a.tolist(), "sigma_s": water.sigma_s.tolist(), "phase": water.phase,
-                      "g": float(water.g), "ff_ior": float(water.ff_ior), "ff_backscatter": float(water.ff_backscatter)},
+    spec = {"water": _water_spec(water),
             "range_m": range_m, "power_w": power_w, "light_radius_m": 0.005, "hfov_deg": hfov_deg,
             "width": size, "height": size, "samples": samples, "seed": 1, "volume_bounces": int(volume_bounces)}
+    return _glow_scene(spec, out, f"glow-{water.name}-{range_m:g}-b{int(volume_bounces)}", "glow")
+
+
+def _water_spec(water) -> dict | None:
+    """The glow scene's medium from a ``WaterOptics`` (None: no medium, air)."""
+    if water is None:
+        return None
+    return {"sigma_a": water.sigma_a.tolist(), "sigma_s": water.sigma_s.tolist(), "phase": water.phase,
+            "g": float(water.g), "ff_ior": float(water.ff_ior), "ff_backscatter": float(water.ff_backscatter)}
+
+
+def _glow_scene(spec: dict, out: Path, tag: str, what: str) -> np.ndarray:
+    """Render ``blendgen.blender.glow_scene`` for ``spec`` in a Blender subprocess (files
+    ``out/tag.json|npy``); linear RGB (H, W, 3). RuntimeError naming ``what`` on failure."""
+    import subprocess
+    import sys
     out.mkdir(parents=True, exist_ok=True)
-    tag = f"glow-{water.name}-{range_m:g}-b{int(volume_bounces)}"
     sp, npy = out / f"{tag}.json", out / f"{tag}.npy"
     sp.write_text(json.dumps(spec))
     res = subprocess.run([sys.executable, "-m", "blendgen.blender.glow_scene", str(sp), str(npy)],
                          capture_output=True, text=True, timeout=600)
     if res.returncode != 0:
-        raise RuntimeError(f"glow reference render failed: {res.stderr[-1500:]}")
+        raise RuntimeError(f"{what} reference render failed: {res.stderr[-1500:]}")
     return np.load(npy)
 
 
@@ -408,23 +420,12 @@ def led_reference(water, range_m: float, radiance, radius_m: float, out: Path, s
                   hfov_deg: float = 40.0, samples: int = 64, lights_scene: bool = True) -> np.ndarray:
     """Render the dataset's disc LED (radiance (3,), radius) ``range_m`` ahead, facing the camera,
     through ``water`` (None: no medium) with Blender in a subprocess; linear RGB (size, size, 3)."""
-    import subprocess
-    import sys
-    spec = {"water": None if water is None else {
-                "sigma_a": water.sigma_a.tolist(), "sigma_s": water.sigma_s.tolist(), "phase": water.phase,
-                "g": float(water.g), "ff_ior": float(water.ff_ior), "ff_backscatter": float(water.ff_backscatter)},
+    spec = {"water": _water_spec(water),
             "range_m": range_m, "led": {"radiance": [float(v) for v in radiance], "radius_m": radius_m,
                                         "lights_scene": lights_scene},
             "hfov_deg": hfov_deg, "width": size, "height": size, "samples": samples, "seed": 1}
-    out.mkdir(parents=True, exist_ok=True)
     tag = f"led-{'air' if water is None else water.name}-{range_m:g}-{int(lights_scene)}"
-    sp, npy = out / f"{tag}.json", out / f"{tag}.npy"
-    sp.write_text(json.dumps(spec))
-    res = subprocess.run([sys.executable, "-m", "blendgen.blender.glow_scene", str(sp), str(npy)],
-                         capture_output=True, text=True, timeout=600)
-    if res.returncode != 0:
-        raise RuntimeError(f"LED reference render failed: {res.stderr[-1500:]}")
-    return np.load(npy)
+    return _glow_scene(spec, out, tag, "LED")
 
 
 def encircled_glow(img: np.ndarray, fx: float, radii_px) -> np.ndarray:
