@@ -2,8 +2,11 @@
 
 Pure numpy/OpenCV (no Blender): runs inside the render worker right after each
 frame, once per sequence that shares the clean render. Stages, in order:
-water and light with depth (fast fidelity only; ``physical`` or ``article`` mode),
-motion blur over the exposure, lens distortion (of every written pass alike, so the
+small-obstacle particles (lit by the light field, lamps and LEDs; depth-tested);
+water and light with depth (fast fidelity only; ``physical`` or ``article`` mode;
+in physical mode also caustics, the water surface seen from below, the calibrated veil
+of the frame, the LEDs' light on nearby surfaces and the vehicle lamps' light and
+backscatter, each skipped when off), motion blur over the exposure, lens distortion (of every written pass alike, so the
 ground truth stays aligned), then the sensor (EMVA 1288: electrons, blooming, shot and
 read noise, full well, gain, response curve, 8 bits).
 """
