@@ -192,13 +192,23 @@ def oracle_main(build, argv: list[str], tag: str) -> int:
     spec = json.loads(open(argv[1]).read())
     null = os.open(os.devnull, os.O_WRONLY)
     os.dup2(null, 1)
-    sc = build(spec)
+    save_pass(build(spec), argv[2], tag)
+    return 0
+
+
+def save_pass(scene: bpy.types.Scene, out: str, tag: str, key: str = "rgb", cam_obj=None,
+              T_world_cam=None) -> None:
+    """Render ``scene`` once (placing ``cam_obj`` at ``T_world_cam`` (4x4, OpenCV) when given)
+    to a scratch EXR and save its pass ``key`` ((H, W, 3) float32) to ``out`` (.npy); the
+    scratch file is removed whatever happens."""
     path = os.path.join(scratch_dir(), f"dockbench-{tag}-{os.getpid()}.exr")
-    sc.render.filepath = path
     try:
-        bpy.ops.render.render(write_still=True)
-        np.save(argv[2], read_passes(path)["rgb"])
+        if cam_obj is None:
+            scene.render.filepath = path
+            bpy.ops.render.render(write_still=True)
+        else:
+            render_frame(scene, cam_obj, T_world_cam, path)
+        np.save(out, read_passes(path)[key])
     finally:
         if os.path.exists(path):
             os.remove(path)
-    return 0

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import sys
 
 
@@ -36,13 +35,7 @@ def render(spec: dict, out: str) -> None:
     T = np.eye(4)
     T[:3, :3] = np.diag([1.0, -1.0, 1.0])          # OpenCV camera looking up (+z world)
     T[2, 3] = -float(spec["depth_m"])
-    path = os.path.join(rnd.scratch_dir(), f"surface-oracle-{os.getpid()}.exr")
-    try:
-        rnd.render_frame(sc, cam, T, path)
-        np.save(out, rnd.read_passes(path)["rgb"])
-    finally:
-        if os.path.exists(path):
-            os.remove(path)
+    rnd.save_pass(sc, out, "surface-oracle", "rgb", cam, T)
 
 
 def render_albedo(spec: dict, out: str) -> None:
@@ -64,13 +57,7 @@ def render_albedo(spec: dict, out: str) -> None:
     T = np.eye(4)
     T[:3, :3] = np.diag([1.0, -1.0, -1.0])          # OpenCV camera looking down
     T[:3, 3] = [3.0, 1.0, -8.0 + float(spec["height_m"])]
-    path = os.path.join(rnd.scratch_dir(), f"albedo-oracle-{os.getpid()}.exr")
-    try:
-        rnd.render_frame(sc, cam, T, path)
-        np.save(out, rnd.read_passes(path)["albedo"])
-    finally:
-        if os.path.exists(path):
-            os.remove(path)
+    rnd.save_pass(sc, out, "albedo-oracle", "albedo", cam, T)
 
 
 if __name__ == "__main__":

@@ -59,23 +59,15 @@ def render_stages(out: Path, frames: int, samples: int, mode: str = "physical") 
             "wall_ms_per_frame": 1e3 * wall / n}
 
 
-def _median_ms(fn, repeats: int = 15) -> float:
+def _median_ms(fn, repeats: int = 15, clock=time.perf_counter) -> float:
+    """Median time (ms) of fn over ``repeats`` calls by ``clock``: wall (perf_counter) or CPU
+    of all this process's threads (process_time: less inflated when other processes share
+    the cores)."""
     ts = []
     for _ in range(repeats):
-        t0 = time.perf_counter()
+        t0 = clock()
         fn()
-        ts.append(time.perf_counter() - t0)
-    return 1e3 * float(np.median(ts))
-
-
-def _median_cpu_ms(fn, repeats: int = 15) -> float:
-    """Median CPU time (ms, all threads of this process) of fn: less inflated than wall time
-    when other processes share the cores."""
-    ts = []
-    for _ in range(repeats):
-        t0 = time.process_time()
-        fn()
-        ts.append(time.process_time() - t0)
+        ts.append(clock() - t0)
     return 1e3 * float(np.median(ts))
 
 
@@ -83,7 +75,6 @@ def term_costs(dataset: Path) -> pd.DataFrame:
     """Median ms of each image-formation term on one frame of a rendered bench dataset
     (its range and index passes, its image as the clean render, albedo 0.5). A term that
     is switched off is not called: its cost is 0 by construction."""
-    import cv2
     from blendgen.config.models import Sensor, Water
     from blendgen.physics import optics, sensor
     from blendgen.pipeline import compose
@@ -146,7 +137,7 @@ def term_costs(dataset: Path) -> pd.DataFrame:
         ("distortion RGB + index + range", lambda: (sensor.distort_image(rgb, K, dist),
                                                     compose.output_passes(passes, K, dist))),
     ]
-    return pd.DataFrame([{"term": name, "ms_per_frame": _median_ms(fn), "cpu_ms_per_frame": _median_cpu_ms(fn)}
+    return pd.DataFrame([{"term": name, "ms_per_frame": _median_ms(fn), "cpu_ms_per_frame": _median_ms(fn, clock=time.process_time)}
                          for name, fn in rows])
 
 
