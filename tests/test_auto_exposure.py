@@ -6,6 +6,7 @@ import math
 import numpy as np
 import pytest
 
+from blendgen.physics import sensor
 from blendgen.physics.sensor import AutoExposure, SensorModel
 
 
@@ -75,7 +76,7 @@ def test_sequence_defaults_and_the_ae_loop_in_compose():
     from blendgen.pipeline import compose, plan
     exp = load_experiment(bundled_file("configs", "quickstart.yaml"))
     post = plan.condition_post(exp, exp.conditions[0], 1)
-    assert compose.sensor_model(post).bloom_fraction == compose.BLOOM_FRACTION_PHYSICAL
+    assert compose.sensor_model(post).bloom_fraction == sensor.BLOOM_FRACTION_PHYSICAL
     exp.image_formation = "article"
     assert compose.sensor_model(plan.condition_post(exp, exp.conditions[0], 1)).bloom_fraction == 0.0
     exp.image_formation = "physical"

@@ -180,9 +180,6 @@ def water_image(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, 
     return img
 
 
-BLOOM_FRACTION_PHYSICAL = sensor.BLOOM_FRACTION_PHYSICAL
-
-
 def frame_veil(state: SequenceState, T_world_cam, cam_depth_m: float) -> optics.WaterOptics:
     """The sequence's water with ``B_inf`` = the calibrated veil (per unit ``E_d0``) of a camera
     at ``cam_depth_m`` whose optical axis (OpenCV +z, world z up) has the frame's elevation."""
@@ -248,12 +245,12 @@ def lamp_image(passes: dict, lamp: lamp_water.LampWater, K: np.ndarray, T_world_
 
 
 def sensor_model(post: SequencePost) -> sensor.SensorModel:
-    """The sequence's camera sensor; shot/read noise and blooming (``BLOOM_FRACTION_PHYSICAL``)
+    """The sequence's camera sensor; shot/read noise and blooming (``sensor.BLOOM_FRACTION_PHYSICAL``)
     default on in physical mode only."""
     s = post.sensor
     physical = post.image_formation == "physical"
     noise = s.noise if s.noise is not None else physical
-    bloom = s.bloom_fraction if s.bloom_fraction is not None else (BLOOM_FRACTION_PHYSICAL if physical else 0.0)
+    bloom = s.bloom_fraction if s.bloom_fraction is not None else (sensor.BLOOM_FRACTION_PHYSICAL if physical else 0.0)
     return sensor.SensorModel(exposure_s=s.exposure_s, responsivity_e_per_s=s.responsivity_e_per_s,
                               full_well_e=s.full_well_e, read_noise_e=s.read_noise_e, gain=s.gain, noise=noise,
                               response=s.response, bloom_fraction=bloom,
