@@ -49,6 +49,7 @@ import pandas as pd
 
 from evalkit.metrics import core as metrics
 from evalkit.dataset import Dataset
+from evalkit.memo import FrameMemo, share
 from evalkit.process import FrameFailure
 
 # raw columns of a frame row; _finish appends metrics.SCORE_COLUMNS (errors, fp, success)
@@ -210,11 +211,12 @@ def _row(name: str, seq: dict, frame: dict, est: dict | None, reason: str, ms: f
 
 
 def _run_sequence(dataset: Dataset, seq: dict, localizers: list[tuple[str, Any]],
-                  executor: Executor, tick) -> list[dict]:
+                  executor: Executor, tick, memo: FrameMemo | None = None) -> list[dict]:
     """Reset every localizer, then feed each frame of ``seq`` to each of them.
 
     The image is read only if some localizer takes pixels; ``localize_file``
-    localizers get ``(absolute path, frame index)``.
+    localizers get ``(absolute path, frame index)``. ``memo`` (:mod:`evalkit.memo`) is
+    told which frame is current, so localizers shared through it run once per frame.
     """
     camera = {**camera_for_localizers(dataset), "sequence": seq["id"]}
     by_file = {name: callable(getattr(loc, "localize_file", None)) for name, loc in localizers}
@@ -226,6 +228,8 @@ def _run_sequence(dataset: Dataset, seq: dict, localizers: list[tuple[str, Any]]
     rows = []
     for frame in dataset.iter_frames(seq["id"]):
         image = path = None
+        if memo is not None:
+            memo.begin((seq["id"], frame.get("index")))
         for name, loc in localizers:
             if name in reset_errors:
                 rows.append(_row(name, seq, frame, None, reset_errors[name], 0.0))
@@ -240,6 +244,8 @@ def _run_sequence(dataset: Dataset, seq: dict, localizers: list[tuple[str, Any]]
                 if image is None:
                     image = dataset.load_image(frame)
                 res = executor.call(loc, "localize", image.copy())
+                if memo is not None:
+                    res.ms += memo.take_credit_ms()
             est, reason = (None, res.error) if res.error else validate_estimate(res.value)
             rows.append(_row(name, seq, frame, est, reason, res.ms))
         tick(1)
@@ -297,13 +303,15 @@ def evaluate(dataset: Dataset, localizer_specs: Iterable[tuple[str, Any]],
     if len(set(names)) != len(names):
         raise ValueError(f"localizer names must be unique, got {names}")
     executor = executor or InProcessExecutor(frame_timeout_s)
+    memo = FrameMemo()
+    localizers = share(localizers, memo)    # led + qr + hybrid: LED and QR run once per frame
     seqs = [s for s in dataset.sequences if sequences is None or s["id"] in sequences]
     total = sum(int(s.get("n_frames", 0)) for s in seqs)
     rows: list[dict] = []
     try:
         with progress_bar(total, progress) as tick, _sigint_marks_ctrl_c():
             for seq in seqs:
-                rows.extend(_run_sequence(dataset, seq, localizers, executor, tick))
+                rows.extend(_run_sequence(dataset, seq, localizers, executor, tick, memo))
     finally:
         for _, loc in localizers:
             close = getattr(loc, "close", None)

@@ -178,6 +178,16 @@ class LedLocalizer:
         self._u_ref = _unit(h_ref)
         self._u_other = u_other / max(np.linalg.norm(u_other), 1e-9)
 
+    # stateless between frames: one call per frame is shared with the hybrid's LED (evalkit.memo)
+    def memo_state(self) -> bytes:
+        return b""
+
+    def memo_after(self) -> None:
+        return None
+
+    def memo_apply(self, before, after, est) -> None:
+        """Nothing to move: the result depends on the image only."""
+
     def localize(self, image: np.ndarray) -> dict | None:
         """Dock pose from one RGB uint8 image (H,W,3), or None."""
         if self._marker is None:

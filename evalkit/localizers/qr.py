@@ -107,6 +107,10 @@ class QrLocalizer(SquareMarkerLocalizer):
     """QR code (zxing-cpp by default, payload-checked) -> finder-corner PnP pose of the dock."""
 
     name = "qr"
+    # one call per frame shared with the hybrid's QR (evalkit.memo); QrTrackLocalizer keeps more state: not shared
+    memo_state = SquareMarkerLocalizer._roi_memo_state
+    memo_after = SquareMarkerLocalizer._roi_memo_after
+    memo_apply = SquareMarkerLocalizer._roi_memo_apply
     kinds = ("qr",)
     min_image_px = 21
     # Small codes: zxing-cpp reads twice as many of the demo's 2-4 m frames (1.4-2 px per

@@ -187,6 +187,24 @@ class SquareMarkerLocalizer:
                 self._last_quad = None
         return best
 
+    # ---- sharing one call per frame (evalkit.memo; subclasses opt in by naming these) ----
+    def _roi_memo_state(self) -> bytes:
+        """What the next result depends on besides the image: the ROI quad (None: whole
+        frame) and, while there is one, the misses that decide when it is dropped."""
+        if self._last_quad is None:
+            return b"-"
+        return np.asarray(self._last_quad, np.float64).tobytes() + str(self._misses).encode()
+
+    def _roi_memo_after(self):
+        return (None if self._last_quad is None else np.array(self._last_quad, np.float64), self._misses)
+
+    def _roi_memo_apply(self, before, after, est) -> None:
+        """Move this localizer's ROI state as the memoised call moved the other one's:
+        the quad as left (it was part of the key), misses reset on a find, else counted on."""
+        quad, misses = after
+        self._last_quad = None if quad is None else quad.copy()
+        self._misses = 0 if est is not None else self._misses + (misses - before[1])
+
     def set_roi_hint(self, T_cam_dock: np.ndarray) -> None:
         """Search the next frame first around the marker as projected with a dock pose
         (4,4) from elsewhere (the hybrid's LED estimate); ignored when roi is off or the
