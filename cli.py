@@ -440,12 +440,69 @@ def preview(out: Path, width: int, height: int, samples: int, fidelity: str, mod
 @click.option("--overwrite", is_flag=True, help="replace a dataset made from an older version of the config")
 @click.option("--mode", type=click.Choice(["physical", "article"]), default=None,
               help="image formation (default: the paper configs' own)")
+@click.option("--images", default="all", show_default=True, callback=lambda c, p, v: _images_policy(v),
+              help="camera images kept on disk: all, none or sample:N (N per sequence); evaluation "
+                   "runs while rendering either way")
 def reproduce(name: str, trials: int | None, out: Path, workers: int | None, overwrite: bool,
-              mode: str | None):
+              mode: str | None, images: str):
     """Run one of the article's experiments (or all): generate, evaluate, report."""
     from blendgen.tools.reproduce import EXPERIMENTS, reproduce as run
-    for text in run(EXPERIMENTS if name == "all" else (name,), out, trials, workers, overwrite, mode):
+    for text in run(EXPERIMENTS if name == "all" else (name,), out, trials, workers, overwrite, mode, images):
         click.echo(text)
+
+
+def _images_policy(value: str) -> str:
+    """``--images`` checked (none, all, sample:N): a bad value is a usage error (exit 2)."""
+    from evalkit.stream import ImagesPolicyError, parse_images
+    try:
+        parse_images(value)
+    except ImagesPolicyError as e:
+        raise click.BadParameter(str(e)) from None
+    return value.strip().lower()
+
+
+@main.command("run")
+@click.argument("config", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-l", "--localizer", "localizers", multiple=True, required=True,
+              help="localizer spec as for evaluate (repeatable); led, qr and hybrid together run LED "
+                   "and QR once per frame")
+@click.option("-p", "--param", "params", multiple=True, help="key=value or NAME.key=value (as for evaluate)")
+@click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="run folder: dataset/, results/, stream.json (default out/<config name>); an "
+                   "interrupted run in it is resumed")
+@click.option("--images", default="sample:5", show_default=True, callback=lambda c, p, v: _images_policy(v),
+              help="camera images kept: all, none or sample:N (N evenly spaced per sequence)")
+@click.option("--workers", type=click.IntRange(1, 256), default=None,
+              help="render processes at once (default: one per core); evaluation: one process per core")
+@click.option("--preprocess", default=None, metavar="STEPS", help="image preprocessing (as for evaluate)")
+@click.option("--overwrite", is_flag=True, help="replace a dataset made from a different config")
+@click.option("--quiet", "-q", is_flag=True, help="print nothing but errors")
+@_user_errors
+def run(config: Path, localizers: tuple[str, ...], params: tuple[str, ...], out: Path | None, images: str,
+        workers: int | None, preprocess: str | None, overwrite: bool, quiet: bool):
+    """Generate CONFIG and evaluate localizers on it in one pass, keeping a sample of the images.
+
+    Writes OUT/results (as evaluate), OUT/dataset (the kept files) and OUT/stream.json (the
+    sha256 of every image: a dataset generated later from CONFIG must match it).
+    """
+    from blendgen.config.models import load_experiment
+    from blendgen.pipeline.generate import check_out_dir
+    from blendgen.tools.streamrun import RunRequest, stream_run
+    from evalkit import assemble, registry
+    exp = load_experiment(config)
+    out = out or Path("out") / exp.name
+    kw = registry.parse_params(list(params))
+    for n in localizers:                      # bad specs and params before anything renders
+        assemble.build(n, registry.params_for(n, kw, list(localizers)), preprocess=preprocess)
+    check_out_dir(exp, out / "dataset", overwrite)
+    req = RunRequest(list(localizers), list(params), images, workers, preprocess=preprocess, progress=not quiet,
+                     command=_command_line(click.get_current_context()))
+    r = stream_run([(exp, out)], req)[0]
+    if not quiet:
+        click.echo("\n" + r["paths"]["article_md"].read_text())
+        st = r["stream"]
+        click.echo(f"results: {out / 'results'}\ndataset content hash {st['content_hash'][:12]} "
+                   f"({st['n_files']} files; {st['n_kept']} kept in {out / 'dataset'}, --images {images})")
 
 
 @main.command("calibrate")

@@ -152,12 +152,16 @@ class Dataset:
         decoded, so a huge or wrong image (a decompression bomb) is refused cheaply
         as a :class:`DatasetError`.
         """
-        import cv2  # local: keeps `import evalkit.dataset` light
-
         path = self.checked_image_path(frame)
-        shown = self.root / frame["image"]
         data = path.read_bytes()
         self.check_file(path, data)
+        return self.decode_image(data, frame)
+
+    def decode_image(self, data: bytes, frame: dict) -> np.ndarray:
+        """PNG bytes of ``frame``'s image -> HxWx3 uint8 RGB of the manifest camera's size."""
+        import cv2  # local: keeps `import evalkit.dataset` light
+
+        shown = self.root / frame["image"]
         bgr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
         cam = self.manifest["camera"]
         if bgr is None or bgr.shape != (cam["height"], cam["width"], 3):

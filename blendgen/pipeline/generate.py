@@ -98,12 +98,34 @@ def generate(exp: Experiment, out: Path, workers: int | None = None, progress: b
     return generate_many([(exp, out)], workers, progress, executor, ray_address)[0]
 
 
+class Hooks:
+    """What ``dockbench run`` does while a dataset is written (no-ops here).
+
+    ``committed(target, job, seqs)``: sequences ``seqs`` (``plan`` sequences of ``job``)
+    of ``target`` are complete on disk, render passes included (called from a worker
+    thread, and at the start for sequences an earlier run finished); ``before_finish()``:
+    every job is done, the manifests are about to be hashed and written (under the
+    output lock). ``known_sha256(target)``: {dataset-relative path: sha256} already
+    computed from the bytes on disk, not hashed again by the manifest."""
+
+    def committed(self, target: "_Target", job: plan.RenderJob, seqs: list) -> None:
+        pass
+
+    def before_finish(self) -> None:
+        pass
+
+    def known_sha256(self, target: "_Target") -> dict[str, str]:
+        return {}
+
+
 def generate_many(items: list[tuple[Experiment, Path]], workers: int | None = None, progress: bool = True,
-                  executor: str = "local", ray_address: str | None = None) -> list[dict]:
+                  executor: str = "local", ray_address: str | None = None, hooks: Hooks | None = None) -> list[dict]:
     """Render several datasets at once, rendering each camera path once for all of them:
     jobs of different experiments with the same scene, poses and render settings are
     merged (e.g. the article's turbidity, depth and occlusion experiments share their
-    trajectories). Returns the manifests in the order of ``items``."""
+    trajectories). Returns the manifests in the order of ``items``. ``hooks``: see
+    :class:`Hooks` (``dockbench run`` evaluates sequences as they are committed)."""
+    hooks = hooks or Hooks()
     if executor not in ex.EXECUTORS:
         raise ex.ExecutorError(f"unknown executor {executor!r}; choose one of {', '.join(ex.EXECUTORS)}")
     for exp, _ in items:
@@ -125,8 +147,14 @@ def generate_many(items: list[tuple[Experiment, Path]], workers: int | None = No
             stack.enter_context(_exclusive(Path(out)))
         stack.enter_context(ex.sigterm_as_interrupt())
         targets = [_Target.prepare(exp, Path(out)) for exp, out in items]
-        _render(targets, workers, progress, executor, ray_address)
-        return [t.writer.finish(manifest_base(t.exp, t.K, t.markers, t.scene, t.jobs)) for t in targets]
+        for t in targets:                      # finished by an earlier run
+            for j in t.jobs:
+                done = [s for s in j.sequences if t.writer.is_done(s.id)]
+                if done:
+                    hooks.committed(t, j, done)
+        _render(targets, workers, progress, executor, ray_address, hooks)
+        hooks.before_finish()
+        return [t.writer.finish(t.manifest_base(), hooks.known_sha256(t)) for t in targets]
 
 
 @dataclass
@@ -154,6 +182,10 @@ class _Target:
         return cls(exp, out, writer, work, plan.camera_K(exp), markers, scene,
                    plan.plan_jobs(exp, scene))
 
+    def manifest_base(self) -> dict:
+        """The manifest of this dataset without its ``files`` map (see :func:`manifest_base`)."""
+        return manifest_base(self.exp, self.K, self.markers, self.scene, self.jobs)
+
 
 def _merged_jobs(targets: list[_Target]) -> dict[str, list]:
     """render key (plan.job_key, the same in every dataset that needs this render) ->
@@ -168,7 +200,7 @@ def _merged_jobs(targets: list[_Target]) -> dict[str, list]:
 
 
 def _render(targets: list[_Target], workers: int | None, progress: bool, kind: str,
-            ray_address: str | None) -> None:
+            ray_address: str | None, hooks: Hooks) -> None:
     merged = _merged_jobs(targets)
     n_workers, threads = ex.slots(kind, len(merged), workers, targets[0].exp.render.threads)
     files = {}
@@ -189,6 +221,7 @@ def _render(targets: list[_Target], workers: int | None, progress: bool, kind: s
             pt.writer.commit_render(j.key)      # before the sequences that reference it
             for s in seqs:
                 pt.writer.commit_sequence(s.id, len(j.frames))
+            hooks.committed(pt, j, seqs)
 
     def count() -> int:
         return sum(_lines(pt.writer.tmp_dir(s.id) / "frames.jsonl")

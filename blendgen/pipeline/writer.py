@@ -80,9 +80,13 @@ class DatasetWriter:
             raise RuntimeError(f"sequence {seq_id}: {len(lines)} of {n_frames} frames written")
         os.replace(tmp, self.seq_dir(seq_id))
 
-    def finish(self, manifest: dict) -> dict:
-        """Hash every file and write manifest.json last; returns the manifest."""
-        files = {p: sha256_file(self.root / p) for p in dataset_files(self.root)}
+    def finish(self, manifest: dict, known_sha256: dict[str, str] | None = None) -> dict:
+        """Hash every file and write manifest.json last; returns the manifest.
+
+        ``known_sha256``: hashes already taken from the files' bytes in this run (``dockbench
+        run`` hashes each image as the localizers read it), not computed twice."""
+        known = known_sha256 or {}
+        files = {p: known.get(p) or sha256_file(self.root / p) for p in dataset_files(self.root)}
         manifest = {**manifest, "content_hash": content_hash(files), "files": files}
         save_json_atomic(self.root / MANIFEST, manifest)
         return manifest

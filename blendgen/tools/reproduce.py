@@ -72,23 +72,24 @@ def report(name: str, paths: dict) -> str:
 
 
 def reproduce(names: tuple[str, ...], out_root: Path, trials: int | None, workers: int | None,
-              overwrite: bool = False, mode: str | None = None) -> list[str]:
+              overwrite: bool = False, mode: str | None = None, images: str = "all") -> list[str]:
     """Generate the experiments' datasets together (each shared camera path is rendered
-    once for all of them), then evaluate and report each; returns the Markdown reports."""
-    from blendgen.pipeline.generate import check_out_dir, generate_many
+    once for all of them) and evaluate every sequence as soon as it is written
+    (:mod:`blendgen.tools.streamrun`; ``images``: which camera images stay on disk), then
+    report each; returns the Markdown reports."""
+    from blendgen.pipeline.generate import check_out_dir
+    from blendgen.tools.streamrun import RunRequest, stream_run
     exps = [experiment(n, trials, mode) for n in names]
     bases = [Path(out_root) / e.name for e in exps]
     for e, b in zip(exps, bases):
         check_out_dir(e, b / "dataset", overwrite=overwrite)
     t0 = time.perf_counter()
-    generate_many([(e, b / "dataset") for e, b in zip(exps, bases)], workers=workers)
-    t1 = time.perf_counter()
+    runs = stream_run(list(zip(exps, bases)), RunRequest(list(LOCALIZERS), images=images, workers=workers))
+    dt = time.perf_counter() - t0
     reports = []
-    for e, b in zip(exps, bases):
-        t2 = time.perf_counter()
-        paths = evaluate(b / "dataset", b / "results")
-        text = report(e.name, paths) + (f"\n\ntimes: generate (all {len(exps)} together) {t1 - t0:.0f} s, "
-                                         f"evaluate {time.perf_counter() - t2:.0f} s\n")
+    for e, b, r in zip(exps, bases, runs):
+        text = report(e.name, r["paths"]) + (f"\n\ntimes: generate + evaluate (all {len(exps)} together, "
+                                             f"evaluated while rendering) {dt:.0f} s\n")
         (b / "report.md").write_text(text)
         reports.append(text)
     return reports

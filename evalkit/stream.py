@@ -1,0 +1,146 @@
+"""Evaluate the sequences of a dataset while it is being written (``dockbench run``).
+
+A render job commits its sequences one camera path at a time; each committed sequence
+is evaluated here, in a worker process, before the dataset has a manifest. Each image
+is read once: its sha256 (the hash the manifest will list, FORMAT.md) is taken from the
+same bytes the localizers decode, then images outside the kept sample are deleted.
+
+Per sequence, in ``WORK/`` (written atomically, hashes first, estimates last, so a
+sequence with ``<id>.pkl`` is finished and an interrupted run resumes from the rest):
+
+* ``<id>.hashes.json`` -- ``{dataset-relative image path: sha256}`` of every frame;
+* ``<id>.pkl`` -- the per-frame table of :func:`evalkit.runner.evaluate` (pandas pickle).
+
+Nothing here imports blendgen: the caller passes the manifest (as ``dockbench
+generate`` will write it, without ``files``) and the frames to keep.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from evalkit.dataset import Dataset
+from datasets_spec.io import save_json_atomic, sha256_file
+
+
+class RecordingDataset(Dataset):
+    """A dataset still being written: files are read unchecked (there is no manifest
+    ``files`` map yet) and the sha256 of every image read is recorded."""
+
+    def __init__(self, root: Path, manifest: dict):
+        super().__init__(root, manifest, verify=False)
+        self.image_sha256: dict[str, str] = {}
+
+    def load_image(self, frame: dict) -> np.ndarray:
+        path = self.checked_image_path(frame)
+        data = path.read_bytes()
+        self.image_sha256[frame["image"]] = hashlib.sha256(data).hexdigest()
+        return self.decode_image(data, frame)
+
+
+@dataclass
+class SequenceTask:
+    """One committed sequence to evaluate. ``keep``: frame indices whose image stays on
+    disk (None: all); ``localizers``/``params``/``preprocess``: as ``dockbench evaluate``."""
+    root: str
+    manifest: dict
+    seq_id: str
+    work: str
+    localizers: list[str]
+    params: list[str]
+    keep: list[int] | None = None
+    preprocess: str | None = None
+
+
+def done(work: Path, seq_id: str) -> bool:
+    """True when the sequence's estimates are saved (its images may be gone)."""
+    return (Path(work) / f"{seq_id}.pkl").is_file()
+
+
+def evaluate_sequence(task: SequenceTask) -> int:
+    """Process body: run the localizers over one committed sequence, save its estimates
+    and image hashes under ``task.work``, then delete the images not kept; returns the
+    number of frames."""
+    import cv2
+    from evalkit import parallel, runner
+    cv2.setNumThreads(1)                    # one process per core
+    ds = RecordingDataset(Path(task.root), task.manifest)
+    specs = parallel._build(task.localizers, task.params, None, None, task.preprocess)
+    df = runner.evaluate(ds, specs, progress=False, sequences=[task.seq_id])
+    frames = list(ds.iter_frames(task.seq_id))
+    hashes = {f["image"]: ds.image_sha256.get(f["image"]) or sha256_file(ds.image_path(f)) for f in frames}
+    work = Path(task.work)
+    work.mkdir(parents=True, exist_ok=True)
+    save_json_atomic(work / f"{task.seq_id}.hashes.json", hashes)
+    tmp = work / f".{task.seq_id}.pkl.tmp"
+    df.to_pickle(tmp)
+    os.replace(tmp, work / f"{task.seq_id}.pkl")
+    prune_images(ds, frames, task.keep)
+    return len(frames)
+
+
+def prune_images(ds: Dataset, frames: list[dict], keep: list[int] | None) -> None:
+    """Delete the images of ``frames`` whose index is not in ``keep`` (None: keep all)."""
+    if keep is None:
+        return
+    kept = set(keep)
+    for f in frames:
+        if f.get("index") not in kept:
+            ds.image_path(f).unlink(missing_ok=True)
+
+
+def load_results(work: Path, seq_ids: list[str]) -> tuple[pd.DataFrame, dict[str, str]]:
+    """The saved per-frame tables of ``seq_ids`` (in that order) and their image hashes."""
+    work = Path(work)
+    parts = [pd.read_pickle(work / f"{s}.pkl") for s in seq_ids]
+    hashes: dict[str, str] = {}
+    for s in seq_ids:
+        hashes.update(json.loads((work / f"{s}.hashes.json").read_text()))
+    df = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
+    if parts:
+        df.attrs.update(parts[0].attrs)
+    return df, hashes
+
+
+def kept_indices(indices: list[int], images: str) -> list[int] | None:
+    """Frame indices whose image is kept under an ``--images`` policy: ``all`` -> None
+    (every one), ``none`` -> [], ``sample:N`` -> N evenly spaced ones (first and last
+    included). The policy string is checked by :func:`parse_images`."""
+    n = parse_images(images)
+    if n is None:
+        return None
+    if n == 0 or not indices:
+        return []
+    pos = np.unique(np.round(np.linspace(0, len(indices) - 1, min(n, len(indices)))).astype(int))
+    return [indices[i] for i in pos]
+
+
+class ImagesPolicyError(ValueError):
+    """A bad ``--images`` value (a user error)."""
+
+
+def parse_images(images: str) -> int | None:
+    """``all`` -> None, ``none`` -> 0, ``sample:N`` (N >= 1) -> N; else ImagesPolicyError."""
+    text = str(images).strip().lower()
+    if text == "all":
+        return None
+    if text == "none":
+        return 0
+    head, _, n = text.partition(":")
+    if head == "sample" and n.isdigit() and int(n) >= 1:
+        return int(n)
+    raise ImagesPolicyError(f"--images {images!r}: expected none, all or sample:N with N >= 1 "
+                            "(N images kept per sequence, evenly spaced)")
+
+
+def run_record_dataset(root: Path, manifest: dict) -> Any:
+    """A :class:`Dataset` over ``manifest`` (with the full ``files`` map) for the run record:
+    its ``content_hash`` is the one ``dockbench generate`` gives the same config."""
+    return Dataset(Path(root), manifest, verify=True)
