@@ -1,0 +1,131 @@
+"""`dockbench run`: generate and evaluate in one pass. What it evaluated is the dataset
+`dockbench generate` writes from the same config (every file's sha256, content hash),
+its metrics are those of generate + evaluate, only the sampled images stay on disk, and
+an interrupted run resumes to the same results."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+import yaml
+
+ROOT = Path(__file__).resolve().parent.parent
+
+# 160x120 at 1 spp, two camera paths x two image-space conditions: 4 sequences, 2 renders
+TINY = {
+    "name": "tiny-run", "version": "1.0.0", "seed": 11,
+    "scene": {"template": "pool_15x5x8"},
+    "camera": {"width": 160, "height": 120, "hfov_deg": 60, "fps": 5},
+    "render": {"fidelity": "fast", "samples": 1},
+    "water": {"preset": "clear"},
+    "trajectories": [
+        {"kind": "linear", "id": "a", "start_range_m": 3.0, "end_range_m": 1.0, "speed_mps": 2.0},
+        {"kind": "linear", "id": "b", "start_range_m": 2.5, "end_range_m": 0.8, "speed_mps": 2.0, "lateral_m": 0.2},
+    ],
+    "conditions": [{"label": "clear", "water": {"preset": "clear"}},
+                   {"label": "murky", "water": {"preset": "moderate"}}],
+}
+LOCS = ["-l", "led", "-l", "qr", "-l", "hybrid"]
+
+
+def _cmd(*args) -> list[str]:
+    return [sys.executable, "-c", "import cli; cli.main()", *map(str, args)]
+
+
+def _ok(*args) -> subprocess.CompletedProcess:
+    r = subprocess.run(_cmd(*args), cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stdout + r.stderr
+    return r
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """One `run --images sample:2`, and generate + evaluate of the same config."""
+    d = tmp_path_factory.mktemp("stream")
+    cfg = d / "tiny.yaml"
+    cfg.write_text(yaml.safe_dump(TINY))
+    _ok("run", cfg, *LOCS, "-o", d / "run", "--images", "sample:2", "-q")
+    _ok("generate", cfg, "-o", d / "gen")
+    _ok("evaluate", d / "gen", *LOCS, "-o", d / "ev", "-q")
+    return cfg, d
+
+
+def _stream(run: Path) -> dict:
+    return json.loads((run / "stream.json").read_text())
+
+
+@pytest.mark.blender
+def test_run_evaluated_the_dataset_generate_writes(runs):
+    cfg, d = runs
+    st, man = _stream(d / "run"), json.loads((d / "gen" / "manifest.json").read_text())
+    assert st["files"] == man["files"]                          # every image and pass, by sha256
+    assert st["content_hash"] == man["content_hash"]
+    run_json = json.loads((d / "run" / "results" / "run.json").read_text())
+    ev_json = json.loads((d / "ev" / "run.json").read_text())
+    assert run_json["dataset"]["content_hash"] == ev_json["dataset"]["content_hash"] == man["content_hash"]
+    for f in ("metrics.csv", "summary.csv", "bins.csv"):        # no timings in these: byte-identical
+        assert (d / "run" / "results" / f).read_bytes() == (d / "ev" / f).read_bytes(), f
+    a = pd.read_parquet(d / "run" / "results" / "estimates.parquet").drop(columns=["ms"])
+    b = pd.read_parquet(d / "ev" / "estimates.parquet").drop(columns=["ms"])
+    pd.testing.assert_frame_equal(a, b)
+
+
+@pytest.mark.blender
+def test_only_the_sample_stays_and_what_stays_is_a_valid_dataset(runs):
+    cfg, d = runs
+    ds = d / "run" / "dataset"
+    man = json.loads((ds / "manifest.json").read_text())
+    rgb = sorted(p.relative_to(ds).as_posix() for p in ds.glob("sequences/*/rgb/*.png"))
+    assert len(rgb) == 4 * 2                                   # 4 sequences x sample:2
+    assert all(_stream(d / "run")["files"][p] == man["files"][p] for p in rgb)
+    passes = list(ds.glob("renders/*/*/*.png"))
+    assert len(passes) == 2 * 2 * 2                             # 2 renders x 2 frames x (range, index)
+    assert subprocess.run(_cmd("verify", ds), cwd=ROOT).returncode == 0
+
+
+def _start(cfg: Path, out: Path) -> subprocess.Popen:
+    return subprocess.Popen(_cmd("run", cfg, *LOCS, "-o", out, "--images", "none", "-q", "--workers", "1"),
+                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+
+
+@pytest.mark.blender
+def test_a_run_killed_after_its_first_evaluated_sequence_resumes_to_the_same_results(runs, tmp_path):
+    cfg, d = runs
+    out = tmp_path / "run"
+    p = _start(cfg, out)
+    t_end = time.monotonic() + 300
+    while not list(out.glob(".stream/*/*.pkl")) and p.poll() is None and time.monotonic() < t_end:
+        time.sleep(0.05)
+    assert p.poll() is None, "the run ended before it could be interrupted"
+    os.killpg(p.pid, signal.SIGKILL)                            # the parent, render and evaluation workers
+    p.wait()
+    done_before = {q.name: q.stat().st_mtime_ns for q in out.glob(".stream/*/*.pkl")}
+    _ok("run", cfg, *LOCS, "-o", out, "--images", "none", "-q")
+    st = _stream(out)
+    assert st["files"] == _stream(d / "run")["files"] and st["content_hash"] == _stream(d / "run")["content_hash"]
+    assert (out / "results" / "metrics.csv").read_bytes() == (d / "ev" / "metrics.csv").read_bytes()
+    assert {q.name: q.stat().st_mtime_ns for q in out.glob(".stream/*/*.pkl") if q.name in done_before} \
+        == done_before                                          # finished sequences were not evaluated again
+    assert not list((out / "dataset").glob("sequences/*/rgb/*.png"))   # --images none
+
+
+@pytest.mark.parametrize("args, says", [
+    (["--images", "some"], "--images 'some'"),
+    (["--images", "sample:0"], "sample:N with N >= 1"),
+    (["-l", "nosuch"], "nosuch"),
+])
+def test_bad_input_is_one_line_and_exit_2(tmp_path, args, says):
+    cfg = tmp_path / "tiny.yaml"
+    cfg.write_text(yaml.safe_dump(TINY))
+    locs = [] if "-l" in args else ["-l", "led"]
+    r = subprocess.run(_cmd("run", cfg, *locs, *args, "-o", tmp_path / "out"), cwd=ROOT, capture_output=True,
+                       text=True, timeout=120)
+    assert r.returncode == 2 and says in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "out").exists()                      # refused before anything was written
