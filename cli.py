@@ -717,17 +717,20 @@ def _suite_size(ctx, param, value):
                    "close-range-heavy workload for scaling runs)")
 @click.option("--samples", type=click.IntRange(1, 4096), default=None,
               help="Cycles samples in the dock's region (default: the configs' 4)")
+@click.option("--images", default="all", show_default=True, callback=lambda c, p, v: _images_policy(v),
+              help="all: generate then evaluate (datasets kept); none or sample:N: the streaming path of "
+                   "`dockbench run` (evaluated while rendering, N images per sequence kept)")
 @click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
               default=Path("out/bench"), show_default=True)
 def bench_suite(trials, names, size, particles, workers, scaling, no_evaluate, table, max_distance_m,
-                samples, out):
+                samples, images, out):
     """Generate and evaluate the article's suite at N trials; CPU/wall per stage, RSS, disk, 100-trial estimate."""
     from blendgen.tools.reproduce import EXPERIMENTS
     from blendgen.tools.suitebench import Overrides, bench_suite as run, print_recorded
     if table:
         return print_recorded(out)
     run(trials, names or EXPERIMENTS, Overrides(size, particles, max_distance_m, samples), out,
-        workers, scaling, not no_evaluate)
+        workers, scaling, not no_evaluate, images)
 
 
 if __name__ == "__main__":

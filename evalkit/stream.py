@@ -9,6 +9,7 @@ Per sequence, in ``WORK/`` (written atomically, hashes first, estimates last, so
 sequence with ``<id>.pkl`` is finished and an interrupted run resumes from the rest):
 
 * ``<id>.hashes.json`` -- ``{dataset-relative image path: sha256}`` of every frame;
+* ``<id>.cost.json`` -- CPU and wall seconds of this evaluation (for ``bench suite``);
 * ``<id>.pkl`` -- the per-frame table of :func:`evalkit.runner.evaluate` (pandas pickle).
 
 Nothing here imports blendgen: the caller passes the manifest (as ``dockbench
@@ -68,8 +69,11 @@ def evaluate_sequence(task: SequenceTask) -> int:
     """Process body: run the localizers over one committed sequence, save its estimates
     and image hashes under ``task.work``, then delete the images not kept; returns the
     number of frames."""
+    import time
+
     import cv2
     from evalkit import parallel, runner
+    cpu0, wall0 = time.process_time(), time.perf_counter()
     cv2.setNumThreads(1)                    # one process per core
     ds = RecordingDataset(Path(task.root), task.manifest)
     specs = parallel._build(task.localizers, task.params, None, None, task.preprocess)
@@ -79,11 +83,23 @@ def evaluate_sequence(task: SequenceTask) -> int:
     work = Path(task.work)
     work.mkdir(parents=True, exist_ok=True)
     save_json_atomic(work / f"{task.seq_id}.hashes.json", hashes)
+    save_json_atomic(work / f"{task.seq_id}.cost.json",
+                     {"cpu_s": time.process_time() - cpu0, "wall_s": time.perf_counter() - wall0,
+                      "frames": len(frames)})
     tmp = work / f".{task.seq_id}.pkl.tmp"
     df.to_pickle(tmp)
-    os.replace(tmp, work / f"{task.seq_id}.pkl")
+    os.replace(tmp, work / f"{task.seq_id}.pkl")   # done; images pruned after (again on a resume)
     prune_images(ds, frames, task.keep)
     return len(frames)
+
+
+def prune_sequence(task: SequenceTask) -> None:
+    """Delete the not-kept images of an evaluated sequence (idempotent: a run interrupted
+    between saving a sequence's estimates and pruning it finishes the pruning on resume)."""
+    if task.keep is None:
+        return
+    ds = Dataset(Path(task.root), task.manifest, verify=False)
+    prune_images(ds, list(ds.iter_frames(task.seq_id)), task.keep)
 
 
 def prune_images(ds: Dataset, frames: list[dict], keep: list[int] | None) -> None:

@@ -28,6 +28,7 @@ from __future__ import annotations
 import json
 import os
 import threading
+import time
 from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass, field
 from multiprocessing import get_context
@@ -73,10 +74,11 @@ class _Streamer:
         self._passes(target, job, keep)
         manifest = target.manifest_base()
         for s in seqs:
-            if stream.done(self.work(target), s.id):
-                continue
             task = stream.SequenceTask(str(target.out), manifest, s.id, str(self.work(target)),
                                        self.req.localizers, self.req.params, keep, self.req.preprocess)
+            if stream.done(self.work(target), s.id):
+                stream.prune_sequence(task)
+                continue
             with self._lock:
                 self.futures.append(self.pool.submit(stream.evaluate_sequence, task))
 
@@ -173,6 +175,7 @@ def _finish(out: Path, manifest: dict, work: Path, req: RunRequest) -> dict:
     settings = EvalSettings(d_min_rel_m=ds.d_min_rel_m)
     options = {"params": list(req.params), "isolate": None, "frame_timeout_s": None,
                "preprocess": req.preprocess, "verify": True, "images": req.images, "streamed": True}
+    cpu0 = time.process_time()
     with results_dir(out / "results", overwrite=True) as tmp:
         paths, _ = save_run(df, tmp, RunRecord(ds, records, settings, req.command, options))
     paths = {k: out / "results" / p.relative_to(tmp) for k, p in paths.items()}
@@ -181,4 +184,5 @@ def _finish(out: Path, manifest: dict, work: Path, req: RunRequest) -> dict:
                "kept_content_hash": manifest["content_hash"], "n_files": len(files),
                "n_kept": len(manifest["files"]), "files": full["files"]}
     save_json_atomic(out / STREAM_JSON, summary)
-    return {"out": out, "manifest": manifest, "stream": summary, "paths": paths}
+    return {"out": out, "manifest": manifest, "stream": summary, "paths": paths,
+            "finish_cpu_s": time.process_time() - cpu0}

@@ -11,6 +11,11 @@ seconds:
   manifest hashing): the workers' and the parent's CPU minus the three stages;
 - ``evaluate`` localizers, metrics, tables and plots.
 
+``--images none|sample:N`` measures the streaming path instead (``dockbench run``:
+each sequence evaluated by a pool of processes as soon as it is rendered, only the
+sampled images kept): ``evaluate`` is then the evaluation workers' CPU plus the
+parent's metrics, ``total`` wall is the one run's wall (stages overlap).
+
 plus the peak RSS of the whole process tree (sampled from /proc every 0.2 s), the disk
 the run left (hard links counted once, like ``du``; also without the camera images),
 and a linear extrapolation to 100 trials. Stage CPU comes from the workers' own timers
@@ -139,6 +144,7 @@ class SuiteRun:
     wall: dict = field(default_factory=dict)
     peak_rss_mb: float = 0.0
     disk: dict = field(default_factory=dict)
+    path: str = "generate+evaluate"      # or "run --images POLICY" (evaluated while rendering)
 
 
 @dataclass(frozen=True)
@@ -183,8 +189,10 @@ def configure(names: tuple[str, ...], trials: int, ov: Overrides = Overrides()):
     return exps
 
 
-def run_suite(exps: list, out: Path, label: str, workers: int | None, evaluate: bool = True) -> SuiteRun:
-    """Generate ``exps`` together into ``out/<name>/dataset``, evaluate each, measure."""
+def run_suite(exps: list, out: Path, label: str, workers: int | None, evaluate: bool = True,
+              images: str = "all") -> SuiteRun:
+    """Generate ``exps`` together into ``out/<name>/dataset``, evaluate each, measure.
+    ``images`` other than ``all``: the streaming path of ``dockbench run`` instead."""
     from blendgen.pipeline.generate import generate_many
     from blendgen.tools.reproduce import evaluate as run_eval
     if out.exists():
@@ -194,6 +202,8 @@ def run_suite(exps: list, out: Path, label: str, workers: int | None, evaluate: 
     occ = [f"{cnd.occlusion.n_total:g}" for e in exps for cnd in e.conditions if cnd.occlusion]
     run = SuiteRun(label, exps[0].trials, c.width, c.height, "/".join(occ) or "-",
                    ",".join(e.name.split("-")[0].removeprefix("paper_") for e in exps))
+    if images != "all" and evaluate:
+        return _stream_suite(exps, out, run, workers, images)
     with TreeRSS() as rss:
         c0, w0 = both_cpu_s(), time.perf_counter()
         mans = generate_many([(e, d) for e, d in zip(exps, dsets)], workers=workers, progress=False)
@@ -205,6 +215,30 @@ def run_suite(exps: list, out: Path, label: str, workers: int | None, evaluate: 
         run.cpu["evaluate"], run.wall["evaluate"] = both_cpu_s() - c1, time.perf_counter() - w1
     run.peak_rss_mb = rss.peak_mb
     _fill_counts(run, mans, dsets, out)
+    return run
+
+
+def _stream_suite(exps: list, out: Path, run: SuiteRun, workers: int | None, images: str) -> SuiteRun:
+    """``run_suite`` through ``dockbench run`` (evaluation while rendering, ``images`` kept).
+    ``evaluate`` CPU is the evaluation workers' own (``.stream/*/*.cost.json``) plus the
+    parent's metrics/tables; its wall, the summed wall of the evaluation workers."""
+    from blendgen.tools.reproduce import LOCALIZERS
+    from blendgen.tools.streamrun import RunRequest, stream_run
+    run.path = f"run --images {images}"
+    bases = [out / e.name for e in exps]
+    with TreeRSS() as rss:
+        c0, w0 = both_cpu_s(), time.perf_counter()
+        res = stream_run(list(zip(exps, bases)), RunRequest(list(LOCALIZERS), images=images, workers=workers,
+                                                            progress=False))
+        cpu, wall = both_cpu_s() - c0, time.perf_counter() - w0
+    run.peak_rss_mb = rss.peak_mb
+    costs = [json.loads(p.read_text()) for b in bases for p in (b / ".stream").glob("*/*.cost.json")]
+    finish = [r["finish_cpu_s"] for r in res]
+    run.cpu["evaluate"] = sum(c["cpu_s"] for c in costs) + sum(finish)
+    run.wall["evaluate"] = sum(c["wall_s"] for c in costs)
+    run.cpu["generate"], run.wall["generate"] = cpu - run.cpu["evaluate"], wall
+    _fill_counts(run, [r["manifest"] for r in res], [b / "dataset" for b in bases], out)
+    run.wall["total"] = wall
     return run
 
 
@@ -231,7 +265,7 @@ def stage_table(run: SuiteRun):
     rows = [{"stage": s, "cpu_s": run.cpu.get(s), "wall_s": run.wall.get(s, float("nan"))}
             for s in (*STAGES, "generate_other", "generate", "evaluate")]
     rows.append({"stage": "total", "cpu_s": run.cpu["generate"] + run.cpu["evaluate"],
-                 "wall_s": run.wall["generate"] + run.wall["evaluate"]})
+                 "wall_s": run.wall.get("total", run.wall["generate"] + run.wall["evaluate"])})
     return pd.DataFrame(rows)
 
 
@@ -242,7 +276,7 @@ def extrapolate(run: SuiteRun, trials: int = 100, cores: int | None = None) -> d
     cores = cores or os.cpu_count() or 1
     cpu = (run.cpu["generate"] + run.cpu["evaluate"]) * k
     return {"trials": trials, "cpu_h": cpu / 3600, "cpu_bound_wall_h": cpu / cores / 3600, "cores": cores,
-            "measured_wall_scaled_h": (run.wall["generate"] + run.wall["evaluate"]) * k / 3600,
+            "measured_wall_scaled_h": run.wall.get("total", run.wall["generate"] + run.wall["evaluate"]) * k / 3600,
             "disk_gb": run.disk["total"] * k / 1e3, "disk_without_images_gb": run.disk["without_images"] * k / 1e3,
             "peak_rss_mb": run.peak_rss_mb}
 
@@ -254,7 +288,8 @@ def scaling_row(run: SuiteRun) -> dict:
             "frames_rendered": run.frames_rendered, "frames_written": run.frames_written,
             "render_cpu_s": run.cpu["render"], "compose_cpu_s": run.cpu["compose"],
             "write_cpu_s": run.cpu["write"], "evaluate_cpu_s": run.cpu["evaluate"],
-            "cpu_s_per_trial": per_trial_cpu, "wall_s": run.wall["generate"] + run.wall["evaluate"],
+            "cpu_s_per_trial": per_trial_cpu,
+            "wall_s": run.wall.get("total", run.wall["generate"] + run.wall["evaluate"]), "path": run.path,
             "peak_rss_mb": run.peak_rss_mb, "disk_mb": run.disk["total"],
             "disk_mb_without_images": run.disk["without_images"]}
 
@@ -278,7 +313,7 @@ SCALING = (  # (label, experiments, trials, size, particles): one factor at a ti
 def print_run(run: SuiteRun) -> None:
     import click
     from evalkit.reports.tables import print_table
-    click.echo(f"\n{run.label}: {run.experiments}, {run.trials} trial(s), {run.width}x{run.height}: "
+    click.echo(f"\n{run.label} ({run.path}): {run.experiments}, {run.trials} trial(s), {run.width}x{run.height}: "
                f"{run.renders} renders / {run.frames_rendered} rendered frames -> {run.sequences} sequences / "
                f"{run.frames_written} written frames")
     print_table(stage_table(run), floatfmt=".1f")
@@ -310,7 +345,7 @@ def print_recorded(out: Path) -> None:
 
 
 def bench_suite(trials: int, names: tuple[str, ...], ov: Overrides, out: Path, workers: int | None,
-                scaling: bool, evaluate: bool) -> None:
+                scaling: bool, evaluate: bool, images: str = "all") -> None:
     """The ``bench suite`` command body (see the module docstring); parameters are its options."""
     import click
     import pandas as pd
@@ -321,7 +356,7 @@ def bench_suite(trials: int, names: tuple[str, ...], ov: Overrides, out: Path, w
             click.echo(f"scaling run: {label} ...", err=True)
             row_ov = Overrides(sz, p, ov.max_distance_m, ov.samples)
             run = run_suite(configure(exps, n, row_ov), out / "scaling" / label.replace(" ", "_"), label,
-                            workers, evaluate)
+                            workers, evaluate, images)
             save(run, out)
             rows.append(scaling_row(run))
         df = pd.DataFrame(rows)
@@ -329,8 +364,9 @@ def bench_suite(trials: int, names: tuple[str, ...], ov: Overrides, out: Path, w
         print_table(df, floatfmt=".1f")
         df.to_csv(out / "bench_scaling.csv", index=False)
         return
-    label = "-".join([f"t{trials}", *names] + ([ov.tag()] if ov.tag() else []))
-    run = run_suite(configure(names, trials, ov), out / "suite", label, workers, evaluate)
+    label = "-".join([f"t{trials}", *names] + ([ov.tag()] if ov.tag() else [])
+                     + ([f"images-{images.replace(':', '')}"] if images != "all" else []))
+    run = run_suite(configure(names, trials, ov), out / "suite", label, workers, evaluate, images)
     save(run, out)
     print_run(run)
     stage_table(run).to_csv(out / "bench_suite.csv", index=False)
