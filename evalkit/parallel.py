@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 
-def _build(names: list[str], params: list[str], isolate: bool | None, timeout_s: float | None,
+def build_localizers(names: list[str], params: list[str], isolate: bool | None, timeout_s: float | None,
            preprocess: str | None) -> list[tuple[str, Any]]:
     from evalkit import assemble, registry
     kw = registry.parse_params(params)
@@ -33,7 +33,7 @@ def _evaluate_share(args: tuple) -> pd.DataFrame:
     from evalkit.dataset import Dataset
     root, names, params, isolate, timeout_s, preprocess, verify, seq_ids = args
     cv2.setNumThreads(1)
-    specs = _build(names, params, isolate, timeout_s, preprocess)
+    specs = build_localizers(names, params, isolate, timeout_s, preprocess)
     return runner.evaluate(Dataset.open(root, verify=verify), specs, frame_timeout_s=timeout_s, progress=False,
                            sequences=seq_ids)
 

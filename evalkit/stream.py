@@ -76,7 +76,7 @@ def evaluate_sequence(task: SequenceTask) -> int:
     cpu0, wall0 = time.process_time(), time.perf_counter()
     cv2.setNumThreads(1)                    # one process per core
     ds = RecordingDataset(Path(task.root), task.manifest)
-    specs = parallel._build(task.localizers, task.params, None, None, task.preprocess)
+    specs = parallel.build_localizers(task.localizers, task.params, None, None, task.preprocess)
     df = runner.evaluate(ds, specs, progress=False, sequences=[task.seq_id])
     frames = list(ds.iter_frames(task.seq_id))
     hashes = {f["image"]: ds.image_sha256.get(f["image"]) or sha256_file(ds.image_path(f)) for f in frames}
