@@ -6,11 +6,12 @@ is read once: its sha256 (the hash the manifest will list, FORMAT.md) is taken f
 same bytes the localizers decode, then images outside the kept sample are deleted.
 
 Per sequence, in ``WORK/`` (written atomically, hashes first, estimates last, so a
-sequence with ``<id>.pkl`` is finished and an interrupted run resumes from the rest):
+sequence with ``<id>.pkl.gz`` is finished and an interrupted run resumes from the rest):
 
 * ``<id>.hashes.json`` -- ``{dataset-relative image path: sha256}`` of every frame;
 * ``<id>.cost.json`` -- CPU and wall seconds of this evaluation (for ``bench suite``);
-* ``<id>.pkl`` -- the per-frame table of :func:`evalkit.runner.evaluate` (pandas pickle).
+* ``<id>.pkl.gz`` -- the per-frame table of :func:`evalkit.runner.evaluate` (pandas
+  pickle, gzip).
 
 Nothing here imports blendgen: the caller passes the manifest (as ``dockbench
 generate`` will write it, without ``files``) and the frames to keep.
@@ -29,6 +30,9 @@ import pandas as pd
 
 from evalkit.dataset import Dataset
 from datasets_spec.io import save_json_atomic, sha256_file
+
+
+RESULTS_SUFFIX = ".pkl.gz"
 
 
 class RecordingDataset(Dataset):
@@ -62,7 +66,7 @@ class SequenceTask:
 
 def done(work: Path, seq_id: str) -> bool:
     """True when the sequence's estimates are saved (its images may be gone)."""
-    return (Path(work) / f"{seq_id}.pkl").is_file()
+    return (Path(work) / f"{seq_id}{RESULTS_SUFFIX}").is_file()
 
 
 def evaluate_sequence(task: SequenceTask) -> int:
@@ -86,9 +90,9 @@ def evaluate_sequence(task: SequenceTask) -> int:
     save_json_atomic(work / f"{task.seq_id}.cost.json",
                      {"cpu_s": time.process_time() - cpu0, "wall_s": time.perf_counter() - wall0,
                       "frames": len(frames)})
-    tmp = work / f".{task.seq_id}.pkl.tmp"
-    df.to_pickle(tmp)
-    os.replace(tmp, work / f"{task.seq_id}.pkl")   # done; images pruned after (again on a resume)
+    tmp = work / f".{task.seq_id}.tmp"
+    df.to_pickle(tmp, compression={"method": "gzip", "compresslevel": 1})   # ~1.6 -> ~0.3 kB per frame
+    os.replace(tmp, work / f"{task.seq_id}{RESULTS_SUFFIX}")   # done; images pruned after (again on a resume)
     prune_images(ds, frames, task.keep)
     return len(frames)
 
@@ -115,7 +119,7 @@ def prune_images(ds: Dataset, frames: list[dict], keep: list[int] | None) -> Non
 def load_results(work: Path, seq_ids: list[str]) -> tuple[pd.DataFrame, dict[str, str]]:
     """The saved per-frame tables of ``seq_ids`` (in that order) and their image hashes."""
     work = Path(work)
-    parts = [pd.read_pickle(work / f"{s}.pkl") for s in seq_ids]
+    parts = [pd.read_pickle(work / f"{s}{RESULTS_SUFFIX}", compression="gzip") for s in seq_ids]
     hashes: dict[str, str] = {}
     for s in seq_ids:
         hashes.update(json.loads((work / f"{s}.hashes.json").read_text()))

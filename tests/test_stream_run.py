@@ -101,17 +101,17 @@ def test_a_run_killed_after_its_first_evaluated_sequence_resumes_to_the_same_res
     out = tmp_path / "run"
     p = _start(cfg, out)
     t_end = time.monotonic() + 300
-    while not list(out.glob(".stream/*/*.pkl")) and p.poll() is None and time.monotonic() < t_end:
+    while not list(out.glob(".stream/*/*.pkl.gz")) and p.poll() is None and time.monotonic() < t_end:
         time.sleep(0.05)
     assert p.poll() is None, "the run ended before it could be interrupted"
     os.killpg(p.pid, signal.SIGKILL)                            # the parent, render and evaluation workers
     p.wait()
-    done_before = {q.name: q.stat().st_mtime_ns for q in out.glob(".stream/*/*.pkl")}
+    done_before = {q.name: q.stat().st_mtime_ns for q in out.glob(".stream/*/*.pkl.gz")}
     _ok("run", cfg, *LOCS, "-o", out, "--images", "none", "-q")
     st = _stream(out)
     assert st["files"] == _stream(d / "run")["files"] and st["content_hash"] == _stream(d / "run")["content_hash"]
     assert (out / "results" / "metrics.csv").read_bytes() == (d / "ev" / "metrics.csv").read_bytes()
-    assert {q.name: q.stat().st_mtime_ns for q in out.glob(".stream/*/*.pkl") if q.name in done_before} \
+    assert {q.name: q.stat().st_mtime_ns for q in out.glob(".stream/*/*.pkl.gz") if q.name in done_before} \
         == done_before                                          # finished sequences were not evaluated again
     assert not list((out / "dataset").glob("sequences/*/rgb/*.png"))   # --images none
 
@@ -129,3 +129,16 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, args, says):
                        text=True, timeout=120)
     assert r.returncode == 2 and says in r.stderr and "Traceback" not in r.stderr
     assert not (tmp_path / "out").exists()                      # refused before anything was written
+
+
+def test_the_images_policy_keeps_evenly_spaced_frames_first_and_last_included():
+    from evalkit.stream import ImagesPolicyError, kept_indices, parse_images
+    idx = list(range(10, 20))
+    assert kept_indices(idx, "all") is None and kept_indices(idx, "none") == []
+    assert kept_indices(idx, "sample:3") == [10, 14, 19] or kept_indices(idx, "sample:3") == [10, 15, 19]
+    assert kept_indices(idx, "sample:2") == [10, 19]
+    assert kept_indices(idx, "sample:50") == idx                # more than there are: all of them
+    assert kept_indices([], "sample:4") == []
+    for bad in ("sample", "sample:-1", "sample:x", "some", ""):
+        with pytest.raises(ImagesPolicyError):
+            parse_images(bad)
