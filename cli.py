@@ -475,7 +475,8 @@ def _images_policy(value: str) -> str:
 @click.option("--workers", type=click.IntRange(1, 256), default=None,
               help="render processes at once (default: one per core); evaluation: one process per core")
 @click.option("--preprocess", default=None, metavar="STEPS", help="image preprocessing (as for evaluate)")
-@click.option("--overwrite", is_flag=True, help="replace a dataset made from a different config")
+@click.option("--overwrite", is_flag=True, help="start over when OUT holds a run of another config or "
+              "other localizers")
 @click.option("--quiet", "-q", is_flag=True, help="print nothing but errors")
 @_user_errors
 def run(config: Path, localizers: tuple[str, ...], params: tuple[str, ...], out: Path | None, images: str,
@@ -496,7 +497,7 @@ def run(config: Path, localizers: tuple[str, ...], params: tuple[str, ...], out:
         assemble.build(n, registry.params_for(n, kw, list(localizers)), preprocess=preprocess)
     check_out_dir(exp, out / "dataset", overwrite)
     req = RunRequest(list(localizers), list(params), images, workers, preprocess=preprocess, progress=not quiet,
-                     command=_command_line(click.get_current_context()))
+                     command=_command_line(click.get_current_context()), overwrite=overwrite)
     r = stream_run([(exp, out)], req)[0]
     if not quiet:
         click.echo("\n" + r["paths"]["article_md"].read_text())

@@ -142,3 +142,13 @@ def test_the_images_policy_keeps_evenly_spaced_frames_first_and_last_included():
     for bad in ("sample", "sample:-1", "sample:x", "some", ""):
         with pytest.raises(ImagesPolicyError):
             parse_images(bad)
+
+
+@pytest.mark.blender
+def test_a_run_folder_of_other_localizers_is_refused_not_mixed(runs):
+    cfg, d = runs
+    before = (d / "run" / "stream.json").read_bytes()
+    r = subprocess.run(_cmd("run", cfg, "-l", "led", "-o", d / "run", "-q"), cwd=ROOT, capture_output=True,
+                       text=True, timeout=120)
+    assert r.returncode == 2 and "other localizers" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    assert (d / "run" / "stream.json").read_bytes() == before

@@ -84,7 +84,8 @@ def reproduce(names: tuple[str, ...], out_root: Path, trials: int | None, worker
     for e, b in zip(exps, bases):
         check_out_dir(e, b / "dataset", overwrite=overwrite)
     t0 = time.perf_counter()
-    runs = stream_run(list(zip(exps, bases)), RunRequest(list(LOCALIZERS), images=images, workers=workers))
+    runs = stream_run(list(zip(exps, bases)), RunRequest(list(LOCALIZERS), images=images, workers=workers,
+                                                         overwrite=overwrite))
     dt = time.perf_counter() - t0
     reports = []
     for e, b, r in zip(exps, bases, runs):

@@ -55,6 +55,7 @@ class RunRequest:
     preprocess: str | None = None
     progress: bool = True
     command: list[str] | None = None
+    overwrite: bool = False
 
 
 class _Streamer:
@@ -145,8 +146,14 @@ def work_dir(dataset: Path, name: str) -> Path:
     return Path(dataset).parent / ".stream" / name
 
 
+class RunDirError(FileExistsError):
+    """OUT holds a run of other localizers (a user error: exit 2)."""
+
+
 def _stamp_work(exp, out: Path, req: RunRequest) -> None:
-    """Work files of another config or other localizers are dropped (never mixed in)."""
+    """Work files of another config or other localizers are never mixed in: with
+    ``overwrite`` they are dropped with the dataset (its images may be pruned), else
+    :class:`RunDirError`."""
     import shutil
     from blendgen.pipeline.generate import config_digest
     work = work_dir(Path(out) / "dataset", exp.name)
@@ -154,7 +161,11 @@ def _stamp_work(exp, out: Path, req: RunRequest) -> None:
                         "preprocess": req.preprocess}, sort_keys=True)
     f = work / "stamp.json"
     if f.is_file() and f.read_text() != stamp:
+        if not req.overwrite:
+            raise RunDirError(f"{out} holds a run of other localizers, params or config (its images may "
+                              "be gone); choose a new -o or pass --overwrite to start over")
         shutil.rmtree(work)
+        shutil.rmtree(Path(out) / "dataset", ignore_errors=True)
     work.mkdir(parents=True, exist_ok=True)
     f.write_text(stamp)
 
