@@ -49,7 +49,7 @@ class RunRequest:
     ``workers``: render processes (evaluation: one process per core)."""
     localizers: list[str]
     params: list[str] = field(default_factory=list)
-    images: str = "sample:10"
+    images: str = "sample:5"
     workers: int | None = None
     eval_workers: int | None = None
     preprocess: str | None = None
@@ -103,6 +103,10 @@ class _Streamer:
 
     def before_finish(self) -> None:
         """Wait for every evaluation; the first failure is raised."""
+        left = sum(not f.done() for f in self.futures)
+        if left and self.req.progress:
+            import sys
+            print(f"evaluating: {left} of {len(self.futures)} sequences still running", file=sys.stderr)
         for f in list(self.futures):
             f.result()
 
