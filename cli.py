@@ -27,8 +27,8 @@ def _user_errors(fn):
             click.echo(f"error: {e}", err=True)
             sys.exit(USER_ERROR)
         except KeyboardInterrupt:
-            hint = ("finished sequences are kept; re-run the same command to resume"
-                    if fn.__name__ == "generate" else "stopped by Ctrl-C (SIGINT)")
+            hint = ("finished sequences (and their evaluations) are kept; re-run the same command to resume"
+                    if fn.__name__ in ("generate", "run") else "stopped by Ctrl-C (SIGINT)")
             click.echo(f"\ninterrupted: {hint}", err=True)
             sys.exit(130)
     return wrapper
