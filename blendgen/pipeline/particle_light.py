@@ -30,17 +30,24 @@ def material(occ) -> popt.ParticleMaterial:
     return popt.ParticleMaterial(occ.albedo, occ.forward_fraction, occ.forward_g)
 
 
-def _depth_gain(post, water, T_world_cam: np.ndarray, p: ProjectedParticles) -> np.ndarray:
-    """(M, 3) inverse of the depth factor the water model will apply to each particle's pixels
-    (physical: exp(-Kd depth) at the depth compose.surface_depth computes from the range along
-    the ray; article: exp(-Kd d) at the dock depth)."""
+def _depth_gain(post, water, T_world_cam: np.ndarray, p: ProjectedParticles) -> list:
+    """3 x (M,) inverse of the depth factor the water model will apply to each particle's
+    pixels (physical: exp(-Kd depth) at the depth compose.surface_depth computes from the range
+    along the ray; article: exp(-Kd d) at the dock depth)."""
     if post.image_formation != "physical":
-        return np.broadcast_to(1.0 / optics.depth_light(water, post.light_depth_m), (p.u.size, 3))
+        g = 1.0 / optics.depth_light(water, post.light_depth_m)
+        return [np.full(p.u.size, np.float32(g[k] if np.ndim(g) else g), np.float32) for k in range(3)]
     T = np.asarray(T_world_cam, float)
-    dist = np.sqrt(np.einsum("ij,ij->i", p.pc, p.pc))
-    dir_z = (p.pc @ T[2, :3].astype(np.float32)) / np.maximum(dist, np.float32(1e-9))
+    x, y, z = (np.ascontiguousarray(p.pc[:, k]) for k in range(3))
+    rz = T[2, :3].astype(np.float32)
+    dist = np.sqrt(x * x + y * y + z * z)
+    dir_z = (x * rz[0] + y * rz[1] + z * rz[2]) / np.maximum(dist, np.float32(1e-9))
     depth = np.maximum(np.float32(post.surface_z_m - T[2, 3]) - p.surf_range * dir_z, np.float32(0.0))
-    return np.exp(np.asarray(water.Kd, np.float32)[None, :] * depth[:, None])
+    kd = np.asarray(water.Kd, np.float32).reshape(-1)
+    if np.all(kd == kd[0]):
+        g = np.exp(kd[0] * depth)
+        return [g, g, g]
+    return [np.exp(kd[k] * depth) for k in range(3)]
 
 
 def shader(post, water, T_world_cam, markers=None, T_cam_dock=None):
@@ -55,8 +62,12 @@ def shader(post, water, T_world_cam, markers=None, T_cam_dock=None):
 
     def shade(p: ProjectedParticles) -> np.ndarray:
         gain = _depth_gain(post, water, T_world_cam, p) if lights else None
-        out = popt.particle_radiance(p.pc, mat, [amb] * 3, lights, water.c, gain)
-        return out + popt.sun_radiance(p.pc, mat, suns) if suns else out
+        xyz = tuple(np.ascontiguousarray(p.pc[:, k]) for k in range(3))
+        out = popt.radiance_planar(xyz, mat, [amb] * 3, lights, water.c, gain)
+        if suns:
+            sun = popt.sun_planar(xyz, mat, suns)
+            out = [o + sun for o in out]
+        return np.stack(out, axis=1)
     return shade
 
 
