@@ -65,12 +65,13 @@ class _Samples:
         self.surf, self.width, self.height = surf, width, height
         self.owner, self.pix, self.alpha = [], [], []
 
-    def add(self, p: Particles, sel, x, y, alpha) -> None:
+    def add(self, p: Particles, sel, x, y, alpha, clip: bool = True) -> None:
         """Samples (k, m) of particles sel (m,) at integer pixels x, y (int64) with coverage x
-        opacity ``alpha`` float32: clipped to the image, depth-tested (a sample counts only where
+        opacity ``alpha`` float32: clipped to the image (``clip``: some may be outside),
+        depth-tested (a sample counts only where
         the scene surface is farther than the particle's surface range d) and kept if alpha > 0."""
-        inside = (x >= 0) & (x < self.width) & (y >= 0) & (y < self.height)
-        if not inside.all():
+        if clip:
+            inside = (x >= 0) & (x < self.width) & (y >= 0) & (y < self.height)
             alpha = np.where(inside, alpha, _F0)
             x, y = np.clip(x, 0, self.width - 1), np.clip(y, 0, self.height - 1)
         pix = y * self.width + x
@@ -111,7 +112,12 @@ def specks(acc: _Samples, p: Particles, sel: np.ndarray) -> None:
     area = np.float32(np.pi) * p.a.take(sel) * p.b.take(sel) * p.op.take(sel)
     ex, ey = _F1 - fx, _F1 - fy
     alpha = np.stack([ex * ey, fx * ey, ex * fy, fx * fy]) * area
-    acc.add(p, sel, x0f.astype(np.int64) + gx, y0f.astype(np.int64) + gy, alpha)
+    x0, y0 = x0f.astype(np.int64), y0f.astype(np.int64)
+    border = (x0 < 0) | (y0 < 0) | (x0 + 2 > acc.width) | (y0 + 2 > acc.height)
+    for part in (np.flatnonzero(~border), np.flatnonzero(border)):
+        if part.size:
+            acc.add(p, sel.take(part), x0.take(part) + gx, y0.take(part) + gy, alpha[:, part],
+                    clip=bool(border[part[0]]))
 
 
 def _ramp(p: Particles, sel: np.ndarray):
@@ -144,8 +150,9 @@ def coverage(dx, dy, ca, sa, cb, sb, k0, k1):
     return np.clip(k0 - k1 * q, _F0, _F1)
 
 
-def block(acc: _Samples, p: Particles, sel, x0, y0, size: int) -> None:
-    """Ellipses whose box fits in size x size px: one broadcast (size^2, m) block."""
+def block(acc: _Samples, p: Particles, sel, x0, y0, size: int, border: bool = True) -> None:
+    """Ellipses whose box fits in size x size px: one broadcast (size^2, m) block
+    (``border``: some boxes cross the image border)."""
     g = np.arange(size, dtype=np.int64)
     gx, gy = np.tile(g, size)[:, None], np.repeat(g, size)[:, None]
     alpha = coverage((x0 - p.u.take(sel)).astype(np.float32) + gx.astype(np.float32),
@@ -158,7 +165,7 @@ def block(acc: _Samples, p: Particles, sel, x0, y0, size: int) -> None:
                          _F1).astype(np.float32)
         alpha = np.minimum(alpha * scale, _F1)
     alpha *= p.op.take(sel)
-    acc.add(p, sel, x0 + gx, y0 + gy, alpha)
+    acc.add(p, sel, x0 + gx, y0 + gy, alpha, border)
 
 
 def large(acc: _Samples, p: Particles, sel, x0, y0, sx, sy, width: int, height: int) -> None:
@@ -175,7 +182,7 @@ def large(acc: _Samples, p: Particles, sel, x0, y0, sx, sy, width: int, height: 
     prm = [x[k] for x in _ramp(p, sel)]
     alpha = coverage((px - p.u[owner]).astype(np.float32), (py - p.v[owner]).astype(np.float32), *prm)
     alpha *= p.op[owner]
-    acc.add(p, owner, px[None, :], py[None, :], alpha[None, :])
+    acc.add(p, owner, px[None, :], py[None, :], alpha[None, :], clip=False)
 
 
 def splat(p: Particles, surf: np.ndarray, width: int, height: int) -> Sums:
@@ -194,8 +201,11 @@ def splat(p: Particles, surf: np.ndarray, width: int, height: int) -> Sums:
         big = np.flatnonzero(size > GROUP_MAX_PX)
         if big.size:
             large(acc, p, sel[big], x0[big], y0[big], sx[big], sy[big], width, height)
+        # groups of one box size, interior boxes apart from those crossing the border
+        border = (x0 < 0) | (y0 < 0) | (x0 + size > width) | (y0 + size > height)
+        key = 2 * size + border
         order = np.flatnonzero((size <= GROUP_MAX_PX) & (size > 0))
-        order = order[np.argsort(size[order], kind="stable")]
-        for grp in np.split(order, np.flatnonzero(np.diff(size[order])) + 1) if order.size else ():
-            block(acc, p, sel[grp], x0[grp], y0[grp], int(size[grp[0]]))
+        order = order[np.argsort(key[order], kind="stable")]
+        for grp in np.split(order, np.flatnonzero(np.diff(key[order])) + 1) if order.size else ():
+            block(acc, p, sel[grp], x0[grp], y0[grp], int(size[grp[0]]), bool(border[grp[0]]))
     return acc.sums(p)

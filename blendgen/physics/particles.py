@@ -187,8 +187,10 @@ class ParticleField:
             raise ValueError(f"v_flow must be a finite (3,) vector in m/s, got {v_flow}")
         L = _noise_factor(sigma)
         pos = self.positions.astype(np.float64) + v * dt
-        if np.any(L):
-            pos += rng.standard_normal((self.n, 3)) @ L.T
+        if np.any(L):                                    # eta = L z, as column sums (no BLAS threads)
+            z = rng.standard_normal((self.n, 3))
+            for i in range(3):
+                pos[:, i] += z[:, 0] * L[i, 0] + z[:, 1] * L[i, 1] + z[:, 2] * L[i, 2]
         return ParticleField(_wrap(pos, self.region_min, self.region_max), self.radii,
                              self.region_min, self.region_max)
 
@@ -303,7 +305,7 @@ def project_particles(field: ParticleField, K: np.ndarray, T_world_cam: np.ndarr
     T = np.asarray(T_world_cam, float)
     if T.shape != (4, 4):
         raise ValueError(f"T_world_cam must be 4x4, got {T.shape}")
-    x, y, z = _camera_columns(field.positions, T)
+    x, y, z = camera_columns(field.positions, T)
     f32 = np.float32
     idx = np.flatnonzero(z > f32(z_near))                 # columns, not a GEMM: no BLAS threads
     x, y, z = x.take(idx), y.take(idx), z.take(idx)
@@ -328,7 +330,7 @@ def project_particles(field: ParticleField, K: np.ndarray, T_world_cam: np.ndarr
     return ProjectedParticles(u, v, a, b, c, dv * inv, z * sec - r, np.stack([x, y, z], axis=1), idx)
 
 
-def _camera_columns(positions: np.ndarray, T: np.ndarray):
+def camera_columns(positions: np.ndarray, T: np.ndarray):
     """Camera-frame coordinates x, y, z (N,) float32 of world points (N, 3) float32:
     ``R^T (p - t)`` written as column sums (no (N, 3) temporaries, no BLAS)."""
     R = T[:3, :3].astype(np.float32)

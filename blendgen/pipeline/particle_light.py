@@ -21,7 +21,7 @@ import numpy as np
 from blendgen.physics import lights as lt
 from blendgen.physics import optics
 from blendgen.physics import particle_optics as popt
-from blendgen.physics.particles import ProjectedParticles
+from blendgen.physics.particles import ProjectedParticles, camera_columns
 
 MARGIN_PX = 8.0     # particles centred this far outside the image may still blur into it
 
@@ -86,15 +86,16 @@ def streaks(post, K: np.ndarray, field, T_world_cam, p: ProjectedParticles, dt: 
     """(M, 2) image displacement (px) of each particle over the exposure: its position now minus
     where it was ``dt`` earlier (drifted back by v_flow, seen from the previous pose, or from
     this pose when there is none), times exposure / dt (motion assumed uniform over dt)."""
-    T0 = np.asarray(T_prev if T_prev is not None else T_world_cam, float)
-    pw = field.positions[p.index].astype(np.float64) - np.asarray(post.occlusion.v_flow, float) * dt
-    pc0 = (pw - T0[:3, 3]) @ T0[:3, :3]
-    z0 = np.maximum(pc0[:, 2], 1e-3)
-    u0 = K[0, 0] * pc0[:, 0] / z0 + K[0, 1] * pc0[:, 1] / z0 + K[0, 2]
-    v0 = K[1, 1] * pc0[:, 1] / z0 + K[1, 2]
-    scale = min(post.sensor.exposure_s / dt, 1.0)
-    out = np.stack([p.u - u0, p.v - v0], axis=1) * scale
-    out[pc0[:, 2] <= 1e-3] = 0.0
+    T0 = np.array(T_prev if T_prev is not None else T_world_cam, float)
+    T0[:3, 3] += np.asarray(post.occlusion.v_flow, float) * dt     # drifting back = camera ahead
+    x0, y0, z0 = camera_columns(field.positions[p.index], T0)
+    behind = z0 <= np.float32(1e-3)
+    iz = np.float32(1.0) / np.maximum(z0, np.float32(1e-3))
+    u0 = np.float32(K[0, 0]) * x0 * iz + np.float32(K[0, 1]) * y0 * iz + np.float32(K[0, 2])
+    v0 = np.float32(K[1, 1]) * y0 * iz + np.float32(K[1, 2])
+    scale = np.float32(min(post.sensor.exposure_s / dt, 1.0))
+    out = np.stack([np.where(behind, np.float32(0.0), (p.u - u0) * scale),
+                    np.where(behind, np.float32(0.0), (p.v - v0) * scale)], axis=1)
     return out.astype(np.float32)
 
 
