@@ -369,13 +369,15 @@ def _particle_colour(mode: str, colour, ambient) -> np.ndarray:
 def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: ParticleField,
                      K: np.ndarray, T_world_cam: np.ndarray, water=None, mode: str = "backscatter",
                      z_near: float = 0.05, colour=None, ambient=DEFAULT_AMBIENT_RGB,
-                     shade: Callable | None = None, shape: Callable | None = None, margin_px: float = 0.0):
+                     shade: Callable | None = None, shape: Callable | None = None, margin_px: float = 0.0,
+                     merged_range: bool = False):
     """Draw the particle field into a linear RGB image with a depth test.
 
     image_linear (H,W,3) float, range_m (H,W) float (range along each pixel ray to
     the rendered surface, inf or NaN = background). Returns (image_out (H,W,3) float32,
     occluder_mask (H,W) bool = particle coverage >= 0.5, particle_range (H,W)
-    float32 = range of the nearest particle covering the pixel, inf elsewhere).
+    float32 = range of the nearest particle covering the pixel, inf elsewhere; with
+    ``merged_range`` instead ``range_m`` as float32 with that range at the covered pixels).
     Inputs are not modified.
 
     Colour: ``shade(projected) -> (M, 3)`` linear radiance per particle (the physical
@@ -432,6 +434,10 @@ def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: Parti
     _composite(out.reshape(-1), hit, cov, c)
     mask = np.zeros(h * w, bool)
     mask[hit] = cov >= 0.5
+    if merged_range:
+        merged = np.array(range_m, np.float32)
+        merged.reshape(-1)[hit] = prange.take(hit)
+        return out, mask.reshape(h, w), merged
     return out, mask.reshape(h, w), prange.reshape(h, w)
 
 
