@@ -73,9 +73,12 @@ def test_splat_matches_brute_force_oracle(seed):
     surf[10:25, 15:35] = 3.0                                  # a near "dock": particles behind it vanish
     sums = ps.splat(p, surf.reshape(-1), W, H)
     log_t, w, wc, near = _oracle(p, surf)
-    assert np.allclose(sums.log_t.reshape(H, W), log_t, rtol=1e-4, atol=1e-4)
-    assert np.allclose(sums.wc[:, 0].reshape(H, W), w, rtol=1e-4, atol=1e-5)
-    assert np.allclose(sums.wc[:, 1:].reshape(H, W, -1), wc, rtol=1e-4, atol=1e-5)
+    assert np.array_equal(sums.hit, np.flatnonzero(np.isfinite(near)))
+    log_t_f, wc_f = np.zeros(H * W), np.zeros((H * W, sums.wc.shape[1]))
+    log_t_f[sums.hit], wc_f[sums.hit] = sums.log_t, sums.wc
+    assert np.allclose(log_t_f.reshape(H, W), log_t, rtol=1e-4, atol=1e-4)
+    assert np.allclose(wc_f[:, 0].reshape(H, W), w, rtol=1e-4, atol=1e-5)
+    assert np.allclose(wc_f[:, 1:].reshape(H, W, -1), wc, rtol=1e-4, atol=1e-5)
     assert np.array_equal(np.isfinite(sums.near.reshape(H, W)), np.isfinite(near))
     assert np.allclose(sums.near.reshape(H, W)[np.isfinite(near)], near[np.isfinite(near)])
 
@@ -90,4 +93,4 @@ def test_splat_of_nothing_is_empty():
     p = _particles(np.random.default_rng(4), 3)
     far = ps.Particles(*(x[:0] for x in (p.u, p.v, p.a, p.b, p.c, p.s, p.d, p.op, p.colour)))
     sums = ps.splat(far, np.full(W * H, np.inf, np.float32), W, H)
-    assert not np.any(sums.log_t) and not np.isfinite(sums.near).any() and not np.any(sums.wc)
+    assert sums.hit.size == 0 and not np.isfinite(sums.near).any() and sums.wc.shape == (0, 4)

@@ -35,8 +35,10 @@ _F0, _F1 = np.float32(0.0), np.float32(1.0)
 
 @dataclass
 class Sums:
-    """Per-pixel sums (module doc): log_t (H*W,), near (H*W,) float32 and ``wc`` (H*W, 1 + C)
-    float32 = [w, w c_1 .. w c_C] (None without per-particle colours)."""
+    """Per-pixel sums (module doc) at the covered pixels ``hit`` (n,) int64 (flat, ascending):
+    log_t (n,) and ``wc`` (n, 1 + C) float32 = [w, w c_1 .. w c_C] (None without per-particle
+    colours); ``near`` (H*W,) float32 for the whole frame (inf where nothing covers)."""
+    hit: np.ndarray
     log_t: np.ndarray
     wc: np.ndarray | None
     near: np.ndarray
@@ -91,8 +93,12 @@ class _Samples:
         log1m = np.log1p(-np.minimum(alpha, np.float32(ALPHA_MAX)))
         near = np.full(n_pix, np.inf, np.float32)
         np.minimum.at(near, pix, d)
+        hit = np.flatnonzero(near < np.inf)               # covered pixels; samples -> their slot
+        slot = np.empty(n_pix, np.int64)
+        slot[hit] = np.arange(hit.size)
+        cpix = slot.take(pix)
         if not n_col:
-            return Sums(np.bincount(pix, log1m, n_pix).astype(np.float32), None, near)
+            return Sums(hit, np.bincount(cpix, log1m, hit.size).astype(np.float32), None, near)
         # one product for all sums: entries w = alpha / d^2, rows [1, colour, log(1 - alpha) / w]
         rows = np.empty((p.colour.shape[0], 2 + n_col), np.float32)
         rows[:, 0] = 1.0
@@ -100,9 +106,9 @@ class _Samples:
         w = alpha / np.maximum(d, np.float32(1e-3)) ** 2
         per_sample = rows.take(owner, axis=0)
         per_sample[:, -1] = log1m / w                      # alpha > 0, so w > 0
-        mat = sparse.csc_array((w, pix, np.arange(pix.size + 1)), shape=(n_pix, pix.size))
+        mat = sparse.csc_array((w, cpix, np.arange(pix.size + 1)), shape=(hit.size, pix.size))
         total = np.asarray(mat @ per_sample, np.float32)
-        return Sums(total[:, -1], total[:, :-1], near)
+        return Sums(hit, total[:, -1], total[:, :-1], near)
 
 
 def specks(acc: _Samples, p: Particles, sel: np.ndarray) -> None:

@@ -420,11 +420,10 @@ def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: Parti
     colours = (np.asarray(shade(p), np.float32).reshape(-1, 3) if shade is not None
                else np.zeros((p.u.size, 0), np.float32))
     sums = psplat.splat(_splat_input(p, colours), surf, w, h)
-    prange = sums.near                                   # nearest covering particle, inf elsewhere
-    hit = np.flatnonzero(prange < np.inf)
-    cov = np.float32(1.0) - np.exp(sums.log_t.take(hit))
+    prange, hit = sums.near, sums.hit                    # nearest covering particle, inf elsewhere
+    cov = np.float32(1.0) - np.exp(sums.log_t)
     if shade is not None:                                # planar (3, n_hit): long numpy loops
-        wc = np.ascontiguousarray(sums.wc.take(hit, axis=0).T)
+        wc = np.ascontiguousarray(sums.wc.T)
         c = wc[1:] * (np.float32(1.0) / np.where(wc[0] > 0, wc[0], np.float32(1.0)))
     else:
         c = np.broadcast_to(col[:, None], (3, hit.size))
