@@ -79,7 +79,7 @@ class _Samples:
         pix = y * self.width + x
         live = (alpha > _F0) & (self.surf.take(pix) > p.d.take(sel))
         idx = np.flatnonzero(live)
-        self.owner.append(sel.take(idx % sel.size))
+        self.owner.append(np.tile(sel, alpha.shape[0]).take(idx))   # (k, m) row-major: sel repeats
         self.pix.append(pix.take(idx))
         self.alpha.append(alpha.take(idx))
 
@@ -94,11 +94,11 @@ class _Samples:
         near = np.full(n_pix, np.inf, np.float32)
         np.minimum.at(near, pix, d)
         hit = np.flatnonzero(near < np.inf)               # covered pixels; samples -> their slot
-        slot = np.empty(n_pix, np.int64)
-        slot[hit] = np.arange(hit.size)
+        slot = np.empty(n_pix, np.int32)                   # scipy's CSC index type: no copies
+        slot[hit] = np.arange(hit.size, dtype=np.int32)
         cpix = slot.take(pix)
         if not n_col:
-            return Sums(hit, np.bincount(cpix, log1m, hit.size).astype(np.float32), None, near)
+            return Sums(hit, np.bincount(cpix.astype(np.intp), log1m, hit.size).astype(np.float32), None, near)
         # one product for all sums: entries w = alpha / d^2, rows [1, colour, log(1 - alpha) / w]
         rows = np.empty((p.colour.shape[0], 2 + n_col), np.float32)
         rows[:, 0] = 1.0
@@ -106,7 +106,7 @@ class _Samples:
         w = alpha / np.maximum(d, np.float32(1e-3)) ** 2
         per_sample = rows.take(owner, axis=0)
         per_sample[:, -1] = log1m / w                      # alpha > 0, so w > 0
-        mat = sparse.csc_array((w, cpix, np.arange(pix.size + 1)), shape=(hit.size, pix.size))
+        mat = sparse.csc_array((w, cpix, np.arange(pix.size + 1, dtype=np.int32)), shape=(hit.size, pix.size))
         total = np.asarray(mat @ per_sample, np.float32)
         return Sums(hit, total[:, -1], total[:, :-1], near)
 
