@@ -312,18 +312,24 @@ def bench_pnp(trials: int, seed: int, out: Path):
               show_default=True)
 @click.option("--frames", type=click.IntRange(1, 1000), default=10, show_default=True)
 @click.option("--fidelity", "fidelity_out", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="instead: fast particles vs real spheres in the render (Blender), datasets under this dir")
+              help="instead: fast particles vs real spheres in the render (Blender), datasets under this dir "
+                   "(-n: the particle counts, default 6000 and 60000; --frames: frames of the approach)")
 def bench_particles(counts: tuple[int, ...], size: tuple[int, int], frames: int, fidelity_out: Path | None):
-    """Fast-path cost of small obstacles per frame (add_particles: cull, light, blur, draw), wall ms;
-    or, with --fidelity, fast vs reference particles (coverage, IoU, contrast, visible fractions)."""
+    """Fast-path cost of small obstacles per frame (add_particles: cull, light, blur, draw), CPU and wall ms;
+    or, with --fidelity, fast vs reference particles (coverage, IoU, contrast, visible fractions,
+    LED and QR localization: P_succ and E_rel deltas)."""
     import os
     if fidelity_out is not None:
         import pandas as pd
-        from blendgen.tools.particle_fidelity import compare
+        from blendgen.tools.particle_fidelity import COUNTS, compare
         from evalkit.reports.tables import print_table
-        df = pd.DataFrame(compare(fidelity_out, *size))
+        rows, loc = compare(fidelity_out, *size, counts=counts or COUNTS, frames=frames)
+        df = pd.DataFrame(rows)
         print_table(df, floatfmt=".3g")
-        click.echo("mean: " + ", ".join(f"{k} {v:.3g}" for k, v in df.drop(columns="frame").mean().items()))
+        click.echo("\nmean per condition:")
+        print_table(df.drop(columns="frame").groupby("condition").mean().reset_index(), floatfmt=".3g")
+        click.echo("\nlocalization, fast vs reference (P_succ, E_rel = e_rel_mean of detected frames):")
+        print_table(loc, floatfmt=".3g")
         return
     from blendgen.tools.particle_bench import format_row, run
     click.echo(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (wall times are upper bounds)")

@@ -115,18 +115,61 @@ class ParticleMaterial:
         return out + hg_phase(cos_theta, self.forward_g) * f if f > 0 else out
 
 
-def _light_terms(light, pts: np.ndarray, view: np.ndarray, c: np.ndarray):
-    """(irradiance (M, 3), cos of the scattering angle (M,)) of one point light at particles
-    pts (M, 3) float32: ``lights.irradiance``'s law (inverse square, cone profile,
-    exp(-c d), normals None) in float32, sharing the light->particle directions."""
-    ray = pts - np.asarray(light.position_m, np.float32)
-    d = np.sqrt(np.einsum("ij,ij->i", ray, ray))
+def _columns(points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Contiguous float32 x, y, z (M,) of points (M, 3): the planar layout every per-particle
+    loop here runs on (numpy loops over a short last axis, (M, 3), cost ~20x more per element)."""
+    pts = np.asarray(points, np.float32).reshape(-1, 3)
+    return tuple(np.ascontiguousarray(pts[:, k]) for k in range(3))
+
+
+def _view_dirs(x, y, z):
+    """Unit vectors (3 x (M,)) from the particles toward the camera at the origin."""
+    inv = np.float32(-1.0) / np.maximum(np.sqrt(x * x + y * y + z * z), np.float32(1e-9))
+    return x * inv, y * inv, z * inv
+
+
+def _light_terms(light, xyz, view, c: np.ndarray):
+    """(irradiance [3 x (M,)], cos of the scattering angle (M,)) of one point light at particles
+    xyz = (x, y, z) (M,) float32, view = unit directions to the camera: ``lights.irradiance``'s
+    law (inverse square, cone profile, exp(-c d), normals None) in float32, sharing the
+    light->particle directions."""
+    pos = np.asarray(light.position_m, np.float32)
+    ray = [xyz[k] - pos[k] for k in range(3)]
+    d = np.sqrt(ray[0] * ray[0] + ray[1] * ray[1] + ray[2] * ray[2])
     np.maximum(d, np.float32(1e-3), out=d)
-    ray /= d[:, None]
-    prof = light.profile(ray @ np.asarray(light.axis, np.float32)).astype(np.float32)
-    E = (prof / (d * d))[:, None] * np.asarray(light.intensity_w_sr, np.float32)[None, :]
-    E *= np.exp(-d[:, None] * c[None, :])
-    return E, np.einsum("ij,ij->i", ray, view)
+    inv = np.float32(1.0) / d
+    ray = [r * inv for r in ray]
+    ax = np.asarray(light.axis, np.float32)
+    prof = light.profile(ray[0] * ax[0] + ray[1] * ax[1] + ray[2] * ax[2]).astype(np.float32)
+    base = prof * inv * inv
+    intensity = np.asarray(light.intensity_w_sr, np.float32).reshape(3)
+    if np.all(c == c[0]):                                   # grey water: one exp for all channels
+        base *= np.exp(-d * c[0])
+        E = [base * intensity[k] for k in range(3)]
+    else:
+        E = [base * intensity[k] * np.exp(-d * c[k]) for k in range(3)]
+    return E, ray[0] * view[0] + ray[1] * view[1] + ray[2] * view[2]
+
+
+def radiance_planar(xyz, material: ParticleMaterial, ambient_rgb, point_lights: list, c_per_m,
+                    light_gain=None) -> list:
+    """:func:`particle_radiance` on columns: xyz = (x, y, z) (M,) float32, light_gain None or
+    3 x (M,) (per channel); returns 3 x (M,) float32."""
+    n = xyz[0].size
+    amb = np.float32(material.albedo) * np.asarray(ambient_rgb, np.float32).reshape(3)
+    if not point_lights or n == 0:
+        return [np.full(n, amb[k], np.float32) for k in range(3)]
+    view = _view_dirs(*xyz)
+    c = np.asarray(c_per_m, np.float32).reshape(3)
+    art = [np.zeros(n, np.float32) for _ in range(3)]
+    for light in point_lights:
+        E, mu = _light_terms(light, xyz, view, c)
+        ph = material.phase(mu) * np.float32(material.albedo)
+        for k in range(3):
+            art[k] += E[k] * ph
+    if light_gain is not None:
+        art = [art[k] * light_gain[k] for k in range(3)]
+    return [art[k] + amb[k] for k in range(3)]
 
 
 def particle_radiance(points_cam: np.ndarray, material: ParticleMaterial, ambient_rgb,
@@ -138,35 +181,30 @@ def particle_radiance(points_cam: np.ndarray, material: ParticleMaterial, ambien
     point_lights: lights.PointLight list (lamps, LEDs); c_per_m (3,) beam attenuation along
     the lights' paths; light_gain (M,) or (M, 3) factor on the point lights' part (the caller's
     compensation for a depth factor the water model applies to every surface later)."""
-    pts = np.asarray(points_cam, np.float32).reshape(-1, 3)
-    amb = np.float32(material.albedo) * np.asarray(ambient_rgb, np.float32)
-    out = np.broadcast_to(amb, (pts.shape[0], 3)).copy()
-    if not point_lights or pts.shape[0] == 0:
-        return out
-    view = -pts / np.maximum(np.sqrt(np.einsum("ij,ij->i", pts, pts)), np.float32(1e-9))[:, None]
-    c = np.asarray(c_per_m, np.float32).reshape(3)
-    art = np.zeros_like(out)
-    for light in point_lights:
-        E, mu = _light_terms(light, pts, view, c)
-        art += E * material.phase(mu)[:, None]
-    art *= np.float32(material.albedo)
+    xyz = _columns(points_cam)
+    gain = None
     if light_gain is not None:
-        art *= np.asarray(light_gain, np.float32).reshape(pts.shape[0], -1)
-    return out + art
+        g = np.broadcast_to(np.asarray(light_gain, np.float32).reshape(xyz[0].size, -1), (xyz[0].size, 3))
+        gain = [g[:, k] for k in range(3)]
+    return np.stack(radiance_planar(xyz, material, ambient_rgb, point_lights, c_per_m, gain), axis=1)
+
+
+def sun_planar(xyz, material: ParticleMaterial, suns_cam) -> np.ndarray:
+    """:func:`sun_radiance` on columns xyz = (x, y, z) (M,): (M,) float32 (grey)."""
+    view = _view_dirs(*xyz)
+    out = np.zeros(xyz[0].size, np.float32)
+    for direction, strength in suns_cam:
+        dv = np.asarray(direction, np.float32).reshape(3)
+        out += np.float32(strength) * lambert_sphere_phase(view[0] * dv[0] + view[1] * dv[1] + view[2] * dv[2])
+    return np.float32(material.albedo * (1.0 - material.forward_fraction)) * out
 
 
 def sun_radiance(points_cam: np.ndarray, material: ParticleMaterial, suns_cam) -> np.ndarray:
-    """(M, 3) float32 radiance of Lambertian-sphere reflection of collimated lights, e.g. the
+    """(M, 1) float32 radiance of Lambertian-sphere reflection of collimated lights, e.g. the
     sun: ``omega E (1 - f) p_lambert(theta)`` per light (``suns_cam``: (travel direction (3,)
     camera frame, irradiance normal to the beam W/m^2)). Only the reflecting part: the
     forward lobe would need the light behind the particle, i.e. looking toward the sun."""
-    pts = np.asarray(points_cam, np.float32).reshape(-1, 3)
-    out = np.zeros((pts.shape[0], 1), np.float32)
-    view = -pts / np.maximum(np.sqrt(np.einsum("ij,ij->i", pts, pts)), np.float32(1e-9))[:, None]
-    for direction, strength in suns_cam:
-        mu = view @ np.asarray(direction, np.float32)
-        out[:, 0] += np.float32(strength) * lambert_sphere_phase(mu)
-    return np.float32(material.albedo * (1.0 - material.forward_fraction)) * out
+    return sun_planar(_columns(points_cam), material, suns_cam)[:, None]
 
 
 def led_point_lights(markers: list[dict], T_cam_dock: np.ndarray, strength_scale: float = 1.0) -> list:

@@ -1,5 +1,6 @@
 """Small-obstacle (particle) occlusion: a 3-D Poisson particle field, drift, and a
-depth-tested, anti-aliased renderer (pure numpy: no OpenCV drawing, no Blender).
+depth-tested, anti-aliased renderer (numpy and scipy.sparse: no OpenCV drawing, no Blender;
+the splatting itself is in particle_splat.py).
 
 The article (SPEC section 4) draws ``Poisson(rho * V_cam)`` blobs in image space.
 Here the obstacles live in the world instead, which gives the same statistics and
@@ -43,6 +44,7 @@ from typing import Callable
 import numpy as np
 
 from blendgen.physics import particle_optics as popt
+from blendgen.physics import particle_splat as psplat
 
 COUNT_DISTS = ("poisson", "uniform", "fixed")
 MODES = ("backscatter", "silhouette")
@@ -51,10 +53,6 @@ DEFAULT_R_MIN_M = 0.005
 DEFAULT_R_MAX_M = 0.02
 DEFAULT_AMBIENT_RGB = (0.60, 0.70, 0.62)  # light grey-green veiling/ambient light (linear)
 SILHOUETTE_ALBEDO = 0.05
-_SPLAT_BELOW_PX = 0.5                 # semi-axis below which a particle is a bilinear speck
-_NORMALISE_BELOW_PX = 4.0             # small ellipses: rescale coverage to the exact area
-_GROUP_MAX_PX = 16                    # boxes up to this size are drawn in broadcast blocks
-_ALPHA_MAX = 1.0 - 1e-6               # keeps log(1 - alpha) finite
 
 
 # ----------------------------------------------------------------------------- field
@@ -190,8 +188,10 @@ class ParticleField:
             raise ValueError(f"v_flow must be a finite (3,) vector in m/s, got {v_flow}")
         L = _noise_factor(sigma)
         pos = self.positions.astype(np.float64) + v * dt
-        if np.any(L):
-            pos += rng.standard_normal((self.n, 3)) @ L.T
+        if np.any(L):                                    # eta = L z, as column sums (no BLAS threads)
+            z = rng.standard_normal((self.n, 3))
+            for i in range(3):
+                pos[:, i] += z[:, 0] * L[i, 0] + z[:, 1] * L[i, 1] + z[:, 2] * L[i, 2]
         return ParticleField(_wrap(pos, self.region_min, self.region_max), self.radii,
                              self.region_min, self.region_max)
 
@@ -306,159 +306,38 @@ def project_particles(field: ParticleField, K: np.ndarray, T_world_cam: np.ndarr
     T = np.asarray(T_world_cam, float)
     if T.shape != (4, 4):
         raise ValueError(f"T_world_cam must be 4x4, got {T.shape}")
-    pc = field.positions - T[:3, 3].astype(np.float32)
-    pc = pc @ T[:3, :3].astype(np.float32)                # (N, 3) camera frame, one small GEMM
-    idx = np.flatnonzero(pc[:, 2] > np.float32(z_near))
-    pc = pc[idx]
-    x, y, z = pc[:, 0], pc[:, 1], pc[:, 2]
-    iz = np.float32(1.0) / z
+    x, y, z = camera_columns(field.positions, T)
+    f32 = np.float32
+    idx = np.flatnonzero(z > f32(z_near))                 # columns, not a GEMM: no BLAS threads
+    x, y, z = x.take(idx), y.take(idx), z.take(idx)
+    iz = f32(1.0) / z
     xn, yn = x * iz, y * iz
-    u = np.float32(K[0, 0]) * xn + np.float32(K[0, 1]) * yn + np.float32(K[0, 2])
-    v = np.float32(K[1, 1]) * yn + np.float32(K[1, 2])
-    r = field.radii[idx]
-    b = np.float32(0.5 * (K[0, 0] + K[1, 1])) * r * iz
-    sec = np.sqrt(xn * xn + yn * yn + np.float32(1.0))   # dist / z
+    u = f32(K[0, 0]) * xn + f32(K[0, 1]) * yn + f32(K[0, 2])
+    v = f32(K[1, 1]) * yn + f32(K[1, 2])
+    r = field.radii.take(idx)
+    b = f32(0.5 * (K[0, 0] + K[1, 1])) * r * iz
+    sec = np.sqrt(xn * xn + yn * yn + f32(1.0))           # dist / z
     a = b * sec
-    m = a + np.float32(2.0 + margin_px)
-    keep = (u > -m) & (u < m + np.float32(width - 1)) & (v > -m) & (v < m + np.float32(height - 1))
-    keep &= z * sec > r
+    m = a + f32(2.0 + margin_px)
+    keep = (u > -m) & (u < m + f32(width - 1)) & (v > -m) & (v < m + f32(height - 1)) & (z * sec > r)
     k = np.flatnonzero(keep)
-    u, v, a, b, pc, idx = u[k], v[k], a[k], b[k], pc[k], idx[k]
-    du, dv = u - np.float32(K[0, 2]), v - np.float32(K[1, 2])
-    norm = np.hypot(du, dv)
+    u, v, a, b, idx = u.take(k), v.take(k), a.take(k), b.take(k), idx.take(k)
+    x, y, z, sec, r = x.take(k), y.take(k), z.take(k), sec.take(k), r.take(k)
+    du, dv = u - f32(K[0, 2]), v - f32(K[1, 2])
+    norm = np.sqrt(du * du + dv * dv)
     ok = norm > 1e-6
-    inv = np.where(ok, np.float32(1.0) / np.where(ok, norm, np.float32(1.0)), np.float32(0.0))
-    c = np.where(ok, du * inv, np.float32(1.0))
-    return ProjectedParticles(u, v, a, b, c, dv * inv, pc[:, 2] * sec[k] - r[k], pc, idx)
+    inv = np.where(ok, f32(1.0) / np.where(ok, norm, f32(1.0)), f32(0.0))
+    c = np.where(ok, du * inv, f32(1.0))
+    return ProjectedParticles(u, v, a, b, c, dv * inv, z * sec - r, np.stack([x, y, z], axis=1), idx)
 
 
-def _speck_samples(p: ProjectedParticles, sel: np.ndarray, width: int, height: int):
-    """Sub-pixel particles: bilinear splat of alpha = ellipse area (px^2) onto 4 pixels."""
-    u, v = p.u[sel], p.v[sel]
-    area = (np.pi * p.a[sel] * p.b[sel]).astype(np.float32)
-    x0, y0 = np.floor(u), np.floor(v)
-    fx, fy = u - x0, v - y0
-    x0, y0 = x0.astype(np.int64), y0.astype(np.int64)
-    px = np.concatenate([x0, x0 + 1, x0, x0 + 1])
-    py = np.concatenate([y0, y0, y0 + 1, y0 + 1])
-    w = np.concatenate([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy])
-    owner = np.tile(sel, 4)
-    inside = (px >= 0) & (px < width) & (py >= 0) & (py < height) & (w > 0)
-    return (py * width + px)[inside], (np.tile(area, 4) * w)[inside], owner[inside]
-
-
-def _ramp_params(p: ProjectedParticles, sel: np.ndarray):
-    """Per-particle coefficients of the coverage ramp (see _coverage)."""
-    a, b, c, s = p.a[sel], p.b[sel], p.c[sel], p.s[sel]
-    m = np.sqrt(a * b)
-    return c / a, s / a, c / b, s / b, 0.5 + m, m
-
-
-def _coverage(dx, dy, ca, sa, cb, sb, k0, k1):
-    """Anti-aliased coverage of pixel centres at offsets (dx, dy) from an ellipse centre.
-
-    With q the normalised elliptic radius (q = 1 on the rim) and m = sqrt(a b), the
-    signed distance to the rim is ~ (q - 1) m, and alpha = clip(0.5 - distance, 0, 1)
-    = clip(k0 - k1 q) (k0 = 0.5 + m, k1 = m). The rim is exact; only the 1-px ramp is
-    approximate (small ellipses are renormalised to their exact area). Broadcasts."""
-    xr = dx * ca + dy * sa
-    xt = dy * cb - dx * sb
-    return np.clip(k0 - k1 * np.sqrt(xr * xr + xt * xt), 0.0, 1.0)
-
-
-def _boxes(p: ProjectedParticles, sel: np.ndarray):
-    """Pixel boxes [x0, x0+sx) x [y0, y0+sy) holding every centre with alpha > 0."""
-    u, v, a, b, c, s = p.u[sel], p.v[sel], p.a[sel], p.b[sel], p.c[sel], p.s[sel]
-    grow = 1.0 + 0.5 / np.sqrt(a * b)                          # alpha > 0 <=> q < k0/k1
-    ex = np.sqrt((a * c) ** 2 + (b * s) ** 2) * grow
-    ey = np.sqrt((a * s) ** 2 + (b * c) ** 2) * grow
-    x0, y0 = np.ceil(u - ex).astype(np.int64), np.ceil(v - ey).astype(np.int64)
-    return x0, y0, np.floor(u + ex).astype(np.int64) + 1 - x0, np.floor(v + ey).astype(np.int64) + 1 - y0
-
-
-def _small_ellipse_samples(p: ProjectedParticles, sel: np.ndarray, x0, y0, size: int, width: int,
-                           height: int, clip: bool):
-    """Ellipses whose box fits in size x size px: one broadcast (m, size^2) block.
-
-    ``clip``: some boxes cross the image border (drop samples outside)."""
-    col = lambda x: x[:, None]
-    g = np.arange(size, dtype=np.float32)
-    gx, gy = np.tile(g, size), np.repeat(g, size)
-    ca, sa, cb, sb, k0, k1 = (col(x) for x in _ramp_params(p, sel))
-    alpha = _coverage(col((x0 - p.u[sel]).astype(np.float32)) + gx,
-                      col((y0 - p.v[sel]).astype(np.float32)) + gy, ca, sa, cb, sb, k0, k1)
-    a, b = p.a[sel], p.b[sel]
-    small = a < _NORMALISE_BELOW_PX
-    if np.any(small):                                   # exact area pi a b for small ones
-        total = np.einsum("ij->i", alpha)                # (no BLAS threads)
-        scale = np.where(small & (total > 0), np.pi * a * b / np.maximum(total, 1e-12), 1.0)
-        alpha = np.minimum(alpha * col(scale.astype(np.float32)), 1.0)
-    keep = alpha > 0
-    gi = np.arange(size)
-    if clip:
-        okx = (col(x0) + gi >= 0) & (col(x0) + gi < width)          # (m, size)
-        oky = (col(y0) + gi >= 0) & (col(y0) + gi < height)
-        keep &= (oky[:, :, None] & okx[:, None, :]).reshape(alpha.shape)
-    flat = np.flatnonzero(keep)
-    row = flat // (size * size)
-    offs = (gi[:, None] * width + gi[None, :]).reshape(-1)
-    pix = (y0 * width + x0).take(row) + offs.take(flat - row * (size * size))
-    return pix, alpha.reshape(-1).take(flat), sel.take(row)
-
-
-def _large_ellipse_samples(p: ProjectedParticles, sel: np.ndarray, x0, y0, sx, sy, width: int, height: int):
-    """Large ellipses: variable boxes clipped to the image, flattened with np.repeat."""
-    x1, y1 = np.minimum(x0 + sx, width), np.minimum(y0 + sy, height)
-    x0, y0 = np.maximum(x0, 0), np.maximum(y0, 0)
-    sx, sy = np.maximum(x1 - x0, 0), np.maximum(y1 - y0, 0)
-    n = sx * sy
-    k = np.repeat(np.arange(len(sel)), n)
-    local = np.arange(int(n.sum()), dtype=np.int64) - np.repeat(np.cumsum(n) - n, n)
-    ly = local // sx[k]
-    px, py = x0[k] + (local - ly * sx[k]), y0[k] + ly
-    prm = [x[k] for x in _ramp_params(p, sel)]
-    alpha = _coverage((px - p.u[sel][k]).astype(np.float32), (py - p.v[sel][k]).astype(np.float32), *prm)
-    keep = alpha > 0
-    return (py * width + px)[keep], alpha[keep], sel[k[keep]]
-
-
-def _ellipse_samples(p: ProjectedParticles, sel: np.ndarray, width: int, height: int):
-    """Coverage samples (flat pixel, alpha, particle) of every ellipse in ``sel``.
-
-    Ellipses with boxes up to _GROUP_MAX_PX are processed in broadcast blocks by box
-    size (fast, no gathers); larger ones are rasterised over their visible part."""
-    x0, y0, sx, sy = _boxes(p, sel)
-    size = np.maximum(sx, sy)
-    border = (x0 < 0) | (y0 < 0) | (x0 + size > width) | (y0 + size > height)
-    parts = []
-    for s_ in np.unique(size[size <= _GROUP_MAX_PX]):
-        for clip in (False, True):
-            m = np.flatnonzero((size == s_) & (border == clip))
-            if m.size:
-                parts.append(_small_ellipse_samples(p, sel[m], x0[m], y0[m], int(s_), width,
-                                                    height, clip))
-    m = size > _GROUP_MAX_PX
-    if np.any(m):
-        parts.append(_large_ellipse_samples(p, sel[m], x0[m], y0[m], sx[m], sy[m], width, height))
-    return parts
-
-
-def _in_front(parts, p: ProjectedParticles, range_flat: np.ndarray):
-    """Depth test: keep samples whose particle surface is nearer than the scene surface.
-
-    Returns flat pixel, alpha (times the particle's blur opacity), surface range and owner."""
-    out = []
-    for pix, alpha, owner in parts:
-        d = p.surf_range.take(owner)
-        front = np.flatnonzero(range_flat.take(pix) > d)
-        own = owner.take(front)
-        al = alpha.take(front)
-        if p.opacity is not None:
-            al = al * p.opacity.take(own)
-        out.append((pix.take(front), al, d.take(front), own))
-    if not out:
-        return np.zeros(0, np.int64), np.zeros(0, np.float32), np.zeros(0, np.float32), np.zeros(0, np.int64)
-    return tuple(np.concatenate(z) for z in zip(*out))
+def camera_columns(positions: np.ndarray, T: np.ndarray):
+    """Camera-frame coordinates x, y, z (N,) float32 of world points (N, 3) float32:
+    ``R^T (p - t)`` written as column sums (no (N, 3) temporaries, no BLAS)."""
+    R = T[:3, :3].astype(np.float32)
+    off = (-(T[:3, 3] @ T[:3, :3])).astype(np.float32)   # -R^T t
+    px, py, pz = positions[:, 0], positions[:, 1], positions[:, 2]
+    return tuple(px * R[0, k] + py * R[1, k] + pz * R[2, k] + off[k] for k in range(3))
 
 
 def _water_callable(water) -> Callable | None:
@@ -491,13 +370,15 @@ def _particle_colour(mode: str, colour, ambient) -> np.ndarray:
 def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: ParticleField,
                      K: np.ndarray, T_world_cam: np.ndarray, water=None, mode: str = "backscatter",
                      z_near: float = 0.05, colour=None, ambient=DEFAULT_AMBIENT_RGB,
-                     shade: Callable | None = None, shape: Callable | None = None, margin_px: float = 0.0):
+                     shade: Callable | None = None, shape: Callable | None = None, margin_px: float = 0.0,
+                     merged_range: bool = False):
     """Draw the particle field into a linear RGB image with a depth test.
 
     image_linear (H,W,3) float, range_m (H,W) float (range along each pixel ray to
     the rendered surface, inf or NaN = background). Returns (image_out (H,W,3) float32,
     occluder_mask (H,W) bool = particle coverage >= 0.5, particle_range (H,W)
-    float32 = range of the nearest particle covering the pixel, inf elsewhere).
+    float32 = range of the nearest particle covering the pixel, inf elsewhere; with
+    ``merged_range`` instead ``range_m`` as float32 with that range at the covered pixels).
     Inputs are not modified.
 
     Colour: ``shade(projected) -> (M, 3)`` linear radiance per particle (the physical
@@ -537,56 +418,41 @@ def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: Parti
     surf = np.asarray(range_m, np.float32).reshape(-1)
     if np.isnan(surf).any():                            # NaN = no surface hit = background
         surf = np.where(np.isnan(surf), np.float32(np.inf), surf)
-    pix, alpha, d, owner = _in_front(_all_samples(p, w, h), p, surf)
-    hit, cpix = _compress(pix, h * w)                   # covered pixels, sample -> their slot
-    n_hit = hit.size
-    log_t = np.bincount(cpix, np.log1p(-np.minimum(alpha, np.float32(_ALPHA_MAX))), n_hit)
-    prange_hit = np.full(n_hit, np.inf, np.float32)
-    np.minimum.at(prange_hit, cpix, d)                  # nearest covering particle per pixel
-    cov = (1.0 - np.exp(log_t)).astype(np.float32)
-    if shade is not None:
-        c = _mean_colours(np.asarray(shade(p), np.float32), cpix, alpha, d, owner, n_hit)
+    colours = (np.asarray(shade(p), np.float32).reshape(-1, 3) if shade is not None
+               else np.zeros((p.u.size, 0), np.float32))
+    sums = psplat.splat(_splat_input(p, colours), surf, w, h)
+    prange, hit = sums.near, sums.hit                    # nearest covering particle, inf elsewhere
+    cov = np.float32(1.0) - np.exp(sums.log_t)
+    if shade is not None:                                # planar (3, n_hit): long numpy loops
+        wc = np.ascontiguousarray(sums.wc.T)
+        c = wc[1:] * (np.float32(1.0) / np.where(wc[0] > 0, wc[0], np.float32(1.0)))
     else:
-        c = np.broadcast_to(col, (n_hit, 3))
+        c = np.broadcast_to(col[:, None], (3, hit.size))
     if water_fn is not None:
-        c = np.asarray(water_fn(np.ascontiguousarray(c), prange_hit), np.float32)
+        c = np.asarray(water_fn(np.ascontiguousarray(c.T), prange.take(hit)), np.float32).T
     out = img.copy()
-    flat = out.reshape(-1, 3)
-    keep = 1.0 - cov
-    for ch in range(3):                                   # out = img T + colour (1 - T)
-        v = flat[:, ch]
-        v[hit] = v[hit] * keep + c[:, ch] * cov
+    _composite(out.reshape(-1), hit, cov, c)
     mask = np.zeros(h * w, bool)
     mask[hit] = cov >= 0.5
-    prange = np.full(h * w, np.inf, np.float32)
-    prange[hit] = prange_hit
+    if merged_range:
+        merged = np.array(range_m, np.float32)
+        merged.reshape(-1)[hit] = prange.take(hit)
+        return out, mask.reshape(h, w), merged
     return out, mask.reshape(h, w), prange.reshape(h, w)
 
 
-def _compress(pix: np.ndarray, n_pix: int) -> tuple[np.ndarray, np.ndarray]:
-    """Sorted distinct pixels ``hit`` among the samples and each sample's slot in it."""
-    seen = np.zeros(n_pix, bool)
-    seen[pix] = True
-    hit = np.flatnonzero(seen)
-    slot = np.empty(n_pix, np.int32)
-    slot[hit] = np.arange(hit.size, dtype=np.int32)
-    return hit, slot.take(pix)
+def _composite(flat_rgb: np.ndarray, hit: np.ndarray, cov: np.ndarray, colour: np.ndarray) -> None:
+    """In place on the interleaved (H*W*3,) image: ``out = img T + colour (1 - T)`` at the
+    covered pixels ``hit`` (n,), cov = 1 - T (n,), colour (3, n)."""
+    keep = np.float32(1.0) - cov
+    for ch in range(3):
+        idx = hit * 3 + ch
+        flat_rgb[idx] = flat_rgb.take(idx) * keep + colour[ch] * cov
 
 
-def _all_samples(p: ProjectedParticles, w: int, h: int) -> list:
-    """Coverage samples of every particle: bilinear specks below half a pixel, ellipses above."""
-    speck = p.a < _SPLAT_BELOW_PX
-    return [_speck_samples(p, np.flatnonzero(speck), w, h)] + _ellipse_samples(p, np.flatnonzero(~speck), w, h)
-
-
-def _mean_colours(colours: np.ndarray, cpix, alpha, d, owner, n_hit: int) -> np.ndarray:
-    """(n_hit, 3) weighted mean particle colour per covered pixel slot (weights alpha / d^2)."""
-    wgt = alpha / np.maximum(d, np.float32(1e-3)) ** 2
-    den = np.bincount(cpix, wgt, n_hit)
-    den = np.where(den > 0, den, 1.0)
-    cs = colours.take(owner, axis=0)
-    return np.stack([np.bincount(cpix, wgt * cs[:, ch], n_hit) / den for ch in range(3)],
-                    axis=1).astype(np.float32)
+def _splat_input(p: ProjectedParticles, colours: np.ndarray) -> psplat.Particles:
+    op = p.opacity if p.opacity is not None else np.ones(p.u.size, np.float32)
+    return psplat.Particles(p.u, p.v, p.a, p.b, p.c, p.s, p.surf_range, op, colours)
 
 
 # ----------------------------------------------------------------------------- visibility

@@ -93,9 +93,9 @@ def add_particles(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam
         kw = {"shade": particle_light.shader(state.post, state.water, T, markers, T_cam_dock),
               "shape": particle_light.shaper(state.post, K, state.field, T, state.prev_pose, t_s),
               "margin_px": particle_light.MARGIN_PX}
-    rgb, occ_mask, prange = occlusion.render_particles(passes["rgb"], passes["range_m"], state.field, K, T, **kw)
+    rgb, occ_mask, rng_eff = occlusion.render_particles(passes["rgb"], passes["range_m"], state.field, K, T,
+                                                        merged_range=True, **kw)
     state.prev_pose = (t_s, T)
-    rng_eff = np.where(np.isfinite(prange), prange, passes["range_m"]).astype(np.float32)
     return {**passes, "rgb": rgb, "range_m": rng_eff}, occ_mask
 
 

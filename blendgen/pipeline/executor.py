@@ -375,6 +375,8 @@ def _child_main(argv: list[str]) -> int:
     parent = os.environ.get(PARENT_ENV)
     if parent:
         _exit_with_parent(int(parent))
+    from blendgen.pipeline import allocator
+    allocator.keep_heap()                     # per-frame image arrays reuse heap pages
     if len(argv) > 2 and argv[1] == "--calibration":
         from blendgen.blender import calibration_scene
         return calibration_scene.main([argv[0], argv[2]])

@@ -21,7 +21,7 @@ import numpy as np
 from blendgen.physics import lights as lt
 from blendgen.physics import optics
 from blendgen.physics import particle_optics as popt
-from blendgen.physics.particles import ProjectedParticles
+from blendgen.physics.particles import ProjectedParticles, camera_columns
 
 MARGIN_PX = 8.0     # particles centred this far outside the image may still blur into it
 
@@ -30,17 +30,24 @@ def material(occ) -> popt.ParticleMaterial:
     return popt.ParticleMaterial(occ.albedo, occ.forward_fraction, occ.forward_g)
 
 
-def _depth_gain(post, water, T_world_cam: np.ndarray, p: ProjectedParticles) -> np.ndarray:
-    """(M, 3) inverse of the depth factor the water model will apply to each particle's pixels
-    (physical: exp(-Kd depth) at the depth compose.surface_depth computes from the range along
-    the ray; article: exp(-Kd d) at the dock depth)."""
+def _depth_gain(post, water, T_world_cam: np.ndarray, p: ProjectedParticles) -> list:
+    """3 x (M,) inverse of the depth factor the water model will apply to each particle's
+    pixels (physical: exp(-Kd depth) at the depth compose.surface_depth computes from the range
+    along the ray; article: exp(-Kd d) at the dock depth)."""
     if post.image_formation != "physical":
-        return np.broadcast_to(1.0 / optics.depth_light(water, post.light_depth_m), (p.u.size, 3))
+        g = 1.0 / optics.depth_light(water, post.light_depth_m)
+        return [np.full(p.u.size, np.float32(g[k] if np.ndim(g) else g), np.float32) for k in range(3)]
     T = np.asarray(T_world_cam, float)
-    dist = np.sqrt(np.einsum("ij,ij->i", p.pc, p.pc))
-    dir_z = (p.pc @ T[2, :3].astype(np.float32)) / np.maximum(dist, np.float32(1e-9))
+    x, y, z = (np.ascontiguousarray(p.pc[:, k]) for k in range(3))
+    rz = T[2, :3].astype(np.float32)
+    dist = np.sqrt(x * x + y * y + z * z)
+    dir_z = (x * rz[0] + y * rz[1] + z * rz[2]) / np.maximum(dist, np.float32(1e-9))
     depth = np.maximum(np.float32(post.surface_z_m - T[2, 3]) - p.surf_range * dir_z, np.float32(0.0))
-    return np.exp(np.asarray(water.Kd, np.float32)[None, :] * depth[:, None])
+    kd = np.asarray(water.Kd, np.float32).reshape(-1)
+    if np.all(kd == kd[0]):
+        g = np.exp(kd[0] * depth)
+        return [g, g, g]
+    return [np.exp(kd[k] * depth) for k in range(3)]
 
 
 def shader(post, water, T_world_cam, markers=None, T_cam_dock=None):
@@ -55,8 +62,12 @@ def shader(post, water, T_world_cam, markers=None, T_cam_dock=None):
 
     def shade(p: ProjectedParticles) -> np.ndarray:
         gain = _depth_gain(post, water, T_world_cam, p) if lights else None
-        out = popt.particle_radiance(p.pc, mat, [amb] * 3, lights, water.c, gain)
-        return out + popt.sun_radiance(p.pc, mat, suns) if suns else out
+        xyz = tuple(np.ascontiguousarray(p.pc[:, k]) for k in range(3))
+        out = popt.radiance_planar(xyz, mat, [amb] * 3, lights, water.c, gain)
+        if suns:
+            sun = popt.sun_planar(xyz, mat, suns)
+            out = [o + sun for o in out]
+        return np.stack(out, axis=1)
     return shade
 
 
@@ -75,15 +86,16 @@ def streaks(post, K: np.ndarray, field, T_world_cam, p: ProjectedParticles, dt: 
     """(M, 2) image displacement (px) of each particle over the exposure: its position now minus
     where it was ``dt`` earlier (drifted back by v_flow, seen from the previous pose, or from
     this pose when there is none), times exposure / dt (motion assumed uniform over dt)."""
-    T0 = np.asarray(T_prev if T_prev is not None else T_world_cam, float)
-    pw = field.positions[p.index].astype(np.float64) - np.asarray(post.occlusion.v_flow, float) * dt
-    pc0 = (pw - T0[:3, 3]) @ T0[:3, :3]
-    z0 = np.maximum(pc0[:, 2], 1e-3)
-    u0 = K[0, 0] * pc0[:, 0] / z0 + K[0, 1] * pc0[:, 1] / z0 + K[0, 2]
-    v0 = K[1, 1] * pc0[:, 1] / z0 + K[1, 2]
-    scale = min(post.sensor.exposure_s / dt, 1.0)
-    out = np.stack([p.u - u0, p.v - v0], axis=1) * scale
-    out[pc0[:, 2] <= 1e-3] = 0.0
+    T0 = np.array(T_prev if T_prev is not None else T_world_cam, float)
+    T0[:3, 3] += np.asarray(post.occlusion.v_flow, float) * dt     # drifting back = camera ahead
+    x0, y0, z0 = camera_columns(field.positions[p.index], T0)
+    behind = z0 <= np.float32(1e-3)
+    iz = np.float32(1.0) / np.maximum(z0, np.float32(1e-3))
+    u0 = np.float32(K[0, 0]) * x0 * iz + np.float32(K[0, 1]) * y0 * iz + np.float32(K[0, 2])
+    v0 = np.float32(K[1, 1]) * y0 * iz + np.float32(K[1, 2])
+    scale = np.float32(min(post.sensor.exposure_s / dt, 1.0))
+    out = np.stack([np.where(behind, np.float32(0.0), (p.u - u0) * scale),
+                    np.where(behind, np.float32(0.0), (p.v - v0) * scale)], axis=1)
     return out.astype(np.float32)
 
 
