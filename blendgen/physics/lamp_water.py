@@ -7,9 +7,9 @@ The Jaffe (1990) / McGlamery (1980) decomposition of an image under artificial l
 - **direct** (lamp-lit surface): a Lambertian surface of albedo ``rho`` at range ``r``
   along the pixel ray, at distance ``d`` from a lamp of intensity ``I(psi)`` (W/sr),
   reflects ``rho / pi * I(psi) cos(i) / d^2 * exp(-c' d)`` and the camera sees it times
-  ``exp(-c r)`` (:func:`surface_radiance`). No shadow test: every surface the camera sees
-  is assumed to see the lamp (true for the dock face and the pool seen from a camera-mounted
-  lamp; wrong behind obstacles -- documented limitation).
+  ``exp(-c r)`` (:func:`surface_radiance`), times the lamp's visibility from the point: a
+  screen-space shadow test on the range pass (:mod:`blendgen.physics.lamp_shadow`; an
+  occluder outside the frame casts no shadow -- documented limitation).
 - **backscatter** (the veil in front of the camera): the single-scattering integral along
   each pixel ray ``x = t u``, ``t`` in ``[0, r]``,
 
@@ -27,7 +27,10 @@ The Jaffe (1990) / McGlamery (1980) decomposition of an image under artificial l
   forward-scattering angles: the lamp's beam (surfaces and veil) and the veil's way back
   to the camera. The image of a surface keeps ``c`` on its way to the camera (it is the
   beam transmittance; its forward-scattered part is blur/glow, not image). ``F = 0`` is
-  single scattering, what the pipeline's 0-bounce reference renders.
+  single scattering, what the pipeline's 0-bounce reference renders. The same ``c'`` lights the
+  small particles in the beam (``pipeline/particle_light.py``, :func:`lamp_attenuation`): a
+  particle is a surface element in the same beam. The dock's LEDs keep ``c`` (single
+  scattering) on surfaces and particles: F was fitted to the lamp's cone only.
 """
 from __future__ import annotations
 
@@ -65,19 +68,29 @@ class LampWater:
     c: np.ndarray
     c_lamp: np.ndarray
     phase: object          # callable cos(theta) (N,) -> 1/sr (N,)
+    shadows: bool = True   # screen-space shadows of the lamps on surfaces (physics/lamp_shadow.py)
 
     @classmethod
-    def build(cls, lights: list[PointLight], water, forward_kept: float | None = None) -> "LampWater":
+    def build(cls, lights: list[PointLight], water, forward_kept: float | None = None,
+              shadows: bool = True) -> "LampWater":
         """From lights and an ``optics.WaterOptics`` (its phase function and coefficients);
-        ``forward_kept`` F (None: :data:`FORWARD_KEPT`)."""
-        forward_kept = FORWARD_KEPT if forward_kept is None else forward_kept
+        ``forward_kept`` F (None: :data:`FORWARD_KEPT`); ``shadows``: the lamps' shadow test."""
         from blendgen.physics import optics
         b, c = np.asarray(water.sigma_s, float), np.asarray(water.c, float)
         if water.phase == "ff":
             phase = functools.partial(_ff_of_cos, ior=water.ff_ior, backscatter=water.ff_backscatter)
         else:
             phase = functools.partial(optics.hg_phase, g=float(water.g))
-        return cls(tuple(lights), b, c, c - float(forward_kept) * b, phase)
+        return cls(tuple(lights), b, c, lamp_attenuation(water, forward_kept), phase, bool(shadows))
+
+
+def lamp_attenuation(water, forward_kept: float | None = None) -> np.ndarray:
+    """(3,) effective attenuation ``c' = c - F b`` (1/m) of the lamp's light inside its beam,
+    whatever it falls on: water (the veil), a surface or a particle (each is lit by the same
+    beam: the forward-scattered light kept in it reaches them alike). ``water``: an
+    ``optics.WaterOptics``; ``forward_kept`` F (None: :data:`FORWARD_KEPT`)."""
+    forward_kept = FORWARD_KEPT if forward_kept is None else float(forward_kept)
+    return np.asarray(water.c, float) - forward_kept * np.asarray(water.sigma_s, float)
 
 
 def _ff_of_cos(cos_theta, ior: float, backscatter: float):
@@ -162,12 +175,15 @@ def backscatter(model: LampWater, K: np.ndarray, range_m: np.ndarray, step: int 
 
 
 def surface_radiance(model: LampWater, rays: np.ndarray, range_m: np.ndarray, albedo: np.ndarray,
-                     normals: np.ndarray | None) -> np.ndarray:
+                     normals: np.ndarray | None, K: np.ndarray | None = None) -> np.ndarray:
     """Lamp light reflected by Lambertian surfaces, as seen by the camera (H, W, 3):
-    ``albedo / pi * sum I(psi) cos(i) exp(-c' d) / d^2 * exp(-c r)``.
+    ``albedo / pi * sum I(psi) cos(i) exp(-c' d) / d^2 * exp(-c r) * visible``.
 
     rays (H, W, 3) unit pixel rays; range_m (H, W) (inf/NaN: no surface, 0); albedo (H, W, 3);
-    normals (H, W, 3) unit, camera frame (None: the surface faces the lamp, cos(i) = 1)."""
+    normals (H, W, 3) unit, camera frame (None: the surface faces the lamp, cos(i) = 1);
+    K (3, 3) the pinhole of the pass, needed by the shadow test (None or ``model.shadows``
+    False: no shadows, every surface sees the lamps)."""
+    from blendgen.physics import lamp_shadow
     hit = np.isfinite(range_m) & (range_m > 0)
     r = np.where(hit, range_m, 0.0).astype(np.float32)
     x = rays * r[..., None]
@@ -180,6 +196,8 @@ def surface_radiance(model: LampWater, rays: np.ndarray, range_m: np.ndarray, al
         gain = light.profile(v @ np.asarray(light.axis, np.float32)) / (d * d)
         if normals is not None:
             gain *= np.clip(-np.einsum("hwk,hwk->hw", v, normals), 0.0, None)
+        if model.shadows and K is not None:
+            gain *= lamp_shadow.visibility(light.position_m, K, rays, range_m, mask=gain > 0)
         att = np.exp(-(d[..., None] * model.c_lamp.astype(np.float32) + cam))
         out += (gain * hit)[..., None] * att * np.asarray(light.intensity_w_sr, np.float32)
     out *= albedo
@@ -190,7 +208,7 @@ def surface_radiance(model: LampWater, rays: np.ndarray, range_m: np.ndarray, al
 def lamp_radiance(model: LampWater, K: np.ndarray, rays: np.ndarray, range_m: np.ndarray,
                   albedo: np.ndarray, normals: np.ndarray | None) -> np.ndarray:
     """Everything the lamps add to the camera image (H, W, 3): lit surfaces + backscatter."""
-    out = surface_radiance(model, rays, range_m, albedo, normals)
+    out = surface_radiance(model, rays, range_m, albedo, normals, K)
     if np.any(model.sigma_s > 0):
         out += backscatter(model, K, range_m)
     return out
