@@ -211,3 +211,32 @@ def visibility(lamp, K, rays: np.ndarray, range_m: np.ndarray, step: int = GRID_
     vis[edge] = 1.0 - occluded(pts[edge], lamp, K, r, table, bound, z_min)
     vis[~hit] = 1.0
     return vis
+
+
+def _pixel_rays(K: np.ndarray, h: int, w: int) -> np.ndarray:
+    """(H, W, 3) float32 unit rays through the pixel centres of the pinhole K."""
+    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    y = (v - K[1, 2]) / K[1, 1]
+    x = (u - K[0, 2] - K[0, 1] * y) / K[0, 0]
+    d = np.dstack([x, y, np.ones_like(x)])
+    return (d / np.linalg.norm(d, axis=2, keepdims=True)).astype(np.float32)
+
+
+def volume_visibility(lamp, K, range_m: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(N,) float32 in {0, 1}: which points of the water (N, 3), camera frame, see the point
+    ``lamp`` (3,) past the surfaces of the range pass (H, W): the same march as :func:`visibility`.
+    Points nearer than every surface of the frame (and the lamp) see it without a march."""
+    K = np.asarray(K, np.float64)
+    lamp = np.asarray(lamp, np.float64).reshape(3)
+    h, w = range_m.shape
+    surf = np.isfinite(range_m) & (range_m > 0)
+    out = np.ones(len(points), np.float32)
+    if not surf.any():
+        return out
+    r = np.where(surf, range_m, np.inf).astype(np.float32)
+    z_min = float((_pixel_rays(K, h, w)[..., 2] * np.where(surf, r, 0.0))[surf].min())
+    test = points[:, 2] > max(z_min, lamp[2])
+    if test.any():
+        bound = _march_bound(points[test], lamp, K, z_min, float(np.hypot(h, w)))
+        out[test] = 1.0 - occluded(points[test], lamp, K, r, None, bound, z_min)
+    return out

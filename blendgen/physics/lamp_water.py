@@ -69,6 +69,7 @@ class LampWater:
     c_lamp: np.ndarray
     phase: object          # callable cos(theta) (N,) -> 1/sr (N,)
     shadows: bool = True   # screen-space shadows of the lamps on surfaces (physics/lamp_shadow.py)
+    veil_shadows: bool = True   # and in the veil (with ``shadows``; False: surfaces only, for comparison)
 
     @classmethod
     def build(cls, lights: list[PointLight], water, forward_kept: float | None = None,
@@ -103,19 +104,22 @@ def range_nodes() -> np.ndarray:
     return np.concatenate([[0.0], np.geomspace(T_MIN_M, T_MAX_M, N_NODES)])
 
 
-def backscatter_table(model: LampWater, rays: np.ndarray, t: np.ndarray) -> np.ndarray:
+def backscatter_table(model: LampWater, rays: np.ndarray, t: np.ndarray, visible=None) -> np.ndarray:
     """Cumulative single-scatter veil (N, T, 3) float32 along unit rays (N, 3) up to each node t (T,)
-    (trapezoid rule; scalar geometry (N, T) first, the RGB attenuation once per light)."""
+    (trapezoid rule; scalar geometry (N, T) first, the RGB attenuation once per light).
+    ``visible``: None, or one (N, T) array per light, 0 where the node is in that lamp's shadow."""
     rays32, t32 = rays.astype(np.float32), t.astype(np.float32)
     x = rays32[:, None, :] * t32[None, :, None]                   # (N, T, 3)
     f = np.zeros(x.shape, np.float32)
-    for light in model.lights:
+    for i, light in enumerate(model.lights):
         v = x - np.asarray(light.position_m, np.float32)
         d = np.maximum(np.sqrt(np.einsum("ntk,ntk->nt", v, v)), np.float32(MIN_LAMP_DISTANCE_M))
         v /= d[..., None]
         cos_scatter = -np.einsum("ntk,nk->nt", v, rays32)           # lamp ray vs direction to camera
         geo = light.profile(v @ np.asarray(light.axis, np.float32)) / (d * d)
         geo *= model.phase(cos_scatter).astype(np.float32)
+        if visible is not None:
+            geo *= visible[i]
         path = (d + t32[None, :])[..., None] * model.c_lamp.astype(np.float32)   # c' (d + t)
         f += geo[..., None] * np.exp(-path) * np.asarray(light.intensity_w_sr * model.sigma_s, np.float32)
     steps = 0.5 * (f[:, 1:] + f[:, :-1]) * np.diff(t32)[None, :, None]
@@ -151,6 +155,24 @@ def _table_at(table: np.ndarray, t: np.ndarray, r: np.ndarray) -> np.ndarray:
     return table[n, k] * (1 - frac) + table[n, k + 1] * frac
 
 
+def _volume_visibility(model: LampWater, K, range_m, rays: np.ndarray, t: np.ndarray, r_far: np.ndarray):
+    """Per light, (N, T) float32: 1 where the veil's node ``t`` (T,) on ray (N, 3) sees the lamp
+    (:func:`lamp_shadow.volume_visibility`); nodes past the ray's farthest surface ``r_far`` (N,)
+    are never read and are not tested. Single scattering: a node in the lamp's shadow adds no
+    veil (the reference's shadow volume, e.g. behind the dock); the F factor's light, scattered
+    on into the shadow volume, is not added (documented approximation)."""
+    from blendgen.physics import lamp_shadow
+    need = t[None, :] <= np.fmin(r_far, t[-1])[:, None] + 1e-6          # (N, T), and the next node
+    need[:, 1:] |= need[:, :-1]
+    pts = (rays[:, None, :] * t[None, :, None])[need]
+    out = []
+    for light in model.lights:
+        v = np.ones(need.shape, np.float32)
+        v[need] = lamp_shadow.volume_visibility(light.position_m, K, range_m, pts)
+        out.append(v)
+    return out
+
+
 def backscatter(model: LampWater, K: np.ndarray, range_m: np.ndarray, step: int = GRID_PX) -> np.ndarray:
     """The lamps' backscatter veil (H, W, 3) in front of surfaces at ``range_m`` (H, W).
 
@@ -165,7 +187,9 @@ def backscatter(model: LampWater, K: np.ndarray, range_m: np.ndarray, step: int 
     r = np.fmin(range_m.astype(np.float32, copy=False), np.float32(t[-1]))   # inf, NaN -> the last node
     rmin, rmax = _block_min_max(r, step)
     gh, gw = rmin.shape
-    table = backscatter_table(model, _block_rays(tuple(np.asarray(K, float).ravel()), gw, gh, step), t)
+    rays = _block_rays(tuple(np.asarray(K, float).ravel()), gw, gh, step)
+    visible = _volume_visibility(model, K, range_m, rays, t, rmax.ravel()) if model.shadows and model.veil_shadows else None
+    table = backscatter_table(model, rays, t, visible)
     vmin = _table_at(table, t, rmin.ravel().astype(np.float64)).reshape(gh, gw, 3).astype(np.float32)
     vmax = _table_at(table, t, rmax.ravel().astype(np.float64)).reshape(gh, gw, 3).astype(np.float32)
     size = (gw * step, gh * step)

@@ -108,11 +108,13 @@ def scene_passes(spec: dict, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
 
 
 def fast(spec: dict, water: optics.WaterOptics, forward_kept: float | None = None,
-         shadows: bool = True) -> np.ndarray:
+         shadows: bool = True, veil_shadows: bool = True) -> np.ndarray:
     """The fast model's lamp image (H, W, 3) for a lamp-scene spec (card, boxes or none)."""
+    import dataclasses
     K, rays = camera(spec)
     kw = {} if forward_kept is None else {"forward_kept": forward_kept}
     model = lamp_water.LampWater.build(lamp_lights([_ns(d) for d in spec["lamps"]]), water, shadows=shadows, **kw)
+    model = dataclasses.replace(model, veil_shadows=veil_shadows)
     rng, albedo, normals, _ = scene_passes(spec, rays)
     return lamp_water.lamp_radiance(model, K, rays, rng, albedo, normals)
 
@@ -264,7 +266,7 @@ def shadow_masks(img: np.ndarray, free: np.ndarray, obj: np.ndarray) -> tuple[np
     return wall, wall & (g < 0.5 * f)
 
 
-def shadow_stats(fast_img, fast_free, ref_img, ref_free, obj, geo) -> dict:
+def shadow_stats(fast_img, fast_free, ref_img, ref_free, obj, geo, fast_lit_veil=None) -> dict:
     """Shadowed-area IoU fast/reference/geometry and the shadow-to-lit radiance ratio of each
     (green; core: the geometric shadow eroded 2 px; lit: a 2-6 px ring around it on the wall)."""
     import cv2
@@ -275,14 +277,17 @@ def shadow_stats(fast_img, fast_free, ref_img, ref_free, obj, geo) -> dict:
     g8 = geo.astype(np.uint8)
     core = cv2.erode(g8, k, iterations=2).astype(bool)
     ring = wall & cv2.dilate(g8, k, iterations=6).astype(bool) & ~cv2.dilate(g8, k, iterations=2).astype(bool)
-    ratio = {n: float(im[core, 1].mean() / im[ring, 1].mean()) for n, im in (("fast", fast_img), ("ref", ref_img))}
+    imgs = (("fast", fast_img), ("ref", ref_img), ("lit_veil", fast_img if fast_lit_veil is None else fast_lit_veil))
+    ratio = {n: float(im[core, 1].mean() / im[ring, 1].mean()) for n, im in imgs}
     return {"iou_fast_ref": _iou(sf, sr), "iou_fast_geo": _iou(sf, geo), "iou_ref_geo": _iou(sr, geo),
             "shadow/lit_ref": ratio["ref"], "shadow/lit_fast": ratio["fast"],
+            "shadow/lit_fast_lit_veil": ratio["lit_veil"],
             "lit_fast/ref": float(fast_img[ring, 1].mean() / ref_img[ring, 1].mean())}
 
 
 def shadow_table(work: Path, waters=("clear", "mild", "moderate"), size=(320, 240), samples: int = 64):
-    """Lamp shadows, fast (screen-space test) vs Cycles (0 volume bounces, F = 0) vs geometry."""
+    """Lamp shadows, fast (screen-space test) vs Cycles (0 volume bounces, F = 0) vs geometry;
+    ``shadow/lit_fast_lit_veil``: the fast ratio with the veil not shadowed (surfaces only)."""
     rows = []
     for name in waters:
         w = optics.get_preset(name)
@@ -290,6 +295,6 @@ def shadow_table(work: Path, waters=("clear", "mild", "moderate"), size=(320, 24
         _, rays = camera(spec)
         _, _, _, obj = scene_passes(spec, rays)
         st = shadow_stats(fast(spec, w, 0.0), fast(free, w, 0.0), reference(spec, work), reference(free, work),
-                          obj, geometric_shadow(spec, rays))
+                          obj, geometric_shadow(spec, rays), fast(spec, w, 0.0, veil_shadows=False))
         rows.append({"water": name, **st})
     return pd.DataFrame(rows)
