@@ -14,25 +14,30 @@ the projective map (``A = K X``, ``B = K (S - X)``, ``D = B_xy A_z - A_xy B_z``)
 
     t(delta) = delta A_z^2 / (|D| - delta A_z B_z)
 
-and a piece of segment between two samples is *behind a surface* when the range pass at the
-later sample's pixel lies inside the piece's range interval (less a bias of the pass's own
-per-pixel range slope, the rounding of the sample to a pixel) extended by a thickness
-``THICKNESS_M`` behind it: objects are assumed at least that thick behind their visible face
-(a thin plate seen from the front casts the shadow of a plate that thick; the lamp is tens
-of cm from the camera, so the difference is sub-pixel at metres of range).
+The samples' offsets tile the line into pieces (boundaries half-way between samples, at least
++- 0.5 px). The surface seen at a piece's centre or either end is a candidate occluder when its
+range lies inside the piece's range interval, less a bias (half a pixel of the pass's own
+range slope along the march, the smaller one-sided difference so that depth edges do not
+inflate it: the rounding of a sample to a pixel), or at most ``THICKNESS_M`` in front of it
+(objects are assumed that thick behind their visible face: a thin plate casts the shadow of
+a 5 mm plate, under a pixel at metres of range). It occludes if, where the segment's range
+equals the candidate's (a quadratic in ``t``), the pixel under the segment shows that same
+surface: the crossing is located to the pixel however long the piece (tested: every shadow
+edge within 1 px of the geometric one at 160-640 px, ``tests/test_lamp_shadow.py``).
 
 Sampling: every pixel up to ``DENSE_PX``, then offsets growing by ``STEP_RATIO``. An occluder at
 depth ``z`` is met at an offset ``delta ~ f |S_perp| / z``, where one step covers ``(STEP_RATIO - 1)
 |S_perp|`` of it (metres, any z): with a 0.3 m lamp offset and 1.05, occluders wider than 1.5 cm
 along the offset are never stepped over. The march stops where the segment is nearer than
 the nearest surface of the frame (nothing can hide it there) or leaves the image (no data:
-lit). Cost: the test runs on every ``GRID_PX``-th pixel (fewer below 480 px: every pixel at 120), the visibility is interpolated
-bilinearly, and the pixels where it is fractional (shadow edges) are marched again at full
+lit). Cost: the test runs on every ``GRID_PX``-th pixel (every 2nd at 240 px, every pixel at
+120), the visibility is interpolated bilinearly, and the pixels where it is fractional (shadow edges) are marched again at full
 resolution, so edges are exact to the pixel; a shadow narrower than ``GRID_PX`` falling
 between grid pixels is missed (documented limit).
 
 Limits: the range pass sees only what the camera sees (an occluder outside the frame, or
-hidden behind another surface, casts no shadow); the lamp is a point (hard shadows, as the
+hidden behind another surface, casts no shadow; an edge cast by a face the camera cannot see,
+e.g. a slab's far rim, is drawn as if the object were ``THICKNESS_M`` thick); the lamp is a point (hard shadows, as the
 reference's radius-0 spot).
 """
 from __future__ import annotations
