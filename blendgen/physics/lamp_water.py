@@ -35,7 +35,6 @@ The Jaffe (1990) / McGlamery (1980) decomposition of an image under artificial l
 from __future__ import annotations
 
 import functools
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -198,34 +197,32 @@ def backscatter(model: LampWater, K: np.ndarray, range_m: np.ndarray, step: int 
     return up[0] + a * (up[1] - up[0])
 
 
+def _shadow_test(K, rays, range_m):
+    """callable(light, lit (H, W) bool) -> (H, W) visibility of the light from each surface point."""
+    from blendgen.physics import lamp_shadow
+
+    def visible(light, lit):
+        return lamp_shadow.visibility(light.position_m, K, rays, range_m, mask=lit)
+    return visible
+
+
 def surface_radiance(model: LampWater, rays: np.ndarray, range_m: np.ndarray, albedo: np.ndarray,
                      normals: np.ndarray | None, K: np.ndarray | None = None) -> np.ndarray:
     """Lamp light reflected by Lambertian surfaces, as seen by the camera (H, W, 3):
-    ``albedo / pi * sum I(psi) cos(i) exp(-c' d) / d^2 * exp(-c r) * visible``.
+    ``albedo / pi * sum I(psi) cos(i) exp(-c' d) / d^2 * visible * exp(-c r)``
+    (``surface_light.lambert_radiance`` on every pixel, then the camera path).
 
     rays (H, W, 3) unit pixel rays; range_m (H, W) (inf/NaN: no surface, 0); albedo (H, W, 3);
-    normals (H, W, 3) unit, camera frame (None: the surface faces the lamp, cos(i) = 1);
+    normals (H, W, 3) unit, camera frame, the normal pass (None: from the range pass);
     K (3, 3) the pinhole of the pass, needed by the shadow test (None or ``model.shadows``
     False: no shadows, every surface sees the lamps)."""
-    from blendgen.physics import lamp_shadow
-    hit = np.isfinite(range_m) & (range_m > 0)
-    r = np.where(hit, range_m, 0.0).astype(np.float32)
-    x = rays * r[..., None]
-    out = np.zeros(albedo.shape, np.float32)
-    cam = r[..., None] * model.c.astype(np.float32)                 # c r, (H, W, 3)
-    for light in model.lights:
-        v = x - np.asarray(light.position_m, np.float32)
-        d = np.maximum(np.sqrt(np.einsum("hwk,hwk->hw", v, v)), np.float32(MIN_LAMP_DISTANCE_M))
-        v /= d[..., None]
-        gain = light.profile(v @ np.asarray(light.axis, np.float32)) / (d * d)
-        if normals is not None:
-            gain *= np.clip(-np.einsum("hwk,hwk->hw", v, normals), 0.0, None)
-        if model.shadows and K is not None:
-            gain *= lamp_shadow.visibility(light.position_m, K, rays, range_m, mask=gain > 0)
-        att = np.exp(-(d[..., None] * model.c_lamp.astype(np.float32) + cam))
-        out += (gain * hit)[..., None] * att * np.asarray(light.intensity_w_sr, np.float32)
-    out *= albedo
-    out *= np.float32(1.0 / math.pi)
+    from blendgen.physics import surface_light
+    visible = _shadow_test(K, rays, range_m) if model.shadows and K is not None else None
+    out = surface_light.lambert_radiance(model.lights, rays, range_m, albedo, model.c_lamp, normals, 1, visible)
+    if out is None:
+        return np.zeros(albedo.shape, np.float32)
+    r = np.where(np.isfinite(range_m) & (range_m > 0), range_m, 0.0).astype(np.float32)
+    out *= np.exp(-r[..., None] * model.c.astype(np.float32))
     return out
 
 
