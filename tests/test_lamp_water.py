@@ -157,7 +157,7 @@ def test_lamp_config_errors_name_the_key(tmp_path):
     root = __import__("pathlib").Path(__file__).resolve().parent.parent
     cfg = yaml.safe_load((root / "configs" / "lamp_night.yaml").read_text())
     assert load_experiment(root / "configs" / "lamp_night.yaml").vehicle.lamps[0].power_w == 20.0
-    for key, bad in (("lamp_forward_kept", 1.5), ("lamps", [{"half_angle_deg": 120}])):
+    for key, bad in (("lamp_forward_kept", 1.5), ("lamps", [{"half_angle_deg": 120}]), ("lamp_shadows", "maybe")):
         p = tmp_path / f"{key}.yaml"
         p.write_text(yaml.safe_dump({**cfg, "vehicle": {**cfg["vehicle"], key: bad}}))
         with pytest.raises(ConfigError) as e:
