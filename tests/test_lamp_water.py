@@ -157,9 +157,42 @@ def test_lamp_config_errors_name_the_key(tmp_path):
     root = __import__("pathlib").Path(__file__).resolve().parent.parent
     cfg = yaml.safe_load((root / "configs" / "lamp_night.yaml").read_text())
     assert load_experiment(root / "configs" / "lamp_night.yaml").vehicle.lamps[0].power_w == 20.0
-    for key, bad in (("lamp_forward_kept", 1.5), ("lamps", [{"half_angle_deg": 120}])):
+    for key, bad in (("lamp_forward_kept", 1.5), ("lamps", [{"half_angle_deg": 120}]), ("lamp_shadows", "maybe")):
         p = tmp_path / f"{key}.yaml"
         p.write_text(yaml.safe_dump({**cfg, "vehicle": {**cfg["vehicle"], key: bad}}))
         with pytest.raises(ConfigError) as e:
             load_experiment(p)
         assert key in str(e.value) and "\n" not in str(e.value).strip()
+
+
+def test_particles_and_surfaces_see_the_same_lamp_beam():
+    """A particle and a surface at the same point of the lamp's beam get light that falls off
+    alike, I exp(-c' d)/d^2 with c' = c - F b (the beam's effective attenuation), in turbid water
+    with F = 0.85: the particle/surface ratio is the same at 1 m and 4 m (with c on the particle's
+    path it would differ by exp(F b 3 m) = 2.2x in 'moderate'). Lamp at the camera centre, particles
+    on the optical axis: same scattering angle at both distances."""
+    from blendgen.physics.particles import ParticleField, project_particles
+    from blendgen.pipeline import particle_light
+    from blendgen.pipeline.plan import OcclusionPost
+    from blendgen.geometry import make_T
+    box = [[-20.0] * 3, [20.0] * 3]
+    lamp = Lamp(offset_m=[0.0, 0.0, 0.0], half_angle_deg=30.0, edge_deg=5.0, power_w=20.0)
+    post = SequencePost(seed=1, fps=10.0, image_formation="physical", water=Water(preset="moderate"),
+                        light_depth_m=1.0, surface_z_m=0.0, irradiance_w_m2=0.0, lamps=[lamp],
+                        occlusion=OcclusionPost(n_total=0, region_min=box[0], region_max=box[1], v_flow=[0, 0, 0]),
+                        lamp_forward_kept=0.85)
+    st = compose.SequenceState.start(post)
+    T_WC = make_T(np.column_stack([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]]), [0.0, 0.0, -1.0])
+    K = intrinsics_from_hfov(64, 48, math.radians(60.0))
+    model = lamp_water.LampWater.build(lamp_lights([lamp]), st.water, 0.85, shadows=False)
+    assert model.c_lamp[1] < st.water.c[1] - 0.2
+    ratios = []
+    for d in (1.0, 4.0):
+        field = ParticleField(np.array([[d, 0.0, -1.0]], np.float32), np.array([0.01], np.float32), *map(np.array, box))
+        p = project_particles(field, K, T_WC, 64, 48)
+        J = particle_light.shader(st.post, st.water, T_WC)(p)[0, 1]
+        surf = lamp_water.surface_radiance(model, np.array([[[0.0, 0.0, 1.0]]], np.float32), np.array([[d]], np.float32),
+                                           np.ones((1, 1, 3), np.float32), np.array([[[0, 0, -1.0]]], np.float32))
+        E = surf[0, 0, 1] * math.pi / math.exp(-st.water.c[1] * d)         # irradiance at the point
+        ratios.append(J / E)
+    assert ratios[0] > 0 and ratios[1] == pytest.approx(ratios[0], rel=1e-3)

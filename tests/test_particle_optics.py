@@ -73,7 +73,9 @@ def test_lit_particle_mean_radiance_in_water_matches_analytic(z, lamp_on):
     inner = np.hypot(u - K[0, 2], v - K[1, 2]) < rad - 1.5
     measured = img[inner].mean(axis=0)
     # analytic, from the laws (not the code): ambient E/(4 pi mu_d) omega dimmed by exp(-Kd depth);
-    # lamp I0 exp(-c d)/d^2 omega p(theta); both times exp(-c R); veil B_inf E exp(-Kd d_cam)(1-exp(-c R))
+    # lamp I0 exp(-c' d)/d^2 omega p(theta) with the beam's c' = c - F b (physics/lamp_water.py: the
+    # beam keeps its forward-scattered light, for particles as for surfaces and the veil); both
+    # times exp(-c R); veil B_inf E exp(-Kd d_cam)(1-exp(-c R))
     w = st.water
     E, depth, R = 2.6, 1.0, z - r
     J = 0.3 * E / (4 * math.pi * 0.75) * np.exp(-w.Kd * depth)
@@ -82,7 +84,8 @@ def test_lit_particle_mean_radiance_in_water_matches_analytic(z, lamp_on):
         d = math.hypot(z, 0.3)
         theta = math.acos(z / d)                  # light travels lamp -> particle, scattered back to camera
         theta = math.pi - theta
-        J = J + 0.3 * i0 * np.exp(-w.c * d) / d ** 2 * (0.5 * lambert_sphere(theta) + 0.5 * hg(theta, 0.9))
+        c_beam = w.c - lamp_water.FORWARD_KEPT * w.sigma_s
+        J = J + 0.3 * i0 * np.exp(-c_beam * d) / d ** 2 * (0.5 * lambert_sphere(theta) + 0.5 * hg(theta, 0.9))
     expect = J * np.exp(-w.c * R) + w.B_inf * E * np.exp(-w.Kd * depth) * (1 - np.exp(-w.c * R))
     if lamp_on:     # plus the lamp's own backscatter veil in front of the particle (its oracle: test_lamp_water)
         expect = expect + lamp_water.backscatter(st.lamp, K, np.full((H, W), R, np.float32))[inner].mean(axis=0)

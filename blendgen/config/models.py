@@ -347,6 +347,10 @@ class Vehicle(Strict):
         description="fast lamp model: share F of scattered lamp light a smooth light field keeps "
                     "(attenuation c - F b; 0 = single scattering as the 0-bounce reference renders; "
                     "0.85 fitted to Cycles with 32 volume bounces, physics/lamp_water.py)")
+    lamp_shadows: bool = Field(
+        True, description="fast lamp model: screen-space shadows of the lamps on surfaces (a march along "
+                          "each lit point's segment to the lamp in the range pass, physics/lamp_shadow.py); "
+                          "false: every surface sees the lamps (the reference always has shadows)")
 
 
 class Render(Strict):

@@ -7,9 +7,9 @@ The Jaffe (1990) / McGlamery (1980) decomposition of an image under artificial l
 - **direct** (lamp-lit surface): a Lambertian surface of albedo ``rho`` at range ``r``
   along the pixel ray, at distance ``d`` from a lamp of intensity ``I(psi)`` (W/sr),
   reflects ``rho / pi * I(psi) cos(i) / d^2 * exp(-c' d)`` and the camera sees it times
-  ``exp(-c r)`` (:func:`surface_radiance`). No shadow test: every surface the camera sees
-  is assumed to see the lamp (true for the dock face and the pool seen from a camera-mounted
-  lamp; wrong behind obstacles -- documented limitation).
+  ``exp(-c r)`` (:func:`surface_radiance`), times the lamp's visibility from the point: a
+  screen-space shadow test on the range pass (:mod:`blendgen.physics.lamp_shadow`; an
+  occluder outside the frame casts no shadow -- documented limitation).
 - **backscatter** (the veil in front of the camera): the single-scattering integral along
   each pixel ray ``x = t u``, ``t`` in ``[0, r]``,
 
@@ -27,12 +27,14 @@ The Jaffe (1990) / McGlamery (1980) decomposition of an image under artificial l
   forward-scattering angles: the lamp's beam (surfaces and veil) and the veil's way back
   to the camera. The image of a surface keeps ``c`` on its way to the camera (it is the
   beam transmittance; its forward-scattered part is blur/glow, not image). ``F = 0`` is
-  single scattering, what the pipeline's 0-bounce reference renders.
+  single scattering, what the pipeline's 0-bounce reference renders. The same ``c'`` lights the
+  small particles in the beam (``pipeline/particle_light.py``, :func:`lamp_attenuation`): a
+  particle is a surface element in the same beam. The dock's LEDs keep ``c`` (single
+  scattering) on surfaces and particles: F was fitted to the lamp's cone only.
 """
 from __future__ import annotations
 
 import functools
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -65,19 +67,30 @@ class LampWater:
     c: np.ndarray
     c_lamp: np.ndarray
     phase: object          # callable cos(theta) (N,) -> 1/sr (N,)
+    shadows: bool = True   # screen-space shadows of the lamps on surfaces (physics/lamp_shadow.py)
+    veil_shadows: bool = True   # and in the veil (with ``shadows``; False: surfaces only, for comparison)
 
     @classmethod
-    def build(cls, lights: list[PointLight], water, forward_kept: float | None = None) -> "LampWater":
+    def build(cls, lights: list[PointLight], water, forward_kept: float | None = None,
+              shadows: bool = True) -> "LampWater":
         """From lights and an ``optics.WaterOptics`` (its phase function and coefficients);
-        ``forward_kept`` F (None: :data:`FORWARD_KEPT`)."""
-        forward_kept = FORWARD_KEPT if forward_kept is None else forward_kept
+        ``forward_kept`` F (None: :data:`FORWARD_KEPT`); ``shadows``: the lamps' shadow test."""
         from blendgen.physics import optics
         b, c = np.asarray(water.sigma_s, float), np.asarray(water.c, float)
         if water.phase == "ff":
             phase = functools.partial(_ff_of_cos, ior=water.ff_ior, backscatter=water.ff_backscatter)
         else:
             phase = functools.partial(optics.hg_phase, g=float(water.g))
-        return cls(tuple(lights), b, c, c - float(forward_kept) * b, phase)
+        return cls(tuple(lights), b, c, lamp_attenuation(water, forward_kept), phase, bool(shadows))
+
+
+def lamp_attenuation(water, forward_kept: float | None = None) -> np.ndarray:
+    """(3,) effective attenuation ``c' = c - F b`` (1/m) of the lamp's light inside its beam,
+    whatever it falls on: water (the veil), a surface or a particle (each is lit by the same
+    beam: the forward-scattered light kept in it reaches them alike). ``water``: an
+    ``optics.WaterOptics``; ``forward_kept`` F (None: :data:`FORWARD_KEPT`)."""
+    forward_kept = FORWARD_KEPT if forward_kept is None else float(forward_kept)
+    return np.asarray(water.c, float) - forward_kept * np.asarray(water.sigma_s, float)
 
 
 def _ff_of_cos(cos_theta, ior: float, backscatter: float):
@@ -90,19 +103,22 @@ def range_nodes() -> np.ndarray:
     return np.concatenate([[0.0], np.geomspace(T_MIN_M, T_MAX_M, N_NODES)])
 
 
-def backscatter_table(model: LampWater, rays: np.ndarray, t: np.ndarray) -> np.ndarray:
+def backscatter_table(model: LampWater, rays: np.ndarray, t: np.ndarray, visible=None) -> np.ndarray:
     """Cumulative single-scatter veil (N, T, 3) float32 along unit rays (N, 3) up to each node t (T,)
-    (trapezoid rule; scalar geometry (N, T) first, the RGB attenuation once per light)."""
+    (trapezoid rule; scalar geometry (N, T) first, the RGB attenuation once per light).
+    ``visible``: None, or one (N, T) array per light, 0 where the node is in that lamp's shadow."""
     rays32, t32 = rays.astype(np.float32), t.astype(np.float32)
     x = rays32[:, None, :] * t32[None, :, None]                   # (N, T, 3)
     f = np.zeros(x.shape, np.float32)
-    for light in model.lights:
+    for i, light in enumerate(model.lights):
         v = x - np.asarray(light.position_m, np.float32)
         d = np.maximum(np.sqrt(np.einsum("ntk,ntk->nt", v, v)), np.float32(MIN_LAMP_DISTANCE_M))
         v /= d[..., None]
         cos_scatter = -np.einsum("ntk,nk->nt", v, rays32)           # lamp ray vs direction to camera
         geo = light.profile(v @ np.asarray(light.axis, np.float32)) / (d * d)
         geo *= model.phase(cos_scatter).astype(np.float32)
+        if visible is not None:
+            geo *= visible[i]
         path = (d + t32[None, :])[..., None] * model.c_lamp.astype(np.float32)   # c' (d + t)
         f += geo[..., None] * np.exp(-path) * np.asarray(light.intensity_w_sr * model.sigma_s, np.float32)
     steps = 0.5 * (f[:, 1:] + f[:, :-1]) * np.diff(t32)[None, :, None]
@@ -138,6 +154,24 @@ def _table_at(table: np.ndarray, t: np.ndarray, r: np.ndarray) -> np.ndarray:
     return table[n, k] * (1 - frac) + table[n, k + 1] * frac
 
 
+def _volume_visibility(model: LampWater, K, range_m, rays: np.ndarray, t: np.ndarray, r_far: np.ndarray):
+    """Per light, (N, T) float32: 1 where the veil's node ``t`` (T,) on ray (N, 3) sees the lamp
+    (:func:`lamp_shadow.volume_visibility`); nodes past the ray's farthest surface ``r_far`` (N,)
+    are never read and are not tested. Single scattering: a node in the lamp's shadow adds no
+    veil (the reference's shadow volume, e.g. behind the dock); the F factor's light, scattered
+    on into the shadow volume, is not added (documented approximation)."""
+    from blendgen.physics import lamp_shadow
+    need = t[None, :] <= np.fmin(r_far, t[-1])[:, None] + 1e-6          # (N, T), and the next node
+    need[:, 1:] |= need[:, :-1]
+    pts = (rays[:, None, :] * t[None, :, None])[need]
+    out = []
+    for light in model.lights:
+        v = np.ones(need.shape, np.float32)
+        v[need] = lamp_shadow.volume_visibility(light.position_m, K, range_m, pts)
+        out.append(v)
+    return out
+
+
 def backscatter(model: LampWater, K: np.ndarray, range_m: np.ndarray, step: int = GRID_PX) -> np.ndarray:
     """The lamps' backscatter veil (H, W, 3) in front of surfaces at ``range_m`` (H, W).
 
@@ -152,7 +186,9 @@ def backscatter(model: LampWater, K: np.ndarray, range_m: np.ndarray, step: int 
     r = np.fmin(range_m.astype(np.float32, copy=False), np.float32(t[-1]))   # inf, NaN -> the last node
     rmin, rmax = _block_min_max(r, step)
     gh, gw = rmin.shape
-    table = backscatter_table(model, _block_rays(tuple(np.asarray(K, float).ravel()), gw, gh, step), t)
+    rays = _block_rays(tuple(np.asarray(K, float).ravel()), gw, gh, step)
+    visible = _volume_visibility(model, K, range_m, rays, t, rmax.ravel()) if model.shadows and model.veil_shadows else None
+    table = backscatter_table(model, rays, t, visible)
     vmin = _table_at(table, t, rmin.ravel().astype(np.float64)).reshape(gh, gw, 3).astype(np.float32)
     vmax = _table_at(table, t, rmax.ravel().astype(np.float64)).reshape(gh, gw, 3).astype(np.float32)
     size = (gw * step, gh * step)
@@ -161,36 +197,39 @@ def backscatter(model: LampWater, K: np.ndarray, range_m: np.ndarray, step: int 
     return up[0] + a * (up[1] - up[0])
 
 
+def _shadow_test(K, rays, range_m):
+    """callable(light, lit (H, W) bool) -> (H, W) visibility of the light from each surface point."""
+    from blendgen.physics import lamp_shadow
+
+    def visible(light, lit):
+        return lamp_shadow.visibility(light.position_m, K, rays, range_m, mask=lit)
+    return visible
+
+
 def surface_radiance(model: LampWater, rays: np.ndarray, range_m: np.ndarray, albedo: np.ndarray,
-                     normals: np.ndarray | None) -> np.ndarray:
+                     normals: np.ndarray | None, K: np.ndarray | None = None) -> np.ndarray:
     """Lamp light reflected by Lambertian surfaces, as seen by the camera (H, W, 3):
-    ``albedo / pi * sum I(psi) cos(i) exp(-c' d) / d^2 * exp(-c r)``.
+    ``albedo / pi * sum I(psi) cos(i) exp(-c' d) / d^2 * visible * exp(-c r)``
+    (``surface_light.lambert_radiance`` on every pixel, then the camera path).
 
     rays (H, W, 3) unit pixel rays; range_m (H, W) (inf/NaN: no surface, 0); albedo (H, W, 3);
-    normals (H, W, 3) unit, camera frame (None: the surface faces the lamp, cos(i) = 1)."""
-    hit = np.isfinite(range_m) & (range_m > 0)
-    r = np.where(hit, range_m, 0.0).astype(np.float32)
-    x = rays * r[..., None]
-    out = np.zeros(albedo.shape, np.float32)
-    cam = r[..., None] * model.c.astype(np.float32)                 # c r, (H, W, 3)
-    for light in model.lights:
-        v = x - np.asarray(light.position_m, np.float32)
-        d = np.maximum(np.sqrt(np.einsum("hwk,hwk->hw", v, v)), np.float32(MIN_LAMP_DISTANCE_M))
-        v /= d[..., None]
-        gain = light.profile(v @ np.asarray(light.axis, np.float32)) / (d * d)
-        if normals is not None:
-            gain *= np.clip(-np.einsum("hwk,hwk->hw", v, normals), 0.0, None)
-        att = np.exp(-(d[..., None] * model.c_lamp.astype(np.float32) + cam))
-        out += (gain * hit)[..., None] * att * np.asarray(light.intensity_w_sr, np.float32)
-    out *= albedo
-    out *= np.float32(1.0 / math.pi)
+    normals (H, W, 3) unit, camera frame, the normal pass (None: from the range pass);
+    K (3, 3) the pinhole of the pass, needed by the shadow test (None or ``model.shadows``
+    False: no shadows, every surface sees the lamps)."""
+    from blendgen.physics import surface_light
+    visible = _shadow_test(K, rays, range_m) if model.shadows and K is not None else None
+    out = surface_light.lambert_radiance(model.lights, rays, range_m, albedo, model.c_lamp, normals, 1, visible)
+    if out is None:
+        return np.zeros(albedo.shape, np.float32)
+    r = np.where(np.isfinite(range_m) & (range_m > 0), range_m, 0.0).astype(np.float32)
+    out *= np.exp(-r[..., None] * model.c.astype(np.float32))
     return out
 
 
 def lamp_radiance(model: LampWater, K: np.ndarray, rays: np.ndarray, range_m: np.ndarray,
                   albedo: np.ndarray, normals: np.ndarray | None) -> np.ndarray:
     """Everything the lamps add to the camera image (H, W, 3): lit surfaces + backscatter."""
-    out = surface_radiance(model, rays, range_m, albedo, normals)
+    out = surface_radiance(model, rays, range_m, albedo, normals, K)
     if np.any(model.sigma_s > 0):
         out += backscatter(model, K, range_m)
     return out

@@ -64,8 +64,8 @@ class SequenceState:
         water, opts = optics.fast_water(post.water, post.image_formation, post.irradiance_w_m2, veil=post.veil)
         ae = post.sensor.auto_exposure
         auto = sensor.AutoExposure(**ae.model_dump()) if ae is not None else None
-        lamp = (lamp_water.LampWater.build(lamp_lights(post.lamps), water, post.lamp_forward_kept)
-                if post.lamps else None)
+        lamp = (lamp_water.LampWater.build(lamp_lights(post.lamps), water, post.lamp_forward_kept,
+                                           post.lamp_shadows is not False) if post.lamps else None)
         return cls(post, rng, pfield, water, opts, sensor_model(post), auto, lamp=lamp)
 
     def advance(self) -> None:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from blendgen.physics import lamp_water
 from blendgen.physics import lights as lt
 from blendgen.physics import optics
 from blendgen.physics import particle_optics as popt
@@ -51,10 +52,13 @@ def _depth_gain(post, water, T_world_cam: np.ndarray, p: ProjectedParticles) -> 
 
 
 def shader(post, water, T_world_cam, markers=None, T_cam_dock=None):
-    """Callable(projected) -> (M, 3) clean radiance of each particle (module doc)."""
-    lights = lt.lamp_lights(post.lamps)
-    if markers and T_cam_dock is not None:
-        lights += popt.led_point_lights(markers, T_cam_dock)
+    """Callable(projected) -> (M, 3) clean radiance of each particle (module doc). The lamps'
+    light reaches a particle with the effective attenuation ``c - F b`` of their beam, as it
+    reaches a surface or the veil (``physics/lamp_water.lamp_attenuation``); the LEDs' with ``c``."""
+    lamps = lt.lamp_lights(post.lamps)
+    leds = popt.led_point_lights(markers, T_cam_dock) if markers and T_cam_dock is not None else []
+    lights = lamps + leds
+    c_lamp = lamp_water.lamp_attenuation(water, post.lamp_forward_kept) if lamps else None
     mat = material(post.occlusion)
     amb = post.ambient_w_m2_sr
     R = np.asarray(T_world_cam, float)[:3, :3]
@@ -63,7 +67,10 @@ def shader(post, water, T_world_cam, markers=None, T_cam_dock=None):
     def shade(p: ProjectedParticles) -> np.ndarray:
         gain = _depth_gain(post, water, T_world_cam, p) if lights else None
         xyz = tuple(np.ascontiguousarray(p.pc[:, k]) for k in range(3))
-        out = popt.radiance_planar(xyz, mat, [amb] * 3, lights, water.c, gain)
+        out = popt.radiance_planar(xyz, mat, [amb] * 3, leds, water.c, gain)
+        if lamps:
+            lit = popt.radiance_planar(xyz, mat, [0.0] * 3, lamps, c_lamp, gain)
+            out = [o + q for o, q in zip(out, lit)]
         if suns:
             sun = popt.sun_planar(xyz, mat, suns)
             out = [o + sun for o in out]

@@ -78,6 +78,7 @@ class SequencePost(Strict):
                                                    "(optics.veil_parameters), None: not used")
     world: Optional[WorldPost] = Field(None, description="surface and caustics (None: both off, no cost)")
     lamp_forward_kept: Optional[float] = Field(None, description="fast lamp model's F (set with lamps)")
+    lamp_shadows: Optional[bool] = Field(None, description="fast lamp model's shadow test (set with lamps)")
     lens: Optional[Lens] = Field(None, description="thin lens (particle defocus); null: pinhole")
     suns: list[tuple[Vec3, float]] = Field(default_factory=list, description="the render's directional "
                                            "lights (world travel direction, W/m^2), lighting fast particles")
@@ -400,6 +401,7 @@ def condition_post(exp: Experiment, cond, seed: int) -> SequencePost:
                         veil=optics.veil_parameters(cond.water or exp.water, exp.image_formation),
                         world=world_post(exp),
                         lamp_forward_kept=exp.vehicle.lamp_forward_kept if exp.vehicle.lamps else None,
+                        lamp_shadows=exp.vehicle.lamp_shadows if exp.vehicle.lamps else None,
                         lens=exp.camera.lens, suns=sun_lights(exp), ambient_w_m2_sr=ambient_radiance(exp))
 
 

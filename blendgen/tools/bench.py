@@ -105,9 +105,10 @@ def term_costs(dataset: Path) -> pd.DataFrame:
                         noise=False) for s in (True, False))
     world_post.caustic_table(0, 1.0)                    # once per sequence, not per frame
     from blendgen.config.models import Lamp
-    from blendgen.physics import lamp_water
+    from blendgen.physics import lamp_shadow, lamp_water
     from blendgen.tools.lamp_bench import DEMO_LAMP
     lamp = state("physical", lamps=[Lamp(**DEMO_LAMP)], noise=False)
+    noshadow = compose.SequenceState.start(lamp.post.model_copy(update={"lamp_shadows": False}))
     lit = {**passes, "normal": np.broadcast_to(np.float32([0, 0, 1]), rgb.shape).copy()}
     noisy, bloom = state("physical", noise=True), state("physical", noise=False, bloom_fraction=0.05)
     dist = [-0.2, 0.05, 0.0, 0.0, 0.0]
@@ -122,6 +123,10 @@ def term_costs(dataset: Path) -> pd.DataFrame:
         ("water physical + vehicle lamp", lambda: compose.water_image(lit, lamp, K, frame["T_world_cam"], markers)),
         ("  vehicle lamp (surfaces + veil)", lambda: compose.lamp_image(lit, lamp.lamp, K, frame["T_world_cam"])),
         ("  of which backscatter veil", lambda: lamp_water.backscatter(lamp.lamp, K, passes["range_m"])),
+        ("  of which lamp shadows (screen-space test)", lambda: lamp_shadow.visibility(
+            lamp.lamp.lights[0].position_m, K, compose._unit_rays(tuple(K.ravel()), rgb.shape[1], rgb.shape[0]),
+            passes["range_m"])),
+        ("  vehicle lamp without shadows", lambda: compose.lamp_image(lit, noshadow.lamp, K, frame["T_world_cam"])),
         ("  of which LED glow", lambda: optics.add_emitter_glow(
             rgb, compose.emissive_mask(passes["index"], markers), passes["range_m"], phys.water, float(K[0, 0]))),
         ("8-bit sRGB encode only (before: to_uint8)", lambda: sensor.to_uint8(rgb)),
