@@ -160,7 +160,7 @@ def test_verify_and_resume(tiny, tmp_path):
     assert {p: p.read_bytes() for p in out.glob("sequences/*/frames.jsonl")} == before
 
 
-@pytest.mark.parametrize("regions", ["dock", "markers"])
+@pytest.mark.parametrize("regions", ["dock", "codes"])
 def test_roi_composite_is_pixel_aligned(tmp_path, regions):
     """ROI rendering with a full-scale background at the same samples must reproduce the
     plain full-frame render: any border misalignment (of the dock box, or of any of the
@@ -181,7 +181,7 @@ def test_roi_composite_is_pixel_aligned(tmp_path, regions):
         generate(load_experiment(p), tmp_path / name, workers=1, progress=False)
         images[name] = [cv2.imread(str(f)) for f in sorted((tmp_path / name).glob("sequences/*/rgb/*.png"))]
     job = json.loads(next((tmp_path / "roi" / ".work" / "jobs").glob("*.json")).read_text())
-    rois = [f["rois"] if regions == "markers" else [f["roi"]] for f in job["frames"]]
+    rois = [f["rois"] if regions != "dock" else [f["roi"]] for f in job["frames"]]
     assert all(r and r[0] is not None and sum((b[2] - b[0]) * (b[3] - b[1]) for b in r) < 0.5 * 320 * 240
                for r in rois)
     assert regions == "dock" or max(len(r) for r in rois) >= 2

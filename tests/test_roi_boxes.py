@@ -43,9 +43,10 @@ def turbidity():
     return exp, plan.manifest_markers(exp), plan.camera_K(exp)
 
 
-def test_regions_are_each_marker_plate_and_led(turbidity):
+@pytest.mark.parametrize("quiet_zone", [True, False])
+def test_regions_are_each_marker_plate_and_led(turbidity, quiet_zone):
     exp, markers, _ = turbidity
-    regions = plan.marker_regions(markers)
+    regions = plan.marker_regions(markers, quiet_zone)
     n_leds = sum(len(m["keypoints"]) for m in markers if m["kind"] == "led_array")
     assert len(regions) == n_leds + sum(m["kind"] != "led_array" for m in markers) == 6
     for m in markers:                        # every keypoint lies inside its region's x-y extent
@@ -103,3 +104,12 @@ def test_frames_carry_marker_rois_or_dock_roi(turbidity):
     dock = exp.model_copy(update={"render": exp.render.model_copy(update={"roi_regions": "dock"})})
     job = plan.plan_jobs(dock, scene)[0]
     assert all("roi" in f and "rois" not in f for f in job.frames)
+
+
+def test_code_regions_are_the_code_squares_inside_the_plates(turbidity):
+    markers = turbidity[1]
+    plates, codes = plan.marker_regions(markers, True), plan.marker_regions(markers, False)
+    for m, p, c in zip([m for m in markers if m["kind"] != "led_array"], plates[4:], codes[4:]):
+        assert np.ptp(c[:, 0]) == pytest.approx(m["size_m"]) and np.ptp(p[:, 0]) == pytest.approx(m["plate_size_m"])
+        assert np.all(p.min(0) <= c.min(0)) and np.all(c.max(0) <= p.max(0))
+    np.testing.assert_array_equal(np.array(plates[:4]), np.array(codes[:4]))     # LED discs unchanged

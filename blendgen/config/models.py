@@ -364,9 +364,10 @@ class Render(Strict):
     roi: bool = Field(True, description="fast fidelity: full samples only in the dock's image region")
     background_scale: float = Field(0.5, gt=0.05, le=1.0, description="resolution factor outside the ROI")
     background_samples: int = Field(1, ge=1, le=65536)
-    roi_regions: Literal["dock", "markers"] = Field(
-        "markers", description="fast fidelity: where `samples` go: one box around the dock, or only the "
-                               "boxes of what localizers read (each marker plate, each LED disc)")
+    roi_regions: Literal["dock", "markers", "codes"] = Field(
+        "codes", description="fast fidelity: where `samples` go: dock (one box around the dock); markers "
+                             "(a box per marker plate and per LED disc); codes (a box per code square "
+                             "without its uniform quiet zone and per LED disc; `bench render-settings`)")
     roi_max_boxes: int = Field(6, ge=1, le=64, description="roi_regions markers: at most this many ROI "
                                                            "render calls per frame (nearest boxes merged)")
     roi_max_fraction: float = Field(0.9, gt=0.0, le=1.0,

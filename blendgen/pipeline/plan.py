@@ -326,7 +326,8 @@ def _frames(exp: Experiment, traj, T_wd: np.ndarray, T_body_cam: np.ndarray, see
               if d_max is None or groundtruth.d_true(T, T_wd) <= d_max]
     if exp.render.roi and exp.render.fidelity == "fast":
         box = dock_corners(exp)
-        regions = marker_regions(manifest_markers(exp)) if exp.render.roi_regions == "markers" else None
+        regions = (None if exp.render.roi_regions == "dock" else
+                   marker_regions(manifest_markers(exp), quiet_zone=exp.render.roi_regions == "markers"))
         K, c = camera_K(exp), exp.camera
         for f in frames:
             T_cd = np.linalg.inv(np.asarray(f["T_world_cam"])) @ T_wd
@@ -338,10 +339,12 @@ def _frames(exp: Experiment, traj, T_wd: np.ndarray, T_body_cam: np.ndarray, see
     return frames
 
 
-def marker_regions(markers: list[dict]) -> list[np.ndarray]:
+def marker_regions(markers: list[dict], quiet_zone: bool = True) -> list[np.ndarray]:
     """What the localizers read, as boxes of corners (8,3 each, dock frame, m): each
-    square marker's plate (code plus quiet zone), each LED disc (radius ``led_radius_m``).
-    The glow around an LED is added in image space (compose), not rendered."""
+    square marker's plate (code plus quiet zone; without ``quiet_zone`` the code square
+    alone, its uniform white surround left to the background render), each LED disc
+    (radius ``led_radius_m``). The glow around an LED is added in image space (compose),
+    not rendered."""
     out = []
     for m in markers:
         T = np.asarray(m["T_dock_marker"], float)
@@ -351,7 +354,7 @@ def marker_regions(markers: list[dict]) -> list[np.ndarray]:
             out += [np.array([[x, y, z] for x in (cx - r, cx + r) for y in (cy - r, cy + r) for z in (-r, r)])
                     for cx, cy, _ in centres]
             continue
-        h = float(m.get("plate_size_m") or m["size_m"]) / 2
+        h = float((m.get("plate_size_m") if quiet_zone else None) or m["size_m"]) / 2
         local = np.array([[x, y, z, 1.0] for x in (-h, h) for y in (-h, h) for z in (-0.01, 0.01)])
         out.append((local @ T.T)[:, :3])
     return out
