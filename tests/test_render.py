@@ -188,3 +188,12 @@ def test_roi_composite_is_pixel_aligned(tmp_path, regions):
     for a, b in zip(images["roi"], images["full"]):
         diff = np.abs(a.astype(int) - b.astype(int))
         assert np.percentile(diff, 99.9) <= 2, np.percentile(diff, 99.9)
+
+
+@pytest.mark.parametrize("light_tree", [False, True])
+def test_setup_cycles_sets_light_tree(light_tree):
+    """render.light_tree reaches Cycles (fast fidelity turns it off: one sun, LEDs unsampled)."""
+    from blendgen.blender import render, scene as scn
+    sc = scn.reset()
+    render.setup_cycles(sc, {"samples": 4, "light_tree": light_tree})
+    assert sc.cycles.use_light_tree is light_tree
