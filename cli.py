@@ -285,6 +285,20 @@ def bench_fidelity(width: int, height: int, ref_samples: int, frames: int, out: 
                "errors in linear RGB over the marker region; d* = fast - reference)")
 
 
+@bench.command("render-settings")
+@click.argument("base", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.argument("variant", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("-l", "--localizer", "names", multiple=True, default=("led", "qr", "aruco"), show_default=True)
+@click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
+              default=Path("out/bench_render_settings"), show_default=True)
+def bench_render_settings(base: Path, variant: Path, names: tuple[str, ...], out: Path):
+    """Image and localization deltas of two datasets made from one config with different
+    `render` settings (same seed: same camera paths and noise), e.g. per-marker ROIs vs one
+    dock box: marker-region DN/PSNR and off-marker DN by range, P_succ and E_rel per localizer."""
+    from blendgen.tools.render_settings import run
+    run(base, variant, out, echo=click.echo, names=names)
+
+
 @bench.command("pnp")
 @click.option("--trials", type=click.IntRange(5, 100000), default=60, show_default=True,
               help="random poses per (target, Z, angle, noise) cell")

@@ -160,25 +160,40 @@ def test_verify_and_resume(tiny, tmp_path):
     assert {p: p.read_bytes() for p in out.glob("sequences/*/frames.jsonl")} == before
 
 
-def test_roi_composite_is_pixel_aligned(tmp_path):
+@pytest.mark.parametrize("regions", ["dock", "codes"])
+def test_roi_composite_is_pixel_aligned(tmp_path, regions):
     """ROI rendering with a full-scale background at the same samples must reproduce the
-    plain full-frame render: any border misalignment shows up as a shifted dock."""
+    plain full-frame render: any border misalignment (of the dock box, or of any of the
+    per-marker boxes) shows up as a shifted dock or marker."""
     from blendgen.pipeline.generate import generate
     from blendgen.config.models import load_experiment
     cfg = dict(TINY, name="roi", trajectories=[
-        {"kind": "linear", "id": "far", "start_range_m": 6.0, "end_range_m": 5.0, "speed_mps": 5.0,
+        {"kind": "linear", "id": "far", "start_range_m": 6.0 if regions == "dock" else 3.0,
+         "end_range_m": 5.0 if regions == "dock" else 2.0, "speed_mps": 5.0,
          "lateral_m": 0.7, "vertical_m": 0.3}])
     cfg["camera"] = {"width": 320, "height": 240, "hfov_deg": 60, "fps": 10}
     images = {}
-    for name, render in (("roi", {"roi": True, "background_scale": 1.0, "background_samples": 4}),
+    for name, render in (("roi", {"roi": True, "background_scale": 1.0, "background_samples": 4,
+                                  "roi_regions": regions}),
                          ("full", {"roi": False})):
         p = tmp_path / f"{name}.yaml"
         p.write_text(yaml.safe_dump({**cfg, "render": {"samples": 4, **render}}))
         generate(load_experiment(p), tmp_path / name, workers=1, progress=False)
         images[name] = [cv2.imread(str(f)) for f in sorted((tmp_path / name).glob("sequences/*/rgb/*.png"))]
     job = json.loads(next((tmp_path / "roi" / ".work" / "jobs").glob("*.json")).read_text())
-    rois = [f["roi"] for f in job["frames"]]
-    assert all(r is not None and (r[2] - r[0]) * (r[3] - r[1]) < 0.5 * 320 * 240 for r in rois)
+    rois = [f["rois"] if regions != "dock" else [f["roi"]] for f in job["frames"]]
+    assert all(r and r[0] is not None and sum((b[2] - b[0]) * (b[3] - b[1]) for b in r) < 0.5 * 320 * 240
+               for r in rois)
+    assert regions == "dock" or max(len(r) for r in rois) >= 2
     for a, b in zip(images["roi"], images["full"]):
         diff = np.abs(a.astype(int) - b.astype(int))
         assert np.percentile(diff, 99.9) <= 2, np.percentile(diff, 99.9)
+
+
+@pytest.mark.parametrize("light_tree", [False, True])
+def test_setup_cycles_sets_light_tree(light_tree):
+    """render.light_tree reaches Cycles (fast fidelity turns it off: one sun, LEDs unsampled)."""
+    from blendgen.blender import render, scene as scn
+    sc = scn.reset()
+    render.setup_cycles(sc, {"samples": 4, "light_tree": light_tree})
+    assert sc.cycles.use_light_tree is light_tree

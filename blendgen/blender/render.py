@@ -54,6 +54,9 @@ def setup_cycles(scene: bpy.types.Scene, r: dict) -> None:
     cy.volume_bounces = int(r.get("volume_bounces", 0))
     cy.caustics_reflective = cy.caustics_refractive = False
     cy.seed = int(r.get("seed", 0))
+    # one sun and unsampled LEDs (fast fidelity): the light tree only adds work per sample
+    # (same image; bench render-settings); reference fidelity samples LEDs and lamps with it
+    cy.use_light_tree = bool(r.get("light_tree", True))
     # A box filter one pixel wide integrates each pixel's own area, as a sensor with
     # 100% fill factor does; Blackman-Harris 1.5 px blurs edges, and after the sRGB
     # encode that blur pulls dark-square corners ~0.3 px inward.
@@ -146,40 +149,49 @@ def _upsample(passes: dict, width: int, height: int) -> dict:
             for k, v in passes.items()}
 
 
+def frame_boxes(frame: dict, cfg: dict) -> list | None:
+    """The frame's ROI boxes (x0, y0, x1, y1), or None when the frame renders whole at
+    ``samples`` (ROIs off). ``rois`` (per-marker boxes, disjoint) wins over ``roi`` (one box
+    around the dock); an empty list means nothing worth samples is in view."""
+    if not cfg.get("roi"):
+        return None
+    if "rois" in frame:
+        return [tuple(b) for b in frame["rois"]]
+    return [] if frame.get("roi") is None else [tuple(frame["roi"])]
+
+
 def render_roi_frame(scene: bpy.types.Scene, cam_obj: bpy.types.Object, frame: dict, cfg: dict,
                      width: int, height: int, path: str) -> dict:
-    """Render one frame, spending samples where the dock is.
+    """Render one frame, spending samples where the localizers look.
 
-    Without a usable ROI, or when it covers more than ``roi_max_fraction`` of the image,
-    the full frame is rendered at ``samples``. Otherwise the background is rendered at
-    ``background_scale`` resolution with ``background_samples`` and upsampled, and the
-    ROI box at full resolution with ``samples`` is pasted over it (same pixel grid: the
-    border is whole pixels). Returns full-size passes."""
+    Without ROIs, or when they cover more than ``roi_max_fraction`` of the image, the full
+    frame is rendered at ``samples``. Otherwise the background is rendered at
+    ``background_scale`` resolution with ``background_samples`` and upsampled, and each
+    ROI box (:func:`frame_boxes`) at full resolution with ``samples`` is pasted over it
+    (same pixel grid: the border is whole pixels). Returns full-size passes."""
     r = scene.render
-    roi = frame.get("roi") if cfg.get("roi") else None
-    area = 0.0 if roi is None else (roi[2] - roi[0]) * (roi[3] - roi[1]) / (width * height)
+    boxes = frame_boxes(frame, cfg)
+    area = 0.0 if not boxes else sum((b[2] - b[0]) * (b[3] - b[1]) for b in boxes) / (width * height)
     r.use_border, r.resolution_percentage = False, 100
     scene.cycles.samples = int(cfg["samples"])
-    if cfg.get("roi") and area <= cfg["roi_max_fraction"]:
-        r.resolution_percentage = max(1, int(round(100 * cfg["background_scale"])))
-        scene.cycles.samples = int(cfg["background_samples"])
+    if boxes is None or area > cfg["roi_max_fraction"]:
         render_frame(scene, cam_obj, frame["T_world_cam"], path)
-        passes = _upsample(read_passes(path), width, height)
-        if roi is None:
-            return passes
-        r.resolution_percentage = 100
-        scene.cycles.samples = int(cfg["samples"])
-        _border(scene, roi, width, height)
+        return read_passes(path)
+    r.resolution_percentage = max(1, int(round(100 * cfg["background_scale"])))
+    scene.cycles.samples = int(cfg["background_samples"])
+    render_frame(scene, cam_obj, frame["T_world_cam"], path)
+    passes = _upsample(read_passes(path), width, height)
+    r.resolution_percentage = 100
+    scene.cycles.samples = int(cfg["samples"])
+    for x0, y0, x1, y1 in boxes:
+        _border(scene, (x0, y0, x1, y1), width, height)
         render_frame(scene, cam_obj, frame["T_world_cam"], path)
-        x0, y0, x1, y1 = roi
         for k, v in read_passes(path).items():
             if v.shape[:2] != (y1 - y0, x1 - x0):
-                raise RuntimeError(f"ROI render {v.shape[:2]} does not match the box {roi}")
+                raise RuntimeError(f"ROI render {v.shape[:2]} does not match the box {(x0, y0, x1, y1)}")
             passes[k][y0:y1, x0:x1] = v
-        r.use_border = False
-        return passes
-    render_frame(scene, cam_obj, frame["T_world_cam"], path)
-    return read_passes(path)
+    r.use_border = False
+    return passes
 
 
 def oracle_main(build, argv: list[str], tag: str) -> int:

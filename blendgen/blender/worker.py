@@ -109,7 +109,7 @@ def run(job) -> dict:
     states = [pp.SequenceState.start(o.post) for o, _, _ in outs]
     exr = os.path.join(render.scratch_dir(), f"dockbench-{os.getpid()}.exr")
     geo = _geometry_particles(job, states)
-    # "render" includes reading the EXR passes back (the ROI path reads two renders);
+    # "render" includes reading the EXR passes back (the ROI path: the background and one render per box);
     # "depth_to_range" turns the planar depth pass into range along each ray
     times = {"scene_build": time.perf_counter() - t0, "render": [], "depth_to_range": [], "post_write": []}
     clock = StageTimer()        # CPU and wall per stage (render, compose, write) for `bench suite`

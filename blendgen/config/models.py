@@ -368,6 +368,18 @@ class Render(Strict):
     roi: bool = Field(True, description="fast fidelity: full samples only in the dock's image region")
     background_scale: float = Field(0.5, gt=0.05, le=1.0, description="resolution factor outside the ROI")
     background_samples: int = Field(1, ge=1, le=65536)
+    roi_regions: Literal["dock", "markers", "codes"] = Field(
+        "codes", description="fast fidelity: where `samples` go: dock (one box around the dock); markers "
+                             "(a box per marker plate and per LED disc); codes (a box per code square "
+                             "without its uniform quiet zone and per LED disc; `bench render-settings`)")
+    roi_max_boxes: int = Field(6, ge=1, le=64, description="roi_regions markers: at most this many ROI "
+                                                           "render calls per frame (nearest boxes merged)")
+    roi_max_fraction: float = Field(0.9, gt=0.0, le=1.0,
+                                    description="fast fidelity: ROIs covering more than this share of the "
+                                                "image render the whole frame at `samples`")
+    light_tree: Optional[bool] = Field(
+        None, description="Cycles light tree; null: off in fast fidelity (one sun, LEDs not sampled: same "
+                          "image, fewer CPU-s), on in reference fidelity (sampled LEDs and lamps)")
     max_distance_m: Optional[float] = Field(10.0, gt=0.0, le=1e4,
                                             description="frames with d_true beyond this are not rendered "
                                                         "(evaluation counts d_true <= 10 m); null renders all")

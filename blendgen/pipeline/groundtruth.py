@@ -62,3 +62,57 @@ def dock_roi(T_cam_dock: np.ndarray, K: np.ndarray, width: int, height: int, cor
     if x1 <= x0 or y1 <= y0:
         return None
     return int(x0), int(y0), int(x1), int(y1)
+
+
+Box = tuple[int, int, int, int]
+
+
+def _union(a: Box, b: Box) -> Box:
+    return min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3])
+
+
+def _area(b: Box) -> int:
+    return (b[2] - b[0]) * (b[3] - b[1])
+
+
+def _overlap(a: Box, b: Box) -> bool:
+    return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
+
+
+def _merge_overlapping(boxes: list[Box]) -> list[Box]:
+    out = list(boxes)
+    i = 0
+    while i < len(out):
+        j = next((j for j in range(len(out)) if j != i and _overlap(out[i], out[j])), None)
+        if j is None:
+            i += 1
+            continue
+        out[min(i, j)] = _union(out[i], out[j])
+        out.pop(max(i, j))
+        i = 0
+    return out
+
+
+def merge_boxes(boxes: list[Box], max_boxes: int) -> list[Box]:
+    """Disjoint boxes covering ``boxes`` (x0, y0, x1, y1 px, end-exclusive): overlapping
+    boxes are replaced by their union until none overlap; then, while more than
+    ``max_boxes`` remain, the pair whose union adds the least area is merged (and
+    overlaps resolved again). Sorted."""
+    out = _merge_overlapping(boxes)
+    while len(out) > max(1, max_boxes):
+        pairs = [(i, j) for i in range(len(out)) for j in range(i + 1, len(out))]
+        i, j = min(pairs, key=lambda p: _area(_union(out[p[0]], out[p[1]])) - _area(out[p[0]]) - _area(out[p[1]]))
+        out[i] = _union(out[i], out[j])
+        out.pop(j)
+        out = _merge_overlapping(out)
+    return sorted(out)
+
+
+def marker_rois(T_cam_dock: np.ndarray, K: np.ndarray, width: int, height: int,
+                regions_dock: list[np.ndarray], margin_px: int = 8, max_boxes: int = 6) -> list[Box]:
+    """Disjoint pixel boxes (see :func:`merge_boxes`) holding the projection of every
+    region (each (N,3) corners, dock frame: a marker plate, one LED disc) plus a margin;
+    regions out of view give no box, a region with a corner behind the camera gives the
+    whole image (as :func:`dock_roi`)."""
+    boxes = [b for c in regions_dock if (b := dock_roi(T_cam_dock, K, width, height, c, margin_px)) is not None]
+    return merge_boxes(boxes, max_boxes)

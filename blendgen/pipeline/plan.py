@@ -327,11 +327,38 @@ def _frames(exp: Experiment, traj, T_wd: np.ndarray, T_body_cam: np.ndarray, see
               if d_max is None or groundtruth.d_true(T, T_wd) <= d_max]
     if exp.render.roi and exp.render.fidelity == "fast":
         box = dock_corners(exp)
+        regions = (None if exp.render.roi_regions == "dock" else
+                   marker_regions(manifest_markers(exp), quiet_zone=exp.render.roi_regions == "markers"))
         K, c = camera_K(exp), exp.camera
         for f in frames:
             T_cd = np.linalg.inv(np.asarray(f["T_world_cam"])) @ T_wd
-            f["roi"] = groundtruth.dock_roi(T_cd, K, c.width, c.height, box)
+            if regions is None:
+                f["roi"] = groundtruth.dock_roi(T_cd, K, c.width, c.height, box)
+            else:
+                f["rois"] = [list(b) for b in groundtruth.marker_rois(T_cd, K, c.width, c.height, regions,
+                                                                      max_boxes=exp.render.roi_max_boxes)]
     return frames
+
+
+def marker_regions(markers: list[dict], quiet_zone: bool = True) -> list[np.ndarray]:
+    """What the localizers read, as boxes of corners (8,3 each, dock frame, m): each
+    square marker's plate (code plus quiet zone; without ``quiet_zone`` the code square
+    alone, its uniform white surround left to the background render), each LED disc
+    (radius ``led_radius_m``). The glow around an LED is added in image space (compose),
+    not rendered."""
+    out = []
+    for m in markers:
+        T = np.asarray(m["T_dock_marker"], float)
+        if m["kind"] == "led_array":
+            r = float(m["led_radius_m"])
+            centres = np.asarray(m["keypoints"], float)
+            out += [np.array([[x, y, z] for x in (cx - r, cx + r) for y in (cy - r, cy + r) for z in (-r, r)])
+                    for cx, cy, _ in centres]
+            continue
+        h = float((m.get("plate_size_m") if quiet_zone else None) or m["size_m"]) / 2
+        local = np.array([[x, y, z, 1.0] for x in (-h, h) for y in (-h, h) for z in (-0.01, 0.01)])
+        out.append((local @ T.T)[:, :3])
+    return out
 
 
 def dock_corners(exp: Experiment) -> np.ndarray:
@@ -556,7 +583,8 @@ def render_settings(exp: Experiment, threads: int) -> dict:
             "albedo_pass": r.fidelity == "fast" and (ambient_on(exp) or lamps),
             "write_depth": r.write_depth, "write_index": r.write_index,
             "roi": r.roi and r.fidelity == "fast", "background_scale": r.background_scale,
-            "background_samples": r.background_samples, "roi_max_fraction": 0.5}
+            "background_samples": r.background_samples, "roi_max_fraction": r.roi_max_fraction,
+            "light_tree": r.fidelity == "reference" if r.light_tree is None else r.light_tree}
     if lamps:
         out["normal_pass"] = True
     return out
