@@ -93,25 +93,30 @@ class WaveField:
         return cls(amp=amp, k=np.column_stack([kk * np.cos(head), kk * np.sin(head)]),
                    omega=np.sqrt(G * kk + GAMMA_OVER_RHO * kk ** 3), phase=rng.uniform(0, 2 * np.pi, n))
 
-    def _arg(self, x, y, t: float):
-        x = np.asarray(x, np.float32)[..., None]
-        y = np.asarray(y, np.float32)[..., None]
-        return x * self.k[:, 0].astype(np.float32) + y * self.k[:, 1].astype(np.float32) \
-            - np.float32(t) * self.omega.astype(np.float32) + self.phase.astype(np.float32)
+    def _arg(self, x, y, t: float) -> np.ndarray:
+        """Phases ``k_i . x - w_i t + phi_i`` (..., n) float32, built in one buffer."""
+        k = self.k.astype(np.float32)
+        a = np.multiply(np.asarray(x, np.float32)[..., None], k[:, 0])
+        a += np.multiply(np.asarray(y, np.float32)[..., None], k[:, 1])
+        a += (self.phase - float(t) * self.omega).astype(np.float32)
+        return a
 
     def slope(self, x, y, t: float = 0.0):
         """(d eta/dx, d eta/dy) at points x, y (same shape), time t."""
-        g = np.cos(self._arg(x, y, t)) @ (self.amp[:, None] * self.k).astype(np.float32)
+        c = self._arg(x, y, t)
+        np.cos(c, out=c)
+        g = c @ (self.amp[:, None] * self.k).astype(np.float32)
         return g[..., 0], g[..., 1]
 
     def hessian(self, x, y, t: float = 0.0, damping=None):
         """(eta_xx, eta_xy, eta_yy) at x, y, t; ``damping`` (..., n) or (n,) multiplies each wave."""
-        s = -np.sin(self._arg(x, y, t))
+        s = self._arg(x, y, t)
+        np.sin(s, out=s)
         if damping is not None:
-            s = s * np.asarray(damping, np.float32)
-        a = self.amp.astype(np.float32)
-        kx, ky = self.k[:, 0].astype(np.float32), self.k[:, 1].astype(np.float32)
-        return s @ (a * kx * kx), s @ (a * kx * ky), s @ (a * ky * ky)
+            s *= np.asarray(damping, np.float32)
+        kx, ky = self.k[:, 0], self.k[:, 1]
+        h = s @ (-self.amp[:, None] * np.column_stack([kx * kx, kx * ky, ky * ky])).astype(np.float32)
+        return h[..., 0], h[..., 1], h[..., 2]
 
 
 def waves_for(seed: int, wind_mps: float) -> WaveField:
@@ -120,11 +125,12 @@ def waves_for(seed: int, wind_mps: float) -> WaveField:
     return WaveField.sample(seed, wind_mps, mss=None if wind_mps > 0 else 0.0)
 
 
-def window_radiance(cos_up, sky_radiance, below_radiance, n: float = N_WATER) -> np.ndarray:
+def window_radiance(cos_up, sky_radiance, below_radiance, n: float = N_WATER, reflectance=None) -> np.ndarray:
     """Radiance (..., 3) seen along rays meeting the surface from below at incidence cosine
     ``cos_up`` (...) to the local normal: ``T n^2 L_sky + R L_below`` (module docstring);
-    ``sky_radiance`` and ``below_radiance`` per channel (3,)."""
-    R = fresnel_reflectance(cos_up, n, 1.0)[..., None]
+    ``sky_radiance`` and ``below_radiance`` per channel (3,); ``reflectance`` R (...) when
+    already computed (:func:`fresnel_reflectance`)."""
+    R = (fresnel_reflectance(cos_up, n, 1.0) if reflectance is None else reflectance)[..., None]
     sky = np.asarray(sky_radiance, np.float32) * np.float32(n * n)
     return (1.0 - R) * sky + R * np.asarray(below_radiance, np.float32)
 
@@ -138,11 +144,32 @@ def sun_disc_damping(k_abs: np.ndarray, path_m, n: float = N_WATER) -> np.ndarra
     return np.exp(-0.5 * blur * blur)
 
 
+#: Fixed-point iterations of :func:`preimage` (0: evaluate the ray tube at the point itself).
+PREIMAGE_ITERS = 2
+
+
+def preimage(waves: WaveField, x, y, path_m, t: float, n: float = N_WATER, iters: int | None = None):
+    """Where the sun ray that reaches (x, y) at beam path ``path_m`` crossed the surface:
+    the fixed point of ``xi = x - h alpha grad eta(xi)`` (the small-slope ray map inverted),
+    ``iters`` iterations from ``xi = x``. It converges before the first focal depth
+    (``h alpha |H| < 1``); beyond it the map folds and the iterate is one of the preimages
+    or none of them (the renormalised statistics still hold, the pattern's phase does not).
+    Checked against the Cycles photon map (``bench caustics``): evaluating the ray tube at
+    the point itself (``iters = 0``) overstates the contrast at 1 m by ~40 %."""
+    s = np.float32(1.0 - 1.0 / n) * np.maximum(np.asarray(path_m, np.float32), 0)
+    px, py = np.asarray(x, np.float32), np.asarray(y, np.float32)
+    for _ in range(PREIMAGE_ITERS if iters is None else iters):
+        gx, gy = waves.slope(px, py, t)
+        px, py = x - s * gx, y - s * gy
+    return px, py
+
+
 def _ray_tube_factor(waves: WaveField, x, y, path_m, t: float, n: float) -> np.ndarray:
-    """``1 / |det(I + h alpha H)|`` clipped to [0, CAUSTIC_MAX] (single-preimage ray map),
-    H the Hessian with each wave damped by the sun's disc."""
+    """``1 / |det(I + h alpha H)|`` at the ray's :func:`preimage`, clipped to [0, CAUSTIC_MAX]
+    (single-preimage ray map), H the Hessian with each wave damped by the sun's disc."""
     h = np.maximum(np.asarray(path_m, np.float32), 0)
     damp = sun_disc_damping(np.hypot(waves.k[:, 0], waves.k[:, 1]), h, n)
+    x, y = preimage(waves, x, y, h, t, n)
     hxx, hxy, hyy = waves.hessian(x, y, t, damp)
     s = np.float32(1.0 - 1.0 / n) * h
     det = (1 + s * hxx) * (1 + s * hyy) - (s * hxy) ** 2

@@ -38,13 +38,44 @@ def caustic_table(seed: int, wind_mps: float) -> np.ndarray:
     return sf.mean_ray_tube_factor(waves_of(seed, wind_mps))
 
 
-def add_surface(rgb, range_m, depth, wp, rays, K, T_world_cam, surface_z_m: float, t: float, below_radiance):
+#: Pixel stride of the wave-slope grid of :func:`add_surface` (2: slopes on every second
+#: pixel in x and y, bilinearly interpolated; 1: every pixel). The waves' shortest
+#: wavelength (0.25 m) spans many pixels wherever the surface is near enough to show it.
+SLOPE_STRIDE = 2
+
+
+@functools.lru_cache(maxsize=4)
+def _upsample_maps(h: int, w: int, stride: int):
+    """cv2.remap maps taking a grid sampled at every ``stride``-th pixel to (h, w)."""
+    u, v = np.meshgrid(np.arange(w, dtype=np.float32) / stride, np.arange(h, dtype=np.float32) / stride)
+    return u, v
+
+
+def surface_slopes(waves: sf.WaveField, cam_xy, rays, r_all, t: float, stride: int):
+    """Wave slopes (sx, sy), each (H, W) float32, where each pixel's ray meets the mean surface
+    (``r_all`` (H, W) range, inf where it does not; ``rays`` (H, W, 3) world unit vectors),
+    evaluated on every ``stride``-th pixel and interpolated bilinearly (0 where no ray rises)."""
+    import cv2
+    rh, dh = r_all[::stride, ::stride], rays[::stride, ::stride]
+    ok = np.isfinite(rh)
+    g = np.zeros((*rh.shape, 2), np.float32)
+    r = rh[ok].astype(np.float32)
+    sx, sy = waves.slope(np.float32(cam_xy[0]) + r * dh[..., 0][ok], np.float32(cam_xy[1]) + r * dh[..., 1][ok], t)
+    g[ok, 0], g[ok, 1] = sx, sy
+    if stride > 1:
+        g = cv2.remap(g, *_upsample_maps(*r_all.shape, stride), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return g[..., 0], g[..., 1]
+
+
+def add_surface(rgb, range_m, depth, wp, rays, K, T_world_cam, surface_z_m: float, t: float, below_radiance,
+                stride: int | None = None):
     """Pixels that see the surface from below: (rgb, range_m, depth) new arrays; the inputs
     when none does. ``rays`` (H, W, 3) unit world directions of the pixels; K (3, 3);
     ``below_radiance`` (3,) the veil at the camera's depth. Inside Snell's window: the window
     radiance at the surface's range, depth 0. Totally reflected pixels: the clean scene along
     the mirrored ray when the camera's own image holds that direction (:func:`_mirror`),
-    else ``below_radiance`` (open water)."""
+    else ``below_radiance`` (open water). Wave slopes on the :data:`SLOPE_STRIDE` grid
+    (``stride`` overrides it)."""
     T = np.asarray(T_world_cam, float)
     d = rays
     rise = np.float32(max(surface_z_m - T[2, 3], 0.0))
@@ -55,20 +86,19 @@ def add_surface(rgb, range_m, depth, wp, rays, K, T_world_cam, surface_z_m: floa
     up = np.isfinite(r_all) & ~(range_m < r_all)
     if not up.any():
         return rgb, range_m, depth
-    r = r_all[up].astype(np.float32)
-    du = d[up]
-    x = np.float32(T[0, 3]) + r * du[:, 0]
-    y = np.float32(T[1, 3]) + r * du[:, 1]
-    sx, sy = waves_of(wp.wave_seed, wp.wind_mps).slope(x, y, t)
-    n = np.stack([-sx, -sy, np.ones_like(sx)], -1)
-    n /= np.linalg.norm(n, axis=-1, keepdims=True)
-    cos_up = np.einsum("ij,ij->i", du, n)
+    gx, gy = surface_slopes(waves_of(wp.wave_seed, wp.wind_mps), T[:2, 3], d, np.where(up, r_all, np.inf), t,
+                            SLOPE_STRIDE if stride is None else stride)
+    r, du, sx, sy = r_all[up].astype(np.float32), d[up], gx[up], gy[up]
+    norm = np.sqrt(sx * sx + sy * sy + 1)
+    cos_up = (du[:, 2] - sx * du[:, 0] - sy * du[:, 1]) / norm
     depth = np.array(np.broadcast_to(depth, range_m.shape), np.float32)
-    J = sf.window_radiance(cos_up, [wp.sky_radiance] * 3, below_radiance)
-    rr, hh = r.copy(), np.zeros_like(r)
-    tir = sf.fresnel_reflectance(cos_up) >= 1.0
+    R = sf.fresnel_reflectance(cos_up)
+    J = sf.window_radiance(cos_up, [wp.sky_radiance] * 3, below_radiance, reflectance=R)
+    rr, hh = r, np.zeros_like(r)
+    tir = R >= 1.0
     if tir.any():
-        m_rgb, m_r, m_h, ok = _mirror(du[tir] - 2 * cos_up[tir, None] * n[tir], K, T, rgb, range_m, depth)
+        n = np.stack([-sx[tir], -sy[tir], np.ones_like(sx[tir])], -1) / norm[tir, None]
+        m_rgb, m_r, m_h, ok = _mirror(du[tir] - 2 * cos_up[tir, None] * n, K, T, rgb, range_m, depth)
         idx = np.flatnonzero(tir)[ok]
         J[idx], rr[idx], hh[idx] = m_rgb, r[idx] + m_r, m_h
     rgb, range_m = rgb.copy(), range_m.copy()
@@ -83,9 +113,10 @@ def _mirror(d_refl, K, T, rgb, range_m, depth):
     reflected ray starts at the surface point, not the camera: the parallax (the camera's
     depth) is ignored, as the mirrored pool is metres away."""
     h, w = range_m.shape
-    c = d_refl @ T[:3, :3].astype(np.float32)                  # camera frame
+    # einsum, not @: numpy's matmul of (n, 3) by (3, 3) costs ~10x more CPU here (BLAS threads)
+    c = np.einsum("ij,jk->ik", d_refl, T[:3, :3].astype(np.float32))           # camera frame
     front = c[:, 2] > 1e-3
-    uv = (c @ np.asarray(K, np.float32).T)[:, :2] / np.where(front, c[:, 2], 1)[:, None]
+    uv = np.einsum("ij,kj->ik", c, np.asarray(K, np.float32)[:2]) / np.where(front, c[:, 2], 1)[:, None]
     u, v = np.rint(uv[:, 0]).astype(np.int64), np.rint(uv[:, 1]).astype(np.int64)
     ok = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
     u, v = u[ok], v[ok]
