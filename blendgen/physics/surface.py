@@ -67,6 +67,12 @@ def fresnel_reflectance(cos_i, n1: float = N_WATER, n2: float = 1.0) -> np.ndarr
     return np.where(tir, np.float32(1.0), 0.5 * (rs + rp)).astype(np.float32)
 
 
+def _weighted_sum(a: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """``a @ w`` for a (..., n) and w (n,), without BLAS: a multi-threaded BLAS spends ~20x
+    the CPU of this on such thin products when the cores are shared (measured, OpenBLAS)."""
+    return np.multiply(a, w).sum(axis=-1)
+
+
 @dataclass(frozen=True)
 class WaveField:
     """A seeded sum of linear waves. ``amp`` (n,) m, ``k`` (n, 2) rad/m, ``omega`` (n,) rad/s,
@@ -105,8 +111,8 @@ class WaveField:
         """(d eta/dx, d eta/dy) at points x, y (same shape), time t."""
         c = self._arg(x, y, t)
         np.cos(c, out=c)
-        g = c @ (self.amp[:, None] * self.k).astype(np.float32)
-        return g[..., 0], g[..., 1]
+        w = (self.amp[:, None] * self.k).astype(np.float32)
+        return _weighted_sum(c, w[:, 0]), _weighted_sum(c, w[:, 1])
 
     def hessian(self, x, y, t: float = 0.0, damping=None):
         """(eta_xx, eta_xy, eta_yy) at x, y, t; ``damping`` (..., n) or (n,) multiplies each wave."""
@@ -115,8 +121,7 @@ class WaveField:
         if damping is not None:
             s *= np.asarray(damping, np.float32)
         kx, ky = self.k[:, 0], self.k[:, 1]
-        h = s @ (-self.amp[:, None] * np.column_stack([kx * kx, kx * ky, ky * ky])).astype(np.float32)
-        return h[..., 0], h[..., 1], h[..., 2]
+        return tuple(_weighted_sum(s, (-self.amp * kk).astype(np.float32)) for kk in (kx * kx, kx * ky, ky * ky))
 
 
 def waves_for(seed: int, wind_mps: float) -> WaveField:

@@ -219,11 +219,13 @@ def mirror_fill(rgb: np.ndarray, range_m: np.ndarray, depth, w: optics.WaterOpti
     depth light at their own ``depth`` (H,W) m), averaged, carried over their median range L
     and veiled: ``mean(J_lit) exp(-c L) + veil (1 - exp(-c L))``. Only the ``veil`` (3,) when
     the frame holds no surface (open water looking up): the depths below are dark water.
-    Without it a pool's total reflection showed black blotches in clear water."""
+    Without it a pool's total reflection showed black blotches in clear water. The mean and
+    median are taken over every 4th pixel in x and y (a frame-wide statistic)."""
+    rgb, depth, range_m = rgb[::4, ::4], np.broadcast_to(depth, range_m.shape)[::4, ::4], range_m[::4, ::4]
     hit = np.isfinite(range_m)
     if not hit.any():
         return np.asarray(veil, np.float32)
-    lit = rgb[hit] * optics.depth_light(w, np.broadcast_to(depth, range_m.shape)[hit])
+    lit = rgb[hit] * optics.depth_light(w, depth[hit])
     tr = np.exp(-np.asarray(w.c, float) * float(np.median(range_m[hit])))
     return (lit.mean(axis=0) * tr + np.asarray(veil, float) * (1.0 - tr)).astype(np.float32)
 

@@ -117,12 +117,13 @@ def _mirror(d_refl, K, T, rgb, range_m, depth):
     c = np.einsum("ij,jk->ik", d_refl, T[:3, :3].astype(np.float32))           # camera frame
     front = c[:, 2] > 1e-3
     uv = np.einsum("ij,kj->ik", c, np.asarray(K, np.float32)[:2]) / np.where(front, c[:, 2], 1)[:, None]
-    u, v = np.rint(uv[:, 0]).astype(np.int64), np.rint(uv[:, 1]).astype(np.int64)
+    u, v = np.rint(uv[:, 0]).astype(np.int32), np.rint(uv[:, 1]).astype(np.int32)
     ok = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    u, v = u[ok], v[ok]
-    ok[ok] = np.isfinite(range_m[v, u]) & (depth[v, u] > 0)
-    u, v = np.rint(uv[ok, 0]).astype(np.int64), np.rint(uv[ok, 1]).astype(np.int64)
-    return rgb[v, u], range_m[v, u], depth[v, u], ok
+    at = v[ok] * np.int32(w) + u[ok]                                       # flat pixel index
+    seen = np.isfinite(range_m.ravel()[at]) & (depth.ravel()[at] > 0)
+    ok[ok] = seen
+    at = at[seen]
+    return rgb.reshape(-1, 3)[at], range_m.ravel()[at], depth.ravel()[at], ok
 
 
 #: Width (m) of the caustic network's cells for waves of 0.25 m and up: the pattern averages
