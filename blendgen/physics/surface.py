@@ -23,13 +23,17 @@ so the point it reaches at depth ``h`` moves by ``h alpha grad eta`` and the irr
 ``E / E_0 = 1 / |det(I + h alpha Hess(eta))|`` (ray-tube area; bright lines where the
 determinant vanishes: the caustic network). The pattern's contrast
 falls with depth because (i) the sun's disc (radius 0.265 deg in air) blurs a wave of
-wavenumber ``k`` at depth ``h`` by ``exp(-(k h theta_sun / n)^2 / 2)``, and (ii) only the
-unscattered beam ``exp(-b h)`` carries it (``b`` the scattering coefficient): scattered
-light arrives from all directions. Measured irradiance fluctuations fall with depth the
-same way (Maritorena, Morel & Gentili 2000, Limnol. Oceanogr. 45(6)). Beyond the first
-focal depth the ray map folds; we evaluate one preimage per point (the point itself),
-clip the factor at folds to ``CAUSTIC_MAX`` and renormalise its area mean to 1 per depth
-(energy conservation), an approximation of summing over all preimages.
+wavenumber ``k`` at depth ``h`` by ``exp(-(k h theta_sun / n)^2 / 2)``, and (ii) light
+scattered on the way down is displaced by its scattering angle times its remaining path:
+the unscattered beam ``exp(-b h)`` carries the sharp pattern, the scattered light a
+pattern of long waves only (small-angle theory, :func:`scattered_mtf`; Wells 1973).
+Measured irradiance fluctuations fall with depth the same way (Maritorena, Morel &
+Gentili 2000, Limnol. Oceanogr. 45(6)). The ray tube is evaluated at the ray's preimage on
+the surface (two fixed-point steps, :func:`preimage`); beyond the first focal depth the
+map folds and we keep that one preimage, clip the factor at folds to ``CAUSTIC_MAX`` and
+renormalise its area mean to 1 per depth (energy conservation), an approximation of
+summing over all preimages. Judge: ``dockbench bench caustics`` (Cycles photon map,
+:mod:`blendgen.blender.caustic_reference`).
 """
 from __future__ import annotations
 
@@ -169,46 +173,96 @@ def preimage(waves: WaveField, x, y, path_m, t: float, n: float = N_WATER, iters
     return px, py
 
 
-def _ray_tube_factor(waves: WaveField, x, y, path_m, t: float, n: float) -> np.ndarray:
+def scattered_mtf(k_abs: np.ndarray, path_m, scattering: float, g: float) -> np.ndarray:
+    """Share of each wave's focusing kept by the sunlight scattered on the way down,
+    (...) -> (..., n), small-angle theory (Wells 1973, "Theory of small angle scattering",
+    AGARD LS-61): a photon scattered at height ``s`` above the point is displaced by ``s theta``,
+    so a pattern of wavenumber k keeps ``M_k = exp(-b [h - (1 - exp(-a k h)) / (a k)])`` of
+    its contrast in the whole (unscattered + scattered) beam, with ``exp(-a k theta)`` the
+    2-D transform of the small-angle Henyey-Greenstein phase function
+    (``1 + g^2 - 2g cos theta ~ (1-g)^2 + g theta^2``: a Poisson kernel of width
+    ``a = (1 - g) / sqrt(g)`` rad). Returns the scattered part alone,
+    ``(M_k - e^{-bh}) / (1 - e^{-bh})``: 1 for long waves, 0 for short ones."""
+    h = np.maximum(np.asarray(path_m, np.float32), np.float32(1e-6))[..., None]
+    ak = np.float32((1.0 - g) / math.sqrt(g)) * np.asarray(k_abs, np.float32)
+    b = np.float32(scattering)
+    q = -np.expm1(-ak * h) / ak                               # (1 - exp(-a k h)) / (a k)
+    return (np.exp(-b * h) * np.expm1(b * q) / -np.expm1(-b * h)).astype(np.float32)
+
+
+def _ray_tube_factors(waves: WaveField, x, y, path_m, t: float, n: float, dampings) -> list:
     """``1 / |det(I + h alpha H)|`` at the ray's :func:`preimage`, clipped to [0, CAUSTIC_MAX]
-    (single-preimage ray map), H the Hessian with each wave damped by the sun's disc."""
+    (single-preimage ray map), H the Hessian with each wave damped by each of ``dampings``
+    ((..., n) arrays); one factor array per damping."""
     h = np.maximum(np.asarray(path_m, np.float32), 0)
-    damp = sun_disc_damping(np.hypot(waves.k[:, 0], waves.k[:, 1]), h, n)
     x, y = preimage(waves, x, y, h, t, n)
-    hxx, hxy, hyy = waves.hessian(x, y, t, damp)
+    sn = np.sin(waves._arg(x, y, t))
     s = np.float32(1.0 - 1.0 / n) * h
-    det = (1 + s * hxx) * (1 + s * hyy) - (s * hxy) ** 2
-    return np.minimum(1.0 / np.maximum(np.abs(det), np.float32(1.0 / CAUSTIC_MAX)), np.float32(CAUSTIC_MAX))
+    kx, ky = waves.k[:, 0], waves.k[:, 1]
+    out = []
+    for damp in dampings:
+        sd = sn * damp
+        hxx, hxy, hyy = (_weighted_sum(sd, (-waves.amp * kk).astype(np.float32)) for kk in (kx * kx, kx * ky, ky * ky))
+        det = (1 + s * hxx) * (1 + s * hyy) - (s * hxy) ** 2
+        out.append(np.minimum(1.0 / np.maximum(np.abs(det), np.float32(1.0 / CAUSTIC_MAX)), np.float32(CAUSTIC_MAX)))
+    return out
+
+
+def _dampings(waves: WaveField, path_m, n: float, scattering: float, g: float) -> list:
+    """Per-wave dampings: the sun's disc (unscattered beam); with scattering, also the sun's
+    disc times :func:`scattered_mtf` (scattered beam)."""
+    k = np.hypot(waves.k[:, 0], waves.k[:, 1])
+    sun = sun_disc_damping(k, path_m, n)
+    return [sun] if scattering <= 0 else [sun, sun * scattered_mtf(k, path_m, scattering, g)]
 
 
 #: Beam paths (m) of the energy table of :func:`mean_ray_tube_factor`.
 MEAN_TABLE_PATHS = np.concatenate([[0.0], np.geomspace(0.05, 200.0, 47)]).astype(np.float32)
 
 
-def mean_ray_tube_factor(waves: WaveField, n: float = N_WATER, grid: int = 128) -> np.ndarray:
-    """Area mean of the ray-tube factor at each of ``MEAN_TABLE_PATHS`` (48,), over a patch
+@dataclass(frozen=True)
+class CausticTable:
+    """Area means (48,) of the unscattered and scattered beams' ray-tube factors at
+    ``MEAN_TABLE_PATHS`` for one water (``scattering`` 1/m, HG ``g``)."""
+    scattering: float
+    g: float
+    means: np.ndarray                     # (1 or 2, 48)
+
+
+def mean_ray_tube_factor(waves: WaveField, n: float = N_WATER, grid: int = 128, scattering: float = 0.0,
+                         g: float = 0.9) -> CausticTable:
+    """Area mean of the ray-tube factors at each of ``MEAN_TABLE_PATHS``, over a patch
     three longest wavelengths wide. Beyond the first focal depth the single-preimage map
     counts the folded sheets wrongly and its mean leaves 1; dividing by this table restores
     energy conservation (mean irradiance = the flat-surface value) depth by depth."""
     side = 3 * 2 * np.pi / float(np.hypot(waves.k[:, 0], waves.k[:, 1]).min())
     x, y = np.meshgrid(*(np.linspace(0, side, grid, endpoint=False, dtype=np.float32),) * 2)
-    return np.array([float(_ray_tube_factor(waves, x, y, h, 0.0, n).mean()) for h in MEAN_TABLE_PATHS],
-                    np.float32)
+    cols = [[float(m.mean()) for m in _ray_tube_factors(waves, x, y, h, 0.0, n, _dampings(waves, h, n, scattering, g))]
+            for h in MEAN_TABLE_PATHS]
+    return CausticTable(float(scattering), float(g), np.array(cols, np.float32).T)
 
 
 def caustic_factor(waves: WaveField, x, y, path_m, t: float, scattering: float = 0.0,
-                   n: float = N_WATER, mean_table: np.ndarray | None = None) -> np.ndarray:
+                   n: float = N_WATER, mean_table: CausticTable | None = None, g: float = 0.9) -> np.ndarray:
     """Sun irradiance at points over its flat-surface value (module docstring), (x.shape):
-    ``1 + exp(-b h) (m / <m>(h) - 1)`` with ``m`` the ray-tube factor of the sun-disc-damped
-    surface, ``<m>(h)`` its area mean (:func:`mean_ray_tube_factor`: energy conservation) and
-    ``exp(-b h)`` the unscattered share of the beam, the only one that carries the pattern.
-    ``x``, ``y``: where each point's sun ray crosses the surface; ``path_m`` its beam path
-    below the surface (m); ``mean_table`` the cached table of these waves (else computed)."""
+    ``1 + e^{-bh} (m_0 / <m_0> - 1) + (1 - e^{-bh}) (m_s / <m_s> - 1)``: ``m_0`` the ray-tube
+    factor of the sun-disc-damped surface carried by the unscattered beam ``e^{-bh}``, ``m_s``
+    that of the surface further damped by :func:`scattered_mtf` carried by the scattered
+    light (``b`` the scattering coefficient 1/m, HG ``g``), ``<.>(h)`` their area means
+    (:func:`mean_ray_tube_factor`: energy conservation). ``x``, ``y``: where each point's sun
+    ray crosses the surface; ``path_m`` its beam path below the surface (m); ``mean_table``
+    the cached table of these waves and this water (else computed)."""
+    table = mean_ray_tube_factor(waves, n, scattering=scattering, g=g) if mean_table is None else mean_table
+    if (table.scattering, table.g) != (float(scattering), float(g)) and scattering > 0:
+        raise ValueError(f"caustic table is for scattering {table.scattering}, g {table.g}; "
+                         f"called with {scattering}, {g}")
     h = np.maximum(np.asarray(path_m, np.float32), 0)
-    table = mean_ray_tube_factor(waves, n) if mean_table is None else mean_table
-    mean = np.interp(h, MEAN_TABLE_PATHS, table).astype(np.float32)
-    m = _ray_tube_factor(waves, x, y, h, t, n) / mean
-    return 1 + np.exp(-np.float32(scattering) * h) * (m - 1)
+    ms = _ray_tube_factors(waves, x, y, h, t, n, _dampings(waves, h, n, scattering, g))
+    beam = np.exp(-np.float32(scattering) * h)
+    out = 1 + beam * (ms[0] / np.interp(h, MEAN_TABLE_PATHS, table.means[0]).astype(np.float32) - 1)
+    if len(ms) > 1:
+        out += (1 - beam) * (ms[1] / np.interp(h, MEAN_TABLE_PATHS, table.means[1]).astype(np.float32) - 1)
+    return out
 
 
 def refracted_sun(sun_travel_dir, n: float = N_WATER) -> np.ndarray:

@@ -204,7 +204,7 @@ def _world(passes: dict, state: SequenceState, w: optics.WaterOptics, K, T_world
                      np.asarray(T_world_cam, float)[:3, :3].astype(np.float32))     # einsum: @ is slower here
     if wp.caustics:
         rgb = world_post.add_caustics(rgb, passes.get("albedo"), range_m, depth, wp, rays, K, T_world_cam, t,
-                                      float(np.mean(w.sigma_s)))
+                                      float(np.mean(w.sigma_s)), float(w.g))
     if wp.surface:
         veil = w.B_inf * state.water_opts["irradiance"] * optics.depth_light(w, veil_depth)
         below = mirror_fill(rgb, range_m, depth, w, veil)

@@ -14,7 +14,7 @@ entirely when the sequence has them off (``SequencePost.world`` None or False).
   reference traces the real reflection.
 - Caustics: each surface point's sun-lit part ``J - albedo L_amb`` is multiplied by the
   focusing factor of its sun ray (``surface.caustic_factor``) at its depth, with the
-  water's scattering coefficient (mean over RGB) as the turbidity.
+  water's scattering coefficient (mean over RGB) and phase mean cosine ``g`` as the turbidity.
 """
 from __future__ import annotations
 
@@ -32,10 +32,10 @@ def waves_of(seed: int, wind_mps: float) -> sf.WaveField:
 
 
 @functools.lru_cache(maxsize=8)
-def caustic_table(seed: int, wind_mps: float) -> np.ndarray:
-    """Energy table of the sequence's caustics (``surface.mean_ray_tube_factor``), once per
-    sequence (~0.2 s)."""
-    return sf.mean_ray_tube_factor(waves_of(seed, wind_mps))
+def caustic_table(seed: int, wind_mps: float, scattering: float = 0.0, g: float = 0.9) -> sf.CausticTable:
+    """Energy table of the sequence's caustics in its water (``surface.mean_ray_tube_factor``),
+    once per sequence (~0.2-0.4 s)."""
+    return sf.mean_ray_tube_factor(waves_of(seed, wind_mps), scattering=scattering, g=g)
 
 
 #: Pixel stride of the wave-slope grid of :func:`add_surface` (2: slopes on every second
@@ -147,7 +147,7 @@ def footprint_fade(rays, range_m, px_rad: float) -> np.ndarray:
     return np.where(np.isfinite(fade), fade, 0).astype(np.float32)
 
 
-def add_caustics(rgb, albedo, range_m, depth, wp, rays, K, T_world_cam, t: float, scattering: float):
+def add_caustics(rgb, albedo, range_m, depth, wp, rays, K, T_world_cam, t: float, scattering: float, g: float = 0.9):
     """Sun-lit surfaces times their focusing factor (module docstring); a new (H, W, 3) array.
     ``depth`` (H, W) metres below the surface of each pixel's surface point; ``rays`` (H, W, 3)
     unit world directions. The factor is evaluated on every second pixel in x and y and
@@ -169,8 +169,8 @@ def add_caustics(rgb, albedo, range_m, depth, wp, rays, K, T_world_cam, t: float
     y = np.float32(T[1, 3]) + r * d[:, 1] + h * back[1]
     path = h / np.float32(-sun[2])                             # slant path of the beam to the point
     gain = np.zeros(hit.shape, np.float32)                     # m - 1 on the half grid
-    gain[hit] = sf.caustic_factor(waves_of(wp.wave_seed, wp.wind_mps), x, y, path, t, scattering,
-                                  mean_table=caustic_table(wp.wave_seed, wp.wind_mps)) - 1
+    gain[hit] = sf.caustic_factor(waves_of(wp.wave_seed, wp.wind_mps), x, y, path, t, scattering, g=g,
+                                  mean_table=caustic_table(wp.wave_seed, wp.wind_mps, scattering, g)) - 1
     gain *= footprint_fade(rays[::2, ::2], range_m[::2, ::2], 2.0 / float(K[0, 0]))
     hgt, wid = range_m.shape
     gain = cv2.resize(gain, (wid, hgt), interpolation=cv2.INTER_LINEAR)

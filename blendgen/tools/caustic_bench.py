@@ -65,14 +65,14 @@ def run_reference(spec: dict, out: Path) -> dict:
     return dict(np.load(out))
 
 
-def fast_map(spec: dict, sigma_s: float, ss: int = 4) -> np.ndarray:
+def fast_map(spec: dict, sigma_s: float, g: float = 0.9, ss: int = 4) -> np.ndarray:
     """The fast caustic factor on the reference's bins (bins, bins), each the mean of ss x ss
     samples; sun at the zenith: a floor point's ray crosses the surface straight above it."""
     waves = sf.waves_for(spec["wave_seed"], spec["wind_mps"])
     nb, half = int(spec["bins"]), spec["patch_m"] / 2
     c = np.linspace(-half, half, nb * ss, endpoint=False, dtype=np.float32) + np.float32(half / nb / ss)
     x, y = np.meshgrid(c, c)
-    f = sf.caustic_factor(waves, x, y, spec["depth_m"], spec["t"], sigma_s)
+    f = sf.caustic_factor(waves, x, y, spec["depth_m"], spec["t"], sigma_s, g=g)
     return f.reshape(nb, ss, nb, ss).mean(axis=(1, 3))
 
 
@@ -80,7 +80,7 @@ def compare(ref: dict, spec: dict, water: dict) -> dict:
     """One row of the table (module docstring)."""
     E, noise = ref["E"], float(ref["E2"].mean())
     var_true = max(float(E.var()) - noise, 0.0)
-    F = fast_map(spec, water["sigma_s"])
+    F = fast_map(spec, water["sigma_s"], water["g"])
     r = float(np.corrcoef(E.ravel(), F.ravel())[0, 1])
     share = math.sqrt(var_true / float(E.var())) if E.var() > 0 else 0.0
     return {"water": water["name"], "depth_m": spec["depth_m"],
@@ -92,7 +92,7 @@ def compare(ref: dict, spec: dict, water: dict) -> dict:
             "photons": int(ref["photons"])}
 
 
-def run(out: Path, depths=(1.0, 2.0, 4.0), waters=("IB", "1C"), size: int = 1024, renders: int = 8,
+def run(out: Path, depths=(1.0, 2.0, 4.0), waters=("IB", "1C"), size: int = 1024, renders: int = 4,
         echo=print) -> list[dict]:
     """The table over depths x waters; reference maps cached under ``out``."""
     rows = []
