@@ -323,3 +323,17 @@ def test_half_resolution_slopes_change_the_image_by_few_dn(monkeypatch):
     d = np.abs(sensor.to_uint8(half * scale).astype(int) - sensor.to_uint8(full * scale).astype(int))
     assert d.mean() < 0.3 and np.percentile(d, 99) <= 4 and (d > 10).mean() < 0.005, (d.mean(), d.max())
     assert np.abs(half - full).max() > 0                     # the stride is really in use
+
+
+def test_scattered_mtf_limits():
+    """Small-angle MTF of the scattered light: long waves keep their pattern (-> 1), short ones
+    lose it (-> 0); more forward scattering keeps more; isotropic scattering keeps none; in the
+    single-scattering limit it is (1 - exp(-a k h)) / (a k h) (analytic, 1e-3)."""
+    k = np.array([1e-4, 1.0, 10.0, 1e4], np.float32)
+    m = sf.scattered_mtf(k, 2.0, 0.3, 0.9)
+    assert m[0] == pytest.approx(1.0, abs=1e-3) and m[-1] < 1e-3 and np.all(np.diff(m) < 0)
+    assert np.all(sf.scattered_mtf(k, 2.0, 0.3, 0.95)[1:3] > m[1:3])
+    assert not sf.scattered_mtf(k, 2.0, 0.3, 0.0).any()
+    a = (1 - 0.9) / math.sqrt(0.9)
+    single = sf.scattered_mtf(np.float32([10.0]), 2.0, 1e-5, 0.9)[0]
+    assert single == pytest.approx((1 - math.exp(-a * 10 * 2)) / (a * 10 * 2), rel=1e-3)

@@ -144,6 +144,30 @@ def window_radiance(cos_up, sky_radiance, below_radiance, n: float = N_WATER, re
     return (1.0 - R) * sky + R * np.asarray(below_radiance, np.float32)
 
 
+def sun_disc_radiance(d_up, normal, cos_up, reflectance, to_sun, irradiance: float, px_rad: float,
+                      n: float = N_WATER) -> np.ndarray:
+    """Radiance (m,) of the sun's disc seen from below along rays ``d_up`` (m, 3) (world, unit)
+    meeting the surface of unit ``normal`` (m, 3) at incidence cosine ``cos_up`` (m,) with
+    Fresnel ``reflectance`` (m,) (1: total internal reflection, no sun): the ray refracted into
+    the air (Snell, vector form) looks at the disc of radius ``SUN_RADIUS_RAD`` and radiance
+    ``E / (pi r^2)``, seen through the surface as ``(1 - R) n^2 L`` (as the sky,
+    :func:`window_radiance`). Anti-aliased over the pixel: ``px_rad`` the pixel's angle in
+    water, stretched by refraction to ``p = px n cos_w / cos_a`` in air; the disc's edge is a
+    linear ramp one ``p`` wide and a disc smaller than half a pixel is spread over it with
+    its energy kept (radius ``max(r, p/2)``, radiance scaled by the area ratio)."""
+    ci = np.clip(np.asarray(cos_up, np.float32), 0.0, 1.0)
+    k = 1.0 - np.float32(n * n) * (1.0 - ci * ci)
+    cos_a = np.sqrt(np.maximum(k, 0.0))
+    t = np.float32(n) * d_up + (cos_a - np.float32(n) * ci)[:, None] * normal        # into the air
+    s = np.asarray(to_sun, np.float32) / np.float32(np.linalg.norm(to_sun))
+    delta = np.arccos(np.clip(np.einsum("ij,j->i", t, s), -1.0, 1.0))
+    p = np.float32(px_rad * n) * ci / np.maximum(cos_a, np.float32(0.05))
+    r = np.maximum(np.float32(SUN_RADIUS_RAD), p / 2)
+    cover = np.clip((r - delta) / np.maximum(p, np.float32(1e-9)) + 0.5, 0.0, 1.0)
+    L = np.float32(irradiance) / (np.float32(math.pi) * r * r)
+    return np.where(k > 0, (1.0 - reflectance) * np.float32(n * n) * L * cover, 0.0).astype(np.float32)
+
+
 def sun_disc_damping(k_abs: np.ndarray, path_m, n: float = N_WATER) -> np.ndarray:
     """Share of each wave's focusing left at beam path ``path_m`` (...) -> (..., n): the sun's
     disc (angular radius ``SUN_RADIUS_RAD / n`` in water) blurs a wave of wavenumber k by
@@ -182,9 +206,11 @@ def scattered_mtf(k_abs: np.ndarray, path_m, scattering: float, g: float) -> np.
     2-D transform of the small-angle Henyey-Greenstein phase function
     (``1 + g^2 - 2g cos theta ~ (1-g)^2 + g theta^2``: a Poisson kernel of width
     ``a = (1 - g) / sqrt(g)`` rad). Returns the scattered part alone,
-    ``(M_k - e^{-bh}) / (1 - e^{-bh})``: 1 for long waves, 0 for short ones."""
+    ``(M_k - e^{-bh}) / (1 - e^{-bh})``: 1 for long waves, 0 for short ones and for ``g <= 0``."""
     h = np.maximum(np.asarray(path_m, np.float32), np.float32(1e-6))[..., None]
-    ak = np.float32((1.0 - g) / math.sqrt(g)) * np.asarray(k_abs, np.float32)
+    if g <= 0.0 or scattering <= 0.0:          # isotropic (or back-) scattering: no pattern survives
+        return np.zeros(np.broadcast_shapes(h.shape, np.shape(k_abs)), np.float32)
+    ak = np.float32((1.0 - min(g, 0.9999)) / math.sqrt(g)) * np.asarray(k_abs, np.float32)
     b = np.float32(scattering)
     q = -np.expm1(-ak * h) / ak                               # (1 - exp(-a k h)) / (a k)
     return (np.exp(-b * h) * np.expm1(b * q) / -np.expm1(-b * h)).astype(np.float32)

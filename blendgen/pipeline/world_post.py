@@ -94,6 +94,10 @@ def add_surface(rgb, range_m, depth, wp, rays, K, T_world_cam, surface_z_m: floa
     depth = np.array(np.broadcast_to(depth, range_m.shape), np.float32)
     R = sf.fresnel_reflectance(cos_up)
     J = sf.window_radiance(cos_up, [wp.sky_radiance] * 3, below_radiance, reflectance=R)
+    if wp.sun_irradiance > 0:                                 # the sun's disc in Snell's window
+        nrm = np.stack([-sx, -sy, np.ones_like(sx)], -1) / norm[:, None]
+        J += sf.sun_disc_radiance(du, nrm, cos_up, R, -np.asarray(wp.sun_travel_dir, np.float32),
+                                  wp.sun_irradiance, 1.0 / float(K[0, 0]))[:, None]
     rr, hh = r, np.zeros_like(r)
     tir = R >= 1.0
     if tir.any():
