@@ -186,7 +186,11 @@ def add_water_surface(desc: dict) -> bpy.types.Object:
     waves = waves_for(int(desc.get("wave_seed", 0)), float(desc.get("wind_mps", 0.0)))
     if np.any(waves.amp > 0):
         bump = _node(nt, "ShaderNodeBump", Strength=1.0, Distance=1.0)
-        nt.links.new(_wave_height(nt, waves), bump.inputs["Height"])
+        # Cycles bumps a back face along its own (downward) normal, which mirrors the waves
+        # (measured: normal pass from below (-sx, -sy, -1) instead of (sx, sy, -1)); seen
+        # from below (the camera's side) the height is negated so both sides see eta.
+        side = _math(nt, "MULTIPLY_ADD", nt.nodes.new("ShaderNodeNewGeometry").outputs["Backfacing"], -2.0, 1.0)
+        nt.links.new(_math(nt, "MULTIPLY", _wave_height(nt, waves), side), bump.inputs["Height"])
         nt.links.new(bump.outputs["Normal"], glass.inputs["Normal"])
     out = nt.nodes.new("ShaderNodeOutputMaterial")
     nt.links.new(glass.outputs["BSDF"], out.inputs["Surface"])
