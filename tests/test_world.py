@@ -430,3 +430,29 @@ def test_rough_window_edge_same_waves_fast_and_reference(tmp_path):
     for lo, hi, tol in ((0, 40, 0.05), (40, 48, 0.05), (48, 52, 0.15)):     # 48-52: the edge itself,
         ring = (zen >= lo) & (zen < hi)                                     # slopes on the half grid
         assert float(fast[ring].mean()) == pytest.approx(float(ref[ring].mean()), rel=tol), (lo, hi)
+
+
+def test_sun_glint_follows_the_surface_and_its_switch():
+    """scene.world.sun_glint null: the sun's disc (irradiance scene.sun_strength) in physical
+    mode with the surface; false, or the surface off: 0 (the glint code is not entered);
+    the reference's surface job carries the disc only then."""
+    traj = [{"kind": "linear", "id": "a"}]
+
+    def post(world):
+        exp = Experiment.model_validate({"name": "w", "image_formation": "physical", "trajectories": traj,
+                                         "scene": {"sun_strength": 5.0, "world": world}})
+        return exp, plan.condition_post(exp, exp.conditions[0], 0)
+    exp, on = post({})
+    assert on.world.sun_irradiance == 5.0 and plan.water_surface(exp, on)["sun"]["irradiance"] == 5.0
+    for world in ({"sun_glint": False}, {"surface": False}):
+        exp, off = post(world)
+        assert off.world.sun_irradiance == 0.0
+        assert plan.water_surface(exp, off) is None or plan.water_surface(exp, off)["sun"] is None
+
+
+def test_no_sun_disc_when_its_irradiance_is_zero(monkeypatch):
+    """sun_irradiance 0: surface.sun_disc_radiance is never called."""
+    def boom(*a, **k):
+        raise AssertionError("sun disc computed while off")
+    monkeypatch.setattr(sf, "sun_disc_radiance", boom)
+    _open_water_up(_post(_world()))
