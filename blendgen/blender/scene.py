@@ -242,7 +242,7 @@ def build(desc: dict) -> bpy.types.Scene:
         water.add_water_volume(desc["water_volume"])
     if desc.get("water_surface"):  # reference fidelity: a refracting surface with the sky above
         world.add_water_surface(desc["water_surface"])
-        world.world_sky_through_surface(env, desc["water_surface"]["sky_radiance"])
+        world.world_sky_through_surface(env, desc["water_surface"]["sky_radiance"], desc["water_surface"].get("sun"))
     add_sun("sun", desc["sun"]["direction"], desc["sun"]["strength"])
     if desc["fill"]["strength"] > 0:
         add_sun("fill", desc["fill"]["direction"], desc["fill"]["strength"], shadows=False)

@@ -186,7 +186,11 @@ def add_water_surface(desc: dict) -> bpy.types.Object:
     waves = waves_for(int(desc.get("wave_seed", 0)), float(desc.get("wind_mps", 0.0)))
     if np.any(waves.amp > 0):
         bump = _node(nt, "ShaderNodeBump", Strength=1.0, Distance=1.0)
-        nt.links.new(_wave_height(nt, waves), bump.inputs["Height"])
+        # Cycles bumps a back face along its own (downward) normal, which mirrors the waves
+        # (measured: normal pass from below (-sx, -sy, -1) instead of (sx, sy, -1)); seen
+        # from below (the camera's side) the height is negated so both sides see eta.
+        side = _math(nt, "MULTIPLY_ADD", nt.nodes.new("ShaderNodeNewGeometry").outputs["Backfacing"], -2.0, 1.0)
+        nt.links.new(_math(nt, "MULTIPLY", _wave_height(nt, waves), side), bump.inputs["Height"])
         nt.links.new(bump.outputs["Normal"], glass.inputs["Normal"])
     out = nt.nodes.new("ShaderNodeOutputMaterial")
     nt.links.new(glass.outputs["BSDF"], out.inputs["Surface"])
@@ -236,21 +240,40 @@ def set_wave_time(t: float) -> None:
         node.outputs[0].default_value = float(t)
 
 
-def world_sky_through_surface(world: bpy.types.World, sky_radiance: float) -> None:
+def world_sky_through_surface(world: bpy.types.World, sky_radiance: float, sun: dict | None = None) -> None:
     """Make the world return ``n^2 sky_radiance`` (``sky_radiance`` the uniform sky's, W/m^2/sr)
     to rays that left the water through the surface (transmission rays), keeping its other
     radiance for the rest. The ``n^2``: radiance over n^2 is invariant across an interface
     (Nicodemus 1963), and Cycles' refraction does not apply it (measured: a sky of radiance L
-    seen from below renders as ``T L``), so the sky carries it."""
+    seen from below renders as ``T L``), so the sky carries it. ``sun`` (``to_sun`` (3,)
+    world unit vector, ``irradiance`` W/m^2 normal to the beam): the sun's disc, radius
+    ``SUN_RADIUS_RAD``, radiance ``E / (pi r^2)`` (times n^2), for those rays too: the scene's
+    sun lamp is a delta light that a refracted camera ray cannot hit."""
     nt = world.node_tree
     out = next(n for n in nt.nodes if n.bl_idname == "ShaderNodeOutputWorld")
     old = out.inputs["Surface"].links[0].from_socket if out.inputs["Surface"].links else None
     path = nt.nodes.new("ShaderNodeLightPath")
     sky = _node(nt, "ShaderNodeBackground", Strength=float(sky_radiance) * N_WATER ** 2)
     sky.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+    if sun is not None and float(sun["irradiance"]) > 0:
+        nt.links.new(_sun_disc_strength(nt, sun, float(sky_radiance)), sky.inputs["Strength"])
     mix = nt.nodes.new("ShaderNodeMixShader")
     nt.links.new(path.outputs["Is Transmission Ray"], mix.inputs["Fac"])
     if old is not None:
         nt.links.new(old, mix.inputs[1])
     nt.links.new(sky.outputs["Background"], mix.inputs[2])
     nt.links.new(mix.outputs["Shader"], out.inputs["Surface"])
+
+
+def _sun_disc_strength(nt, sun: dict, sky_radiance: float):
+    """``n^2 (L_sky + L_sun [angle(ray, to_sun) < SUN_RADIUS_RAD])`` as a world-shader value."""
+    from blendgen.physics.surface import SUN_RADIUS_RAD
+    coord = nt.nodes.new("ShaderNodeTexCoord")                  # world: Generated = ray direction
+    to_sun = np.asarray(sun["to_sun"], float)
+    dot = nt.nodes.new("ShaderNodeVectorMath")
+    dot.operation = "DOT_PRODUCT"
+    dot.inputs[1].default_value = tuple(to_sun / np.linalg.norm(to_sun))
+    nt.links.new(coord.outputs["Generated"], dot.inputs[0])
+    inside = _math(nt, "GREATER_THAN", dot.outputs["Value"], math.cos(SUN_RADIUS_RAD))
+    l_sun = float(sun["irradiance"]) / (math.pi * SUN_RADIUS_RAD ** 2)
+    return _math(nt, "MULTIPLY_ADD", inside, l_sun * N_WATER ** 2, sky_radiance * N_WATER ** 2)

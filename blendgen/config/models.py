@@ -214,6 +214,9 @@ class WorldLook(Strict):
     caustics: Optional[bool] = Field(None, description="sunlight focused by the surface waves on floor, "
                                                         "walls and dock")
     textures: Optional[bool] = Field(None, description="tiled pool, painted/metal dock, sand-and-rock seabed")
+    sun_glint: Optional[bool] = Field(None, description="the sun's disc (0.265 deg radius, irradiance "
+                                                         "scene.sun_strength) seen through Snell's window; "
+                                                         "needs the surface")
     wind_mps: float = Field(1.0, ge=0.0, le=20.0, description="wind speed setting the surface slope "
                                                               "(Cox-Munk mean-square slope 0.003 + 5.12e-3 U)")
     wave_seed: Optional[int] = Field(None, ge=0, description="seed of the surface waves; null: the experiment seed")

@@ -55,6 +55,9 @@ class WorldPost(Strict):
     sky_radiance: float = Field(ge=0.0, description="uniform sky radiance above the surface")
     ambient_radiance: float = Field(ge=0.0, description="the ambient term already in the clean render")
     sun_travel_dir: Vec3 = Field(description="direction the sunlight travels in (world, unit, in air)")
+    sun_irradiance: float = Field(0.0, ge=0.0, description="the sun's irradiance normal to its beam above the "
+                                                            "surface (W/m^2), seen as its disc through Snell's "
+                                                            "window; 0: no sun disc")
 
 
 class SequencePost(Strict):
@@ -451,7 +454,8 @@ def world_post(exp: Experiment) -> WorldPost | None:
     return WorldPost(surface=surface, caustics=caustics, wind_mps=w.wind_mps,
                      wave_seed=w.wave_seed if w.wave_seed is not None else exp.seed, sky_radiance=sky,
                      ambient_radiance=ambient_radiance(exp) if exp.render.fidelity == "fast" else 0.0,
-                     sun_travel_dir=_sun_dir(s.sun_elevation_deg, s.sun_azimuth_deg))
+                     sun_travel_dir=_sun_dir(s.sun_elevation_deg, s.sun_azimuth_deg),
+                     sun_irradiance=s.sun_strength if surface and world_on(exp, "sun_glint") else 0.0)
 
 
 def world_look(exp: Experiment) -> dict:
@@ -474,8 +478,9 @@ def water_surface(exp: Experiment, post: SequencePost) -> dict | None:
         centre = [0.0, 0.0]
     else:
         half, centre = [60.0, 60.0], list(s.dock.position_xy_m)
+    sun = {"to_sun": [-v for v in wp.sun_travel_dir], "irradiance": wp.sun_irradiance} if wp.sun_irradiance > 0 else None
     return {"z": post.surface_z_m, "centre_xy": centre, "half_xy": half, "sky_radiance": wp.sky_radiance,
-            "wind_mps": wp.wind_mps, "wave_seed": wp.wave_seed}
+            "wind_mps": wp.wind_mps, "wave_seed": wp.wave_seed, "sun": sun}
 
 
 @functools.lru_cache(maxsize=256)

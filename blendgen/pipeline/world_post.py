@@ -14,7 +14,7 @@ entirely when the sequence has them off (``SequencePost.world`` None or False).
   reference traces the real reflection.
 - Caustics: each surface point's sun-lit part ``J - albedo L_amb`` is multiplied by the
   focusing factor of its sun ray (``surface.caustic_factor``) at its depth, with the
-  water's scattering coefficient (mean over RGB) as the turbidity.
+  water's scattering coefficient (mean over RGB) and phase mean cosine ``g`` as the turbidity.
 """
 from __future__ import annotations
 
@@ -32,19 +32,50 @@ def waves_of(seed: int, wind_mps: float) -> sf.WaveField:
 
 
 @functools.lru_cache(maxsize=8)
-def caustic_table(seed: int, wind_mps: float) -> np.ndarray:
-    """Energy table of the sequence's caustics (``surface.mean_ray_tube_factor``), once per
-    sequence (~0.2 s)."""
-    return sf.mean_ray_tube_factor(waves_of(seed, wind_mps))
+def caustic_table(seed: int, wind_mps: float, scattering: float = 0.0, g: float = 0.9) -> sf.CausticTable:
+    """Energy table of the sequence's caustics in its water (``surface.mean_ray_tube_factor``),
+    once per sequence (~0.2-0.4 s)."""
+    return sf.mean_ray_tube_factor(waves_of(seed, wind_mps), scattering=scattering, g=g)
 
 
-def add_surface(rgb, range_m, depth, wp, rays, K, T_world_cam, surface_z_m: float, t: float, below_radiance):
+#: Pixel stride of the wave-slope grid of :func:`add_surface` (2: slopes on every second
+#: pixel in x and y, bilinearly interpolated; 1: every pixel). The waves' shortest
+#: wavelength (0.25 m) spans many pixels wherever the surface is near enough to show it.
+SLOPE_STRIDE = 2
+
+
+@functools.lru_cache(maxsize=4)
+def _upsample_maps(h: int, w: int, stride: int):
+    """cv2.remap maps taking a grid sampled at every ``stride``-th pixel to (h, w)."""
+    u, v = np.meshgrid(np.arange(w, dtype=np.float32) / stride, np.arange(h, dtype=np.float32) / stride)
+    return u, v
+
+
+def surface_slopes(waves: sf.WaveField, cam_xy, rays, r_all, t: float, stride: int):
+    """Wave slopes (sx, sy), each (H, W) float32, where each pixel's ray meets the mean surface
+    (``r_all`` (H, W) range, inf where it does not; ``rays`` (H, W, 3) world unit vectors),
+    evaluated on every ``stride``-th pixel and interpolated bilinearly (0 where no ray rises)."""
+    import cv2
+    rh, dh = r_all[::stride, ::stride], rays[::stride, ::stride]
+    ok = np.isfinite(rh)
+    g = np.zeros((*rh.shape, 2), np.float32)
+    r = rh[ok].astype(np.float32)
+    sx, sy = waves.slope(np.float32(cam_xy[0]) + r * dh[..., 0][ok], np.float32(cam_xy[1]) + r * dh[..., 1][ok], t)
+    g[ok, 0], g[ok, 1] = sx, sy
+    if stride > 1:
+        g = cv2.remap(g, *_upsample_maps(*r_all.shape, stride), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return g[..., 0], g[..., 1]
+
+
+def add_surface(rgb, range_m, depth, wp, rays, K, T_world_cam, surface_z_m: float, t: float, below_radiance,
+                stride: int | None = None):
     """Pixels that see the surface from below: (rgb, range_m, depth) new arrays; the inputs
     when none does. ``rays`` (H, W, 3) unit world directions of the pixels; K (3, 3);
     ``below_radiance`` (3,) the veil at the camera's depth. Inside Snell's window: the window
     radiance at the surface's range, depth 0. Totally reflected pixels: the clean scene along
     the mirrored ray when the camera's own image holds that direction (:func:`_mirror`),
-    else ``below_radiance`` (open water)."""
+    else ``below_radiance`` (open water). Wave slopes on the :data:`SLOPE_STRIDE` grid
+    (``stride`` overrides it)."""
     T = np.asarray(T_world_cam, float)
     d = rays
     rise = np.float32(max(surface_z_m - T[2, 3], 0.0))
@@ -55,20 +86,23 @@ def add_surface(rgb, range_m, depth, wp, rays, K, T_world_cam, surface_z_m: floa
     up = np.isfinite(r_all) & ~(range_m < r_all)
     if not up.any():
         return rgb, range_m, depth
-    r = r_all[up].astype(np.float32)
-    du = d[up]
-    x = np.float32(T[0, 3]) + r * du[:, 0]
-    y = np.float32(T[1, 3]) + r * du[:, 1]
-    sx, sy = waves_of(wp.wave_seed, wp.wind_mps).slope(x, y, t)
-    n = np.stack([-sx, -sy, np.ones_like(sx)], -1)
-    n /= np.linalg.norm(n, axis=-1, keepdims=True)
-    cos_up = np.einsum("ij,ij->i", du, n)
+    gx, gy = surface_slopes(waves_of(wp.wave_seed, wp.wind_mps), T[:2, 3], d, np.where(up, r_all, np.inf), t,
+                            SLOPE_STRIDE if stride is None else stride)
+    r, du, sx, sy = r_all[up].astype(np.float32), d[up], gx[up], gy[up]
+    norm = np.sqrt(sx * sx + sy * sy + 1)
+    cos_up = (du[:, 2] - sx * du[:, 0] - sy * du[:, 1]) / norm
     depth = np.array(np.broadcast_to(depth, range_m.shape), np.float32)
-    J = sf.window_radiance(cos_up, [wp.sky_radiance] * 3, below_radiance)
-    rr, hh = r.copy(), np.zeros_like(r)
-    tir = sf.fresnel_reflectance(cos_up) >= 1.0
+    R = sf.fresnel_reflectance(cos_up)
+    J = sf.window_radiance(cos_up, [wp.sky_radiance] * 3, below_radiance, reflectance=R)
+    if wp.sun_irradiance > 0:                                 # the sun's disc in Snell's window
+        nrm = np.stack([-sx, -sy, np.ones_like(sx)], -1) / norm[:, None]
+        J += sf.sun_disc_radiance(du, nrm, cos_up, R, -np.asarray(wp.sun_travel_dir, np.float32),
+                                  wp.sun_irradiance, 1.0 / float(K[0, 0]))[:, None]
+    rr, hh = r, np.zeros_like(r)
+    tir = R >= 1.0
     if tir.any():
-        m_rgb, m_r, m_h, ok = _mirror(du[tir] - 2 * cos_up[tir, None] * n[tir], K, T, rgb, range_m, depth)
+        n = np.stack([-sx[tir], -sy[tir], np.ones_like(sx[tir])], -1) / norm[tir, None]
+        m_rgb, m_r, m_h, ok = _mirror(du[tir] - 2 * cos_up[tir, None] * n, K, T, rgb, range_m, depth)
         idx = np.flatnonzero(tir)[ok]
         J[idx], rr[idx], hh[idx] = m_rgb, r[idx] + m_r, m_h
     rgb, range_m = rgb.copy(), range_m.copy()
@@ -83,15 +117,17 @@ def _mirror(d_refl, K, T, rgb, range_m, depth):
     reflected ray starts at the surface point, not the camera: the parallax (the camera's
     depth) is ignored, as the mirrored pool is metres away."""
     h, w = range_m.shape
-    c = d_refl @ T[:3, :3].astype(np.float32)                  # camera frame
+    # einsum, not @: numpy's matmul of (n, 3) by (3, 3) costs ~10x more CPU here (BLAS threads)
+    c = np.einsum("ij,jk->ik", d_refl, T[:3, :3].astype(np.float32))           # camera frame
     front = c[:, 2] > 1e-3
-    uv = (c @ np.asarray(K, np.float32).T)[:, :2] / np.where(front, c[:, 2], 1)[:, None]
-    u, v = np.rint(uv[:, 0]).astype(np.int64), np.rint(uv[:, 1]).astype(np.int64)
+    uv = np.einsum("ij,kj->ik", c, np.asarray(K, np.float32)[:2]) / np.where(front, c[:, 2], 1)[:, None]
+    u, v = np.rint(uv[:, 0]).astype(np.int32), np.rint(uv[:, 1]).astype(np.int32)
     ok = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    u, v = u[ok], v[ok]
-    ok[ok] = np.isfinite(range_m[v, u]) & (depth[v, u] > 0)
-    u, v = np.rint(uv[ok, 0]).astype(np.int64), np.rint(uv[ok, 1]).astype(np.int64)
-    return rgb[v, u], range_m[v, u], depth[v, u], ok
+    at = v[ok] * np.int32(w) + u[ok]                                       # flat pixel index
+    seen = np.isfinite(range_m.ravel()[at]) & (depth.ravel()[at] > 0)
+    ok[ok] = seen
+    at = at[seen]
+    return rgb.reshape(-1, 3)[at], range_m.ravel()[at], depth.ravel()[at], ok
 
 
 #: Width (m) of the caustic network's cells for waves of 0.25 m and up: the pattern averages
@@ -115,7 +151,7 @@ def footprint_fade(rays, range_m, px_rad: float) -> np.ndarray:
     return np.where(np.isfinite(fade), fade, 0).astype(np.float32)
 
 
-def add_caustics(rgb, albedo, range_m, depth, wp, rays, K, T_world_cam, t: float, scattering: float):
+def add_caustics(rgb, albedo, range_m, depth, wp, rays, K, T_world_cam, t: float, scattering: float, g: float = 0.9):
     """Sun-lit surfaces times their focusing factor (module docstring); a new (H, W, 3) array.
     ``depth`` (H, W) metres below the surface of each pixel's surface point; ``rays`` (H, W, 3)
     unit world directions. The factor is evaluated on every second pixel in x and y and
@@ -137,8 +173,8 @@ def add_caustics(rgb, albedo, range_m, depth, wp, rays, K, T_world_cam, t: float
     y = np.float32(T[1, 3]) + r * d[:, 1] + h * back[1]
     path = h / np.float32(-sun[2])                             # slant path of the beam to the point
     gain = np.zeros(hit.shape, np.float32)                     # m - 1 on the half grid
-    gain[hit] = sf.caustic_factor(waves_of(wp.wave_seed, wp.wind_mps), x, y, path, t, scattering,
-                                  mean_table=caustic_table(wp.wave_seed, wp.wind_mps)) - 1
+    gain[hit] = sf.caustic_factor(waves_of(wp.wave_seed, wp.wind_mps), x, y, path, t, scattering, g=g,
+                                  mean_table=caustic_table(wp.wave_seed, wp.wind_mps, scattering, g)) - 1
     gain *= footprint_fade(rays[::2, ::2], range_m[::2, ::2], 2.0 / float(K[0, 0]))
     hgt, wid = range_m.shape
     gain = cv2.resize(gain, (wid, hgt), interpolation=cv2.INTER_LINEAR)

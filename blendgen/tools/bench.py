@@ -103,7 +103,7 @@ def term_costs(dataset: Path) -> pd.DataFrame:
     surf, caus = (state("physical", WorldPost(surface=s, caustics=not s, wind_mps=1.0, wave_seed=0, sky_radiance=0.21,
                                               ambient_radiance=0.34, sun_travel_dir=[0.0, -0.5, -0.866]),
                         noise=False) for s in (True, False))
-    world_post.caustic_table(0, 1.0)                    # once per sequence, not per frame
+    compose.water_image(passes, caus, K, frame["T_world_cam"], markers, t=0.3)   # per-sequence caustic table
     from blendgen.config.models import Lamp
     from blendgen.physics import lamp_shadow, lamp_water
     from blendgen.tools.lamp_bench import DEMO_LAMP

@@ -1,0 +1,45 @@
+"""Fast caustics against the Cycles photon-map reference (``blendgen/blender/caustic_reference.py``).
+
+Oracles: the reference's mean irradiance is the Fresnel transmittance at normal incidence
+``1 - ((n-1)/(n+1))^2 = 0.980`` in clear water (energy: every refracted sun ray lands);
+its contrast falls with depth beyond the focal zone in turbid water (Maritorena et al. 2000);
+the fast pattern matches it where the ray map has not folded (correlation) and its
+contrast stays within the stated error (README of ``bench caustics``: +-35 %)."""
+from __future__ import annotations
+
+import pytest
+
+from blendgen.tools import caustic_bench as cb
+
+N = 1.333
+
+
+def _row(tmp_path, water, depth, size, renders):
+    w = cb.water_of(water)
+    spec = cb.reference_spec(depth, w, size, renders)
+    return cb.compare(cb.run_reference(spec, tmp_path / f"{water}-{depth}.npz"), spec, w)
+
+
+@pytest.mark.blender
+def test_clear_water_reference_conserves_energy_and_fast_pattern_matches(tmp_path):
+    """No medium, floor 1 m down (before the first focus): reference mean E = Fresnel
+    transmittance (1 %), fast contrast within 25 % of it, patterns correlated > 0.9."""
+    r = _row(tmp_path, None, 1.0, 768, 2)
+    assert r["meanE_ref"] == pytest.approx(1 - ((N - 1) / (N + 1)) ** 2, abs=0.01)
+    assert r["contrast_ref"] > 2 * r["noise_contrast_ref"]           # the pattern is resolved
+    assert abs(r["contrast_fast"] / r["contrast_ref"] - 1) < 0.25, r
+    assert r["corr"] > 0.9, r
+
+
+@pytest.mark.slow
+@pytest.mark.blender
+def test_turbid_reference_contrast_falls_with_depth_and_fast_follows(tmp_path):
+    """Jerlov 1C (green: b = 0.38 1/m, g = 0.914): reference contrast at 6 m below that at
+    2 m; fast contrast within 35 % of the reference at both; mean irradiance within 25 % of
+    the fast path's exp(-Kd h)."""
+    shallow, deep = (_row(tmp_path, "1C", h, 768, 2) for h in (2.0, 6.0))
+    assert deep["contrast_ref"] < shallow["contrast_ref"]
+    assert deep["contrast_fast"] < shallow["contrast_fast"]
+    for r in (shallow, deep):
+        assert abs(r["contrast_fast"] / r["contrast_ref"] - 1) < 0.35, r
+        assert r["meanE_ref"] == pytest.approx(r["meanE_fast"], rel=0.25), r
