@@ -202,12 +202,13 @@ class VisionCamera:
         return img, gt, times
 
     def __call__(self, k: int, t: float, T_wc: np.ndarray) -> Observation:
+        from datasets_spec.io import png_params
         from evalkit.runner import validate_estimate
         img, gt, times = self._image(k, t, T_wc)
         path = None
         if self.image_dir is not None:
             path = self.image_dir / f"{k:06d}.png"
-            cv2.imwrite(str(path), cv2.cvtColor(img, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_PNG_COMPRESSION, 1])
+            cv2.imwrite(str(path), cv2.cvtColor(img, cv2.COLOR_RGB2BGR), png_params())
         res = (self.executor.call(self.loc, "localize_file", str(path.resolve()), k) if self.by_file
                else self.executor.call(self.loc, "localize", img))
         est, reason = (None, res.error) if res.error else validate_estimate(res.value)
