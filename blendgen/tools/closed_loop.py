@@ -40,6 +40,7 @@ from blendgen.vehicle import docking, trajectories as tj
 from blendgen.vehicle.closed_loop import Observation, TrialSetup, simulate_closed_loop
 from blendgen.vehicle.dynamics import VehicleParams
 from blendgen.vehicle.visual_nav import CaptureSpec, FilterParams
+from datasets_spec.io import png_params
 
 TRUTH = "truth"
 
@@ -202,7 +203,6 @@ class VisionCamera:
         return img, gt, times
 
     def __call__(self, k: int, t: float, T_wc: np.ndarray) -> Observation:
-        from datasets_spec.io import png_params
         from evalkit.runner import validate_estimate
         img, gt, times = self._image(k, t, T_wc)
         path = None
