@@ -29,25 +29,52 @@ import numpy as np
 import pandas as pd
 
 from evalkit.dataset import Dataset
-from datasets_spec.io import save_json_atomic, sha256_file
+from datasets_spec.io import (load_raw_image, pixel_sha256, raw_image_path, save_json_atomic, sha256_file,
+                              DatasetError)
 
 
 RESULTS_SUFFIX = ".pkl.gz"
+PIXELS_SUFFIX = ".pixels.json"
 
 
 class RecordingDataset(Dataset):
     """A dataset still being written: files are read unchecked (there is no manifest
-    ``files`` map yet) and the sha256 of every image read is recorded."""
+    ``files`` map yet) and the sha256 of every image read is recorded: of the PNG's bytes
+    (``image_sha256``) or, for a frame not kept whose pixels the render worker left raw
+    (``rgb/.<i>.npy``, never encoded), of its pixels (``pixel_sha256``, :func:`pixel_sha256`)."""
 
     def __init__(self, root: Path, manifest: dict):
         super().__init__(root, manifest, verify=False)
         self.image_sha256: dict[str, str] = {}
+        self.pixel_sha256: dict[str, str] = {}
+
+    def raw_path(self, frame: dict) -> Path:
+        return raw_image_path(self.image_path(frame))
 
     def load_image(self, frame: dict) -> np.ndarray:
+        raw = self.raw_path(frame)
+        if raw.is_file():
+            cam = self.manifest["camera"]
+            img = load_raw_image(raw, cam["height"], cam["width"])
+            self.pixel_sha256[frame["image"]] = pixel_sha256(img)
+            return img
         path = self.checked_image_path(frame)
         data = path.read_bytes()
         self.image_sha256[frame["image"]] = hashlib.sha256(data).hexdigest()
         return self.decode_image(data, frame)
+
+    def frame_hashes(self, frames: list[dict]) -> tuple[dict[str, str], dict[str, str]]:
+        """({image: file sha256}, {image: pixel sha256}) of ``frames``; images the
+        localizers did not read are read (and hashed) here."""
+        for f in frames:
+            if f["image"] not in self.image_sha256 and f["image"] not in self.pixel_sha256:
+                if self.raw_path(f).is_file():
+                    self.load_image(f)
+                else:
+                    self.image_sha256[f["image"]] = sha256_file(self.image_path(f))
+        names = [f["image"] for f in frames]
+        return ({n: self.image_sha256[n] for n in names if n in self.image_sha256},
+                {n: self.pixel_sha256[n] for n in names if n in self.pixel_sha256})
 
 
 @dataclass
@@ -83,9 +110,10 @@ def evaluate_sequence(task: SequenceTask) -> int:
     specs = parallel.build_localizers(task.localizers, task.params, None, None, task.preprocess)
     df = runner.evaluate(ds, specs, progress=False, sequences=[task.seq_id])
     frames = list(ds.iter_frames(task.seq_id))
-    hashes = {f["image"]: ds.image_sha256.get(f["image"]) or sha256_file(ds.image_path(f)) for f in frames}
+    hashes, pixels = ds.frame_hashes(frames)
     work = Path(task.work)
     work.mkdir(parents=True, exist_ok=True)
+    save_json_atomic(work / f"{task.seq_id}{PIXELS_SUFFIX}", pixels)
     save_json_atomic(work / f"{task.seq_id}.hashes.json", hashes)
     save_json_atomic(work / f"{task.seq_id}.cost.json",
                      {"cpu_s": time.process_time() - cpu0, "wall_s": time.perf_counter() - wall0,
@@ -100,20 +128,19 @@ def evaluate_sequence(task: SequenceTask) -> int:
 def prune_sequence(task: SequenceTask) -> None:
     """Delete the not-kept images of an evaluated sequence (idempotent: a run interrupted
     between saving a sequence's estimates and pruning it finishes the pruning on resume)."""
-    if task.keep is None:
-        return
     ds = Dataset(Path(task.root), task.manifest, verify=False)
     prune_images(ds, list(ds.iter_frames(task.seq_id)), task.keep)
 
 
 def prune_images(ds: Dataset, frames: list[dict], keep: list[int] | None) -> None:
-    """Delete the images of ``frames`` whose index is not in ``keep`` (None: keep all)."""
-    if keep is None:
-        return
-    kept = set(keep)
+    """Delete the images of ``frames`` whose index is not in ``keep`` (None: keep all), and
+    every raw image (the pixels of frames not kept, never part of the dataset)."""
+    kept = None if keep is None else set(keep)
     for f in frames:
-        if f.get("index") not in kept:
-            ds.image_path(f).unlink(missing_ok=True)
+        path = ds.image_path(f)
+        raw_image_path(path).unlink(missing_ok=True)
+        if kept is not None and f.get("index") not in kept:
+            path.unlink(missing_ok=True)
 
 
 def load_results(work: Path, seq_ids: list[str]) -> tuple[pd.DataFrame, dict[str, str]]:
@@ -122,7 +149,7 @@ def load_results(work: Path, seq_ids: list[str]) -> tuple[pd.DataFrame, dict[str
     parts = [pd.read_pickle(work / f"{s}{RESULTS_SUFFIX}", compression="gzip") for s in seq_ids]
     hashes: dict[str, str] = {}
     for s in seq_ids:
-        hashes.update(json.loads((work / f"{s}.hashes.json").read_text()))
+        hashes.update(json.loads((work / f"{s}.hashes.json").read_text()))   # pixels: recorded_pixels
     df = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
     if parts:
         df.attrs.update(parts[0].attrs)
@@ -164,3 +191,34 @@ def run_record_dataset(root: Path, manifest: dict) -> Any:
     """A :class:`Dataset` over ``manifest`` (with the full ``files`` map) for the run record:
     its ``content_hash`` is the one ``dockbench generate`` gives the same config."""
     return Dataset(Path(root), manifest, verify=True)
+
+
+def recorded_pixels(work: Path) -> dict[str, str]:
+    """{image path: pixel sha256} of every camera image of the run that was never encoded."""
+    out: dict[str, str] = {}
+    for p in sorted(Path(work).glob(f"*{PIXELS_SUFFIX}")):
+        out.update(json.loads(p.read_text()))
+    return out
+
+
+def check_against(stream_summary: dict, root: Path) -> list[str]:
+    """Problems ([] = none) of the dataset at ``root`` (a later ``dockbench generate`` of the
+    run's config) against a run's ``stream.json``: every path of ``files`` must have that
+    sha256, every image of ``pixels`` must decode (HxWx3 uint8 RGB) to pixels of that
+    :func:`pixel_sha256`, and the dataset must hold no other file."""
+    from datasets_spec.io import dataset_files, load_manifest
+    root = Path(root)
+    files, pixels = stream_summary["files"], stream_summary.get("pixels", {})
+    ds = Dataset(root, load_manifest(root), verify=False)
+    problems = [f"{p}: sha256 differs" for p, h in files.items()
+                if not (root / p).is_file() or sha256_file(root / p) != h]
+    for p, h in pixels.items():
+        try:
+            img = ds.decode_image((root / p).read_bytes(), {"image": p})
+        except (OSError, DatasetError) as exc:
+            problems.append(f"{p}: unreadable ({exc})")
+            continue
+        if pixel_sha256(img) != h:
+            problems.append(f"{p}: pixels differ")
+    extra = set(dataset_files(root)) - set(files) - set(pixels)
+    return problems + [f"{p}: not in stream.json" for p in sorted(extra)]

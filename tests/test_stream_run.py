@@ -62,12 +62,44 @@ def _stream(run: Path) -> dict:
 @pytest.mark.blender
 def test_run_evaluated_the_dataset_generate_writes(runs):
     cfg, d = runs
+    from evalkit.stream import check_against
     st, man = _stream(d / "run"), json.loads((d / "gen" / "manifest.json").read_text())
-    assert st["files"] == man["files"]                          # every image and pass, by sha256
-    assert st["content_hash"] == man["content_hash"]
+    assert set(st["files"]) | set(st["pixels"]) == set(man["files"])   # every file of the dataset
+    assert all(st["files"][p] == man["files"][p] for p in st["files"])  # hashed by its bytes...
+    assert len(st["pixels"]) == len(list((d / "gen").glob("sequences/*/rgb/*.png"))) - 4 * 2   # sample:2 kept
+    assert check_against(st, d / "gen") == []                  # ...or, never encoded, by its decoded pixels
     run_json = json.loads((d / "run" / "results" / "run.json").read_text())
-    ev_json = json.loads((d / "ev" / "run.json").read_text())
-    assert run_json["dataset"]["content_hash"] == ev_json["dataset"]["content_hash"] == man["content_hash"]
+    assert run_json["dataset"]["content_hash"] == st["content_hash"]
+
+
+@pytest.mark.blender
+def test_a_changed_pixel_of_an_image_never_encoded_is_caught(runs, tmp_path):
+    import shutil
+    import cv2
+    from evalkit.stream import check_against
+    cfg, d = runs
+    st = _stream(d / "run")
+    gen = tmp_path / "gen"
+    shutil.copytree(d / "gen", gen)
+    p = sorted(st["pixels"])[0]
+    img = cv2.imread(str(gen / p), cv2.IMREAD_UNCHANGED)
+    img[0, 0, 0] ^= 1
+    cv2.imwrite(str(gen / p), img)
+    assert check_against(st, gen) == [f"{p}: pixels differ"]
+
+
+@pytest.mark.blender
+def test_images_all_hashes_every_file_like_generate(runs, tmp_path):
+    cfg, d = runs
+    _ok("run", cfg, "-l", "led", "-o", tmp_path / "run", "--images", "all", "-q")
+    st, man = _stream(tmp_path / "run"), json.loads((d / "gen" / "manifest.json").read_text())
+    assert st["pixels"] == {} and st["files"] == man["files"] and st["content_hash"] == man["content_hash"]
+    assert not list((tmp_path / "run").rglob(".*.npy"))
+
+
+@pytest.mark.blender
+def test_the_metrics_of_run_are_those_of_generate_then_evaluate(runs):
+    cfg, d = runs
     for f in ("metrics.csv", "summary.csv", "bins.csv"):        # no timings in these: byte-identical
         assert (d / "run" / "results" / f).read_bytes() == (d / "ev" / f).read_bytes(), f
     a = pd.read_parquet(d / "run" / "results" / "estimates.parquet").drop(columns=["ms"])
@@ -97,6 +129,7 @@ def _start(cfg: Path, out: Path) -> subprocess.Popen:
 
 @pytest.mark.blender
 def test_a_run_killed_after_its_first_evaluated_sequence_resumes_to_the_same_results(runs, tmp_path):
+    from evalkit.stream import check_against
     cfg, d = runs
     out = tmp_path / "run"
     p = _start(cfg, out)
@@ -108,12 +141,16 @@ def test_a_run_killed_after_its_first_evaluated_sequence_resumes_to_the_same_res
     p.wait()
     done_before = {q.name: q.stat().st_mtime_ns for q in out.glob(".stream/*/*.pkl.gz")}
     _ok("run", cfg, *LOCS, "-o", out, "--images", "none", "-q")
-    st = _stream(out)
-    assert st["files"] == _stream(d / "run")["files"] and st["content_hash"] == _stream(d / "run")["content_hash"]
+    st, first = _stream(out), _stream(d / "run")              # --images none: no image encoded
+    assert st["files"] == {p: h for p, h in first["files"].items() if "/rgb/" not in p}
+    assert set(st["pixels"]) == {p for p in first["files"] if "/rgb/" in p} | set(first["pixels"])
+    assert all(st["pixels"][p] == h for p, h in first["pixels"].items())
+    assert check_against(st, d / "gen") == []
     assert (out / "results" / "metrics.csv").read_bytes() == (d / "ev" / "metrics.csv").read_bytes()
     assert {q.name: q.stat().st_mtime_ns for q in out.glob(".stream/*/*.pkl.gz") if q.name in done_before} \
         == done_before                                          # finished sequences were not evaluated again
     assert not list((out / "dataset").glob("sequences/*/rgb/*.png"))   # --images none
+    assert not list((out / "dataset").rglob(".*.npy"))          # raw pixels gone once evaluated
 
 
 @pytest.mark.parametrize("args, says", [

@@ -87,6 +87,19 @@ def _shared_distortion(job):
     return job.outputs[0].post.distortion if job.outputs else None
 
 
+def _write_image(seq_dir: Path, rel: str, i: int, img: np.ndarray, raw: bool) -> dict:
+    """The frame's camera image: a PNG (``compose.write_image``), or with ``raw`` its pixels
+    as ``rgb/.<i>.npy`` for the streaming evaluator, which deletes them; the record names the
+    PNG either way, so ``frames.jsonl`` is the one ``generate`` writes."""
+    from blendgen.pipeline import compose as pp
+    if not raw:
+        return pp.write_image(seq_dir, rel, i, img)
+    from datasets_spec.io import save_raw_image
+    name = f"{i:06d}.png"
+    save_raw_image(seq_dir / "rgb" / name, img)
+    return {"image": f"{rel}/rgb/{name}"}
+
+
 def run(job) -> dict:
     """Render the job (a ``plan.JobRecord``); returns timing figures (s) per stage."""
     from blendgen.pipeline import compose as pp
@@ -109,6 +122,7 @@ def run(job) -> dict:
     states = [pp.SequenceState.start(o.post) for o, _, _ in outs]
     exr = os.path.join(render.scratch_dir(), f"dockbench-{os.getpid()}.exr")
     geo = _geometry_particles(job, states)
+    unkept = set(job.raw_images)        # dockbench run: images not kept are never PNG-encoded
     # "render" includes reading the EXR passes back (the ROI path: the background and one render per box);
     # "depth_to_range" turns the planar depth pass into range along each ray
     times = {"scene_build": time.perf_counter() - t0, "render": [], "depth_to_range": [], "post_write": []}
@@ -140,7 +154,7 @@ def run(job) -> dict:
                     if st.auto_exposure is not None:
                         r = {**r, "exposure_s": st.exposure_s}
                 with clock("write"):
-                    paths = {**pp.write_image(d, o.rel, fr["index"], img), **pass_paths}
+                    paths = {**_write_image(d, o.rel, fr["index"], img, fr["index"] in unkept), **pass_paths}
                     fh.write(json.dumps({**r, **paths}) + "\n")
                     fh.flush()
                 st.advance()

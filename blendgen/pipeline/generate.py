@@ -52,9 +52,11 @@ def write_textures(exp: Experiment, root: Path) -> dict[str, str]:
     return out
 
 
-def _job_record(t: "_Target", job: plan.RenderJob, render: dict, parts: list) -> plan.JobRecord:
+def _job_record(t: "_Target", job: plan.RenderJob, render: dict, parts: list,
+                raw_images: list[int] | None = None) -> plan.JobRecord:
     """The worker's job record. ``parts`` are (target, job, sequences still to write) of
-    every dataset fed by this render (a resumed shared job may have committed some)."""
+    every dataset fed by this render (a resumed shared job may have committed some);
+    ``raw_images``: frame indices whose camera images are not PNG-encoded (:class:`Hooks`)."""
     c = t.exp.camera
     first = job.sequences[0].id
     datasets = list({id(pt): pt for pt, _, _ in parts}.values())
@@ -68,7 +70,8 @@ def _job_record(t: "_Target", job: plan.RenderJob, render: dict, parts: list) ->
                                 post=s.post) for pt, _, seqs in parts for s in seqs],
         passes=plan.JobPasses(**passes),
         log=str(path_inside(t.work, f"logs/{first}.blender.log", "render log")),
-        timing_out=str(path_inside(t.work, f"timing/{first}.json", "timing file")))
+        timing_out=str(path_inside(t.work, f"timing/{first}.json", "timing file")),
+        raw_images=list(raw_images or []))
 
 
 def manifest_base(exp: Experiment, K: np.ndarray, markers: list[dict], scene: dict,
@@ -116,6 +119,11 @@ class Hooks:
 
     def known_sha256(self, target: "_Target") -> dict[str, str]:
         return {}
+
+    def raw_images(self, job: plan.RenderJob) -> list[int]:
+        """Frame indices of ``job`` whose camera images are handed over as raw pixels, not
+        PNG (``dockbench run``: the frames it does not keep); generate: none."""
+        return []
 
 
 def generate_many(items: list[tuple[Experiment, Path]], workers: int | None = None, progress: bool = True,
@@ -212,7 +220,7 @@ def _render(targets: list[_Target], workers: int | None, progress: bool, kind: s
                 shutil.rmtree(pt.writer.tmp_dir(s.id), ignore_errors=True)
         render = plan.render_settings(t.exp, threads)
         # named by dataset and first sequence: unique across the datasets of one run
-        jf = ex.write_job(_job_record(t, j, render, parts),
+        jf = ex.write_job(_job_record(t, j, render, parts, hooks.raw_images(j)),
                           path_inside(t.work, f"jobs/{t.exp.name}--{j.sequences[0].id}.json", "job file"))
         files[jf] = parts
 

@@ -132,6 +132,8 @@ class JobRecord(Strict):
     passes: Optional[JobPasses] = None
     log: Optional[str] = None
     timing_out: Optional[str] = None
+    raw_images: list[int] = []      # frame indices whose camera images a streaming run does not keep:
+                                    # left as raw pixels (rgb/.<i>.npy), never PNG-encoded
 
 
 @dataclass

@@ -16,9 +16,11 @@ Output folder OUT (datasets_spec/FORMAT.md, "Runs"):
 * ``OUT/results/``  what ``dockbench evaluate`` writes (run.json, estimates.parquet,
   metrics.csv...); run.json's ``dataset.content_hash`` is the content hash of the whole
   dataset, images included: the one ``dockbench generate`` gives the same config;
-* ``OUT/stream.json``  the whole dataset's ``files`` map (sha256 of every image and pass,
-  kept or not) and ``content_hash``: a dataset generated later from the same config and
-  seed is checked against it file by file;
+* ``OUT/stream.json``  the whole dataset's ``files`` map (sha256 of every file, kept or
+  not) but for the camera images not kept: the render worker never PNG-encodes those, it
+  hands their pixels over raw and ``pixels`` maps them to :func:`datasets_spec.io.pixel_sha256`;
+  a dataset generated later from the same config and seed is checked against both
+  (:func:`evalkit.stream.check_against`: file by file, and decoded PNG by pixels);
 * ``OUT/.stream/``  work files: per sequence estimates and hashes, per render the pass
   hashes. Interrupt at any point: a re-run resumes (committed sequences are not rendered
   again, evaluated ones not evaluated again).
@@ -38,7 +40,8 @@ from datasets_spec.io import content_hash, save_json_atomic, sha256_file
 from evalkit import stream
 
 STREAM_FORMAT = "dockbench-stream"
-STREAM_VERSION = "1"
+STREAM_VERSION = "2"                # 2: camera images not kept are hashed by pixels ("pixels")
+PIXELS_PREFIX = "pixels:"           # content_hash entry of an image hashed by its pixels
 STREAM_JSON = "stream.json"
 
 
@@ -113,6 +116,13 @@ class _Streamer:
     def known_sha256(self, target) -> dict[str, str]:
         return _recorded_hashes(self.work(target))
 
+    def raw_images(self, job) -> list[int]:
+        """The frames whose camera images are not kept: handed to the evaluator as raw
+        pixels, never PNG-encoded (their PNG would be decoded once, hashed, deleted)."""
+        indices = [f["index"] for f in job.frames]
+        keep = stream.kept_indices(indices, self.req.images)
+        return [] if keep is None else sorted(set(indices) - set(keep))
+
 
 def _recorded_hashes(work: Path) -> dict[str, str]:
     """{path: sha256} of every image and pass hashed during the run."""
@@ -182,8 +192,10 @@ def _finish(out: Path, manifest: dict, work: Path, req: RunRequest) -> dict:
     from evalkit import registry
     seq_ids = [s["id"] for s in manifest["sequences"]]
     df, _ = stream.load_results(work, seq_ids)
+    pixels = stream.recorded_pixels(work)
     files = {**_recorded_hashes(work), **manifest["files"]}
-    full = {**manifest, "files": dict(sorted(files.items())), "content_hash": content_hash(files)}
+    every = {**files, **{p: f"{PIXELS_PREFIX}{h}" for p, h in pixels.items()}}
+    full = {**manifest, "files": dict(sorted(every.items())), "content_hash": content_hash(every)}
     kw = registry.parse_params(list(req.params))
     records = [localizer_record(n, registry.params_for(n, kw, req.localizers)) for n in req.localizers]
     ds = stream.run_record_dataset(out / "dataset", full)
@@ -196,8 +208,9 @@ def _finish(out: Path, manifest: dict, work: Path, req: RunRequest) -> dict:
     paths = {k: out / "results" / p.relative_to(tmp) for k, p in paths.items()}
     summary = {"format": STREAM_FORMAT, "format_version": STREAM_VERSION, "name": manifest["name"],
                "version": manifest["version"], "images": req.images, "content_hash": full["content_hash"],
-               "kept_content_hash": manifest["content_hash"], "n_files": len(files),
-               "n_kept": len(manifest["files"]), "files": full["files"]}
+               "kept_content_hash": manifest["content_hash"], "n_files": len(every),
+               "n_kept": len(manifest["files"]), "files": dict(sorted(files.items())),
+               "pixels": dict(sorted(pixels.items()))}
     save_json_atomic(out / STREAM_JSON, summary)
     return {"out": out, "manifest": manifest, "stream": summary, "paths": paths,
             "finish_cpu_s": time.process_time() - cpu0}
