@@ -194,9 +194,10 @@ def run_record_dataset(root: Path, manifest: dict) -> Any:
 
 
 def recorded_pixels(work: Path) -> dict[str, str]:
-    """{image path: pixel sha256} of every camera image of the run that was never encoded."""
+    """{path: pixel sha256} of every camera image and pass of the run that was never encoded."""
     out: dict[str, str] = {}
-    for p in sorted(Path(work).glob(f"*{PIXELS_SUFFIX}")):
+    work = Path(work)
+    for p in sorted(work.glob(f"*{PIXELS_SUFFIX}")) + sorted((work / "renders").glob(f"*{PIXELS_SUFFIX}")):
         out.update(json.loads(p.read_text()))
     return out
 
@@ -214,7 +215,7 @@ def check_against(stream_summary: dict, root: Path) -> list[str]:
                 if not (root / p).is_file() or sha256_file(root / p) != h]
     for p, h in pixels.items():
         try:
-            img = ds.decode_image((root / p).read_bytes(), {"image": p})
+            img = _decoded(ds, root, p)
         except (OSError, DatasetError) as exc:
             problems.append(f"{p}: unreadable ({exc})")
             continue
@@ -222,3 +223,15 @@ def check_against(stream_summary: dict, root: Path) -> list[str]:
             problems.append(f"{p}: pixels differ")
     extra = set(dataset_files(root)) - set(files) - set(pixels)
     return problems + [f"{p}: not in stream.json" for p in sorted(extra)]
+
+
+def _decoded(ds: Dataset, root: Path, rel: str) -> np.ndarray:
+    """A PNG's pixels as hashed by a run: camera image HxWx3 uint8 RGB; range (uint16 mm) and
+    index (uint8) passes HxW as stored."""
+    import cv2
+    if "/rgb/" in rel:
+        return ds.decode_image((root / rel).read_bytes(), {"image": rel})
+    a = cv2.imread(str(root / rel), cv2.IMREAD_UNCHANGED)
+    if a is None:
+        raise DatasetError(f"{root / rel}: missing or unreadable pass")
+    return a

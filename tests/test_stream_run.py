@@ -66,14 +66,17 @@ def test_run_evaluated_the_dataset_generate_writes(runs):
     st, man = _stream(d / "run"), json.loads((d / "gen" / "manifest.json").read_text())
     assert set(st["files"]) | set(st["pixels"]) == set(man["files"])   # every file of the dataset
     assert all(st["files"][p] == man["files"][p] for p in st["files"])  # hashed by its bytes...
-    assert len(st["pixels"]) == len(list((d / "gen").glob("sequences/*/rgb/*.png"))) - 4 * 2   # sample:2 kept
+    pngs = sorted(p.relative_to(d / "gen").as_posix() for p in (d / "gen").glob("[sr]*/*/*/*.png"))
+    assert sorted(st["pixels"]) == [p for p in pngs if p not in st["files"]]   # images and passes
+    assert len(st["pixels"]) == len(pngs) - 4 * 2 - 2 * 2 * 2  # all but sample:2 (images; range, index)
     assert check_against(st, d / "gen") == []                  # ...or, never encoded, by its decoded pixels
     run_json = json.loads((d / "run" / "results" / "run.json").read_text())
     assert run_json["dataset"]["content_hash"] == st["content_hash"]
 
 
 @pytest.mark.blender
-def test_a_changed_pixel_of_an_image_never_encoded_is_caught(runs, tmp_path):
+@pytest.mark.parametrize("kind", ["/rgb/", "/depth/", "/index/"])
+def test_a_changed_pixel_of_an_image_never_encoded_is_caught(runs, tmp_path, kind):
     import shutil
     import cv2
     from evalkit.stream import check_against
@@ -81,9 +84,9 @@ def test_a_changed_pixel_of_an_image_never_encoded_is_caught(runs, tmp_path):
     st = _stream(d / "run")
     gen = tmp_path / "gen"
     shutil.copytree(d / "gen", gen)
-    p = sorted(st["pixels"])[0]
+    p = next(p for p in sorted(st["pixels"]) if kind in p)
     img = cv2.imread(str(gen / p), cv2.IMREAD_UNCHANGED)
-    img[0, 0, 0] ^= 1
+    img[(0,) * img.ndim] ^= 1
     cv2.imwrite(str(gen / p), img)
     assert check_against(st, gen) == [f"{p}: pixels differ"]
 
@@ -142,9 +145,10 @@ def test_a_run_killed_after_its_first_evaluated_sequence_resumes_to_the_same_res
     done_before = {q.name: q.stat().st_mtime_ns for q in out.glob(".stream/*/*.pkl.gz")}
     _ok("run", cfg, *LOCS, "-o", out, "--images", "none", "-q")
     st, first = _stream(out), _stream(d / "run")              # --images none: no image encoded
-    assert st["files"] == {p: h for p, h in first["files"].items() if "/rgb/" not in p}
-    assert set(st["pixels"]) == {p for p in first["files"] if "/rgb/" in p} | set(first["pixels"])
+    assert set(st["files"]) | set(st["pixels"]) == set(first["files"]) | set(first["pixels"])
+    assert not [p for p in st["files"] if p.endswith(".png") and not p.startswith("assets/")]
     assert all(st["pixels"][p] == h for p, h in first["pixels"].items())
+    assert all(st["files"][p] == first["files"][p] for p in st["files"])
     assert check_against(st, d / "gen") == []
     assert (out / "results" / "metrics.csv").read_bytes() == (d / "ev" / "metrics.csv").read_bytes()
     assert {q.name: q.stat().st_mtime_ns for q in out.glob(".stream/*/*.pkl.gz") if q.name in done_before} \

@@ -8,16 +8,24 @@ points there. The worker writes them into ``renders/.<key16>.tmp/`` of the first
 dataset, hard-links the files into the other datasets' temp dirs (a copy when the
 filesystem refuses links), and the parent renames each temp dir into place before it
 commits the sequences (:meth:`DatasetWriter.commit_render`). A dataset that already
-has the render (a resumed run) is referenced, not rewritten.
+has the render (a resumed run) is referenced, not rewritten. Frames a streaming run does
+not keep (``raw_images``) are not encoded at all: the sha256 of their pixels as the PNG
+would hold them (:func:`datasets_spec.io.pixel_sha256`) goes to ``.pixels.jsonl``.
 """
 from __future__ import annotations
 
+import json
 import os
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
 from datasets_spec import io as dsio
+
+
+# {dataset path: pixel sha256} per line, of the passes of frames a streaming run does not keep
+# (never encoded); a dot-name, so never part of the dataset; the run records it, then deletes it
+PIXELS = ".pixels.jsonl"
 
 
 @dataclass
@@ -31,6 +39,7 @@ class PassStore:
     dirs: list[Path]
     depth: bool
     index: bool
+    raw: frozenset = frozenset()        # frames not kept (dockbench run): hashed, never encoded
 
     @classmethod
     def from_job(cls, job) -> "PassStore | None":
@@ -41,7 +50,8 @@ class PassStore:
             p = p.model_dump()
         if not p or not (p["depth"] or p["index"]):
             return None
-        store = cls(p["rel"], [Path(d) for d in p["dirs"]], p["depth"], p["index"])
+        raw = job.get("raw_images", []) if isinstance(job, dict) else job.raw_images
+        store = cls(p["rel"], [Path(d) for d in p["dirs"]], p["depth"], p["index"], frozenset(raw))
         for d in store.dirs:
             for sub, on in (("depth", store.depth), ("index", store.index)):
                 if on:
@@ -52,17 +62,24 @@ class PassStore:
         """Write one frame's range (``passes['range_m']`` (H,W) m) and index ((H,W) uint8)
         passes; returns the frame record's ``depth`` / ``object_index`` paths."""
         name = f"{frame_index:06d}.png"
-        paths = {}
+        paths, pixels = {}, {}
         for key, sub, on, save, arr in (("depth", "depth", self.depth, dsio.save_range, "range_m"),
                                         ("object_index", "index", self.index, dsio.save_index, "index")):
             if not on:
                 continue
             paths[key] = f"{self.rel}/{sub}/{name}"
-            if self.dirs:
+            if self.dirs and frame_index in self.raw:
+                pixels[paths[key]] = dsio.pixel_sha256(dsio.range_to_units(passes[arr]) if sub == "depth"
+                                                       else passes[arr])
+            elif self.dirs:
                 first = self.dirs[0] / sub / name
                 save(first, passes[arr])
                 for d in self.dirs[1:]:
                     _link_or_copy(first, d / sub / name)
+        if pixels:
+            for d in self.dirs:
+                with open(d / PIXELS, "a") as fh:
+                    fh.write(json.dumps(pixels) + "\n")
         return paths
 
 

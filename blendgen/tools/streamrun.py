@@ -38,6 +38,7 @@ from pathlib import Path
 
 from datasets_spec.io import content_hash, save_json_atomic, sha256_file
 from evalkit import stream
+from blendgen.pipeline.passstore import PIXELS as PASS_PIXELS
 
 STREAM_FORMAT = "dockbench-stream"
 STREAM_VERSION = "2"                # 2: camera images not kept are hashed by pixels ("pixels")
@@ -96,8 +97,14 @@ class _Streamer:
         if not record.is_file():
             files = {p.relative_to(target.out).as_posix(): sha256_file(p)
                      for p in sorted(rdir.rglob("*.png"))}
+            pixels = {}
+            if (rdir / PASS_PIXELS).is_file():       # passes of frames not kept: never encoded
+                for line in (rdir / PASS_PIXELS).read_text().splitlines():
+                    pixels.update(json.loads(line))
             record.parent.mkdir(parents=True, exist_ok=True)
+            save_json_atomic(record.with_name(f"{rdir.name}{stream.PIXELS_SUFFIX}"), pixels)
             save_json_atomic(record, files)
+        (rdir / PASS_PIXELS).unlink(missing_ok=True)
         if keep is not None:
             kept = set(keep)
             for p in rdir.rglob("*.png"):
@@ -127,7 +134,8 @@ class _Streamer:
 def _recorded_hashes(work: Path) -> dict[str, str]:
     """{path: sha256} of every image and pass hashed during the run."""
     out: dict[str, str] = {}
-    for p in sorted(Path(work).glob("*.hashes.json")) + sorted((Path(work) / "renders").glob("*.json")):
+    renders = [p for p in sorted((Path(work) / "renders").glob("*.json")) if not p.name.endswith(stream.PIXELS_SUFFIX)]
+    for p in sorted(Path(work).glob("*.hashes.json")) + renders:
         out.update(json.loads(p.read_text()))
     return out
 
