@@ -166,11 +166,18 @@ def list_localizers():
 
 @main.command()
 @click.argument("dataset", type=click.Path(file_okay=False, path_type=Path))
+@click.option("--stream", "stream_json", type=click.Path(dir_okay=False, exists=True, path_type=Path), default=None,
+              help="also check DATASET (a later generate of the config) against a run's stream.json: files by "
+                   "sha256, images and passes the run did not keep by their decoded pixels")
 @_user_errors
-def verify(dataset: Path):
+def verify(dataset: Path, stream_json: Path | None):
     """Check every file of DATASET against the sha256 in its manifest."""
     from evalkit.dataset import DatasetError, verify as check
     problems = check(dataset)
+    if stream_json is not None and not problems:
+        import json
+        from evalkit.stream import check_against
+        problems = check_against(json.loads(stream_json.read_text()), dataset)
     if problems:
         raise DatasetError(f"{dataset}: {len(problems)} problem(s):\n  " + "\n  ".join(problems))
     click.echo(f"{dataset}: ok")

@@ -89,6 +89,7 @@ def test_a_changed_pixel_of_an_image_never_encoded_is_caught(runs, tmp_path, kin
     img[(0,) * img.ndim] ^= 1
     cv2.imwrite(str(gen / p), img)
     assert check_against(st, gen) == [f"{p}: pixels differ"]
+    assert subprocess.run(_cmd("verify", d / "gen", "--stream", d / "run" / "stream.json"), cwd=ROOT).returncode == 0
 
 
 @pytest.mark.blender
