@@ -254,6 +254,17 @@ def _size_options(fn):
     return click.option("--width", type=click.IntRange(16, 4096), default=320, show_default=True)(fn)
 
 
+@bench.command("io")
+@click.option("--dataset", type=click.Path(file_okay=False, exists=True, path_type=Path), default=None,
+              help="time its camera images (default: synthetic 640x480 frames)")
+@_user_errors
+def bench_io(dataset: Path | None):
+    """CPU per frame of PNG vs raw camera images and passes (what `run` skips for frames not kept), and of the
+    render EXR read (direct vs OpenImageIO, same bytes)."""
+    from blendgen.tools.iobench import run_io_bench
+    run_io_bench(dataset)
+
+
 @bench.command("fidelity")
 @_size_options
 @click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),

@@ -252,3 +252,17 @@ def save_pass(scene: bpy.types.Scene, out: str, tag: str, key: str = "rgb", cam_
     finally:
         if os.path.exists(path):
             os.remove(path)
+
+
+def scratch_exr(path: str, width: int, height: int, every_pass: bool) -> None:
+    """Render a monkey (object index 3) at 1 spp to ``path`` as the worker's EXR (albedo and
+    normal passes with ``every_pass``): input of ``bench io``."""
+    from blendgen.blender import scene as scn
+    sc = scn.reset()
+    bpy.ops.mesh.primitive_monkey_add(location=(0, 0, 0))
+    bpy.context.active_object.pass_index = 3
+    cam = setup_camera(sc, {"width": width, "height": height, "hfov_rad": 1.0})
+    setup_cycles(sc, {"samples": 1, "albedo_pass": every_pass, "normal_pass": every_pass})
+    T = np.eye(4)
+    T[:3, 3] = (0, 0, -4)
+    render_frame(sc, cam, T, path)
