@@ -148,7 +148,7 @@ def run(job) -> dict:
             for (o, d, fh), st in zip(outs, states):
                 with clock("compose"):
                     seen, occluded = pp.add_particles(passes, st, K, fr["T_world_cam"], markers, rec["T_cam_dock"],
-                                                      fr["t"])
+                                                      fr["t"], water_after=job.fidelity == "fast")
                     img = pp.camera_image(seen, st, K, fr, markers, job.fidelity, occluded, T_world_dock=T_wd)
                     r = rec if occluded is None else pp.with_visibility(rec, markers, K, passes["index"], occluded)
                     if st.auto_exposure is not None:

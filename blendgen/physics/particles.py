@@ -371,7 +371,7 @@ def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: Parti
                      K: np.ndarray, T_world_cam: np.ndarray, water=None, mode: str = "backscatter",
                      z_near: float = 0.05, colour=None, ambient=DEFAULT_AMBIENT_RGB,
                      shade: Callable | None = None, shape: Callable | None = None, margin_px: float = 0.0,
-                     merged_range: bool = False):
+                     merged_range: bool = False, background: Callable | None = None):
     """Draw the particle field into a linear RGB image with a depth test.
 
     image_linear (H,W,3) float, range_m (H,W) float (range along each pixel ray to
@@ -401,8 +401,13 @@ def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: Parti
     blend ``c (1-w) + colour w``, ``w = 1 - exp(-beta d)``) -- and each covered
     pixel gets the colour at its nearest particle's range. Or (b) keep ``water=None``
     on a clean image and apply water to ``image_out`` with the merged range
-    ``np.where(particle_range < inf, particle_range, range_m)`` (approximate on
-    partly covered pixels).
+    ``np.where(particle_range < inf, particle_range, range_m)``. That is exact on partly
+    covered pixels only with ``background(hit (n,), r_p (n,), r_bg (n,)) -> (gain, add)``
+    (each (3, n) float32): the background's clean radiance is replaced by ``img gain + add``
+    so that, once the water model runs at the particle's range r_p, the pixel shows
+    ``T L_bg + (1 - T) L_p`` with each layer seen through water at its own range
+    (pipeline/particle_light.background_transfer). Without it a defocused disc's faint rim
+    shows the background at the particle's range: a bright or dark ring.
     """
     img = np.asarray(image_linear, np.float32)
     h, w = img.shape[:2]
@@ -431,7 +436,8 @@ def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: Parti
     if water_fn is not None:
         c = np.asarray(water_fn(np.ascontiguousarray(c.T), prange.take(hit)), np.float32).T
     out = img.copy()
-    _composite(out.reshape(-1), hit, cov, c)
+    gain_add = background(hit, prange.take(hit), surf.take(hit)) if background is not None and hit.size else None
+    _composite(out.reshape(-1), hit, cov, c, gain_add)
     mask = np.zeros(h * w, bool)
     mask[hit] = cov >= 0.5
     if merged_range:
@@ -441,13 +447,18 @@ def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: Parti
     return out, mask.reshape(h, w), prange.reshape(h, w)
 
 
-def _composite(flat_rgb: np.ndarray, hit: np.ndarray, cov: np.ndarray, colour: np.ndarray) -> None:
+def _composite(flat_rgb: np.ndarray, hit: np.ndarray, cov: np.ndarray, colour: np.ndarray,
+               gain_add=None) -> None:
     """In place on the interleaved (H*W*3,) image: ``out = img T + colour (1 - T)`` at the
-    covered pixels ``hit`` (n,), cov = 1 - T (n,), colour (3, n)."""
+    covered pixels ``hit`` (n,), cov = 1 - T (n,), colour (3, n); with ``gain_add`` = (gain,
+    add) (3, n) each, ``out = (img gain + add) T + colour (1 - T)`` (render_particles doc)."""
     keep = np.float32(1.0) - cov
     for ch in range(3):
         idx = hit * 3 + ch
-        flat_rgb[idx] = flat_rgb.take(idx) * keep + colour[ch] * cov
+        bg = flat_rgb.take(idx)
+        if gain_add is not None:
+            bg = bg * gain_add[0][ch] + gain_add[1][ch]
+        flat_rgb[idx] = bg * keep + colour[ch] * cov
 
 
 def _splat_input(p: ProjectedParticles, colours: np.ndarray) -> psplat.Particles:

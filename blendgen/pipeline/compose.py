@@ -76,13 +76,15 @@ class SequenceState:
 
 
 def add_particles(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, markers: list[dict] | None = None,
-                  T_cam_dock=None, t_s: float | None = None) -> tuple[dict, np.ndarray | None]:
+                  T_cam_dock=None, t_s: float | None = None, water_after: bool = True) -> tuple[dict, np.ndarray | None]:
     """Composite the sequence's particles over the clean passes, depth-tested against the
     range pass; returns passes with rgb/range of the nearest surface or particle, and
     the occluder mask (H,W) bool (None without particles). ``lit`` particles take their
     radiance from the light field (the LEDs need ``markers`` and ``T_cam_dock``) and are
     blurred by defocus and motion relative to the camera's pose at the previous call, ``t_s``
-    the frame time (s; None: one frame period later) (pipeline/particle_light.py)."""
+    the frame time (s; None: one frame period later) (pipeline/particle_light.py).
+    ``water_after``: the fast water model runs on the result (fast fidelity): partly covered
+    pixels then get the exact two-layer composite (particle_light.background_transfer)."""
     if state.field is None:
         return passes, None
     if state.post.occlusion.geometry == "blender":  # already in the render
@@ -93,10 +95,32 @@ def add_particles(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam
         kw = {"shade": particle_light.shader(state.post, state.water, T, markers, T_cam_dock),
               "shape": particle_light.shaper(state.post, K, state.field, T, state.prev_pose, t_s),
               "margin_px": particle_light.MARGIN_PX}
+    if water_after:
+        kw["background"] = _particle_background(state, K, T, passes["range_m"].shape)
     rgb, occ_mask, rng_eff = occlusion.render_particles(passes["rgb"], passes["range_m"], state.field, K, T,
                                                         merged_range=True, **kw)
     state.prev_pose = (t_s, T)
     return {**passes, "rgb": rgb, "range_m": rng_eff}, occ_mask
+
+
+def _particle_background(state: SequenceState, K: np.ndarray, T: np.ndarray, shape: tuple):
+    """particle_light.background_transfer with the water, veil and depth that :func:`water_image`
+    will use on this frame (same frame veil, same per-pixel depth along each ray)."""
+    post, water = state.post, state.water
+    h, w = shape
+    physical = post.image_formation == "physical"
+    if not physical:
+        return particle_light.background_transfer(water, water.B_inf, None, False)
+    cam_depth = max(float(post.surface_z_m - T[2, 3]), 0.0)
+    veil_depth = cam_depth
+    if state.water_opts.get("veil"):
+        water, veil_depth = frame_veil(state, T, cam_depth), 0.0
+    B = water.B_inf * state.water_opts["irradiance"] * optics.depth_light(water, veil_depth)
+    dir_z = (_unit_rays(tuple(np.asarray(K, float).ravel()), w, h) @ T[2, :3].astype(np.float32)).reshape(-1)
+
+    def depth(hit: np.ndarray, r: np.ndarray) -> np.ndarray:     # as surface_depth
+        return np.maximum(np.float32(cam_depth) - r * dir_z.take(hit), np.float32(0.0))
+    return particle_light.background_transfer(water, B, depth, True)
 
 
 @functools.lru_cache(maxsize=4)

@@ -121,3 +121,42 @@ def shaper(post, K: np.ndarray, field, T_world_cam, prev_pose=None, t_s: float |
         a, b, c_, s_, op = popt.blurred_shapes(p.a, p.b, p.c, p.s, iso, st)
         return ProjectedParticles(p.u, p.v, a, b, c_, s_, p.surf_range, p.pc, p.index, op)
     return shape
+
+
+def background_transfer(water, veil_rgb, kd_depth, physical: bool):
+    """Callable(hit (n,), r_p (n,), r_bg (n,)) -> (gain, add) (3, n) float32: what replaces the
+    background's clean radiance J_bg on pixels a particle partly covers, so that compose's
+    water model -- ``L = J D t(r) + B (1 - t(r))`` per pixel, t = exp(-c r), D the depth
+    factor (physical: exp(-Kd depth) of the surface at range r; article: a constant applied
+    to the whole pixel at the end) -- run at the particle's range r_p gives exactly
+    ``T L_bg + (1 - T) L_p``, each layer through water at its own range:
+    ``J_bg' = J_bg D_bg t_bg / (D_p t_p) + B (t_p - t_bg) / (D_p t_p)`` (article: D = 1 here).
+    r_bg = inf (open water): t_bg = 0, only the veil term. ``water`` the frame's optics (c, Kd),
+    ``veil_rgb`` (3,) the veil B the water model adds, ``kd_depth(hit, r) -> (n,)`` the depth (m)
+    of the point at range r on each pixel's ray (physical mode only)."""
+    c = np.asarray(water.c, np.float32).reshape(3)
+    kd = np.asarray(water.Kd, np.float32).reshape(3)
+    B = np.asarray(veil_rgb, np.float32).reshape(3)
+
+    def transfer(hit: np.ndarray, r_p: np.ndarray, r_bg: np.ndarray):
+        rp = np.asarray(r_p, np.float32)
+        rb = np.where(np.isfinite(r_bg), r_bg, np.float32(np.inf)).astype(np.float32)
+        if physical:
+            dp = kd_depth(hit, rp)
+            db = kd_depth(hit, np.where(np.isfinite(rb), rb, np.float32(0.0)))
+        gain, add = [], []
+        for k in range(3):
+            tp = np.exp(-c[k] * rp)
+            with np.errstate(invalid="ignore"):
+                tb = np.where(np.isfinite(rb), np.exp(-c[k] * np.where(np.isfinite(rb), rb, 0)), np.float32(
+                    1.0 if c[k] == 0 else 0.0))
+            ratio = np.float32(1.0) / tp
+            if physical:                                   # D_bg / D_p = exp(-Kd (depth_bg - depth_p))
+                g = tb * np.exp(-kd[k] * (db - dp)) * ratio
+                a = B[k] * (tp - tb) * ratio * np.exp(kd[k] * dp)
+            else:
+                g, a = tb * ratio, B[k] * (tp - tb) * ratio
+            gain.append(g.astype(np.float32))
+            add.append(a.astype(np.float32))
+        return gain, add
+    return transfer
