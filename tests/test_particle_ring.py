@@ -21,7 +21,7 @@ R = np.column_stack([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])   # c
 CAM = [0.5, 0.0, 2.0]
 
 
-def _scene(mode: str):
+def _scene(mode: str, far: float = 12.0):
     st = particle_bench._state(1, "uniform", lamp=False)
     st.post = st.post.model_copy(update={
         "image_formation": mode,
@@ -33,7 +33,7 @@ def _scene(mode: str):
     K = intrinsics_from_hfov(W, H, math.radians(60.0))
     T = make_T(R, CAM)
     rng = np.full((H, W), 1.5, np.float32)          # near wall (left) | far wall (right)
-    rng[:, W // 2:] = 12.0
+    rng[:, W // 2:] = far
     passes = {"rgb": np.full((H, W, 3), 0.8, np.float32), "range_m": rng, "index": np.zeros((H, W), np.int32)}
     return st, K, T, passes
 
@@ -42,9 +42,9 @@ def _final(passes, st, K, T):
     return compose.water_image(passes, st, K, T, [])
 
 
-@pytest.mark.parametrize("mode", ["physical", "article"])
-def test_defocused_particle_over_depth_edge_stays_between_its_layers(mode):
-    st, K, T, passes = _scene(mode)
+@pytest.mark.parametrize("mode,far", [("physical", 12.0), ("article", 12.0), ("physical", np.inf)])
+def test_defocused_particle_over_depth_edge_stays_between_its_layers(mode, far):
+    st, K, T, passes = _scene(mode, far)
     seen, occ = compose.add_particles(passes, st, K, T, t_s=0.0)
     out = _final(seen, st, K, T)
     L_bg = _final(passes, st, K, T)

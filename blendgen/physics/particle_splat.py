@@ -37,11 +37,17 @@ _F0, _F1 = np.float32(0.0), np.float32(1.0)
 class Sums:
     """Per-pixel sums (module doc) at the covered pixels ``hit`` (n,) int64 (flat, ascending):
     log_t (n,) and ``wc`` (n, 1 + C) float32 = [w, w c_1 .. w c_C] (None without per-particle
-    colours); ``near`` (H*W,) float32 for the whole frame (inf where nothing covers)."""
+    colours); ``near`` (H*W,) float32 for the whole frame (inf where nothing covers); ``trans``
+    (n,) the transmittance T itself when the splat has it (then log_t may be None)."""
     hit: np.ndarray
-    log_t: np.ndarray
+    log_t: np.ndarray | None
     wc: np.ndarray | None
     near: np.ndarray
+    trans: np.ndarray | None = None
+
+    def transmittance(self) -> np.ndarray:
+        """T = prod(1 - alpha_i) (n,) float32 at the covered pixels."""
+        return self.trans if self.trans is not None else np.exp(self.log_t)
 
 
 @dataclass

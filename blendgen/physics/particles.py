@@ -427,7 +427,7 @@ def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: Parti
                else np.zeros((p.u.size, 0), np.float32))
     sums = psplat.splat(_splat_input(p, colours), surf, w, h)
     prange, hit = sums.near, sums.hit                    # nearest covering particle, inf elsewhere
-    cov = np.float32(1.0) - np.exp(sums.log_t)
+    cov = np.float32(1.0) - sums.transmittance()
     if shade is not None:                                # planar (3, n_hit): long numpy loops
         wc = np.ascontiguousarray(sums.wc.T)
         c = wc[1:] * (np.float32(1.0) / np.where(wc[0] > 0, wc[0], np.float32(1.0)))

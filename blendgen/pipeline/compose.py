@@ -110,17 +110,14 @@ def _particle_background(state: SequenceState, K: np.ndarray, T: np.ndarray, sha
     h, w = shape
     physical = post.image_formation == "physical"
     if not physical:
-        return particle_light.background_transfer(water, water.B_inf, None, False)
+        return particle_light.background_transfer(water, water.B_inf, False)
     cam_depth = max(float(post.surface_z_m - T[2, 3]), 0.0)
     veil_depth = cam_depth
     if state.water_opts.get("veil"):
         water, veil_depth = frame_veil(state, T, cam_depth), 0.0
     B = water.B_inf * state.water_opts["irradiance"] * optics.depth_light(water, veil_depth)
-    dir_z = (_unit_rays(tuple(np.asarray(K, float).ravel()), w, h) @ T[2, :3].astype(np.float32)).reshape(-1)
-
-    def depth(hit: np.ndarray, r: np.ndarray) -> np.ndarray:     # as surface_depth
-        return np.maximum(np.float32(cam_depth) - r * dir_z.take(hit), np.float32(0.0))
-    return particle_light.background_transfer(water, B, depth, True)
+    dir_z = _unit_rays(tuple(np.asarray(K, float).ravel()), w, h) @ T[2, :3].astype(np.float32)
+    return particle_light.background_transfer(water, B, True, dir_z, cam_depth)
 
 
 @functools.lru_cache(maxsize=4)

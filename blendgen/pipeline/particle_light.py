@@ -123,8 +123,8 @@ def shaper(post, K: np.ndarray, field, T_world_cam, prev_pose=None, t_s: float |
     return shape
 
 
-def background_transfer(water, veil_rgb, kd_depth, physical: bool):
-    """Callable(hit (n,), r_p (n,), r_bg (n,)) -> (gain, add) (3, n) float32: what replaces the
+def background_transfer(water, veil_rgb, physical: bool, dir_z=None, cam_depth_m: float = 0.0):
+    """Callable(hit (n,), r_p (n,), r_bg (n,)) -> (gain, add) 3 x (n,) float32: what replaces the
     background's clean radiance J_bg on pixels a particle partly covers, so that compose's
     water model -- ``L = J D t(r) + B (1 - t(r))`` per pixel, t = exp(-c r), D the depth
     factor (physical: exp(-Kd depth) of the surface at range r; article: a constant applied
@@ -132,31 +132,40 @@ def background_transfer(water, veil_rgb, kd_depth, physical: bool):
     ``T L_bg + (1 - T) L_p``, each layer through water at its own range:
     ``J_bg' = J_bg D_bg t_bg / (D_p t_p) + B (t_p - t_bg) / (D_p t_p)`` (article: D = 1 here).
     r_bg = inf (open water): t_bg = 0, only the veil term. ``water`` the frame's optics (c, Kd),
-    ``veil_rgb`` (3,) the veil B the water model adds, ``kd_depth(hit, r) -> (n,)`` the depth (m)
-    of the point at range r on each pixel's ray (physical mode only)."""
+    ``veil_rgb`` (3,) the veil B the water model adds; physical mode: ``dir_z`` (H*W,) the world
+    z of each pixel's unit ray and ``cam_depth_m`` the camera's depth, so that a point at range
+    r is at depth max(cam_depth - r dir_z, 0) (compose.surface_depth)."""
     c = np.asarray(water.c, np.float32).reshape(3)
     kd = np.asarray(water.Kd, np.float32).reshape(3)
     B = np.asarray(veil_rgb, np.float32).reshape(3)
+    dz = np.asarray(dir_z, np.float32).reshape(-1) if physical else np.zeros(0, np.float32)
+
+    def kd_depth(hit: np.ndarray, r: np.ndarray) -> np.ndarray:
+        return np.maximum(np.float32(cam_depth_m) - r * dz.take(hit), np.float32(0.0))
 
     def transfer(hit: np.ndarray, r_p: np.ndarray, r_bg: np.ndarray):
         rp = np.asarray(r_p, np.float32)
-        rb = np.where(np.isfinite(r_bg), r_bg, np.float32(np.inf)).astype(np.float32)
+        finite = np.isfinite(r_bg)
+        dr = np.where(finite, r_bg - rp, np.float32(0.0)).astype(np.float32)   # r_bg - r_p >= 0
         if physical:
             dp = kd_depth(hit, rp)
-            db = kd_depth(hit, np.where(np.isfinite(rb), rb, np.float32(0.0)))
+            ddep = kd_depth(hit, np.where(finite, r_bg, rp).astype(np.float32)) - dp   # depth_bg - depth_p
+        done: dict = {}
         gain, add = [], []
         for k in range(3):
-            tp = np.exp(-c[k] * rp)
-            with np.errstate(invalid="ignore"):
-                tb = np.where(np.isfinite(rb), np.exp(-c[k] * np.where(np.isfinite(rb), rb, 0)), np.float32(
-                    1.0 if c[k] == 0 else 0.0))
-            ratio = np.float32(1.0) / tp
-            if physical:                                   # D_bg / D_p = exp(-Kd (depth_bg - depth_p))
-                g = tb * np.exp(-kd[k] * (db - dp)) * ratio
-                a = B[k] * (tp - tb) * ratio * np.exp(kd[k] * dp)
-            else:
-                g, a = tb * ratio, B[k] * (tp - tb) * ratio
-            gain.append(g.astype(np.float32))
-            add.append(a.astype(np.float32))
+            key = (c[k], kd[k])
+            if key not in done:                            # grey water: one pass for all channels
+                tr = np.exp(-c[k] * dr)                    # t_bg / t_p
+                if c[k] > 0:
+                    tr[~finite] = 0.0
+                if physical:
+                    g = tr * np.exp(-kd[k] * ddep) if kd[k] != 0 else tr
+                    veil = (np.float32(1.0) - tr) * np.exp(kd[k] * dp)
+                else:
+                    g, veil = tr, np.float32(1.0) - tr
+                done[key] = (g.astype(np.float32, copy=False), veil.astype(np.float32, copy=False))
+            g, veil = done[key]
+            gain.append(g)
+            add.append(veil * B[k])
         return gain, add
     return transfer
