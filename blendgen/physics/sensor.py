@@ -294,7 +294,7 @@ class SensorModel:
                 v += rng.standard_normal(v.shape, dtype=np.float32) * np.float32(self.noise_std)
             return np.clip(np.rint(v), 0, DN_MAX).astype(np.uint8)
         if self.noise_std == 0:        # the same codes by table lookup (srgb_lut: exact for every float32)
-            return srgb_lut.encode_uint8(y)
+            return srgb_lut.encode_uint8(y, srgb_encode)
         return to_uint8(y, self.noise_std, rng)
 
 

@@ -33,11 +33,11 @@ def _codes(encode, bits: np.ndarray) -> np.ndarray:
     return np.clip(np.rint(v), 0, 255).astype(np.uint8)
 
 
-@functools.lru_cache(maxsize=1)
-def tables() -> tuple[np.ndarray, np.ndarray]:
-    """(code (N,) uint8, step (N,) float32) per bucket of ``bits >> SHIFT`` for y in [0, 1];
+@functools.lru_cache(maxsize=2)
+def tables(srgb_encode) -> tuple[np.ndarray, np.ndarray]:
+    """(code (N,) uint8, step (N,) float32) per bucket of ``bits >> SHIFT`` for y in [0, 1] of the
+    arithmetic encoder ``srgb_encode`` (float32 array in [0, 1] -> encoded [0, 1]);
     ``step`` is +inf where the code does not change inside the bucket."""
-    from blendgen.physics.sensor import srgb_encode
     n = (_ONE_BITS >> SHIFT) + 1
     first = np.arange(n, dtype=np.uint64) << SHIFT
     last = np.minimum(first + (1 << SHIFT) - 1, _ONE_BITS)
@@ -53,10 +53,10 @@ def tables() -> tuple[np.ndarray, np.ndarray]:
     return code, step
 
 
-def encode_uint8(y: np.ndarray) -> np.ndarray:
-    """8-bit sRGB code (same shape, uint8) of float32 linear ``y`` already clipped to [0, 1]
-    (NaN-free; -0.0 counts as 0)."""
-    code, step = tables()
+def encode_uint8(y: np.ndarray, srgb_encode) -> np.ndarray:
+    """8-bit sRGB code (same shape, uint8) by ``srgb_encode``'s table of float32 linear ``y``
+    already clipped to [0, 1] (NaN-free; -0.0 counts as 0)."""
+    code, step = tables(srgb_encode)
     y = np.ascontiguousarray(y, np.float32)
     b = y.view(np.uint32) & np.uint32(0x7FFFFFFF)
     b >>= np.uint32(SHIFT)
@@ -65,10 +65,9 @@ def encode_uint8(y: np.ndarray) -> np.ndarray:
     return out
 
 
-def check() -> int:
+def check(srgb_encode) -> int:
     """Buckets holding more than one step (must be 0 for the lookup to be exact)."""
-    from blendgen.physics.sensor import srgb_encode
-    code, step = tables()
+    code, step = tables(srgb_encode)
     first = np.arange(code.size, dtype=np.uint64) << SHIFT
     last = np.minimum(first + (1 << SHIFT) - 1, _ONE_BITS)
     return int(np.sum(_codes(srgb_encode, last).astype(int) - code > 1))
