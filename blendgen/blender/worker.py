@@ -105,6 +105,7 @@ def run(job) -> dict:
     from blendgen.pipeline import compose as pp
     from blendgen.pipeline.passstore import PassStore
     from blendgen.blender import lamps, render, scene as scn
+    from blendgen.pipeline.frameshare import FrameShare
     from blendgen.pipeline.stagetimer import StageTimer
 
     t0 = time.perf_counter()
@@ -126,6 +127,7 @@ def run(job) -> dict:
     # "render" includes reading the EXR passes back (the ROI path: the background and one render per box);
     # "depth_to_range" turns the planar depth pass into range along each ray
     times = {"scene_build": time.perf_counter() - t0, "render": [], "depth_to_range": [], "post_write": []}
+    share = FrameShare()
     clock = StageTimer()        # CPU and wall per stage (render, compose, write) for `bench suite`
     try:
         for fr in job.frames:
@@ -145,11 +147,13 @@ def run(job) -> dict:
                 pass_paths = store.write(fr["index"], pp.output_passes(passes, K, distortion)) if store else {}
             with clock("compose"):
                 rec = pp.frame_record(fr, T_wd, markers, K, W, H, passes["index"])
+                share.begin(passes)          # sequences that are one condition under two names: one image
             for (o, d, fh), st in zip(outs, states):
                 with clock("compose"):
                     seen, occluded = pp.add_particles(passes, st, K, fr["T_world_cam"], markers, rec["T_cam_dock"],
                                                       fr["t"], water_after=job.fidelity == "fast")
-                    img = pp.camera_image(seen, st, K, fr, markers, job.fidelity, occluded, T_world_dock=T_wd)
+                    img = share.image(st, seen, lambda: pp.camera_image(seen, st, K, fr, markers, job.fidelity,
+                                                                         occluded, T_world_dock=T_wd))
                     r = rec if occluded is None else pp.with_visibility(rec, markers, K, passes["index"], occluded)
                     if st.auto_exposure is not None:
                         r = {**r, "exposure_s": st.exposure_s}

@@ -20,6 +20,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from blendgen.physics import srgb_lut
+
 # --------------------------------------------------------------------------- sRGB
 
 _A = 0.055
@@ -291,6 +293,8 @@ class SensorModel:
             if self.noise_std > 0:
                 v += rng.standard_normal(v.shape, dtype=np.float32) * np.float32(self.noise_std)
             return np.clip(np.rint(v), 0, DN_MAX).astype(np.uint8)
+        if self.noise_std == 0:        # the same codes by table lookup (srgb_lut: exact for every float32)
+            return srgb_lut.encode_uint8(y, srgb_encode)
         return to_uint8(y, self.noise_std, rng)
 
 

@@ -32,6 +32,8 @@ from datasets_spec.io import save_image
 def emissive_mask(index: np.ndarray, markers: list[dict]) -> np.ndarray:
     """(H,W) bool: pixels of self-lit objects (the LEDs) that depth light does not dim."""
     led = [m["object_index"] for m in markers if m["kind"] == "led_array"]
+    if len(led) == 1:                    # one array (the article's dock): a compare, ~8x cheaper than isin
+        return index == led[0]
     return np.isin(index, led) if led else np.zeros(index.shape, bool)
 
 
