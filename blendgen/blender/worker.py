@@ -182,24 +182,24 @@ def run(job, cache: dict | None = None) -> dict:
 
 
 def run_file(job_file: str, cache: dict | None = None) -> None:
-    """Run the job in ``job_file``; its stage timings go to the job's ``timing_out``."""
+    """Run the job in ``job_file``; C-level stdout (Blender's render log) goes to the job's
+    ``log``, its stage timings to its ``timing_out``."""
     from blendgen.pipeline.plan import JobRecord
     job = JobRecord.model_validate_json(Path(job_file).read_text())   # parsed once, typed from here on
+    _quiet_stdout(job.log or os.devnull)
     times = run(job, cache)
     if job.timing_out:
         Path(job.timing_out).write_text(json.dumps(times))
 
 
 def main(argv: list[str]) -> int:
-    from blendgen.pipeline.plan import JobRecord
-    job = JobRecord.model_validate_json(Path(argv[1]).read_text())
-    _quiet_stdout(job.log or os.devnull)
     run_file(argv[1])
     return 0
 
 
 def _log_to(log_path: str) -> None:
-    """Send C-level stdout and stderr (Blender's log, tracebacks) to ``log_path``."""
+    """Send C-level stdout and stderr (tracebacks) to ``log_path`` (the executor's log of
+    the job; ``run_file`` then sends stdout on to the job's own Blender log)."""
     sys.stdout.flush()
     sys.stderr.flush()
     fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)

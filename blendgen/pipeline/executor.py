@@ -2,8 +2,7 @@
 
 One job function for every executor: a render job is a job file
 (``OUT/.work/jobs/<id>.json``, a whole camera path and the sequences it feeds)
-run by a fresh ``python -m blendgen.pipeline.executor JOB.json`` process (which runs
-``blendgen.blender.worker`` with an orphan guard). The process returns when the
+run by a render worker (``blendgen.blender.worker``, with an orphan guard) until the
 job's ``sequences/.<id>.tmp/`` dirs are complete; the caller then commits them.
 
 - ``local`` (default): ``workers`` processes at once on this machine; each gets
@@ -13,9 +12,13 @@ job's ``sequences/.<id>.tmp/`` dirs are complete; the caller then commits them.
   every node needs ``dockbench[render,ray]`` installed. Ray is imported only here,
   only when chosen.
 
-Worker recycling: every job is a new process, so Blender's memory (it leaks
-across many renders) goes back to the system after each camera path: recycling
-after N=1 job. One process still renders a whole path with persistent data.
+Persistent workers (local): each slot keeps one ``python -m blendgen.pipeline.executor
+--serve`` process that takes job after job (JSON lines on its stdin), so Python, bpy,
+numpy/cv2 and pydantic are imported once per slot instead of once per job, and the Blender
+scene is kept while consecutive jobs share it (rebuilt from factory settings otherwise).
+A worker is replaced after a failed job and when its resident memory passed
+``RECYCLE_MB`` after a job (Blender leaks across renders). Ray tasks and calibration
+renders run one fresh ``python -m blendgen.pipeline.executor JOB.json`` per job.
 
 Stopping: on Ctrl-C (KeyboardInterrupt) or SIGTERM the running workers are
 killed and no new ones start; a render failure lets the running jobs finish
