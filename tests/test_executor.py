@@ -179,6 +179,19 @@ def test_persistent_worker_crash_is_reported_and_no_new_job_starts(tmp_path, mon
     assert [p.name for p in done] == ["j1.json"]     # running when j0 failed: finished and committed
 
 
+def test_persistent_worker_killed_mid_job_is_retried_once_in_a_fresh_worker(tmp_path, monkeypatch):
+    once = ("import os, signal, pathlib\n"
+            "flag = pathlib.Path(req['job']).with_suffix('.crashed')\n"
+            "if req['job'].endswith('j2.json') and not flag.exists(): flag.touch(); os.kill(os.getpid(), 9)\n")
+    server = _FAKE_SERVER.replace("j0.json", "none").replace("    time.sleep", "    " + once.replace("\n", "\n    ")
+                                                             + "time.sleep")
+    monkeypatch.setattr(ex, "SERVE_COMMAND", [sys.executable, "-c", server])
+    jobs, done = _jobs(tmp_path, 4), []
+    ex.run_local(jobs, tmp_path, 2, done.append)
+    assert sorted(done) == sorted(jobs) and (tmp_path / "j2.crashed").exists()
+    assert len((tmp_path / "j2.log").read_text().splitlines()) == 2     # two processes ran it
+
+
 def test_interrupt_kills_persistent_workers(tmp_path, monkeypatch):
     monkeypatch.setattr(ex, "SERVE_COMMAND", [sys.executable, "-c", _FAKE_SERVER + "# dockbench-test-serve-int"])
     monkeypatch.setenv("FAKE_SLEEP", "60")

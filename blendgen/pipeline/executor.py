@@ -56,6 +56,11 @@ class _Stopped(RenderError):
     """A job not started because the run is stopping."""
 
 
+class WorkerCrashed(RenderError):
+    """A persistent worker died without answering (a signal, the OOM killer, a crash in
+    Blender): the job is run once more in a fresh worker before it is reported."""
+
+
 class ExecutorError(ConfigError):
     """A user error choosing the executor (unknown name, ray not installed): exit code 2."""
 
@@ -206,7 +211,8 @@ class PersistentWorker:
         if reply is None or not reply.get("ok"):
             what = reply["error"] if reply else f"worker exited (code {p.returncode})"
             tail = Path(log_file).read_text(errors="replace").splitlines()[-25:] if Path(log_file).exists() else []
-            raise RenderError(f"render worker failed ({what}) for {Path(job_file).name}:\n" + "\n".join(tail))
+            kind = RenderError if reply else WorkerCrashed
+            raise kind(f"render worker failed ({what}) for {Path(job_file).name}:\n" + "\n".join(tail))
 
     def close(self) -> None:
         """End the worker (EOF on its stdin, then SIGTERM/SIGKILL) and reap it."""
@@ -239,7 +245,12 @@ def _run_slots(job_files: list[Path], log_dir: Path, workers: int, on_done: Call
                         return
                     jf = queue.pop(0)
                 try:
-                    w.run(jf, log_dir / f"{jf.stem}.log")
+                    try:
+                        w.run(jf, log_dir / f"{jf.stem}.log")
+                    except WorkerCrashed:
+                        if children.closed:            # killed because the run is stopping
+                            raise
+                        w.run(jf, log_dir / f"{jf.stem}.log")    # once more, in a fresh worker
                     on_done(jf)
                 except _Stopped:
                     return
