@@ -162,7 +162,7 @@ _FAKE_SERVER = ("import json, sys, time, os\n"
 
 
 def test_persistent_workers_take_job_after_job(tmp_path, monkeypatch):
-    monkeypatch.setattr(ex, "SERVE_COMMAND", [sys.executable, "-c", _FAKE_SERVER.replace("j0.json", "none")])
+    monkeypatch.setattr(ex, "serve_command", lambda d: [sys.executable, "-c", _FAKE_SERVER.replace("j0.json", "none")])
     jobs, done = _jobs(tmp_path, 6), []
     ex.run_local(jobs, tmp_path, 2, done.append)
     assert sorted(done) == sorted(jobs)
@@ -172,7 +172,7 @@ def test_persistent_workers_take_job_after_job(tmp_path, monkeypatch):
 
 
 def test_persistent_worker_crash_is_reported_and_no_new_job_starts(tmp_path, monkeypatch):
-    monkeypatch.setattr(ex, "SERVE_COMMAND", [sys.executable, "-c", _FAKE_SERVER])
+    monkeypatch.setattr(ex, "serve_command", lambda d: [sys.executable, "-c", _FAKE_SERVER])
     jobs, done = _jobs(tmp_path, 5), []
     with pytest.raises(ex.RenderError, match=r"worker exited \(code 3\).*j0\.json[\s\S]*boom: bad scene"):
         ex.run_local(jobs, tmp_path, 2, done.append)
@@ -185,7 +185,7 @@ def test_persistent_worker_killed_mid_job_is_retried_once_in_a_fresh_worker(tmp_
             "if req['job'].endswith('j2.json') and not flag.exists(): flag.touch(); os.kill(os.getpid(), 9)\n")
     server = _FAKE_SERVER.replace("j0.json", "none").replace("    time.sleep", "    " + once.replace("\n", "\n    ")
                                                              + "time.sleep")
-    monkeypatch.setattr(ex, "SERVE_COMMAND", [sys.executable, "-c", server])
+    monkeypatch.setattr(ex, "serve_command", lambda d: [sys.executable, "-c", server])
     jobs, done = _jobs(tmp_path, 4), []
     ex.run_local(jobs, tmp_path, 2, done.append)
     assert sorted(done) == sorted(jobs) and (tmp_path / "j2.crashed").exists()
@@ -193,7 +193,7 @@ def test_persistent_worker_killed_mid_job_is_retried_once_in_a_fresh_worker(tmp_
 
 
 def test_interrupt_kills_persistent_workers(tmp_path, monkeypatch):
-    monkeypatch.setattr(ex, "SERVE_COMMAND", [sys.executable, "-c", _FAKE_SERVER + "# dockbench-test-serve-int"])
+    monkeypatch.setattr(ex, "serve_command", lambda d: [sys.executable, "-c", _FAKE_SERVER + "# dockbench-test-serve-int"])
     monkeypatch.setenv("FAKE_SLEEP", "60")
     jobs, done = _jobs(tmp_path, 4), []
     import signal

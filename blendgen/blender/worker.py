@@ -197,7 +197,7 @@ def main(argv: list[str]) -> int:
     return 0
 
 
-def _log_to(log_path: str) -> None:
+def log_to(log_path: str) -> None:
     """Send C-level stdout and stderr (tracebacks) to ``log_path`` (the executor's log of
     the job; ``run_file`` then sends stdout on to the job's own Blender log)."""
     sys.stdout.flush()
@@ -229,7 +229,7 @@ def serve(requests, reply) -> int:
         if not line.strip():
             continue
         req = json.loads(line)
-        _log_to(req.get("log") or os.devnull)
+        log_to(req.get("log") or os.devnull)
         try:
             run_file(req["job"], cache)
         except Exception as e:  # noqa: BLE001 - reported to the parent, then this worker exits
@@ -240,16 +240,22 @@ def serve(requests, reply) -> int:
     return 0
 
 
-def serve_main() -> int:
-    """``python -m blendgen.pipeline.executor --serve``: job requests on stdin, replies on
-    the original stdout (JSON lines); Blender's output goes to each job's log."""
+def reply_channel():
+    """``reply(dict)`` writing JSON lines to the process's original stdout (a duplicate of
+    fd 1, taken before fd 1 is redirected to a log); shared with ``blender.serve``."""
     proto = os.fdopen(os.dup(1), "w", buffering=1)
 
     def reply(msg: dict) -> None:
         proto.write(json.dumps(msg) + "\n")
         proto.flush()
 
-    return serve(sys.stdin, reply)
+    return reply
+
+
+def serve_main() -> int:
+    """``python -m blendgen.pipeline.executor --serve``: job requests on stdin, replies on
+    the original stdout (JSON lines); Blender's output goes to each job's log."""
+    return serve(sys.stdin, reply_channel())
 
 
 if __name__ == "__main__":

@@ -171,7 +171,12 @@ def run_worker(job_file: Path, log_file: Path, children: Children | None = None,
 
 
 # -- persistent workers ------------------------------------------------------------
-SERVE_COMMAND = [sys.executable, "-m", "blendgen.pipeline.executor", "--serve"]
+def serve_command(log_dir: Path) -> list[str]:
+    """Command line of a persistent render worker; ``log_dir`` (the dataset's
+    ``.work/logs``) only names in ``ps`` which dataset the worker serves."""
+    return [sys.executable, "-m", "blendgen.pipeline.executor", "--serve", str(log_dir)]
+
+
 RECYCLE_MB = 2048         # a worker whose resident memory passed this after a job is replaced
 
 
@@ -190,7 +195,7 @@ class PersistentWorker:
 
     def _start(self) -> subprocess.Popen:
         with open(self.log_dir / f"{self.name}.log", "ab") as log:   # startup errors (before any job)
-            p = self.children.spawn(SERVE_COMMAND, log, stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+            p = self.children.spawn(serve_command(self.log_dir), log, stdin=subprocess.PIPE, stdout=subprocess.PIPE)
         return p
 
     def run(self, job_file: Path, log_file: Path) -> None:
