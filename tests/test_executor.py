@@ -149,3 +149,86 @@ def test_ray_writes_the_same_dataset_as_local(tmp_path):
     job = next((tmp_path / "ray" / ".work" / "jobs").glob("*--a-t000-default.json"))
     assert json.loads(job.read_text())["render"]["threads"] \
         == ex.slots("ray", 2, None)[1]
+
+
+# -- persistent workers (executor --serve): the protocol with a fake server, no Blender --
+_FAKE_SERVER = ("import json, sys, time, os\n"
+                "for line in sys.stdin:\n"
+                "    req = json.loads(line)\n"
+                "    open(req['log'], 'a').write(f'pid {os.getpid()}\\n')\n"
+                "    if req['job'].endswith('j0.json'): print('boom: bad scene', file=open(req['log'], 'a')); sys.exit(3)\n"
+                "    time.sleep(float(os.environ.get('FAKE_SLEEP', '0.3')))\n"
+                "    print(json.dumps({'ok': True, 'rss_mb': 1.0}), flush=True)\n")
+
+
+def test_persistent_workers_take_job_after_job(tmp_path, monkeypatch):
+    monkeypatch.setattr(ex, "serve_command", lambda d: [sys.executable, "-c", _FAKE_SERVER.replace("j0.json", "none")])
+    jobs, done = _jobs(tmp_path, 6), []
+    ex.run_local(jobs, tmp_path, 2, done.append)
+    assert sorted(done) == sorted(jobs)
+    pids = {(tmp_path / f"{j.stem}.log").read_text() for j in jobs}
+    assert len(pids) == 2                              # two processes served the six jobs
+    assert _live_children(_FAKE_SERVER[:20]) == []
+
+
+def test_persistent_worker_crash_is_reported_and_no_new_job_starts(tmp_path, monkeypatch):
+    monkeypatch.setattr(ex, "serve_command", lambda d: [sys.executable, "-c", _FAKE_SERVER])
+    jobs, done = _jobs(tmp_path, 5), []
+    with pytest.raises(ex.RenderError, match=r"worker exited \(code 3\).*j0\.json[\s\S]*boom: bad scene"):
+        ex.run_local(jobs, tmp_path, 2, done.append)
+    assert [p.name for p in done] == ["j1.json"]     # running when j0 failed: finished and committed
+
+
+def test_persistent_worker_killed_mid_job_is_retried_once_in_a_fresh_worker(tmp_path, monkeypatch):
+    once = ("import os, signal, pathlib\n"
+            "flag = pathlib.Path(req['job']).with_suffix('.crashed')\n"
+            "if req['job'].endswith('j2.json') and not flag.exists(): flag.touch(); os.kill(os.getpid(), 9)\n")
+    server = _FAKE_SERVER.replace("j0.json", "none").replace("    time.sleep", "    " + once.replace("\n", "\n    ")
+                                                             + "time.sleep")
+    monkeypatch.setattr(ex, "serve_command", lambda d: [sys.executable, "-c", server])
+    jobs, done = _jobs(tmp_path, 4), []
+    ex.run_local(jobs, tmp_path, 2, done.append)
+    assert sorted(done) == sorted(jobs) and (tmp_path / "j2.crashed").exists()
+    assert len((tmp_path / "j2.log").read_text().splitlines()) == 2     # two processes ran it
+
+
+def test_interrupt_kills_persistent_workers(tmp_path, monkeypatch):
+    monkeypatch.setattr(ex, "serve_command", lambda d: [sys.executable, "-c", _FAKE_SERVER + "# dockbench-test-serve-int"])
+    monkeypatch.setenv("FAKE_SLEEP", "60")
+    jobs, done = _jobs(tmp_path, 4), []
+    import signal
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    threading.Timer(1.5, _thread.interrupt_main).start()
+    t0 = time.perf_counter()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            ex.run_local(jobs, tmp_path, 2, done.append)
+    finally:
+        signal.signal(signal.SIGINT, old)
+    assert time.perf_counter() - t0 < 10
+    assert done == [] and _live_children("dockbench-test-serve-int") == []
+
+
+@pytest.mark.blender
+def test_persistent_worker_renders_two_scenes_as_fresh_workers_do(tmp_path, monkeypatch):
+    """One persistent worker renders A (two paths: the scene reused), then B (another scene:
+    rebuilt in the same process): every file is byte-identical to one fresh process per job."""
+    from blendgen.pipeline.generate import generate_many
+    a = Experiment.model_validate(TINY)
+    b = Experiment.model_validate({**TINY, "name": "tiny-exec-b", "seed": 6,
+                                   "scene": {**TINY["scene"], "sun_elevation_deg": 30},
+                                   "camera": {**TINY["camera"], "hfov_deg": 70}})
+    warm = generate_many([(a, tmp_path / "warm_a"), (b, tmp_path / "warm_b")], workers=1, progress=False)
+    jobs = {json.dumps(json.loads(p.read_text())["scene"], sort_keys=True)
+            for d in ("warm_a", "warm_b") for p in (tmp_path / d / ".work" / "jobs").glob("*.json")}
+    assert len(jobs) == 2                              # two different scenes went through one worker
+    logs = [p for d in ("warm_a",) for p in (tmp_path / d / ".work" / "logs").glob("worker-*.log")]
+    assert len(logs) == 1
+    fresh_run = ex.run_local
+    monkeypatch.setattr(ex, "run_local", lambda files, logs, n, on_done: fresh_run(
+        files, logs, n, on_done, command=ex.worker_command))
+    fresh = generate_many([(a, tmp_path / "fresh_a"), (b, tmp_path / "fresh_b")], workers=1, progress=False)
+    for w, f, d in zip(warm, fresh, ("a", "b")):
+        assert w["files"] == f["files"] and w["content_hash"] == f["content_hash"]
+        assert (tmp_path / f"warm_{d}" / "manifest.json").read_bytes() == \
+            (tmp_path / f"fresh_{d}" / "manifest.json").read_bytes()

@@ -26,7 +26,8 @@ ROOT = Path(__file__).resolve().parent.parent
 TINY = {
     "name": "tiny-resume", "version": "1.0.0", "seed": 11,
     "scene": {"template": "pool_15x5x8"},
-    "camera": {"width": 64, "height": 48, "hfov_deg": 60, "fps": 5},
+    # 20 fps: a run is still going after its first commit (persistent workers start jobs at once)
+    "camera": {"width": 64, "height": 48, "hfov_deg": 60, "fps": 20},
     "render": {"fidelity": "fast", "samples": 1},
     "water": {"preset": "clear"},
     "trajectories": [

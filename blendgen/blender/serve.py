@@ -88,17 +88,9 @@ def serve(requests, reply) -> int:
 
 
 def main(argv: list[str]) -> int:
-    proto = os.fdopen(os.dup(1), "w", buffering=1)
-    log = argv[1] if len(argv) > 1 else os.devnull
-    fd = os.open(log, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
-    os.dup2(fd, 1)
-    os.dup2(fd, 2)
-    os.close(fd)
-
-    def reply(msg: dict) -> None:
-        proto.write(json.dumps(msg) + "\n")
-        proto.flush()
-
+    from blendgen.blender.worker import log_to, reply_channel
+    reply = reply_channel()
+    log_to(argv[1] if len(argv) > 1 else os.devnull)
     return serve(sys.stdin, reply)
 
 

@@ -100,19 +100,42 @@ def _write_image(seq_dir: Path, rel: str, i: int, img: np.ndarray, raw: bool) ->
     return {"image": f"{rel}/rgb/{name}"}
 
 
-def run(job) -> dict:
-    """Render the job (a ``plan.JobRecord``); returns timing figures (s) per stage."""
+def _scene_key(job) -> str | None:
+    """What the built Blender scene depends on (scene, camera, Cycles settings), or None
+    when the job changes the scene while it renders (real-geometry particles)."""
+    if job.scene.get("particles"):
+        return None
+    return json.dumps([job.scene, job.camera.model_dump(), job.render], sort_keys=True)
+
+
+def _scene(job, cache: dict | None):
+    """(Blender scene, camera object) for ``job``: the one in ``cache`` when the last job
+    built the same scene (persistent worker), else built from factory settings."""
+    from blendgen.blender import lamps, render, scene as scn
+    key = _scene_key(job)
+    if cache is not None and key is not None and cache.get("key") == key:
+        return cache["sc"], cache["cam"]
+    sc = scn.build(job.scene)                               # read_factory_settings: nothing kept
+    cam = render.setup_camera(sc, job.camera.model_dump())
+    lamps.add_lamps(cam, job.scene.get("lamps") or [])       # reference fidelity only
+    render.setup_cycles(sc, job.render)
+    if cache is not None:
+        cache.update(key=key, sc=sc, cam=cam)
+    return sc, cam
+
+
+def run(job, cache: dict | None = None) -> dict:
+    """Render the job (a ``plan.JobRecord``); returns timing figures (s) per stage.
+
+    ``cache`` (a persistent worker's dict) keeps the built scene for the next job."""
     from blendgen.pipeline import compose as pp
     from blendgen.pipeline.passstore import PassStore
-    from blendgen.blender import lamps, render, scene as scn
+    from blendgen.blender import render
     from blendgen.pipeline.frameshare import FrameShare
     from blendgen.pipeline.stagetimer import StageTimer
 
     t0 = time.perf_counter()
-    sc = scn.build(job.scene)
-    cam = render.setup_camera(sc, job.camera.model_dump())
-    lamps.add_lamps(cam, job.scene.get("lamps") or [])       # reference fidelity only
-    render.setup_cycles(sc, job.render)
+    sc, cam = _scene(job, cache)
     K = np.asarray(job.camera.K, float)
     W, H = job.camera.width, job.camera.height
     T_wd = np.asarray(job.gt.T_world_dock, float)
@@ -176,14 +199,81 @@ def run(job) -> dict:
     return times
 
 
-def main(argv: list[str]) -> int:
+def run_file(job_file: str, cache: dict | None = None) -> None:
+    """Run the job in ``job_file``; C-level stdout (Blender's render log) goes to the job's
+    ``log``, its stage timings to its ``timing_out``."""
     from blendgen.pipeline.plan import JobRecord
-    job = JobRecord.model_validate_json(Path(argv[1]).read_text())   # parsed once, typed from here on
+    job = JobRecord.model_validate_json(Path(job_file).read_text())   # parsed once, typed from here on
     _quiet_stdout(job.log or os.devnull)
-    times = run(job)
+    times = run(job, cache)
     if job.timing_out:
         Path(job.timing_out).write_text(json.dumps(times))
+
+
+def main(argv: list[str]) -> int:
+    run_file(argv[1])
     return 0
+
+
+def log_to(log_path: str) -> None:
+    """Send C-level stdout and stderr (tracebacks) to ``log_path`` (the executor's log of
+    the job; ``run_file`` then sends stdout on to the job's own Blender log)."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+    os.dup2(fd, 1)
+    os.dup2(fd, 2)
+    os.close(fd)
+
+
+def _rss_mb() -> float:
+    """Resident memory of this process (MB), from /proc (0 where there is none)."""
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+    except OSError:
+        return 0.0
+
+
+def serve(requests, reply) -> int:
+    """Persistent worker: run one job per request line ``{"job": JOB.json, "log": LOG}``,
+    bpy imported once and the scene kept while jobs share it; reply ``{"ok": true,
+    "rss_mb": MB}`` when the job's sequences are complete. A failing job replies
+    ``{"ok": false, "error": ...}`` (traceback in its log) and ends the worker: a fresh
+    process serves the next job, so nothing half-built is carried over."""
+    import traceback
+    cache: dict = {}
+    for line in requests:
+        if not line.strip():
+            continue
+        req = json.loads(line)
+        log_to(req.get("log") or os.devnull)
+        try:
+            run_file(req["job"], cache)
+        except Exception as e:  # noqa: BLE001 - reported to the parent, then this worker exits
+            traceback.print_exc()
+            reply({"ok": False, "error": f"{type(e).__name__}: {e}"})
+            return 1
+        reply({"ok": True, "rss_mb": round(_rss_mb(), 1)})
+    return 0
+
+
+def reply_channel():
+    """``reply(dict)`` writing JSON lines to the process's original stdout (a duplicate of
+    fd 1, taken before fd 1 is redirected to a log); shared with ``blender.serve``."""
+    proto = os.fdopen(os.dup(1), "w", buffering=1)
+
+    def reply(msg: dict) -> None:
+        proto.write(json.dumps(msg) + "\n")
+        proto.flush()
+
+    return reply
+
+
+def serve_main() -> int:
+    """``python -m blendgen.pipeline.executor --serve``: job requests on stdin, replies on
+    the original stdout (JSON lines); Blender's output goes to each job's log."""
+    return serve(sys.stdin, reply_channel())
 
 
 if __name__ == "__main__":

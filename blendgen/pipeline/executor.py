@@ -2,8 +2,7 @@
 
 One job function for every executor: a render job is a job file
 (``OUT/.work/jobs/<id>.json``, a whole camera path and the sequences it feeds)
-run by a fresh ``python -m blendgen.pipeline.executor JOB.json`` process (which runs
-``blendgen.blender.worker`` with an orphan guard). The process returns when the
+run by a render worker (``blendgen.blender.worker``, with an orphan guard) until the
 job's ``sequences/.<id>.tmp/`` dirs are complete; the caller then commits them.
 
 - ``local`` (default): ``workers`` processes at once on this machine; each gets
@@ -13,9 +12,13 @@ job's ``sequences/.<id>.tmp/`` dirs are complete; the caller then commits them.
   every node needs ``dockbench[render,ray]`` installed. Ray is imported only here,
   only when chosen.
 
-Worker recycling: every job is a new process, so Blender's memory (it leaks
-across many renders) goes back to the system after each camera path: recycling
-after N=1 job. One process still renders a whole path with persistent data.
+Persistent workers (local): each slot keeps one ``python -m blendgen.pipeline.executor
+--serve`` process that takes job after job (JSON lines on its stdin), so Python, bpy,
+numpy/cv2 and pydantic are imported once per slot instead of once per job, and the Blender
+scene is kept while consecutive jobs share it (rebuilt from factory settings otherwise).
+A worker is replaced after a failed job and when its resident memory passed
+``RECYCLE_MB`` after a job (Blender leaks across renders). Ray tasks and calibration
+renders run one fresh ``python -m blendgen.pipeline.executor JOB.json`` per job.
 
 Stopping: on Ctrl-C (KeyboardInterrupt) or SIGTERM the running workers are
 killed and no new ones start; a render failure lets the running jobs finish
@@ -51,6 +54,11 @@ class RenderError(RuntimeError):
 
 class _Stopped(RenderError):
     """A job not started because the run is stopping."""
+
+
+class WorkerCrashed(RenderError):
+    """A persistent worker died without answering (a signal, the OOM killer, a crash in
+    Blender): the job is run once more in a fresh worker before it is reported."""
 
 
 class ExecutorError(ConfigError):
@@ -108,12 +116,12 @@ class Children:
         self._procs: set[subprocess.Popen] = set()
         self.closed = False
 
-    def spawn(self, cmd: list[str], log) -> subprocess.Popen:
+    def spawn(self, cmd: list[str], log, stdin=subprocess.DEVNULL, stdout=None) -> subprocess.Popen:
         with self._lock:
             if self.closed:
                 raise _Stopped("stopped: no new render jobs")
             env = {**os.environ, PARENT_ENV: str(os.getpid())}
-            p = subprocess.Popen(cmd, stdout=log, stderr=log, stdin=subprocess.DEVNULL, env=env)
+            p = subprocess.Popen(cmd, stdout=log if stdout is None else stdout, stderr=log, stdin=stdin, env=env)
             self._procs.add(p)
             return p
 
@@ -162,15 +170,133 @@ def run_worker(job_file: Path, log_file: Path, children: Children | None = None,
         raise RenderError(f"render worker failed (exit {rc}) for {Path(job_file).name}:\n" + "\n".join(tail))
 
 
+# -- persistent workers ------------------------------------------------------------
+def serve_command(log_dir: Path) -> list[str]:
+    """Command line of a persistent render worker; ``log_dir`` (the dataset's
+    ``.work/logs``) only names in ``ps`` which dataset the worker serves."""
+    return [sys.executable, "-m", "blendgen.pipeline.executor", "--serve", str(log_dir)]
+
+
+RECYCLE_MB = 2048         # a worker whose resident memory passed this after a job is replaced
+
+
+class PersistentWorker:
+    """One long-lived render worker (``executor --serve``) taking job after job.
+
+    bpy is imported once and the Blender scene is kept while consecutive jobs share it
+    (``blender.worker.serve``). Started lazily; replaced after a failed job or when its
+    memory passed ``RECYCLE_MB`` (Blender leaks across renders). A job is done only when
+    the worker replied ok: a killed or crashed worker raises RenderError with the job's
+    log tail, exactly as a one-shot worker's non-zero exit does."""
+
+    def __init__(self, children: Children, log_dir: Path, name: str):
+        self.children, self.log_dir, self.name = children, log_dir, name
+        self.proc: subprocess.Popen | None = None
+
+    def _start(self) -> subprocess.Popen:
+        with open(self.log_dir / f"{self.name}.log", "ab") as log:   # startup errors (before any job)
+            p = self.children.spawn(serve_command(self.log_dir), log, stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+        return p
+
+    def run(self, job_file: Path, log_file: Path) -> None:
+        """Run one job to completion; raise RenderError with the log tail on failure."""
+        if self.proc is None or self.proc.poll() is not None:
+            self.close()
+            self.proc = self._start()
+        p = self.proc
+        try:
+            p.stdin.write((json.dumps({"job": str(job_file), "log": str(log_file)}) + "\n").encode())
+            p.stdin.flush()
+            line = p.stdout.readline()
+        except (BrokenPipeError, ValueError, OSError):
+            line = b""
+        reply = json.loads(line) if line.strip() else None
+        if reply is None or not reply.get("ok") or reply.get("rss_mb", 0) > RECYCLE_MB:
+            self.close()
+        if reply is None or not reply.get("ok"):
+            what = reply["error"] if reply else f"worker exited (code {p.returncode})"
+            tail = Path(log_file).read_text(errors="replace").splitlines()[-25:] if Path(log_file).exists() else []
+            kind = RenderError if reply else WorkerCrashed
+            raise kind(f"render worker failed ({what}) for {Path(job_file).name}:\n" + "\n".join(tail))
+
+    def close(self) -> None:
+        """End the worker (EOF on its stdin, then SIGTERM/SIGKILL) and reap it."""
+        p, self.proc = self.proc, None
+        if p is None:
+            return
+        try:
+            p.stdin.close()
+            p.wait(5.0)
+        except (OSError, ValueError, subprocess.TimeoutExpired):
+            pass
+        _terminate(p)
+        p.stdout.close()
+        self.children.forget(p)
+
+
+def _run_slots(job_files: list[Path], log_dir: Path, workers: int, on_done: Callable[[Path], None],
+               children: Children, errors: list) -> None:
+    """``workers`` threads, each with one PersistentWorker, take jobs in order from one queue;
+    after the first error no thread takes a new job (the running ones finish)."""
+    queue = list(job_files)
+    lock = threading.Lock()
+
+    def slot(i: int):
+        w = PersistentWorker(children, log_dir, f"worker-{i}")
+        try:
+            while True:
+                with lock:
+                    if errors or children.closed or not queue:
+                        return
+                    jf = queue.pop(0)
+                try:
+                    try:
+                        w.run(jf, log_dir / f"{jf.stem}.log")
+                    except WorkerCrashed:
+                        if children.closed:            # killed because the run is stopping
+                            raise
+                        w.run(jf, log_dir / f"{jf.stem}.log")    # once more, in a fresh worker
+                    on_done(jf)
+                except _Stopped:
+                    return
+                except BaseException as e:
+                    children.close()
+                    errors.append(e)
+                    return
+        finally:
+            w.close()
+
+    threads = [threading.Thread(target=slot, args=(i,), daemon=True, name=f"render-slot-{i}")
+               for i in range(min(workers, len(queue)))]
+    for t in threads:
+        t.start()
+    try:
+        for t in threads:
+            while t.is_alive():
+                t.join(0.5)
+    except BaseException:
+        children.kill()
+        for t in threads:
+            t.join()
+        raise
+    if errors:
+        raise errors[0]
+
+
 # -- local process pool ----------------------------------------------------------
 def run_local(job_files: list[Path], log_dir: Path, workers: int, on_done: Callable[[Path], None],
-              command: Callable[[Path], list[str]] = worker_command) -> None:
+              command: Callable[[Path], list[str]] | None = None) -> None:
     """Run job files on a local process pool; ``on_done(job_file)`` after each success.
 
-    The first failure is raised after the running jobs finish (no new ones start);
-    an interrupt kills the running workers at once."""
+    Without ``command``: ``workers`` persistent render workers (PersistentWorker), each
+    taking job after job; with ``command``: one fresh process per job. The first failure
+    is raised after the running jobs finish (no new ones start); an interrupt kills the
+    running workers at once."""
     children = Children()
     errors: list[BaseException] = []          # in the order they happened
+    if command is None:
+        _run_slots(job_files, log_dir, workers, on_done, children, errors)
+        return
 
     def one(jf: Path):
         try:
@@ -377,6 +503,9 @@ def _child_main(argv: list[str]) -> int:
         _exit_with_parent(int(parent))
     from blendgen.pipeline import allocator
     allocator.keep_heap()                     # per-frame image arrays reuse heap pages
+    if len(argv) > 1 and argv[1] == "--serve":
+        from blendgen.blender import worker
+        return worker.serve_main()
     if len(argv) > 2 and argv[1] == "--calibration":
         from blendgen.blender import calibration_scene
         return calibration_scene.main([argv[0], argv[2]])

@@ -238,10 +238,12 @@ def _render(targets: list[_Target], workers: int | None, progress: bool, kind: s
 
     def run():
         logs = targets[0].work / "logs"
+        # longest camera paths first: the last jobs are the short ones, so no slot idles long at the end
+        order = sorted(files, key=lambda jf: -len(files[jf][0][1].frames))
         if kind == "ray":
-            ex.run_ray(list(files), logs, on_done, ray_address, threads, n_workers)
+            ex.run_ray(order, logs, on_done, ray_address, threads, n_workers)
         else:
-            ex.run_local(list(files), logs, n_workers, on_done)
+            ex.run_local(order, logs, n_workers, on_done)
 
     total = sum(len(parts[0][1].frames) for parts in files.values())
     if total and progress:

@@ -326,7 +326,8 @@ def print_run(run: SuiteRun) -> None:
                f"bound): {x['cpu_h']:.2f} CPU-h = {x['cpu_bound_wall_h']:.2f} h on {x['cores']} idle cores; "
                f"measured wall x {x['trials']}/{run.trials} = {x['measured_wall_scaled_h']:.2f} h; disk "
                f"{x['disk_gb']:.1f} GB ({x['disk_without_images_gb']:.1f} GB without images); "
-               f"peak RSS {x['peak_rss_mb']:.0f} MB (does not grow with trials: one job per worker)")
+               f"peak RSS {x['peak_rss_mb']:.0f} MB (bounded in trials: a render worker is replaced "
+               f"above executor.RECYCLE_MB)")
 
 
 def print_recorded(out: Path) -> None:
