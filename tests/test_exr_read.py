@@ -56,5 +56,7 @@ def test_rendered_passes_are_those_openimageio_reads(tmp_path, border):
     cmd = [sys.executable, "-m", "blendgen.blender.exr_oracle", str(tmp_path / "f.exr"), json.dumps(border)]
     r = subprocess.run(cmd, cwd=root, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
-    same = r.stdout.strip().splitlines()[-1].split()
+    lines = r.stdout.strip().splitlines()
+    assert "exr_threads 0" in lines        # written in the render thread, no OpenEXR pool
+    same = lines[-1].split()
     assert same[0] == "same" and (same[1:] == ["48", "64"]) == (border is None)   # the crop is smaller

@@ -4,7 +4,8 @@ Renders a 64x48 Cycles frame (a monkey with object index 3, every pass the worke
 albedo and normal too; ``BORDER_JSON`` null for the whole frame or [x0, x1, y0, y1] in 0..1 for an
 ROI crop) to ``OUT.exr`` as the render worker writes it, then checks that
 :func:`blendgen.blender.exr.read_channels` takes it and that :func:`render.read_passes` equals
-OpenImageIO's read bit for bit. Prints ``same H W``; exits non-zero (AssertionError) otherwise.
+OpenImageIO's read bit for bit. Prints OpenEXR's thread count (``exr_threads N``), then
+``same H W``; exits non-zero (AssertionError) otherwise.
 Run by ``tests/test_exr_read.py`` in a subprocess, so bpy stays out of the test process."""
 import json
 import sys
@@ -36,6 +37,7 @@ def main(argv: list[str]) -> int:
         assert (a[k].dtype, a[k].shape) == (b[k].dtype, b[k].shape) and a[k].tobytes() == b[k].tobytes(), k
     assert a["index"].max() == 3 and np.isfinite(a["depth_z"]).any()
     h, w = a["rgb"].shape[:2]
+    print("exr_threads", render.exr_thread_count())   # setup_cycles: written in the calling thread
     print("same", h, w)
     return 0
 

@@ -38,6 +38,7 @@ from pathlib import Path
 
 from datasets_spec.io import content_hash, save_json_atomic, sha256_file
 from evalkit import stream
+from evalkit.heap import keep_freed_heap
 from blendgen.pipeline.passstore import PIXELS as PASS_PIXELS
 
 STREAM_FORMAT = "dockbench-stream"
@@ -150,7 +151,7 @@ def stream_run(items: list[tuple], req: RunRequest) -> list[dict]:
         _stamp_work(e, Path(o), req)
     n_eval = req.eval_workers or os.cpu_count() or 1
     # spawn: the workers are this process's children (their CPU shows in RUSAGE_CHILDREN)
-    with ProcessPoolExecutor(n_eval, mp_context=get_context("spawn")) as pool:
+    with ProcessPoolExecutor(n_eval, mp_context=get_context("spawn"), initializer=keep_freed_heap) as pool:
         streamer = _Streamer(req, pool)
         try:
             manifests = generate_many([(e, Path(o) / "dataset") for e, o in items], workers=req.workers,
