@@ -17,8 +17,6 @@ from typing import Any, Iterable
 import numpy as np
 import pandas as pd
 
-from evalkit.heap import keep_freed_heap
-
 
 def build_localizers(names: list[str], params: list[str], isolate: bool | None, timeout_s: float | None,
            preprocess: str | None) -> list[tuple[str, Any]]:
@@ -59,7 +57,7 @@ def evaluate_frames(dataset_dir: str | Path, localizers: Iterable[str], params: 
     else:
         # spawn: the workers are this process's children (their CPU shows in RUSAGE_CHILDREN)
         # and nothing is forked from a process that may run threads
-        with ProcessPoolExecutor(n, mp_context=get_context("spawn"), initializer=keep_freed_heap) as pool:
+        with ProcessPoolExecutor(n, mp_context=get_context("spawn")) as pool:
             parts = list(pool.map(_evaluate_share, args))
     order = {s: i for i, s in enumerate(seq_ids)}
     df = pd.concat(parts, ignore_index=True)

@@ -45,10 +45,6 @@ from blendgen.config.models import ConfigError
 
 EXECUTORS = ("local", "ray")
 PARENT_ENV = "DOCKBENCH_PARENT_PID"
-# glibc malloc of a render worker keeps its freed heap for the next frame instead of
-# faulting image-sized arrays in again (the evaluators do the same: evalkit/heap.py,
-# which has the measurement); read by glibc at process start, a user's own value wins
-HEAP_ENV = {"MALLOC_MMAP_THRESHOLD_": str(256 << 20), "MALLOC_TRIM_THRESHOLD_": str(512 << 20)}
 RAY_THREADS = 2          # Cycles threads (= Ray CPUs) per job on a cluster: one job per core pair
 
 
@@ -124,7 +120,7 @@ class Children:
         with self._lock:
             if self.closed:
                 raise _Stopped("stopped: no new render jobs")
-            env = {**HEAP_ENV, **os.environ, PARENT_ENV: str(os.getpid())}
+            env = {**os.environ, PARENT_ENV: str(os.getpid())}
             p = subprocess.Popen(cmd, stdout=log if stdout is None else stdout, stderr=log, stdin=stdin, env=env)
             self._procs.add(p)
             return p

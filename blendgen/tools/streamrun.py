@@ -38,7 +38,7 @@ from pathlib import Path
 
 from datasets_spec.io import content_hash, save_json_atomic, sha256_file
 from evalkit import stream
-from evalkit.heap import keep_freed_heap
+from blendgen.pipeline import allocator
 from blendgen.pipeline.passstore import PIXELS as PASS_PIXELS
 
 STREAM_FORMAT = "dockbench-stream"
@@ -150,8 +150,10 @@ def stream_run(items: list[tuple], req: RunRequest) -> list[dict]:
     for e, o in items:
         _stamp_work(e, Path(o), req)
     n_eval = req.eval_workers or os.cpu_count() or 1
-    # spawn: the workers are this process's children (their CPU shows in RUSAGE_CHILDREN)
-    with ProcessPoolExecutor(n_eval, mp_context=get_context("spawn"), initializer=keep_freed_heap) as pool:
+    # spawn: the workers are this process's children (their CPU shows in RUSAGE_CHILDREN);
+    # they keep their freed heap as the render workers do (one suite trial: 1.14 M -> 0.22 M
+    # minor page faults in all, ~1 s less kernel time)
+    with ProcessPoolExecutor(n_eval, mp_context=get_context("spawn"), initializer=allocator.keep_heap) as pool:
         streamer = _Streamer(req, pool)
         try:
             manifests = generate_many([(e, Path(o) / "dataset") for e, o in items], workers=req.workers,
