@@ -4,7 +4,9 @@ A synthetic frame (no Blender): the 15x5x8 m pool (600 m^3) filled with N partic
 camera 1 m below the surface at one end looking down the pool's length, a wall at 15 m as
 the range pass, a moving camera (1 m/s) and the paper config's lens. Times
 ``compose.add_particles`` (projection, culling, light, blur, coverage, compositing): wall time
-and the process's CPU time (all threads: what it costs the machine), median and minimum over
+and the process's CPU time, and apart from it the CPU time of the drift to the next frame
+(``SequenceState.advance``: random walk and periodic wrap of every particle in the pool, in
+view or not) (all threads: what it costs the machine), median and minimum over
 frames after one warm-up, with the heap policy of the render workers (pipeline/allocator.py).
 On a shared machine both are upper bounds; the minimum is the least disturbed frame.
 """
@@ -46,24 +48,27 @@ def run(n: int = 60000, width: int = 640, height: int = 480, frames: int = 10, s
     passes = {"rgb": np.full((height, width, 3), 0.1, np.float32),
               "range_m": np.full((height, width), 14.0, np.float32),
               "index": np.zeros((height, width), np.int32)}
-    times, cpu = [], []
+    times, cpu, drift = [], [], []
     for i in range(frames + 1):
         T = make_T(R, [0.5 + 0.1 * i, 0.0, 2.0])
         t0, c0 = time.perf_counter(), time.process_time()
         compose.add_particles(passes, st, K, T, t_s=0.1 * i)
         times.append(time.perf_counter() - t0)
         cpu.append(time.process_time() - c0)
-        st.advance()
+        c0 = time.process_time()
+        st.advance()                               # the drift to the next frame: a per-frame cost too
+        drift.append(time.process_time() - c0)
     p = project_particles(st.field, K, T, width, height)
     ms = np.array(times[1:]) * 1e3
     return {"n": n, "size_dist": size_dist, "lamp": lamp, "size": f"{width}x{height}",
             "in_view": int(p.u.size), "subpixel": int(np.count_nonzero(p.a < 0.5)),
             "ms_median": float(np.median(ms)), "ms_max": float(ms.max()),
-            "cpu_ms_median": float(np.median(cpu[1:]) * 1e3), "cpu_ms_min": float(np.min(cpu[1:]) * 1e3)}
+            "cpu_ms_median": float(np.median(cpu[1:]) * 1e3), "cpu_ms_min": float(np.min(cpu[1:]) * 1e3),
+            "drift_cpu_ms_median": float(np.median(drift[1:]) * 1e3)}
 
 
 def format_row(r: dict) -> str:
     return (f"N={r['n']:>6d} {r['size_dist']:9s} lamp={'on ' if r['lamp'] else 'off'} {r['size']}: "
             f"{r['in_view']:>6d} in view ({r['subpixel']} sub-pixel)  add_particles median "
             f"{r['ms_median']:.1f} ms wall (max {r['ms_max']:.1f}), CPU {r['cpu_ms_median']:.1f} ms "
-            f"(min {r['cpu_ms_min']:.1f})")
+            f"(min {r['cpu_ms_min']:.1f}); drift to the next frame CPU {r['drift_cpu_ms_median']:.1f} ms")
