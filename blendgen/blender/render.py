@@ -8,6 +8,7 @@ A frame is rendered to an uncompressed multilayer EXR in a scratch directory
 from __future__ import annotations
 
 import ctypes
+import functools
 import math
 import os
 import re
@@ -92,6 +93,19 @@ def _loaded_libopenexr() -> str | None:
     return next((p for p in sorted(paths) if re.search(r"/libOpenEXR(-[\d_]+)?\.so", p)), None)
 
 
+@functools.cache
+def _openexr_function(mangled_tail: str):
+    """The ctypes function ``Imf_3_<minor>::...`` of the loaded ``libOpenEXR`` whose Itanium
+    mangled name ends with ``mangled_tail`` (the namespace carries the library's version,
+    tried from 3.12 down), or None."""
+    lib = _loaded_libopenexr()
+    if lib is None:
+        return None
+    handle = ctypes.CDLL(lib)
+    return next((f for f in (getattr(handle, f"_ZN7Imf_3_{minor}{mangled_tail}", None)
+                             for minor in range(12, -1, -1)) if f is not None), None)
+
+
 def exr_io_in_calling_thread() -> bool:
     """Make OpenEXR read and write in the calling thread (its global thread count 0).
 
@@ -99,30 +113,19 @@ def exr_io_in_calling_thread() -> bool:
     one task per scanline: each frame's write then hands ~250 tasks between the render
     thread and the pool (measured, one 320x240 frame: ~590 context switches and ~3 ms
     of kernel time, more when the workers share the cores). The pixels are identical.
-    The call goes through ctypes to the ``libOpenEXR`` that bpy loaded, whose C++
-    namespace carries its version (``Imf_3_4``). Returns False, changing nothing, when
-    the library or the symbol is not found (another build of bpy)."""
-    lib = _loaded_libopenexr()
-    if lib is None:
+    The call goes through ctypes to the ``libOpenEXR`` that bpy loaded. Returns False,
+    changing nothing, when the library or the symbol is not found (another build of bpy)."""
+    fn = _openexr_function("20setGlobalThreadCountEi")
+    if fn is None:
         return False
-    handle = ctypes.CDLL(lib)
-    for minor in range(12, -1, -1):
-        fn = getattr(handle, f"_ZN7Imf_3_{minor}20setGlobalThreadCountEi", None)
-        if fn is not None:
-            fn.argtypes = [ctypes.c_int]
-            fn(0)
-            return True
-    return False
+    fn.argtypes = [ctypes.c_int]
+    fn(0)
+    return True
 
 
 def exr_thread_count() -> int | None:
     """OpenEXR's global thread count in this process (None: library or symbol not found)."""
-    lib = _loaded_libopenexr()
-    if lib is None:
-        return None
-    handle = ctypes.CDLL(lib)
-    fn = next((f for f in (getattr(handle, f"_ZN7Imf_3_{m}17globalThreadCountEv", None)
-                           for m in range(12, -1, -1)) if f is not None), None)
+    fn = _openexr_function("17globalThreadCountEv")
     return None if fn is None else int(fn())
 
 

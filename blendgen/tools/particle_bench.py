@@ -4,10 +4,10 @@ A synthetic frame (no Blender): the 15x5x8 m pool (600 m^3) filled with N partic
 camera 1 m below the surface at one end looking down the pool's length, a wall at 15 m as
 the range pass, a moving camera (1 m/s) and the paper config's lens. Times
 ``compose.add_particles`` (projection, culling, light, blur, coverage, compositing): wall time
-and the process's CPU time, and apart from it the CPU time of the drift to the next frame
+and the process's CPU time (all threads: what it costs the machine), median and minimum over
+frames after one warm-up; apart from it, the CPU time of the drift to the next frame
 (``SequenceState.advance``: random walk and periodic wrap of every particle in the pool, in
-view or not) (all threads: what it costs the machine), median and minimum over
-frames after one warm-up, with the heap policy of the render workers (pipeline/allocator.py).
+view or not), median, with the heap policy of the render workers (pipeline/allocator.py).
 On a shared machine both are upper bounds; the minimum is the least disturbed frame.
 """
 from __future__ import annotations
