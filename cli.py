@@ -439,7 +439,8 @@ def bench_lamp(samples: int, bounces: int, out: Path):
     shadow.to_csv(out / "lamp_shadow.csv", index=False)
     veil = veil_table(out / "renders", bounces=(0, bounces), samples=samples)
     click.echo("\nbackscatter veil, no surface (green; F = 0 vs the 0-bounce reference, "
-               "F = lamp_forward_kept vs the multi-bounce one; block errors over 8x6 blocks):")
+               "F = lamp_forward_kept and the beam spread vs the multi-bounce one; block errors over 8x6 blocks; "
+               "mean ratio outside / inside the single-scatter cone):")
     print_table(veil, floatfmt=".4g")
     card.to_csv(out / "lamp_card.csv", index=False)
     veil.to_csv(out / "lamp_veil.csv", index=False)

@@ -190,7 +190,7 @@ def test_particles_and_surfaces_see_the_same_lamp_beam():
     for d in (1.0, 4.0):
         field = ParticleField(np.array([[d, 0.0, -1.0]], np.float32), np.array([0.01], np.float32), *map(np.array, box))
         p = project_particles(field, K, T_WC, 64, 48)
-        J = particle_light.shader(st.post, st.water, T_WC)(p)[0, 1]
+        J = particle_light.shader(st.post, st.water, T_WC, lamp=st.lamp)(p)[0, 1]
         surf = lamp_water.surface_radiance(model, np.array([[[0.0, 0.0, 1.0]]], np.float32), np.array([[d]], np.float32),
                                            np.ones((1, 1, 3), np.float32), np.array([[[0, 0, -1.0]]], np.float32))
         E = surf[0, 0, 1] * math.pi / math.exp(-st.water.c[1] * d)         # irradiance at the point

@@ -27,10 +27,13 @@ The Jaffe (1990) / McGlamery (1980) decomposition of an image under artificial l
   forward-scattering angles: the lamp's beam (surfaces and veil) and the veil's way back
   to the camera. The image of a surface keeps ``c`` on its way to the camera (it is the
   beam transmittance; its forward-scattered part is blur/glow, not image). ``F = 0`` is
-  single scattering, what the pipeline's 0-bounce reference renders. The same ``c'`` lights the
-  small particles in the beam (``pipeline/particle_light.py``, :func:`lamp_attenuation`): a
-  particle is a surface element in the same beam. The dock's LEDs keep ``c`` (single
-  scattering) on surfaces and particles: F was fitted to the lamp's cone only.
+  single scattering, what the pipeline's 0-bounce reference renders. The light F keeps is
+  not held inside the sharp cone: it spreads in angle with the phase function's forward lobe
+  (:mod:`blendgen.physics.beam_spread`, :meth:`LampWater.beam`: ``exp(-c d) P + spread``,
+  whose sum over angles is ``exp(-c' d)`` as before), on surfaces, in the veil and on the
+  small particles in the beam (``pipeline/particle_light.py``): a particle is a surface
+  element in the same beam. The dock's LEDs keep ``c`` (single scattering) on surfaces and
+  particles: F was fitted to the lamp's cone only.
 """
 from __future__ import annotations
 
@@ -69,6 +72,21 @@ class LampWater:
     phase: object          # callable cos(theta) (N,) -> 1/sr (N,)
     shadows: bool = True   # screen-space shadows of the lamps on surfaces (physics/lamp_shadow.py)
     veil_shadows: bool = True   # and in the veil (with ``shadows``; False: surfaces only, for comparison)
+    spread: bool = False        # the beam's forward-scattered light spreads in angle (physics/beam_spread.py)
+    tables: tuple = ()          # per light, its beam table (beam_spread.beam_table) when ``spread``
+
+    def beam(self, light: PointLight, cos_psi: np.ndarray, d: np.ndarray) -> np.ndarray:
+        """(…, 3) float32 relative beam of ``light`` at angle ``cos_psi`` (…) and distance ``d``
+        (…, m): the direct beam plus its forward-scattered light spread in angle
+        (:func:`beam_spread.beam`); times ``I0 / d^2`` it is the irradiance normal to the ray."""
+        from blendgen.physics import beam_spread
+        if not self.spread:
+            return light.profile(cos_psi)[..., None] * np.exp(-np.asarray(d, np.float32)[..., None]
+                                                              * self.c_lamp.astype(np.float32))
+        k = next(i for i, li in enumerate(self.lights) if li is light)
+        shape = np.shape(cos_psi)
+        flat = beam_spread.lookup(self.tables[k], np.reshape(cos_psi, (shape[0], -1)), np.reshape(d, (shape[0], -1)))
+        return flat.reshape(*shape, 3)
 
     @classmethod
     def build(cls, lights: list[PointLight], water, forward_kept: float | None = None,
@@ -81,7 +99,14 @@ class LampWater:
             phase = functools.partial(_ff_of_cos, ior=water.ff_ior, backscatter=water.ff_backscatter)
         else:
             phase = functools.partial(optics.hg_phase, g=float(water.g))
-        return cls(tuple(lights), b, c, lamp_attenuation(water, forward_kept), phase, bool(shadows))
+        from blendgen.physics import beam_spread
+        forward_kept = FORWARD_KEPT if forward_kept is None else float(forward_kept)
+        key = (("ff", float(water.ff_ior), float(water.ff_backscatter)) if water.phase == "ff"
+               else ("hg", float(water.g)))
+        spread = 0 < forward_kept < 1 and bool(np.any(b > 0))
+        tables = tuple(beam_spread.beam_table(li, c, b, forward_kept, key) for li in lights) if spread else ()
+        return cls(tuple(lights), b, c, lamp_attenuation(water, forward_kept), phase, bool(shadows),
+                   spread=spread, tables=tables)
 
 
 def lamp_attenuation(water, forward_kept: float | None = None) -> np.ndarray:
@@ -115,12 +140,12 @@ def backscatter_table(model: LampWater, rays: np.ndarray, t: np.ndarray, visible
         d = np.maximum(np.sqrt(np.einsum("ntk,ntk->nt", v, v)), np.float32(MIN_LAMP_DISTANCE_M))
         v /= d[..., None]
         cos_scatter = -np.einsum("ntk,nk->nt", v, rays32)           # lamp ray vs direction to camera
-        geo = light.profile(v @ np.asarray(light.axis, np.float32)) / (d * d)
-        geo *= model.phase(cos_scatter).astype(np.float32)
+        geo = model.phase(cos_scatter).astype(np.float32) / (d * d)
         if visible is not None:
             geo *= visible[i]
-        path = (d + t32[None, :])[..., None] * model.c_lamp.astype(np.float32)   # c' (d + t)
-        f += geo[..., None] * np.exp(-path) * np.asarray(light.intensity_w_sr * model.sigma_s, np.float32)
+        lit = model.beam(light, v @ np.asarray(light.axis, np.float32), d)                 # (N, T, 3)
+        lit *= np.exp(-t32[None, :, None] * model.c_lamp.astype(np.float32))            # c' t to the camera
+        f += geo[..., None] * lit * np.asarray(light.intensity_w_sr * model.sigma_s, np.float32)
     steps = 0.5 * (f[:, 1:] + f[:, :-1]) * np.diff(t32)[None, :, None]
     out = np.zeros_like(f)
     np.cumsum(steps, axis=1, out=out[:, 1:])
@@ -218,7 +243,8 @@ def surface_radiance(model: LampWater, rays: np.ndarray, range_m: np.ndarray, al
     False: no shadows, every surface sees the lamps)."""
     from blendgen.physics import surface_light
     visible = _shadow_test(K, rays, range_m) if model.shadows and K is not None else None
-    out = surface_light.lambert_radiance(model.lights, rays, range_m, albedo, model.c_lamp, normals, 1, visible)
+    out = surface_light.lambert_radiance(model.lights, rays, range_m, albedo, model.c_lamp, normals, 1, visible,
+                                         beam=model.beam)
     if out is None:
         return np.zeros(albedo.shape, np.float32)
     r = np.where(np.isfinite(range_m) & (range_m > 0), range_m, 0.0).astype(np.float32)

@@ -128,11 +128,12 @@ def _view_dirs(x, y, z):
     return x * inv, y * inv, z * inv
 
 
-def _light_terms(light, xyz, view, c: np.ndarray):
+def _light_terms(light, xyz, view, c: np.ndarray, beam=None):
     """(irradiance [3 x (M,)], cos of the scattering angle (M,)) of one point light at particles
     xyz = (x, y, z) (M,) float32, view = unit directions to the camera: ``lights.irradiance``'s
     law (inverse square, cone profile, exp(-c d), normals None) in float32, sharing the
-    light->particle directions."""
+    light->particle directions. ``beam``: None, or callable(light, cos_psi (1, M), d (1, M)) ->
+    (1, M, 3) replacing profile x exp(-c d) (the lamp's spread beam, ``LampWater.beam``)."""
     pos = np.asarray(light.position_m, np.float32)
     ray = [xyz[k] - pos[k] for k in range(3)]
     d = np.sqrt(ray[0] * ray[0] + ray[1] * ray[1] + ray[2] * ray[2])
@@ -140,9 +141,13 @@ def _light_terms(light, xyz, view, c: np.ndarray):
     inv = np.float32(1.0) / d
     ray = [r * inv for r in ray]
     ax = np.asarray(light.axis, np.float32)
-    prof = light.profile(ray[0] * ax[0] + ray[1] * ax[1] + ray[2] * ax[2]).astype(np.float32)
-    base = prof * inv * inv
+    cos_psi = ray[0] * ax[0] + ray[1] * ax[1] + ray[2] * ax[2]
     intensity = np.asarray(light.intensity_w_sr, np.float32).reshape(3)
+    if beam is not None:
+        b = beam(light, cos_psi[None, :], d[None, :])[0]
+        E = [b[:, k] * (inv * inv * intensity[k]) for k in range(3)]
+        return E, ray[0] * view[0] + ray[1] * view[1] + ray[2] * view[2]
+    base = light.profile(cos_psi).astype(np.float32) * inv * inv
     if np.all(c == c[0]):                                   # grey water: one exp for all channels
         base *= np.exp(-d * c[0])
         E = [base * intensity[k] for k in range(3)]
@@ -152,9 +157,9 @@ def _light_terms(light, xyz, view, c: np.ndarray):
 
 
 def radiance_planar(xyz, material: ParticleMaterial, ambient_rgb, point_lights: list, c_per_m,
-                    light_gain=None) -> list:
+                    light_gain=None, beam=None) -> list:
     """:func:`particle_radiance` on columns: xyz = (x, y, z) (M,) float32, light_gain None or
-    3 x (M,) (per channel); returns 3 x (M,) float32."""
+    3 x (M,) (per channel), beam None or the lights' beam (:func:`_light_terms`); returns 3 x (M,) float32."""
     n = xyz[0].size
     amb = np.float32(material.albedo) * np.asarray(ambient_rgb, np.float32).reshape(3)
     if not point_lights or n == 0:
@@ -163,7 +168,7 @@ def radiance_planar(xyz, material: ParticleMaterial, ambient_rgb, point_lights: 
     c = np.asarray(c_per_m, np.float32).reshape(3)
     art = [np.zeros(n, np.float32) for _ in range(3)]
     for light in point_lights:
-        E, mu = _light_terms(light, xyz, view, c)
+        E, mu = _light_terms(light, xyz, view, c, beam)
         ph = material.phase(mu) * np.float32(material.albedo)
         for k in range(3):
             art[k] += E[k] * ph

@@ -46,27 +46,31 @@ def _upsample_maps(h: int, w: int, step: int):
     return mx, my
 
 
-def _light_gain(light, x: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """(h, w) float32 ``I(psi)/I0 cos(i) / d^2`` and the distances d (h, w) of surface points x (h, w, 3)."""
+def _light_gain(light, x: np.ndarray, normals: np.ndarray, sharp: bool = True):
+    """(h, w) float32 ``I(psi)/I0 cos(i) / d^2`` (``sharp`` False: without ``I(psi)/I0``), the
+    distances d (h, w) of surface points x (h, w, 3) and the cosines of psi (h, w)."""
     v = x - np.asarray(light.position_m, np.float32)
     d = np.maximum(np.sqrt(np.einsum("hwk,hwk->hw", v, v)), np.float32(MIN_LIGHT_DISTANCE_M))
     v /= d[..., None]
-    gain = light.profile(v @ np.asarray(light.axis, np.float32)) / (d * d)
+    cos_psi = v @ np.asarray(light.axis, np.float32)
+    gain = (light.profile(cos_psi) if sharp else np.ones_like(d)) / (d * d)
     gain *= np.clip(-np.einsum("hwk,hwk->hw", v, normals), 0.0, None)
-    return gain.astype(np.float32), d
+    return gain.astype(np.float32), d, cos_psi
 
 
 def lambert_radiance(lights, rays: np.ndarray, range_m: np.ndarray, albedo: np.ndarray, c_light,
                      normals: np.ndarray | None = None, step: int = 1, visible=None,
-                     min_radiance: float = 0.0) -> np.ndarray | None:
+                     min_radiance: float = 0.0, beam=None) -> np.ndarray | None:
     """Clean radiance (H, W, 3) float32 that ``lights`` put on the surfaces of the range pass (module doc).
 
     rays (H, W, 3) unit pixel rays; range_m (H, W) (inf/NaN/0: no surface); albedo (H, W, 3);
     c_light (3,) 1/m; normals (H, W, 3) unit, camera frame (None: from the range pass, on the
     ``step`` grid); ``step`` > 1: the light computed on every step-th pixel and interpolated
     bilinearly (smooth light fields); ``visible``: callable(light, lit (H, W) bool) -> (H, W)
-    visibility, applied at full resolution. Returns None when no light or when the brightest
-    result is below ``min_radiance`` (nothing worth adding)."""
+    visibility, applied at full resolution; ``beam``: None (the sharp profile times ``exp(-c_light d)``)
+    or callable(light, cos_psi (h, w), d (h, w)) -> (h, w, 3), the light's relative beam (the
+    lamp's spread in water, ``lamp_water.LampWater.beam``). Returns None when no light or when
+    the brightest result is below ``min_radiance`` (nothing worth adding)."""
     import cv2
     if not lights:
         return None
@@ -79,8 +83,9 @@ def lambert_radiance(lights, rays: np.ndarray, range_m: np.ndarray, albedo: np.n
     c = np.asarray(c_light, np.float32).reshape(3)
     grid = []
     for light in lights:
-        gain, d = _light_gain(light, x, nrm)
-        e = (gain * hit[::step, ::step])[..., None] * np.exp(-d[..., None] * c)
+        gain, d, cos_psi = _light_gain(light, x, nrm, sharp=beam is None)
+        e = (gain * hit[::step, ::step])[..., None] * (np.exp(-d[..., None] * c) if beam is None
+                                                        else beam(light, cos_psi, d))
         grid.append(e * np.asarray(light.intensity_w_sr, np.float32))
     a_max = float(np.max(albedo)) if albedo.size else 0.0
     if min_radiance > 0 and sum(float(e.max()) for e in grid) * a_max / math.pi < min_radiance:

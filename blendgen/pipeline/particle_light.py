@@ -51,11 +51,13 @@ def _depth_gain(post, water, T_world_cam: np.ndarray, p: ProjectedParticles) -> 
     return [np.exp(kd[k] * depth) for k in range(3)]
 
 
-def shader(post, water, T_world_cam, markers=None, T_cam_dock=None):
+def shader(post, water, T_world_cam, markers=None, T_cam_dock=None, lamp=None):
     """Callable(projected) -> (M, 3) clean radiance of each particle (module doc). The lamps'
-    light reaches a particle with the effective attenuation ``c - F b`` of their beam, as it
-    reaches a surface or the veil (``physics/lamp_water.lamp_attenuation``); the LEDs' with ``c``."""
-    lamps = lt.lamp_lights(post.lamps)
+    light reaches a particle as it reaches a surface or the veil: through ``lamp``'s beam
+    (``physics/lamp_water.LampWater.beam``: direct + forward-scattered spread), or, without a
+    model, with the effective attenuation ``c - F b`` (``lamp_water.lamp_attenuation``); the
+    LEDs' with ``c``."""
+    lamps = list(lamp.lights) if lamp is not None else lt.lamp_lights(post.lamps)
     leds = popt.led_point_lights(markers, T_cam_dock) if markers and T_cam_dock is not None else []
     lights = lamps + leds
     c_lamp = lamp_water.lamp_attenuation(water, post.lamp_forward_kept) if lamps else None
@@ -69,7 +71,8 @@ def shader(post, water, T_world_cam, markers=None, T_cam_dock=None):
         xyz = tuple(np.ascontiguousarray(p.pc[:, k]) for k in range(3))
         out = popt.radiance_planar(xyz, mat, [amb] * 3, leds, water.c, gain)
         if lamps:
-            lit = popt.radiance_planar(xyz, mat, [0.0] * 3, lamps, c_lamp, gain)
+            lit = popt.radiance_planar(xyz, mat, [0.0] * 3, lamps, c_lamp, gain,
+                                       beam=lamp.beam if lamp is not None else None)
             out = [o + q for o, q in zip(out, lit)]
         if suns:
             sun = popt.sun_planar(xyz, mat, suns)
