@@ -1,4 +1,6 @@
-"""Keep freed memory in the process heap instead of handing it back to the kernel.
+"""Process policies of the pipeline's workers: keep freed memory in the process heap instead
+of handing it back to the kernel (:func:`keep_heap`), and run BLAS and OpenCV on one thread
+(:func:`one_thread_per_process`).
 
 The per-frame image stages allocate and free many arrays of 0.1-5 MB. With glibc's default
 policy such blocks are ``mmap``-ed and ``munmap``-ed (or trimmed off the heap top) again and
@@ -34,3 +36,16 @@ def keep_heap() -> bool:
     ok = [mallopt(opt, val) for opt, val in ((M_MMAP_THRESHOLD, MMAP_THRESHOLD_B),
                                               (M_TRIM_THRESHOLD, TRIM_THRESHOLD_B), (M_TOP_PAD, TOP_PAD_B))]
     return all(r == 1 for r in ok)
+
+
+def one_thread_per_process() -> None:
+    """Run BLAS (numpy's and scipy's OpenBLAS, via threadpoolctl) and OpenCV on the calling thread.
+
+    The pipeline's parallelism is one process per core. A threaded OpenBLAS keeps its threads
+    spinning for tens of ms after a product, even a small one (measured: a lamp's beam table
+    at a sequence's start made the next 20 particle frames cost 2.3x their wall time in CPU,
+    ``bench particles``)."""
+    import cv2
+    from threadpoolctl import threadpool_limits
+    threadpool_limits(1, user_api="blas")
+    cv2.setNumThreads(1)

@@ -503,6 +503,7 @@ def _child_main(argv: list[str]) -> int:
         _exit_with_parent(int(parent))
     from blendgen.pipeline import allocator
     allocator.keep_heap()                     # per-frame image arrays reuse heap pages
+    allocator.one_thread_per_process()        # one worker per core: no BLAS or OpenCV pools spinning
     if len(argv) > 1 and argv[1] == "--serve":
         from blendgen.blender import worker
         return worker.serve_main()

@@ -41,7 +41,8 @@ def run(n: int = 60000, width: int = 640, height: int = 480, frames: int = 10, s
     """Median / max ms per frame of add_particles and the number of particles drawn."""
     from blendgen.physics.particles import project_particles
     from blendgen.pipeline import allocator, compose
-    allocator.keep_heap()                          # as in the render workers
+    allocator.keep_heap()                          # as in the render workers (executor._child_main)
+    allocator.one_thread_per_process()
     K = intrinsics_from_hfov(width, height, math.radians(60.0))
     R = np.column_stack([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
     st = _state(n, size_dist, lamp)
