@@ -13,7 +13,12 @@ channel of a Jerlov type (``sigma_a``, ``sigma_s``, HG ``g`` of
   and scattered light included) and the fast path's ``exp(-Kd h)`` (Jerlov Kd, green;
   ``optics.downwelling``);
 - Pearson correlation of the two patterns (the reference's shot noise lowers it; its
-  noise-free estimate divides by the reference's signal share ``sqrt(var_true/var)``).
+  noise-free estimate divides by the reference's signal share ``sqrt(var_true/var)``);
+- statistics that need no pixel-for-pixel match (beyond the first focus the network depends
+  on the surface's exact realisation, and correlation stops being the measure): the cell size
+  ``1 / k_mean`` of each map's radial power spectrum (shot noise removed from the reference's)
+  and the mean |log10| power ratio over the bands the reference resolves above its noise
+  (:func:`spectrum_stats`).
 """
 from __future__ import annotations
 
@@ -76,6 +81,41 @@ def fast_map(spec: dict, sigma_s: float, g: float = 0.9, ss: int = 4) -> np.ndar
     return f.reshape(nb, ss, nb, ss).mean(axis=(1, 3))
 
 
+def radial_psd(img: np.ndarray, bin_m: float, noise_var: float = 0.0, n_bands: int = 16):
+    """Radially averaged power spectrum of a map (n, n) with bins of ``bin_m`` metres: (band
+    centres (B,) cycles/m, power (B,)), Hann-windowed, mean removed, white noise of variance
+    ``noise_var`` per bin subtracted (its flat level ``noise_var * sum(w^2)``). Bands are
+    geometric from one cycle per patch to the Nyquist frequency."""
+    n = img.shape[0]
+    w1 = np.hanning(n)
+    w = np.outer(w1, w1)
+    spec = np.abs(np.fft.fft2((img - img.mean()) * w)) ** 2 - noise_var * float((w * w).sum())
+    f = np.fft.fftfreq(n, d=bin_m)
+    k = np.hypot(*np.meshgrid(f, f))
+    edges = np.geomspace(1.0 / (n * bin_m), 0.5 / bin_m, n_bands + 1)
+    idx = np.digitize(k, edges) - 1
+    ok = (idx >= 0) & (idx < n_bands)
+    power = np.bincount(idx[ok], spec[ok], n_bands) / np.maximum(np.bincount(idx[ok], None, n_bands), 1)
+    return np.sqrt(edges[1:] * edges[:-1]), power
+
+
+def spectrum_stats(E: np.ndarray, F: np.ndarray, bin_m: float, noise_var: float) -> dict:
+    """Statistics that do not need the two patterns to line up pixel for pixel (beyond the first
+    focus the network depends on the surface's exact realisation): the cell size ``1 / k_mean``
+    (m; ``k_mean`` the power-weighted mean spatial frequency, shot noise removed) of the
+    reference ``E`` and the fast map ``F`` (each relative to its mean), and the mean |log10| of
+    their power ratio over the bands where the reference's power is at least its noise level."""
+    k, pe = radial_psd(E / E.mean(), bin_m, noise_var / float(E.mean()) ** 2)
+    _, pf = radial_psd(F / F.mean(), bin_m)
+    floor = noise_var / float(E.mean()) ** 2 * float(np.hanning(E.shape[0]).dot(np.hanning(E.shape[0])) ** 2)
+    pe_pos = np.clip(pe, 0.0, None)
+    cell = lambda p: float(np.sum(p) / np.sum(k * p)) if np.sum(p) > 0 else float("nan")
+    band = pe >= max(floor, 1e-30)
+    logerr = float(np.mean(np.abs(np.log10(np.clip(pf[band], 1e-30, None) / pe[band])))) if band.any() else float("nan")
+    return {"cell_m_ref": cell(pe_pos), "cell_m_fast": cell(np.clip(pf, 0.0, None)), "psd_log10_err": logerr,
+            "psd_bands": int(band.sum())}
+
+
 def compare(ref: dict, spec: dict, water: dict) -> dict:
     """One row of the table (module docstring)."""
     E, noise = ref["E"], float(ref["E2"].mean())
@@ -89,6 +129,7 @@ def compare(ref: dict, spec: dict, water: dict) -> dict:
             "meanE_ref": float(E.mean()), "meanE_fast": math.exp(-water["Kd"] * spec["depth_m"]),
             "meanE_beam": math.exp(-(water["sigma_a"] + water["sigma_s"]) * spec["depth_m"]),
             "corr": r, "corr_noise_free": r / share if share > 0 else float("nan"),
+            **spectrum_stats(E, F, spec["patch_m"] / spec["bins"], noise),
             "photons": int(ref["photons"])}
 
 
@@ -107,11 +148,12 @@ def run(out: Path, depths=(1.0, 2.0, 4.0), waters=("IB", "1C"), size: int = 1024
 
 def format_rows(rows: list[dict]) -> str:
     head = (f"{'water':>5} {'h m':>4} {'C ref':>6} {'C fast':>6} {'C err':>6} {'noise':>6} {'E ref':>6} "
-            f"{'E fast':>6} {'E beam':>6} {'corr':>5} {'corr*':>5}")
+            f"{'E fast':>6} {'E beam':>6} {'corr':>5} {'corr*':>5} {'cell ref':>8} {'cell fast':>9} {'PSD err':>7}")
     lines = [head]
     for r in rows:
         err = r["contrast_fast"] / r["contrast_ref"] - 1 if r["contrast_ref"] > 0 else float("nan")
         lines.append(f"{r['water']:>5} {r['depth_m']:4.1f} {r['contrast_ref']:6.3f} {r['contrast_fast']:6.3f} "
                      f"{err:+6.0%} {r['noise_contrast_ref']:6.3f} {r['meanE_ref']:6.3f} {r['meanE_fast']:6.3f} "
-                     f"{r['meanE_beam']:6.3f} {r['corr']:5.2f} {r['corr_noise_free']:5.2f}")
+                     f"{r['meanE_beam']:6.3f} {r['corr']:5.2f} {r['corr_noise_free']:5.2f} "
+                     f"{r['cell_m_ref']:8.3f} {r['cell_m_fast']:9.3f} {r['psd_log10_err']:7.2f}")
     return "\n".join(lines)
