@@ -115,3 +115,13 @@ def test_no_forward_scattering_no_spread_no_tables():
             cos_psi, d = np.cos(np.radians([[0.0, 29.0, 40.0]])), np.array([[1.0, 2.0, 3.0]])
             np.testing.assert_allclose(m.beam(lamp, cos_psi, d),
                                        lamp.profile(cos_psi)[..., None] * np.exp(-d[..., None] * water.c))
+
+
+def test_beam_beyond_the_table_keeps_attenuating():
+    """Past D_MAX the beam goes on falling as exp(-c' d) (the table's last row, then attenuated)."""
+    w = optics.get_preset("mild")
+    lamp = _lamp()
+    m = lamp_water.LampWater.build([lamp], w, 0.85)
+    d = np.array([[bs.D_MAX, bs.D_MAX + 10.0]], np.float32)
+    b = m.beam(lamp, np.ones_like(d), d)[0]
+    np.testing.assert_allclose(b[1] / b[0], np.exp(-10.0 * m.c_lamp), rtol=1e-4)

@@ -70,13 +70,6 @@ def _lobe(phase, forward_kept: float) -> tuple[np.ndarray, np.ndarray]:
     return mid, seg[:k - 1] / seg[:k - 1].sum()
 
 
-def forward_lobe_m2(phase, forward_kept: float) -> float:
-    """Mean square scattering angle (rad^2) of the forward lobe (``_lobe``); ``phase``:
-    callable cos(theta) (N,) -> 1/sr (N,), normalised over the sphere."""
-    theta, w = _lobe(phase, forward_kept)
-    return float(np.sum(w * theta ** 2))
-
-
 def kernel_transform(phase, forward_kept: float, k: np.ndarray) -> np.ndarray:
     """Hankel transform (order 0, unit integral) of the one-event kernel at frequencies
     ``k`` (1/rad): ``E_theta[Si0(k theta) / (k theta)]`` over the forward lobe (module doc)."""
@@ -132,7 +125,8 @@ def spread_profiles(light_key: tuple, phase_key: tuple, forward_kept: float, n_m
 
 
 def phase_of(phase_key: tuple):
-    """Callable cos(theta) -> 1/sr for ("hg", g) or ("ff", ior, backscatter)."""
+    """Callable cos(theta) (N,) -> 1/sr (N,) for ("hg", g) or ("ff", ior, backscatter) (the
+    water's phase function, ``optics.hg_phase`` / ``optics.ff_phase``)."""
     from blendgen.physics import optics
     if phase_key[0] == "hg":
         return functools.partial(optics.hg_phase, g=float(phase_key[1]))

@@ -77,32 +77,34 @@ class LampWater:
 
     def beam(self, light: PointLight, cos_psi: np.ndarray, d: np.ndarray) -> np.ndarray:
         """(…, 3) float32 relative beam of ``light`` at angle ``cos_psi`` (…) and distance ``d``
-        (…, m): the direct beam plus its forward-scattered light spread in angle
-        (:func:`beam_spread.beam`); times ``I0 / d^2`` it is the irradiance normal to the ray."""
+        (…, m): the direct beam plus its forward-scattered light spread in angle (the light's
+        :func:`beam_spread.beam_table`, read by :func:`beam_spread.lookup`; beyond its last
+        distance, ``D_MAX``, attenuated on with ``c'``); times ``I0 / d^2`` it is the irradiance
+        normal to the ray. Without spread: the sharp profile times ``exp(-c' d)``."""
         from blendgen.physics import beam_spread
+        d = np.asarray(d, np.float32)
+        c_lamp = self.c_lamp.astype(np.float32)
         if not self.spread:
-            return light.profile(cos_psi)[..., None] * np.exp(-np.asarray(d, np.float32)[..., None]
-                                                              * self.c_lamp.astype(np.float32))
+            return light.profile(cos_psi)[..., None] * np.exp(-d[..., None] * c_lamp)
         k = next(i for i, li in enumerate(self.lights) if li is light)
         shape = np.shape(cos_psi)
-        flat = beam_spread.lookup(self.tables[k], np.reshape(cos_psi, (shape[0], -1)), np.reshape(d, (shape[0], -1)))
-        return flat.reshape(*shape, 3)
+        out = beam_spread.lookup(self.tables[k], np.reshape(cos_psi, (shape[0], -1)),
+                                 np.reshape(d, (shape[0], -1))).reshape(*shape, 3)
+        if d.size and float(d.max()) > beam_spread.D_MAX:
+            out *= np.exp(-np.maximum(d - np.float32(beam_spread.D_MAX), 0)[..., None] * c_lamp)
+        return out
 
     @classmethod
     def build(cls, lights: list[PointLight], water, forward_kept: float | None = None,
               shadows: bool = True) -> "LampWater":
         """From lights and an ``optics.WaterOptics`` (its phase function and coefficients);
         ``forward_kept`` F (None: :data:`FORWARD_KEPT`); ``shadows``: the lamps' shadow test."""
-        from blendgen.physics import optics
-        b, c = np.asarray(water.sigma_s, float), np.asarray(water.c, float)
-        if water.phase == "ff":
-            phase = functools.partial(_ff_of_cos, ior=water.ff_ior, backscatter=water.ff_backscatter)
-        else:
-            phase = functools.partial(optics.hg_phase, g=float(water.g))
         from blendgen.physics import beam_spread
-        forward_kept = FORWARD_KEPT if forward_kept is None else float(forward_kept)
+        b, c = np.asarray(water.sigma_s, float), np.asarray(water.c, float)
         key = (("ff", float(water.ff_ior), float(water.ff_backscatter)) if water.phase == "ff"
                else ("hg", float(water.g)))
+        phase = beam_spread.phase_of(key)
+        forward_kept = FORWARD_KEPT if forward_kept is None else float(forward_kept)
         spread = 0 < forward_kept < 1 and bool(np.any(b > 0))
         tables = tuple(beam_spread.beam_table(li, c, b, forward_kept, key) for li in lights) if spread else ()
         return cls(tuple(lights), b, c, lamp_attenuation(water, forward_kept), phase, bool(shadows),
@@ -116,11 +118,6 @@ def lamp_attenuation(water, forward_kept: float | None = None) -> np.ndarray:
     ``optics.WaterOptics``; ``forward_kept`` F (None: :data:`FORWARD_KEPT`)."""
     forward_kept = FORWARD_KEPT if forward_kept is None else float(forward_kept)
     return np.asarray(water.c, float) - forward_kept * np.asarray(water.sigma_s, float)
-
-
-def _ff_of_cos(cos_theta, ior: float, backscatter: float):
-    from blendgen.physics import optics
-    return optics.ff_phase(np.arccos(np.clip(cos_theta, -1.0, 1.0)), ior, backscatter)
 
 
 def range_nodes() -> np.ndarray:
