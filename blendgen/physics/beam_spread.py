@@ -41,10 +41,10 @@ PSI_MAX, N_PSI = math.pi, 256
 #: Distance grid of the beam table (m): geometric, D_MIN to D_MAX (1.4 % steps).
 D_MIN, D_MAX, N_D = 0.05, 60.0, 512
 #: Hankel grid: profile radius samples on [0, PSI_MAX] (K_MAX dr = 0.3: coarser samples alias
-#: the high frequencies, a 1 % dip on the axis at 1.2); frequencies up to K_MAX (1/rad) in steps of
-#: 1/16 (coarser steps lose energy to a negative tail: 2.6 % at 1/4, 0.2 % at 1/16); a Gaussian
-#: taper of TAPER_RAD (a 2-deg blur of the scattered light only; the lobe is ~30 deg wide) that is
-#: exp(-6) at K_MAX, against ringing.
+#: the high frequencies into a dip on the axis, 3 % at K_MAX dr = 1.2); frequencies up to K_MAX
+#: (1/rad) in steps of 1/16 (coarser steps lose energy to a negative tail: 2.6 % at 1/4, 0.2 % at
+#: 1/16); a Gaussian taper of TAPER_RAD (a 1-deg blur of the scattered light only; the lobe is
+#: ~30 deg wide) that is exp(-6) at K_MAX, against ringing.
 N_R, K_MAX, N_K, TAPER_RAD = 2048, 200.0, 3201, math.radians(1.0)
 
 

@@ -53,14 +53,14 @@ def _depth_gain(post, water, T_world_cam: np.ndarray, p: ProjectedParticles) -> 
 
 def shader(post, water, T_world_cam, markers=None, T_cam_dock=None, lamp=None):
     """Callable(projected) -> (M, 3) clean radiance of each particle (module doc). The lamps'
-    light reaches a particle as it reaches a surface or the veil: through ``lamp``'s beam
-    (``physics/lamp_water.LampWater.beam``: direct + forward-scattered spread), or, without a
-    model, with the effective attenuation ``c - F b`` (``lamp_water.lamp_attenuation``); the
-    LEDs' with ``c``."""
-    lamps = list(lamp.lights) if lamp is not None else lt.lamp_lights(post.lamps)
+    light reaches a particle as it reaches a surface or the veil: through the sequence's lamp
+    model ``lamp`` (``physics/lamp_water.LampWater.beam``: direct + forward-scattered spread;
+    built from ``post`` when not given); the LEDs' with ``c``."""
+    if lamp is None and post.lamps:
+        lamp = lamp_water.LampWater.build(lt.lamp_lights(post.lamps), water, post.lamp_forward_kept)
+    lamps = list(lamp.lights) if lamp is not None else []
     leds = popt.led_point_lights(markers, T_cam_dock) if markers and T_cam_dock is not None else []
     lights = lamps + leds
-    c_lamp = lamp_water.lamp_attenuation(water, post.lamp_forward_kept) if lamps else None
     mat = material(post.occlusion)
     amb = post.ambient_w_m2_sr
     R = np.asarray(T_world_cam, float)[:3, :3]
@@ -71,8 +71,7 @@ def shader(post, water, T_world_cam, markers=None, T_cam_dock=None, lamp=None):
         xyz = tuple(np.ascontiguousarray(p.pc[:, k]) for k in range(3))
         out = popt.radiance_planar(xyz, mat, [amb] * 3, leds, water.c, gain)
         if lamps:
-            lit = popt.radiance_planar(xyz, mat, [0.0] * 3, lamps, c_lamp, gain,
-                                       beam=lamp.beam if lamp is not None else None)
+            lit = popt.radiance_planar(xyz, mat, [0.0] * 3, lamps, lamp.c_lamp, gain, beam=lamp.beam)
             out = [o + q for o, q in zip(out, lit)]
         if suns:
             sun = popt.sun_planar(xyz, mat, suns)
