@@ -83,20 +83,22 @@ def fast_map(spec: dict, sigma_s: float, g: float = 0.9, ss: int = 4) -> np.ndar
 
 def radial_psd(img: np.ndarray, bin_m: float, noise_var: float = 0.0, n_bands: int = 16):
     """Radially averaged power spectrum of a map (n, n) with bins of ``bin_m`` metres: (band
-    centres (B,) cycles/m, power (B,)), Hann-windowed, mean removed, white noise of variance
-    ``noise_var`` per bin subtracted (its flat level ``noise_var * sum(w^2)``). Bands are
-    geometric from one cycle per patch to the Nyquist frequency."""
+    centres (B,) cycles/m, power (B,), the noise level subtracted), Hann-windowed, mean removed,
+    white noise of variance ``noise_var`` per bin subtracted (its flat level
+    ``noise_var * sum(w^2)``). Bands are geometric from one cycle per patch to the Nyquist
+    frequency."""
     n = img.shape[0]
     w1 = np.hanning(n)
     w = np.outer(w1, w1)
-    spec = np.abs(np.fft.fft2((img - img.mean()) * w)) ** 2 - noise_var * float((w * w).sum())
+    level = noise_var * float((w * w).sum())
+    spec = np.abs(np.fft.fft2((img - img.mean()) * w)) ** 2 - level
     f = np.fft.fftfreq(n, d=bin_m)
     k = np.hypot(*np.meshgrid(f, f))
     edges = np.geomspace(1.0 / (n * bin_m), 0.5 / bin_m, n_bands + 1)
     idx = np.digitize(k, edges) - 1
     ok = (idx >= 0) & (idx < n_bands)
     power = np.bincount(idx[ok], spec[ok], n_bands) / np.maximum(np.bincount(idx[ok], None, n_bands), 1)
-    return np.sqrt(edges[1:] * edges[:-1]), power
+    return np.sqrt(edges[1:] * edges[:-1]), power, level
 
 
 def spectrum_stats(E: np.ndarray, F: np.ndarray, bin_m: float, noise_var: float) -> dict:
@@ -105,9 +107,8 @@ def spectrum_stats(E: np.ndarray, F: np.ndarray, bin_m: float, noise_var: float)
     (m; ``k_mean`` the power-weighted mean spatial frequency, shot noise removed) of the
     reference ``E`` and the fast map ``F`` (each relative to its mean), and the mean |log10| of
     their power ratio over the bands where the reference's power is at least its noise level."""
-    k, pe = radial_psd(E / E.mean(), bin_m, noise_var / float(E.mean()) ** 2)
-    _, pf = radial_psd(F / F.mean(), bin_m)
-    floor = noise_var / float(E.mean()) ** 2 * float(np.hanning(E.shape[0]).dot(np.hanning(E.shape[0])) ** 2)
+    k, pe, floor = radial_psd(E / E.mean(), bin_m, noise_var / float(E.mean()) ** 2)
+    pf = radial_psd(F / F.mean(), bin_m)[1]
     pe_pos = np.clip(pe, 0.0, None)
     cell = lambda p: float(np.sum(p) / np.sum(k * p)) if np.sum(p) > 0 else float("nan")
     band = pe >= max(floor, 1e-30)

@@ -190,6 +190,13 @@ def veil_stats(fast_img: np.ndarray, ref_img: np.ndarray, blocks=(8, 6), outside
     return out
 
 
+def outside_cone(spec: dict, water: optics.WaterOptics) -> np.ndarray:
+    """(H, W) bool: pixels whose single-scatter veil (F = 0, the sharp cone) is below 5 % of its
+    mean, i.e. what only multiply scattered light reaches."""
+    single = fast(spec, water, 0.0)[..., 1]
+    return single < 0.05 * single.mean()
+
+
 def veil_table(work: Path, waters=("mild", "moderate"), bounces=(0, 32), samples: int = 256,
                size=(96, 72), forward_kept: float | None = None) -> pd.DataFrame:
     """Backscatter veil with no surface: fast (single scatter; with bounces the F correction and
@@ -201,10 +208,8 @@ def veil_table(work: Path, waters=("mild", "moderate"), bounces=(0, 32), samples
             spec = scene_spec(w, [DEMO_LAMP], None, size, samples, nb)
             ref = reference(spec, work)
             fk = 0.0 if nb == 0 else forward_kept
-            single = fast(spec, w, 0.0)[..., 1]
-            outside = single < 0.05 * single.mean()        # the sharp cone's single scattering misses them
             rows.append({"water": name, "volume_bounces": nb, "F": lamp_water.FORWARD_KEPT if fk is None else fk,
-                         **veil_stats(fast(spec, w, fk), ref, outside=outside)})
+                         **veil_stats(fast(spec, w, fk), ref, outside=outside_cone(spec, w))})
     return pd.DataFrame(rows)
 
 
