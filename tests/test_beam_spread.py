@@ -125,3 +125,17 @@ def test_beam_beyond_the_table_keeps_attenuating():
     d = np.array([[bs.D_MAX, bs.D_MAX + 10.0]], np.float32)
     b = m.beam(lamp, np.ones_like(d), d)[0]
     np.testing.assert_allclose(b[1] / b[0], np.exp(-10.0 * m.c_lamp), rtol=1e-4)
+
+
+@pytest.mark.parametrize("half_deg,edge_deg", [(10.0, 2.0), (60.0, 5.0), (89.0, 10.0)])
+def test_narrow_and_wide_cones_keep_energy_and_stay_non_negative(half_deg, edge_deg):
+    """Cones from 10 to 89 deg (the planar angle treatment's range): the table carries
+    exp(-c' d) of the profile's energy within 1 % at 20 m and never goes negative."""
+    lamp, psi = _lamp(half_deg, edge_deg), bs.psis()
+    w = optics.get_preset("moderate")
+    table = bs.beam_table(lamp, w.c, w.sigma_s, 0.85, ("hg", 0.9))
+    i = int(np.searchsorted(bs.distances(), 20.0))
+    e0 = _planar_energy(lamp.profile(np.cos(psi)), psi)
+    c_lamp = lamp_water.lamp_attenuation(w, 0.85)
+    assert _planar_energy(table[i, :, 1], psi) == pytest.approx(e0 * math.exp(-c_lamp[1] * bs.distances()[i]), rel=0.01)
+    assert table.min() >= 0.0

@@ -157,7 +157,7 @@ def beam_table(light, c: np.ndarray, sigma_s: np.ndarray, forward_kept: float, p
         logw = n[None, :] * np.log(np.maximum(fb[ch] * d, 1e-300))[:, None] - gammaln(n + 1)[None, :]
         logw -= (c[ch] * d)[:, None]
         out[..., ch] = np.exp(-c[ch] * d)[:, None] * sharp[None, :] + np.exp(logw) @ profiles
-    return out
+    return np.maximum(out, 0.0, out=out)          # the transforms' ringing leaves ~-1e-4 far out
 
 
 def lookup(table: np.ndarray, cos_psi: np.ndarray, d: np.ndarray) -> np.ndarray:
