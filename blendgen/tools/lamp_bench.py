@@ -209,7 +209,7 @@ def veil_table(work: Path, waters=("mild", "moderate"), bounces=(0, 32), samples
             ref = reference(spec, work)
             fk = 0.0 if nb == 0 else forward_kept
             rows.append({"water": name, "volume_bounces": nb, "F": lamp_water.FORWARD_KEPT if fk is None else fk,
-                         **veil_stats(fast(spec, w, fk), ref, outside=outside_cone(spec, w))})
+                         **veil_stats(fast(spec, w, fk), ref, outside=outside_cone(spec, w) if nb else None)})
     return pd.DataFrame(rows)
 
 
