@@ -76,7 +76,8 @@ def kernel_transform(phase, forward_kept: float, k: np.ndarray) -> np.ndarray:
     from scipy.special import itj0y0
     theta, w = _lobe(phase, forward_kept)
     idx = np.arange(0, w.size, 40)                  # ~500 nodes: K^ is smooth in theta
-    theta, w = np.add.reduceat(w * theta, idx) / np.maximum(np.add.reduceat(w, idx), 1e-300), np.add.reduceat(w, idx)
+    w_node = np.add.reduceat(w, idx)
+    theta, w = np.add.reduceat(w * theta, idx) / np.maximum(w_node, 1e-300), w_node
     x = np.outer(k, theta)
     avg = np.where(x > 1e-9, itj0y0(np.maximum(x, 1e-9))[0] / np.maximum(x, 1e-9), 1.0)
     return avg @ w

@@ -53,7 +53,7 @@ def _light_gain(light, x: np.ndarray, normals: np.ndarray, sharp: bool = True):
     d = np.maximum(np.sqrt(np.einsum("hwk,hwk->hw", v, v)), np.float32(MIN_LIGHT_DISTANCE_M))
     v /= d[..., None]
     cos_psi = v @ np.asarray(light.axis, np.float32)
-    gain = (light.profile(cos_psi) if sharp else np.ones_like(d)) / (d * d)
+    gain = (light.profile(cos_psi) if sharp else np.float32(1.0)) / (d * d)
     gain *= np.clip(-np.einsum("hwk,hwk->hw", v, normals), 0.0, None)
     return gain.astype(np.float32), d, cos_psi
 
