@@ -74,9 +74,9 @@ def test_splat_matches_brute_force_oracle(seed):
     sums = ps.splat(p, surf.reshape(-1), W, H)
     log_t, w, wc, near = _oracle(p, surf)
     assert np.array_equal(sums.hit, np.flatnonzero(np.isfinite(near)))
-    log_t_f, wc_f = np.zeros(H * W), np.zeros((H * W, sums.wc.shape[1]))
-    log_t_f[sums.hit], wc_f[sums.hit] = sums.log_t, sums.wc
-    assert np.allclose(log_t_f.reshape(H, W), log_t, rtol=1e-4, atol=1e-4)
+    trans_f, wc_f = np.ones(H * W), np.zeros((H * W, sums.wc.shape[1]))
+    trans_f[sums.hit], wc_f[sums.hit] = sums.trans, sums.wc
+    assert np.allclose(trans_f.reshape(H, W), np.exp(log_t), rtol=1e-4, atol=1e-5)
     assert np.allclose(wc_f[:, 0].reshape(H, W), w, rtol=1e-4, atol=1e-5)
     assert np.allclose(wc_f[:, 1:].reshape(H, W, -1), wc, rtol=1e-4, atol=1e-5)
     assert np.array_equal(np.isfinite(sums.near.reshape(H, W)), np.isfinite(near))

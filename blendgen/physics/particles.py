@@ -43,6 +43,7 @@ from typing import Callable
 
 import numpy as np
 
+from blendgen.physics import particle_kernels as kern
 from blendgen.physics import particle_optics as popt
 from blendgen.physics import particle_splat as psplat
 
@@ -187,20 +188,18 @@ class ParticleField:
         if v.shape != (3,) or not np.all(np.isfinite(v)):
             raise ValueError(f"v_flow must be a finite (3,) vector in m/s, got {v_flow}")
         L = _noise_factor(sigma)
-        pos = self.positions.astype(np.float64)
-        flat = pos.reshape(-1)               # (3,) operands tiled: contiguous loops (see _wrap)
-        flat += np.tile(v * dt, self.n)
+        noise, scale = np.zeros((0, 3)), np.ones(3)
         if np.any(L):
             z = rng.standard_normal((self.n, 3))
             if np.count_nonzero(L - np.diag(np.diagonal(L))) == 0:
-                zf = z.reshape(-1)           # per-axis std-devs: the same sums (the other terms are +-0)
-                zf *= np.tile(np.diagonal(L), self.n)
-                flat += zf
-            else:                            # eta = L z, as column sums (no BLAS threads)
+                noise, scale = z, np.diagonal(L).copy()   # per-axis std-devs (the other terms are +-0)
+            else:                                          # eta = L z, as column sums (no BLAS threads)
+                noise = np.empty_like(z)
                 for i in range(3):
-                    pos[:, i] += z[:, 0] * L[i, 0] + z[:, 1] * L[i, 1] + z[:, 2] * L[i, 2]
-        return ParticleField(_wrap(pos, self.region_min, self.region_max), self.radii,
-                             self.region_min, self.region_max)
+                    noise[:, i] = z[:, 0] * L[i, 0] + z[:, 1] * L[i, 1] + z[:, 2] * L[i, 2]
+        lo, hi = self.region_min, self.region_max
+        pos = kern.drift(self.positions, v * dt, noise, scale, lo, hi, *_bounds32(lo, hi))
+        return ParticleField(pos, self.radii, lo, hi)
 
 
 def _noise_factor(sigma) -> np.ndarray:
@@ -220,32 +219,26 @@ def _noise_factor(sigma) -> np.ndarray:
 
 
 def _wrap(pos: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """Periodic wrap into [lo, hi) per axis -> float32 (N,3); ``pos`` (N,3) float64 is used as
-    scratch (overwritten).
+    """Periodic wrap of positions (N,3) float64 into [lo, hi) per axis -> float32 (N,3):
+    ``lo + np.mod(pos - lo, hi - lo)`` bit for bit, rounded to float32 and kept inside
+    (particle_kernels.drift with no flow and no noise)."""
+    return kern.drift(np.ascontiguousarray(pos, np.float64), np.zeros(3), np.zeros((0, 3)), np.ones(3),
+                      lo, hi, *_bounds32(lo, hi))
 
-    Equal bit for bit to ``lo + np.mod(pos - lo, hi - lo)``: for 0 <= q < ext, np.mod(q, ext)
-    is q itself, so only the coordinates that left the region (a few per step) go through
-    np.mod (~15 ns per element). The (3,) bounds are tiled to the flat array: numpy's
-    broadcast of a length-3 axis costs ~5 ns per element, the contiguous loop ~0.5."""
-    n = pos.shape[0]
-    lo_t, ext_t = np.tile(lo, n), np.tile(hi - lo, n)
-    q = pos.reshape(-1)
-    q -= lo_t
-    out = np.flatnonzero((q < 0) | (q >= ext_t))
-    if out.size:
-        q[out] = np.mod(q[out], ext_t[out])
-    q += lo_t
-    return _clamp32(q.astype(np.float32).reshape(n, 3), lo, hi)
+
+def _bounds32(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """float32 bounds (3,) lo32 >= lo and top32 < hi: the closed range float32 positions
+    must stay in so that they lie in [lo, hi) (lo, hi float64)."""
+    lo32, hi32 = lo.astype(np.float32), hi.astype(np.float32)
+    lo32 = np.where(lo32 < lo, np.nextafter(lo32, np.float32(np.inf)), lo32)
+    top = np.where(hi32 >= hi, np.nextafter(hi32, np.float32(-np.inf)), hi32)
+    return lo32.astype(np.float32), top.astype(np.float32)
 
 
 def _clamp32(pos: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """In place: keep float32 positions (N,3) in [lo, hi) despite rounding (lo, hi float64)."""
-    lo32, hi32 = lo.astype(np.float32), hi.astype(np.float32)
-    lo32 = np.where(lo32 < lo, np.nextafter(lo32, np.float32(np.inf)), lo32)
-    top = np.where(hi32 >= hi, np.nextafter(hi32, np.float32(-np.inf)), hi32)
-    flat, n = pos.reshape(-1), pos.shape[0]
-    np.maximum(flat, np.tile(lo32, n), out=flat)
-    np.minimum(flat, np.tile(top, n), out=flat)
+    lo32, top = _bounds32(lo, hi)
+    np.clip(pos, lo32, top, out=pos)
     return pos
 
 
@@ -328,29 +321,12 @@ def project_particles(field: ParticleField, K: np.ndarray, T_world_cam: np.ndarr
     T = np.asarray(T_world_cam, float)
     if T.shape != (4, 4):
         raise ValueError(f"T_world_cam must be 4x4, got {T.shape}")
-    x, y, z = camera_columns(field.positions, T)
-    f32 = np.float32
-    idx = np.flatnonzero(z > f32(z_near))                 # columns, not a GEMM: no BLAS threads
-    x, y, z = x.take(idx), y.take(idx), z.take(idx)
-    iz = f32(1.0) / z
-    xn, yn = x * iz, y * iz
-    u = f32(K[0, 0]) * xn + f32(K[0, 1]) * yn + f32(K[0, 2])
-    v = f32(K[1, 1]) * yn + f32(K[1, 2])
-    r = field.radii.take(idx)
-    b = f32(0.5 * (K[0, 0] + K[1, 1])) * r * iz
-    sec = np.sqrt(xn * xn + yn * yn + f32(1.0))           # dist / z
-    a = b * sec
-    m = a + f32(2.0 + margin_px)
-    keep = (u > -m) & (u < m + f32(width - 1)) & (v > -m) & (v < m + f32(height - 1)) & (z * sec > r)
-    k = np.flatnonzero(keep)
-    u, v, a, b, idx = u.take(k), v.take(k), a.take(k), b.take(k), idx.take(k)
-    x, y, z, sec, r = x.take(k), y.take(k), z.take(k), sec.take(k), r.take(k)
-    du, dv = u - f32(K[0, 2]), v - f32(K[1, 2])
-    norm = np.sqrt(du * du + dv * dv)
-    ok = norm > 1e-6
-    inv = np.where(ok, f32(1.0) / np.where(ok, norm, f32(1.0)), f32(0.0))
-    c = np.where(ok, du * inv, f32(1.0))
-    return ProjectedParticles(u, v, a, b, c, dv * inv, z * sec - r, np.stack([x, y, z], axis=1), idx)
+    R = T[:3, :3].astype(np.float32)
+    off = (-(T[:3, 3] @ T[:3, :3])).astype(np.float32)   # -R^T t
+    idx, cols, surf_range, pc = kern.project(
+        np.ascontiguousarray(field.positions, np.float32), np.ascontiguousarray(field.radii, np.float32), R, off,
+        np.asarray(K, np.float32), int(width), int(height), np.float32(z_near), np.float32(margin_px))
+    return ProjectedParticles(*cols, surf_range, pc, idx)
 
 
 def camera_columns(positions: np.ndarray, T: np.ndarray):
@@ -449,7 +425,7 @@ def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: Parti
                else np.zeros((p.u.size, 0), np.float32))
     sums = psplat.splat(_splat_input(p, colours), surf, w, h)
     prange, hit = sums.near, sums.hit                    # nearest covering particle, inf elsewhere
-    cov = np.float32(1.0) - sums.transmittance()
+    cov = np.float32(1.0) - sums.trans
     if shade is not None:                                # planar (3, n_hit): long numpy loops
         wc = np.ascontiguousarray(sums.wc.T)
         c = wc[1:] * (np.float32(1.0) / np.where(wc[0] > 0, wc[0], np.float32(1.0)))
@@ -474,13 +450,11 @@ def _composite(flat_rgb: np.ndarray, hit: np.ndarray, cov: np.ndarray, colour: n
     """In place on the interleaved (H*W*3,) image: ``out = img T + colour (1 - T)`` at the
     covered pixels ``hit`` (n,), cov = 1 - T (n,), colour (3, n); with ``gain_add`` = (gain,
     add) (3, n) each, ``out = (img gain + add) T + colour (1 - T)`` (render_particles doc)."""
-    keep = np.float32(1.0) - cov
-    for ch in range(3):
-        idx = hit * 3 + ch
-        bg = flat_rgb.take(idx)
-        if gain_add is not None:
-            bg = bg * gain_add[0][ch] + gain_add[1][ch]
-        flat_rgb[idx] = bg * keep + colour[ch] * cov
+    planar = lambda x: np.ascontiguousarray(np.asarray(x, np.float32).reshape(3, -1))
+    none = np.zeros((3, 0), np.float32)
+    gain, add = (planar(gain_add[0]), planar(gain_add[1])) if gain_add is not None else (none, none)
+    kern.composite(flat_rgb, np.ascontiguousarray(hit, np.int64), np.ascontiguousarray(cov, np.float32),
+                   planar(np.broadcast_to(colour, (3, hit.size))), gain, add)
 
 
 def _splat_input(p: ProjectedParticles, colours: np.ndarray) -> psplat.Particles:
