@@ -74,8 +74,8 @@ def test_splat_matches_brute_force_oracle(seed):
     sums = ps.splat(p, surf.reshape(-1), W, H)
     log_t, w, wc, near = _oracle(p, surf)
     assert np.array_equal(sums.hit, np.flatnonzero(np.isfinite(near)))
-    trans_f, wc_f = np.ones(H * W), np.zeros((H * W, sums.wc.shape[1]))
-    trans_f[sums.hit], wc_f[sums.hit] = sums.trans, sums.wc
+    trans_f, wc_f = np.ones(H * W), np.zeros((H * W, sums.wc.shape[0]))
+    trans_f[sums.hit], wc_f[sums.hit] = sums.trans, sums.wc.T
     assert np.allclose(trans_f.reshape(H, W), np.exp(log_t), rtol=1e-4, atol=1e-5)
     assert np.allclose(wc_f[:, 0].reshape(H, W), w, rtol=1e-4, atol=1e-5)
     assert np.allclose(wc_f[:, 1:].reshape(H, W, -1), wc, rtol=1e-4, atol=1e-5)
@@ -93,4 +93,4 @@ def test_splat_of_nothing_is_empty():
     p = _particles(np.random.default_rng(4), 3)
     far = ps.Particles(*(x[:0] for x in (p.u, p.v, p.a, p.b, p.c, p.s, p.d, p.op, p.colour)))
     sums = ps.splat(far, np.full(W * H, np.inf, np.float32), W, H)
-    assert sums.hit.size == 0 and not np.isfinite(sums.near).any() and sums.wc.shape == (0, 4)
+    assert sums.hit.size == 0 and not np.isfinite(sums.near).any() and sums.wc.shape == (4, 0)

@@ -148,21 +148,26 @@ def _square_total(x0, y0, size, u, v, ca, sa, cb, sb, k0, k1):
 
 
 @_jit
-def _row_order(v, height):
-    """Particle indices (M,) grouped by image row of their centre (counting sort, rows clamped to
-    the image): the splat then walks the per-pixel arrays nearly in memory order."""
-    start = np.zeros(height + 1, np.int64)
-    row = np.empty(v.size, np.int64)
-    for i in range(v.size):
+def _memory_order(u, v, width, height):
+    """Particle indices (M,) sorted by the 32-px tile of the image row their centre is in
+    (counting sort; centres outside the image go to the nearest tile), so that the splat walks
+    the per-pixel arrays nearly in memory order: within a frame's pipeline, with cold caches,
+    that made it ~10 % faster than particles in field order (``bench particles``)."""
+    tiles_x = (width + 31) // 32
+    n_keys = tiles_x * height
+    start = np.zeros(n_keys + 1, np.int64)
+    key = np.empty(u.size, np.int64)
+    for i in range(u.size):
         r = min(max(int(math.floor(v[i])), 0), height - 1)
-        row[i] = r
-        start[r + 1] += 1
-    for r in range(height):
-        start[r + 1] += start[r]
-    order = np.empty(v.size, np.int64)
-    for i in range(v.size):
-        order[start[row[i]]] = i
-        start[row[i]] += 1
+        t = min(max(int(math.floor(u[i])), 0), width - 1) // 32
+        key[i] = r * tiles_x + t
+        start[key[i] + 1] += 1
+    for k in range(n_keys):
+        start[k + 1] += start[k]
+    order = np.empty(u.size, np.int64)
+    for i in range(u.size):
+        order[start[key[i]]] = i
+        start[key[i]] += 1
     return order
 
 
@@ -173,7 +178,7 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height, frame):
     Per particle (M,) float32: centre u, v (px), semi-axes a, b (px), radial direction c, s,
     surface range d (m), blur opacity op; colour (M, C) float32. surf (H*W,) float32 scene
     range (inf = background). frame (H*W, 2 + C) float32 scratch holding [1, 0, 0..] on every
-    row (left so). Returns (hit (n,) int64 covered pixels ascending, sums (n, 2 + C) float32 =
+    row (left so). Returns (hit (n,) int64 covered pixels ascending, sums (2 + C, n) float32 =
     [T, w, w c..], near (H*W,) float32 nearest covering surface range, inf elsewhere).
 
     Specks (a < SPLAT_BELOW_PX): alpha = bilinear weight x pi a b x op on the 2 x 2 pixels around
@@ -184,7 +189,7 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height, frame):
     n_pix, n_col = width * height, colour.shape[1]
     near = np.full(n_pix, np.inf, np.float32)
     n = 0
-    for i in _row_order(v, height):
+    for i in _memory_order(u, v, width, height):
         ui, vi, ai, bi, di, opi = u[i], v[i], a[i], b[i], d[i], op[i]
         w_d = _F1 / max(di, np.float32(1e-3)) ** 2
         speck = ai < np.float32(SPLAT_BELOW_PX)
@@ -226,13 +231,13 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height, frame):
                 for j in range(n_col):
                     frame[pix, 2 + j] += w * colour[i, j]
     hit = np.empty(n, np.int64)                      # the covered pixels in ascending order
-    out = np.empty((n, 2 + n_col), np.float32)
+    out = np.empty((2 + n_col, n), np.float32)       # planar: every later pass runs along n
     j = 0
     for pix in range(n_pix):
         if near[pix] < np.inf and j < n:
             hit[j] = pix
             for col in range(2 + n_col):
-                out[j, col] = frame[pix, col]
+                out[col, j] = frame[pix, col]
                 frame[pix, col] = 0.0
             frame[pix, 0] = 1.0
             j += 1

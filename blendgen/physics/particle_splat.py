@@ -31,7 +31,7 @@ __all__ = ["ALPHA_MAX", "GROUP_MAX_PX", "NORMALISE_BELOW_PX", "SPLAT_BELOW_PX", 
 @dataclass
 class Sums:
     """Per-pixel sums (module doc) at the covered pixels ``hit`` (n,) int64 (flat, ascending):
-    the transmittance ``trans`` (n,) float32 and ``wc`` (n, 1 + C) float32 = [w, w c_1 .. w c_C]
+    the transmittance ``trans`` (n,) float32 and ``wc`` (1 + C, n) float32 = [w, w c_1 .. w c_C]
     (None without per-particle colours); ``near`` (H*W,) float32 for the whole frame (inf where
     nothing covers)."""
     hit: np.ndarray
@@ -80,4 +80,4 @@ def splat(p: Particles, surf: np.ndarray, width: int, height: int) -> Sums:
         frame = _FRAMES.setdefault(key, frame)
     hit, acc, near = kern.splat(f32(p.u), f32(p.v), f32(p.a), f32(p.b), f32(p.c), f32(p.s), f32(p.d),
                                 f32(p.op), colour, f32(surf), int(width), int(height), frame)
-    return Sums(hit, acc[:, 0].copy(), acc[:, 1:].copy() if colour.shape[1] else None, near)
+    return Sums(hit, acc[0], acc[1:] if colour.shape[1] else None, near)

@@ -427,7 +427,7 @@ def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: Parti
     prange, hit = sums.near, sums.hit                    # nearest covering particle, inf elsewhere
     cov = np.float32(1.0) - sums.trans
     if shade is not None:                                # planar (3, n_hit): long numpy loops
-        wc = np.ascontiguousarray(sums.wc.T)
+        wc = sums.wc
         c = wc[1:] * (np.float32(1.0) / np.where(wc[0] > 0, wc[0], np.float32(1.0)))
     else:
         c = np.broadcast_to(col[:, None], (3, hit.size))
