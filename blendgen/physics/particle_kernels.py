@@ -137,16 +137,6 @@ def box(u, v, a, b, c, s):
     return x0, y0, int(math.floor(u + ex)) + 1 - x0, int(math.floor(v + ey)) + 1 - y0
 
 
-@_inline
-def _square_total(x0, y0, size, u, v, ca, sa, cb, sb, k0, k1):
-    """Sum of the coverage over the size x size square at (x0, y0), inside the image or not."""
-    total = _F0
-    for gy in range(size):
-        for gx in range(size):
-            total += _coverage(x0 + gx, y0 + gy, u, v, ca, sa, cb, sb, k0, k1)
-    return total
-
-
 @_jit
 def _memory_order(u, v, width, height):
     """Particle indices (M,) sorted by the 32-px tile of the image row their centre is in
@@ -187,14 +177,20 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height, frame):
     larger boxes are not. Every sample counts only where the scene surface is farther than the
     particle's surface (depth test) and alpha > 0; then T *= 1 - alpha, w += alpha / d^2."""
     n_pix, n_col = width * height, colour.shape[1]
+    rgb = n_col == 3
     near = np.full(n_pix, np.inf, np.float32)
+    buf = np.empty(GROUP_MAX_PX * GROUP_MAX_PX, np.float32)   # a small ellipse's square
     n = 0
     for i in _memory_order(u, v, width, height):
         ui, vi, ai, bi, di, opi = u[i], v[i], a[i], b[i], d[i], op[i]
         w_d = _F1 / max(di, np.float32(1e-3)) ** 2
+        c_r = c_g = c_b = _F0
+        if rgb:
+            c_r, c_g, c_b = colour[i, 0], colour[i, 1], colour[i, 2]
         speck = ai < np.float32(SPLAT_BELOW_PX)
         fx = fy = ca = sa = cb = sb = k0 = k1 = _F0
         scale = _F1
+        in_buf = False
         if speck:                                     # its 4 bilinear samples
             x0f, y0f = math.floor(ui), math.floor(vi)
             x0, y0, sx, sy = int(x0f), int(y0f), 2, 2
@@ -209,14 +205,20 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height, frame):
             ca, sa, cb, sb, k0 = c[i] / ai, s[i] / ai, c[i] / bi, s[i] / bi, _HALF + k1
             if size <= GROUP_MAX_PX:
                 sx = sy = size
-                if ai < np.float32(NORMALISE_BELOW_PX):
-                    total = _square_total(x0, y0, size, ui, vi, ca, sa, cb, sb, k0, k1)
+                if ai < np.float32(NORMALISE_BELOW_PX):   # coverage of the whole square, kept
+                    total = _F0
+                    for g in range(size * size):
+                        buf[g] = _coverage(x0 + g % size, y0 + g // size, ui, vi, ca, sa, cb, sb, k0, k1)
+                        total += buf[g]
                     if total > _F0:
                         scale = _PI * ai * bi / max(total, np.float32(1e-12))
+                    in_buf = True
         for y in range(max(y0, 0), min(y0 + sy, height)):
             for x in range(max(x0, 0), min(x0 + sx, width)):
                 if speck:
                     alpha = (fx if x > x0 else _F1 - fx) * (fy if y > y0 else _F1 - fy) * scale
+                elif in_buf:
+                    alpha = min(buf[(y - y0) * sx + x - x0] * scale, _F1) * opi
                 else:
                     alpha = min(_coverage(x, y, ui, vi, ca, sa, cb, sb, k0, k1) * scale, _F1) * opi
                 pix = y * width + x
@@ -228,8 +230,13 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height, frame):
                 frame[pix, 0] *= _F1 - min(alpha, np.float32(ALPHA_MAX))
                 w = alpha * w_d
                 frame[pix, 1] += w
-                for j in range(n_col):
-                    frame[pix, 2 + j] += w * colour[i, j]
+                if rgb:                                         # the usual case, unrolled
+                    frame[pix, 2] += w * c_r
+                    frame[pix, 3] += w * c_g
+                    frame[pix, 4] += w * c_b
+                else:
+                    for j in range(n_col):
+                        frame[pix, 2 + j] += w * colour[i, j]
     hit = np.empty(n, np.int64)                      # the covered pixels in ascending order
     out = np.empty((2 + n_col, n), np.float32)       # planar: every later pass runs along n
     j = 0
