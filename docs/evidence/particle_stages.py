@@ -1,0 +1,49 @@
+"""Per-stage CPU of the fast particle path on `bench particles`' scene (docs/particles.md, Speed):
+wraps the stages of compose.add_particles (projection, blur shapes, shading, splat, background
+transfer, compositing) in timers and prints their medians over 30 frames, after one warm-up.
+
+    python docs/evidence/particle_stages.py [power_law|uniform] [N]"""
+import collections
+import sys
+import time
+
+import numpy as np
+
+from blendgen.physics import particle_splat as ps
+from blendgen.physics import particles as P
+from blendgen.pipeline import compose
+from blendgen.pipeline import particle_light as pl
+from blendgen.tools import particle_bench as pb
+
+TIMES = collections.defaultdict(list)
+
+
+def timed(fn, label):
+    def call(*a, **k):
+        t = time.process_time()
+        out = fn(*a, **k)
+        TIMES[label].append(time.process_time() - t)
+        return out
+    return call
+
+
+def timed_factory(factory, label):
+    """Time the callables that the particle_light factories return, not the factories."""
+    return lambda *a, **k: timed(factory(*a, **k), label)
+
+
+def main(size_dist: str = "power_law", n: int = 60000) -> None:
+    P.project_particles = timed(P.project_particles, "projection")
+    ps.splat = timed(ps.splat, "splat")
+    P._composite = timed(P._composite, "compositing")
+    compose._particle_background = timed(compose._particle_background, "background setup")
+    for name, label in (("shader", "shading"), ("shaper", "blur shapes"), ("background_transfer", "transfer")):
+        setattr(pl, name, timed_factory(getattr(pl, name), label))
+    r = pb.run(n, frames=30, size_dist=size_dist)
+    print(pb.format_row(r))
+    for label, t in TIMES.items():
+        print(f"  {label:18s} {np.median(t[1:]) * 1e3:6.2f} ms CPU")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1] if len(sys.argv) > 1 else "power_law", int(sys.argv[2]) if len(sys.argv) > 2 else 60000)
