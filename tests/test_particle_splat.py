@@ -94,3 +94,17 @@ def test_splat_of_nothing_is_empty():
     far = ps.Particles(*(x[:0] for x in (p.u, p.v, p.a, p.b, p.c, p.s, p.d, p.op, p.colour)))
     sums = ps.splat(far, np.full(W * H, np.inf, np.float32), W, H)
     assert sums.hit.size == 0 and not np.isfinite(sums.near).any() and sums.wc.shape == (4, 0)
+
+
+def test_splat_leaves_no_trace_between_frames():
+    """The kernel's full-frame scratch is kept between calls and reset at the covered pixels:
+    a frame splat after other frames (other sizes of colour too) gives the same sums as the first time."""
+    rng = np.random.default_rng(5)
+    first, other, grey = _particles(rng, 60), _particles(rng, 60), _particles(rng, 40, colours=0)
+    surf = np.full(W * H, np.inf, np.float32)
+    a = ps.splat(first, surf, W, H)
+    for p in (other, grey, other):
+        ps.splat(p, surf, W, H)
+    b = ps.splat(first, surf, W, H)
+    for x, y in ((a.hit, b.hit), (a.trans, b.trans), (a.wc, b.wc), (a.near, b.near)):
+        assert np.array_equal(x, y)

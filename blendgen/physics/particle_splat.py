@@ -17,6 +17,7 @@ with a < 4 px are renormalised to the exact area pi a b over their (square) box.
 """
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -63,7 +64,7 @@ def boxes(p: Particles, sel: np.ndarray):
     return tuple(out.reshape(-1, 4).T)
 
 
-_FRAMES: dict[tuple[int, int], np.ndarray] = {}   # per (pixels, colours): the kernel's full-frame sums
+_SCRATCH = threading.local()    # per thread, per (pixels, colours): the kernel's full-frame sums
 
 
 def splat(p: Particles, surf: np.ndarray, width: int, height: int) -> Sums:
@@ -72,12 +73,12 @@ def splat(p: Particles, surf: np.ndarray, width: int, height: int) -> Sums:
     surf (H*W,) float32 scene range per pixel (inf = background, no NaN)."""
     f32 = lambda x: np.ascontiguousarray(x, np.float32)
     colour = f32(p.colour)                                # (M, C)
+    frames = _SCRATCH.__dict__.setdefault("frames", {})
     key = (width * height, colour.shape[1])
-    frame = _FRAMES.get(key)
+    frame = frames.get(key)
     if frame is None:                                     # [T = 1, w = 0, w c = 0] per pixel
-        frame = np.zeros((key[0], 2 + key[1]), np.float32)
+        frame = frames[key] = np.zeros((key[0], 2 + key[1]), np.float32)
         frame[:, 0] = 1.0
-        frame = _FRAMES.setdefault(key, frame)
     hit, acc, near = kern.splat(f32(p.u), f32(p.v), f32(p.a), f32(p.b), f32(p.c), f32(p.s), f32(p.d),
                                 f32(p.op), colour, f32(surf), int(width), int(height), frame)
     return Sums(hit, acc[0], acc[1:] if colour.shape[1] else None, near)
