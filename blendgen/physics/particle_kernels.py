@@ -161,6 +161,46 @@ def _memory_order(u, v, width, height):
     return order
 
 
+@_inline
+def _footprint(u, v, a, b, c, s, op):
+    """A particle's pixel box and coverage law: (x0, y0, sx, sy, speck, fx, fy, ca, sa, cb, sb,
+    k0, k1, scale). Specks (a < SPLAT_BELOW_PX): the 2 x 2 pixels around the centre, bilinear
+    weights from (fx, fy), scale = pi a b op. Ellipses (scale 1): boxes up to GROUP_MAX_PX are
+    square (size x size from the box's corner), larger ones not. sx = 0: nothing to draw."""
+    fx = fy = ca = sa = cb = sb = k0 = k1 = _F0
+    if a < np.float32(SPLAT_BELOW_PX):
+        x0f, y0f = math.floor(u), math.floor(v)
+        return (int(x0f), int(y0f), 2, 2, True, np.float32(u - x0f), np.float32(v - y0f),
+                ca, sa, cb, sb, k0, k1, _PI * a * b * op)
+    x0, y0, sx, sy = box(u, v, a, b, c, s)
+    size = max(sx, sy)
+    scale = _F1
+    if size > 0:
+        k1 = np.float32(math.sqrt(a * b))
+        ca, sa, cb, sb, k0 = c / a, s / a, c / b, s / b, _HALF + k1
+        if size <= GROUP_MAX_PX:
+            sx = sy = size
+    return x0, y0, max(sx, 0), max(sy, 0), False, fx, fy, ca, sa, cb, sb, k0, k1, scale
+
+
+@_jit
+def _gather(frame, near, n):
+    """The covered pixels (n,) int64 ascending and their sums (2 + C, n) float32, planar (every
+    later pass runs along n); the scratch rows are reset to [1, 0, 0..]."""
+    hit = np.empty(n, np.int64)
+    out = np.empty((frame.shape[1], n), np.float32)
+    j = 0
+    for pix in range(near.size):
+        if near[pix] < np.inf and j < n:
+            hit[j] = pix
+            for col in range(frame.shape[1]):
+                out[col, j] = frame[pix, col]
+                frame[pix, col] = 0.0
+            frame[pix, 0] = 1.0
+            j += 1
+    return hit, out
+
+
 @_jit
 def splat(u, v, a, b, c, s, d, op, colour, surf, width, height, frame):
     """All particles' depth-tested coverage in per-pixel sums (particle_splat module doc).
@@ -170,57 +210,38 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height, frame):
     range (inf = background). frame (H*W, 2 + C) float32 scratch holding [1, 0, 0..] on every
     row (left so). Returns (hit (n,) int64 covered pixels ascending, sums (2 + C, n) float32 =
     [T, w, w c..], near (H*W,) float32 nearest covering surface range, inf elsewhere).
-
-    Specks (a < SPLAT_BELOW_PX): alpha = bilinear weight x pi a b x op on the 2 x 2 pixels around
-    the centre. Ellipses: boxes up to GROUP_MAX_PX are square (size x size from the box's corner)
-    and, for a < NORMALISE_BELOW_PX, renormalised to the exact area pi a b over that square;
-    larger boxes are not. Every sample counts only where the scene surface is farther than the
-    particle's surface (depth test) and alpha > 0; then T *= 1 - alpha, w += alpha / d^2."""
-    n_pix, n_col = width * height, colour.shape[1]
+    Coverage per :func:`_footprint`, small ellipses (a < NORMALISE_BELOW_PX, square box) scaled
+    to the exact area pi a b over their square; a sample counts only where the scene surface is farther
+    than the particle's surface (depth test) and alpha > 0: T *= 1 - alpha, w += alpha / d^2."""
+    n_col = colour.shape[1]
     rgb = n_col == 3
-    near = np.full(n_pix, np.inf, np.float32)
+    near = np.full(width * height, np.inf, np.float32)
     buf = np.empty(GROUP_MAX_PX * GROUP_MAX_PX, np.float32)   # a small ellipse's square
     n = 0
     for i in _memory_order(u, v, width, height):
-        ui, vi, ai, bi, di, opi = u[i], v[i], a[i], b[i], d[i], op[i]
+        x0, y0, sx, sy, speck, fx, fy, ca, sa, cb, sb, k0, k1, scale = _footprint(
+            u[i], v[i], a[i], b[i], c[i], s[i], op[i])
+        di = d[i]
         w_d = _F1 / max(di, np.float32(1e-3)) ** 2
         c_r = c_g = c_b = _F0
         if rgb:
             c_r, c_g, c_b = colour[i, 0], colour[i, 1], colour[i, 2]
-        speck = ai < np.float32(SPLAT_BELOW_PX)
-        fx = fy = ca = sa = cb = sb = k0 = k1 = _F0
-        scale = _F1
-        in_buf = False
-        if speck:                                     # its 4 bilinear samples
-            x0f, y0f = math.floor(ui), math.floor(vi)
-            x0, y0, sx, sy = int(x0f), int(y0f), 2, 2
-            fx, fy = np.float32(ui - x0f), np.float32(vi - y0f)
-            scale = _PI * ai * bi * opi
-        else:
-            x0, y0, sx, sy = box(ui, vi, ai, bi, c[i], s[i])
-            size = max(sx, sy)
-            if size <= 0:
-                continue
-            k1 = np.float32(math.sqrt(ai * bi))
-            ca, sa, cb, sb, k0 = c[i] / ai, s[i] / ai, c[i] / bi, s[i] / bi, _HALF + k1
-            if size <= GROUP_MAX_PX:
-                sx = sy = size
-                if ai < np.float32(NORMALISE_BELOW_PX):   # coverage of the whole square, kept
-                    total = _F0
-                    for g in range(size * size):
-                        buf[g] = _coverage(x0 + g % size, y0 + g // size, ui, vi, ca, sa, cb, sb, k0, k1)
-                        total += buf[g]
-                    if total > _F0:
-                        scale = _PI * ai * bi / max(total, np.float32(1e-12))
-                    in_buf = True
+        small = not speck and sx <= GROUP_MAX_PX and a[i] < np.float32(NORMALISE_BELOW_PX)
+        if small:            # coverage of the whole square kept, scaled to the exact area pi a b
+            total = _F0
+            for g in range(sx * sx):
+                buf[g] = _coverage(x0 + g % sx, y0 + g // sx, u[i], v[i], ca, sa, cb, sb, k0, k1)
+                total += buf[g]
+            if total > _F0:
+                scale = _PI * a[i] * b[i] / max(total, np.float32(1e-12))
         for y in range(max(y0, 0), min(y0 + sy, height)):
             for x in range(max(x0, 0), min(x0 + sx, width)):
                 if speck:
                     alpha = (fx if x > x0 else _F1 - fx) * (fy if y > y0 else _F1 - fy) * scale
-                elif in_buf:
-                    alpha = min(buf[(y - y0) * sx + x - x0] * scale, _F1) * opi
+                elif small:
+                    alpha = min(buf[(y - y0) * sx + x - x0] * scale, _F1) * op[i]
                 else:
-                    alpha = min(_coverage(x, y, ui, vi, ca, sa, cb, sb, k0, k1) * scale, _F1) * opi
+                    alpha = min(_coverage(x, y, u[i], v[i], ca, sa, cb, sb, k0, k1) * scale, _F1) * op[i]
                 pix = y * width + x
                 if not (alpha > _F0 and surf[pix] > di):       # depth test
                     continue
@@ -237,17 +258,7 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height, frame):
                 else:
                     for j in range(n_col):
                         frame[pix, 2 + j] += w * colour[i, j]
-    hit = np.empty(n, np.int64)                      # the covered pixels in ascending order
-    out = np.empty((2 + n_col, n), np.float32)       # planar: every later pass runs along n
-    j = 0
-    for pix in range(n_pix):
-        if near[pix] < np.inf and j < n:
-            hit[j] = pix
-            for col in range(2 + n_col):
-                out[col, j] = frame[pix, col]
-                frame[pix, col] = 0.0
-            frame[pix, 0] = 1.0
-            j += 1
+    hit, out = _gather(frame, near, n)
     return hit, out, near
 
 
