@@ -33,7 +33,7 @@ except ImportError as exc:                      # pragma: no cover - the render 
 SPLAT_BELOW_PX = 0.5                 # semi-axis below which a particle is a bilinear speck
 NORMALISE_BELOW_PX = 4.0             # small ellipses: rescale coverage to the exact area
 GROUP_MAX_PX = 16                    # boxes up to this size are renormalised over their square
-ALPHA_MAX = 1.0 - 1e-6               # keeps log(1 - alpha) finite
+ALPHA_MAX = 1.0 - 1e-6               # keeps the transmittance T = prod(1 - alpha) > 0
 
 _jit = nb.njit(cache=True, nogil=True)
 _inline = nb.njit(cache=True, nogil=True, inline="always")   # helpers: no call or refcount overhead
