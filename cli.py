@@ -398,20 +398,23 @@ def bench_glow(samples: int, size: int, volume_bounces: int, out: Path):
               help="sun rays per render side (photons = size^2 x renders)")
 @click.option("--renders", type=click.IntRange(1, 64), default=4, show_default=True,
               help="sun directions over its disc, one Cycles render each")
+@click.option("--sun-zenith", type=click.FloatRange(0.0, 70.0), default=0.0, show_default=True,
+              help="the sun's zenith angle in air (deg), heading +x")
 @click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
               default=Path("out/bench_caustics"), show_default=True)
 @_user_errors
-def bench_caustics(depths: tuple[float, ...], waters: tuple[str, ...], size: int, renders: int, out: Path):
+def bench_caustics(depths: tuple[float, ...], waters: tuple[str, ...], size: int, renders: int, sun_zenith: float,
+                   out: Path):
     """Fast caustics vs the Cycles photon-map reference on a 2 x 2 m floor under the seeded
     waves (2 m/s): contrast std E / mean E, mean irradiance over the sun's, pattern correlation.
     Reference maps are cached in OUT (one niced Blender job at a time)."""
     import pandas as pd
     from blendgen.tools import caustic_bench as cb
     rows = cb.run(out, depths or (1.0, 2.0, 4.0), waters or ("IB", "1C"), size, renders,
-                  echo=lambda m: click.echo(m, err=True))
+                  echo=lambda m: click.echo(m, err=True), sun_zenith_deg=sun_zenith)
     click.echo(cb.format_rows(rows))
     click.echo("C: contrast (ref: shot noise 'noise' removed); E: mean irradiance / sun's above the surface (fast: "
-               "exp(-Kd h); beam: exp(-c h)); corr* = corr / the ref's signal share")
+               "cos(zenith) exp(-Kd h); beam: cos(zenith) exp(-c h slant)); corr* = corr / the ref's signal share")
     pd.DataFrame(rows).to_csv(out / "caustics.csv", index=False)
     click.echo(str(out / "caustics.csv"))
 

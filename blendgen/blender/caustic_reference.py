@@ -25,7 +25,7 @@ set of directions within it, one render each. Reflected rays leave to a black sk
 ``wave_seed``, ``wind_mps``, ``t`` (s), ``patch_m`` (side of the binned floor square, centred
 at the origin), ``bins`` (rows along +y, columns along +x, both ascending), ``margin_m`` (camera footprint beyond the patch, for light that
 scatters in), ``size`` (pixels per render side), ``renders`` (sun directions),
-``sun_radius_deg``, ``sigma_a``, ``sigma_s`` (grey, 1/m; 0 and 0: no medium), ``g``,
+``sun_radius_deg``, ``sun_zenith_deg`` (in air, heading +x; default 0), ``sigma_a``, ``sigma_s`` (grey, 1/m; 0 and 0: no medium), ``g``,
 ``volume_bounces``, ``seed``. OUT: ``E`` (bins, bins) irradiance over the sun's (above the
 surface, normal to its rays), ``E2`` the per-bin sum of squared photon contributions (for
 the shot-noise variance), ``photons`` the number of camera rays.
@@ -94,7 +94,7 @@ def build(spec: dict):
     cam = bpy.data.objects.new("sun", data)
     sc.collection.objects.link(cam)
     sc.camera = cam
-    cam.location = (0.0, 0.0, 1.0)
+    cam.location = tuple(sun_camera_position(spec))
     n = int(spec["size"])
     sc.render.resolution_x = sc.render.resolution_y = n
     sc.render.resolution_percentage = 100
@@ -106,6 +106,34 @@ def build(spec: dict):
     cy.sample_clamp_direct = cy.sample_clamp_indirect = 0.0       # photon weights are not fireflies
     cy.blur_glossy = 0.0                                          # keep the glass sharp after a scatter
     return sc, cam
+
+
+def sun_travel(spec: dict):
+    """The sun's travel direction in air (3,), zenith angle ``sun_zenith_deg`` (default 0),
+    heading +x, and below a flat surface (``surface.refracted_sun``)."""
+    import numpy as np
+    from blendgen.physics.surface import refracted_sun
+    z = math.radians(float(spec.get("sun_zenith_deg", 0.0)))
+    air = np.array([math.sin(z), 0.0, -math.cos(z)])
+    return air, refracted_sun(air)
+
+
+def sun_camera_position(spec: dict):
+    """The orthographic "sun" camera 1 m before the surface along the beam, centred on the
+    surface point whose refracted ray reaches the patch centre (h tan(theta_t) upstream)."""
+    import numpy as np
+    air, water = sun_travel(spec)
+    upstream = float(spec["depth_m"]) * water[0] / -water[2]
+    return np.array([-upstream, 0.0, 0.0]) - air
+
+
+def sun_rotation(spec: dict, rx: float, ry: float):
+    """Camera rotation: its -Z along the sun's travel in air, then tilted by (rx, ry) (rad)
+    within the sun's disc."""
+    import mathutils
+    air, _ = sun_travel(spec)
+    base = mathutils.Vector((-air[0], -air[1], -air[2])).to_track_quat("Z", "Y").to_matrix()
+    return (base @ mathutils.Euler((rx, ry, 0.0)).to_matrix()).to_euler()
 
 
 def sun_directions(count: int, radius_rad: float):
@@ -133,7 +161,7 @@ def photon_map(spec: dict, out: str) -> None:
     path = os.path.join(rnd.scratch_dir(), f"dockbench-caustic-{os.getpid()}.exr")
     try:
         for i, (rx, ry) in enumerate(tilts):
-            cam.rotation_euler = (rx, ry, 0.0)
+            cam.rotation_euler = sun_rotation(spec, rx, ry)
             sc.cycles.seed = int(spec.get("seed", 0)) * 1000 + i
             sc.render.filepath = path
             import bpy

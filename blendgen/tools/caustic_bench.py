@@ -2,16 +2,17 @@
 the Cycles photon-map reference (:mod:`blendgen.blender.caustic_reference`).
 
 Scene: a 2 x 2 m patch of floor at depth ``h`` under the seeded wave surface (the
-scene's ``waves_for(seed, wind)``, time ``t``), sun at the zenith, water grey at the green
+scene's ``waves_for(seed, wind)``, time ``t``), sun at the zenith or ``sun_zenith_deg`` from it
+(heading +x), water grey at the green
 channel of a Jerlov type (``sigma_a``, ``sigma_s``, HG ``g`` of
 ``water_presets.jerlov_coefficients``). Per (depth, water) it reports:
 
 - contrast ``std E / mean E`` of the reference (its photon shot-noise variance, the
   per-bin sum of squared photon contributions, subtracted) and of the fast factor
   averaged over the same bins (4 x 4 samples each);
-- mean irradiance over the sun's above the surface: reference (Fresnel losses, absorption
-  and scattered light included) and the fast path's ``exp(-Kd h)`` (Jerlov Kd, green;
-  ``optics.downwelling``);
+- mean irradiance on the floor over the sun's above the surface (normal to its beam):
+  reference (Fresnel losses, absorption and scattered light included) and the fast path's
+  ``cos(zenith) exp(-Kd h)`` (Jerlov Kd, green; ``optics.downwelling``);
 - Pearson correlation of the two patterns (the reference's shot noise lowers it; its
   noise-free estimate divides by the reference's signal share ``sqrt(var_true/var)``);
 - statistics that need no pixel-for-pixel match (beyond the first focus the network depends
@@ -48,14 +49,26 @@ def water_of(name: str | None) -> dict:
 
 
 def reference_spec(depth: float, water: dict, size: int, renders: int, seed: int = 0, t: float = 0.0,
-                   bins: int = 96) -> dict:
+                   bins: int = 96, sun_zenith_deg: float = 0.0) -> dict:
     """The photon-map job; the camera's margin grows with depth in scattering water (light
-    scattered in from outside the patch)."""
+    scattered in from outside the patch). ``sun_zenith_deg``: the sun's zenith angle in air
+    (heading +x); the key is left out at the zenith (the cached maps stay valid)."""
     margin = 0.3 + (0.5 * depth if water["sigma_s"] > 0 else 0.0)
-    return {"depth_m": depth, "wave_seed": WAVE_SEED, "wind_mps": WIND_MPS, "t": t, "patch_m": 2.0,
+    spec = {"depth_m": depth, "wave_seed": WAVE_SEED, "wind_mps": WIND_MPS, "t": t, "patch_m": 2.0,
             "bins": bins, "margin_m": margin, "size": size, "renders": renders, "sun_radius_deg": 0.265,
             "sigma_a": water["sigma_a"], "sigma_s": water["sigma_s"], "g": water["g"],
             "volume_bounces": 64 if water["sigma_s"] > 0 else 0, "seed": seed}
+    return {**spec, "sun_zenith_deg": float(sun_zenith_deg)} if sun_zenith_deg else spec
+
+
+def sun_geometry(spec: dict) -> tuple[float, float, float]:
+    """(cos of the sun's zenith angle in air, upstream run per metre of depth tan(theta_t),
+    slant path per metre of depth 1 / cos(theta_t)) for the spec's sun (pipeline's
+    world_post.add_caustics: a point at depth h takes the factor of the ray that crossed the
+    surface h tan(theta_t) upstream, at beam path h / cos(theta_t))."""
+    z = math.radians(float(spec.get("sun_zenith_deg", 0.0)))
+    below = sf.refracted_sun([math.sin(z), 0.0, -math.cos(z)])
+    return math.cos(z), float(below[0] / -below[2]), float(1.0 / -below[2])
 
 
 def run_reference(spec: dict, out: Path) -> dict:
@@ -72,12 +85,14 @@ def run_reference(spec: dict, out: Path) -> dict:
 
 def fast_map(spec: dict, sigma_s: float, g: float = 0.9, ss: int = 4) -> np.ndarray:
     """The fast caustic factor on the reference's bins (bins, bins), each the mean of ss x ss
-    samples; sun at the zenith: a floor point's ray crosses the surface straight above it."""
+    samples, evaluated where each floor point's sun ray crossed the surface (:func:`sun_geometry`)."""
     waves = sf.waves_for(spec["wave_seed"], spec["wind_mps"])
     nb, half = int(spec["bins"]), spec["patch_m"] / 2
     c = np.linspace(-half, half, nb * ss, endpoint=False, dtype=np.float32) + np.float32(half / nb / ss)
     x, y = np.meshgrid(c, c)
-    f = sf.caustic_factor(waves, x, y, spec["depth_m"], spec["t"], sigma_s, g=g)
+    _, run, slant = sun_geometry(spec)
+    h = spec["depth_m"]
+    f = sf.caustic_factor(waves, x - np.float32(h * run), y, np.float32(h * slant), spec["t"], sigma_s, g=g)
     return f.reshape(nb, ss, nb, ss).mean(axis=(1, 3))
 
 
@@ -122,28 +137,30 @@ def compare(ref: dict, spec: dict, water: dict) -> dict:
     E, noise = ref["E"], float(ref["E2"].mean())
     var_true = max(float(E.var()) - noise, 0.0)
     F = fast_map(spec, water["sigma_s"], water["g"])
+    cos_sun, _, slant = sun_geometry(spec)
     r = float(np.corrcoef(E.ravel(), F.ravel())[0, 1])
     share = math.sqrt(var_true / float(E.var())) if E.var() > 0 else 0.0
     return {"water": water["name"], "depth_m": spec["depth_m"],
             "contrast_ref": math.sqrt(var_true) / float(E.mean()), "contrast_fast": float(F.std() / F.mean()),
             "noise_contrast_ref": math.sqrt(noise) / float(E.mean()),
-            "meanE_ref": float(E.mean()), "meanE_fast": math.exp(-water["Kd"] * spec["depth_m"]),
-            "meanE_beam": math.exp(-(water["sigma_a"] + water["sigma_s"]) * spec["depth_m"]),
+            "meanE_ref": float(E.mean()), "meanE_fast": cos_sun * math.exp(-water["Kd"] * spec["depth_m"]),
+            "meanE_beam": cos_sun * math.exp(-(water["sigma_a"] + water["sigma_s"]) * spec["depth_m"] * slant),
             "corr": r, "corr_noise_free": r / share if share > 0 else float("nan"),
             **spectrum_stats(E, F, spec["patch_m"] / spec["bins"], noise),
             "photons": int(ref["photons"])}
 
 
 def run(out: Path, depths=(1.0, 2.0, 4.0), waters=("IB", "1C"), size: int = 1024, renders: int = 4,
-        echo=print) -> list[dict]:
+        echo=print, sun_zenith_deg: float = 0.0) -> list[dict]:
     """The table over depths x waters; reference maps cached under ``out``."""
     rows = []
+    tag = f"-sun{sun_zenith_deg:g}" if sun_zenith_deg else ""
     for name in waters:
         water = water_of(name)
         for h in depths:
-            spec = reference_spec(h, water, size, renders)
+            spec = reference_spec(h, water, size, renders, sun_zenith_deg=sun_zenith_deg)
             echo(f"reference {name} {h:g} m ...")
-            rows.append(compare(run_reference(spec, out / f"ref-{name}-{h:g}m.npz"), spec, water))
+            rows.append(compare(run_reference(spec, out / f"ref-{name}-{h:g}m{tag}.npz"), spec, water))
     return rows
 
 
