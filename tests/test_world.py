@@ -459,3 +459,30 @@ def test_no_sun_disc_when_its_irradiance_is_zero(monkeypatch):
         raise AssertionError("sun disc computed while off")
     monkeypatch.setattr(sf, "sun_disc_radiance", boom)
     _open_water_up(_post(_world()))
+
+
+def _land(d_air, slope, depth, n=sf.N_WATER):
+    """Exact: where the sun ray refracted at the origin, under a surface of slope (sx, sy),
+    reaches the depth (vector Snell's law, no small-slope step)."""
+    N = np.array([-slope[0], -slope[1], 1.0])
+    N /= np.linalg.norm(N)
+    d = np.asarray(d_air, float) / np.linalg.norm(d_air)
+    ci = -N @ d
+    ct = math.sqrt(1 - (1 - ci * ci) / n ** 2)
+    t = d / n + (ci / n - ct) * N
+    return t[:2] * depth / -t[2]
+
+
+@pytest.mark.parametrize("zenith_deg, azimuth_deg", [(0.0, 0.0), (40.0, 30.0), (60.0, -120.0)])
+def test_sun_deflection_is_the_derivative_of_snells_law(zenith_deg, azimuth_deg):
+    """The landing point's shift per unit slope, by central differences of exact vector
+    refraction, equals slant path x sun_deflection (both columns; 1e-4 relative)."""
+    z, a = math.radians(zenith_deg), math.radians(azimuth_deg)
+    d_air = [math.sin(z) * math.cos(a), math.sin(z) * math.sin(a), -math.cos(z)]
+    depth, eps = 3.0, 1e-5
+    slant = depth / -sf.refracted_sun(d_air)[2]
+    J = np.column_stack([(_land(d_air, e * eps, depth) - _land(d_air, -e * eps, depth)) / (2 * eps)
+                         for e in np.eye(2)])
+    np.testing.assert_allclose(J, slant * sf.sun_deflection(d_air), rtol=1e-4, atol=1e-7)
+    if zenith_deg == 0.0:
+        np.testing.assert_allclose(sf.sun_deflection(d_air), (1 - 1 / sf.N_WATER) * np.eye(2), atol=1e-12)

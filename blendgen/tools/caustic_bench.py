@@ -91,8 +91,10 @@ def fast_map(spec: dict, sigma_s: float, g: float = 0.9, ss: int = 4) -> np.ndar
     c = np.linspace(-half, half, nb * ss, endpoint=False, dtype=np.float32) + np.float32(half / nb / ss)
     x, y = np.meshgrid(c, c)
     _, run, slant = sun_geometry(spec)
-    h = spec["depth_m"]
-    f = sf.caustic_factor(waves, x - np.float32(h * run), y, np.float32(h * slant), spec["t"], sigma_s, g=g)
+    h, z = spec["depth_m"], math.radians(float(spec.get("sun_zenith_deg", 0.0)))
+    deflect = sf.sun_deflection([math.sin(z), 0.0, -math.cos(z)]) if z else None
+    f = sf.caustic_factor(waves, x - np.float32(h * run), y, np.float32(h * slant), spec["t"], sigma_s, g=g,
+                          deflect=deflect)
     return f.reshape(nb, ss, nb, ss).mean(axis=(1, 3))
 
 
