@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from blendgen.blender.caustic_reference import sun_travel      # numpy only: no bpy at import
 from blendgen.physics import surface as sf
 
 GREEN = 1
@@ -66,9 +67,8 @@ def sun_geometry(spec: dict) -> tuple[float, float, float]:
     slant path per metre of depth 1 / cos(theta_t)) for the spec's sun (pipeline's
     world_post.add_caustics: a point at depth h takes the factor of the ray that crossed the
     surface h tan(theta_t) upstream, at beam path h / cos(theta_t))."""
-    z = math.radians(float(spec.get("sun_zenith_deg", 0.0)))
-    below = sf.refracted_sun([math.sin(z), 0.0, -math.cos(z)])
-    return math.cos(z), float(below[0] / -below[2]), float(1.0 / -below[2])
+    air, below = sun_travel(spec)
+    return float(-air[2]), float(below[0] / -below[2]), float(1.0 / -below[2])
 
 
 def run_reference(spec: dict, out: Path) -> dict:
@@ -91,8 +91,8 @@ def fast_map(spec: dict, sigma_s: float, g: float = 0.9, ss: int = 4) -> np.ndar
     c = np.linspace(-half, half, nb * ss, endpoint=False, dtype=np.float32) + np.float32(half / nb / ss)
     x, y = np.meshgrid(c, c)
     _, run, slant = sun_geometry(spec)
-    h, z = spec["depth_m"], math.radians(float(spec.get("sun_zenith_deg", 0.0)))
-    deflect = sf.sun_deflection([math.sin(z), 0.0, -math.cos(z)]) if z else None
+    h = spec["depth_m"]
+    deflect = sf.sun_deflection(sun_travel(spec)[0]) if spec.get("sun_zenith_deg") else None
     f = sf.caustic_factor(waves, x - np.float32(h * run), y, np.float32(h * slant), spec["t"], sigma_s, g=g,
                           deflect=deflect)
     return f.reshape(nb, ss, nb, ss).mean(axis=(1, 3))

@@ -19,7 +19,11 @@ z = 0 and a step 0.5 m above the floor (x > 1 m) lit by a plain 5 W/m^2 sun only
 orthographic from above, 128 px over 6 m, 16 spp. Expected radiance on the floor
 ``E cos(20 deg) / pi * M(x - H tan 20 deg) * exp(-sigma_a H (1/cos + 1))``.
 
-    python docs/evidence/caustic_gobo.py WORK_DIR  (~10 s; output in caustic_gobo.txt)"""
+The spot and the linking (:func:`gobo_spot`, :func:`link_receiver`) are the building blocks
+for reference caustics; nothing in the pipeline uses them yet (docs/evidence/README.md says
+what wiring needs).
+
+    python -m blendgen.blender.caustic_gobo WORK_DIR  (~10 s; docs/evidence/caustic_gobo.txt)"""
 import math
 import sys
 from pathlib import Path
@@ -43,7 +47,7 @@ def _scene(water: bool, linking: bool):
     x = np.cross([0.0, 1.0, 0.0], z)
     x /= np.linalg.norm(x)
     rot = mathutils.Matrix(np.column_stack([x, np.cross(z, x), z]).tolist()).to_euler()
-    spot = _gobo_spot(sc, to_light * D, rot)
+    spot = gobo_spot(sc, to_light * D, rot, lambda xi: 1.0 + 0.8 * np.sin(2 * np.pi * xi[..., 0]))
     if water:
         bpy.ops.mesh.primitive_cube_add(size=1.0, location=(0, 0, -(H + 0.01) / 2))
         box = bpy.context.active_object
@@ -56,11 +60,11 @@ def _scene(water: bool, linking: bool):
         nt.links.new(ab.outputs[0], nt.nodes["Material Output"].inputs["Volume"])
         box.data.materials.append(mat)
     if linking:
-        _link(spot, floor, "INCLUDE")
+        link_receiver(spot, floor, "INCLUDE")
         sun = bpy.data.objects.new("sun", bpy.data.lights.new("sun", "SUN"))
         sun.data.energy, sun.data.angle, sun.rotation_euler = 5.0, 0.0, rot
         sc.collection.objects.link(sun)
-        _link(sun, floor, "EXCLUDE")
+        link_receiver(sun, floor, "EXCLUDE")
         _plane(sc, "step", 1.0, -H + 0.5, (1.0, 3.0))
     cam = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
     cam.data.type, cam.data.ortho_scale, cam.location = "ORTHO", 6.0, (0, 0, 5)
@@ -84,7 +88,8 @@ def _plane(sc, name, half_y, z, xs):
     return obj
 
 
-def _link(light_obj, receiver, state: str):
+def link_receiver(light_obj, receiver, state: str):
+    """Light linking: ``light_obj`` lights ``receiver`` only ("INCLUDE") or all but it ("EXCLUDE")."""
     import bpy
     coll = bpy.data.collections.new(f"{light_obj.name}_receivers")
     coll.objects.link(receiver)
@@ -92,8 +97,11 @@ def _link(light_obj, receiver, state: str):
     light_obj.light_linking.receiver_collection = coll
 
 
-def _gobo_spot(sc, location, rot):
-    """The spot and its light texture: lateral offset (p, q) of each ray -> pattern at xi."""
+def gobo_spot(sc, location, rot, pattern):
+    """A spot light at ``location`` (world, m; ``D`` from the patch) with rotation ``rot`` and
+    irradiance ``E`` normal to its beam, whose light texture gives the ray with lateral offset
+    (p, q) the value ``pattern(xi)`` ((..., 3) world points -> (...)) of the point xi where
+    it crosses the plane z = 0."""
     import bpy
     light = bpy.data.lights.new("caustic_sun", "SPOT")
     light.spot_size, light.spot_blend, light.shadow_soft_size = math.radians(2.0), 0.0, 0.0
@@ -108,7 +116,7 @@ def _gobo_spot(sc, location, rot):
     pts = M[:3, 3] + P[..., None] * M[:3, 0] + Q[..., None] * M[:3, 1]
     xi = pts - (pts[..., 2] / M[2, 2])[..., None] * M[:3, 2]          # along the axis to z = 0
     rgba = np.ones((N_GOBO, N_GOBO, 4), np.float32)
-    rgba[..., :3] = (1.0 + 0.8 * np.sin(2 * np.pi * xi[..., 0]))[..., None]
+    rgba[..., :3] = pattern(xi)[..., None]
     img = bpy.data.images.new("gobo", N_GOBO, N_GOBO, float_buffer=True, alpha=False)
     img.colorspace_settings.name = "Non-Color"        # before the pixels: it regenerates the image
     img.pixels.foreach_set(rgba.ravel())
