@@ -216,10 +216,20 @@ def _deflection(deflect, n: float) -> np.ndarray:
     return sun_deflection(None, n) if deflect is None else np.asarray(deflect, float).reshape(2, 2)
 
 
+def _deflect_key(deflect) -> tuple | None:
+    """The energy table's key of a sun deflection (None: the zenith)."""
+    return None if deflect is None else tuple(float(v) for v in np.asarray(deflect, float).ravel())
+
+
+def _path_deflection(D: np.ndarray, h):
+    """``A = h D`` as (a11, a12, a22) float32, h (...) the slant paths."""
+    return tuple(np.float32(D[i, j]) * h for i, j in ((0, 0), (0, 1), (1, 1)))
+
+
 def _map_step(waves: WaveField, x, y, px, py, h, D, t: float):
     """``x - h D grad eta(px, py)`` (the inverted small-slope ray map, one step)."""
     gx, gy = waves.slope(px, py, t)
-    a11, a12, a22 = (np.float32(D[i, j]) * h for i, j in ((0, 0), (0, 1), (1, 1)))
+    a11, a12, a22 = _path_deflection(D, h)
     return x - (a11 * gx + a12 * gy), y - (a12 * gx + a22 * gy)
 
 
@@ -273,18 +283,14 @@ def _ray_tube_factors(waves: WaveField, x, y, path_m, t: float, n: float, dampin
     h = np.maximum(np.asarray(path_m, np.float32), 0)
     x, y = preimage(waves, x, y, h, t, n, deflect)
     sn = np.sin(waves._arg(x, y, t))
-    D = _deflection(deflect, n)
-    a11, a12, a22 = (np.float32(D[i, j]) * h for i, j in ((0, 0), (0, 1), (1, 1)))
+    a11, a12, a22 = _path_deflection(_deflection(deflect, n), h)
     kx, ky = waves.k[:, 0], waves.k[:, 1]
     out = []
     for damp in dampings:
         sd = sn * damp
         hxx, hxy, hyy = (_weighted_sum(sd, (-waves.amp * kk).astype(np.float32)) for kk in (kx * kx, kx * ky, ky * ky))
-        if D[0, 1] == 0 and D[0, 0] == D[1, 1]:          # the zenith: (1 + s hxx)(1 + s hyy) - (s hxy)^2
-            det = (1 + a11 * hxx) * (1 + a11 * hyy) - (a11 * hxy) ** 2
-        else:                                            # det(I + A H), A = L D symmetric
-            det = ((1 + a11 * hxx + a12 * hxy) * (1 + a12 * hxy + a22 * hyy)
-                   - (a11 * hxy + a12 * hyy) * (a12 * hxx + a22 * hxy))
+        det = ((1 + a11 * hxx + a12 * hxy) * (1 + a12 * hxy + a22 * hyy)     # det(I + A H), A = L D
+               - (a11 * hxy + a12 * hyy) * (a12 * hxx + a22 * hxy))
         out.append(np.minimum(1.0 / np.maximum(np.abs(det), np.float32(1.0 / CAUSTIC_MAX)), np.float32(CAUSTIC_MAX)))
     return out
 
@@ -323,8 +329,7 @@ def mean_ray_tube_factor(waves: WaveField, n: float = N_WATER, grid: int = 128, 
     cols = [[float(m.mean()) for m in _ray_tube_factors(waves, x, y, h, 0.0, n, _dampings(waves, h, n, scattering, g),
                                                           deflect)]
             for h in MEAN_TABLE_PATHS]
-    key = None if deflect is None else tuple(float(v) for v in np.asarray(deflect, float).ravel())
-    return CausticTable(float(scattering), float(g), np.array(cols, np.float32).T, key)
+    return CausticTable(float(scattering), float(g), np.array(cols, np.float32).T, _deflect_key(deflect))
 
 
 def caustic_factor(waves: WaveField, x, y, path_m, t: float, scattering: float = 0.0,
@@ -344,9 +349,9 @@ def caustic_factor(waves: WaveField, x, y, path_m, t: float, scattering: float =
     if (table.scattering, table.g) != (float(scattering), float(g)) and scattering > 0:
         raise ValueError(f"caustic table is for scattering {table.scattering}, g {table.g}; "
                          f"called with {scattering}, {g}")
-    key = None if deflect is None else tuple(float(v) for v in np.asarray(deflect, float).ravel())
-    if table.deflect != key:
-        raise ValueError(f"caustic table is for the sun deflection {table.deflect}, called with {key}")
+    if table.deflect != _deflect_key(deflect):
+        raise ValueError(f"caustic table is for the sun deflection {table.deflect}, "
+                         f"called with {_deflect_key(deflect)}")
     h = np.maximum(np.asarray(path_m, np.float32), 0)
     ms = _ray_tube_factors(waves, x, y, h, t, n, _dampings(waves, h, n, scattering, g), deflect)
     beam = np.exp(-np.float32(scattering) * h)
