@@ -216,9 +216,11 @@ def _deflection(deflect, n: float) -> np.ndarray:
     return sun_deflection(None, n) if deflect is None else np.asarray(deflect, float).reshape(2, 2)
 
 
-def _deflect_key(deflect) -> tuple | None:
-    """The energy table's key of a sun deflection (None: the zenith)."""
-    return None if deflect is None else tuple(float(v) for v in np.asarray(deflect, float).ravel())
+def _deflect_key(deflect, n: float) -> tuple | None:
+    """The energy table's key of a sun deflection (None: the zenith, given as None or as its matrix)."""
+    if deflect is None or np.array_equal(np.asarray(deflect, float), sun_deflection(None, n)):
+        return None
+    return tuple(float(v) for v in np.asarray(deflect, float).ravel())
 
 
 def _path_deflection(D: np.ndarray, h):
@@ -329,7 +331,7 @@ def mean_ray_tube_factor(waves: WaveField, n: float = N_WATER, grid: int = 128, 
     cols = [[float(m.mean()) for m in _ray_tube_factors(waves, x, y, h, 0.0, n, _dampings(waves, h, n, scattering, g),
                                                           deflect)]
             for h in MEAN_TABLE_PATHS]
-    return CausticTable(float(scattering), float(g), np.array(cols, np.float32).T, _deflect_key(deflect))
+    return CausticTable(float(scattering), float(g), np.array(cols, np.float32).T, _deflect_key(deflect, n))
 
 
 def caustic_factor(waves: WaveField, x, y, path_m, t: float, scattering: float = 0.0,
@@ -349,9 +351,9 @@ def caustic_factor(waves: WaveField, x, y, path_m, t: float, scattering: float =
     if (table.scattering, table.g) != (float(scattering), float(g)) and scattering > 0:
         raise ValueError(f"caustic table is for scattering {table.scattering}, g {table.g}; "
                          f"called with {scattering}, {g}")
-    if table.deflect != _deflect_key(deflect):
+    if table.deflect != _deflect_key(deflect, n):
         raise ValueError(f"caustic table is for the sun deflection {table.deflect}, "
-                         f"called with {_deflect_key(deflect)}")
+                         f"called with {_deflect_key(deflect, n)}")
     h = np.maximum(np.asarray(path_m, np.float32), 0)
     ms = _ray_tube_factors(waves, x, y, h, t, n, _dampings(waves, h, n, scattering, g), deflect)
     beam = np.exp(-np.float32(scattering) * h)

@@ -19,7 +19,6 @@ entirely when the sequence has them off (``SequencePost.world`` None or False).
 from __future__ import annotations
 
 import functools
-import math
 
 import numpy as np
 
@@ -38,14 +37,7 @@ def caustic_table(seed: int, wind_mps: float, scattering: float = 0.0, g: float 
     """Energy table of the sequence's caustics in its water and under its sun
     (``surface.mean_ray_tube_factor``), once per sequence (~0.2-0.4 s)."""
     return sf.mean_ray_tube_factor(waves_of(seed, wind_mps), scattering=scattering, g=g,
-                                   deflect=sun_deflection(sun_travel_dir))
-
-
-def sun_deflection(sun_travel_dir: tuple | None):
-    """``surface.sun_deflection`` of the sun's travel direction; None (the table's key) at the zenith."""
-    if sun_travel_dir is None or math.hypot(sun_travel_dir[0], sun_travel_dir[1]) < 1e-12:
-        return None
-    return sf.sun_deflection(sun_travel_dir)
+                                   deflect=sf.sun_deflection(sun_travel_dir))
 
 
 #: Pixel stride of the wave-slope grid of :func:`add_surface` (2: slopes on every second
@@ -186,7 +178,7 @@ def add_caustics(rgb, albedo, range_m, depth, wp, rays, K, T_world_cam, t: float
     sun_dir = tuple(float(v) for v in wp.sun_travel_dir)
     gain[hit] = sf.caustic_factor(waves_of(wp.wave_seed, wp.wind_mps), x, y, path, t, scattering, g=g,
                                   mean_table=caustic_table(wp.wave_seed, wp.wind_mps, scattering, g, sun_dir),
-                                  deflect=sun_deflection(sun_dir)) - 1
+                                  deflect=sf.sun_deflection(sun_dir)) - 1
     gain *= footprint_fade(rays[::2, ::2], range_m[::2, ::2], 2.0 / float(K[0, 0]))
     hgt, wid = range_m.shape
     gain = cv2.resize(gain, (wid, hgt), interpolation=cv2.INTER_LINEAR)

@@ -92,9 +92,8 @@ def fast_map(spec: dict, sigma_s: float, g: float = 0.9, ss: int = 4) -> np.ndar
     x, y = np.meshgrid(c, c)
     _, run, slant = sun_geometry(spec)
     h = spec["depth_m"]
-    deflect = sf.sun_deflection(sun_travel(spec)[0]) if spec.get("sun_zenith_deg") else None
     f = sf.caustic_factor(waves, x - np.float32(h * run), y, np.float32(h * slant), spec["t"], sigma_s, g=g,
-                          deflect=deflect)
+                          deflect=sf.sun_deflection(sun_travel(spec)[0]))
     return f.reshape(nb, ss, nb, ss).mean(axis=(1, 3))
 
 
