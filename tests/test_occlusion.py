@@ -149,15 +149,18 @@ def test_drift_wraps_into_region_keeping_count(dt, vx, vz, sig, seed):
 @settings(max_examples=40, deadline=None)
 @given(scale=st.floats(0.0, 1e4), seed=st.integers(0, 2 ** 16))
 def test_wrap_equals_the_modulo_formula_bit_for_bit(scale, seed):
-    """_wrap sends only the coordinates outside the region through np.mod; the result must
-    equal lo + mod(pos - lo, ext) exactly (datasets keep their bytes), edges included."""
-    from blendgen.physics.particles import _clamp32, _wrap
+    """The drift kernel's wrap (no flow, no noise) sends only the coordinates outside the region
+    through the modulo; the result must equal lo + mod(pos - lo, ext) exactly (datasets keep
+    their bytes), edges included."""
+    from blendgen.physics.particle_kernels import drift
+    from blendgen.physics.particles import _bounds32, _clamp32
     lo, hi = np.array([0.1, -0.3, -7.9]), np.array([15.1, 4.7, 0.1])
     rng = np.random.default_rng(seed)
     pos = lo + (hi - lo) * rng.uniform(-0.2, 1.2, (200, 3)) * (1.0 + scale * rng.random((200, 1)))
     pos[:6] = [lo, hi, lo - (hi - lo), hi + (hi - lo), np.nextafter(hi, -np.inf), -0.0 * lo]
     ref = _clamp32((lo + np.mod(pos - lo, hi - lo)).astype(np.float32), lo, hi)
-    assert _wrap(pos.copy(), lo, hi).tobytes() == ref.tobytes()
+    wrapped = drift(pos.copy(), np.zeros(3), np.zeros((0, 3)), np.ones(3), lo, hi, *_bounds32(lo, hi))
+    assert wrapped.tobytes() == ref.tobytes()
 
 
 # ----------------------------------------------------------------------------- rendering

@@ -218,14 +218,6 @@ def _noise_factor(sigma) -> np.ndarray:
     return V * np.sqrt(np.clip(w, 0.0, None))
 
 
-def _wrap(pos: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """Periodic wrap of positions (N,3) float64 into [lo, hi) per axis -> float32 (N,3):
-    ``lo + np.mod(pos - lo, hi - lo)`` bit for bit, rounded to float32 and kept inside
-    (particle_kernels.drift with no flow and no noise)."""
-    return kern.drift(np.ascontiguousarray(pos, np.float64), np.zeros(3), np.zeros((0, 3)), np.ones(3),
-                      lo, hi, *_bounds32(lo, hi))
-
-
 def _bounds32(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """float32 bounds (3,) lo32 >= lo and top32 < hi: the closed range float32 positions
     must stay in so that they lie in [lo, hi) (lo, hi float64)."""
