@@ -216,7 +216,7 @@ def test_persistent_worker_renders_two_scenes_as_fresh_workers_do(tmp_path, monk
     from blendgen.pipeline.generate import generate_many
     a = Experiment.model_validate(TINY)
     b = Experiment.model_validate({**TINY, "name": "tiny-exec-b", "seed": 6,
-                                   "scene": {**TINY["scene"], "sun_elevation_deg": 30},
+                                   "scene": {**TINY["scene"], "sun_elevation_deg": 50},
                                    "camera": {**TINY["camera"], "hfov_deg": 70}})
     warm = generate_many([(a, tmp_path / "warm_a"), (b, tmp_path / "warm_b")], workers=1, progress=False)
     jobs = {json.dumps(json.loads(p.read_text())["scene"], sort_keys=True)

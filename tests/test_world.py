@@ -256,6 +256,35 @@ def test_article_mode_refuses_an_explicit_surface():
         plan.world_post(exp)
 
 
+@pytest.mark.parametrize("zenith_air, azimuth", [(0.0, 0.0), (41.8, 180.0), (75.0, -120.0), (89.0, 33.0)])
+def test_sun_in_air_inverts_the_refraction(zenith_air, azimuth):
+    """Snell's law both ways: the in-water beam of a sun in the sky gives that sun back, and
+    its horizontal part shrinks by exactly n (sin_t = sin_i / n)."""
+    z, a = math.radians(zenith_air), math.radians(azimuth)
+    air = np.array([math.sin(z) * math.cos(a), math.sin(z) * math.sin(a), -math.cos(z)])
+    water = sf.refracted_sun(air)
+    assert np.hypot(*water[:2]) == pytest.approx(math.sin(z) / sf.N_WATER, abs=1e-12)
+    np.testing.assert_allclose(sf.sun_in_air(water), air, atol=1e-12)
+
+
+def test_a_sun_outside_snells_cone_is_refused_with_a_surface():
+    """``sun_elevation_deg`` is the in-water direction: at 40 deg (zenith 50 > 48.6) no sun
+    in the sky sends it, so a scene with a surface is refused; without one it stays allowed."""
+    from blendgen.config.models import ConfigError
+    traj = [{"kind": "linear", "id": "a"}]
+    exp = Experiment.model_validate({"name": "w", "image_formation": "physical", "trajectories": traj,
+                                     "scene": {"sun_elevation_deg": 40.0}})
+    with pytest.raises(ConfigError, match=r"scene.sun_elevation_deg: 40 .*41.4"):
+        plan.world_post(exp)
+    off = Experiment.model_validate({"name": "w", "image_formation": "physical", "trajectories": traj,
+                                     "scene": {"sun_elevation_deg": 40.0,
+                                               "world": {"surface": False, "caustics": False}}})
+    assert plan.world_post(off) is None
+    ok = exp.model_copy(update={"scene": exp.scene.model_copy(update={"sun_elevation_deg": 60.0})})
+    np.testing.assert_allclose(sf.refracted_sun(plan.world_post(ok).sun_travel_dir),
+                               plan._sun_dir(60.0, ok.scene.sun_azimuth_deg), atol=1e-12)
+
+
 def test_total_internal_reflection_mirrors_the_pool():
     """Flat surface 1 m above a horizontal camera, clear beam (c = 0): a totally reflected
     pixel shows what the camera sees at the mirrored elevation (the floor), not the veil."""

@@ -233,7 +233,10 @@ class Scene(Strict):
     pool: Pool = Pool()
     dock: Dock = Dock()
     obstacles: list[Obstacle] = Field(default_factory=list)
-    sun_elevation_deg: float = Field(60.0, gt=0.0, le=90.0)
+    sun_elevation_deg: float = Field(60.0, gt=0.0, le=90.0,
+                                     description="elevation of the sunlight's direction in water, after "
+                                                 "refraction at the surface (deg; above 41.4 when the "
+                                                 "surface or caustics are on: Snell's window)")
     sun_azimuth_deg: float = Field(180.0, ge=-360, le=360)
     sun_strength: float = Field(3.0, ge=0.0, le=1000.0, description="sun irradiance at the surface (W/m^2)")
     fill_strength: float = Field(0.0, ge=0.0, le=1000.0,

@@ -372,3 +372,18 @@ def refracted_sun(sun_travel_dir, n: float = N_WATER) -> np.ndarray:
     cos_t = math.sqrt(max(0.0, 1 - eta * eta * (1 - cos_i * cos_i)))
     t = eta * d + (eta * cos_i - cos_t) * np.array([0.0, 0.0, 1.0])
     return t / np.linalg.norm(t)
+
+
+def sun_in_air(water_travel_dir, n: float = N_WATER) -> np.ndarray:
+    """Direction (3,) in air of the sun whose beam travels along ``water_travel_dir`` below a
+    flat surface (the inverse of :func:`refracted_sun`: horizontal part times ``n``). Raises
+    ValueError when the beam is outside Snell's cone (zenith angle >= 48.6 deg in water), where
+    no sun in the sky can send it."""
+    t = np.asarray(water_travel_dir, float)
+    t = t / np.linalg.norm(t)
+    h = n * t[:2]
+    s2 = float(h @ h)
+    if t[2] >= 0 or s2 >= 1.0:
+        raise ValueError(f"a beam at {math.degrees(math.acos(max(-1.0, min(1.0, -t[2])))):.1f} deg from the "
+                         f"vertical in water has no sun in the sky (at most {math.degrees(critical_angle_rad(n)):.1f})")
+    return np.array([h[0], h[1], -math.sqrt(1.0 - s2)])

@@ -23,6 +23,7 @@ from pydantic import Field
 from blendgen import markers as mk
 
 from blendgen.pipeline import groundtruth
+from blendgen.physics import surface as sf
 from blendgen.vehicle import trajectories as tj
 from blendgen.geometry import intrinsics_from_hfov, make_T, rpy_to_R
 from blendgen.config.models import (ConfigError, Experiment, ImageFormation, Lamp, Lens, Occlusion, Sensor, Strict, Vec3,
@@ -54,7 +55,8 @@ class WorldPost(Strict):
     wave_seed: int
     sky_radiance: float = Field(ge=0.0, description="uniform sky radiance above the surface")
     ambient_radiance: float = Field(ge=0.0, description="the ambient term already in the clean render")
-    sun_travel_dir: Vec3 = Field(description="direction the sunlight travels in (world, unit, in air)")
+    sun_travel_dir: Vec3 = Field(description="direction the sunlight travels in (world, unit, in air): the "
+                                             "scene's in-water sun direction unrefracted")
     sun_irradiance: float = Field(0.0, ge=0.0, description="the sun's irradiance normal to its beam above the "
                                                             "surface (W/m^2), seen as its disc through Snell's "
                                                             "window; 0: no sun disc")
@@ -453,10 +455,15 @@ def world_post(exp: Experiment) -> WorldPost | None:
                           "(the article's formulas have no surface light); set them false or null")
     w, s = exp.scene.world, exp.scene
     sky = sky_fraction(exp) * sun_horizontal_irradiance(exp) / math.pi     # uniform sky: E = pi L
+    low = 90.0 - math.degrees(sf.critical_angle_rad())
+    if s.sun_elevation_deg <= low:
+        raise ConfigError(f"scene.sun_elevation_deg: {s.sun_elevation_deg:g} is the sun's elevation in water, where "
+                          f"sunlight below a surface stays above {low:.1f} deg (Snell's window); allowed "
+                          f"{low:.1f} < elevation <= 90 while scene.world.surface or caustics is on")
     return WorldPost(surface=surface, caustics=caustics, wind_mps=w.wind_mps,
                      wave_seed=w.wave_seed if w.wave_seed is not None else exp.seed, sky_radiance=sky,
                      ambient_radiance=ambient_radiance(exp) if exp.render.fidelity == "fast" else 0.0,
-                     sun_travel_dir=_sun_dir(s.sun_elevation_deg, s.sun_azimuth_deg),
+                     sun_travel_dir=sf.sun_in_air(_sun_dir(s.sun_elevation_deg, s.sun_azimuth_deg)).tolist(),
                      sun_irradiance=s.sun_strength if surface and world_on(exp, "sun_glint") else 0.0)
 
 
