@@ -114,14 +114,23 @@ def _scene(job, cache: dict | None):
     from blendgen.blender import lamps, render, scene as scn
     key = _scene_key(job)
     if cache is not None and key is not None and cache.get("key") == key:
-        return cache["sc"], cache["cam"]
+        return cache["sc"], cache["cam"], cache["caustics"]
     sc = scn.build(job.scene)                               # read_factory_settings: nothing kept
     cam = render.setup_camera(sc, job.camera.model_dump())
     lamps.add_lamps(cam, job.scene.get("lamps") or [])       # reference fidelity only
     render.setup_cycles(sc, job.render)
+    caustics = None
+    if (job.scene.get("water_surface") or {}).get("caustics"):   # reference: the sun as a caustic spot
+        from blendgen.blender.caustic_sun import CausticSun
+        caustics = CausticSun(sc, job.scene, int(job.render.get("threads") or 0))
     if cache is not None:
-        cache.update(key=key, sc=sc, cam=cam)
-    return sc, cam
+        cache.update(key=key, sc=sc, cam=cam, caustics=caustics)
+    return sc, cam, caustics
+
+
+def photon_seed(job, frame: dict) -> int:
+    """The caustic photons' seed of one frame: the render seed and the frame index."""
+    return (int(job.render.get("seed", 0)) * 7919 + int(frame["index"])) % (1 << 20)
 
 
 def run(job, cache: dict | None = None) -> dict:
@@ -135,7 +144,7 @@ def run(job, cache: dict | None = None) -> dict:
     from blendgen.pipeline.stagetimer import StageTimer
 
     t0 = time.perf_counter()
-    sc, cam = _scene(job, cache)
+    sc, cam, caustics = _scene(job, cache)
     K = np.asarray(job.camera.K, float)
     W, H = job.camera.width, job.camera.height
     T_wd = np.asarray(job.gt.T_world_dock, float)
@@ -161,6 +170,8 @@ def run(job, cache: dict | None = None) -> dict:
                 from blendgen.blender.world import set_wave_time
                 set_wave_time(fr.get("t", 0.0))
             with clock("render"):
+                if caustics is not None:
+                    caustics.update(photon_seed(job, fr))
                 raw = render.render_roi_frame(sc, cam, fr, job.render, W, H, exr)
             t2 = time.perf_counter()
             with clock("compose"):

@@ -475,6 +475,13 @@ def world_look(exp: Experiment) -> dict:
             "tile_size_m": w.tile_size_m, "grime": w.grime, "seabed_depth_m": w.seabed_depth_m}
 
 
+# Reference caustics (blender/caustic_sun.py): the frame's photon map, binned across the
+# in-water beam. 4 cm bins resolve the sun disc's blur at ~4 m (2 x 4 m x 4.6 mrad) and the
+# caustic cells of the first focus (~0.5 m); 100 photons per bin: 10 % shot noise per bin,
+# ~2.4 M photons per render over the 15 x 5 m pool; two sun directions per frame.
+REFERENCE_CAUSTICS = {"bin_m": 0.04, "photons_per_bin": 100.0, "renders": 2}
+
+
 def water_surface(exp: Experiment, post: SequencePost) -> dict | None:
     """Reference fidelity: the refracting surface (glass, IOR 1.333) at the condition's surface
     height with the sky above it; None when the surface is off."""
@@ -488,8 +495,11 @@ def water_surface(exp: Experiment, post: SequencePost) -> dict | None:
     else:
         half, centre = [60.0, 60.0], list(s.dock.position_xy_m)
     sun = {"to_sun": [-v for v in wp.sun_travel_dir], "irradiance": wp.sun_irradiance} if wp.sun_irradiance > 0 else None
-    return {"z": post.surface_z_m, "centre_xy": centre, "half_xy": half, "sky_radiance": wp.sky_radiance,
-            "wind_mps": wp.wind_mps, "wave_seed": wp.wave_seed, "sun": sun}
+    out = {"z": post.surface_z_m, "centre_xy": centre, "half_xy": half, "sky_radiance": wp.sky_radiance,
+           "wind_mps": wp.wind_mps, "wave_seed": wp.wave_seed, "sun": sun}
+    if wp.caustics and s.kind == "pool" and s.sun_strength > 0:     # the seabed is beyond a photon budget
+        out["caustics"] = dict(REFERENCE_CAUSTICS)
+    return out
 
 
 @functools.lru_cache(maxsize=256)

@@ -1,0 +1,283 @@
+"""Reference caustics in datasets (issue 14): on every opaque surface the sun becomes a far
+spot light whose light texture is this frame's photon map.
+
+Why (``caustic_reference``, ``caustic_gobo``): the reference's sun is a delta light under a
+refracting surface, so path tracing finds no caustics. But along the in-water beam ``t``
+each straight line from the surface reaches exactly one first opaque point (floor, a wall,
+the dock), and the caustic irradiance there is the plain sun's times a pattern ``M`` of that
+line. So:
+
+1. **Photon map** (a second Blender scene, rendered per frame): an orthographic camera in the
+   air plays the sun (parallel rays along the sun's direction in the sky, ``surface.sun_in_air``,
+   stratified over its disc), the frame's wavy glass surface (the dataset's own object, same
+   waves and time) refracts them, and every polygon of the receivers (pool floor and walls,
+   dock body) records where they land: its emission is ``(u + OFFSET,
+   v + OFFSET, id + 1)``, its own plane coordinates and number. Clear water (the dataset's
+   medium then attenuates and scatters the spot's light as it did the sun's); a refracted ray
+   keeps weight 1 (Fresnel chooses reflection or refraction, the reflected ray leaves to a
+   black sky), which :meth:`CausticSun.photons` checks.
+2. **Binning** (``physics/caustic_beam.py``) across the in-water beam, at the projective
+   coordinates the spot's light texture is looked up with (which also undo the spot's inverse
+   square at the photon's receiver), over a flat surface's count: the plain sun's energy.
+3. **The spot** (``caustic_gobo.gobo_spot``'s construction): ``D`` upstream of ``c`` along
+   the beam, power ``4 pi S D^2`` (``S``: the sun lamp's strength), texture ``1 + (M - 1)``
+   clipped to 1 outside the grid. Light linking: the spot lights everything but the water
+   volume; the sun lamp lights only the volume (its in-scatter keeps the plain beam: ``M``
+   belongs to the first receiver's depth, not to the water above it).
+
+What is left out: the dock's frame bars and the markers are not recorders (they take the
+pattern of the receiver behind them), photons are traced in clear water (the medium's
+forward scattering does not blur the pattern, as it does in ``caustic_reference`` with a
+medium), pool scenes only (the open-water seabed is larger than any photon budget).
+"""
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+
+import bpy
+import mathutils
+import numpy as np
+
+from blendgen.blender import render as rnd
+from blendgen.blender.materials import _fresh
+from blendgen.physics import caustic_beam as cb, surface as sf
+from blendgen.physics.caustic_beam import D_SPOT, Grid
+
+OFFSET = 100.0           # keeps recorded plane coordinates positive (emission colours)
+RECEIVERS = ("pool_floor", "pool_walls", "dock_body")
+
+
+@dataclass
+class Recorder:
+    """One receiver polygon in the photon scene: origin ``o`` and in-plane axes ``eu``, ``ev`` (3,)."""
+    o: np.ndarray
+    eu: np.ndarray
+    ev: np.ndarray
+
+
+def _recorder_material(k: int) -> bpy.types.Material:
+    """Emission ``(x + OFFSET, y + OFFSET, k + 1)`` of the object coordinates, not a light."""
+    mat, nt = _fresh(f"photon_recorder_{k}")
+    coord = nt.nodes.new("ShaderNodeTexCoord")
+    sep = nt.nodes.new("ShaderNodeSeparateXYZ")
+    nt.links.new(coord.outputs["Object"], sep.inputs["Vector"])
+    comb = nt.nodes.new("ShaderNodeCombineXYZ")
+    for i, axis in enumerate("XY"):
+        add = nt.nodes.new("ShaderNodeMath")
+        add.operation = "ADD"
+        add.inputs[1].default_value = OFFSET
+        nt.links.new(sep.outputs[axis], add.inputs[0])
+        nt.links.new(add.outputs["Value"], comb.inputs[i])
+    comb.inputs["Z"].default_value = float(k + 1)
+    em = nt.nodes.new("ShaderNodeEmission")
+    em.inputs["Strength"].default_value = 1.0
+    nt.links.new(comb.outputs["Vector"], em.inputs["Color"])
+    nt.links.new(em.outputs["Emission"], nt.nodes.new("ShaderNodeOutputMaterial").inputs["Surface"])
+    mat.cycles.emission_sampling = "NONE"
+    return mat
+
+
+def add_recorders(photons: bpy.types.Scene, sources) -> list[Recorder]:
+    """A recorder plane in ``photons`` for every polygon of the ``sources`` mesh objects."""
+    out = []
+    for obj in sources:
+        M = np.array(obj.matrix_world)
+        for poly in obj.data.polygons:
+            P = np.array([(M @ np.append(obj.data.vertices[i].co, 1.0))[:3] for i in poly.vertices])
+            n = np.cross(P[1] - P[0], P[2] - P[0])
+            eu = (P[1] - P[0]) / np.linalg.norm(P[1] - P[0])
+            ev = np.cross(n / np.linalg.norm(n), eu)
+            local = [((p - P[0]) @ eu, (p - P[0]) @ ev, 0.0) for p in P]
+            me = bpy.data.meshes.new(f"photon_recorder_{len(out)}")
+            me.from_pydata(local, [], [tuple(range(len(local)))])
+            rec = bpy.data.objects.new(me.name, me)
+            rec.matrix_world = mathutils.Matrix([[*eu, 0], [*ev, 0], [*np.cross(eu, ev), 0], [*P[0], 1]]).transposed()
+            me.materials.append(_recorder_material(len(out)))
+            rec.visible_camera = False
+            photons.collection.objects.link(rec)
+            out.append(Recorder(P[0], eu, ev))
+    return out
+
+
+def photon_scene(surface_obj: bpy.types.Object, threads: int) -> bpy.types.Scene:
+    """A second scene sharing the dataset's glass surface: black sky, Cycles with refractive
+    caustics, one sample per pixel, no clamping (photon weights are not fireflies)."""
+    ps = bpy.data.scenes.new("photons")
+    ps.world = bpy.data.worlds.new("photons_black")
+    from blendgen.blender import materials
+    materials.world_color(ps.world, [0.0, 0.0, 0.0])
+    ps.collection.objects.link(surface_obj)
+    rnd.setup_cycles(ps, {"samples": 1, "specular_bounces": 8, "max_bounces": 8, "threads": threads})
+    cy = ps.cycles
+    cy.caustics_reflective = cy.caustics_refractive = True
+    cy.sample_clamp_direct = cy.sample_clamp_indirect = 0.0
+    cy.blur_glossy = 0.0
+    ps.view_layers[0].use_pass_z = ps.view_layers[0].use_pass_object_index = False
+    ps.render.resolution_percentage = 100
+    return ps
+
+
+def add_absorber(ps: bpy.types.Scene, surface: dict) -> bpy.types.Object:
+    """A black frame just above the surface around its rectangle (1 km wide): sun rays that
+    miss the surface end there instead of entering the pool unrefracted over its rim."""
+    (cx, cy), (hx, hy), z = surface["centre_xy"], surface["half_xy"], float(surface["z"]) + 2e-3
+    far = 1000.0
+    inner = [(cx - hx, cy - hy), (cx + hx, cy - hy), (cx + hx, cy + hy), (cx - hx, cy + hy)]
+    outer = [(cx - far, cy - far), (cx + far, cy - far), (cx + far, cy + far), (cx - far, cy + far)]
+    verts = [(x, y, z) for x, y in inner + outer]
+    faces = [(i, (i + 1) % 4, 4 + (i + 1) % 4, 4 + i) for i in range(4)]
+    me = bpy.data.meshes.new("photon_absorber")
+    me.from_pydata(verts, [], faces)
+    mat, nt = _fresh("photon_absorber")
+    em = nt.nodes.new("ShaderNodeEmission")
+    em.inputs["Strength"].default_value = 0.0
+    nt.links.new(em.outputs["Emission"], nt.nodes.new("ShaderNodeOutputMaterial").inputs["Surface"])
+    me.materials.append(mat)
+    obj = bpy.data.objects.new("photon_absorber", me)
+    ps.collection.objects.link(obj)
+    return obj
+
+
+def sun_camera(ps: bpy.types.Scene, surface: dict, air: np.ndarray, pitch_m: float) -> bpy.types.Object:
+    """Orthographic camera before the surface's centre along the sun's rays in the air,
+    framing the surface rectangle, pixels ``pitch_m`` apart (one photon each per render). It
+    stands far enough upstream that its whole (tilted) image plane is above the surface: an
+    orthographic ray starts on that plane, and one starting below the surface never meets it."""
+    (cx, cy), (hx, hy), z = surface["centre_xy"], surface["half_xy"], float(surface["z"])
+    data = bpy.data.cameras.new("photon_sun")
+    data.type = "ORTHO"
+    cam = bpy.data.objects.new("photon_sun", data)
+    ps.collection.objects.link(cam)
+    ps.camera = cam
+    base = mathutils.Vector(tuple(-air)).to_track_quat("Z", "Y").to_matrix()
+    cam["base"] = [list(r) for r in base]
+    R = np.array(base)
+    corners = np.array([[a * hx, b * hy, 0.0] for a in (-1, 1) for b in (-1, 1)])
+    extent = 2 * np.abs(corners @ R[:, :2]).max(axis=0) + 4 * pitch_m
+    data.ortho_scale = float(extent.max())
+    sin_a = math.hypot(air[0], air[1])
+    upstream = 1.0 + 0.5 * data.ortho_scale * sin_a / -air[2]      # the plane's lowest corner 1 m up
+    cam.location = (cx - upstream * air[0], cy - upstream * air[1], z - upstream * air[2])
+    data.clip_start, data.clip_end = 0.01, upstream + 1000.0
+    ps.render.resolution_x, ps.render.resolution_y = (int(math.ceil(e / pitch_m)) for e in extent)
+    return cam
+
+
+def _op(nt, op: str, a, b, kind: str = "ShaderNodeMath"):
+    node = nt.nodes.new(kind)
+    node.operation = op
+    for i, v in enumerate((a, b)):
+        if isinstance(v, (float, tuple)):
+            node.inputs[i].default_value = v
+        else:
+            nt.links.new(v, node.inputs[i])
+    return node.outputs[0]
+
+
+def gobo_spot(sc: bpy.types.Scene, grid: Grid, strength: float) -> tuple[bpy.types.Object, bpy.types.Image]:
+    """The spot ``D_SPOT`` upstream of the grid centre with irradiance ``strength`` (W/m^2)
+    across its beam, its light colour ``1 + (M - 1)`` looked up at the ray's projective
+    coordinates (0 outside the grid: the plain sun). Returns (object, pattern image)."""
+    rows, cols = grid.shape
+    size = grid.size()
+    light = bpy.data.lights.new("caustic_sun", "SPOT")
+    light.spot_size = 2.0 * math.atan(float(np.abs(np.concatenate([grid.lo, grid.lo + size])).max()) * 1.5 / D_SPOT)
+    light.spot_blend, light.shadow_soft_size, light.energy = 0.0, 0.0, 4 * math.pi * strength * D_SPOT ** 2
+    light.use_soft_falloff = False
+    obj = bpy.data.objects.new("caustic_sun", light)
+    sc.collection.objects.link(obj)
+    obj.matrix_world = mathutils.Matrix([[*grid.e1, 0], [*grid.e2, 0], [*(-grid.t), 0],
+                                         [*(grid.c - D_SPOT * grid.t), 1]]).transposed()
+    img = bpy.data.images.new("caustic_pattern", cols, rows, float_buffer=True, alpha=False)
+    img.colorspace_settings.name = "Non-Color"        # before the pixels: it regenerates the image
+    nt = light.node_tree
+    xyz = nt.nodes.new("ShaderNodeSeparateXYZ")
+    nt.links.new(nt.nodes.new("ShaderNodeTexCoord").outputs["Normal"], xyz.inputs[0])
+    uv = nt.nodes.new("ShaderNodeCombineXYZ")
+    for axis, i in (("X", 0), ("Y", 1)):            # u = (D n / -n_z - lo) / size
+        p = _op(nt, "DIVIDE", _op(nt, "MULTIPLY", xyz.outputs[axis], -D_SPOT / size[i]), xyz.outputs["Z"])
+        nt.links.new(_op(nt, "SUBTRACT", p, float(grid.lo[i] / size[i])), uv.inputs[i])
+    tex = nt.nodes.new("ShaderNodeTexImage")
+    tex.image, tex.extension, tex.interpolation = img, "CLIP", "Linear"
+    nt.links.new(uv.outputs[0], tex.inputs["Vector"])
+    color = _op(nt, "ADD", tex.outputs["Color"], (1.0, 1.0, 1.0), "ShaderNodeVectorMath")
+    nt.links.new(color, nt.nodes["Emission"].inputs["Color"])
+    return obj, img
+
+
+def link_only(light_obj: bpy.types.Object, receivers, state: str) -> None:
+    """Light linking: ``light_obj`` lights only ``receivers`` ("INCLUDE") or all but them ("EXCLUDE")."""
+    coll = bpy.data.collections.new(f"{light_obj.name}_receivers")
+    for r in receivers:
+        coll.objects.link(r)
+    for c in coll.collection_objects:
+        c.light_linking.link_state = state
+    light_obj.light_linking.receiver_collection = coll
+
+
+class CausticSun:
+    """The dataset scene's sun replaced by the caustic spot (module docstring); call
+    :meth:`update` each frame after the waves' time is set.
+
+    ``desc``: the scene description (its ``sun``; its ``water_surface`` with ``caustics``:
+    ``bin_m`` (m), ``photons_per_bin``, ``renders`` (sun directions per frame))."""
+
+    def __init__(self, sc: bpy.types.Scene, desc: dict, threads: int = 0):
+        from blendgen.blender.caustic_reference import sun_directions
+        surface, cfg = desc["water_surface"], desc["water_surface"]["caustics"]
+        t = np.asarray(desc["sun"]["direction"], float)
+        t /= np.linalg.norm(t)
+        self.air = sf.sun_in_air(t)
+        self.grid = cb.grid_for(surface, t, float(cfg["bin_m"]))
+        self.tilts = sun_directions(int(cfg["renders"]), sf.SUN_RADIUS_RAD)
+        self.ps = photon_scene(bpy.data.objects["water_surface"], threads)
+        add_absorber(self.ps, surface)
+        self.recorders = add_recorders(self.ps, [bpy.data.objects[n] for n in RECEIVERS if n in bpy.data.objects])
+        pitch = cb.photon_pitch(self.grid.bin_m, float(cfg["photons_per_bin"]), len(self.tilts), self.air, t)
+        self.cam = sun_camera(self.ps, surface, self.air, pitch)
+        self.spot, self.image = gobo_spot(sc, self.grid, float(desc["sun"]["strength"]))
+        sun, volume = sc.objects.get("sun"), sc.objects.get("water_volume")
+        if volume is not None:
+            link_only(self.spot, [volume], "EXCLUDE")
+            link_only(sun, [volume], "INCLUDE")
+        else:
+            bpy.data.objects.remove(sun)
+
+    def photons(self, seed: int, path: str) -> np.ndarray:
+        """(N, 3) world points where this frame's refracted sun rays first land on a receiver."""
+        O, EU, EV = (np.array([getattr(r, a) for r in self.recorders]) for a in ("o", "eu", "ev"))
+        base = mathutils.Matrix(self.cam["base"])
+        out = []
+        for i, (rx, ry) in enumerate(self.tilts):
+            self.cam.rotation_euler = (base @ mathutils.Euler((rx, ry, 0.0)).to_matrix()).to_euler()
+            self.ps.cycles.seed = seed * 64 + i
+            self.ps.render.filepath = path
+            bpy.ops.render.render(write_still=True, scene=self.ps.name)
+            rgb = rnd.read_passes(path)["rgb"].reshape(-1, 3)
+            rgb = rgb[rgb[:, 2] > 0]
+            k = np.rint(rgb[:, 2])
+            if rgb.size and float(np.abs(rgb[:, 2] - k).max()) > 1e-3:
+                raise RuntimeError("caustic photons: a refracted ray's weight is not 1 (medium or clamping in "
+                                   "the photon scene?)")
+            ids = k.astype(int) - 1
+            u, v = rgb[:, 0:1] - OFFSET, rgb[:, 1:2] - OFFSET
+            out.append(O[ids] + u * EU[ids] + v * EV[ids])
+        return np.concatenate(out) if out else np.zeros((0, 3))
+
+    def update(self, seed: int) -> np.ndarray:
+        """Trace this frame's photons, load ``M - 1`` into the spot's texture; returns ``M``."""
+        path = os.path.join(rnd.scratch_dir(), f"dockbench-photons-{os.getpid()}.exr")
+        try:
+            pitch = self.cam.data.ortho_scale / max(self.ps.render.resolution_x, self.ps.render.resolution_y)
+            M = cb.pattern(self.grid, self.photons(seed, path), pitch, len(self.tilts), self.air)
+        finally:
+            if os.path.exists(path):
+                os.remove(path)
+        rgba = np.zeros(M.shape + (4,), np.float32)
+        rgba[..., :3] = (M - 1.0)[..., None]
+        rgba[..., 3] = 1.0
+        self.image.pixels.foreach_set(rgba.ravel())
+        self.image.update()
+        return M
