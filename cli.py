@@ -272,8 +272,10 @@ def bench_io(dataset: Path | None):
 @click.option("--volume-bounces", type=click.IntRange(0, 128), default=32, show_default=True,
               help="multiple scattering of the reference medium (32 converge the veil)")
 @click.option("--veil-only", is_flag=True, help="only the veil residual table (no renders)")
+@click.option("--caustics", is_flag=True, help="caustics on in both fidelities (the reference's from a photon "
+                                               "map per frame)")
 def bench_fidelity(width: int, height: int, ref_samples: int, frames: int, out: Path, volume_bounces: int,
-                   veil_only: bool):
+                   veil_only: bool, caustics: bool):
     """Time vs image error vs localization change of fast water settings against the reference.
 
     First the physical veil: the fast model vs the stored multiple-scattering Cycles references
@@ -295,7 +297,7 @@ def bench_fidelity(width: int, height: int, ref_samples: int, frames: int, out: 
     if veil_only:
         return
     df = run_bench(out, width, height, frames, ref_samples, echo=lambda m: click.echo(m, err=True),
-                   volume_bounces=volume_bounces)
+                   volume_bounces=volume_bounces, caustics=caustics)
     cols = ["setting", "condition", "width", "ms_per_frame", "psnr_db", "mae",
             "dP_succ_led", "de_rel_led", "dP_succ_qr", "de_rel_qr"]
     print_table(df[cols], floatfmt=".3g")

@@ -45,9 +45,10 @@ D_FAR, D_NEAR = 10.0, 1.0
 
 def held_in_experiment(width: int, height: int, frames: int, conditions=CONDITIONS, *,
                        fidelity: str = "fast", samples: int = 4, water_opts: dict | None = None,
-                       volume_bounces: int = 0):
+                       volume_bounces: int = 0, caustics: bool = False):
     """The held-in set: quickstart pool, one approach 10 m -> 1 m in ``frames`` frames
-    (``volume_bounces``: the reference medium's multiple scattering)."""
+    (``volume_bounces``: the reference medium's multiple scattering; ``caustics``: both
+    fidelities with caustics, the reference's from its photon-map spot)."""
     from blendgen.config.models import Condition, Water, load_experiment
     exp = load_experiment(bundled_file("configs", "quickstart.yaml"))
     traj = exp.trajectories[0]
@@ -60,10 +61,10 @@ def held_in_experiment(width: int, height: int, frames: int, conditions=CONDITIO
     exp.render.samples = exp.render.reference_samples = int(samples)
     exp.render.volume_bounces = int(volume_bounces)
     exp.conditions = [Condition(label=c, water=Water(preset=c, **(water_opts or {}))) for c in conditions]
-    # caustics are a fast-path model with no Cycles counterpart (a delta sun through a specular
-    # surface cannot be path traced; Cycles' MNEE ignores sun lamps): compare without them
-    exp.scene.world.caustics = False
-    exp.name = f"fidelity-{fidelity}"
+    # off by default: the veil and glow settings are compared without the caustic pattern,
+    # whose detail differs between the fast map and the reference's photons (bench caustics)
+    exp.scene.world.caustics = bool(caustics)
+    exp.name = f"fidelity-{fidelity}" + ("-caustics" if caustics else "")
     return exp
 
 
@@ -289,9 +290,10 @@ def localization(ds_path: Path) -> "pd.DataFrame":
 
 
 def run_bench(out: Path, width: int, height: int, frames: int, ref_samples: int,
-              ladder: list[dict] | None = None, conditions=CONDITIONS, echo=print, volume_bounces: int = 32):
-    """Render reference (``volume_bounces`` multiple scattering) and ladder; returns the table
-    (also written to OUT/fidelity.csv)."""
+              ladder: list[dict] | None = None, conditions=CONDITIONS, echo=print, volume_bounces: int = 32,
+              caustics: bool = False):
+    """Render reference (``volume_bounces`` multiple scattering) and ladder, with ``caustics``
+    in both or in neither; returns the table (also written to OUT/fidelity.csv)."""
     import pandas as pd
     from evalkit.dataset import Dataset
     out.mkdir(parents=True, exist_ok=True)
@@ -299,8 +301,9 @@ def run_bench(out: Path, width: int, height: int, frames: int, ref_samples: int,
     echo(f"reference: {len(conditions)} conditions x {frames} frames at {width}x{height}, {ref_samples} spp, "
          f"{volume_bounces} volume bounces ...")
     ref_exp = held_in_experiment(width, height, frames, conditions, fidelity="reference", samples=ref_samples,
-                                 volume_bounces=volume_bounces)
-    ref_path, ref_t = render(ref_exp, out / f"reference-{width}x{height}-s{ref_samples}-vb{volume_bounces}")
+                                 volume_bounces=volume_bounces, caustics=caustics)
+    tail = "-caustics" if caustics else ""
+    ref_path, ref_t = render(ref_exp, out / f"reference-{width}x{height}-s{ref_samples}-vb{volume_bounces}{tail}")
     ref = load_frames(ref_path)
     markers = Dataset.open(ref_path).markers
     ref_loc = localization(ref_path)
@@ -320,8 +323,8 @@ def run_bench(out: Path, width: int, height: int, frames: int, ref_samples: int,
         w, h = st["size"]
         echo(f"{st['setting']}: {w}x{h}, {st['samples']} spp ...")
         exp = held_in_experiment(w, h, frames, conditions, fidelity="fast", samples=st["samples"],
-                                 water_opts={"calibrated": st["calibrated"], "blur": st["blur"]})
-        tag = f"{st['samples']}-{w}x{h}-b{int(st['blur'])}-c{int(st['calibrated'])}"
+                                 water_opts={"calibrated": st["calibrated"], "blur": st["blur"]}, caustics=caustics)
+        tag = f"{st['samples']}-{w}x{h}-b{int(st['blur'])}-c{int(st['calibrated'])}{tail}"
         path, t = render(exp, out / f"fast-{tag}", fresh=True)
         fast = load_frames(path)
         loc = localization(path)

@@ -84,6 +84,21 @@ def caustics():
     save("caustics_shallow_vs_deep", sheet(rows))
 
 
+def caustics_fast_vs_reference(samples=16):
+    """Rows in pairs: the fast path, then the Cycles reference with its caustic spot
+    (blendgen/blender/caustic_sun.py); same waves, times and views."""
+    waters, depths = ("clear", "mild"), (1.0, 3.0, 6.0)
+    fast = run(exp_for("caustics_fast", True, waters, depths, views=(6.0, 4.0, 2.0)))
+    ref = run(exp_for("caustics_ref", True, waters, depths, views=(6.0, 4.0, 2.0), fidelity="reference",
+                      samples=samples))
+    rows = []
+    for w in waters:
+        for d in depths:
+            rows += [(f"{w}, dock {d:g} m deep, fast", fast[f"{w}-d{d:g}"]),
+                     (f"{w}, dock {d:g} m deep, reference", ref[f"{w}-d{d:g}"])]
+    save("caustics_fast_vs_reference", sheet(rows))
+
+
 def looking_up(fid="fast", samples=4):
     on = run(exp_for(f"up_{fid}", True, ("clear", "mild"), (3.0,), fidelity=fid, pitch=-70.0, samples=samples))
     return [(f"{k} looking up 70 deg, {fid}", v) for k, v in on.items()]
@@ -108,6 +123,8 @@ if __name__ == "__main__":
         dock_views()
     elif what == "caustics":
         caustics()
+    elif what == "causticsref":
+        caustics_fast_vs_reference()
     elif what == "up":
         save("looking_up_fast", sheet(looking_up("fast")))
     elif what == "open":
