@@ -19,9 +19,8 @@ z = 0 and a step 0.5 m above the floor (x > 1 m) lit by a plain 5 W/m^2 sun only
 orthographic from above, 128 px over 6 m, 16 spp. Expected radiance on the floor
 ``E cos(20 deg) / pi * M(x - H tan 20 deg) * exp(-sigma_a H (1/cos + 1))``.
 
-The spot and the linking (:func:`gobo_spot`, :func:`link_receiver`) are the building blocks
-for reference caustics; nothing in the pipeline uses them yet (docs/evidence/README.md says
-what wiring needs).
+It checks the building blocks of the reference's caustics (``caustic_sun.gobo_spot``,
+``link_only``), which datasets use since session 9.
 
     python -m blendgen.blender.caustic_gobo WORK_DIR  (~10 s; docs/evidence/caustic_gobo.txt)"""
 import math
@@ -30,24 +29,42 @@ from pathlib import Path
 
 import numpy as np
 
-H, TILT, E, D, SIGMA_A, N_GOBO, W_GOBO = 2.0, math.radians(20.0), 3.0, 1000.0, 0.2, 512, 12.0
+H, TILT, E, SIGMA_A, N_GOBO, W_GOBO = 2.0, math.radians(20.0), 3.0, 0.2, 512, 12.0
+
+
+def _grid() -> "cb.Grid":
+    """The spot's grid: 512 bins over 12 m across a beam 20 deg from vertical, centred at the origin."""
+    from blendgen.physics import caustic_beam as cb
+    t = np.array([math.sin(TILT), 0.0, -math.cos(TILT)])
+    e1, e2 = cb.beam_axes(t)
+    return cb.Grid(np.zeros(3), t, e1, e2, np.full(2, -W_GOBO / 2), W_GOBO / N_GOBO, (N_GOBO, N_GOBO))
+
+
+def _pattern(grid) -> np.ndarray:
+    """``M(xi) = 1 + 0.8 sin(2 pi xi_x)`` at each bin's ray, ``xi`` where it crosses z = 0."""
+    from blendgen.physics.caustic_beam import D_SPOT
+    rows, cols = grid.shape
+    p = grid.lo[0] + (np.arange(cols) + 0.5) * grid.bin_m
+    q = grid.lo[1] + (np.arange(rows) + 0.5) * grid.bin_m
+    P, Q = np.meshgrid(p, q)
+    d = P[..., None] * grid.e1 + Q[..., None] * grid.e2 + D_SPOT * grid.t          # from the spot
+    S = grid.c - D_SPOT * grid.t
+    xi = S + (-S[2] / d[..., 2])[..., None] * d
+    return (1.0 + 0.8 * np.sin(2 * np.pi * xi[..., 0])).astype(np.float32)
 
 
 def _scene(water: bool, linking: bool):
     import bpy
-    import mathutils
+    from blendgen.blender.caustic_sun import gobo_spot, link_only, load_pattern
     bpy.ops.wm.read_factory_settings(use_empty=True)
     sc = bpy.context.scene
     sc.render.engine, sc.cycles.samples, sc.cycles.device = "CYCLES", 16, "CPU"
     sc.render.resolution_x = sc.render.resolution_y = 128
     sc.cycles.diffuse_bounces = sc.cycles.glossy_bounces = sc.cycles.volume_bounces = 0
     floor = _plane(sc, "floor", 3.0, -H, (-3.0, 3.0))
-    to_light = np.array([-math.sin(TILT), 0.0, math.cos(TILT)])
-    z = to_light
-    x = np.cross([0.0, 1.0, 0.0], z)
-    x /= np.linalg.norm(x)
-    rot = mathutils.Matrix(np.column_stack([x, np.cross(z, x), z]).tolist()).to_euler()
-    spot = gobo_spot(sc, to_light * D, rot, lambda xi: 1.0 + 0.8 * np.sin(2 * np.pi * xi[..., 0]))
+    grid = _grid()
+    spot, img = gobo_spot(sc, grid, E)
+    load_pattern(img, _pattern(grid))
     if water:
         bpy.ops.mesh.primitive_cube_add(size=1.0, location=(0, 0, -(H + 0.01) / 2))
         box = bpy.context.active_object
@@ -60,11 +77,12 @@ def _scene(water: bool, linking: bool):
         nt.links.new(ab.outputs[0], nt.nodes["Material Output"].inputs["Volume"])
         box.data.materials.append(mat)
     if linking:
-        link_receiver(spot, floor, "INCLUDE")
+        link_only(spot, [floor], "INCLUDE")
         sun = bpy.data.objects.new("sun", bpy.data.lights.new("sun", "SUN"))
-        sun.data.energy, sun.data.angle, sun.rotation_euler = 5.0, 0.0, rot
+        sun.data.energy, sun.data.angle = 5.0, 0.0
+        sun.rotation_euler = spot.rotation_euler
         sc.collection.objects.link(sun)
-        link_receiver(sun, floor, "EXCLUDE")
+        link_only(sun, [floor], "EXCLUDE")
         _plane(sc, "step", 1.0, -H + 0.5, (1.0, 3.0))
     cam = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
     cam.data.type, cam.data.ortho_scale, cam.location = "ORTHO", 6.0, (0, 0, 5)
@@ -86,63 +104,6 @@ def _plane(sc, name, half_y, z, xs):
     bsdf.inputs["Base Color"].default_value, bsdf.inputs["Roughness"].default_value = (1, 1, 1, 1), 1.0
     me.materials.append(mat)
     return obj
-
-
-def link_receiver(light_obj, receiver, state: str):
-    """Light linking: ``light_obj`` lights ``receiver`` only ("INCLUDE") or all but it ("EXCLUDE")."""
-    import bpy
-    coll = bpy.data.collections.new(f"{light_obj.name}_receivers")
-    coll.objects.link(receiver)
-    coll.collection_objects[0].light_linking.link_state = state
-    light_obj.light_linking.receiver_collection = coll
-
-
-def gobo_spot(sc, location, rot, pattern):
-    """A spot light at ``location`` (world, m; ``D`` from the patch) with rotation ``rot`` and
-    irradiance ``E`` normal to its beam, whose light texture gives the ray with lateral offset
-    (p, q) the value ``pattern(xi)`` ((..., 3) world points -> (...)) of the point xi where
-    it crosses the plane z = 0."""
-    import bpy
-    light = bpy.data.lights.new("caustic_sun", "SPOT")
-    light.spot_size, light.spot_blend, light.shadow_soft_size = math.radians(2.0), 0.0, 0.0
-    light.energy = 4 * math.pi * E * D * D
-    obj = bpy.data.objects.new("caustic_sun", light)
-    obj.location, obj.rotation_euler = tuple(location), rot
-    sc.collection.objects.link(obj)
-    bpy.context.view_layer.update()
-    M = np.array(obj.matrix_world)
-    pq = (np.arange(N_GOBO) + 0.5) / N_GOBO * W_GOBO - W_GOBO / 2
-    P, Q = np.meshgrid(pq, pq)
-    pts = M[:3, 3] + P[..., None] * M[:3, 0] + Q[..., None] * M[:3, 1]
-    xi = pts - (pts[..., 2] / M[2, 2])[..., None] * M[:3, 2]          # along the axis to z = 0
-    rgba = np.ones((N_GOBO, N_GOBO, 4), np.float32)
-    rgba[..., :3] = pattern(xi)[..., None]
-    img = bpy.data.images.new("gobo", N_GOBO, N_GOBO, float_buffer=True, alpha=False)
-    img.colorspace_settings.name = "Non-Color"        # before the pixels: it regenerates the image
-    img.pixels.foreach_set(rgba.ravel())
-    nt = light.node_tree
-    xyz = nt.nodes.new("ShaderNodeSeparateXYZ")
-    nt.links.new(nt.nodes.new("ShaderNodeTexCoord").outputs["Normal"], xyz.inputs[0])
-    uv = nt.nodes.new("ShaderNodeCombineXYZ")
-    for axis, out in (("X", 0), ("Y", 1)):          # u = D n / (-n_z W) + 0.5
-        mul = _op(nt, "MULTIPLY", xyz.outputs[axis], -D / W_GOBO)
-        nt.links.new(_op(nt, "ADD", _op(nt, "DIVIDE", mul, xyz.outputs["Z"]), 0.5), uv.inputs[out])
-    tex = nt.nodes.new("ShaderNodeTexImage")
-    tex.image, tex.extension = img, "EXTEND"
-    nt.links.new(uv.outputs[0], tex.inputs["Vector"])
-    nt.links.new(tex.outputs["Color"], nt.nodes["Emission"].inputs["Color"])
-    return obj
-
-
-def _op(nt, op, a, b):
-    node = nt.nodes.new("ShaderNodeMath")
-    node.operation = op
-    for i, v in enumerate((a, b)):
-        if isinstance(v, float):
-            node.inputs[i].default_value = v
-        else:
-            nt.links.new(v, node.inputs[i])
-    return node.outputs[0]
 
 
 def _render(work: Path, name: str, water: bool, linking: bool) -> np.ndarray:

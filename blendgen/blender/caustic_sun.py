@@ -275,9 +275,14 @@ class CausticSun:
         finally:
             if os.path.exists(path):
                 os.remove(path)
-        rgba = np.zeros(M.shape + (4,), np.float32)
-        rgba[..., :3] = (M - 1.0)[..., None]
-        rgba[..., 3] = 1.0
-        self.image.pixels.foreach_set(rgba.ravel())
-        self.image.update()
+        load_pattern(self.image, M)
         return M
+
+
+def load_pattern(img: bpy.types.Image, M: np.ndarray) -> None:
+    """Put ``M - 1`` ((rows, cols), rows along e2) into the spot's light texture."""
+    rgba = np.zeros(M.shape + (4,), np.float32)
+    rgba[..., :3] = (M - 1.0)[..., None]
+    rgba[..., 3] = 1.0
+    img.pixels.foreach_set(rgba.ravel())
+    img.update()
