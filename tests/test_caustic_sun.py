@@ -75,6 +75,29 @@ def test_projective_coordinates_are_the_spot_rays_lookup():
     assert cb.lookup(grid, M, (grid.c + 100.0 * grid.e1)[None])[0] == 1.0          # outside: plain sun
 
 
+def _planned(tmp_path, **scene):
+    from blendgen.config.models import Experiment
+    from blendgen.pipeline.generate import _Target, manifest_base
+    exp = Experiment.model_validate({
+        "name": "caustic-plan", "image_formation": "physical", "render": {"fidelity": "reference"},
+        "scene": {"template": "pool_15x5x8", **scene},
+        "trajectories": [{"kind": "linear", "id": "a", "start_range_m": 4.0, "end_range_m": 3.0, "speed_mps": 10.0}]})
+    tg = _Target.prepare(exp, tmp_path / f"ds{len(list(tmp_path.iterdir()))}")
+    return tg.jobs[0].scene, manifest_base(exp, tg.K, tg.markers, tg.scene, tg.jobs)
+
+
+def test_reference_jobs_carry_the_photon_budget_only_when_caustics_are_drawn(tmp_path):
+    """Pool reference jobs with caustics carry the photon budget and the manifest records it;
+    with caustics off, an open-water scene (seabed beyond a photon budget) or no sun, neither."""
+    from blendgen.pipeline import plan
+    scene, manifest = _planned(tmp_path)
+    assert scene["water_surface"]["caustics"] == plan.REFERENCE_CAUSTICS
+    assert manifest["reference_caustics"]["photons_per_bin"] == plan.REFERENCE_CAUSTICS["photons_per_bin"]
+    for other in ({"world": {"caustics": False}}, {"kind": "open_water"}, {"sun_strength": 0.0}):
+        scene, manifest = _planned(tmp_path, **other)
+        assert "caustics" not in (scene.get("water_surface") or {}) and "reference_caustics" not in manifest
+
+
 def _check_spec(tmp_path) -> dict:
     """One frame of a reference job: the template pool, dock at 2 m, camera 3 m from the dock
     face looking at it and the end wall behind, waves of 2 m/s, clear water, 96 x 72 px."""

@@ -86,7 +86,18 @@ def manifest_base(exp: Experiment, K: np.ndarray, markers: list[dict], scene: di
                        "latency_s": c.latency_s, "hfov_deg": c.hfov_deg, "distortion": c.distortion},
             "dock": {"T_world_dock": scene["dock"]["T_world_dock"]},
             "markers": markers, "object_index": plan.object_index_names(markers, exp),
-            "d_min_rel_m": exp.d_min_rel_m, "sequences": seqs}
+            "d_min_rel_m": exp.d_min_rel_m, "sequences": seqs, **_reference_caustics(jobs)}
+
+
+def _reference_caustics(jobs: list[plan.RenderJob]) -> dict:
+    """The reference's caustic method and photon budget, when its renders carry caustics."""
+    cfg = next((j.scene["water_surface"]["caustics"] for j in jobs
+                if (j.scene.get("water_surface") or {}).get("caustics")), None)
+    if cfg is None:
+        return {}
+    return {"reference_caustics": {**cfg, "method": "per frame, the photon map of the frame's surface as the "
+                                                    "light texture of a far spot lighting pool and dock "
+                                                    "(blendgen/blender/caustic_sun.py)"}}
 
 
 def generate(exp: Experiment, out: Path, workers: int | None = None, progress: bool = True,
