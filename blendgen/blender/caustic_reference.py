@@ -42,30 +42,11 @@ OFFSET = 100.0          # keeps the recorded positions positive (emission colour
 
 def _floor(depth: float, half: float):
     """Emitter at ``z = -depth`` whose colour is its own object position (+ OFFSET), B = 1."""
-    import bpy
-    from blendgen.blender.materials import _fresh
+    from blendgen.blender.caustic_sun import recorder_material
     from blendgen.blender.meshes import mesh_object
     v = [(-half, -half, -depth), (half, -half, -depth), (half, half, -depth), (-half, half, -depth)]
     obj = mesh_object("floor_recorder", v, [(0, 1, 2, 3)], index=1)
-    mat, nt = _fresh("floor_recorder")
-    coord = nt.nodes.new("ShaderNodeTexCoord")
-    sep = nt.nodes.new("ShaderNodeSeparateXYZ")
-    nt.links.new(coord.outputs["Object"], sep.inputs["Vector"])
-    comb = nt.nodes.new("ShaderNodeCombineXYZ")
-    for i, axis in enumerate("XY"):
-        add = nt.nodes.new("ShaderNodeMath")
-        add.operation = "ADD"
-        add.inputs[1].default_value = OFFSET
-        nt.links.new(sep.outputs[axis], add.inputs[0])
-        nt.links.new(add.outputs["Value"], comb.inputs[i])
-    comb.inputs["Z"].default_value = 1.0
-    em = nt.nodes.new("ShaderNodeEmission")
-    em.inputs["Strength"].default_value = 1.0
-    nt.links.new(comb.outputs["Vector"], em.inputs["Color"])
-    out = nt.nodes.new("ShaderNodeOutputMaterial")
-    nt.links.new(em.outputs["Emission"], out.inputs["Surface"])
-    mat.cycles.emission_sampling = "NONE"          # a recorder, not a light
-    obj.data.materials.append(mat)
+    obj.data.materials.append(recorder_material(0))
     obj.visible_camera = False
     return obj
 

@@ -41,11 +41,11 @@ import mathutils
 import numpy as np
 
 from blendgen.blender import render as rnd
+from blendgen.blender.caustic_reference import OFFSET, sun_directions
 from blendgen.blender.materials import _fresh
 from blendgen.physics import caustic_beam as cb, surface as sf
 from blendgen.physics.caustic_beam import D_SPOT, Grid
 
-OFFSET = 100.0           # keeps recorded plane coordinates positive (emission colours)
 RECEIVERS = ("pool_floor", "pool_walls", "dock_body")
 
 
@@ -57,8 +57,9 @@ class Recorder:
     ev: np.ndarray
 
 
-def _recorder_material(k: int) -> bpy.types.Material:
-    """Emission ``(x + OFFSET, y + OFFSET, k + 1)`` of the object coordinates, not a light."""
+def recorder_material(k: int) -> bpy.types.Material:
+    """Emission ``(x + OFFSET, y + OFFSET, k + 1)`` of the object coordinates, not a light
+    (a photon recorder: a refracted sun ray that reaches it with weight 1 reads its position)."""
     mat, nt = _fresh(f"photon_recorder_{k}")
     coord = nt.nodes.new("ShaderNodeTexCoord")
     sep = nt.nodes.new("ShaderNodeSeparateXYZ")
@@ -94,7 +95,7 @@ def add_recorders(photons: bpy.types.Scene, sources) -> list[Recorder]:
             me.from_pydata(local, [], [tuple(range(len(local)))])
             rec = bpy.data.objects.new(me.name, me)
             rec.matrix_world = mathutils.Matrix([[*eu, 0], [*ev, 0], [*np.cross(eu, ev), 0], [*P[0], 1]]).transposed()
-            me.materials.append(_recorder_material(len(out)))
+            me.materials.append(recorder_material(len(out)))
             rec.visible_camera = False
             photons.collection.objects.link(rec)
             out.append(Recorder(P[0], eu, ev))
@@ -225,7 +226,6 @@ class CausticSun:
     ``bin_m`` (m), ``photons_per_bin``, ``renders`` (sun directions per frame))."""
 
     def __init__(self, sc: bpy.types.Scene, desc: dict, threads: int = 0):
-        from blendgen.blender.caustic_reference import sun_directions
         surface, cfg = desc["water_surface"], desc["water_surface"]["caustics"]
         t = np.asarray(desc["sun"]["direction"], float)
         t /= np.linalg.norm(t)
