@@ -19,9 +19,12 @@ line. So:
 2. **Binning** (``physics/caustic_beam.py``) across the in-water beam, at the projective
    coordinates the spot's light texture is looked up with (which also undo the spot's inverse
    square at the photon's receiver), over a flat surface's count: the plain sun's energy.
-3. **The spot** (``caustic_gobo.gobo_spot``'s construction): ``D`` upstream of ``c`` along
-   the beam, power ``4 pi S D^2`` (``S``: the sun lamp's strength), texture ``1 + (M - 1)``
-   clipped to 1 outside the grid. Light linking: the spot lights everything but the water
+3. **The spots**: ``D`` upstream of the grid's centre along the beam, power ``4 pi S D^2``
+   (``S``: the sun lamp's strength), texture ``1 + (M - 1)`` clipped to 1 outside the grid.
+   Two of them, each with its own photon camera: one over the whole pool (4 cm bins) and one
+   over the dock and its markers (1 cm bins: a camera at 1 m sees 2-4 mm pixels there, and
+   the caustic lines of a shallow dock are 1-3 cm wide). Light linking: the dock's spot
+   lights the dock, its frame and markers; the pool's spot everything else but the water
    volume; the sun lamp lights only the volume (its in-scatter keeps the plain beam: ``M``
    belongs to the first receiver's depth, not to the water above it).
 
@@ -141,12 +144,13 @@ def add_absorber(ps: bpy.types.Scene, surface: dict) -> bpy.types.Object:
     return obj
 
 
-def sun_camera(ps: bpy.types.Scene, surface: dict, air: np.ndarray, pitch_m: float) -> bpy.types.Object:
+def sun_camera(ps: bpy.types.Scene, region: dict, air: np.ndarray, pitch_m: float) -> bpy.types.Object:
     """Orthographic camera before the surface's centre along the sun's rays in the air,
-    framing the surface rectangle, pixels ``pitch_m`` apart (one photon each per render). It
+    framing the rectangle ``region`` (``centre_xy``, ``half_xy``, ``z``) of the surface, pixels
+    ``pitch_m`` apart (one photon each per render; its resolution kept as ``cam["resolution"]``). It
     stands far enough upstream that its whole (tilted) image plane is above the surface: an
     orthographic ray starts on that plane, and one starting below the surface never meets it."""
-    (cx, cy), (hx, hy), z = surface["centre_xy"], surface["half_xy"], float(surface["z"])
+    (cx, cy), (hx, hy), z = region["centre_xy"], region["half_xy"], float(region["z"])
     data = bpy.data.cameras.new("photon_sun")
     data.type = "ORTHO"
     cam = bpy.data.objects.new("photon_sun", data)
@@ -162,7 +166,7 @@ def sun_camera(ps: bpy.types.Scene, surface: dict, air: np.ndarray, pitch_m: flo
     upstream = 1.0 + 0.5 * data.ortho_scale * sin_a / -air[2]      # the plane's lowest corner 1 m up
     cam.location = (cx - upstream * air[0], cy - upstream * air[1], z - upstream * air[2])
     data.clip_start, data.clip_end = 0.01, upstream + 1000.0
-    ps.render.resolution_x, ps.render.resolution_y = (int(math.ceil(e / pitch_m)) for e in extent)
+    cam["resolution"] = [int(math.ceil(e / pitch_m)) for e in extent]
     return cam
 
 
@@ -218,40 +222,80 @@ def link_only(light_obj: bpy.types.Object, receivers, state: str) -> None:
     light_obj.light_linking.receiver_collection = coll
 
 
+DOCK_PARTS = ("dock_", "marker_", "led_")     # object name prefixes: the dock's fine layer
+
+
+@dataclass
+class Layer:
+    """One caustic spot: its grid, its photon camera (framing the surface above its receivers
+    with a margin for rays the waves bend in) and its light texture."""
+    grid: Grid
+    cam: bpy.types.Object
+    spot: bpy.types.Object
+    image: bpy.types.Image
+
+
+def dock_region(sc: bpy.types.Scene, t: np.ndarray, z: float, margin_m: float) -> dict | None:
+    """The surface rectangle (``centre_xy``, ``half_xy``, ``z``) the dock's parts are seen
+    through along the beam ``t``, grown by ``margin_m``; None without a dock."""
+    pts = [np.array(o.matrix_world) @ np.append(v.co, 1.0) for o in sc.objects
+           if o.type == "MESH" and o.name.startswith(DOCK_PARTS) for v in o.data.vertices]
+    if not pts:
+        return None
+    P = np.array(pts)[:, :3]
+    xi = P - ((P[:, 2] - z) / t[2])[:, None] * t
+    lo, hi = xi[:, :2].min(axis=0) - margin_m, xi[:, :2].max(axis=0) + margin_m
+    return {"centre_xy": ((lo + hi) / 2).tolist(), "half_xy": ((hi - lo) / 2).tolist(), "z": z}
+
+
 class CausticSun:
-    """The dataset scene's sun replaced by the caustic spot (module docstring); call
-    :meth:`update` each frame after the waves' time is set.
+    """The dataset scene's sun replaced by caustic spots (module docstring): one over the pool
+    (``bin_m``), one finer over the dock and its markers (``dock_bin_m``: a camera at 1 m
+    resolves millimetres there); call :meth:`update` each frame after the waves' time is set.
 
     ``desc``: the scene description (its ``sun``; its ``water_surface`` with ``caustics``:
-    ``bin_m`` (m), ``photons_per_bin``, ``renders`` (sun directions per frame))."""
+    ``bin_m``, ``dock_bin_m`` (m), ``photons_per_bin``, ``renders`` (sun directions per frame))."""
 
     def __init__(self, sc: bpy.types.Scene, desc: dict, threads: int = 0):
         surface, cfg = desc["water_surface"], desc["water_surface"]["caustics"]
         t = np.asarray(desc["sun"]["direction"], float)
         t /= np.linalg.norm(t)
-        self.air = sf.sun_in_air(t)
-        self.grid = cb.grid_for(surface, t, float(cfg["bin_m"]))
+        self.air, self.per_bin = sf.sun_in_air(t), float(cfg["photons_per_bin"])
         self.tilts = sun_directions(int(cfg["renders"]), sf.SUN_RADIUS_RAD)
         self.ps = photon_scene(bpy.data.objects["water_surface"], threads)
         add_absorber(self.ps, surface)
         self.recorders = add_recorders(self.ps, [bpy.data.objects[n] for n in RECEIVERS if n in bpy.data.objects])
-        pitch = cb.photon_pitch(self.grid.bin_m, float(cfg["photons_per_bin"]), len(self.tilts), self.air, t)
-        self.cam = sun_camera(self.ps, surface, self.air, pitch)
-        self.spot, self.image = gobo_spot(sc, self.grid, float(desc["sun"]["strength"]))
-        sun, volume = sc.objects.get("sun"), sc.objects.get("water_volume")
+        strength = float(desc["sun"]["strength"])
+        self.layers = [self._layer(sc, surface, surface, t, float(cfg["bin_m"]), strength)]
+        dock = [o for o in sc.objects if o.type == "MESH" and o.name.startswith(DOCK_PARTS)]
+        volume = sc.objects.get("water_volume")
+        region = dock_region(sc, t, float(surface["z"]), 0.05)
+        if region is not None:
+            framed = {**region, "half_xy": [h + 0.3 for h in region["half_xy"]]}   # bent rays from around it
+            self.layers.append(self._layer(sc, region, framed, t, float(cfg["dock_bin_m"]), strength))
+            link_only(self.layers[1].spot, dock, "INCLUDE")
+        link_only(self.layers[0].spot, dock + ([volume] if volume is not None else []), "EXCLUDE")
+        sun = sc.objects.get("sun")
         if volume is not None:
-            link_only(self.spot, [volume], "EXCLUDE")
             link_only(sun, [volume], "INCLUDE")
         else:
             bpy.data.objects.remove(sun)
 
-    def photons(self, seed: int, path: str) -> np.ndarray:
-        """(N, 3) world points where this frame's refracted sun rays first land on a receiver."""
+    def _layer(self, sc, region: dict, framed: dict, t: np.ndarray, bin_m: float, strength: float) -> Layer:
+        grid = cb.grid_for(region, t, bin_m)
+        cam = sun_camera(self.ps, framed, self.air, cb.photon_pitch(bin_m, self.per_bin, len(self.tilts), self.air, t))
+        return Layer(grid, cam, *gobo_spot(sc, grid, strength))
+
+    def photons(self, layer: Layer, seed: int, path: str) -> np.ndarray:
+        """(N, 3) world points where this frame's refracted sun rays through the layer's
+        camera first land on a receiver."""
         O, EU, EV = (np.array([getattr(r, a) for r in self.recorders]) for a in ("o", "eu", "ev"))
-        base = mathutils.Matrix(self.cam["base"])
+        self.ps.camera = layer.cam
+        self.ps.render.resolution_x, self.ps.render.resolution_y = layer.cam["resolution"]
+        base = mathutils.Matrix(layer.cam["base"])
         out = []
         for i, (rx, ry) in enumerate(self.tilts):
-            self.cam.rotation_euler = (base @ mathutils.Euler((rx, ry, 0.0)).to_matrix()).to_euler()
+            layer.cam.rotation_euler = (base @ mathutils.Euler((rx, ry, 0.0)).to_matrix()).to_euler()
             self.ps.cycles.seed = seed * 64 + i
             self.ps.render.filepath = path
             bpy.ops.render.render(write_still=True, scene=self.ps.name)
@@ -266,17 +310,21 @@ class CausticSun:
             out.append(O[ids] + u * EU[ids] + v * EV[ids])
         return np.concatenate(out) if out else np.zeros((0, 3))
 
-    def update(self, seed: int) -> np.ndarray:
-        """Trace this frame's photons, load ``M - 1`` into the spot's texture; returns ``M``."""
+    def update(self, seed: int) -> list[np.ndarray]:
+        """Trace this frame's photons, load each layer's ``M - 1`` into its spot's texture;
+        returns the layers' ``M``."""
         path = os.path.join(rnd.scratch_dir(), f"dockbench-photons-{os.getpid()}.exr")
+        out = []
         try:
-            pitch = self.cam.data.ortho_scale / max(self.ps.render.resolution_x, self.ps.render.resolution_y)
-            M = cb.pattern(self.grid, self.photons(seed, path), pitch, len(self.tilts), self.air)
+            for k, layer in enumerate(self.layers):
+                pitch = layer.cam.data.ortho_scale / max(layer.cam["resolution"])
+                M = cb.pattern(layer.grid, self.photons(layer, seed * 2 + k, path), pitch, len(self.tilts), self.air)
+                load_pattern(layer.image, M)
+                out.append(M)
         finally:
             if os.path.exists(path):
                 os.remove(path)
-        load_pattern(self.image, M)
-        return M
+        return out
 
 
 def load_pattern(img: bpy.types.Image, M: np.ndarray) -> None:

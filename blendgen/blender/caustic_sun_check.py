@@ -8,7 +8,8 @@ SPEC: ``scene`` (a reference job's scene description, its ``water_surface`` with
 ``caustics``), ``camera`` (``plan.JobCamera`` fields), ``render`` (``plan.render_settings``),
 ``frame`` (``T_world_cam`` 4x4 OpenCV pose, ``t`` s, ``index``). OUT: ``plain``, ``nosun``,
 ``caustic`` (H, W, 3) linear radiance, ``depth_z`` (H, W) planar depth (m, inf: nothing),
-``M`` (rows, cols) the photon map, and the grid ``c``, ``t``, ``e1``, ``e2``, ``lo``, ``bin_m``.
+``index`` (H, W) object index, and per spot (``pool_``, ``dock_``) its photon map ``M`` (rows,
+cols) and grid ``c``, ``t``, ``e1``, ``e2``, ``lo``, ``bin_m``.
 The test (``tests/test_caustic_sun.py``) predicts ``caustic = plain + (plain - nosun) (M(P) - 1)``
 at every pixel's world point ``P``.
 """
@@ -42,14 +43,18 @@ def main(spec_path: str, out: str) -> None:
         nosun = _render(sc, cam, fr["T_world_cam"], path)["rgb"]
         sun.data.energy = strength
         cs = CausticSun(sc, spec["scene"], int(spec["render"].get("threads") or 0))
-        M = cs.update(int(fr["index"]))
+        Ms = cs.update(int(fr["index"]))
         caustic = _render(sc, cam, fr["T_world_cam"], path)["rgb"]
     finally:
         if os.path.exists(path):
             os.remove(path)
-    g = cs.grid
-    np.savez(out, plain=plain["rgb"], nosun=nosun, caustic=caustic, depth_z=plain["depth_z"], M=M,
-             c=g.c, t=g.t, e1=g.e1, e2=g.e2, lo=g.lo, bin_m=g.bin_m)
+    layers = {}
+    for name, layer, M in zip(("pool", "dock"), cs.layers, Ms):
+        g = layer.grid
+        layers.update({f"{name}_{k}": v for k, v in (("M", M), ("c", g.c), ("t", g.t), ("e1", g.e1), ("e2", g.e2),
+                                                      ("lo", g.lo), ("bin_m", g.bin_m))})
+    np.savez(out, plain=plain["rgb"], nosun=nosun, caustic=caustic, depth_z=plain["depth_z"], index=plain["index"],
+             **layers)
 
 
 if __name__ == "__main__":
