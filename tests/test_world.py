@@ -267,11 +267,11 @@ def test_sun_in_air_inverts_the_refraction(zenith_air, azimuth):
     np.testing.assert_allclose(sf.sun_in_air(water), air, atol=1e-12)
 
 
-def test_a_sun_outside_snells_cone_is_refused_with_a_surface():
+def test_a_sun_outside_snells_cone_is_refused_with_a_surface(tmp_path):
     """``sun_elevation_deg`` is the in-water direction: at 40 deg (zenith 50 > 48.6) no sun
     in the sky sends it, so a scene with a surface is refused; without one it stays allowed."""
     from blendgen.config.models import ConfigError
-    traj = [{"kind": "linear", "id": "a"}]
+    traj = [{"kind": "linear", "id": "a", "start_range_m": 4.0, "end_range_m": 3.0}]
     exp = Experiment.model_validate({"name": "w", "image_formation": "physical", "trajectories": traj,
                                      "scene": {"sun_elevation_deg": 40.0}})
     with pytest.raises(ConfigError, match=r"scene.sun_elevation_deg: 40 .*41.4"):
@@ -280,6 +280,10 @@ def test_a_sun_outside_snells_cone_is_refused_with_a_surface():
                                      "scene": {"sun_elevation_deg": 40.0,
                                                "world": {"surface": False, "caustics": False}}})
     assert plan.world_post(off) is None
+    from blendgen.pipeline.generate import generate
+    with pytest.raises(ConfigError, match="sun_elevation_deg"):
+        generate(exp, tmp_path / "out", progress=False)
+    assert not (tmp_path / "out").exists()                       # refused before anything is written
     ok = exp.model_copy(update={"scene": exp.scene.model_copy(update={"sun_elevation_deg": 60.0})})
     np.testing.assert_allclose(sf.refracted_sun(plan.world_post(ok).sun_travel_dir),
                                plan._sun_dir(60.0, ok.scene.sun_azimuth_deg), atol=1e-12)

@@ -148,7 +148,7 @@ def generate_many(items: list[tuple[Experiment, Path]], workers: int | None = No
     if executor not in ex.EXECUTORS:
         raise ex.ExecutorError(f"unknown executor {executor!r}; choose one of {', '.join(ex.EXECUTORS)}")
     for exp, _ in items:
-        plan.check_paths(exp)                  # user errors before anything is written
+        plan.check_before_writing(exp)         # user errors before anything is written
     if executor == "ray":
         ex.require_ray()
         if ray_address:

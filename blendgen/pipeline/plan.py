@@ -307,6 +307,13 @@ def exposure_flow(exp: Experiment, T_wc: np.ndarray, T_wd: np.ndarray) -> np.nda
     return flow
 
 
+def check_before_writing(exp: Experiment) -> None:
+    """Raise ConfigError for what planning would refuse, before anything is written: the
+    paths (:func:`check_paths`) and the world's surface and sun (:func:`world_post`)."""
+    check_paths(exp)
+    world_post(exp)
+
+
 def check_paths(exp: Experiment) -> None:
     """Raise ConfigError before anything is written if a kinematic path (linear, circle) brings
     the camera to the dock's marker plane (:func:`until_contact`); docking trials end there."""
