@@ -94,6 +94,9 @@ def test_reference_jobs_carry_the_photon_budget_only_when_caustics_are_drawn(tmp
     scene, manifest = _planned(tmp_path)
     assert scene["water_surface"]["caustics"] == plan.REFERENCE_CAUSTICS
     assert manifest["reference_caustics"]["photons_per_bin"] == plan.REFERENCE_CAUSTICS["photons_per_bin"]
+    from datasets_spec.validate import load_schema
+    import jsonschema
+    jsonschema.validate(manifest["reference_caustics"], load_schema("manifest.schema.json")["properties"]["reference_caustics"])
     for other in ({"world": {"caustics": False}}, {"kind": "open_water"}, {"sun_strength": 0.0}):
         scene, manifest = _planned(tmp_path, **other)
         assert "caustics" not in (scene.get("water_surface") or {}) and "reference_caustics" not in manifest
