@@ -8,8 +8,8 @@ the dock), and the caustic irradiance there is the plain sun's times a pattern `
 line. So:
 
 1. **Photon map** (a second Blender scene, rendered per frame): an orthographic camera in the
-   air plays the sun (parallel rays along the sun's direction in the sky, ``surface.sun_in_air``,
-   stratified over its disc), the frame's wavy glass surface (the dataset's own object, same
+   air plays the sun (rays along the sun's direction in the sky, ``surface.sun_in_air``, each
+   turned to a uniform direction within its disc by the camera's depth of field), the frame's wavy glass surface (the dataset's own object, same
    waves and time) refracts them, and every polygon of the receivers (pool floor and walls,
    dock body) records where they land: its emission is ``(u + OFFSET,
    v + OFFSET, id + 1)``, its own plane coordinates and number. Clear water (the dataset's
@@ -44,7 +44,7 @@ import mathutils
 import numpy as np
 
 from blendgen.blender import render as rnd
-from blendgen.blender.caustic_reference import OFFSET, sun_directions
+from blendgen.blender.caustic_reference import OFFSET
 from blendgen.blender.materials import _fresh
 from blendgen.physics import caustic_beam as cb, surface as sf
 from blendgen.physics.caustic_beam import D_SPOT, Grid
@@ -144,6 +144,21 @@ def add_absorber(ps: bpy.types.Scene, surface: dict) -> bpy.types.Object:
     return obj
 
 
+SUN_APERTURE_M = 0.25       # lens radius of the sun camera (m): rays start up to this far off their pixel
+
+
+def sun_disc_aperture(data: bpy.types.Camera) -> None:
+    """The sun's disc as the orthographic camera's depth of field: Cycles starts each ray at a
+    uniform point ``u`` of a lens of radius ``1 / (2 fstop)`` (orthographic) and aims it at its
+    pixel's point ``focus_distance`` ahead, so its direction is uniform over a disc of angular
+    radius ``atan(a / f)``: the sun's 0.265 deg with ``a`` = SUN_APERTURE_M. A uniform shift
+    of every ray by ``u`` keeps the photons' density (the frame grows by ``2 a``)."""
+    data.dof.use_dof = True
+    data.dof.aperture_fstop = 1.0 / (2.0 * SUN_APERTURE_M)
+    data.dof.aperture_blades = 0
+    data.dof.focus_distance = SUN_APERTURE_M / math.tan(sf.SUN_RADIUS_RAD)
+
+
 def sun_camera(ps: bpy.types.Scene, region: dict, air: np.ndarray, pitch_m: float) -> bpy.types.Object:
     """Orthographic camera before the surface's centre along the sun's rays in the air,
     framing the rectangle ``region`` (``centre_xy``, ``half_xy``, ``z``) of the surface, pixels
@@ -157,10 +172,11 @@ def sun_camera(ps: bpy.types.Scene, region: dict, air: np.ndarray, pitch_m: floa
     ps.collection.objects.link(cam)
     ps.camera = cam
     base = mathutils.Vector(tuple(-air)).to_track_quat("Z", "Y").to_matrix()
-    cam["base"] = [list(r) for r in base]
+    cam.rotation_euler = base.to_euler()
+    sun_disc_aperture(data)
     R = np.array(base)
     corners = np.array([[a * hx, b * hy, 0.0] for a in (-1, 1) for b in (-1, 1)])
-    extent = 2 * np.abs(corners @ R[:, :2]).max(axis=0) + 4 * pitch_m
+    extent = 2 * np.abs(corners @ R[:, :2]).max(axis=0) + 4 * pitch_m + 2 * SUN_APERTURE_M
     data.ortho_scale = float(extent.max())
     sin_a = math.hypot(air[0], air[1])
     upstream = 1.0 + 0.5 * data.ortho_scale * sin_a / -air[2]      # the plane's lowest corner 1 m up
@@ -254,14 +270,14 @@ class CausticSun:
     resolves millimetres there); call :meth:`update` each frame after the waves' time is set.
 
     ``desc``: the scene description (its ``sun``; its ``water_surface`` with ``caustics``:
-    ``bin_m``, ``dock_bin_m`` (m), ``photons_per_bin``, ``renders`` (sun directions per frame))."""
+    ``bin_m``, ``dock_bin_m`` (m), ``photons_per_bin``, ``renders`` (per spot and frame))."""
 
     def __init__(self, sc: bpy.types.Scene, desc: dict, threads: int = 0):
         surface, cfg = desc["water_surface"], desc["water_surface"]["caustics"]
         t = np.asarray(desc["sun"]["direction"], float)
         t /= np.linalg.norm(t)
         self.air, self.per_bin = sf.sun_in_air(t), float(cfg["photons_per_bin"])
-        self.tilts = sun_directions(int(cfg["renders"]), sf.SUN_RADIUS_RAD)
+        self.renders = int(cfg["renders"])
         self.ps = photon_scene(bpy.data.objects["water_surface"], threads)
         add_absorber(self.ps, surface)
         self.recorders = add_recorders(self.ps, [bpy.data.objects[n] for n in RECEIVERS if n in bpy.data.objects])
@@ -283,7 +299,7 @@ class CausticSun:
 
     def _layer(self, sc, region: dict, framed: dict, t: np.ndarray, bin_m: float, strength: float) -> Layer:
         grid = cb.grid_for(region, t, bin_m)
-        cam = sun_camera(self.ps, framed, self.air, cb.photon_pitch(bin_m, self.per_bin, len(self.tilts), self.air, t))
+        cam = sun_camera(self.ps, framed, self.air, cb.photon_pitch(bin_m, self.per_bin, self.renders, self.air, t))
         return Layer(grid, cam, *gobo_spot(sc, grid, strength))
 
     def photons(self, layer: Layer, seed: int, path: str) -> np.ndarray:
@@ -292,10 +308,8 @@ class CausticSun:
         O, EU, EV = (np.array([getattr(r, a) for r in self.recorders]) for a in ("o", "eu", "ev"))
         self.ps.camera = layer.cam
         self.ps.render.resolution_x, self.ps.render.resolution_y = layer.cam["resolution"]
-        base = mathutils.Matrix(layer.cam["base"])
         out = []
-        for i, (rx, ry) in enumerate(self.tilts):
-            layer.cam.rotation_euler = (base @ mathutils.Euler((rx, ry, 0.0)).to_matrix()).to_euler()
+        for i in range(self.renders):
             self.ps.cycles.seed = seed * 64 + i
             self.ps.render.filepath = path
             bpy.ops.render.render(write_still=True, scene=self.ps.name)
@@ -318,7 +332,7 @@ class CausticSun:
         try:
             for k, layer in enumerate(self.layers):
                 pitch = layer.cam.data.ortho_scale / max(layer.cam["resolution"])
-                M = cb.pattern(layer.grid, self.photons(layer, seed * 2 + k, path), pitch, len(self.tilts), self.air)
+                M = cb.pattern(layer.grid, self.photons(layer, seed * 2 + k, path), pitch, self.renders, self.air)
                 load_pattern(layer.image, M)
                 out.append(M)
         finally:
