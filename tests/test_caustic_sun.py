@@ -88,16 +88,19 @@ def _planned(tmp_path, **scene):
 
 
 def test_reference_jobs_carry_the_photon_budget_only_when_caustics_are_drawn(tmp_path):
-    """Pool reference jobs with caustics carry the photon budget and the manifest records it;
-    with caustics off, an open-water scene (seabed beyond a photon budget) or no sun, neither."""
-    from blendgen.pipeline import plan
-    scene, manifest = _planned(tmp_path)
-    assert scene["water_surface"]["caustics"] == plan.REFERENCE_CAUSTICS
-    assert manifest["reference_caustics"]["photons_per_bin"] == plan.REFERENCE_CAUSTICS["photons_per_bin"]
+    """Reference jobs with caustics carry the photon budget (the pool's spot in pools only: an
+    open-water seabed is beyond a photon budget) and the manifest records it, valid under its
+    schema; with caustics off or no sun, neither."""
     from datasets_spec.validate import load_schema
     import jsonschema
-    jsonschema.validate(manifest["reference_caustics"], load_schema("manifest.schema.json")["properties"]["reference_caustics"])
-    for other in ({"world": {"caustics": False}}, {"kind": "open_water"}, {"sun_strength": 0.0}):
+    from blendgen.pipeline import plan
+    for kind in ("pool", "open_water"):
+        scene, manifest = _planned(tmp_path, kind=kind)
+        assert scene["water_surface"]["caustics"] == {**plan.REFERENCE_CAUSTICS, "pool_spot": kind == "pool"}
+        assert manifest["reference_caustics"]["pool_spot"] == (kind == "pool")
+        jsonschema.validate(manifest["reference_caustics"],
+                            load_schema("manifest.schema.json")["properties"]["reference_caustics"])
+    for other in ({"world": {"caustics": False}}, {"sun_strength": 0.0}):
         scene, manifest = _planned(tmp_path, **other)
         assert "caustics" not in (scene.get("water_surface") or {}) and "reference_caustics" not in manifest
 

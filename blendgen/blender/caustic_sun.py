@@ -31,7 +31,8 @@ line. So:
 What is left out: the dock's frame bars and the markers are not recorders (they take the
 pattern of the receiver behind them), photons are traced in clear water (the medium's
 forward scattering does not blur the pattern, as it does in ``caustic_reference`` with a
-medium), pool scenes only (the open-water seabed is larger than any photon budget).
+medium), in open water the dock only (its 120 m seabed is beyond a photon budget: it keeps
+the plain sun).
 """
 from __future__ import annotations
 
@@ -49,7 +50,7 @@ from blendgen.blender.materials import _fresh
 from blendgen.physics import caustic_beam as cb, surface as sf
 from blendgen.physics.caustic_beam import D_SPOT, Grid
 
-RECEIVERS = ("pool_floor", "pool_walls", "dock_body")
+RECEIVERS = ("pool_floor", "pool_walls", "dock_body", "seabed")
 
 
 @dataclass
@@ -245,6 +246,7 @@ DOCK_PARTS = ("dock_", "marker_", "led_")     # object name prefixes: the dock's
 class Layer:
     """One caustic spot: its grid, its photon camera (framing the surface above its receivers
     with a margin for rays the waves bend in) and its light texture."""
+    name: str
     grid: Grid
     cam: bpy.types.Object
     spot: bpy.types.Object
@@ -266,8 +268,9 @@ def dock_region(sc: bpy.types.Scene, t: np.ndarray, z: float, margin_m: float) -
 
 class CausticSun:
     """The dataset scene's sun replaced by caustic spots (module docstring): one over the pool
-    (``bin_m``), one finer over the dock and its markers (``dock_bin_m``: a camera at 1 m
-    resolves millimetres there); call :meth:`update` each frame after the waves' time is set.
+    (``bin_m``; not in open water, ``pool_spot`` false: its seabed keeps the plain sun), one
+    finer over the dock and its markers (``dock_bin_m``: a camera at 1 m resolves millimetres
+    there); call :meth:`update` each frame after the waves' time is set.
 
     ``desc``: the scene description (its ``sun``; its ``water_surface`` with ``caustics``:
     ``bin_m``, ``dock_bin_m`` (m), ``photons_per_bin``, ``renders`` (per spot and frame))."""
@@ -282,25 +285,29 @@ class CausticSun:
         add_absorber(self.ps, surface)
         self.recorders = add_recorders(self.ps, [bpy.data.objects[n] for n in RECEIVERS if n in bpy.data.objects])
         strength = float(desc["sun"]["strength"])
-        self.layers = [self._layer(sc, surface, surface, t, float(cfg["bin_m"]), strength)]
         dock = [o for o in sc.objects if o.type == "MESH" and o.name.startswith(DOCK_PARTS)]
-        volume = sc.objects.get("water_volume")
+        volume, sun = sc.objects.get("water_volume"), sc.objects.get("sun")
+        self.layers = []
+        if cfg.get("pool_spot", True):
+            self.layers.append(self._layer(sc, "pool", surface, surface, t, float(cfg["bin_m"]), strength))
+            link_only(self.layers[0].spot, dock + ([volume] if volume is not None else []), "EXCLUDE")
         region = dock_region(sc, t, float(surface["z"]), 0.05)
         if region is not None:
             framed = {**region, "half_xy": [h + 0.3 for h in region["half_xy"]]}   # bent rays from around it
-            self.layers.append(self._layer(sc, region, framed, t, float(cfg["dock_bin_m"]), strength))
-            link_only(self.layers[1].spot, dock, "INCLUDE")
-        link_only(self.layers[0].spot, dock + ([volume] if volume is not None else []), "EXCLUDE")
-        sun = sc.objects.get("sun")
-        if volume is not None:
+            self.layers.append(self._layer(sc, "dock", region, framed, t, float(cfg["dock_bin_m"]), strength))
+            link_only(self.layers[-1].spot, dock, "INCLUDE")
+        if not cfg.get("pool_spot", True):
+            link_only(sun, dock, "EXCLUDE")          # open water: seabed, rocks and water keep the plain sun
+        elif volume is not None:
             link_only(sun, [volume], "INCLUDE")
         else:
             bpy.data.objects.remove(sun)
 
-    def _layer(self, sc, region: dict, framed: dict, t: np.ndarray, bin_m: float, strength: float) -> Layer:
+    def _layer(self, sc, name: str, region: dict, framed: dict, t: np.ndarray, bin_m: float,
+               strength: float) -> Layer:
         grid = cb.grid_for(region, t, bin_m)
         cam = sun_camera(self.ps, framed, self.air, cb.photon_pitch(bin_m, self.per_bin, self.renders, self.air, t))
-        return Layer(grid, cam, *gobo_spot(sc, grid, strength))
+        return Layer(name, grid, cam, *gobo_spot(sc, grid, strength))
 
     def photons(self, layer: Layer, seed: int, path: str) -> np.ndarray:
         """(N, 3) world points where this frame's refracted sun rays through the layer's

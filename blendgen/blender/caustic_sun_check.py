@@ -49,8 +49,8 @@ def main(spec_path: str, out: str) -> None:
         if os.path.exists(path):
             os.remove(path)
     layers = {}
-    for name, layer, M in zip(("pool", "dock"), cs.layers, Ms):
-        g = layer.grid
+    for layer, M in zip(cs.layers, Ms):
+        g, name = layer.grid, layer.name
         layers.update({f"{name}_{k}": v for k, v in (("M", M), ("c", g.c), ("t", g.t), ("e1", g.e1), ("e2", g.e2),
                                                       ("lo", g.lo), ("bin_m", g.bin_m))})
     np.savez(out, plain=plain["rgb"], nosun=nosun, caustic=caustic, depth_z=plain["depth_z"], index=plain["index"],

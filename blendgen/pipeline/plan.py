@@ -505,8 +505,8 @@ def water_surface(exp: Experiment, post: SequencePost) -> dict | None:
     sun = {"to_sun": [-v for v in wp.sun_travel_dir], "irradiance": wp.sun_irradiance} if wp.sun_irradiance > 0 else None
     out = {"z": post.surface_z_m, "centre_xy": centre, "half_xy": half, "sky_radiance": wp.sky_radiance,
            "wind_mps": wp.wind_mps, "wave_seed": wp.wave_seed, "sun": sun}
-    if wp.caustics and s.kind == "pool" and s.sun_strength > 0:     # the seabed is beyond a photon budget
-        out["caustics"] = dict(REFERENCE_CAUSTICS)
+    if wp.caustics and s.sun_strength > 0:        # open water: the dock only (the seabed is beyond a photon budget)
+        out["caustics"] = {**REFERENCE_CAUSTICS, "pool_spot": s.kind == "pool"}
     return out
 
 
