@@ -121,7 +121,7 @@ def _check_spec(tmp_path) -> dict:
         "conditions": [{"label": "c", "dock_water_depth_m": 2.0}]})
     tg = _Target.prepare(exp, tmp_path / "ds")
     job = tg.jobs[0]
-    assert job.scene["water_surface"]["caustics"] == plan.REFERENCE_CAUSTICS
+    assert job.scene["water_surface"]["caustics"] == {**plan.REFERENCE_CAUSTICS, "pool_spot": True}
     c = exp.camera
     return {"scene": job.scene, "render": plan.render_settings(exp, 2),
             "camera": {"width": c.width, "height": c.height, "hfov_rad": math.radians(c.hfov_deg),
