@@ -105,15 +105,17 @@ def test_reference_jobs_carry_the_photon_budget_only_when_caustics_are_drawn(tmp
         assert "caustics" not in (scene.get("water_surface") or {}) and "reference_caustics" not in manifest
 
 
-def _check_spec(tmp_path) -> dict:
-    """One frame of a reference job: the template pool, dock at 2 m, camera 1.55 m from the
-    dock face looking at it and the end wall behind, waves of 2 m/s, clear water, 96 x 72 px."""
+def _check_spec(tmp_path, kind: str = "pool") -> dict:
+    """One frame of a reference job: the template pool (or open water, seabed 3.2 m deep), dock
+    at 2 m, camera 1.55 m from the dock face looking at it and the end wall (seabed) behind,
+    waves of 2 m/s, clear water, 96 x 72 px."""
     from blendgen.config.models import Experiment
     from blendgen.pipeline import plan
     from blendgen.pipeline.generate import _Target
     exp = Experiment.model_validate({
         "name": "caustic-check", "image_formation": "physical", "seed": 4,
-        "scene": {"template": "pool_15x5x8", "world": {"wind_mps": 2.0}, "sky_fraction": 0.0},
+        "scene": {"template": "pool_15x5x8", "kind": kind, "world": {"wind_mps": 2.0, "seabed_depth_m": 3.2},
+                  "sky_fraction": 0.0},
         "camera": {"width": 96, "height": 72, "hfov_deg": 70, "fps": 10, "T_body_cam": {"xyz": [0.65, 0, 0]}},
         "render": {"fidelity": "reference", "reference_samples": 64},
         "water": {"preset": "clear"},
@@ -121,13 +123,51 @@ def _check_spec(tmp_path) -> dict:
         "conditions": [{"label": "c", "dock_water_depth_m": 2.0}]})
     tg = _Target.prepare(exp, tmp_path / "ds")
     job = tg.jobs[0]
-    assert job.scene["water_surface"]["caustics"] == {**plan.REFERENCE_CAUSTICS, "pool_spot": True}
+    assert job.scene["water_surface"]["caustics"] == {**plan.REFERENCE_CAUSTICS, "pool_spot": kind == "pool"}
     c = exp.camera
     return {"scene": job.scene, "render": plan.render_settings(exp, 2),
             "camera": {"width": c.width, "height": c.height, "hfov_rad": math.radians(c.hfov_deg),
                        "K": tg.K.tolist()},
             "frame": {"T_world_cam": np.asarray(job.frames[0]["T_world_cam"]).tolist(), "t": job.frames[0]["t"],
                       "index": 0}}, tg.K
+
+
+def _check(tmp_path, kind: str):
+    """Run the check on one frame; returns (lit pool/seabed pixels, lit dock pixels, predicted
+    change, rendered change, plain) over the hit pixels (module docstring's prediction)."""
+    spec, K = _check_spec(tmp_path, kind)
+    (tmp_path / "spec.json").write_text(json.dumps(spec))
+    out = tmp_path / "check.npz"
+    subprocess.run([sys.executable, "-m", "blendgen.blender.caustic_sun_check", str(tmp_path / "spec.json"),
+                    str(out)], check=True, timeout=600)
+    r = np.load(out)
+    names = [k for k in ("pool", "dock") if f"{k}_M" in r]
+    assert names == (["pool", "dock"] if kind == "pool" else ["dock"])
+    grids = {k: cb.Grid(r[f"{k}_c"], r[f"{k}_t"], r[f"{k}_e1"], r[f"{k}_e2"], r[f"{k}_lo"], float(r[f"{k}_bin_m"]),
+                        r[f"{k}_M"].shape) for k in names}
+    z = r["depth_z"]
+    h, w = z.shape
+    u, v = np.meshgrid(np.arange(w), np.arange(h))
+    hit = np.isfinite(z)
+    P_cam = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(z)], -1)[hit] * z[hit, None]
+    T = np.asarray(spec["frame"]["T_world_cam"])
+    P = P_cam @ T[:3, :3].T + T[:3, 3]
+    direct = (r["plain"] - r["nosun"])[hit].mean(axis=1)
+    lit = direct > 0.25 * np.percentile(direct, 90)
+    pool = r["index"][hit] == INDEX_POOL                           # pool or seabed; the rest: dock, frame, markers
+    m_pool = cb.lookup(grids["pool"], r["pool_M"], P) if "pool" in grids else np.ones(len(P))
+    m = np.where(pool, m_pool, cb.lookup(grids["dock"], r["dock_M"], P))
+    got = (r["caustic"] - r["plain"])[hit].mean(axis=1)
+    return lit & pool, lit & ~pool, direct * (m - 1.0), got, r["plain"][hit].mean(axis=1)
+
+
+def _agrees(sel, pred, got, plain):
+    """The pattern where predicted (correlation), as strong (slope) and as bright (mean)."""
+    assert sel.mean() > 0.2                                        # the spot fills part of the frame
+    assert np.corrcoef(pred[sel], got[sel])[0, 1] > 0.8
+    assert 0.8 < (pred[sel] @ got[sel]) / (pred[sel] @ pred[sel]) < 1.1
+    mean = plain[sel].mean()
+    assert (mean + got[sel].mean()) / mean == pytest.approx((mean + pred[sel].mean()) / mean, abs=0.03)
 
 
 @pytest.mark.blender
@@ -140,31 +180,17 @@ def test_reference_caustic_spots_put_their_photon_maps_on_pool_and_dock(tmp_path
     below 1) and mean (within 3 %: the spots' power, their inverse square, the light linking).
     Measured: correlation 0.997 (pool) and 0.953 (dock), slope 0.97 / 0.91, mean ratio
     1.071 / 0.743 against 1.071 / 0.733 predicted (this frame's cells on the dock are dark)."""
-    spec, K = _check_spec(tmp_path)
-    (tmp_path / "spec.json").write_text(json.dumps(spec))
-    out = tmp_path / "check.npz"
-    subprocess.run([sys.executable, "-m", "blendgen.blender.caustic_sun_check", str(tmp_path / "spec.json"),
-                    str(out)], check=True, timeout=600)
-    r = np.load(out)
-    grids = {k: cb.Grid(r[f"{k}_c"], r[f"{k}_t"], r[f"{k}_e1"], r[f"{k}_e2"], r[f"{k}_lo"], float(r[f"{k}_bin_m"]),
-                        r[f"{k}_M"].shape) for k in ("pool", "dock")}
-    assert grids["dock"].bin_m < grids["pool"].bin_m
-    z = r["depth_z"]
-    h, w = z.shape
-    u, v = np.meshgrid(np.arange(w), np.arange(h))
-    hit = np.isfinite(z)
-    P_cam = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(z)], -1)[hit] * z[hit, None]
-    T = np.asarray(spec["frame"]["T_world_cam"])
-    P = P_cam @ T[:3, :3].T + T[:3, 3]
-    direct = (r["plain"] - r["nosun"])[hit].mean(axis=1)
-    lit = direct > 0.25 * np.percentile(direct, 90)
-    pool = r["index"][hit] == INDEX_POOL                           # the rest: dock, frame, markers, LEDs
-    m = np.where(pool, cb.lookup(grids["pool"], r["pool_M"], P), cb.lookup(grids["dock"], r["dock_M"], P))
-    pred = direct * (m - 1.0)
-    got = (r["caustic"] - r["plain"])[hit].mean(axis=1)
-    for sel in (lit & pool, lit & ~pool):
-        assert sel.mean() > 0.2                                    # both spots fill part of the frame
-        assert np.corrcoef(pred[sel], got[sel])[0, 1] > 0.8
-        assert 0.8 < (pred[sel] @ got[sel]) / (pred[sel] @ pred[sel]) < 1.1
-        plain = r["plain"][hit][sel].mean()
-        assert r["caustic"][hit][sel].mean() / plain == pytest.approx((plain + pred[sel].mean()) / plain, abs=0.03)
+    pool, dock, pred, got, plain = _check(tmp_path, "pool")
+    _agrees(pool, pred, got, plain)
+    _agrees(dock, pred, got, plain)
+
+
+@pytest.mark.blender
+def test_open_water_reference_caustics_light_the_dock_and_leave_the_seabed_plain(tmp_path):
+    """Open water: the dock's spot draws its map on the dock, and the seabed keeps the plain
+    sun (rendered change within 3 % of its radiance: the sun lamp still lights it). Measured:
+    dock correlation 0.981, slope 0.84, mean ratio 0.850 against 0.835; seabed change 0.0000."""
+    seabed, dock, pred, got, plain = _check(tmp_path, "open_water")
+    _agrees(dock, pred, got, plain)
+    assert seabed.mean() > 0.1
+    assert abs(got[seabed].mean()) < 0.03 * plain[seabed].mean()
