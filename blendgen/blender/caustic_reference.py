@@ -42,7 +42,7 @@ OFFSET = 100.0          # keeps the recorded positions positive (emission colour
 
 def _floor(depth: float, half: float):
     """Emitter at ``z = -depth`` whose colour is its own object position (+ OFFSET), B = 1."""
-    from blendgen.blender.caustic_sun import recorder_material
+    from blendgen.blender.photon_scene import recorder_material
     from blendgen.blender.meshes import mesh_object
     v = [(-half, -half, -depth), (half, -half, -depth), (half, half, -depth), (-half, half, -depth)]
     obj = mesh_object("floor_recorder", v, [(0, 1, 2, 3)], index=1)
