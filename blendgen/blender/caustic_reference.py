@@ -37,7 +37,7 @@ import math
 import os
 import sys
 
-OFFSET = 100.0          # keeps the recorded positions positive (emission colours)
+from blendgen.physics.caustic_beam import OFFSET      # keeps the recorded positions positive
 
 
 def _floor(depth: float, half: float):

@@ -45,10 +45,9 @@ import mathutils
 import numpy as np
 
 from blendgen.blender import render as rnd
-from blendgen.blender.caustic_reference import OFFSET
 from blendgen.blender.photon_scene import add_absorber, add_recorders, photon_scene, sun_camera
 from blendgen.physics import caustic_beam as cb, surface as sf
-from blendgen.physics.caustic_beam import D_SPOT, Grid
+from blendgen.physics.caustic_beam import D_SPOT, OFFSET, Grid
 
 RECEIVERS = ("pool_floor", "pool_walls", "dock_body", "seabed")
 def _op(nt, op: str, a, b, kind: str = "ShaderNodeMath"):

@@ -11,9 +11,9 @@ import mathutils
 import numpy as np
 
 from blendgen.blender import render as rnd
-from blendgen.blender.caustic_reference import OFFSET
 from blendgen.blender.materials import _fresh
 from blendgen.physics import surface as sf
+from blendgen.physics.caustic_beam import OFFSET
 
 
 @dataclass

@@ -27,6 +27,7 @@ import numpy as np
 from blendgen.physics import surface as sf
 
 D_SPOT = 1000.0          # m: the spot's rays are within 8 mrad of parallel over a 15 m pool
+OFFSET = 100.0           # m, added to recorded plane coordinates (photon recorders' emission stays positive)
 
 
 @dataclass
