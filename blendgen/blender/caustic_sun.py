@@ -46,21 +46,11 @@ import numpy as np
 
 from blendgen.blender import render as rnd
 from blendgen.blender.photon_scene import add_absorber, add_recorders, photon_scene, sun_camera
+from blendgen.blender.world import _math
 from blendgen.physics import caustic_beam as cb, surface as sf
 from blendgen.physics.caustic_beam import D_SPOT, OFFSET, Grid
 
 RECEIVERS = ("pool_floor", "pool_walls", "dock_body", "seabed")
-def _op(nt, op: str, a, b, kind: str = "ShaderNodeMath"):
-    node = nt.nodes.new(kind)
-    node.operation = op
-    for i, v in enumerate((a, b)):
-        if isinstance(v, (float, tuple)):
-            node.inputs[i].default_value = v
-        else:
-            nt.links.new(v, node.inputs[i])
-    return node.outputs[0]
-
-
 def gobo_spot(sc: bpy.types.Scene, grid: Grid, strength: float) -> tuple[bpy.types.Object, bpy.types.Image]:
     """The spot ``D_SPOT`` upstream of the grid centre with irradiance ``strength`` (W/m^2)
     across its beam, its light colour ``1 + (M - 1)`` looked up at the ray's projective
@@ -82,13 +72,16 @@ def gobo_spot(sc: bpy.types.Scene, grid: Grid, strength: float) -> tuple[bpy.typ
     nt.links.new(nt.nodes.new("ShaderNodeTexCoord").outputs["Normal"], xyz.inputs[0])
     uv = nt.nodes.new("ShaderNodeCombineXYZ")
     for axis, i in (("X", 0), ("Y", 1)):            # u = (D n / -n_z - lo) / size
-        p = _op(nt, "DIVIDE", _op(nt, "MULTIPLY", xyz.outputs[axis], -D_SPOT / size[i]), xyz.outputs["Z"])
-        nt.links.new(_op(nt, "SUBTRACT", p, float(grid.lo[i] / size[i])), uv.inputs[i])
+        p = _math(nt, "DIVIDE", _math(nt, "MULTIPLY", xyz.outputs[axis], -D_SPOT / size[i]), xyz.outputs["Z"])
+        nt.links.new(_math(nt, "SUBTRACT", p, float(grid.lo[i] / size[i])), uv.inputs[i])
     tex = nt.nodes.new("ShaderNodeTexImage")
     tex.image, tex.extension, tex.interpolation = img, "CLIP", "Linear"
     nt.links.new(uv.outputs[0], tex.inputs["Vector"])
-    color = _op(nt, "ADD", tex.outputs["Color"], (1.0, 1.0, 1.0), "ShaderNodeVectorMath")
-    nt.links.new(color, nt.nodes["Emission"].inputs["Color"])
+    one_plus = nt.nodes.new("ShaderNodeVectorMath")          # 1 + (M - 1); 1 outside the grid
+    one_plus.operation = "ADD"
+    one_plus.inputs[1].default_value = (1.0, 1.0, 1.0)
+    nt.links.new(tex.outputs["Color"], one_plus.inputs[0])
+    nt.links.new(one_plus.outputs["Vector"], nt.nodes["Emission"].inputs["Color"])
     return obj, img
 
 
@@ -116,11 +109,10 @@ class Layer:
     image: bpy.types.Image
 
 
-def dock_region(sc: bpy.types.Scene, t: np.ndarray, z: float, margin_m: float) -> dict | None:
-    """The surface rectangle (``centre_xy``, ``half_xy``, ``z``) the dock's parts are seen
-    through along the beam ``t``, grown by ``margin_m``; None without a dock."""
-    pts = [np.array(o.matrix_world) @ np.append(v.co, 1.0) for o in sc.objects
-           if o.type == "MESH" and o.name.startswith(DOCK_PARTS) for v in o.data.vertices]
+def dock_region(dock: list, t: np.ndarray, z: float, margin_m: float) -> dict | None:
+    """The surface rectangle (``centre_xy``, ``half_xy``, ``z``) the dock's parts (mesh
+    objects) are seen through along the beam ``t``, grown by ``margin_m``; None without them."""
+    pts = [np.array(o.matrix_world) @ np.append(v.co, 1.0) for o in dock for v in o.data.vertices]
     if not pts:
         return None
     P = np.array(pts)[:, :3]
@@ -146,7 +138,8 @@ class CausticSun:
         self.renders = int(cfg["renders"])
         self.ps = photon_scene(bpy.data.objects["water_surface"], threads)
         add_absorber(self.ps, surface)
-        self.recorders = add_recorders(self.ps, [bpy.data.objects[n] for n in RECEIVERS if n in bpy.data.objects])
+        recorders = add_recorders(self.ps, [bpy.data.objects[n] for n in RECEIVERS if n in bpy.data.objects])
+        self.planes = tuple(np.array([getattr(r, a) for r in recorders]) for a in ("o", "eu", "ev"))
         strength = float(desc["sun"]["strength"])
         dock = [o for o in sc.objects if o.type == "MESH" and o.name.startswith(DOCK_PARTS)]
         volume, sun = sc.objects.get("water_volume"), sc.objects.get("sun")
@@ -154,7 +147,7 @@ class CausticSun:
         if cfg.get("pool_spot", True):
             self.layers.append(self._layer(sc, "pool", surface, surface, t, float(cfg["bin_m"]), strength))
             link_only(self.layers[0].spot, dock + ([volume] if volume is not None else []), "EXCLUDE")
-        region = dock_region(sc, t, float(surface["z"]), 0.05)
+        region = dock_region(dock, t, float(surface["z"]), 0.05)
         if region is not None:
             framed = {**region, "half_xy": [h + 0.3 for h in region["half_xy"]]}   # bent rays from around it
             self.layers.append(self._layer(sc, "dock", region, framed, t, float(cfg["dock_bin_m"]), strength))
@@ -175,7 +168,7 @@ class CausticSun:
     def photons(self, layer: Layer, seed: int, path: str) -> np.ndarray:
         """(N, 3) world points where this frame's refracted sun rays through the layer's
         camera first land on a receiver."""
-        O, EU, EV = (np.array([getattr(r, a) for r in self.recorders]) for a in ("o", "eu", "ev"))
+        O, EU, EV = self.planes
         self.ps.camera = layer.cam
         self.ps.render.resolution_x, self.ps.render.resolution_y = layer.cam["resolution"]
         out = []
