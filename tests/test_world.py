@@ -92,16 +92,22 @@ def test_world_off_costs_nothing_and_changes_nothing(monkeypatch):
     _open_water_up(_post(None))
 
 
+def _floor_map(waves, depth_m: float, scattering: float = 0.0, size: int = 300, bin_m: float = 0.02,
+               origin=(37.0, -20.0)) -> np.ndarray:
+    """The fast caustic map (caustic_map.light_map) of a floor ``depth_m`` below, zenith sun."""
+    from blendgen.physics import caustic_map
+    patch = caustic_map.Patch(origin[0], origin[1], bin_m, (size, size))
+    return caustic_map.light_map(waves, patch, depth_m, 1.7, None, scattering, 0.9)
+
+
 def test_caustics_conserve_energy():
-    """Mean irradiance = the flat surface's (2 %), on a patch other than the table's, at depths
-    before and after the first focus; never negative."""
+    """Mean irradiance = the flat surface's (2 %) before and far beyond the first focus;
+    never negative."""
     waves = sf.WaveField.sample(3, 2.0)
-    table = sf.mean_ray_tube_factor(waves, scattering=0.05)
-    x, y = np.meshgrid(np.linspace(37, 77, 500, dtype=np.float32), np.linspace(-20, 20, 500, dtype=np.float32))
     for h in (0.5, 2.0, 6.0, 15.0):
-        m = sf.caustic_factor(waves, x, y, h, 1.7, 0.05, mean_table=table)
+        m = _floor_map(waves, h, 0.05, size=400, bin_m=0.04)
         assert m.min() >= 0
-        assert m.mean() == pytest.approx(1.0, abs=0.03), h
+        assert m.mean() == pytest.approx(1.0, abs=0.02), h
 
 
 @pytest.mark.parametrize("b", [0.1, 0.3])
@@ -111,27 +117,23 @@ def test_caustic_contrast_falls_with_depth(b):
     with depth; at the same depth, more turbid water has lower contrast."""
     waves = sf.WaveField.sample(3, 1.0)
     hf = sf.focal_depth(waves)
-    table = sf.mean_ray_tube_factor(waves, scattering=b)
-    x, y = np.meshgrid(np.linspace(0, 30, 400, dtype=np.float32), np.linspace(0, 30, 400, dtype=np.float32))
     depths = [f * hf for f in (1.5, 2.0, 3.0, 4.0, 6.0)]
-    cv = [float(sf.caustic_factor(waves, x, y, h, 0.0, b, mean_table=table).std()) for h in depths]
+    cv = [float(_floor_map(waves, h, b, size=256, bin_m=0.04).std()) for h in depths]
     assert all(c1 > c2 for c1, c2 in zip(cv, cv[1:])), cv
-    clearer = float(sf.caustic_factor(waves, x, y, depths[1], 0.0, b / 3).std())
+    clearer = float(_floor_map(waves, depths[1], b / 3, size=256, bin_m=0.04).std())
     assert clearer > cv[1]
 
 
 def test_caustics_rise_from_zero_at_the_surface():
     """At the surface there is no focusing yet: the pattern grows with depth at first."""
     waves = sf.WaveField.sample(3, 1.0)
-    x, y = np.meshgrid(np.linspace(0, 30, 300, dtype=np.float32), np.linspace(0, 30, 300, dtype=np.float32))
-    cv = [float(sf.caustic_factor(waves, x, y, h, 0.0, 0.0).std()) for h in (0.0, 0.2, 1.0)]
+    cv = [float(_floor_map(waves, h, size=200).std()) for h in (0.0, 0.2, 1.0)]
     assert cv[0] < 1e-6 < cv[1] < cv[2]
 
 
 def test_flat_surface_has_no_caustics():
     flat = sf.WaveField.sample(3, 0.0, mss=0.0)
-    m = sf.caustic_factor(flat, np.linspace(0, 5, 50), np.zeros(50), 4.0, 0.0)
-    np.testing.assert_allclose(m, 1.0, atol=1e-6)
+    np.testing.assert_allclose(_floor_map(flat, 4.0, 0.2, size=64), 1.0, atol=1e-5)
 
 
 def test_caustics_move_the_floor_light_and_keep_its_mean():
@@ -309,20 +311,42 @@ def test_total_internal_reflection_mirrors_the_pool():
     assert img[: h // 2].max() > 0.5                          # not the (zero) veil
 
 
-def test_caustics_fade_with_the_pixel_footprint():
-    """Face-on floor: the fade is exp(-(r px / cell)^2 / 2) of the footprint r px (analytic, 2 %):
-    ~1 at 1 m, ~0.49 at 30 m (footprint 0.12 m), ~0 at 100 m (anti-aliasing)."""
+def test_pixel_footprint_on_floor_and_wall():
+    """Face-on floor: the footprint is r px (analytic, 1 %); seen at 60 deg from its normal,
+    r px / cos 60; moved up a 30-deg beam onto the surface plane, a floor's stays and a wall's
+    shrinks by sqrt(|n . beam| / |beam_z|) (sqrt(tan 30 deg))."""
     from blendgen.pipeline import world_post
-    rays = np.zeros((9, 9, 3), np.float32)
-    rays[..., 2] = -1.0
-    rays[..., 0] = np.linspace(-0.01, 0.01, 9)[None, :]
-    rays[..., 1] = np.linspace(-0.01, 0.01, 9)[:, None]
-    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
-    for dist in (1.0, 30.0, 100.0):
-        rng = (dist / -rays[..., 2]).astype(np.float32)
-        fade = world_post.footprint_fade(rays, rng, 2.0 / 500.0)[4, 4]
-        expect = math.exp(-0.5 * (dist * 2.0 / 500.0 / world_post.CAUSTIC_CELL_M) ** 2)
-        assert fade == pytest.approx(expect, rel=0.02, abs=1e-3), dist
+
+    def plane(normal, dist, axis):
+        """Rays of a 9x9 pinhole (0.2 mrad/px) along ``axis`` hitting the plane n.x = -dist."""
+        rays = np.zeros((9, 9, 3), np.float32)
+        u, v = np.meshgrid(np.linspace(-0.0008, 0.0008, 9), np.linspace(-0.0008, 0.0008, 9))
+        e1 = np.cross(axis, [0.0, 1.0, 0.0] if abs(axis[1]) < 0.9 else [1.0, 0.0, 0.0])
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(axis, e1)
+        rays[:] = np.asarray(axis, np.float32) + u[..., None] * e1 + v[..., None] * e2
+        rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+        rng = (-dist / np.einsum("ijk,k->ij", rays, normal)).astype(np.float32)
+        return rays, rng
+
+    floor = np.array([0.0, 0.0, 1.0])
+    for dist in (1.0, 30.0):
+        rays, rng = plane(floor, dist, np.array([0.0, 0.0, -1.0]))
+        n = world_post.facing_normals(rays, rng)
+        np.testing.assert_allclose(n[4, 4], floor, atol=1e-4)
+        f = world_post.footprint_m(rays, rng, n, 2e-4)[4, 4]
+        assert f == pytest.approx(dist * 2e-4, rel=0.01)
+    slant = np.array([math.sin(math.radians(60)), 0.0, -math.cos(math.radians(60))])
+    rays, rng = plane(floor, 2.0, slant)
+    n = world_post.facing_normals(rays, rng)
+    assert world_post.footprint_m(rays, rng, n, 2e-4)[4, 4] == pytest.approx(4.0 * 2e-4 / 0.5, rel=0.01)
+    beam = np.array([math.sin(math.radians(30)), 0.0, -math.cos(math.radians(30))])
+    assert world_post.footprint_m(rays, rng, n, 2e-4, beam)[4, 4] == pytest.approx(4.0 * 2e-4 / 0.5, rel=0.01)
+    wall = np.array([-1.0, 0.0, 0.0])                     # faces the sun travelling along +x
+    rays, rng = plane(wall, 2.0, np.array([1.0, 0.0, 0.0]))
+    n = world_post.facing_normals(rays, rng)
+    expect = 2.0 * 2e-4 * math.sqrt(math.tan(math.radians(30)))
+    assert world_post.footprint_m(rays, rng, n, 2e-4, beam)[4, 4] == pytest.approx(expect, rel=0.01)
 
 
 def _pool_view(world: WorldPost, t=0.3):
@@ -361,17 +385,18 @@ def test_half_resolution_slopes_change_the_image_by_few_dn(monkeypatch):
     assert np.abs(half - full).max() > 0                     # the stride is really in use
 
 
-def test_scattered_mtf_limits():
-    """Small-angle MTF of the scattered light: long waves keep their pattern (-> 1), short ones
-    lose it (-> 0); more forward scattering keeps more; isotropic scattering keeps none; in the
-    single-scattering limit it is (1 - exp(-a k h)) / (a k h) (analytic, 1e-3)."""
-    k = np.array([1e-4, 1.0, 10.0, 1e4], np.float32)
-    m = sf.scattered_mtf(k, 2.0, 0.3, 0.9)
+def test_scattered_transfer_limits():
+    """Small-angle transfer function of the scattered light: long waves keep their pattern
+    (-> 1), short ones lose it (-> 0); more forward scattering keeps more; isotropic scattering
+    keeps none; in the single-scattering limit it is (1 - exp(-a k h)) / (a k h) (analytic, 1e-3)."""
+    from blendgen.physics.caustic_map import scattered_transfer
+    k = np.array([1e-4, 1.0, 10.0, 1e4])
+    m = scattered_transfer(k, 2.0, 0.3, 0.9)
     assert m[0] == pytest.approx(1.0, abs=1e-3) and m[-1] < 1e-3 and np.all(np.diff(m) < 0)
-    assert np.all(sf.scattered_mtf(k, 2.0, 0.3, 0.95)[1:3] > m[1:3])
-    assert not sf.scattered_mtf(k, 2.0, 0.3, 0.0).any()
+    assert np.all(scattered_transfer(k, 2.0, 0.3, 0.95)[1:3] > m[1:3])
+    assert not scattered_transfer(k, 2.0, 0.3, 0.0)[1:].any()
     a = (1 - 0.9) / math.sqrt(0.9)
-    single = sf.scattered_mtf(np.float32([10.0]), 2.0, 1e-5, 0.9)[0]
+    single = scattered_transfer(np.array([10.0]), 2.0, 1e-5, 0.9)[0]
     assert single == pytest.approx((1 - math.exp(-a * 10 * 2)) / (a * 10 * 2), rel=1e-3)
 
 

@@ -18,24 +18,14 @@ radiance of the water below; outside it only the reflected water.
 
 Caustics (Schenck 1957, "On the focusing of sunlight by ocean waves"; the small-slope ray
 map of Zaneveld, Boss & Barnard 2001): a sun ray refracted at a surface of slope
-``grad eta`` is deflected by ``alpha grad eta`` (``alpha = 1 - 1/n`` at normal incidence),
-so the point it reaches at depth ``h`` moves by ``h alpha grad eta`` and the irradiance is
-``E / E_0 = 1 / |det(I + h alpha Hess(eta))|`` (ray-tube area; bright lines where the
-determinant vanishes: the caustic network). For an oblique sun the deflection is a matrix,
-larger along the sun's heading (:func:`sun_deflection`, Snell's law differentiated; 0.39 /
-0.30 at 40 deg from the zenith against 0.25), and ``h`` the slant beam path. The pattern's contrast
-falls with depth because (i) the sun's disc (radius 0.265 deg in air) blurs a wave of
-wavenumber ``k`` at depth ``h`` by ``exp(-(k h theta_sun / n)^2 / 2)``, and (ii) light
-scattered on the way down is displaced by its scattering angle times its remaining path:
-the unscattered beam ``exp(-b h)`` carries the sharp pattern, the scattered light a
-pattern of long waves only (small-angle theory, :func:`scattered_mtf`; Wells 1973).
-Measured irradiance fluctuations fall with depth the same way (Maritorena, Morel &
-Gentili 2000, Limnol. Oceanogr. 45(6)). The ray tube is evaluated at the ray's preimage on
-the surface (one or two fixed-point steps, :func:`preimage`); beyond the first focal depth the
-map folds and we keep that one preimage, clip the factor at folds to ``CAUSTIC_MAX`` and
-renormalise its area mean to 1 per depth (energy conservation), an approximation of
-summing over all preimages. Judge: ``dockbench bench caustics`` (Cycles photon map,
-:mod:`blendgen.blender.caustic_reference`).
+``grad eta`` is deflected by ``D grad eta`` (``D = (1 - 1/n) I`` at normal incidence; for an
+oblique sun a matrix, larger along the sun's heading: :func:`sun_deflection`, Snell's law
+differentiated), so after a slant beam path ``h`` it lands ``h D grad eta`` from its straight
+path; ``1 / |det(I + h D Hess(eta))|`` is the ray tube's focusing and its first zero, at
+:func:`focal_depth`, the first focus. The irradiance, all preimages summed, the sun's disc and
+the light scattered on the way down: :mod:`blendgen.physics.caustic_map`. Measured
+irradiance fluctuations fall with depth the same way (Maritorena, Morel & Gentili 2000,
+Limnol. Oceanogr. 45(6)).
 """
 from __future__ import annotations
 
@@ -48,7 +38,6 @@ N_WATER = 1.333                     # refractive index of water (visible, 20 C)
 G = 9.81                            # m/s^2
 GAMMA_OVER_RHO = 7.3e-5             # surface tension / density of water, m^3/s^2
 SUN_RADIUS_RAD = math.radians(0.265)
-CAUSTIC_MAX = 8.0                   # clip of the ray-tube factor at a fold (before renormalising)
 
 
 def critical_angle_rad(n: float = N_WATER) -> float:
@@ -121,15 +110,6 @@ class WaveField:
         w = (self.amp[:, None] * self.k).astype(np.float32)
         return _weighted_sum(c, w[:, 0]), _weighted_sum(c, w[:, 1])
 
-    def hessian(self, x, y, t: float = 0.0, damping=None):
-        """(eta_xx, eta_xy, eta_yy) at x, y, t; ``damping`` (..., n) or (n,) multiplies each wave."""
-        s = self._arg(x, y, t)
-        np.sin(s, out=s)
-        if damping is not None:
-            s *= np.asarray(damping, np.float32)
-        kx, ky = self.k[:, 0], self.k[:, 1]
-        return tuple(_weighted_sum(s, (-self.amp * kk).astype(np.float32)) for kk in (kx * kx, kx * ky, ky * ky))
-
 
 def waves_for(seed: int, wind_mps: float) -> WaveField:
     """The scene's surface waves: Cox-Munk slope for wind > 0; wind 0 is a flat mirror (a still
@@ -171,15 +151,6 @@ def sun_disc_radiance(d_up, normal, cos_up, reflectance, to_sun, irradiance: flo
     return np.where(k > 0, (1.0 - reflectance) * np.float32(n * n) * L * cover, 0.0).astype(np.float32)
 
 
-def sun_disc_damping(k_abs: np.ndarray, path_m, n: float = N_WATER) -> np.ndarray:
-    """Share of each wave's focusing left at beam path ``path_m`` (...) -> (..., n): the sun's
-    disc (angular radius ``SUN_RADIUS_RAD / n`` in water) blurs a wave of wavenumber k by
-    ``exp(-(k h theta_sun / n)^2 / 2)``."""
-    h = np.asarray(path_m, np.float32)[..., None]
-    blur = np.float32(SUN_RADIUS_RAD / n) * h * np.asarray(k_abs, np.float32)
-    return np.exp(-0.5 * blur * blur)
-
-
 def focal_depth(waves: WaveField, n: float = N_WATER) -> float:
     """Depth (m) of the first caustic focus, ``1 / (alpha rms(laplacian eta))``: where the ray
     map ``x + h alpha grad eta`` starts to fold (inf for a flat surface)."""
@@ -210,157 +181,6 @@ def sun_deflection(sun_travel_dir=None, n: float = N_WATER) -> np.ndarray:
         return np.eye(2) * a_y
     R = np.array([[d[0], -d[1]], [d[1], d[0]]]) / sin_i
     return R @ np.diag([a_x, a_y]) @ R.T
-
-
-def _deflection(deflect, n: float) -> np.ndarray:
-    return sun_deflection(None, n) if deflect is None else np.asarray(deflect, float).reshape(2, 2)
-
-
-def _deflect_key(deflect, n: float) -> tuple | None:
-    """The energy table's key of a sun deflection (None: the zenith, given as None or as its matrix)."""
-    if deflect is None or np.array_equal(np.asarray(deflect, float), sun_deflection(None, n)):
-        return None
-    return tuple(float(v) for v in np.asarray(deflect, float).ravel())
-
-
-def _path_deflection(D: np.ndarray, h):
-    """``A = h D`` as (a11, a12, a22) float32, h (...) the slant paths."""
-    return tuple(np.float32(D[i, j]) * h for i, j in ((0, 0), (0, 1), (1, 1)))
-
-
-def _map_step(waves: WaveField, x, y, px, py, h, D, t: float):
-    """``x - h D grad eta(px, py)`` (the inverted small-slope ray map, one step)."""
-    gx, gy = waves.slope(px, py, t)
-    a11, a12, a22 = _path_deflection(D, h)
-    return x - (a11 * gx + a12 * gy), y - (a12 * gx + a22 * gy)
-
-
-def preimage(waves: WaveField, x, y, path_m, t: float, n: float = N_WATER, deflect=None):
-    """Where the sun ray that reaches (x, y) at beam path ``path_m`` crossed the surface: the
-    fixed point of ``xi = x - h alpha grad eta(xi)`` (the small-slope ray map inverted), one
-    step from ``xi = x`` and a second one weighted by ``clip(2 - h / h_f, 0, 1)`` (``h_f``
-    :func:`focal_depth`): the iteration contracts before the first focus and stops
-    converging beyond it, where the map folds and a second step draws spurious loops.
-    Checked against the Cycles photon map (``bench caustics``); evaluating the ray tube at
-    the point itself overstated the contrast at 1 m by ~40 % (the weight's shape was chosen
-    with that table in view: say so when quoting it). ``deflect``: :func:`sun_deflection`
-    (None: the sun at the zenith, ``(1 - 1/n) I``); ``path_m`` the slant beam path."""
-    h = np.maximum(np.asarray(path_m, np.float32), 0)
-    D = _deflection(deflect, n)
-    x, y = np.asarray(x, np.float32), np.asarray(y, np.float32)
-    px, py = _map_step(waves, x, y, x, y, h, D, t)
-    # the focal depth scales with 1 / sqrt(det D) (an oblique sun focuses sooner)
-    scale = math.sqrt(abs(np.linalg.det(D))) / (1.0 - 1.0 / n)
-    w = np.clip(2.0 - h * np.float32(scale) / np.float32(focal_depth(waves, n)), 0.0, 1.0)
-    if not np.any(w > 0):
-        return px, py
-    qx, qy = _map_step(waves, x, y, px, py, h, D, t)
-    return px + w * (qx - px), py + w * (qy - py)
-
-
-def scattered_mtf(k_abs: np.ndarray, path_m, scattering: float, g: float) -> np.ndarray:
-    """Share of each wave's focusing kept by the sunlight scattered on the way down,
-    (...) -> (..., n), small-angle theory (Wells 1973, "Theory of small angle scattering",
-    AGARD LS-61): a photon scattered at height ``s`` above the point is displaced by ``s theta``,
-    so a pattern of wavenumber k keeps ``M_k = exp(-b [h - (1 - exp(-a k h)) / (a k)])`` of
-    its contrast in the whole (unscattered + scattered) beam, with ``exp(-a k theta)`` the
-    2-D transform of the small-angle Henyey-Greenstein phase function
-    (``1 + g^2 - 2g cos theta ~ (1-g)^2 + g theta^2``: a Poisson kernel of width
-    ``a = (1 - g) / sqrt(g)`` rad). Returns the scattered part alone,
-    ``(M_k - e^{-bh}) / (1 - e^{-bh})``: 1 for long waves, 0 for short ones and for ``g <= 0``."""
-    h = np.maximum(np.asarray(path_m, np.float32), np.float32(1e-6))[..., None]
-    if g <= 0.0 or scattering <= 0.0:          # isotropic (or back-) scattering: no pattern survives
-        return np.zeros(np.broadcast_shapes(h.shape, np.shape(k_abs)), np.float32)
-    ak = np.float32((1.0 - min(g, 0.9999)) / math.sqrt(g)) * np.asarray(k_abs, np.float32)
-    b = np.float32(scattering)
-    q = -np.expm1(-ak * h) / ak                               # (1 - exp(-a k h)) / (a k)
-    return (np.exp(-b * h) * np.expm1(b * q) / -np.expm1(-b * h)).astype(np.float32)
-
-
-def _ray_tube_factors(waves: WaveField, x, y, path_m, t: float, n: float, dampings, deflect=None) -> list:
-    """``1 / |det(I + L D H)|`` at the ray's :func:`preimage`, clipped to [0, CAUSTIC_MAX]
-    (single-preimage ray map), L the slant path, D :func:`sun_deflection` (None: the zenith,
-    ``(1 - 1/n) I``), H the Hessian with each wave damped by each of ``dampings`` ((..., n)
-    arrays); one factor array per damping."""
-    h = np.maximum(np.asarray(path_m, np.float32), 0)
-    x, y = preimage(waves, x, y, h, t, n, deflect)
-    sn = np.sin(waves._arg(x, y, t))
-    a11, a12, a22 = _path_deflection(_deflection(deflect, n), h)
-    kx, ky = waves.k[:, 0], waves.k[:, 1]
-    out = []
-    for damp in dampings:
-        sd = sn * damp
-        hxx, hxy, hyy = (_weighted_sum(sd, (-waves.amp * kk).astype(np.float32)) for kk in (kx * kx, kx * ky, ky * ky))
-        det = ((1 + a11 * hxx + a12 * hxy) * (1 + a12 * hxy + a22 * hyy)     # det(I + A H), A = L D
-               - (a11 * hxy + a12 * hyy) * (a12 * hxx + a22 * hxy))
-        out.append(np.minimum(1.0 / np.maximum(np.abs(det), np.float32(1.0 / CAUSTIC_MAX)), np.float32(CAUSTIC_MAX)))
-    return out
-
-
-def _dampings(waves: WaveField, path_m, n: float, scattering: float, g: float) -> list:
-    """Per-wave dampings: the sun's disc (unscattered beam); with scattering, also the sun's
-    disc times :func:`scattered_mtf` (scattered beam)."""
-    k = np.hypot(waves.k[:, 0], waves.k[:, 1])
-    sun = sun_disc_damping(k, path_m, n)
-    return [sun] if scattering <= 0 else [sun, sun * scattered_mtf(k, path_m, scattering, g)]
-
-
-#: Beam paths (m) of the energy table of :func:`mean_ray_tube_factor`.
-MEAN_TABLE_PATHS = np.concatenate([[0.0], np.geomspace(0.05, 200.0, 47)]).astype(np.float32)
-
-
-@dataclass(frozen=True)
-class CausticTable:
-    """Area means (48,) of the unscattered and scattered beams' ray-tube factors at
-    ``MEAN_TABLE_PATHS`` for one water (``scattering`` 1/m, HG ``g``) and sun (``deflect``,
-    :func:`sun_deflection` as a tuple of 4; None: the zenith)."""
-    scattering: float
-    g: float
-    means: np.ndarray                     # (1 or 2, 48)
-    deflect: tuple | None = None
-
-
-def mean_ray_tube_factor(waves: WaveField, n: float = N_WATER, grid: int = 128, scattering: float = 0.0,
-                         g: float = 0.9, deflect=None) -> CausticTable:
-    """Area mean of the ray-tube factors at each of ``MEAN_TABLE_PATHS``, over a patch
-    three longest wavelengths wide. Beyond the first focal depth the single-preimage map
-    counts the folded sheets wrongly and its mean leaves 1; dividing by this table restores
-    energy conservation (mean irradiance = the flat-surface value) depth by depth."""
-    side = 3 * 2 * np.pi / float(np.hypot(waves.k[:, 0], waves.k[:, 1]).min())
-    x, y = np.meshgrid(*(np.linspace(0, side, grid, endpoint=False, dtype=np.float32),) * 2)
-    cols = [[float(m.mean()) for m in _ray_tube_factors(waves, x, y, h, 0.0, n, _dampings(waves, h, n, scattering, g),
-                                                          deflect)]
-            for h in MEAN_TABLE_PATHS]
-    return CausticTable(float(scattering), float(g), np.array(cols, np.float32).T, _deflect_key(deflect, n))
-
-
-def caustic_factor(waves: WaveField, x, y, path_m, t: float, scattering: float = 0.0,
-                   n: float = N_WATER, mean_table: CausticTable | None = None, g: float = 0.9,
-                   deflect=None) -> np.ndarray:
-    """Sun irradiance at points over its flat-surface value (module docstring), (x.shape):
-    ``1 + e^{-bh} (m_0 / <m_0> - 1) + (1 - e^{-bh}) (m_s / <m_s> - 1)``: ``m_0`` the ray-tube
-    factor of the sun-disc-damped surface carried by the unscattered beam ``e^{-bh}``, ``m_s``
-    that of the surface further damped by :func:`scattered_mtf` carried by the scattered
-    light (``b`` the scattering coefficient 1/m, HG ``g``), ``<.>(h)`` their area means
-    (:func:`mean_ray_tube_factor`: energy conservation). ``x``, ``y``: where each point's sun
-    ray crosses the surface; ``path_m`` its slant beam path below the surface (m); ``deflect``
-    the sun's :func:`sun_deflection` (None: the zenith); ``mean_table`` the cached table of
-    these waves, this water and this sun (else computed)."""
-    table = (mean_ray_tube_factor(waves, n, scattering=scattering, g=g, deflect=deflect) if mean_table is None
-             else mean_table)
-    if (table.scattering, table.g) != (float(scattering), float(g)) and scattering > 0:
-        raise ValueError(f"caustic table is for scattering {table.scattering}, g {table.g}; "
-                         f"called with {scattering}, {g}")
-    if table.deflect != _deflect_key(deflect, n):
-        raise ValueError(f"caustic table is for the sun deflection {table.deflect}, "
-                         f"called with {_deflect_key(deflect, n)}")
-    h = np.maximum(np.asarray(path_m, np.float32), 0)
-    ms = _ray_tube_factors(waves, x, y, h, t, n, _dampings(waves, h, n, scattering, g), deflect)
-    beam = np.exp(-np.float32(scattering) * h)
-    out = 1 + beam * (ms[0] / np.interp(h, MEAN_TABLE_PATHS, table.means[0]).astype(np.float32) - 1)
-    if len(ms) > 1:
-        out += (1 - beam) * (ms[1] / np.interp(h, MEAN_TABLE_PATHS, table.means[1]).astype(np.float32) - 1)
-    return out
 
 
 def refracted_sun(sun_travel_dir, n: float = N_WATER) -> np.ndarray:

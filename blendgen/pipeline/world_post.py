@@ -13,8 +13,10 @@ entirely when the sequence has them off (``SequencePost.world`` None or False).
   summed path length), else the veiling light of open water at the camera's depth; the
   reference traces the real reflection.
 - Caustics: each surface point's sun-lit part ``J - albedo L_amb`` is multiplied by the
-  focusing factor of its sun ray (``surface.caustic_factor``) at its depth, with the
-  water's scattering coefficient (mean over RGB) and phase mean cosine ``g`` as the turbidity.
+  focusing factor of its sun ray at its beam path (``caustic_map.frame_factor``: the surface's
+  ray map carried forward, all preimages summed), binned as coarse as the pixel's footprint,
+  with the water's scattering coefficient (mean over RGB) and phase mean cosine ``g`` as
+  the turbidity.
 """
 from __future__ import annotations
 
@@ -22,22 +24,13 @@ import functools
 
 import numpy as np
 
-from blendgen.physics import surface as sf
+from blendgen.physics import caustic_map, surface as sf
 
 
 @functools.lru_cache(maxsize=8)
 def waves_of(seed: int, wind_mps: float) -> sf.WaveField:
     """The sequence's surface waves (cached: the same for every frame)."""
     return sf.waves_for(seed, wind_mps)
-
-
-@functools.lru_cache(maxsize=8)
-def caustic_table(seed: int, wind_mps: float, scattering: float = 0.0, g: float = 0.9,
-                  sun_travel_dir: tuple | None = None) -> sf.CausticTable:
-    """Energy table of the sequence's caustics in its water and under its sun
-    (``surface.mean_ray_tube_factor``), once per sequence (~0.2-0.4 s)."""
-    return sf.mean_ray_tube_factor(waves_of(seed, wind_mps), scattering=scattering, g=g,
-                                   deflect=sf.sun_deflection(sun_travel_dir))
 
 
 #: Pixel stride of the wave-slope grid of :func:`add_surface` (2: slopes on every second
@@ -132,58 +125,69 @@ def _mirror(d_refl, K, T, rgb, range_m, depth):
     return rgb.reshape(-1, 3)[at], range_m.ravel()[at], depth.ravel()[at], ok
 
 
-#: Width (m) of the caustic network's cells for waves of 0.25 m and up: the pattern averages
-#: out over a pixel footprint much wider than this.
-CAUSTIC_CELL_M = 0.1
+def facing_normals(rays, range_m) -> np.ndarray:
+    """(h, w, 3) float32 unit normals of the surface seen at each pixel, turned towards the
+    camera: the cross product of the central differences of the hit points (one-sided at the
+    frame's border); 0 where a neighbour is missing (object edges, open water)."""
+    P = np.asarray(rays, np.float32) * np.where(np.isfinite(range_m), range_m, np.nan).astype(np.float32)[..., None]
+    du, dv = np.empty_like(P), np.empty_like(P)
+    np.subtract(P[:, 2:], P[:, :-2], out=du[:, 1:-1])
+    du[:, 0], du[:, -1] = P[:, 1] - P[:, 0], P[:, -1] - P[:, -2]
+    np.subtract(P[2:], P[:-2], out=dv[1:-1])
+    dv[0], dv[-1] = P[1] - P[0], P[-1] - P[-2]
+    n = np.empty_like(P)                                       # du x dv, component by component
+    n[..., 0] = du[..., 1] * dv[..., 2] - du[..., 2] * dv[..., 1]
+    n[..., 1] = du[..., 2] * dv[..., 0] - du[..., 0] * dv[..., 2]
+    n[..., 2] = du[..., 0] * dv[..., 1] - du[..., 1] * dv[..., 0]
+    norm = np.sqrt(np.einsum("ijk,ijk->ij", n, n))
+    # turned towards the camera: the sign that makes n . ray negative
+    scale = np.where(np.einsum("ijk,ijk->ij", n, np.asarray(rays, np.float32)) > 0, -1.0, 1.0).astype(np.float32)
+    ok = np.isfinite(norm) & (norm > 0)
+    scale = np.where(ok, scale / np.where(ok, norm, 1), 0).astype(np.float32)
+    n *= scale[..., None]
+    return np.nan_to_num(n, copy=False)
 
 
-def footprint_fade(rays, range_m, px_rad: float) -> np.ndarray:
-    """(h, w) factor ``exp(-(f / CAUSTIC_CELL_M)^2 / 2)`` of each sample's footprint
-    ``f = r px_rad / |cos(incidence)|`` (``px_rad`` the sample spacing in radians; the
-    surface normal from the cross product of the neighbouring hit points): the contrast a
-    pixel keeps of a pattern finer than it (anti-aliasing: grazing, distant floors go grey,
-    not speckled). Object edges (no consistent normal) fade too."""
-    P = rays * np.where(np.isfinite(range_m), range_m, 0)[..., None]
-    n = np.cross(np.gradient(P, axis=1), np.gradient(P, axis=0))
-    norm = np.linalg.norm(n, axis=-1)
-    cos = np.abs(np.einsum("ijk,ijk->ij", rays, n)) / np.maximum(norm, 1e-12)
-    f = range_m * np.float32(px_rad) / np.maximum(cos, 1e-3)
-    with np.errstate(invalid="ignore"):
-        fade = np.exp(-0.5 * (f / CAUSTIC_CELL_M) ** 2)
-    return np.where(np.isfinite(fade), fade, 0).astype(np.float32)
+def footprint_m(rays, range_m, normals, px_rad: float, beam=None) -> np.ndarray:
+    """(h, w) width (m) of surface each pixel stands for, ``r px_rad / |cos(incidence)|``
+    (``px_rad`` the pixel's angle, ``normals`` :func:`facing_normals`; inf where there is
+    none). ``beam`` (3,), a unit light direction: the width of that patch moved up the beam
+    onto a horizontal plane instead (times ``sqrt(|n.beam| / |beam_z|)``: a wall's patch
+    shrinks, a floor's stays)."""
+    cos = np.abs(np.einsum("ijk,ijk->ij", rays, normals))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        f = range_m * np.float32(px_rad) / cos
+        if beam is not None:
+            b = np.asarray(beam, np.float32)
+            f = f * np.sqrt(np.abs(np.einsum("ijk,k->ij", normals, b)) / max(abs(float(b[2])), 1e-3))
+    return np.where(np.isfinite(f) & (cos > 1e-3), f, np.inf).astype(np.float32)
 
 
 def add_caustics(rgb, albedo, range_m, depth, wp, rays, K, T_world_cam, t: float, scattering: float, g: float = 0.9):
     """Sun-lit surfaces times their focusing factor (module docstring); a new (H, W, 3) array.
     ``depth`` (H, W) metres below the surface of each pixel's surface point; ``rays`` (H, W, 3)
-    unit world directions. The factor is evaluated on every second pixel in x and y and
-    interpolated bilinearly (4x cheaper; the network's lines are several pixels wide but
-    for the farthest floor)."""
-    import cv2
+    unit world directions. Every pixel reads a map binned as coarse as its footprint, so it
+    sees the pattern's mean over it (the anti-aliasing a render's pixel filter does)."""
     T = np.asarray(T_world_cam, float)
     depth = np.broadcast_to(np.asarray(depth, np.float32), range_m.shape)
-    hit_full = np.isfinite(range_m) & (depth > 0)
-    if not hit_full.any():
-        return rgb
-    hit = hit_full[::2, ::2]
-    d = rays[::2, ::2][hit]
-    r = range_m[::2, ::2][hit].astype(np.float32)
-    h = depth[::2, ::2][hit]
     sun = sf.refracted_sun(wp.sun_travel_dir)
+    normals = facing_normals(rays, range_m)
+    # sun-facing surfaces only: one turned away from the beam (or grazed by it) has no sunlight to focus
+    hit = np.isfinite(range_m) & (depth > 0) & (np.einsum("ijk,k->ij", normals, sun.astype(np.float32)) < -0.02)
+    if not hit.any():
+        return rgb
+    d = rays[hit]
+    r = range_m[hit].astype(np.float32)
+    h = depth[hit]
     back = (-sun[:2] / -sun[2]).astype(np.float32)            # horizontal run per metre of rise
     x = np.float32(T[0, 3]) + r * d[:, 0] + h * back[0]
     y = np.float32(T[1, 3]) + r * d[:, 1] + h * back[1]
     path = h / np.float32(-sun[2])                             # slant path of the beam to the point
-    gain = np.zeros(hit.shape, np.float32)                     # m - 1 on the half grid
-    sun_dir = tuple(float(v) for v in wp.sun_travel_dir)
-    gain[hit] = sf.caustic_factor(waves_of(wp.wave_seed, wp.wind_mps), x, y, path, t, scattering, g=g,
-                                  mean_table=caustic_table(wp.wave_seed, wp.wind_mps, scattering, g, sun_dir),
-                                  deflect=sf.sun_deflection(sun_dir)) - 1
-    gain *= footprint_fade(rays[::2, ::2], range_m[::2, ::2], 2.0 / float(K[0, 0]))
-    hgt, wid = range_m.shape
-    gain = cv2.resize(gain, (wid, hgt), interpolation=cv2.INTER_LINEAR)
-    gain[~hit_full] = 0
+    gain = np.zeros(hit.shape, np.float32)                     # M - 1
+    foot = footprint_m(rays, range_m, normals, 1.0 / float(K[0, 0]), sun)[hit]
+    gain[hit] = caustic_map.frame_factor(waves_of(wp.wave_seed, wp.wind_mps), x, y, path, foot, t,
+                                         sf.sun_deflection(wp.sun_travel_dir), scattering, g) - 1
     sun_lit = np.asarray(rgb, np.float32)
     if albedo is not None and wp.ambient_radiance > 0:
         sun_lit = np.maximum(sun_lit - albedo * np.float32(wp.ambient_radiance), 0)
-    return rgb + sun_lit * cv2.cvtColor(gain, cv2.COLOR_GRAY2BGR)
+    return rgb + sun_lit * gain[..., None]

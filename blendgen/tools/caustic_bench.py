@@ -1,4 +1,4 @@
-"""``bench caustics``: fast caustics (:func:`blendgen.physics.surface.caustic_factor`) against
+"""``bench caustics``: fast caustics (:func:`blendgen.physics.caustic_map.light_map`) against
 the Cycles photon-map reference (:mod:`blendgen.blender.caustic_reference`).
 
 Scene: a 2 x 2 m patch of floor at depth ``h`` under the seeded wave surface (the
@@ -8,8 +8,8 @@ channel of a Jerlov type (``sigma_a``, ``sigma_s``, HG ``g`` of
 ``water_presets.jerlov_coefficients``). Per (depth, water) it reports:
 
 - contrast ``std E / mean E`` of the reference (its photon shot-noise variance, the
-  per-bin sum of squared photon contributions, subtracted) and of the fast factor
-  averaged over the same bins (4 x 4 samples each);
+  per-bin sum of squared photon contributions, subtracted) and of the fast map made on the
+  same bins;
 - mean irradiance on the floor over the sun's above the surface (normal to its beam):
   reference (Fresnel losses, absorption and scattered light included) and the fast path's
   ``cos(zenith) exp(-Kd h)`` (Jerlov Kd, green; ``optics.downwelling``);
@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from blendgen.blender.caustic_reference import sun_travel      # numpy only: no bpy at import
-from blendgen.physics import surface as sf
+from blendgen.physics import caustic_map, surface as sf
 
 GREEN = 1
 WAVE_SEED, WIND_MPS = 7, 2.0
@@ -83,18 +83,15 @@ def run_reference(spec: dict, out: Path) -> dict:
     return dict(np.load(out))
 
 
-def fast_map(spec: dict, sigma_s: float, g: float = 0.9, ss: int = 4) -> np.ndarray:
-    """The fast caustic factor on the reference's bins (bins, bins), each the mean of ss x ss
-    samples, evaluated where each floor point's sun ray crossed the surface (:func:`sun_geometry`)."""
+def fast_map(spec: dict, sigma_s: float, g: float = 0.9) -> np.ndarray:
+    """The fast caustic map on the reference's bins (bins, bins): the floor's points indexed by
+    where their sun rays crossed the surface (:func:`sun_geometry`), the beam path the slant one."""
     waves = sf.waves_for(spec["wave_seed"], spec["wind_mps"])
-    nb, half = int(spec["bins"]), spec["patch_m"] / 2
-    c = np.linspace(-half, half, nb * ss, endpoint=False, dtype=np.float32) + np.float32(half / nb / ss)
-    x, y = np.meshgrid(c, c)
+    nb, half, h = int(spec["bins"]), spec["patch_m"] / 2, spec["depth_m"]
     _, run, slant = sun_geometry(spec)
-    h = spec["depth_m"]
-    f = sf.caustic_factor(waves, x - np.float32(h * run), y, np.float32(h * slant), spec["t"], sigma_s, g=g,
-                          deflect=sf.sun_deflection(sun_travel(spec)[0]))
-    return f.reshape(nb, ss, nb, ss).mean(axis=(1, 3))
+    patch = caustic_map.Patch(-half - h * run, -half, spec["patch_m"] / nb, (nb, nb))
+    return caustic_map.light_map(waves, patch, h * slant, spec["t"], sf.sun_deflection(sun_travel(spec)[0]),
+                                 sigma_s, g)
 
 
 def radial_psd(img: np.ndarray, bin_m: float, noise_var: float = 0.0, n_bands: int = 16):

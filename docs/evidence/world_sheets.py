@@ -99,6 +99,19 @@ def caustics_fast_vs_reference(samples=16):
     save("caustics_fast_vs_reference", sheet(rows))
 
 
+def caustics_before_after(before: Path):
+    """Rows in threes from two ``causticsref`` runs: ``before``'s fast path (EV_OUT of a run on
+    an older tree), this EV_OUT's fast path, this EV_OUT's reference."""
+    def images(path):
+        ds = Dataset.open(path)
+        return {s["condition"]: [ds.load_image(f) for f in ds.iter_frames(s["id"])] for s in ds.sequences}
+    old, new, ref = images(before / "caustics_fast"), images(OUT / "caustics_fast"), images(OUT / "caustics_ref")
+    rows = []
+    for c in old:
+        rows += [(f"{c}, fast before", old[c]), (f"{c}, fast now", new[c]), (f"{c}, reference", ref[c])]
+    save("caustics_before_after_reference", sheet(rows))
+
+
 def looking_up(fid="fast", samples=4):
     on = run(exp_for(f"up_{fid}", True, ("clear", "mild"), (3.0,), fidelity=fid, pitch=-70.0, samples=samples))
     return [(f"{k} looking up 70 deg, {fid}", v) for k, v in on.items()]
@@ -125,6 +138,10 @@ if __name__ == "__main__":
         caustics()
     elif what == "causticsref":
         caustics_fast_vs_reference()
+    elif what == "causticsfast":                   # the fast half of causticsref (for an older tree's run)
+        run(exp_for("caustics_fast", True, ("clear", "mild"), (1.0, 3.0, 6.0), views=(6.0, 4.0, 2.0)))
+    elif what == "causticsba":                     # argv[4]: the EV_OUT of a causticsref run on the older tree
+        caustics_before_after(Path(sys.argv[4]))
     elif what == "up":
         save("looking_up_fast", sheet(looking_up("fast")))
     elif what == "open":
