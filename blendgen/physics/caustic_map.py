@@ -209,11 +209,14 @@ def _light_at(waves: sf.WaveField, patch: Patch, L: np.ndarray, t: float, deflec
     out = lookup(sharp, grid, x, y)
     if not turbid:
         return out
+    beam = np.exp(-scattering * np.asarray(path_m, np.float32))
+    longest = 0.5 * float(np.hypot(waves.k[:, 0], waves.k[:, 1]).min())      # rad/m: twice the longest wave
+    if float(scattered_transfer(np.array([longest]), lo, scattering, g)[0]) < 0.01:
+        return beam * out + (1.0 - beam)   # the scattered light keeps < 1 % of any pattern: its mean
     if ratio == 1:
         wide, wide_grid = _scattered(E, grid, Lg, scattering, g, n), grid
     else:
         wide, wide_grid = _coarse_scattered(waves, patch, L, wanted, ratio, t, D, scattering, g, n)
-    beam = np.exp(-scattering * np.asarray(path_m, np.float32))
     return beam * out + (1.0 - beam) * lookup(wide, wide_grid, x, y)
 
 
@@ -236,7 +239,8 @@ def _coarse_scattered(waves, patch: Patch, L: np.ndarray, wanted, ratio: int, t:
             for di in (-1, 0, 1):
                 cw[np.clip(j // ratio + dj, 0, coarse.shape[0] - 1), np.clip(i // ratio + di, 0, coarse.shape[1] - 1)] = True
         traced = _dilate(np.pad(cw, cpad), cpad)
-    return _scattered(_deposit(waves, grid, Lg, t, D, traced), grid, Lg, scattering, g, n), grid
+    # one vertex per coarse bin: the waves it cannot resolve focus finer than the blur over a L
+    return _scattered(_deposit(waves, grid, Lg, t, D, traced, per_bin=1), grid, Lg, scattering, g, n), grid
 
 
 def lookup(M: np.ndarray, patch: Patch, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -264,7 +268,6 @@ def _levels(footprint_m: np.ndarray) -> np.ndarray:
 def _group_patch(x: np.ndarray, y: np.ndarray, L: np.ndarray, b: float) -> tuple[Patch, np.ndarray, np.ndarray]:
     """The patch around points (x, y) (m,) with bins of ``b``, the bins bilinear reads at them
     (bool), and the beam path of every bin: the mean of its points', nearest elsewhere."""
-    from scipy import ndimage
     x0, y0 = math.floor(x.min() / b) * b - b, math.floor(y.min() / b) * b - b
     patch = Patch(x0, y0, b, (int(math.ceil((y.max() - y0) / b)) + 2, int(math.ceil((x.max() - x0) / b)) + 2))
     fi, fj = (x - x0) / b - 0.5, (y - y0) / b - 0.5
@@ -277,9 +280,22 @@ def _group_patch(x: np.ndarray, y: np.ndarray, L: np.ndarray, b: float) -> tuple
         np.clip(np.rint(fi), 0, patch.shape[1] - 1).astype(np.int64)
     count = np.bincount(own, minlength=wanted.size).reshape(patch.shape)
     total = np.bincount(own, L, minlength=wanted.size).reshape(patch.shape)
-    near = ndimage.distance_transform_edt(count == 0, return_distances=False, return_indices=True)
-    path = (total / np.maximum(count, 1))[near[0], near[1]]
-    return patch, wanted, path
+    return patch, wanted, _fill_nearest(total, count)
+
+
+def _fill_nearest(total: np.ndarray, count: np.ndarray, block: int = 8) -> np.ndarray:
+    """(ny, nx) ``total / count`` where count > 0; elsewhere the mean of the nearest block
+    (``block`` x ``block`` bins) that has any (a Euclidean transform on the blocks)."""
+    from scipy import ndimage
+    ny, nx = count.shape
+    by, bx = -(-ny // block), -(-nx // block)
+    pad = ((0, by * block - ny), (0, bx * block - nx))
+    bc = np.pad(count, pad).reshape(by, block, bx, block).sum(axis=(1, 3))
+    bt = np.pad(total, pad).reshape(by, block, bx, block).sum(axis=(1, 3))
+    near = ndimage.distance_transform_edt(bc == 0, return_distances=False, return_indices=True)
+    coarse = (bt / np.maximum(bc, 1))[near[0], near[1]]
+    filled = np.repeat(np.repeat(coarse, block, 0), block, 1)[:ny, :nx]
+    return np.where(count > 0, total / np.maximum(count, 1), filled)
 
 
 def frame_factor(waves: sf.WaveField, x, y, path_m, footprint_m, t: float, deflect=None, scattering: float = 0.0,
