@@ -239,8 +239,7 @@ def _coarse_scattered(waves, patch: Patch, L: np.ndarray, wanted, ratio: int, t:
             for di in (-1, 0, 1):
                 cw[np.clip(j // ratio + dj, 0, coarse.shape[0] - 1), np.clip(i // ratio + di, 0, coarse.shape[1] - 1)] = True
         traced = _dilate(np.pad(cw, cpad), cpad)
-    # one vertex per coarse bin: the waves it cannot resolve focus finer than the blur over a L
-    return _scattered(_deposit(waves, grid, Lg, t, D, traced, per_bin=1), grid, Lg, scattering, g, n), grid
+    return _scattered(_deposit(waves, grid, Lg, t, D, traced), grid, Lg, scattering, g, n), grid
 
 
 def lookup(M: np.ndarray, patch: Patch, x: np.ndarray, y: np.ndarray) -> np.ndarray:
