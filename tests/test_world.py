@@ -152,6 +152,24 @@ def test_caustics_move_the_floor_light_and_keep_its_mean():
     assert a.mean() == pytest.approx(off.mean(), rel=0.05)
 
 
+def test_caustics_leave_light_sources_alone():
+    """An LED's own light is not sunlight: its pixels keep their radiance under caustics while
+    the floor around them is patterned."""
+    from blendgen.pipeline import world_post
+    wp = _world(surface=False, caustics=True, wind=2.0)
+    T = _looking_up(-3.0)
+    T[:3, :3] = np.diag([1.0, -1.0, -1.0])                    # looking down at the floor 1 m below
+    rays = np.einsum("ijk,lk->ijl", compose._unit_rays(tuple(K.ravel()), W, H), T[:3, :3].astype(np.float32))
+    rng = (1.0 / -rays[..., 2]).astype(np.float32)
+    rgb = np.full((H, W, 3), 0.3, np.float32)
+    led = np.zeros((H, W), bool)
+    led[60:100, 60:100] = True
+    out = world_post.add_caustics(rgb, None, rng, np.full((H, W), 4.0, np.float32), wp, rays, K, T, 0.0, 0.0,
+                                  emissive=led)
+    np.testing.assert_array_equal(out[led], rgb[led])
+    assert np.abs(out[~led] - 0.3).mean() > 0.01
+
+
 def test_world_defaults_on_in_physical_off_in_article_and_recorded():
     traj = [{"kind": "linear", "id": "a"}]
     phys = Experiment.model_validate({"name": "w", "image_formation": "physical", "trajectories": traj})

@@ -188,7 +188,7 @@ def water_image(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, 
         depth, veil_depth = post.light_depth_m, None
     rgb, range_m = passes["rgb"], passes["range_m"]
     if post.world is not None and post.image_formation == "physical":
-        rgb, range_m, depth = _world(passes, state, water, K, T_world_cam, depth, veil_depth, t)
+        rgb, range_m, depth = _world(passes, state, water, K, T_world_cam, depth, veil_depth, t, emissive)
     img = optics.apply_water(rgb, range_m, emissive, water, depth,
                              model=post.image_formation, veil_depth_m=veil_depth,
                              irradiance=state.water_opts["irradiance"], blur=state.water_opts["blur"],
@@ -216,9 +216,10 @@ def frame_veil(state: SequenceState, T_world_cam, cam_depth_m: float) -> optics.
 
 
 def _world(passes: dict, state: SequenceState, w: optics.WaterOptics, K, T_world_cam, depth, veil_depth: float,
-           t: float):
-    """Caustics, then the surface seen from below (``pipeline/world_post.py``) in water ``w``
-    (the frame's veil); (rgb, range, depth)."""
+           t: float, emissive=None):
+    """Caustics (not on the ``emissive`` pixels: an LED's light is not sunlight), then the
+    surface seen from below (``pipeline/world_post.py``) in water ``w`` (the frame's veil);
+    (rgb, range, depth)."""
     from blendgen.pipeline import world_post
     wp = state.post.world
     rgb, range_m = passes["rgb"], passes["range_m"]
@@ -227,7 +228,7 @@ def _world(passes: dict, state: SequenceState, w: optics.WaterOptics, K, T_world
                      np.asarray(T_world_cam, float)[:3, :3].astype(np.float32))     # einsum: @ is slower here
     if wp.caustics:
         rgb = world_post.add_caustics(rgb, passes.get("albedo"), range_m, depth, wp, rays, K, T_world_cam, t,
-                                      float(np.mean(w.sigma_s)), float(w.g))
+                                      float(np.mean(w.sigma_s)), float(w.g), emissive)
     if wp.surface:
         veil = w.B_inf * state.water_opts["irradiance"] * optics.depth_light(w, veil_depth)
         below = mirror_fill(rgb, range_m, depth, w, veil)

@@ -163,17 +163,22 @@ def footprint_m(rays, range_m, normals, px_rad: float, beam=None) -> np.ndarray:
     return np.where(np.isfinite(f) & (cos > 1e-3), f, np.inf).astype(np.float32)
 
 
-def add_caustics(rgb, albedo, range_m, depth, wp, rays, K, T_world_cam, t: float, scattering: float, g: float = 0.9):
+def add_caustics(rgb, albedo, range_m, depth, wp, rays, K, T_world_cam, t: float, scattering: float, g: float = 0.9,
+                 emissive=None):
     """Sun-lit surfaces times their focusing factor (module docstring); a new (H, W, 3) array.
     ``depth`` (H, W) metres below the surface of each pixel's surface point; ``rays`` (H, W, 3)
-    unit world directions. Every pixel reads a map binned as coarse as its footprint, so it
-    sees the pattern's mean over it (the anti-aliasing a render's pixel filter does)."""
+    unit world directions; ``emissive`` (H, W) bool: pixels of light sources (LEDs), whose own
+    light is not sunlight and is left alone. Every pixel reads a map binned as coarse as its
+    footprint, so it sees the pattern's mean over it (the anti-aliasing a render's pixel
+    filter does)."""
     T = np.asarray(T_world_cam, float)
     depth = np.broadcast_to(np.asarray(depth, np.float32), range_m.shape)
     sun = sf.refracted_sun(wp.sun_travel_dir)
     normals = facing_normals(rays, range_m)
     # sun-facing surfaces only: one turned away from the beam (or grazed by it) has no sunlight to focus
     hit = np.isfinite(range_m) & (depth > 0) & (np.einsum("ijk,k->ij", normals, sun.astype(np.float32)) < -0.02)
+    if emissive is not None:
+        hit &= ~emissive
     if not hit.any():
         return rgb
     d = rays[hit]
