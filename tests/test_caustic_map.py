@@ -122,7 +122,8 @@ def test_a_frames_points_read_the_map_of_their_footprint():
     assert len(calls) == 3                                 # 0.5-1, 1-2, 2-4 m
 
 
-def test_footprint_levels_round_in_log():
-    """1 cm x 2^l, the nearest in log; none (-1) beyond 0.32 m, for inf and for nan."""
-    f = np.array([0.001, 0.014, 0.015, 0.03, 0.2, 0.32, 0.33, np.inf, np.nan])
-    np.testing.assert_array_equal(cmap._levels(f), [0, 0, 1, 2, 4, 5, -1, -1, -1])
+def test_footprint_levels_are_at_least_the_footprint():
+    """1 cm x 2^l, the first at least as wide as the footprint; none (-1) beyond 0.32 m, for
+    inf and for nan."""
+    f = np.array([0.001, 0.01, 0.014, 0.02, 0.03, 0.2, 0.32, 0.33, np.inf, np.nan])
+    np.testing.assert_array_equal(cmap._levels(f), [0, 0, 1, 1, 2, 5, 5, -1, -1, -1])

@@ -257,11 +257,12 @@ def lookup(M: np.ndarray, patch: Patch, x: np.ndarray, y: np.ndarray) -> np.ndar
 
 
 def _levels(footprint_m: np.ndarray) -> np.ndarray:
-    """Level l of each footprint (m,): bins of ``FINEST_BIN_M 2^l``, the nearest to it in log
-    (0.71-1.41 times it); -1 beyond ``COARSEST_BIN_M`` (the pattern averages to 1 there)."""
+    """Level l of each footprint (m,): bins of ``FINEST_BIN_M 2^l`` at least as wide as the
+    footprint (1-2 times it: a pixel averages the pattern over its footprint, as a render's
+    pixel filter does); -1 beyond ``COARSEST_BIN_M`` (the pattern averages to 1 there)."""
     f = np.maximum(np.nan_to_num(np.asarray(footprint_m, np.float64), nan=np.inf), FINEST_BIN_M)
     ok = f <= COARSEST_BIN_M
-    return np.where(ok, np.rint(np.log2(np.where(ok, f, 1.0) / FINEST_BIN_M)), -1).astype(np.int64)
+    return np.where(ok, np.ceil(np.log2(np.where(ok, f, 1.0) / FINEST_BIN_M) - 1e-9), -1).astype(np.int64)
 
 
 def _group_patch(x: np.ndarray, y: np.ndarray, L: np.ndarray, b: float) -> tuple[Patch, np.ndarray, np.ndarray]:
