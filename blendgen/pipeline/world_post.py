@@ -127,25 +127,11 @@ def _mirror(d_refl, K, T, rgb, range_m, depth):
 
 def facing_normals(rays, range_m) -> np.ndarray:
     """(h, w, 3) float32 unit normals of the surface seen at each pixel, turned towards the
-    camera: the cross product of the central differences of the hit points (one-sided at the
-    frame's border); 0 where a neighbour is missing (object edges, open water)."""
-    P = np.asarray(rays, np.float32) * np.where(np.isfinite(range_m), range_m, np.nan).astype(np.float32)[..., None]
-    du, dv = np.empty_like(P), np.empty_like(P)
-    np.subtract(P[:, 2:], P[:, :-2], out=du[:, 1:-1])
-    du[:, 0], du[:, -1] = P[:, 1] - P[:, 0], P[:, -1] - P[:, -2]
-    np.subtract(P[2:], P[:-2], out=dv[1:-1])
-    dv[0], dv[-1] = P[1] - P[0], P[-1] - P[-2]
-    n = np.empty_like(P)                                       # du x dv, component by component
-    n[..., 0] = du[..., 1] * dv[..., 2] - du[..., 2] * dv[..., 1]
-    n[..., 1] = du[..., 2] * dv[..., 0] - du[..., 0] * dv[..., 2]
-    n[..., 2] = du[..., 0] * dv[..., 1] - du[..., 1] * dv[..., 0]
-    norm = np.sqrt(np.einsum("ijk,ijk->ij", n, n))
-    # turned towards the camera: the sign that makes n . ray negative
-    scale = np.where(np.einsum("ijk,ijk->ij", n, np.asarray(rays, np.float32)) > 0, -1.0, 1.0).astype(np.float32)
-    ok = np.isfinite(norm) & (norm > 0)
-    scale = np.where(ok, scale / np.where(ok, norm, 1), 0).astype(np.float32)
-    n *= scale[..., None]
-    return np.nan_to_num(n, copy=False)
+    camera (``surface_light.surface_normals`` of the camera-relative hit points); 0 where a
+    neighbour is missing (object edges, open water)."""
+    from blendgen.physics.surface_light import surface_normals
+    return surface_normals(np.asarray(rays, np.float32)
+                           * np.where(np.isfinite(range_m), range_m, np.nan).astype(np.float32)[..., None])
 
 
 def footprint_m(rays, range_m, normals, px_rad: float, beam=None) -> np.ndarray:
