@@ -56,7 +56,12 @@ def run(exp):
     work = OUT / exp.name
     shutil.rmtree(work, ignore_errors=True)
     generate(exp, work, workers=1, progress=False)
-    ds = Dataset.open(work)
+    return images(work)
+
+
+def images(path):
+    """{condition: [frame images]} of a dataset."""
+    ds = Dataset.open(path)
     return {s["condition"]: [ds.load_image(f) for f in ds.iter_frames(s["id"])] for s in ds.sequences}
 
 
@@ -102,9 +107,6 @@ def caustics_fast_vs_reference(samples=16):
 def caustics_before_after(before: Path):
     """Rows in threes from two ``causticsref`` runs: ``before``'s fast path (EV_OUT of a run on
     an older tree), this EV_OUT's fast path, this EV_OUT's reference."""
-    def images(path):
-        ds = Dataset.open(path)
-        return {s["condition"]: [ds.load_image(f) for f in ds.iter_frames(s["id"])] for s in ds.sequences}
     old, new, ref = images(before / "caustics_fast"), images(OUT / "caustics_fast"), images(OUT / "caustics_ref")
     rows = []
     for c in old:
