@@ -4,7 +4,7 @@ sun: tested here on a pattern of known shape (issue 14; docs/evidence/README.md)
 Why: the reference's sun is a delta light under a refracting surface, so path tracing finds no
 caustics, and Cycles' MNEE does not carry an absorbing medium (session 7). But the caustic
 irradiance on a receiver is the flat-surface sun times a pattern ``M(xi)`` of the point ``xi``
-where the receiver's sun ray crosses the surface plane (``surface.caustic_factor``'s argument;
+where the receiver's sun ray crosses the surface plane (the coordinates ``physics/caustic_map.py`` bins its maps in;
 for a planar receiver at fixed depth, the photon map of ``caustic_reference`` at that depth).
 A spot light ``D`` = 1 km away along the refracted sun direction sends parallel rays (1 mrad
 across a 12 m patch); its light texture, looked up with the Texture Coordinate node's

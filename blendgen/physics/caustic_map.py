@@ -9,13 +9,14 @@ receiver point moved up its own sun beam to the mean surface) the landing point 
 a wall and the dock differ only in their map of beam paths ``L``. Beyond the first focus
 this map folds and several surface points light one receiver point; the irradiance is the
 sum over all of them. So the surface is carried forward as a mesh
-(:mod:`blendgen.physics.caustic_mesh`), each triangle's sunlight added where it lands:
+(:mod:`blendgen.physics.caustic_mesh`), each cell's sunlight added where it lands:
 all preimages counted, energy conserved by construction (mean 1 over a flat-surface value of 1).
 
-Then two blurs (Fourier transfer functions):
+Then two blurs:
 
-- the sun's disc, uniform of radius ``R = L theta_sun / n`` (``2 J1(k R) / (k R)``; per bin, by
-  its own path);
+- the sun's disc, uniform of radius ``R = L theta_sun / n``: on the sharp map a disc mean
+  around each bin with the bin's own path (``caustic_mesh.disc_blur``); in the scattered map's
+  Fourier product its transfer function ``2 J1(k R) / (k R)`` (:func:`sun_transfer`);
 - light scattered on the way down (small-angle theory, Wells 1973, "Theory of small angle
   scattering", AGARD LS-61): the beam keeps ``M_k = exp(-b [L - (1 - e^{-a k L}) / (a k)])``
   of a pattern of wavenumber k, ``a = (1 - g) / sqrt(g)`` the width of the small-angle
@@ -152,6 +153,15 @@ def _deposit(waves: sf.WaveField, grid: Patch, path_m: np.ndarray, t: float, D: 
     return E
 
 
+def _mark(shape: tuple[int, int], j: np.ndarray, i: np.ndarray, offsets) -> np.ndarray:
+    """(ny, nx) bool: the bins (j + dj, i + di) for every offset pair, clamped to the grid."""
+    out = np.zeros(shape, bool)
+    for dj in offsets:
+        for di in offsets:
+            out[np.clip(j + dj, 0, shape[0] - 1), np.clip(i + di, 0, shape[1] - 1)] = True
+    return out
+
+
 def _dilate(mask: np.ndarray, pad: int) -> np.ndarray:
     import cv2
     return cv2.dilate(mask.astype(np.uint8), np.ones((2 * pad + 1, 2 * pad + 1), np.uint8)).astype(bool)
@@ -233,12 +243,8 @@ def _coarse_scattered(waves, patch: Patch, L: np.ndarray, wanted, ratio: int, t:
     Lg = np.pad(L[np.ix_(jj, ii)], cpad, mode="edge")
     traced = None
     if wanted is not None:
-        cw = np.zeros(coarse.shape, bool)
         j, i = np.nonzero(wanted)
-        for dj in (-1, 0, 1):
-            for di in (-1, 0, 1):
-                cw[np.clip(j // ratio + dj, 0, coarse.shape[0] - 1), np.clip(i // ratio + di, 0, coarse.shape[1] - 1)] = True
-        traced = _dilate(np.pad(cw, cpad), cpad)
+        traced = _dilate(np.pad(_mark(coarse.shape, j // ratio, i // ratio, (-1, 0, 1)), cpad), cpad)
     return _scattered(_deposit(waves, grid, Lg, t, D, traced), grid, Lg, scattering, g, n), grid
 
 
@@ -271,11 +277,7 @@ def _group_patch(x: np.ndarray, y: np.ndarray, L: np.ndarray, b: float) -> tuple
     x0, y0 = math.floor(x.min() / b) * b - b, math.floor(y.min() / b) * b - b
     patch = Patch(x0, y0, b, (int(math.ceil((y.max() - y0) / b)) + 2, int(math.ceil((x.max() - x0) / b)) + 2))
     fi, fj = (x - x0) / b - 0.5, (y - y0) / b - 0.5
-    i, j = np.floor(fi).astype(np.int64), np.floor(fj).astype(np.int64)
-    wanted = np.zeros(patch.shape, bool)
-    for dj in (0, 1):
-        for di in (0, 1):
-            wanted[np.clip(j + dj, 0, patch.shape[0] - 1), np.clip(i + di, 0, patch.shape[1] - 1)] = True
+    wanted = _mark(patch.shape, np.floor(fj).astype(np.int64), np.floor(fi).astype(np.int64), (0, 1))
     own = np.clip(np.rint(fj), 0, patch.shape[0] - 1).astype(np.int64) * patch.shape[1] + \
         np.clip(np.rint(fi), 0, patch.shape[1] - 1).astype(np.int64)
     count = np.bincount(own, minlength=wanted.size).reshape(patch.shape)
