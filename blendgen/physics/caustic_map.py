@@ -155,11 +155,13 @@ def _deposit(waves: sf.WaveField, grid: Patch, path_m: np.ndarray, t: float, D: 
 
 def _mark(shape: tuple[int, int], j: np.ndarray, i: np.ndarray, offsets) -> np.ndarray:
     """(ny, nx) bool: the bins (j + dj, i + di) for every offset pair, clamped to the grid."""
-    out = np.zeros(shape, bool)
-    for dj in offsets:
-        for di in offsets:
-            out[np.clip(j + dj, 0, shape[0] - 1), np.clip(i + di, 0, shape[1] - 1)] = True
-    return out
+    out = np.zeros(shape[0] * shape[1], bool)
+    rows = [np.clip(j + dj, 0, shape[0] - 1) * shape[1] for dj in offsets]
+    cols = [np.clip(i + di, 0, shape[1] - 1) for di in offsets]
+    for r in rows:
+        for c in cols:
+            out[r + c] = True
+    return out.reshape(shape)
 
 
 def _dilate(mask: np.ndarray, pad: int) -> np.ndarray:
@@ -312,10 +314,16 @@ def frame_factor(waves: sf.WaveField, x, y, path_m, footprint_m, t: float, defle
     L = np.maximum(np.asarray(path_m, np.float64), 0.0)
     level = _levels(footprint_m)
     band = np.floor(np.log2(np.maximum(L, BAND_START_M) / BAND_START_M)).astype(np.int64)
-    key = np.where(level >= 0, band * 16 + level, -1)
+    key = np.where(level >= 0, band * 16 + level, -1).astype(np.int16)
     out = np.ones(x.shape, np.float32)
-    for group in np.unique(key[key >= 0]):
-        sel = key == group
-        patch, wanted, path = _group_patch(x[sel], y[sel], L[sel], FINEST_BIN_M * 2 ** int(group % 16))
-        out[sel] = _light_at(waves, patch, path, t, deflect, scattering, g, n, wanted, x[sel], y[sel], L[sel])
+    if not np.any(key >= 0):
+        return out
+    order = np.argsort(key, kind="stable")             # 16-bit keys: a radix sort, O(m)
+    starts = np.searchsorted(key[order], np.arange(-1, int(key.max()) + 2))
+    for group in range(int(key.max()) + 1):
+        sel = order[starts[group + 1]:starts[group + 2]]
+        if sel.size:
+            xs, ys, Ls = x[sel], y[sel], L[sel]
+            patch, wanted, path = _group_patch(xs, ys, Ls, FINEST_BIN_M * 2 ** (group % 16))
+            out[sel] = _light_at(waves, patch, path, t, deflect, scattering, g, n, wanted, xs, ys, Ls)
     return out

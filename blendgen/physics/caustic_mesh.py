@@ -32,10 +32,11 @@ except ImportError as exc:                      # pragma: no cover - the render 
     raise ImportError("the forward caustic map needs numba: pip install 'dockbench[render]'") from exc
 
 _jit = nb.njit(cache=True, nogil=True)
+_jit_sum = nb.njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
 BLOCK = 8                            # source cells per side of a culling block
 
 
-@_jit
+@_jit_sum
 def _row(cx, sx, cy, sy, ax, ay, xs, y, path_b, deflect, i0, i1, out_x, out_y):
     """Source vertices ``i0 <= i < i1`` of one row carried to their receivers, written to
     ``out_x, out_y[i - i0]``. ``cx, sx`` (nx', waves) the columns' wave tables, ``cy, sy``

@@ -31,21 +31,13 @@ def surface_normals(points: np.ndarray) -> np.ndarray:
     neighbour is missing (nan points: nothing hit) or the grid is degenerate. At depth edges
     (a surface next to a farther one) the normal is that of the step between them: a few
     pixels along silhouettes get a wrong light (documented approximation)."""
-    P = points
-    du, dv = np.empty_like(P), np.empty_like(P)        # central differences, one-sided at the border
-    np.subtract(P[:, 2:], P[:, :-2], out=du[:, 1:-1])
-    du[:, 0], du[:, -1] = P[:, 1] - P[:, 0], P[:, -1] - P[:, -2]
-    np.subtract(P[2:], P[:-2], out=dv[1:-1])
-    dv[0], dv[-1] = P[1] - P[0], P[-1] - P[-2]
-    n = np.empty_like(P)                               # du x dv component by component (2x np.cross)
-    n[..., 0] = du[..., 1] * dv[..., 2] - du[..., 2] * dv[..., 1]
-    n[..., 1] = du[..., 2] * dv[..., 0] - du[..., 0] * dv[..., 2]
-    n[..., 2] = du[..., 0] * dv[..., 1] - du[..., 1] * dv[..., 0]
-    norm = np.sqrt(np.einsum("ijk,ijk->ij", n, n))
-    ok = np.isfinite(norm) & (norm > 0)                # 0 where a neighbour is missing (nan) or flat
-    sign = np.where(np.einsum("ijk,ijk->ij", n, P) > 0, -1.0, 1.0)
-    scale = np.where(ok, sign / np.where(ok, norm, 1.0), 0.0).astype(P.dtype)
-    return np.nan_to_num(n * scale[..., None], copy=False)
+    from blendgen.physics.surface_kernels import normals
+    P = np.ascontiguousarray(points)
+    if P.ndim != 3 or P.shape[2] != 3 or min(P.shape[:2]) < 2:
+        raise ValueError(f"surface points must be a grid (h, w, 3) with h, w >= 2, got {P.shape}")
+    out = np.empty_like(P)
+    normals(P, out)                                     # one compiled pass (surface_kernels)
+    return out
 
 
 @functools.lru_cache(maxsize=4)
