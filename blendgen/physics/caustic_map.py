@@ -280,22 +280,25 @@ def _group_patch(x: np.ndarray, y: np.ndarray, L: np.ndarray, b: float) -> tuple
     patch = Patch(x0, y0, b, (int(math.ceil((y.max() - y0) / b)) + 2, int(math.ceil((x.max() - x0) / b)) + 2))
     fi, fj = (x - x0) / b - 0.5, (y - y0) / b - 0.5
     wanted = _mark(patch.shape, np.floor(fj).astype(np.int64), np.floor(fi).astype(np.int64), (0, 1))
-    own = np.clip(np.rint(fj), 0, patch.shape[0] - 1).astype(np.int64) * patch.shape[1] + \
-        np.clip(np.rint(fi), 0, patch.shape[1] - 1).astype(np.int64)
-    count = np.bincount(own, minlength=wanted.size).reshape(patch.shape)
-    total = np.bincount(own, L, minlength=wanted.size).reshape(patch.shape)
-    return patch, wanted, _fill_nearest(total, count)
+    own_j = np.clip(np.rint(fj), 0, patch.shape[0] - 1).astype(np.int64)
+    own_i = np.clip(np.rint(fi), 0, patch.shape[1] - 1).astype(np.int64)
+    return patch, wanted, _fill_nearest(own_j, own_i, L, patch.shape)
 
 
-def _fill_nearest(total: np.ndarray, count: np.ndarray, block: int = 8) -> np.ndarray:
-    """(ny, nx) ``total / count`` where count > 0; elsewhere the mean of the nearest block
-    (``block`` x ``block`` bins) that has any (a Euclidean transform on the blocks)."""
+def _fill_nearest(j: np.ndarray, i: np.ndarray, values: np.ndarray, shape: tuple[int, int],
+                  block: int = 8) -> np.ndarray:
+    """(ny, nx) mean of ``values`` (m,) over the points in each bin (their bins ``j, i`` (m,));
+    in a bin without any, the mean of the nearest block (``block`` x ``block`` bins) that has
+    some (a Euclidean transform on the blocks)."""
     from scipy import ndimage
-    ny, nx = count.shape
+    ny, nx = shape
     by, bx = -(-ny // block), -(-nx // block)
-    pad = ((0, by * block - ny), (0, bx * block - nx))
-    bc = np.pad(count, pad).reshape(by, block, bx, block).sum(axis=(1, 3))
-    bt = np.pad(total, pad).reshape(by, block, bx, block).sum(axis=(1, 3))
+    own = j * nx + i
+    count = np.bincount(own, minlength=ny * nx).reshape(shape)
+    total = np.bincount(own, values, minlength=ny * nx).reshape(shape)
+    blk = (j // block) * bx + i // block
+    bc = np.bincount(blk, minlength=by * bx).reshape(by, bx)
+    bt = np.bincount(blk, values, minlength=by * bx).reshape(by, bx)
     near = ndimage.distance_transform_edt(bc == 0, return_distances=False, return_indices=True)
     coarse = (bt / np.maximum(bc, 1))[near[0], near[1]]
     filled = np.repeat(np.repeat(coarse, block, 0), block, 1)[:ny, :nx]
