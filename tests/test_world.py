@@ -170,6 +170,32 @@ def test_caustics_leave_light_sources_alone():
     assert np.abs(out[~led] - 0.3).mean() > 0.01
 
 
+def test_caustics_refocus_only_the_sunlight_a_pixel_holds():
+    """A floor of albedo 0.5 in a sun of E = 3 W/m^2 from the zenith holds 0.5 E / pi of sunlight.
+    Pixels that hold more (an LED's light spilled into them, a fill light) change by exactly as
+    much as a plain sunlit pixel does: (M - 1) 0.5 E / pi, with M the focusing factor read from a
+    sunlit twin of the frame; without the bound they changed in proportion to all their light."""
+    from blendgen.pipeline import world_post
+    wp = _world(surface=False, caustics=True, wind=2.0).model_copy(update={"sun_lamp_w_m2": 3.0})
+    T = _looking_up(-3.0)
+    T[:3, :3] = np.diag([1.0, -1.0, -1.0])                    # looking down at the floor 1 m below
+    rays = np.einsum("ijk,lk->ijl", compose._unit_rays(tuple(K.ravel()), W, H), T[:3, :3].astype(np.float32))
+    rng = (1.0 / -rays[..., 2]).astype(np.float32)
+    albedo = np.full((H, W, 3), 0.5, np.float32)
+    sun = np.float32(0.5 * 3.0 / math.pi)                     # the floor faces the sun: cos(i) = 1
+    depth = np.full((H, W), 4.0, np.float32)
+    plain = world_post.add_caustics(np.full((H, W, 3), sun, np.float32), albedo, rng, depth, wp, rays, K, T, 0.0, 0.0)
+    m_minus_1 = plain / sun - 1
+    assert np.abs(m_minus_1).mean() > 0.05                    # a pattern to refocus
+    spill = np.full((H, W, 3), sun, np.float32)
+    spill[40:120, 40:120] += np.float32(2.0)                  # light that is not the sun's
+    out = world_post.add_caustics(spill, albedo, rng, depth, wp, rays, K, T, 0.0, 0.0)
+    np.testing.assert_allclose(out - spill, m_minus_1 * sun, atol=1e-5)
+    unbounded = world_post.add_caustics(spill, albedo, rng, depth, wp.model_copy(update={"sun_lamp_w_m2": 0.0}),
+                                        rays, K, T, 0.0, 0.0)
+    assert np.abs(unbounded - spill - m_minus_1 * sun)[40:120, 40:120].max() > 0.1
+
+
 def test_world_defaults_on_in_physical_off_in_article_and_recorded():
     traj = [{"kind": "linear", "id": "a"}]
     phys = Experiment.model_validate({"name": "w", "image_formation": "physical", "trajectories": traj})

@@ -60,6 +60,10 @@ class WorldPost(Strict):
     sun_irradiance: float = Field(0.0, ge=0.0, description="the sun's irradiance normal to its beam above the "
                                                             "surface (W/m^2), seen as its disc through Snell's "
                                                             "window; 0: no sun disc")
+    sun_lamp_w_m2: float = Field(0.0, ge=0.0, description="the clean render's sun in water (W/m^2 normal to its "
+                                                           "beam): a Lambertian pixel holds at most albedo E "
+                                                           "cos(i) / pi of its light, the part caustics refocus; "
+                                                           "0: not bounded")
 
 
 class SequencePost(Strict):
@@ -471,7 +475,8 @@ def world_post(exp: Experiment) -> WorldPost | None:
                      wave_seed=w.wave_seed if w.wave_seed is not None else exp.seed, sky_radiance=sky,
                      ambient_radiance=ambient_radiance(exp) if exp.render.fidelity == "fast" else 0.0,
                      sun_travel_dir=sf.sun_in_air(_sun_dir(s.sun_elevation_deg, s.sun_azimuth_deg)).tolist(),
-                     sun_irradiance=s.sun_strength if surface and world_on(exp, "sun_glint") else 0.0)
+                     sun_irradiance=s.sun_strength if surface and world_on(exp, "sun_glint") else 0.0,
+                     sun_lamp_w_m2=s.sun_strength)
 
 
 def world_look(exp: Experiment) -> dict:

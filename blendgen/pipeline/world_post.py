@@ -21,6 +21,7 @@ entirely when the sequence has them off (``SequencePost.world`` None or False).
 from __future__ import annotations
 
 import functools
+import math
 
 import numpy as np
 
@@ -156,13 +157,17 @@ def add_caustics(rgb, albedo, range_m, depth, wp, rays, K, T_world_cam, t: float
     unit world directions; ``emissive`` (H, W) bool: pixels of light sources (LEDs), whose own
     light is not sunlight and is left alone. Every pixel reads a map binned as coarse as its
     footprint, so it sees the pattern's mean over it (the anti-aliasing a render's pixel
-    filter does)."""
+    filter does). The focused part of a pixel is its sunlight: with the ``albedo`` pass, its
+    radiance less the ambient term, at most ``albedo E cos(i) / pi`` (``wp.sun_lamp_w_m2`` = E,
+    a Lambertian surface in full sun), so the light an LED spills into the pixels around its
+    own, or a fill light, is not refocused."""
     T = np.asarray(T_world_cam, float)
     depth = np.broadcast_to(np.asarray(depth, np.float32), range_m.shape)
     sun = sf.refracted_sun(wp.sun_travel_dir)
     normals = facing_normals(rays, range_m)
+    cos_i = -np.einsum("ijk,k->ij", normals, sun.astype(np.float32))
     # sun-facing surfaces only: one turned away from the beam (or grazed by it) has no sunlight to focus
-    hit = np.isfinite(range_m) & (depth > 0) & (np.einsum("ijk,k->ij", normals, sun.astype(np.float32)) < -0.02)
+    hit = np.isfinite(range_m) & (depth > 0) & (cos_i > 0.02)
     if emissive is not None:
         hit &= ~emissive
     if not hit.any():
@@ -174,11 +179,23 @@ def add_caustics(rgb, albedo, range_m, depth, wp, rays, K, T_world_cam, t: float
     x = np.float32(T[0, 3]) + r * d[:, 0] + h * back[0]
     y = np.float32(T[1, 3]) + r * d[:, 1] + h * back[1]
     path = h / np.float32(-sun[2])                             # slant path of the beam to the point
-    gain = np.zeros(hit.shape, np.float32)                     # M - 1
     foot = footprint_m(rays, range_m, normals, 1.0 / float(K[0, 0]), sun)[hit]
-    gain[hit] = caustic_map.frame_factor(waves_of(wp.wave_seed, wp.wind_mps), x, y, path, foot, t,
-                                         sf.sun_deflection(wp.sun_travel_dir), scattering, g) - 1
-    sun_lit = np.asarray(rgb, np.float32)
-    if albedo is not None and wp.ambient_radiance > 0:
-        sun_lit = np.maximum(sun_lit - albedo * np.float32(wp.ambient_radiance), 0)
-    return rgb + sun_lit * gain[..., None]
+    gain = caustic_map.frame_factor(waves_of(wp.wave_seed, wp.wind_mps), x, y, path, foot, t,
+                                    sf.sun_deflection(wp.sun_travel_dir), scattering, g) - 1      # M - 1
+    out = np.array(rgb, np.float32)
+    out[hit] += sunlight(out[hit], None if albedo is None else np.asarray(albedo, np.float32)[hit], cos_i[hit],
+                         wp) * gain[:, None]
+    return out
+
+
+def sunlight(rgb: np.ndarray, albedo: np.ndarray | None, cos_i: np.ndarray, wp) -> np.ndarray:
+    """(m, 3) the sunlight in pixels of clean radiance ``rgb`` (m, 3): without an ``albedo``
+    (m, 3) all of it; else less the ambient term ``albedo wp.ambient_radiance``, and at most
+    what the sun gives a Lambertian surface, ``albedo E cos(i) / pi`` (E = wp.sun_lamp_w_m2
+    when > 0; ``cos_i`` (m,) the sun's incidence cosine)."""
+    if albedo is None:
+        return rgb
+    lit = np.maximum(rgb - albedo * np.float32(wp.ambient_radiance), 0)
+    if wp.sun_lamp_w_m2 > 0:
+        lit = np.minimum(lit, albedo * (np.float32(wp.sun_lamp_w_m2 / math.pi) * cos_i)[:, None])
+    return lit
