@@ -174,7 +174,9 @@ def test_caustics_refocus_only_the_sunlight_a_pixel_holds():
     """A floor of albedo 0.5 in a sun of E = 3 W/m^2 from the zenith holds 0.5 E / pi of sunlight.
     Pixels that hold more (an LED's light spilled into them, a fill light) change by exactly as
     much as a plain sunlit pixel does: (M - 1) 0.5 E / pi, with M the focusing factor read from a
-    sunlit twin of the frame; without the bound they changed in proportion to all their light."""
+    sunlit twin of the frame; without the bound they changed in proportion to all their light.
+    With the render's sun pass (the sun's light group) the change is (M - 1) times that pass,
+    0 in its shadow."""
     from blendgen.pipeline import world_post
     wp = _world(surface=False, caustics=True, wind=2.0).model_copy(update={"sun_lamp_w_m2": 3.0})
     T = _looking_up(-3.0)
@@ -194,6 +196,10 @@ def test_caustics_refocus_only_the_sunlight_a_pixel_holds():
     unbounded = world_post.add_caustics(spill, albedo, rng, depth, wp.model_copy(update={"sun_lamp_w_m2": 0.0}),
                                         rays, K, T, 0.0, 0.0)
     assert np.abs(unbounded - spill - m_minus_1 * sun)[40:120, 40:120].max() > 0.1
+    shade = np.ones((H, W, 1), np.float32)
+    shade[:, :60] = 0.0                                         # the render's sun pass: a shadow on the left
+    with_pass = world_post.add_caustics(spill, albedo, rng, depth, wp, rays, K, T, 0.0, 0.0, sun_pass=sun * shade)
+    np.testing.assert_allclose(with_pass - spill, m_minus_1 * sun * shade, atol=1e-5)
 
 
 def test_world_defaults_on_in_physical_off_in_article_and_recorded():

@@ -77,6 +77,8 @@ def setup_cycles(scene: bpy.types.Scene, r: dict) -> None:
     vl.use_pass_object_index = True
     vl.use_pass_diffuse_color = bool(r.get("albedo_pass"))    # the ambient and lamp terms' albedo
     vl.use_pass_normal = bool(r.get("normal_pass"))           # the fast lamp's incidence (world frame)
+    if r.get("sun_pass") and "sun" not in vl.lightgroups:     # the sun's own light: what caustics refocus
+        vl.lightgroups.add(name="sun")
     s = scene.render.image_settings
     s.media_type = "MULTI_LAYER_IMAGE"
     s.file_format = "OPEN_EXR_MULTILAYER"
@@ -165,6 +167,8 @@ def _add_pass(out: dict, names: list[str], channels) -> None:
         out["depth_z"] = np.where(z > NO_SURFACE_Z, np.inf, z).astype(np.float32)
     elif any(n.endswith("Object Index.X") for n in names):
         out["index"] = np.rint(channels(1, None)[:, :, 0]).clip(0, 255).astype(np.uint8)
+    elif any(n.endswith("Combined_sun.R") for n in names):       # the "sun" light group
+        out["sun"] = np.ascontiguousarray(channels(3, (".R", ".G", ".B")), dtype=np.float32)
     elif any(n.endswith(("DiffCol.R", "Diffuse Color.R")) for n in names):
         out["albedo"] = np.ascontiguousarray(channels(3, (".R", ".G", ".B")), dtype=np.float32)
     elif any(n.endswith("Normal.X") for n in names):
@@ -221,7 +225,7 @@ def _border(scene: bpy.types.Scene, box, width: int, height: int) -> None:
 def _upsample(passes: dict, width: int, height: int) -> dict:
     """Background passes to full size: colour bilinear, depth and index nearest."""
     import cv2
-    linear = {"rgb", "albedo", "normal"}
+    linear = {"rgb", "albedo", "normal", "sun"}
     return {k: cv2.resize(v, (width, height), interpolation=cv2.INTER_LINEAR if k in linear else cv2.INTER_NEAREST)
             for k, v in passes.items()}
 

@@ -150,13 +150,15 @@ def add_obstacle(o: dict) -> None:
     set_matrix(obj, o["T_world"])
 
 
-def add_sun(name: str, travel_dir, strength: float, shadows: bool = True) -> None:
-    """Directional light travelling along ``travel_dir`` (world, unit) with irradiance ``strength``."""
+def add_sun(name: str, travel_dir, strength: float, shadows: bool = True, lightgroup: str = "") -> None:
+    """Directional light travelling along ``travel_dir`` (world, unit) with irradiance ``strength``;
+    ``lightgroup``: its Cycles light group (its own pass when the view layer has the group)."""
     light = bpy.data.lights.new(name, type="SUN")
     light.energy = float(strength)
     light.angle = 0.0
     light.use_shadow = bool(shadows)
     obj = _link(bpy.data.objects.new(name, light))
+    obj.lightgroup = lightgroup
     d = -np.asarray(travel_dir, float)
     d /= np.linalg.norm(d)
     obj.rotation_euler = (0.0, math.acos(np.clip(d[2], -1, 1)), math.atan2(d[1], d[0]))
@@ -243,7 +245,7 @@ def build(desc: dict) -> bpy.types.Scene:
     if desc.get("water_surface"):  # reference fidelity: a refracting surface with the sky above
         world.add_water_surface(desc["water_surface"])
         world.world_sky_through_surface(env, desc["water_surface"]["sky_radiance"], desc["water_surface"].get("sun"))
-    add_sun("sun", desc["sun"]["direction"], desc["sun"]["strength"])
+    add_sun("sun", desc["sun"]["direction"], desc["sun"]["strength"], lightgroup="sun")
     if desc["fill"]["strength"] > 0:
         add_sun("fill", desc["fill"]["direction"], desc["fill"]["strength"], shadows=False)
     return scene

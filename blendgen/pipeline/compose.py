@@ -178,6 +178,8 @@ def water_image(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, 
     emissive = emissive_mask(passes["index"], markers)
     if occluded is not None:
         emissive &= ~occluded
+        if "sun" in passes:                 # a particle in front hides the sunlit surface behind it
+            passes = {**passes, "sun": np.where(occluded[..., None], np.float32(0), passes["sun"])}
     fx = float(K[0, 0])
     water = state.water
     if post.image_formation == "physical":
@@ -228,7 +230,7 @@ def _world(passes: dict, state: SequenceState, w: optics.WaterOptics, K, T_world
                      np.asarray(T_world_cam, float)[:3, :3].astype(np.float32))     # einsum: @ is slower here
     if wp.caustics:
         rgb = world_post.add_caustics(rgb, passes.get("albedo"), range_m, depth, wp, rays, K, T_world_cam, t,
-                                      float(np.mean(w.sigma_s)), float(w.g), emissive)
+                                      float(np.mean(w.sigma_s)), float(w.g), emissive, passes.get("sun"))
     if wp.surface:
         veil = w.B_inf * state.water_opts["irradiance"] * optics.depth_light(w, veil_depth)
         below = mirror_fill(rgb, range_m, depth, w, veil)

@@ -624,4 +624,6 @@ def render_settings(exp: Experiment, threads: int) -> dict:
             "light_tree": r.fidelity == "reference" if r.light_tree is None else r.light_tree}
     if lamps:
         out["normal_pass"] = True
+    if r.fidelity == "fast" and exp.image_formation == "physical" and world_on(exp, "caustics"):
+        out["sun_pass"] = True          # the sun's own light (a Cycles light group): what caustics refocus
     return out

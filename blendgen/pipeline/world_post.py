@@ -151,16 +151,16 @@ def footprint_m(rays, range_m, normals, px_rad: float, beam=None) -> np.ndarray:
 
 
 def add_caustics(rgb, albedo, range_m, depth, wp, rays, K, T_world_cam, t: float, scattering: float, g: float = 0.9,
-                 emissive=None):
+                 emissive=None, sun_pass=None):
     """Sun-lit surfaces times their focusing factor (module docstring); a new (H, W, 3) array.
     ``depth`` (H, W) metres below the surface of each pixel's surface point; ``rays`` (H, W, 3)
     unit world directions; ``emissive`` (H, W) bool: pixels of light sources (LEDs), whose own
     light is not sunlight and is left alone. Every pixel reads a map binned as coarse as its
     footprint, so it sees the pattern's mean over it (the anti-aliasing a render's pixel
-    filter does). The focused part of a pixel is its sunlight: with the ``albedo`` pass, its
-    radiance less the ambient term, at most ``albedo E cos(i) / pi`` (``wp.sun_lamp_w_m2`` = E,
-    a Lambertian surface in full sun), so the light an LED spills into the pixels around its
-    own, or a fill light, is not refocused."""
+    filter does). The focused part of a pixel is its sunlight: the render's ``sun_pass`` (H, W,
+    3) (the sun's light group: its light alone, shadows and all) when given, else
+    :func:`sunlight`'s estimate from the ``albedo`` pass. So the light an LED spills into the
+    pixels around its own, or a fill light, is not refocused."""
     T = np.asarray(T_world_cam, float)
     depth = np.broadcast_to(np.asarray(depth, np.float32), range_m.shape)
     sun = sf.refracted_sun(wp.sun_travel_dir)
@@ -183,8 +183,11 @@ def add_caustics(rgb, albedo, range_m, depth, wp, rays, K, T_world_cam, t: float
     gain = caustic_map.frame_factor(waves_of(wp.wave_seed, wp.wind_mps), x, y, path, foot, t,
                                     sf.sun_deflection(wp.sun_travel_dir), scattering, g) - 1      # M - 1
     out = np.array(rgb, np.float32)
-    out[hit] += sunlight(out[hit], None if albedo is None else np.asarray(albedo, np.float32)[hit], cos_i[hit],
-                         wp) * gain[:, None]
+    if sun_pass is not None:
+        lit = np.asarray(sun_pass, np.float32)[hit]
+    else:
+        lit = sunlight(out[hit], None if albedo is None else np.asarray(albedo, np.float32)[hit], cos_i[hit], wp)
+    out[hit] += lit * gain[:, None]
     return out
 
 
