@@ -183,11 +183,13 @@ def add_caustics(rgb, albedo, range_m, depth, wp, rays, K, T_world_cam, t: float
     gain = caustic_map.frame_factor(waves_of(wp.wave_seed, wp.wind_mps), x, y, path, foot, t,
                                     sf.sun_deflection(wp.sun_travel_dir), scattering, g) - 1      # M - 1
     out = np.array(rgb, np.float32)
-    if sun_pass is not None:
-        lit = np.asarray(sun_pass, np.float32)[hit]
-    else:
-        lit = sunlight(out[hit], None if albedo is None else np.asarray(albedo, np.float32)[hit], cos_i[hit], wp)
-    out[hit] += lit * gain[:, None]
+    at = np.flatnonzero(hit)                                   # flat pixel indices: take/put, not masks
+    rows = lambda img: np.take(np.broadcast_to(np.asarray(img, np.float32), out.shape).reshape(-1, 3),  # noqa: E731
+                               at, axis=0)
+    lit = rows(sun_pass) if sun_pass is not None else sunlight(
+        rows(out), None if albedo is None else rows(albedo), cos_i.ravel()[at], wp)
+    flat = out.reshape(-1, 3)
+    flat[at] = rows(out) + lit * gain[:, None]
     return out
 
 
