@@ -22,8 +22,9 @@ line. So:
 3. **The spots**: ``D`` upstream of the grid's centre along the beam, power ``4 pi S D^2``
    (``S``: the sun lamp's strength), texture ``1 + (M - 1)`` clipped to 1 outside the grid.
    Two of them, each with its own photon camera: one over the whole pool (2 cm bins,
-   ``plan.REFERENCE_CAUSTICS`` says why) and one over the dock and its markers (1 cm bins: a camera at 1 m sees 2-4 mm pixels there, and
-   the caustic lines of a shallow dock are 1-3 cm wide). Light linking: the dock's spot
+   ``plan.REFERENCE_CAUSTICS`` says why) and one over the dock and its markers (1 cm bins:
+   a camera at 1 m sees 2-4 mm pixels there, and the caustic lines of a shallow dock are
+   1-3 cm wide). Light linking: the dock's spot
    lights the dock, its frame and markers; the pool's spot everything else but the water
    volume; the sun lamp lights only the volume (its in-scatter keeps the plain beam: ``M``
    belongs to the first receiver's depth, not to the water above it).
