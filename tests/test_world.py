@@ -342,23 +342,47 @@ def test_a_sun_outside_snells_cone_is_refused_with_a_surface(tmp_path):
 
 
 def test_total_internal_reflection_mirrors_the_pool():
-    """Flat surface 1 m above a horizontal camera, clear beam (c = 0): a totally reflected
-    pixel shows what the camera sees at the mirrored elevation (the floor), not the veil."""
+    """Flat surface 1 m above a horizontal camera, a wall 5 m ahead whose radiance encodes its
+    depth, clear beam (c = 0): a totally reflected pixel of ray d shows the wall where the
+    mirrored ray from the surface point meets it, parallax included (depth 5 d_z / d_x - 1),
+    not what the camera sees in the mirrored direction from its own position (depth
+    5 d_z / d_x + 1), and never the veil."""
     water = Water(preset="jerlov_IB", sigma_a=0.0, sigma_s=0.0, B_inf=0.0)
     post = _post(_world(), water)
     T = np.eye(4)
     T[:3, :3] = np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0]], float)   # looking along +x
-    T[2, 3] = -1.0
-    h, w = 61, 81
+    T[2, 3] = -1.0                                                      # 1 m below the surface z = 0
+    h, w = 121, 81
     k = np.array([[60.0, 0, (w - 1) / 2], [0, 60.0, (h - 1) / 2], [0, 0, 1]])
-    ramp = np.linspace(0.1, 0.9, w, dtype=np.float32)[None, :, None] * np.ones((h, w, 3), np.float32)
-    rng = np.full((h, w), np.inf, np.float32)
-    rng[h // 2 + 1:] = 6.0                                   # the lower half sees a "floor" 6 m away
-    passes = {"rgb": ramp, "range_m": rng, "index": np.ones((h, w), np.uint8)}
+    rays = np.einsum("ijk,lk->ijl", compose._unit_rays(tuple(k.ravel()), w, h), T[:3, :3].astype(np.float32))
+    to_wall = 5.0 / rays[..., 0]
+    z_wall = -1.0 + to_wall * rays[..., 2]
+    wall = z_wall < 0                                        # below the surface: the wall is seen
+    height = np.where(wall, -z_wall, 0.0).astype(np.float32)  # radiance = depth of the wall point
+    passes = {"rgb": np.repeat(0.1 + 0.1 * height[..., None], 3, axis=2),
+              "range_m": np.where(wall, to_wall, np.inf).astype(np.float32), "index": np.ones((h, w), np.uint8)}
     img = compose.water_image(passes, compose.SequenceState.start(post), k, T, [])
-    top, mirror = img[2:h // 2 - 1], img[h - 3:h // 2 + 1:-1]
-    np.testing.assert_allclose(top, mirror, rtol=1e-4)
-    assert img[: h // 2].max() > 0.5                          # not the (zero) veil
+    dx, dy, dz = rays[..., 0].astype(float), rays[..., 1].astype(float), rays[..., 2].astype(float)
+    el = np.arcsin(np.clip(dz, -1, 1))
+    tir = ~wall & (dz > 0.05) & (el < np.radians(90 - 48.6) - 0.02)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s_wall = (5.0 - dx / dz) / dx                          # from the surface point to the wall
+        depth_hit = 5.0 * dz / dx - 1.0                        # below the surface where it lands
+        y_hit = dy / dz + s_wall * dy
+        u = k[0, 2] + k[0, 0] * -y_hit / 5.0                   # that wall point in the image
+        v = k[1, 2] + k[1, 1] * (depth_hit - 1.0) / 5.0
+    seen = tir & (u > 1) & (u < w - 2) & (v > 1) & (v < h - 2)
+    assert seen.sum() > 50
+    # the camera's own view of that wall point (same depth light, c = 0: no path loss)
+    want = img[np.rint(v[seen]).astype(int), np.rint(u[seen]).astype(int), 0]
+    got = img[seen][:, 0]
+    column = img[:, w // 2, 0]
+    px = np.median(np.abs(np.diff(column))[wall[1:, w // 2] & wall[:-1, w // 2]])   # radiance per px of wall
+    assert np.abs(got - want).max() < 5 * px                 # one ray per 2 x 2 block (magnified near grazing)
+    assert np.median(np.abs(got - want)) < 1.5 * px
+    old = column[np.clip(np.rint(k[1, 2] + k[1, 1] * dz[seen] / dx[seen]), 0, h - 1).astype(int)]
+    assert np.abs(old - want).mean() > 10 * px                # the lookup that ignored the parallax
+    assert img[tir].min() > 0.05                              # never the (zero) veil where the wall is seen
 
 
 def test_pixel_footprint_on_floor_and_wall():
