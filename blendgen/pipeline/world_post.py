@@ -153,18 +153,19 @@ def facing_normals(rays, range_m) -> np.ndarray:
                            * np.where(np.isfinite(range_m), range_m, np.nan).astype(np.float32)[..., None])
 
 
-def footprint_m(rays, range_m, normals, px_rad: float, beam=None) -> np.ndarray:
+def footprint_m(rays, range_m, normals, px_rad: float, beam=None, beam_cos=None) -> np.ndarray:
     """(h, w) width (m) of surface each pixel stands for, ``r px_rad / |cos(incidence)|``
     (``px_rad`` the pixel's angle, ``normals`` :func:`facing_normals`; inf where there is
     none). ``beam`` (3,), a unit light direction: the width of that patch moved up the beam
     onto a horizontal plane instead (times ``sqrt(|n.beam| / |beam_z|)``: a wall's patch
-    shrinks, a floor's stays)."""
+    shrinks, a floor's stays); ``beam_cos`` (h, w): ``n.beam`` when the caller has it."""
     cos = np.abs(np.einsum("ijk,ijk->ij", rays, normals))
     with np.errstate(invalid="ignore", divide="ignore"):
         f = range_m * np.float32(px_rad) / cos
         if beam is not None:
             b = np.asarray(beam, np.float32)
-            f = f * np.sqrt(np.abs(np.einsum("ijk,k->ij", normals, b)) / max(abs(float(b[2])), 1e-3))
+            nb = np.einsum("ijk,k->ij", normals, b) if beam_cos is None else beam_cos
+            f = f * np.sqrt(np.abs(nb) / max(abs(float(b[2])), 1e-3))
     return np.where(np.isfinite(f) & (cos > 1e-3), f, np.inf).astype(np.float32)
 
 
@@ -197,7 +198,7 @@ def add_caustics(rgb, albedo, range_m, depth, wp, rays, K, T_world_cam, t: float
     x = np.float32(T[0, 3]) + r * d[:, 0] + h * back[0]
     y = np.float32(T[1, 3]) + r * d[:, 1] + h * back[1]
     path = h / np.float32(-sun[2])                             # slant path of the beam to the point
-    foot = footprint_m(rays, range_m, normals, 1.0 / float(K[0, 0]), sun)[hit]
+    foot = footprint_m(rays, range_m, normals, 1.0 / float(K[0, 0]), sun, cos_i)[hit]
     gain = caustic_map.frame_factor(waves_of(wp.wave_seed, wp.wind_mps), x, y, path, foot, t,
                                     sf.sun_deflection(wp.sun_travel_dir), scattering, g) - 1      # M - 1
     out = np.array(rgb, np.float32)
