@@ -115,14 +115,13 @@ def _mirror(start, d_refl, K, T, rgb, range_m, depth, pixels=None, max_m: float 
     which rays meet one (n,) bool (in the image, a surface below the water, within ``max_m``).
     With the rays' flat ``pixels`` (n,), only one ray per 2 x 2 block of pixels is marched
     and its block takes its hit (the reflection at half resolution: a quarter of the cost)."""
-    h, w = range_m.shape
+    w = range_m.shape[1]
     n = len(d_refl)
     lead = np.arange(n)
-    if pixels is not None:                      # the ray of each 2 x 2 block's top-left pixel
+    if pixels is not None:                      # each 2 x 2 block's first ray (its top-left pixel if it has it)
         block = (pixels // w // 2) * (w // 2 + 1) + (pixels % w) // 2
-        first = np.full((h // 2 + 1) * (w // 2 + 1), -1, np.int64)
-        first[block[::-1]] = np.arange(n)[::-1]                  # the block's first ray (any pixel of it)
-        lead = first[block]
+        _, first, which = np.unique(block, return_index=True, return_inverse=True)
+        lead = first[which]
     marched = np.unique(lead)
     pix, dist = _march(np.asarray(start)[marched], np.asarray(d_refl)[marched], K, T, range_m, max_m)
     where = np.searchsorted(marched, lead)
