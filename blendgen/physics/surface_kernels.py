@@ -53,7 +53,8 @@ def normals(P, out):
 @nb.njit(cache=True, nogil=True)
 def _pixel(c0, c1, c2, K, range_m):
     """The pixel (flat index; -1 outside the image or behind the camera) a camera-frame point
-    (m) projects to, and its squared range from the camera over the range pass's there."""
+    (m) projects to, and its squared range from the camera less the squared range pass there
+    (> 0: the point is behind the surface the camera sees at that pixel)."""
     h, w = range_m.shape
     if c2 < 1e-3:
         return -1, 0.0
@@ -93,11 +94,12 @@ def reflect(P, E, C, Rt, K, range_m, max_s, pix, dist):
         e0 = Rt[0, 0] * E[i, 0] + Rt[0, 1] * E[i, 1] + Rt[0, 2] * E[i, 2]   # direction, camera frame
         e1 = Rt[1, 0] * E[i, 0] + Rt[1, 1] * E[i, 1] + Rt[1, 2] * E[i, 2]
         e2 = Rt[2, 0] * E[i, 0] + Rt[2, 1] * E[i, 1] + Rt[2, 2] * E[i, 2]
+        ae = a0 * e0 + a1 * e1 + a2 * e2       # d|c|^2/ds = 2 (ae + s): the range grows once s > -ae
         lo, s = 0.0, 0.02
         while s < max_s:
             c0, c1, c2 = a0 + s * e0, a1 + s * e1, a2 + s * e2
             p, behind = _pixel(c0, c1, c2, K, range_m)
-            if p < 0 or (c0 * c0 + c1 * c1 + c2 * c2 > far2 and s * (a0 * e0 + a1 * e1 + a2 * e2 + s) > 0):
+            if p < 0 or (c0 * c0 + c1 * c1 + c2 * c2 > far2 and ae + s > 0):
                 break                          # left the image, or going away beyond every surface
             if behind > 0:
                 x, y = lo, s
