@@ -6,8 +6,8 @@ group too; ``BORDER_JSON`` null for the whole frame or [x0, x1, y0, y1] in 0..1 
 ROI crop) to ``OUT.exr`` as the render worker writes it, then checks that
 :func:`blendgen.blender.exr.read_channels` takes it and that :func:`render.read_passes` equals
 OpenImageIO's read bit for bit, and that the sun's pass holds its light alone (lit where the
-sun reaches, below the combined light by the fill's share, 0 in its shadow). Prints OpenEXR's thread count (``exr_threads N``), then
-``same H W``; exits non-zero (AssertionError) otherwise.
+sun reaches, below the combined light by the fill's share). Prints OpenEXR's thread count
+(``exr_threads N``), then ``same H W``; exits non-zero (AssertionError) otherwise.
 Run by ``tests/test_exr_read.py`` in a subprocess, so bpy stays out of the test process."""
 import json
 import sys

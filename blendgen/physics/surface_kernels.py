@@ -15,7 +15,7 @@ import math
 try:
     import numba as nb
 except ImportError as exc:                      # pragma: no cover - the render extra installs it
-    raise ImportError("surface normals need numba: pip install 'dockbench[render]'") from exc
+    raise ImportError("the surface kernels need numba: pip install 'dockbench[render]'") from exc
 
 
 @nb.njit(cache=True, nogil=True)

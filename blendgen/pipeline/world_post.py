@@ -70,8 +70,8 @@ def add_surface(rgb, range_m, depth, wp, rays, K, T_world_cam, surface_z_m: floa
     ``below_radiance`` (3,) the veil at the camera's depth. Inside Snell's window: the window
     radiance at the surface's range, depth 0. Totally reflected pixels: the clean scene where
     the mirrored ray from the surface meets it, when the camera's own image holds that point
-    (:func:`_mirror`), else ``below_radiance`` (open water). Wave slopes on the :data:`SLOPE_STRIDE` grid
-    (``stride`` overrides it)."""
+    (:func:`_mirror`), else ``below_radiance`` (open water). Wave slopes on the
+    :data:`SLOPE_STRIDE` grid (``stride`` overrides it)."""
     T = np.asarray(T_world_cam, float)
     d = rays
     rise = np.float32(max(surface_z_m - T[2, 3], 0.0))
