@@ -2,9 +2,10 @@
 
 numpy (+ cv2 for one resampling; the normals in one compiled pass, ``surface_kernels``).
 Camera frame (OpenCV), metres, linear RGB. The clean radiance (before the camera path's
-attenuation, which the caller applies) of a Lambertian surface of albedo ``rho`` lit by point lights of intensity ``I(psi)`` (W/sr,
-``lights.PointLight``) at distance ``d`` (Jaffe 1990's direct term; McCluney, *Introduction to
-Radiometry and Photometry*, ch. 2, for the Lambertian reflection ``L = rho E / pi``):
+attenuation, which the caller applies) of a Lambertian surface of albedo ``rho`` lit by point
+lights of intensity ``I(psi)`` (W/sr, ``lights.PointLight``) at distance ``d`` (Jaffe 1990's
+direct term; McCluney, *Introduction to Radiometry and Photometry*, ch. 2, for the Lambertian
+reflection ``L = rho E / pi``):
 
     L = rho / pi * sum_lights I(psi) cos(i) / d^2 * exp(-c d) * visible
 
