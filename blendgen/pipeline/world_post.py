@@ -116,16 +116,12 @@ def _mirror(start, d_refl, K, T, rgb, range_m, depth, pixels=None, max_m: float 
     With the rays' flat ``pixels`` (n,), only one ray per 2 x 2 block of pixels is marched
     and its block takes its hit (the reflection at half resolution: a quarter of the cost)."""
     w = range_m.shape[1]
-    n = len(d_refl)
-    lead = np.arange(n)
+    marched = which = np.arange(len(d_refl))
     if pixels is not None:                      # each 2 x 2 block's first ray (its top-left pixel if it has it)
         block = (pixels // w // 2) * (w // 2 + 1) + (pixels % w) // 2
-        _, first, which = np.unique(block, return_index=True, return_inverse=True)
-        lead = first[which]
-    marched = np.unique(lead)
+        _, marched, which = np.unique(block, return_index=True, return_inverse=True)
     pix, dist = _march(np.asarray(start)[marched], np.asarray(d_refl)[marched], K, T, range_m, max_m)
-    where = np.searchsorted(marched, lead)
-    pix, dist = pix[where], dist[where]
+    pix, dist = pix[which], dist[which]
     ok = pix >= 0
     ok[ok] = depth.ravel()[pix[ok]] > 0
     at = pix[ok]
@@ -204,10 +200,10 @@ def add_caustics(rgb, albedo, range_m, depth, wp, rays, K, T_world_cam, t: float
     at = np.flatnonzero(hit)                                   # flat pixel indices: take/put, not masks
     rows = lambda img: np.take(np.broadcast_to(np.asarray(img, np.float32), out.shape).reshape(-1, 3),  # noqa: E731
                                at, axis=0)
+    base = rows(out)
     lit = rows(sun_pass) if sun_pass is not None else sunlight(
-        rows(out), None if albedo is None else rows(albedo), cos_i.ravel()[at], wp)
-    flat = out.reshape(-1, 3)
-    flat[at] = rows(out) + lit * gain[:, None]
+        base, None if albedo is None else rows(albedo), cos_i.ravel()[at], wp)
+    out.reshape(-1, 3)[at] = base + lit * gain[:, None]
     return out
 
 
