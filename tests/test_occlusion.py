@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 from scipy import stats
 
 from blendgen.geometry import intrinsics_from_hfov, look_at_R, make_T, project
+from blendgen.physics.gauss import standard_normal32
 from blendgen.physics.particles import (ParticleField, count_in_frustum, frustum_volume,
                                 led_visible_fraction, render_particles,
                                 visible_fraction_from_masks)
@@ -349,7 +350,7 @@ def _step_as_written(f: ParticleField, dt, v, L, rng) -> np.ndarray:
     """The drift as SPEC section 4 writes it, with broadcasting and column sums (the code before
     the flat, tiled loops): lo + mod(p + v dt + L z - lo, ext), rounded to float32 and kept inside."""
     pos = f.positions.astype(np.float64) + np.asarray(v, float) * dt
-    z = rng.standard_normal((f.n, 3))
+    z = standard_normal32(rng, f.n * 3).reshape(f.n, 3).astype(np.float64)
     for i in range(3):
         pos[:, i] += z[:, 0] * L[i, 0] + z[:, 1] * L[i, 1] + z[:, 2] * L[i, 2]
     lo, hi = f.region_min, f.region_max

@@ -46,7 +46,7 @@ def drift(pos, v_dt, noise, scale, lo, hi, lo32, top32):
     """New float32 positions (N, 3): ``pos + v_dt + noise * scale`` in float64, wrapped into
     [lo, hi) per axis (``lo + mod(x - lo, hi - lo)``, the mod only for coordinates that left),
     rounded to float32 and clamped into [lo32, top32] (float32 rounding stays inside).
-    pos (N, 3) float32; v_dt, scale, lo, hi (3,) float64; noise (N, 3) float64 or (0, 3) for
+    pos (N, 3) float32; v_dt, scale, lo, hi (3,) float64; noise (N, 3) float32 or float64, (0, 3) for
     none; lo32, top32 (3,) float32."""
     n = pos.shape[0]
     out = np.empty((n, 3), np.float32)

@@ -43,6 +43,7 @@ from typing import Callable
 
 import numpy as np
 
+from blendgen.physics import gauss
 from blendgen.physics import particle_kernels as kern
 from blendgen.physics import particle_optics as popt
 from blendgen.physics import particle_splat as psplat
@@ -180,6 +181,7 @@ class ParticleField:
         covariance Sigma (m^2) of the displacement noise *per step* (the article's
         model; scale it with dt yourself for a diffusion). Returns a new field.
         Positions are re-rounded to float32 each step (~0.5 um at 5 m from the origin).
+        The normal draws are float32 Box-Muller (physics/gauss.py: exact, cut at 5.77 sigma).
         """
         rng = _as_rng(rng)
         if not (math.isfinite(dt) and dt >= 0):
@@ -190,11 +192,11 @@ class ParticleField:
         L = _noise_factor(sigma)
         noise, scale = np.zeros((0, 3)), np.ones(3)
         if np.any(L):
-            z = rng.standard_normal((self.n, 3))
+            z = gauss.standard_normal32(rng, self.n * 3).reshape(self.n, 3)   # float32 Box-Muller
             if np.count_nonzero(L - np.diag(np.diagonal(L))) == 0:
                 noise, scale = z, np.diagonal(L).copy()   # per-axis std-devs (the other terms are +-0)
             else:                                          # eta = L z, as column sums (no BLAS threads)
-                noise = np.empty_like(z)
+                noise = np.empty(z.shape)
                 for i in range(3):
                     noise[:, i] = z[:, 0] * L[i, 0] + z[:, 1] * L[i, 1] + z[:, 2] * L[i, 2]
         lo, hi = self.region_min, self.region_max
