@@ -164,7 +164,7 @@ def test_rendered_defocus_disc_has_thin_lens_diameter_and_conserves_light():
     lens = Lens(focal_length_mm=8.0, f_number=1.0, focus_m=10.0)
     z, r = 0.3, 0.0003
     st = state_with(one([z, 0.0, -1.0], r), lens=lens, mode="article")
-    sh = particle_light.shaper(st.post, K, st.field, T_WC)
+    sh = particle_light.shaper(st.post, K, T_WC)
     p = project_particles(st.field, K, T_WC, W, H, margin_px=8.0)
     out, _, _ = render_particles(np.zeros((H, W, 3), np.float32), np.full((H, W), np.inf, np.float32),
                                  st.field, K, T_WC, colour=[1, 1, 1], shape=sh, margin_px=8.0)
@@ -184,8 +184,12 @@ def test_motion_streak_length_is_velocity_times_exposure():
     st = state_with(one([z, 0.0, -1.0], 0.002), exposure=0.01)
     st.post.occlusion.v_flow = [0.0, vy, 0.0]
     p = project_particles(st.field, K, T_WC, W, H)
-    s = particle_light.streaks(st.post, K, st.field, T_WC, p, 0.1)
-    assert np.hypot(*s[0]) == pytest.approx(K[0, 0] * vy * 0.01 / z, rel=0.02)
+    s = particle_light.shaper(st.post, K, T_WC, prev_pose=(0.0, T_WC), t_s=0.1)(p, W, H)
+    streak = math.sqrt(3.0 * (s.a[0] ** 2 - s.b[0] ** 2))       # a'^2 = a^2 + L^2 / 3 along the streak
+    assert s.b[0] == pytest.approx(p.b[0], rel=1e-5)              # across it: unchanged
+    assert streak == pytest.approx(K[0, 0] * vy * 0.01 / z, rel=0.02)
+    assert abs(s.c[0]) == pytest.approx(1.0, abs=1e-4)            # lateral drift: along the image rows
+    assert s.opacity[0] == pytest.approx(p.a[0] * p.b[0] / (s.a[0] * s.b[0]), rel=1e-5)
 
 
 def test_particle_behind_dock_never_shows_even_lit_and_blurred():
@@ -222,3 +226,33 @@ def test_sun_lit_particle_radiance_is_lambert_sphere_reflection():
     J = particle_light.shader(st.post, st.water, T_WC)(p)
     # theta = 90 deg: p_lambert = 2/(3 pi^2); half the scattering is in the forward lobe
     assert np.allclose(J, 0.3 * 0.5 * 3.0 * 2 / (3 * math.pi ** 2), rtol=1e-4)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_blurred_shape_is_the_eigen_decomposition_of_the_summed_moments(seed):
+    """Independent oracle: 4 x the second-moment matrix, R diag(a^2, b^2) R^T + R_c^2 I +
+    (4/12) L L^T, decomposed by LAPACK (eigh); the compiled half-angle form must agree."""
+    rng = np.random.default_rng(seed)
+    n = 400
+    a = rng.uniform(0.01, 20.0, n).astype(np.float32)
+    b = (a * rng.uniform(0.05, 1.0, n)).astype(np.float32)
+    phi = rng.uniform(-math.pi, math.pi, n)
+    c, s = np.cos(phi).astype(np.float32), np.sin(phi).astype(np.float32)
+    iso = rng.uniform(0.0, 9.0, n).astype(np.float32)
+    iso[:50] = 0.0
+    st = rng.normal(0.0, 6.0, (n, 2)).astype(np.float32)
+    st[50:100] = 0.0
+    a2, b2, c2, s2, op = popt.blurred_shapes(a, b, c, s, iso, st)
+    for i in range(n):
+        R = np.array([[c[i], -s[i]], [s[i], c[i]]], float)
+        S = R @ np.diag([a[i] ** 2, b[i] ** 2]) @ R.T + iso[i] * np.eye(2) + np.outer(st[i], st[i]) / 3.0
+        lam, vec = np.linalg.eigh(S)
+        assert a2[i] == pytest.approx(math.sqrt(lam[1]), rel=1e-4, abs=1e-4)
+        assert b2[i] == pytest.approx(math.sqrt(max(lam[0], 1e-12)), rel=1e-3, abs=2e-3)
+        assert op[i] == pytest.approx(min(a[i] * b[i] / (a2[i] * b2[i]), 1.0), rel=1e-5)
+        if lam[1] - lam[0] > 1e-3 * lam[1]:                  # the major axis is defined
+            assert abs(vec[0, 1] * c2[i] + vec[1, 1] * s2[i]) == pytest.approx(1.0, abs=1e-3)
+    assert np.allclose(np.hypot(c2, s2), 1.0, atol=1e-6)
+    same = popt.blurred_shapes(a, b, c, s)                   # no blur: the ellipse itself
+    assert np.allclose(same[0], a, rtol=1e-5) and np.allclose(same[1], b, rtol=1e-4)
+    assert np.allclose(same[4], 1.0, atol=1e-4)

@@ -1,6 +1,7 @@
 """Marine snow / small obstacles as physical particles: sizes, radiance and camera optics.
 
-Pure numpy. Camera frame = OpenCV (x right, y down, z forward), metres.
+Numpy, and one compiled loop (the blur's moments, particle_kernels.blur). Camera frame = OpenCV
+(x right, y down, z forward), metres.
 
 Sizes (:func:`sample_radii`)
     ``power_law``: the number size spectrum of marine particles and aggregates is a power
@@ -46,6 +47,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from blendgen.physics import lights as lt
+from blendgen.physics import particle_kernels as kern
 
 SIZE_DISTS = ("power_law", "uniform")
 MARINE_SNOW_R_MIN_M = 0.00025      # 0.5 mm diameter
@@ -250,23 +252,11 @@ def blurred_shapes(a, b, c, s, extra_iso_r2=None, streak_uv=None):
     """Ellipse (a radial, b tangential semi-axes px, radial direction (c, s)) convolved with a
     disc of squared radius ``extra_iso_r2`` (M,) px^2 and a streak ``streak_uv`` (M, 2) px
     (full length over the exposure): returns (a', b', c', s', opacity) float32, opacity =
-    a b / (a' b'). Second moments add (module doc): disc R^2/4 per axis, segment L^2/12."""
-    a, b, c, s = (np.asarray(x, np.float32) for x in (a, b, c, s))
-    sxx = a * a * c * c + b * b * s * s          # 4 x second-moment matrix (disc: R^2 I)
-    syy = a * a * s * s + b * b * c * c
-    sxy = (a * a - b * b) * c * s
-    if extra_iso_r2 is not None:
-        sxx = sxx + extra_iso_r2
-        syy = syy + extra_iso_r2
-    if streak_uv is not None:
-        du, dv = streak_uv[:, 0], streak_uv[:, 1]
-        k = np.float32(4.0 / 12.0)              # L^2/12 per axis, times 4 to match R^2/4
-        sxx, syy, sxy = sxx + k * du * du, syy + k * dv * dv, sxy + k * du * dv
-    half_tr = 0.5 * (sxx + syy)
-    root = np.sqrt(0.25 * (sxx - syy) ** 2 + sxy * sxy)
-    a2 = np.sqrt(half_tr + root)
-    b2 = np.sqrt(np.maximum(half_tr - root, 1e-12))
-    phi = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
-    opacity = np.minimum(a * b / np.maximum(a2 * b2, 1e-12), 1.0)
-    return (a2.astype(np.float32), b2.astype(np.float32), np.cos(phi).astype(np.float32),
-            np.sin(phi).astype(np.float32), opacity.astype(np.float32))
+    a b / (a' b'). Second moments add (module doc): disc R^2/4 per axis, segment L^2/12.
+    One compiled pass (``particle_kernels.blur``)."""
+    a, b, c, s = (np.ascontiguousarray(x, np.float32).reshape(-1) for x in (a, b, c, s))
+    zero = np.zeros(a.size, np.float32)
+    column = lambda x: zero if x is None else np.ascontiguousarray(np.broadcast_to(x, a.shape), np.float32)
+    du, dv = (zero, zero) if streak_uv is None else (column(streak_uv[:, 0]), column(streak_uv[:, 1]))
+    out = kern.blur(a, b, c, s, column(extra_iso_r2), du, dv)
+    return out[0], out[1], out[2], out[3], out[4]

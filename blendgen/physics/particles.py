@@ -295,13 +295,13 @@ class ProjectedParticles:
     c: np.ndarray        # (M,) cos of the radial direction in the image
     s: np.ndarray        # (M,) sin of the radial direction
     surf_range: np.ndarray  # (M,) range to the particle surface, ||p|| - r (m)
-    pc: np.ndarray | None = None       # (M, 3) centres in the camera frame (m)
+    pc: np.ndarray | None = None       # (3, M) centres in the camera frame (m): x, y, z rows
     index: np.ndarray | None = None    # (M,) indices into the field
     opacity: np.ndarray | None = None  # (M,) peak opacity after blur (None: 1)
 
     def subset(self, keep: np.ndarray) -> "ProjectedParticles":
         """The particles selected by ``keep`` (bool mask or indices)."""
-        return ProjectedParticles(*(None if x is None else x[keep] for x in (
+        return ProjectedParticles(*(None if x is None else x[..., keep] for x in (
             self.u, self.v, self.a, self.b, self.c, self.s, self.surf_range, self.pc, self.index,
             self.opacity)))
 
@@ -321,15 +321,6 @@ def project_particles(field: ParticleField, K: np.ndarray, T_world_cam: np.ndarr
         np.ascontiguousarray(field.positions, np.float32), np.ascontiguousarray(field.radii, np.float32), R, off,
         np.asarray(K, np.float32), int(width), int(height), np.float32(z_near), np.float32(margin_px))
     return ProjectedParticles(*cols, surf_range, pc, idx)
-
-
-def camera_columns(positions: np.ndarray, T: np.ndarray):
-    """Camera-frame coordinates x, y, z (N,) float32 of world points (N, 3) float32:
-    ``R^T (p - t)`` written as column sums (no (N, 3) temporaries, no BLAS)."""
-    R = T[:3, :3].astype(np.float32)
-    off = (-(T[:3, 3] @ T[:3, :3])).astype(np.float32)   # -R^T t
-    px, py, pz = positions[:, 0], positions[:, 1], positions[:, 2]
-    return tuple(px * R[0, k] + py * R[1, k] + pz * R[2, k] + off[k] for k in range(3))
 
 
 def _water_callable(water) -> Callable | None:
@@ -376,9 +367,9 @@ def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: Parti
     Colour: ``shade(projected) -> (M, 3)`` linear radiance per particle (the physical
     light field: particle_optics.particle_radiance); else ``colour`` (3,) linear RGB, else
     "backscatter" = ``ambient`` (a bright speck lit by the veiling light) or "silhouette" =
-    0.05 * ambient (dark). ``shape(projected) -> projected`` changes the footprints before
-    drawing (defocus, motion streaks: particle_optics.blurred_shapes); ``margin_px`` keeps
-    particles up to that far outside the image for it.
+    0.05 * ambient (dark). ``shape(projected, width, height) -> projected`` changes the footprints
+    before drawing and drops those that then miss the image (defocus, motion streaks:
+    particle_light.shaper); ``margin_px`` keeps particles up to that far outside the image for it.
 
     Compositing: coverage T = prod(1 - alpha_i) is exact and order-independent; with one
     colour ``out = img T + colour (1 - T)`` equals painter's "over". With per-particle
@@ -411,7 +402,7 @@ def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: Parti
     water_fn = _water_callable(water)
     p = project_particles(field, K, T_world_cam, w, h, z_near, margin_px)
     if shape is not None and p.u.size:
-        p = shape(p)
+        p = shape(p, w, h)
     surf = np.asarray(range_m, np.float32).reshape(-1)
     if np.isnan(surf).any():                            # NaN = no surface hit = background
         surf = np.where(np.isnan(surf), np.float32(np.inf), surf)

@@ -95,7 +95,7 @@ def add_particles(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam
     kw = {"mode": state.post.occlusion.mode}
     if state.post.occlusion.mode == "lit":
         kw = {"shade": particle_light.shader(state.post, state.water, T, markers, T_cam_dock, state.lamp),
-              "shape": particle_light.shaper(state.post, K, state.field, T, state.prev_pose, t_s),
+              "shape": particle_light.shaper(state.post, K, T, state.prev_pose, t_s),
               "margin_px": particle_light.MARGIN_PX}
     if water_after:
         kw["background"] = _particle_background(state, K, T, passes["range_m"].shape)

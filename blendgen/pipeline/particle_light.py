@@ -21,8 +21,9 @@ import numpy as np
 from blendgen.physics import lamp_water
 from blendgen.physics import lights as lt
 from blendgen.physics import optics
+from blendgen.physics import particle_kernels as kern
 from blendgen.physics import particle_optics as popt
-from blendgen.physics.particles import ProjectedParticles, camera_columns
+from blendgen.physics.particles import ProjectedParticles
 
 MARGIN_PX = 8.0     # particles centred this far outside the image may still blur into it
 
@@ -39,7 +40,7 @@ def _depth_gain(post, water, T_world_cam: np.ndarray, p: ProjectedParticles) -> 
         g = 1.0 / optics.depth_light(water, post.light_depth_m)
         return [np.full(p.u.size, np.float32(g[k] if np.ndim(g) else g), np.float32) for k in range(3)]
     T = np.asarray(T_world_cam, float)
-    x, y, z = (np.ascontiguousarray(p.pc[:, k]) for k in range(3))
+    x, y, z = p.pc
     rz = T[2, :3].astype(np.float32)
     dist = np.sqrt(x * x + y * y + z * z)
     dir_z = (x * rz[0] + y * rz[1] + z * rz[2]) / np.maximum(dist, np.float32(1e-9))
@@ -68,7 +69,7 @@ def shader(post, water, T_world_cam, markers=None, T_cam_dock=None, lamp=None):
 
     def shade(p: ProjectedParticles) -> np.ndarray:
         gain = _depth_gain(post, water, T_world_cam, p) if lights else None
-        xyz = tuple(np.ascontiguousarray(p.pc[:, k]) for k in range(3))
+        xyz = tuple(p.pc)
         out = popt.radiance_planar(xyz, mat, [amb] * 3, leds, water.c, gain)
         if lamps:
             lit = popt.radiance_planar(xyz, mat, [0.0] * 3, lamps, lamp.c_lamp, gain, beam=lamp.beam)
@@ -90,38 +91,38 @@ def frame_interval(post, prev_pose, t_s) -> tuple[float, np.ndarray | None]:
     return float(t_s - t0), T0
 
 
-def streaks(post, K: np.ndarray, field, T_world_cam, p: ProjectedParticles, dt: float,
-            T_prev=None) -> np.ndarray:
-    """(M, 2) image displacement (px) of each particle over the exposure: its position now minus
-    where it was ``dt`` earlier (drifted back by v_flow, seen from the previous pose, or from
-    this pose when there is none), times exposure / dt (motion assumed uniform over dt)."""
-    T0 = np.array(T_prev if T_prev is not None else T_world_cam, float)
-    T0[:3, 3] += np.asarray(post.occlusion.v_flow, float) * dt     # drifting back = camera ahead
-    x0, y0, z0 = camera_columns(field.positions[p.index], T0)
-    behind = z0 <= np.float32(1e-3)
-    iz = np.float32(1.0) / np.maximum(z0, np.float32(1e-3))
-    u0 = np.float32(K[0, 0]) * x0 * iz + np.float32(K[0, 1]) * y0 * iz + np.float32(K[0, 2])
-    v0 = np.float32(K[1, 1]) * y0 * iz + np.float32(K[1, 2])
-    scale = np.float32(min(post.sensor.exposure_s / dt, 1.0))
-    out = np.stack([np.where(behind, np.float32(0.0), (p.u - u0) * scale),
-                    np.where(behind, np.float32(0.0), (p.v - v0) * scale)], axis=1)
-    return out.astype(np.float32)
+def shaper(post, K: np.ndarray, T_world_cam, prev_pose=None, t_s: float | None = None):
+    """Callable(projected, width, height) -> projected with defocus and motion streaks, without
+    the particles whose blurred footprint misses the image (``particle_kernels.shape``).
 
-
-def shaper(post, K: np.ndarray, field, T_world_cam, prev_pose=None, t_s: float | None = None):
-    """Callable(projected) -> projected with defocus and motion streaks (module doc)."""
+    Streak: each particle's image displacement over the exposure, its position now minus where it
+    was ``dt`` earlier (drifted back by v_flow, seen from the previous pose, or from this pose
+    when there is none), times exposure / dt (motion assumed uniform over dt). The earlier
+    camera-frame point is ``M pc + o``, M = R0^T R, o = R0^T (t - t0), (R, t) this pose and
+    (R0, t0) the previous one moved by v_flow dt. Defocus: thin-lens circle of confusion
+    (``particle_optics.coc_px``'s law, pinhole without a lens)."""
     lens = post.lens
     K = np.asarray(K, float)
     dt, T_prev = frame_interval(post, prev_pose, t_s)
+    T = np.asarray(T_world_cam, float)
+    T0 = np.array(T_prev if T_prev is not None else T, float)
+    T0[:3, 3] += np.asarray(post.occlusion.v_flow, float) * dt     # drifting back = camera ahead
+    M = (T0[:3, :3].T @ T[:3, :3]).astype(np.float32)
+    o = (T0[:3, :3].T @ (T[:3, 3] - T0[:3, 3])).astype(np.float32)
+    scale = np.float32(min(post.sensor.exposure_s / dt, 1.0))
+    coc_k, focus = 0.0, 1.0
+    if lens is not None:                   # c_px = A |z - s_f| / z * f / (s_f - f) * f_px / f
+        f = lens.focal_length_mm * 1e-3
+        popt.coc_px(np.ones(1), f, lens.f_number, lens.focus_m, K[0, 0])     # validates the lens
+        coc_k, focus = (f / lens.f_number) / (lens.focus_m - f) * K[0, 0], lens.focus_m
+    K32 = K.astype(np.float32)
 
-    def shape(p: ProjectedParticles) -> ProjectedParticles:
-        iso = None
-        if lens is not None:
-            c = popt.coc_px(p.pc[:, 2], lens.focal_length_mm * 1e-3, lens.f_number, lens.focus_m, K[0, 0])
-            iso = (0.25 * c * c).astype(np.float32)
-        st = streaks(post, K, field, T_world_cam, p, dt, T_prev)
-        a, b, c_, s_, op = popt.blurred_shapes(p.a, p.b, p.c, p.s, iso, st)
-        return ProjectedParticles(p.u, p.v, a, b, c_, s_, p.surf_range, p.pc, p.index, op)
+    def shape(p: ProjectedParticles, width: int, height: int) -> ProjectedParticles:
+        if p.u.size == 0:
+            return p
+        return ProjectedParticles(*kern.shape(p.u, p.v, p.a, p.b, p.c, p.s, p.surf_range, *p.pc, p.index, M, o,
+                                              K32, scale, np.float32(coc_k), np.float32(focus),
+                                              int(width), int(height)))
     return shape
 
 
