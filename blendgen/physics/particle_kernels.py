@@ -252,30 +252,6 @@ def box(u, v, a, b, c, s):
     return x0, y0, int(math.floor(u + ex)) + 1 - x0, int(math.floor(v + ey)) + 1 - y0
 
 
-@_jit
-def _memory_order(u, v, width, height):
-    """Particle indices (M,) sorted by the 32-px tile of the image row their centre is in
-    (counting sort; centres outside the image go to the nearest tile), so that the splat walks
-    the per-pixel arrays nearly in memory order: within a frame's pipeline, with cold caches,
-    that made it ~10 % faster than particles in field order (``bench particles``)."""
-    tiles_x = (width + 31) // 32
-    n_keys = tiles_x * height
-    start = np.zeros(n_keys + 1, np.int64)
-    key = np.empty(u.size, np.int64)
-    for i in range(u.size):
-        r = min(max(int(math.floor(v[i])), 0), height - 1)
-        t = min(max(int(math.floor(u[i])), 0), width - 1) // 32
-        key[i] = r * tiles_x + t
-        start[key[i] + 1] += 1
-    for k in range(n_keys):
-        start[k + 1] += start[k]
-    order = np.empty(u.size, np.int64)
-    for i in range(u.size):
-        order[start[key[i]]] = i
-        start[key[i]] += 1
-    return order
-
-
 @_inline
 def _footprint(u, v, a, b, c, s, op):
     """A particle's pixel box and coverage law: (x0, y0, sx, sy, speck, fx, fy, ca, sa, cb, sb,
@@ -298,97 +274,230 @@ def _footprint(u, v, a, b, c, s, op):
     return x0, y0, max(sx, 0), max(sy, 0), False, fx, fy, ca, sa, cb, sb, k0, k1, scale
 
 
-@_jit
-def _gather(frame, near, n):
-    """The covered pixels (n,) int64 ascending and their sums (2 + C, n) float32, planar (every
-    later pass runs along n); the scratch rows are reset to [1, 0, 0..]."""
-    hit = np.empty(n, np.int64)
-    out = np.empty((frame.shape[1], n), np.float32)
-    j = 0
-    for pix in range(near.size):
-        if near[pix] < np.inf and j < n:
-            hit[j] = pix
-            for col in range(frame.shape[1]):
-                out[col, j] = frame[pix, col]
-                frame[pix, col] = 0.0
-            frame[pix, 0] = 1.0
-            j += 1
-    return hit, out
+TILE_PX = 32                         # the splat's screen tiles: 32 x 32 pixels of sums stay in L1
+
+
+@_inline
+def _speck_box(u, v):
+    """A speck's 2 x 2 pixels: (x0, y0) of its top-left one and the bilinear fractions (fx, fy)."""
+    x0f, y0f = math.floor(u), math.floor(v)
+    return int(x0f), int(y0f), np.float32(u - x0f), np.float32(v - y0f)
 
 
 @_jit
-def splat(u, v, a, b, c, s, d, op, colour, surf, width, height, frame):
+def _bins(u, v, a, b, c, s, op, width, height):
+    """Particles binned by the TILE_PX tiles their footprint's clipped box meets (counting sort,
+    field order within a tile): (start (n_tiles + 1,) int64, members (E,) int64, samples = the
+    total clipped box area, an upper bound on the covered pixels)."""
+    tiles_x, tiles_y = (width + TILE_PX - 1) // TILE_PX, (height + TILE_PX - 1) // TILE_PX
+    box4 = np.empty((u.size, 4), np.int64)
+    start = np.zeros(tiles_x * tiles_y + 1, np.int64)
+    samples = 0
+    for i in range(u.size):
+        if a[i] < np.float32(SPLAT_BELOW_PX):
+            x0, y0 = _speck_box(u[i], v[i])[:2]
+            sx = sy = 2
+        else:
+            x0, y0, sx, sy = _footprint(u[i], v[i], a[i], b[i], c[i], s[i], op[i])[:4]
+        xa, ya = max(x0, 0), max(y0, 0)
+        xb, yb = min(x0 + sx, width) - 1, min(y0 + sy, height) - 1
+        if xb < xa or yb < ya:
+            xa, xb = 1, 0                       # off the image: no tile
+        box4[i, 0], box4[i, 1], box4[i, 2], box4[i, 3] = xa, ya, xb, yb
+        if xb >= xa:
+            samples += (xb - xa + 1) * (yb - ya + 1)
+            for ty in range(ya // TILE_PX, yb // TILE_PX + 1):
+                for tx in range(xa // TILE_PX, xb // TILE_PX + 1):
+                    start[ty * tiles_x + tx + 1] += 1
+    for k in range(tiles_x * tiles_y):
+        start[k + 1] += start[k]
+    fill = start[:-1].copy()
+    members = np.empty(start[-1], np.int64)
+    for i in range(u.size):
+        xa, ya, xb, yb = box4[i, 0], box4[i, 1], box4[i, 2], box4[i, 3]
+        if xb >= xa:
+            for ty in range(ya // TILE_PX, yb // TILE_PX + 1):
+                for tx in range(xa // TILE_PX, xb // TILE_PX + 1):
+                    members[fill[ty * tiles_x + tx]] = i
+                    fill[ty * tiles_x + tx] += 1
+    return start, members, samples
+
+
+@_jit
+def splat(u, v, a, b, c, s, d, op, colour, surf, width, height):
     """All particles' depth-tested coverage in per-pixel sums (particle_splat module doc).
 
     Per particle (M,) float32: centre u, v (px), semi-axes a, b (px), radial direction c, s,
     surface range d (m), blur opacity op; colour (M, C) float32. surf (H*W,) float32 scene
-    range (inf = background). frame (H*W, 2 + C) float32 scratch holding [1, 0, 0..] on every
-    row (left so). Returns (hit (n,) int64 covered pixels ascending, sums (2 + C, n) float32 =
-    [T, w, w c..], near (H*W,) float32 nearest covering surface range, inf elsewhere).
-    Coverage per :func:`_footprint`, small ellipses (a < NORMALISE_BELOW_PX, square box) scaled
-    to the exact area pi a b over their square; a sample counts only where the scene surface is farther
-    than the particle's surface (depth test) and alpha > 0: T *= 1 - alpha, w += alpha / d^2."""
-    n_col = colour.shape[1]
-    rgb = n_col == 3
-    near = np.full(width * height, np.inf, np.float32)
+    range (inf = background). Returns (hit (n,) int64 covered pixels, tile by tile, sums
+    (2 + C, n) float32 = [T, w, w c..], near (n,) float32 the nearest covering particle's
+    surface range). Coverage per :func:`_footprint`, small ellipses (a < NORMALISE_BELOW_PX,
+    square box) scaled to the exact area pi a b over their square; a sample counts only where
+    the scene surface is farther than the particle's surface (depth test) and alpha > 0:
+    T *= 1 - alpha, w += alpha / d^2.
+
+    Tiled: the particles are binned by the TILE_PX x TILE_PX tiles they meet and each tile's
+    sums are accumulated in a small buffer (L1-resident) and then written out at its covered
+    pixels; a full-frame scratch walked in particle order missed the caches at every sample."""
+    n_acc = 2 + colour.shape[1]
+    rgb = n_acc == 5
+    start, members, samples = _bins(u, v, a, b, c, s, op, width, height)
+    cap = min(samples, width * height)                        # each pixel at most once
+    hit = np.empty(cap, np.int64)
+    out = np.empty((n_acc, cap), np.float32)
+    rng = np.empty(cap, np.float32)
+    acc = np.zeros((TILE_PX * TILE_PX, n_acc), np.float32)    # per tile pixel [T, w, w c..]
+    acc[:, 0] = _F1
+    near = np.full(TILE_PX * TILE_PX, np.inf, np.float32)
+    touched = np.empty(TILE_PX * TILE_PX, np.int64)
     buf = np.empty(GROUP_MAX_PX * GROUP_MAX_PX, np.float32)   # a small ellipse's square
+    tiles_x = (width + TILE_PX - 1) // TILE_PX
     n = 0
-    for i in _memory_order(u, v, width, height):
-        x0, y0, sx, sy, speck, fx, fy, ca, sa, cb, sb, k0, k1, scale = _footprint(
-            u[i], v[i], a[i], b[i], c[i], s[i], op[i])
-        di = d[i]
-        w_d = _F1 / max(di, np.float32(1e-3)) ** 2
-        c_r = c_g = c_b = _F0
-        if rgb:
-            c_r, c_g, c_b = colour[i, 0], colour[i, 1], colour[i, 2]
-        small = not speck and sx <= GROUP_MAX_PX and a[i] < np.float32(NORMALISE_BELOW_PX)
-        if small:            # coverage of the whole square kept, scaled to the exact area pi a b
-            total = _F0
-            for g in range(sx * sx):
-                buf[g] = _coverage(x0 + g % sx, y0 + g // sx, u[i], v[i], ca, sa, cb, sb, k0, k1)
-                total += buf[g]
-            if total > _F0:
-                scale = _PI * a[i] * b[i] / max(total, np.float32(1e-12))
-        for y in range(max(y0, 0), min(y0 + sy, height)):
-            for x in range(max(x0, 0), min(x0 + sx, width)):
-                if speck:
-                    alpha = (fx if x > x0 else _F1 - fx) * (fy if y > y0 else _F1 - fy) * scale
-                elif small:
-                    alpha = min(buf[(y - y0) * sx + x - x0] * scale, _F1) * op[i]
-                else:
-                    alpha = min(_coverage(x, y, u[i], v[i], ca, sa, cb, sb, k0, k1) * scale, _F1) * op[i]
-                pix = y * width + x
-                if not (alpha > _F0 and surf[pix] > di):       # depth test
-                    continue
-                nr = near[pix]
-                n += nr == np.inf                               # a newly covered pixel
-                near[pix] = min(nr, di)
-                frame[pix, 0] *= _F1 - min(alpha, np.float32(ALPHA_MAX))
-                w = alpha * w_d
-                frame[pix, 1] += w
-                if rgb:                                         # the usual case, unrolled
-                    frame[pix, 2] += w * c_r
-                    frame[pix, 3] += w * c_g
-                    frame[pix, 4] += w * c_b
-                else:
-                    for j in range(n_col):
-                        frame[pix, 2 + j] += w * colour[i, j]
-    hit, out = _gather(frame, near, n)
-    return hit, out, near
+    for tile in range(start.size - 1):
+        tx0, ty0 = (tile % tiles_x) * TILE_PX, (tile // tiles_x) * TILE_PX
+        tx1, ty1 = min(tx0 + TILE_PX, width), min(ty0 + TILE_PX, height)
+        n_touched = 0
+        for e in range(start[tile], start[tile + 1]):
+            i = members[e]
+            di = d[i]
+            dd = max(di, np.float32(1e-3))
+            w_d = _F1 / (dd * dd)
+            if a[i] < np.float32(SPLAT_BELOW_PX):              # a speck: its 2 x 2 pixels
+                x0, y0, fx, fy = _speck_box(u[i], v[i])
+                scale = _PI * a[i] * b[i] * op[i]
+                for k in range(4):
+                    x, y = x0 + (k & 1), y0 + (k >> 1)
+                    if x < tx0 or x >= tx1 or y < ty0 or y >= ty1:
+                        continue
+                    alpha = (fx if k & 1 else _F1 - fx) * (fy if k >> 1 else _F1 - fy) * scale
+                    if not (alpha > _F0 and surf[y * width + x] > di):      # depth test
+                        continue
+                    t = (y - ty0) * TILE_PX + x - tx0
+                    if near[t] == np.inf:                # first touch: listed for the write-out
+                        touched[n_touched] = t
+                        n_touched += 1
+                    near[t] = min(near[t], di)
+                    acc[t, 0] *= _F1 - min(alpha, np.float32(ALPHA_MAX))
+                    w = alpha * w_d
+                    acc[t, 1] += w
+                    if rgb:                                  # the usual case, unrolled
+                        acc[t, 2] += w * colour[i, 0]
+                        acc[t, 3] += w * colour[i, 1]
+                        acc[t, 4] += w * colour[i, 2]
+                    else:
+                        for j in range(2, n_acc):
+                            acc[t, j] += w * colour[i, j - 2]
+                continue
+            x0, y0, sx, sy, speck, fx, fy, ca, sa, cb, sb, k0, k1, scale = _footprint(
+                u[i], v[i], a[i], b[i], c[i], s[i], op[i])
+            small = sx <= GROUP_MAX_PX and a[i] < np.float32(NORMALISE_BELOW_PX)
+            if small:        # coverage of the whole square kept, scaled to the exact area pi a b
+                total = _F0
+                for g in range(sx * sx):
+                    buf[g] = _coverage(x0 + g % sx, y0 + g // sx, u[i], v[i], ca, sa, cb, sb, k0, k1)
+                    total += buf[g]
+                if total > _F0:
+                    scale = _PI * a[i] * b[i] / max(total, np.float32(1e-12))
+            for y in range(max(y0, ty0), min(y0 + sy, ty1)):
+                for x in range(max(x0, tx0), min(x0 + sx, tx1)):
+                    if small:
+                        alpha = min(buf[(y - y0) * sx + x - x0] * scale, _F1) * op[i]
+                    else:
+                        alpha = min(_coverage(x, y, u[i], v[i], ca, sa, cb, sb, k0, k1) * scale, _F1) * op[i]
+                    if not (alpha > _F0 and surf[y * width + x] > di):      # depth test
+                        continue
+                    t = (y - ty0) * TILE_PX + x - tx0
+                    if near[t] == np.inf:                # first touch: listed for the write-out
+                        touched[n_touched] = t
+                        n_touched += 1
+                    near[t] = min(near[t], di)
+                    acc[t, 0] *= _F1 - min(alpha, np.float32(ALPHA_MAX))
+                    w = alpha * w_d
+                    acc[t, 1] += w
+                    if rgb:                                  # the usual case, unrolled
+                        acc[t, 2] += w * colour[i, 0]
+                        acc[t, 3] += w * colour[i, 1]
+                        acc[t, 4] += w * colour[i, 2]
+                    else:
+                        for j in range(2, n_acc):
+                            acc[t, j] += w * colour[i, j - 2]
+        for q in range(n_touched):                            # write out, reset
+            t = touched[q]
+            hit[n], rng[n] = (ty0 + t // TILE_PX) * width + tx0 + t % TILE_PX, near[t]
+            for j in range(n_acc):
+                out[j, n] = acc[t, j]
+                acc[t, j] = _F0
+            acc[t, 0] = _F1
+            near[t] = np.inf
+            n += 1
+    return hit[:n], out[:, :n], rng[:n]
 
 
 # ----------------------------------------------------------------------------- compositing
+@_jit_vec
+def transfer_exponents(hit, near, surf, width, K, rz, c, kd, cam_depth, physical):
+    """The exponents of the background transfer at the covered pixels (``particle_light.Transfer``):
+    (9, n) float32 rows ``-c_k dr`` (3), ``-Kd_k (depth_bg - depth_p)`` (3), ``Kd_k depth_p`` (3),
+    dr = r_bg - r_p (0 where the background is open water, r_bg = inf), depths
+    ``max(cam_depth - r dir_z, 0)`` with dir_z the world z of the pixel's unit ray (from K (3, 3)
+    and rz (3,) = the camera axes' world z); article (``physical`` False): the depth rows are 0.
+    hit (n,) int64 flat pixels, near (n,) float32 the particle's range there, surf (H*W,) float32
+    the scene's (m)."""
+    n = hit.size
+    out = np.empty((9, n), np.float32)
+    fx, sk, cx, fy, cy = K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
+    rz0, rz1, rz2 = rz[0], rz[1], rz[2]
+    c0, c1, c2, k0, k1, k2 = c[0], c[1], c[2], kd[0], kd[1], kd[2]
+    on = _F1 if physical else _F0
+    for j in range(n):
+        pix = hit[j]
+        r_p, r_bg = near[j], surf[pix]
+        finite = r_bg < np.inf
+        dr = r_bg - r_p if finite else _F0
+        y = (np.float32(pix // width) - cy) / fy
+        x = (np.float32(pix % width) - cx - sk * y) / fx
+        dz = (x * rz0 + y * rz1 + rz2) / np.sqrt(x * x + y * y + _F1)
+        dp = max(cam_depth - r_p * dz, _F0) * on
+        ddep = max(cam_depth - (r_bg if finite else r_p) * dz, _F0) * on - dp
+        out[0, j], out[1, j], out[2, j] = -c0 * dr, -c1 * dr, -c2 * dr
+        out[3, j], out[4, j], out[5, j] = -k0 * ddep, -k1 * ddep, -k2 * ddep
+        out[6, j], out[7, j], out[8, j] = k0 * dp, k1 * dp, k2 * dp
+    return out
+
+
 @_jit
-def composite(flat_rgb, hit, cov, colour, gain, add):
-    """In place on the interleaved (H*W*3,) float32 image at the covered pixels hit (n,):
-    ``out = (img gain + add) T + colour (1 - T)``, cov = 1 - T (n,), colour, gain, add (3, n)
-    float32 (gain/add of shape (3, 0): ``out = img T + colour (1 - T)``)."""
-    with_bg = gain.shape[1] == hit.size
-    for j in range(hit.size):
-        keep = _F1 - cov[j]
-        base = hit[j] * 3
+def resolve(flat_rgb, merged, mask, hit, acc, near, colour, surf, c, factors, veil):
+    """In place at the covered pixels hit (n,): the particles over the background,
+    ``out = (img gain + add) T + colour (1 - T)``, plus the occluder mask and the merged range.
+
+    flat_rgb (H*W*3,) float32 interleaved image; merged (H*W,) float32 range, set to the nearest
+    particle's; mask (H*W,) bool, set where 1 - T >= 0.5; acc (2 + C, n) float32 = [T, w, w c..]
+    (``splat``); near (n,) float32 the particles' range. colour: (3, n) float32 per pixel, (3, 1) one for all, or
+    (3, 0): the weighted mean ``w c / w``. Background transfer: ``factors`` (9, n) float32 =
+    exp of :func:`transfer_exponents`, or (9, 0) for none (gain 1, add 0); then tr = t_bg / t_p
+    (0 on open water where c > 0), gain = tr x depth factor, add = (1 - tr) x exp(Kd depth_p) x
+    veil (3,) float32; surf (H*W,) and c (3,) float32 tell open water and the channel's c."""
+    n = hit.size
+    per_pixel, one = colour.shape[1] == n and n > 0, colour.shape[1] == 1
+    with_bg = factors.shape[1] == n
+    for j in range(n):
+        pix = hit[j]
+        keep = acc[0, j]
+        cov = _F1 - keep
+        w = acc[1, j]
+        inv = _F1 / w if w > _F0 else _F1
+        open_water = not surf[pix] < np.inf
         for ch in range(3):
-            bg = flat_rgb[base + ch]
+            if per_pixel:
+                col = colour[ch, j]
+            elif one:
+                col = colour[ch, 0]
+            else:
+                col = acc[2 + ch, j] * inv
+            bg = flat_rgb[pix * 3 + ch]
             if with_bg:
-                bg = bg * gain[ch, j] + add[ch, j]
-            flat_rgb[base + ch] = bg * keep + colour[ch, j] * cov[j]
+                tr = _F0 if open_water and c[ch] > _F0 else factors[ch, j]
+                bg = bg * (tr * factors[3 + ch, j]) + (_F1 - tr) * factors[6 + ch, j] * veil[ch]
+            flat_rgb[pix * 3 + ch] = bg * keep + col * cov
+        mask[pix] = cov >= _HALF
+        merged[pix] = near[j]

@@ -1,15 +1,15 @@
 """Anti-aliased, depth-tested splatting of projected particles into per-pixel sums.
 
 The fast path of :func:`blendgen.physics.particles.render_particles`; the loop itself is
-compiled (``particle_kernels.splat``, one pass over the particles, a few nanoseconds per
-covered pixel sample).
+compiled (``particle_kernels.splat``: the particles binned by 32 x 32 screen tiles, each tile's
+sums kept in a small buffer, a few nanoseconds per covered pixel sample).
 
 Per pixel (flat index ``k``) the sums are, over the samples in front of the surface
 (``alpha_i`` the coverage times the particle's blur opacity, ``d_i`` the range to its surface):
 the transmittance ``T[k] = prod(1 - alpha_i)``,
 ``w[k] = sum alpha_i / d_i^2`` and ``wc[c][k] = sum alpha_i c_i / d_i^2`` (the weights of the
-order-independent mean colour, McGuire & Bavoil 2013) and ``near[k] = min d_i`` (inf: no
-particle). Coverage: specks (semi-axis < 0.5 px) are splat bilinearly with alpha = their area
+order-independent mean colour, McGuire & Bavoil 2013) and ``near[k] = min d_i``, at the pixels
+some sample covers. Coverage: specks (semi-axis < 0.5 px) are splat bilinearly with alpha = their area
 (px^2); larger ellipses get an anti-aliased ramp: with q the normalised elliptic radius (q = 1
 on the rim) and m = sqrt(a b), the signed distance to the rim is ~ (q - 1) m and alpha =
 clip(0.5 + m - m q, 0, 1). The rim is exact; only the 1-px ramp is approximate, so ellipses
@@ -17,7 +17,6 @@ with a < 4 px are renormalised to the exact area pi a b over their (square) box.
 """
 from __future__ import annotations
 
-import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,14 +30,23 @@ __all__ = ["ALPHA_MAX", "GROUP_MAX_PX", "NORMALISE_BELOW_PX", "SPLAT_BELOW_PX", 
 
 @dataclass
 class Sums:
-    """Per-pixel sums (module doc) at the covered pixels ``hit`` (n,) int64 (flat, ascending):
-    the transmittance ``trans`` (n,) float32 and ``wc`` (1 + C, n) float32 = [w, w c_1 .. w c_C]
-    (None without per-particle colours); ``near`` (H*W,) float32 for the whole frame (inf where
-    nothing covers)."""
+    """Per-pixel sums (module doc) at the covered pixels ``hit`` (n,) int64 (flat indices, each
+    once, in tile order): ``acc`` (2 + C, n) float32 = [T, w, w c_1 .. w c_C] (the transmittance,
+    the weights and the weighted colours); ``near`` (n,) float32 the nearest covering particle's
+    surface range (m)."""
     hit: np.ndarray
-    trans: np.ndarray
-    wc: np.ndarray | None
+    acc: np.ndarray
     near: np.ndarray
+
+    @property
+    def trans(self) -> np.ndarray:
+        """(n,) float32 transmittance T."""
+        return self.acc[0]
+
+    @property
+    def wc(self) -> np.ndarray | None:
+        """(1 + C, n) float32 [w, w c..], None without per-particle colours."""
+        return self.acc[1:] if self.acc.shape[0] > 2 else None
 
 
 @dataclass
@@ -64,21 +72,11 @@ def boxes(p: Particles, sel: np.ndarray):
     return tuple(out.reshape(-1, 4).T)
 
 
-_SCRATCH = threading.local()    # per thread, per (pixels, colours): the kernel's full-frame sums
-
-
 def splat(p: Particles, surf: np.ndarray, width: int, height: int) -> Sums:
     """All particles' depth-tested coverage in per-pixel sums (module doc).
 
     surf (H*W,) float32 scene range per pixel (inf = background, no NaN)."""
     f32 = lambda x: np.ascontiguousarray(x, np.float32)
-    colour = f32(p.colour)                                # (M, C)
-    frames = _SCRATCH.__dict__.setdefault("frames", {})
-    key = (width * height, colour.shape[1])
-    frame = frames.get(key)
-    if frame is None:                                     # [T = 1, w = 0, w c = 0] per pixel
-        frame = frames[key] = np.zeros((key[0], 2 + key[1]), np.float32)
-        frame[:, 0] = 1.0
     hit, acc, near = kern.splat(f32(p.u), f32(p.v), f32(p.a), f32(p.b), f32(p.c), f32(p.s), f32(p.d),
-                                f32(p.op), colour, f32(surf), int(width), int(height), frame)
-    return Sums(hit, acc[0], acc[1:] if colour.shape[1] else None, near)
+                                f32(p.op), f32(p.colour), f32(surf), int(width), int(height))
+    return Sums(hit, acc, near)

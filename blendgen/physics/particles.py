@@ -354,7 +354,7 @@ def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: Parti
                      K: np.ndarray, T_world_cam: np.ndarray, water=None, mode: str = "backscatter",
                      z_near: float = 0.05, colour=None, ambient=DEFAULT_AMBIENT_RGB,
                      shade: Callable | None = None, shape: Callable | None = None, margin_px: float = 0.0,
-                     merged_range: bool = False, background: Callable | None = None):
+                     merged_range: bool = False, background=None):
     """Draw the particle field into a linear RGB image with a depth test.
 
     image_linear (H,W,3) float, range_m (H,W) float (range along each pixel ray to
@@ -385,12 +385,12 @@ def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: Parti
     pixel gets the colour at its nearest particle's range. Or (b) keep ``water=None``
     on a clean image and apply water to ``image_out`` with the merged range
     ``np.where(particle_range < inf, particle_range, range_m)``. That is exact on partly
-    covered pixels only with ``background(hit (n,), r_p (n,), r_bg (n,)) -> (gain, add)``
-    (each (3, n) float32): the background's clean radiance is replaced by ``img gain + add``
-    so that, once the water model runs at the particle's range r_p, the pixel shows
-    ``T L_bg + (1 - T) L_p`` with each layer seen through water at its own range
-    (pipeline/particle_light.background_transfer). Without it a defocused disc's faint rim
-    shows the background at the particle's range: a bright or dark ring.
+    covered pixels only with ``background`` (pipeline/particle_light.Transfer): the background's
+    clean radiance is replaced by ``img gain + add`` so that, once the water model runs at the
+    particle's range r_p, the pixel shows ``T L_bg + (1 - T) L_p`` with each layer seen through
+    water at its own range. Without it a defocused disc's faint rim shows the background at the
+    particle's range: a bright or dark ring. The compositing, mask and merged range are one
+    compiled pass over the covered pixels (particle_kernels.resolve).
     """
     img = np.asarray(image_linear, np.float32)
     h, w = img.shape[:2]
@@ -409,37 +409,22 @@ def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: Parti
     colours = (np.asarray(shade(p), np.float32).reshape(-1, 3) if shade is not None
                else np.zeros((p.u.size, 0), np.float32))
     sums = psplat.splat(_splat_input(p, colours), surf, w, h)
-    prange, hit = sums.near, sums.hit                    # nearest covering particle, inf elsewhere
-    cov = np.float32(1.0) - sums.trans
-    if shade is not None:                                # planar (3, n_hit): long numpy loops
-        wc = sums.wc
-        c = wc[1:] * (np.float32(1.0) / np.where(wc[0] > 0, wc[0], np.float32(1.0)))
-    else:
-        c = np.broadcast_to(col[:, None], (3, hit.size))
+    hit = sums.hit
+    colour_px = col[:, None] if shade is None else np.zeros((3, 0), np.float32)   # (3, 0): w c / w
     if water_fn is not None:
-        c = np.asarray(water_fn(np.ascontiguousarray(c.T), prange.take(hit)), np.float32).T
+        wc = sums.wc
+        c = wc[1:] / np.where(wc[0] > 0, wc[0], np.float32(1.0)) if shade is not None \
+            else np.broadcast_to(col[:, None], (3, hit.size))
+        colour_px = np.ascontiguousarray(
+            np.asarray(water_fn(np.ascontiguousarray(c.T), sums.near), np.float32).T)
     out = img.copy()
-    gain_add = background(hit, prange.take(hit), surf.take(hit)) if background is not None and hit.size else None
-    _composite(out.reshape(-1), hit, cov, c, gain_add)
+    merged = np.array(range_m, np.float32).reshape(-1) if merged_range else np.full(h * w, np.inf, np.float32)
     mask = np.zeros(h * w, bool)
-    mask[hit] = cov >= 0.5
-    if merged_range:
-        merged = np.array(range_m, np.float32)
-        merged.reshape(-1)[hit] = prange.take(hit)
-        return out, mask.reshape(h, w), merged
-    return out, mask.reshape(h, w), prange.reshape(h, w)
-
-
-def _composite(flat_rgb: np.ndarray, hit: np.ndarray, cov: np.ndarray, colour: np.ndarray,
-               gain_add=None) -> None:
-    """In place on the interleaved (H*W*3,) image: ``out = img T + colour (1 - T)`` at the
-    covered pixels ``hit`` (n,), cov = 1 - T (n,), colour (3, n); with ``gain_add`` = (gain,
-    add) (3, n) each, ``out = (img gain + add) T + colour (1 - T)`` (render_particles doc)."""
-    planar = lambda x: np.ascontiguousarray(np.asarray(x, np.float32).reshape(3, -1))
-    none = np.zeros((3, 0), np.float32)
-    gain, add = (planar(gain_add[0]), planar(gain_add[1])) if gain_add is not None else (none, none)
-    kern.composite(flat_rgb, np.ascontiguousarray(hit, np.int64), np.ascontiguousarray(cov, np.float32),
-                   planar(np.broadcast_to(colour, (3, hit.size))), gain, add)
+    factors = background.factors(hit, sums.near, surf, w) if background is not None and hit.size \
+        else np.zeros((9, 0), np.float32)
+    c_bg, veil = (background.c, background.veil) if background is not None else (np.zeros(3, np.float32),) * 2
+    kern.resolve(out.reshape(-1), merged, mask, hit, sums.acc, sums.near, colour_px, surf, c_bg, factors, veil)
+    return out, mask.reshape(h, w), merged.reshape(h, w)
 
 
 def _splat_input(p: ProjectedParticles, colours: np.ndarray) -> psplat.Particles:

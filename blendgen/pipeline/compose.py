@@ -98,18 +98,17 @@ def add_particles(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam
               "shape": particle_light.shaper(state.post, K, T, state.prev_pose, t_s),
               "margin_px": particle_light.MARGIN_PX}
     if water_after:
-        kw["background"] = _particle_background(state, K, T, passes["range_m"].shape)
+        kw["background"] = _particle_background(state, K, T)
     rgb, occ_mask, rng_eff = occlusion.render_particles(passes["rgb"], passes["range_m"], state.field, K, T,
                                                         merged_range=True, **kw)
     state.prev_pose = (t_s, T)
     return {**passes, "rgb": rgb, "range_m": rng_eff}, occ_mask
 
 
-def _particle_background(state: SequenceState, K: np.ndarray, T: np.ndarray, shape: tuple):
+def _particle_background(state: SequenceState, K: np.ndarray, T: np.ndarray):
     """particle_light.background_transfer with the water, veil and depth that :func:`water_image`
     will use on this frame (same frame veil, same per-pixel depth along each ray)."""
     post, water = state.post, state.water
-    h, w = shape
     physical = post.image_formation == "physical"
     if not physical:
         return particle_light.background_transfer(water, water.B_inf, False)
@@ -118,8 +117,7 @@ def _particle_background(state: SequenceState, K: np.ndarray, T: np.ndarray, sha
     if state.water_opts.get("veil"):
         water, veil_depth = frame_veil(state, T, cam_depth), 0.0
     B = water.B_inf * state.water_opts["irradiance"] * optics.depth_light(water, veil_depth)
-    dir_z = _unit_rays(tuple(np.asarray(K, float).ravel()), w, h) @ T[2, :3].astype(np.float32)
-    return particle_light.background_transfer(water, B, True, dir_z, cam_depth)
+    return particle_light.background_transfer(water, B, True, K, T, cam_depth)
 
 
 @functools.lru_cache(maxsize=4)

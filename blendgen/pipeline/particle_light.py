@@ -16,6 +16,8 @@ the streak of the particle's motion relative to the camera over the exposure (it
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from blendgen.physics import lamp_water
@@ -126,49 +128,40 @@ def shaper(post, K: np.ndarray, T_world_cam, prev_pose=None, t_s: float | None =
     return shape
 
 
-def background_transfer(water, veil_rgb, physical: bool, dir_z=None, cam_depth_m: float = 0.0):
-    """Callable(hit (n,), r_p (n,), r_bg (n,)) -> (gain, add) 3 x (n,) float32: what replaces the
-    background's clean radiance J_bg on pixels a particle partly covers, so that compose's
-    water model -- ``L = J D t(r) + B (1 - t(r))`` per pixel, t = exp(-c r), D the depth
-    factor (physical: exp(-Kd depth) of the surface at range r; article: a constant applied
+@dataclass(frozen=True)
+class Transfer:
+    """What replaces the background's clean radiance J_bg on pixels a particle partly covers, so
+    that compose's water model -- ``L = J D t(r) + B (1 - t(r))`` per pixel, t = exp(-c r), D the
+    depth factor (physical: exp(-Kd depth) of the surface at range r; article: a constant applied
     to the whole pixel at the end) -- run at the particle's range r_p gives exactly
     ``T L_bg + (1 - T) L_p``, each layer through water at its own range:
     ``J_bg' = J_bg D_bg t_bg / (D_p t_p) + B (t_p - t_bg) / (D_p t_p)`` (article: D = 1 here).
-    r_bg = inf (open water): t_bg = 0, only the veil term. ``water`` the frame's optics (c, Kd),
-    ``veil_rgb`` (3,) the veil B the water model adds; physical mode: ``dir_z`` (H*W,) the world
-    z of each pixel's unit ray and ``cam_depth_m`` the camera's depth, so that a point at range
-    r is at depth max(cam_depth - r dir_z, 0) (compose.surface_depth)."""
-    c = np.asarray(water.c, np.float32).reshape(3)
-    kd = np.asarray(water.Kd, np.float32).reshape(3)
-    B = np.asarray(veil_rgb, np.float32).reshape(3)
-    dz = np.asarray(dir_z, np.float32).reshape(-1) if physical else np.zeros(0, np.float32)
+    r_bg = inf (open water): t_bg = 0, only the veil term. A point at range r along a pixel's
+    unit ray (world z dir_z) is at depth max(cam_depth - r dir_z, 0) (compose.surface_depth).
 
-    def kd_depth(hit: np.ndarray, r: np.ndarray) -> np.ndarray:
-        return np.maximum(np.float32(cam_depth_m) - r * dz.take(hit), np.float32(0.0))
+    c, kd, veil (3,) float32: the frame's beam attenuation, diffuse attenuation and the veil B
+    the water model adds; K (3, 3) and rz (3,) float32 (the camera axes' world z) give dir_z.
+    Evaluated at the covered pixels by particle_kernels.transfer_exponents and resolve."""
+    c: np.ndarray
+    kd: np.ndarray
+    veil: np.ndarray
+    physical: bool
+    K: np.ndarray
+    rz: np.ndarray
+    cam_depth_m: float
 
-    def transfer(hit: np.ndarray, r_p: np.ndarray, r_bg: np.ndarray):
-        rp = np.asarray(r_p, np.float32)
-        finite = np.isfinite(r_bg)
-        dr = np.where(finite, r_bg - rp, np.float32(0.0)).astype(np.float32)   # r_bg - r_p >= 0
-        if physical:
-            dp = kd_depth(hit, rp)
-            ddep = kd_depth(hit, np.where(finite, r_bg, rp).astype(np.float32)) - dp   # depth_bg - depth_p
-        done: dict = {}
-        gain, add = [], []
-        for k in range(3):
-            key = (c[k], kd[k])
-            if key not in done:                            # grey water: one pass for all channels
-                tr = np.exp(-c[k] * dr)                    # t_bg / t_p
-                if c[k] > 0:
-                    tr[~finite] = 0.0
-                if physical:
-                    g = tr * np.exp(-kd[k] * ddep) if kd[k] != 0 else tr
-                    veil = (np.float32(1.0) - tr) * np.exp(kd[k] * dp)
-                else:
-                    g, veil = tr, np.float32(1.0) - tr
-                done[key] = (g.astype(np.float32, copy=False), veil.astype(np.float32, copy=False))
-            g, veil = done[key]
-            gain.append(g)
-            add.append(veil * B[k])
-        return gain, add
-    return transfer
+    def factors(self, hit: np.ndarray, near: np.ndarray, surf: np.ndarray, width: int) -> np.ndarray:
+        """(9, n) float32: t_bg / t_p, 1 / (depth factor ratio), exp(Kd depth_p) per channel."""
+        e = kern.transfer_exponents(hit, near, surf, int(width), self.K, self.rz, self.c, self.kd,
+                                    np.float32(self.cam_depth_m), self.physical)
+        return np.exp(e, out=e)                # numpy's exp is vectorised, a compiled scalar one is not
+
+
+def background_transfer(water, veil_rgb, physical: bool, K=None, T_world_cam=None,
+                        cam_depth_m: float = 0.0) -> Transfer:
+    """The :class:`Transfer` of a frame: ``water`` its optics (c, Kd), ``veil_rgb`` (3,) the veil
+    the water model adds; physical mode: the camera's K, pose (world z up) and depth (m)."""
+    f32 = lambda x: np.asarray(x, np.float32).reshape(3)
+    K32 = np.eye(3, dtype=np.float32) if K is None else np.asarray(K, np.float32)
+    rz = np.zeros(3, np.float32) if T_world_cam is None else np.asarray(T_world_cam, np.float32)[2, :3].copy()
+    return Transfer(f32(water.c), f32(water.Kd), f32(veil_rgb), bool(physical), K32, rz, float(cam_depth_m))
