@@ -123,3 +123,42 @@ def test_footprints_across_tile_corners_are_summed_once_per_pixel():
     assert np.array_equal(np.sort(sums.hit), np.flatnonzero(np.isfinite(near)))
     assert np.allclose(sums.trans, np.exp(log_t).reshape(-1)[sums.hit], rtol=1e-5, atol=1e-6)
     assert np.allclose(sums.wc[1:].T, wc.reshape(-1, 3)[sums.hit], rtol=1e-5, atol=1e-6)
+
+
+def test_vectorisable_exp_is_as_accurate_as_float32_allows():
+    from blendgen.physics.particle_kernels import exp32
+    x = np.concatenate([np.random.default_rng(0).uniform(-87.0, 88.0, 2000), [-87.0, -1e-6, 0.0, 1e-6, 1.0, 88.0]])
+    got = np.array([exp32(np.float32(v)) for v in x.astype(np.float32)], np.float64)
+    ref = np.exp(x.astype(np.float32).astype(np.float64))
+    assert np.max(np.abs(got - ref) / ref) < 1.5e-7                 # numpy's own float32 exp: ~2e-7
+    assert exp32(np.float32(-200.0)) == pytest.approx(1.1754944e-38, rel=1e-5)   # clamped, no garbage
+    assert exp32(np.float32(0.0)) == 1.0
+
+
+@pytest.mark.parametrize("physical", [True, False])
+def test_background_transfer_matches_the_two_layer_formula(physical):
+    """particle_kernels.transfer against its law written out in float64 numpy (the particle_light
+    Transfer doc): gain = t_bg/t_p x D_bg/D_p, add = (1 - t_bg/t_p) B / D_p; open water: t_bg = 0."""
+    from blendgen.geometry import intrinsics_from_hfov
+    from blendgen.physics.particle_kernels import transfer
+    rng = np.random.default_rng(1)
+    w, h, n = 64, 48, 500
+    K = intrinsics_from_hfov(w, h, math.radians(70.0))
+    rz = np.array([0.1, -0.9, 0.3]) / np.linalg.norm([0.1, -0.9, 0.3])
+    hit = rng.choice(w * h, n, replace=False).astype(np.int64)
+    near = rng.uniform(0.2, 6.0, n)
+    far = near + rng.uniform(0.0, 10.0, n)
+    far[:60] = np.inf
+    c, kd, B, cam = np.array([0.6, 0.25, 0.15]), np.array([0.5, 0.1, 0.05]), np.array([0.02, 0.05, 0.07]), 3.0
+    got = transfer(hit, near.astype(np.float32), far.astype(np.float32), w, K.astype(np.float32),
+                   rz.astype(np.float32), c.astype(np.float32), kd.astype(np.float32), B.astype(np.float32),
+                   np.float32(cam), physical)
+    y = (hit // w - K[1, 2]) / K[1, 1]
+    x = (hit % w - K[0, 2] - K[0, 1] * y) / K[0, 0]
+    dz = (x * rz[0] + y * rz[1] + rz[2]) / np.sqrt(x * x + y * y + 1)
+    depth = lambda r: np.maximum(cam - r * dz, 0.0) if physical else np.zeros(n)
+    finite = np.isfinite(far)
+    tr = np.where(finite, np.exp(-c[:, None] * np.where(finite, far - near, 0.0)), 0.0)
+    gain = tr * np.exp(-kd[:, None] * (depth(np.where(finite, far, near)) - depth(near)))
+    add = (1 - tr) * np.exp(kd[:, None] * depth(near)) * B[:, None]
+    assert np.allclose(got[:3], gain, rtol=2e-5, atol=1e-7) and np.allclose(got[3:], add, rtol=2e-5, atol=1e-8)

@@ -27,6 +27,8 @@ import numpy as np
 
 try:
     import numba as nb
+    from numba.core import types
+    from numba.extending import intrinsic
 except ImportError as exc:                      # pragma: no cover - the render extra installs it
     raise ImportError("the fast particle path needs numba: pip install 'dockbench[render]'") from exc
 
@@ -38,6 +40,40 @@ ALPHA_MAX = 1.0 - 1e-6               # keeps the transmittance T = prod(1 - alph
 _jit = nb.njit(cache=True, nogil=True)
 _inline = nb.njit(cache=True, nogil=True, inline="always")   # helpers: no call or refcount overhead
 _F0, _F1, _HALF, _PI = np.float32(0.0), np.float32(1.0), np.float32(0.5), np.float32(np.pi)
+
+
+# ----------------------------------------------------------------------------- exp
+@intrinsic
+def _f32_from_bits(typingctx, bits):
+    """The float32 whose IEEE bits are the int32 ``bits`` (an LLVM bitcast)."""
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], context.get_value_type(types.float32))
+    return types.float32(types.int32), codegen
+
+
+_EXP = {"nsz", "arcp", "contract", "afn"}    # no "reassoc": it would undo the Cody-Waite split
+
+
+@nb.njit(cache=True, nogil=True, fastmath=_EXP, error_model="numpy", inline="always")
+def exp32(x):
+    """exp(x) in float32 that LLVM can vectorise (a libm call cannot be, and numba here has no
+    vector math library): Cody-Waite reduction ``x = k ln2 + r`` with ln2 split in two
+    (0.693359375 - 2.12194440e-4), ``exp(r)`` by the Cephes expf polynomial (S. Moshier,
+    Cephes Math Library, expf.c) and ``2^k`` built in the exponent bits. x is clamped to
+    [-87.34, 88] (below: the smallest normal float, 1.18e-38). Relative error <= 1e-7 against
+    float64 (``tests/test_particle_splat.py``), ~0.2 ns per value vectorised (numpy's: 0.5 ns)."""
+    x = min(max(x, np.float32(-87.33654)), np.float32(88.0))
+    k = np.floor(x * np.float32(1.4426950408889634) + _HALF)
+    r = x - k * np.float32(0.693359375)
+    r = r - k * np.float32(-2.12194440e-4)
+    p = np.float32(1.9875691500e-4)
+    p = p * r + np.float32(1.3981999507e-3)
+    p = p * r + np.float32(8.3334519073e-3)
+    p = p * r + np.float32(4.1665795894e-2)
+    p = p * r + np.float32(1.6666665459e-1)
+    p = p * r + np.float32(5.0000001201e-1)
+    p = p * r * r + r + _F1
+    return p * _f32_from_bits((np.int32(k) + np.int32(127)) << np.int32(23))
 
 
 # ----------------------------------------------------------------------------- drift
@@ -331,7 +367,7 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height):
     surface range d (m), blur opacity op; colour (M, C) float32. surf (H*W,) float32 scene
     range (inf = background). Returns (hit (n,) int64 covered pixels, tile by tile, sums
     (2 + C, n) float32 = [T, w, w c..], near (n,) float32 the nearest covering particle's
-    surface range). Coverage per :func:`_footprint`, small ellipses (a < NORMALISE_BELOW_PX,
+    surface range, far (n,) float32 the scene's range there). Coverage per :func:`_footprint`, small ellipses (a < NORMALISE_BELOW_PX,
     square box) scaled to the exact area pi a b over their square; a sample counts only where
     the scene surface is farther than the particle's surface (depth test) and alpha > 0:
     T *= 1 - alpha, w += alpha / d^2.
@@ -346,6 +382,7 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height):
     hit = np.empty(cap, np.int64)
     out = np.empty((n_acc, cap), np.float32)
     rng = np.empty(cap, np.float32)
+    far = np.empty(cap, np.float32)
     acc = np.zeros((TILE_PX * TILE_PX, n_acc), np.float32)    # per tile pixel [T, w, w c..]
     acc[:, 0] = _F1
     near = np.full(TILE_PX * TILE_PX, np.inf, np.float32)
@@ -423,70 +460,76 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height):
                             acc[t, j] += w * colour[i, j - 2]
         for q in range(n_touched):                            # write out, reset
             t = touched[q]
-            hit[n], rng[n] = (ty0 + t // TILE_PX) * width + tx0 + t % TILE_PX, near[t]
+            pix = (ty0 + t // TILE_PX) * width + tx0 + t % TILE_PX
+            hit[n], rng[n], far[n] = pix, near[t], surf[pix]
             for j in range(n_acc):
                 out[j, n] = acc[t, j]
                 acc[t, j] = _F0
             acc[t, 0] = _F1
             near[t] = np.inf
             n += 1
-    return hit[:n], out[:, :n], rng[:n]
+    return hit[:n], out[:, :n], rng[:n], far[:n]
 
 
 # ----------------------------------------------------------------------------- compositing
-@_jit_vec
-def transfer_exponents(hit, near, surf, width, K, rz, c, kd, cam_depth, physical):
-    """The exponents of the background transfer at the covered pixels (``particle_light.Transfer``):
-    (9, n) float32 rows ``-c_k dr`` (3), ``-Kd_k (depth_bg - depth_p)`` (3), ``Kd_k depth_p`` (3),
-    dr = r_bg - r_p (0 where the background is open water, r_bg = inf), depths
-    ``max(cam_depth - r dir_z, 0)`` with dir_z the world z of the pixel's unit ray (from K (3, 3)
-    and rz (3,) = the camera axes' world z); article (``physical`` False): the depth rows are 0.
-    hit (n,) int64 flat pixels, near (n,) float32 the particle's range there, surf (H*W,) float32
-    the scene's (m)."""
+@nb.njit(cache=True, nogil=True, fastmath=_EXP, error_model="numpy")
+def transfer(hit, near, far, width, K, rz, c, kd, veil, cam_depth, physical):
+    """The background transfer at the covered pixels (``particle_light.Transfer``): (6, n) float32
+    = gain (3 rows) and add (3 rows) per channel k, ``gain = tr exp(-Kd_k (depth_bg - depth_p))``,
+    ``add = (1 - tr) exp(Kd_k depth_p) veil_k``, ``tr = exp(-c_k (r_bg - r_p))`` (0 where the
+    background is open water, r_bg = inf, and c_k > 0). Depths ``max(cam_depth - r dir_z, 0)``,
+    dir_z the world z of the pixel's unit ray (from K (3, 3) and rz (3,) = the camera axes'
+    world z); article (``physical`` False): the depth factors are 1. hit (n,) int64 flat pixels,
+    near, far (n,) float32 the particle's and the scene's range there (m): no gather, so that
+    the loop is vectorised (with one it was 10x slower)."""
     n = hit.size
-    out = np.empty((9, n), np.float32)
+    out = np.empty((6, n), np.float32)
     fx, sk, cx, fy, cy = K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
     rz0, rz1, rz2 = rz[0], rz[1], rz[2]
     c0, c1, c2, k0, k1, k2 = c[0], c[1], c[2], kd[0], kd[1], kd[2]
+    v0, v1, v2 = veil[0], veil[1], veil[2]
     on = _F1 if physical else _F0
+    inv_w = 1.0 / width
     for j in range(n):
         pix = hit[j]
-        r_p, r_bg = near[j], surf[pix]
+        r_p, r_bg = near[j], far[j]
         finite = r_bg < np.inf
         dr = r_bg - r_p if finite else _F0
-        y = (np.float32(pix // width) - cy) / fy
-        x = (np.float32(pix % width) - cx - sk * y) / fx
+        row = np.floor((np.float64(pix) + 0.5) * inv_w)            # pix // width, vectorisable
+        y = (np.float32(row) - cy) / fy
+        x = (np.float32(np.float64(pix) - row * width) - cx - sk * y) / fx
         dz = (x * rz0 + y * rz1 + rz2) / np.sqrt(x * x + y * y + _F1)
         dp = max(cam_depth - r_p * dz, _F0) * on
         ddep = max(cam_depth - (r_bg if finite else r_p) * dz, _F0) * on - dp
-        out[0, j], out[1, j], out[2, j] = -c0 * dr, -c1 * dr, -c2 * dr
-        out[3, j], out[4, j], out[5, j] = -k0 * ddep, -k1 * ddep, -k2 * ddep
-        out[6, j], out[7, j], out[8, j] = k0 * dp, k1 * dp, k2 * dp
+        t0 = exp32(-c0 * dr) if finite or not c0 > _F0 else _F0
+        t1 = exp32(-c1 * dr) if finite or not c1 > _F0 else _F0
+        t2 = exp32(-c2 * dr) if finite or not c2 > _F0 else _F0
+        out[0, j], out[1, j], out[2, j] = t0 * exp32(-k0 * ddep), t1 * exp32(-k1 * ddep), t2 * exp32(-k2 * ddep)
+        out[3, j] = (_F1 - t0) * exp32(k0 * dp) * v0
+        out[4, j] = (_F1 - t1) * exp32(k1 * dp) * v1
+        out[5, j] = (_F1 - t2) * exp32(k2 * dp) * v2
     return out
 
 
 @_jit
-def resolve(flat_rgb, merged, mask, hit, acc, near, colour, surf, c, factors, veil):
+def resolve(flat_rgb, merged, mask, hit, acc, near, colour, gain_add):
     """In place at the covered pixels hit (n,): the particles over the background,
     ``out = (img gain + add) T + colour (1 - T)``, plus the occluder mask and the merged range.
 
     flat_rgb (H*W*3,) float32 interleaved image; merged (H*W,) float32 range, set to the nearest
     particle's; mask (H*W,) bool, set where 1 - T >= 0.5; acc (2 + C, n) float32 = [T, w, w c..]
-    (``splat``); near (n,) float32 the particles' range. colour: (3, n) float32 per pixel, (3, 1) one for all, or
-    (3, 0): the weighted mean ``w c / w``. Background transfer: ``factors`` (9, n) float32 =
-    exp of :func:`transfer_exponents`, or (9, 0) for none (gain 1, add 0); then tr = t_bg / t_p
-    (0 on open water where c > 0), gain = tr x depth factor, add = (1 - tr) x exp(Kd depth_p) x
-    veil (3,) float32; surf (H*W,) and c (3,) float32 tell open water and the channel's c."""
+    (``splat``); near (n,) float32 the particles' range. colour: (3, n) float32 per pixel,
+    (3, 1) one for all, or (3, 0): the weighted mean ``w c / w``. gain_add: (6, n) float32 from
+    :func:`transfer`, or (6, 0) for none (gain 1, add 0)."""
     n = hit.size
     per_pixel, one = colour.shape[1] == n and n > 0, colour.shape[1] == 1
-    with_bg = factors.shape[1] == n
+    with_bg = gain_add.shape[1] == n
     for j in range(n):
         pix = hit[j]
         keep = acc[0, j]
         cov = _F1 - keep
         w = acc[1, j]
         inv = _F1 / w if w > _F0 else _F1
-        open_water = not surf[pix] < np.inf
         for ch in range(3):
             if per_pixel:
                 col = colour[ch, j]
@@ -496,8 +539,7 @@ def resolve(flat_rgb, merged, mask, hit, acc, near, colour, surf, c, factors, ve
                 col = acc[2 + ch, j] * inv
             bg = flat_rgb[pix * 3 + ch]
             if with_bg:
-                tr = _F0 if open_water and c[ch] > _F0 else factors[ch, j]
-                bg = bg * (tr * factors[3 + ch, j]) + (_F1 - tr) * factors[6 + ch, j] * veil[ch]
+                bg = bg * gain_add[ch, j] + gain_add[3 + ch, j]
             flat_rgb[pix * 3 + ch] = bg * keep + col * cov
         mask[pix] = cov >= _HALF
         merged[pix] = near[j]

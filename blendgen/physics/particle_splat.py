@@ -33,10 +33,11 @@ class Sums:
     """Per-pixel sums (module doc) at the covered pixels ``hit`` (n,) int64 (flat indices, each
     once, in tile order): ``acc`` (2 + C, n) float32 = [T, w, w c_1 .. w c_C] (the transmittance,
     the weights and the weighted colours); ``near`` (n,) float32 the nearest covering particle's
-    surface range (m)."""
+    surface range and ``far`` (n,) float32 the scene's range there (m)."""
     hit: np.ndarray
     acc: np.ndarray
     near: np.ndarray
+    far: np.ndarray
 
     @property
     def trans(self) -> np.ndarray:
@@ -77,6 +78,6 @@ def splat(p: Particles, surf: np.ndarray, width: int, height: int) -> Sums:
 
     surf (H*W,) float32 scene range per pixel (inf = background, no NaN)."""
     f32 = lambda x: np.ascontiguousarray(x, np.float32)
-    hit, acc, near = kern.splat(f32(p.u), f32(p.v), f32(p.a), f32(p.b), f32(p.c), f32(p.s), f32(p.d),
+    hit, acc, near, far = kern.splat(f32(p.u), f32(p.v), f32(p.a), f32(p.b), f32(p.c), f32(p.s), f32(p.d),
                                 f32(p.op), f32(p.colour), f32(surf), int(width), int(height))
-    return Sums(hit, acc, near)
+    return Sums(hit, acc, near, far)

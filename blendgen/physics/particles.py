@@ -420,10 +420,9 @@ def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: Parti
     out = img.copy()
     merged = np.array(range_m, np.float32).reshape(-1) if merged_range else np.full(h * w, np.inf, np.float32)
     mask = np.zeros(h * w, bool)
-    factors = background.factors(hit, sums.near, surf, w) if background is not None and hit.size \
-        else np.zeros((9, 0), np.float32)
-    c_bg, veil = (background.c, background.veil) if background is not None else (np.zeros(3, np.float32),) * 2
-    kern.resolve(out.reshape(-1), merged, mask, hit, sums.acc, sums.near, colour_px, surf, c_bg, factors, veil)
+    gain_add = background.gain_add(hit, sums.near, sums.far, w) if background is not None and hit.size \
+        else np.zeros((6, 0), np.float32)
+    kern.resolve(out.reshape(-1), merged, mask, hit, sums.acc, sums.near, colour_px, gain_add)
     return out, mask.reshape(h, w), merged.reshape(h, w)
 
 

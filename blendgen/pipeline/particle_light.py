@@ -141,7 +141,7 @@ class Transfer:
 
     c, kd, veil (3,) float32: the frame's beam attenuation, diffuse attenuation and the veil B
     the water model adds; K (3, 3) and rz (3,) float32 (the camera axes' world z) give dir_z.
-    Evaluated at the covered pixels by particle_kernels.transfer_exponents and resolve."""
+    Evaluated at the covered pixels by particle_kernels.transfer, applied by resolve."""
     c: np.ndarray
     kd: np.ndarray
     veil: np.ndarray
@@ -150,11 +150,11 @@ class Transfer:
     rz: np.ndarray
     cam_depth_m: float
 
-    def factors(self, hit: np.ndarray, near: np.ndarray, surf: np.ndarray, width: int) -> np.ndarray:
-        """(9, n) float32: t_bg / t_p, 1 / (depth factor ratio), exp(Kd depth_p) per channel."""
-        e = kern.transfer_exponents(hit, near, surf, int(width), self.K, self.rz, self.c, self.kd,
-                                    np.float32(self.cam_depth_m), self.physical)
-        return np.exp(e, out=e)                # numpy's exp is vectorised, a compiled scalar one is not
+    def gain_add(self, hit: np.ndarray, near: np.ndarray, far: np.ndarray, width: int) -> np.ndarray:
+        """(6, n) float32: the gain (3 rows) and add (3 rows) at the covered pixels hit (n,), with
+        the particles' and the scene's range there near, far (n,)."""
+        return kern.transfer(hit, near, far, int(width), self.K, self.rz, self.c, self.kd, self.veil,
+                             np.float32(self.cam_depth_m), self.physical)
 
 
 def background_transfer(water, veil_rgb, physical: bool, K=None, T_world_cam=None,

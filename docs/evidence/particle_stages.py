@@ -36,7 +36,7 @@ def main(size_dist: str = "power_law", n: int = 60000) -> None:
     P.project_particles = timed(P.project_particles, "projection")
     ps.splat = timed(ps.splat, "splat")
     P.kern.resolve = timed(P.kern.resolve, "compositing")
-    pl.Transfer.factors = timed(pl.Transfer.factors, "transfer")
+    pl.Transfer.gain_add = timed(pl.Transfer.gain_add, "transfer")
     compose._particle_background = timed(compose._particle_background, "background setup")
     for name, label in (("shader", "shading"), ("shaper", "blur shapes")):
         setattr(pl, name, timed_factory(getattr(pl, name), label))
