@@ -367,10 +367,10 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height):
     surface range d (m), blur opacity op; colour (M, C) float32. surf (H*W,) float32 scene
     range (inf = background). Returns (hit (n,) int64 covered pixels, tile by tile, sums
     (2 + C, n) float32 = [T, w, w c..], near (n,) float32 the nearest covering particle's
-    surface range, far (n,) float32 the scene's range there). Coverage per :func:`_footprint`, small ellipses (a < NORMALISE_BELOW_PX,
-    square box) scaled to the exact area pi a b over their square; a sample counts only where
-    the scene surface is farther than the particle's surface (depth test) and alpha > 0:
-    T *= 1 - alpha, w += alpha / d^2.
+    surface range, far (n,) float32 the scene's range there). Coverage per :func:`_footprint`,
+    small ellipses (a < NORMALISE_BELOW_PX, square box) scaled to the exact area pi a b over
+    their square; a sample counts only where the scene surface is farther than the particle's
+    surface (depth test) and alpha > 0: T *= 1 - alpha, w += alpha / d^2.
 
     Tiled: the particles are binned by the TILE_PX x TILE_PX tiles they meet and each tile's
     sums are accumulated in a small buffer (L1-resident) and then written out at its covered
@@ -386,7 +386,7 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height):
     acc = np.zeros((TILE_PX * TILE_PX, n_acc), np.float32)    # per tile pixel [T, w, w c..]
     acc[:, 0] = _F1
     near = np.full(TILE_PX * TILE_PX, np.inf, np.float32)
-    touched = np.empty(TILE_PX * TILE_PX, np.int64)
+    touched = np.empty(TILE_PX * TILE_PX + 1, np.int64)       # + 1: written before the count
     buf = np.empty(GROUP_MAX_PX * GROUP_MAX_PX, np.float32)   # a small ellipse's square
     tiles_x = (width + TILE_PX - 1) // TILE_PX
     n = 0
@@ -410,9 +410,8 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height):
                     if not (alpha > _F0 and surf[y * width + x] > di):      # depth test
                         continue
                     t = (y - ty0) * TILE_PX + x - tx0
-                    if near[t] == np.inf:                # first touch: listed for the write-out
-                        touched[n_touched] = t
-                        n_touched += 1
+                    touched[n_touched] = t       # listed for the write-out at its first touch
+                    n_touched += near[t] == np.inf     # (no branch: it mispredicted half the time)
                     near[t] = min(near[t], di)
                     acc[t, 0] *= _F1 - min(alpha, np.float32(ALPHA_MAX))
                     w = alpha * w_d
@@ -444,9 +443,8 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height):
                     if not (alpha > _F0 and surf[y * width + x] > di):      # depth test
                         continue
                     t = (y - ty0) * TILE_PX + x - tx0
-                    if near[t] == np.inf:                # first touch: listed for the write-out
-                        touched[n_touched] = t
-                        n_touched += 1
+                    touched[n_touched] = t       # listed for the write-out at its first touch
+                    n_touched += near[t] == np.inf     # (no branch: it mispredicted half the time)
                     near[t] = min(near[t], di)
                     acc[t, 0] *= _F1 - min(alpha, np.float32(ALPHA_MAX))
                     w = alpha * w_d
@@ -462,10 +460,15 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height):
             t = touched[q]
             pix = (ty0 + t // TILE_PX) * width + tx0 + t % TILE_PX
             hit[n], rng[n], far[n] = pix, near[t], surf[pix]
-            for j in range(n_acc):
-                out[j, n] = acc[t, j]
-                acc[t, j] = _F0
-            acc[t, 0] = _F1
+            if rgb:
+                out[0, n], out[1, n], out[2, n] = acc[t, 0], acc[t, 1], acc[t, 2]
+                out[3, n], out[4, n] = acc[t, 3], acc[t, 4]
+                acc[t, 0], acc[t, 1], acc[t, 2], acc[t, 3], acc[t, 4] = _F1, _F0, _F0, _F0, _F0
+            else:
+                for j in range(n_acc):
+                    out[j, n] = acc[t, j]
+                    acc[t, j] = _F0
+                acc[t, 0] = _F1
             near[t] = np.inf
             n += 1
     return hit[:n], out[:, :n], rng[:n], far[:n]
