@@ -7,7 +7,7 @@ pass and keeps the per-element arithmetic of the numpy code it replaced (float32
 was float32, the same order of operations), so the laws and their oracles are unchanged:
 
 - :func:`drift` -- ``p + v dt + eta`` wrapped periodically into the region, rounded to float32
-  and clamped inside it (``ParticleField.step``); the Gaussian draws stay numpy's.
+  and clamped inside it (``ParticleField.step``); the Gaussian draws are physics/gauss.py's.
 - :func:`project` -- camera frame, pinhole projection, culling, ellipse semi-axes
   (``particles.project_particles``).
 - :func:`splat` -- depth-tested coverage of every particle in per-pixel sums
@@ -77,77 +77,101 @@ def exp32(x):
 
 
 # ----------------------------------------------------------------------------- drift
-@_jit
-def drift(pos, v_dt, noise, scale, lo, hi, lo32, top32):
-    """New float32 positions (N, 3): ``pos + v_dt + noise * scale`` in float64, wrapped into
-    [lo, hi) per axis (``lo + mod(x - lo, hi - lo)``, the mod only for coordinates that left),
-    rounded to float32 and clamped into [lo32, top32] (float32 rounding stays inside).
-    pos (N, 3) float32; v_dt, scale, lo, hi (3,) float64; noise (N, 3) float32 or float64, (0, 3) for
-    none; lo32, top32 (3,) float32."""
-    n = pos.shape[0]
-    out = np.empty((n, 3), np.float32)
-    has_noise = noise.shape[0] == n
-    for i in range(n):
-        for k in range(3):
-            x = np.float64(pos[i, k]) + v_dt[k]
-            if has_noise:
-                x += noise[i, k] * scale[k]
-            ext = hi[k] - lo[k]
-            q = x - lo[k]
-            if q < 0.0 or q >= ext:
-                q = q % ext
-            y = np.float32(q + lo[k])
-            out[i, k] = min(max(y, lo32[k]), top32[k])
+_exact = nb.njit(cache=True, nogil=True, error_model="numpy")   # IEEE order kept: no fast-math
+
+
+@_exact
+def drift(xyz, v_dt, noise, scale, lo, hi, lo32, top32):
+    """New planar float32 positions (3, N): ``xyz + v_dt + noise * scale`` in float64, wrapped
+    into [lo, hi) per axis (``lo + mod(x - lo, hi - lo)``, the mod only for coordinates that
+    left), rounded to float32 and clamped into [lo32, top32] (float32 rounding stays inside).
+    xyz (3, N) float32; v_dt, scale, lo, hi (3,) float64; noise (3, N) float32 or float64, (3, 0)
+    for none; lo32, top32 (3,) float32. A first pass without branches (vectorised) moves every
+    coordinate and marks those that left; a second one wraps only those."""
+    n = xyz.shape[1]
+    out = np.empty((3, n), np.float32)
+    inside = np.empty((3, n), np.bool_)
+    has_noise = noise.shape[1] == n
+    for k in range(3):
+        vk, lok, ext, sk, l32, t32 = v_dt[k], lo[k], hi[k] - lo[k], scale[k], lo32[k], top32[k]
+        for i in range(n):
+            eta = noise[k, i] * sk if has_noise else 0.0
+            q = np.float64(xyz[k, i]) + vk + eta - lok
+            out[k, i] = min(max(np.float32(q + lok), l32), t32)
+            inside[k, i] = (q >= 0.0) & (q < ext)
+    for k in range(3):
+        for i in range(n):
+            if not inside[k, i]:
+                x = np.float64(xyz[k, i]) + v_dt[k]
+                if has_noise:
+                    x += noise[k, i] * scale[k]
+                q = (x - lo[k]) % (hi[k] - lo[k])
+                out[k, i] = min(max(np.float32(q + lo[k]), lo32[k]), top32[k])
     return out
 
 
 # ----------------------------------------------------------------------------- projection
-@_jit
-def project(pos, radii, R, off, K, width, height, z_near, margin_px):
+@nb.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _camera(px, py, pz, r, R, fx, sk, cx, fy, cy, fb, z_near):
+    """One particle in the camera frame: (x, y, z, u, v, a, b, sec); R = the 9 entries of the
+    world-from-camera rotation (row-major) and the 3 of off = -R^T t, as scalars."""
+    r00, r01, r02, r10, r11, r12, r20, r21, r22, o0, o1, o2 = R
+    z = px * r02 + py * r12 + pz * r22 + o2
+    x = px * r00 + py * r10 + pz * r20 + o0
+    y = px * r01 + py * r11 + pz * r21 + o1
+    iz = _F1 / max(z, z_near)
+    xn, yn = x * iz, y * iz
+    b = fb * r * iz
+    sec = np.float32(math.sqrt(xn * xn + yn * yn + _F1))
+    return x, y, z, fx * xn + sk * yn + cx, fy * yn + cy, b * sec, b, sec
+
+
+@_exact
+def project(xyz, radii, R, off, K, width, height, z_near, margin_px):
     """Camera-frame culling and projection (``particles.project_particles``'s law, float32).
 
-    pos (N, 3) float32 world, radii (N,) float32 m, R (3, 3) float32 world-from-camera
+    xyz (3, N) float32 world, radii (N,) float32 m, R (3, 3) float32 world-from-camera
     rotation, off (3,) float32 = -R^T t, K (3, 3) float32. Keeps particles with Z > z_near,
     the camera outside the sphere and the ellipse's box within ``2 + margin_px`` px of the
     image. Returns (idx (M,) int64, uv_ab_cs (6, M) float32 = u, v, a, b, c, s,
-    surf_range (M,) float32 = ||p|| - r, pc (3, M) float32 = camera-frame x, y, z rows)."""
-    n = pos.shape[0]
-    idx = np.empty(n, np.int64)
-    cols = np.empty((6, n), np.float32)
-    rng = np.empty(n, np.float32)
-    pc = np.empty((3, n), np.float32)
+    surf_range (M,) float32 = ||p|| - r, pc (3, M) float32 = camera-frame x, y, z rows).
+    Two passes: the test for every particle, without branches (vectorised), then the kept
+    particles' columns (the same arithmetic)."""
+    n = xyz.shape[1]
     fx, sk, cx, fy, cy = K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
     fb = np.float32(0.5) * (fx + fy)
     m_extra = np.float32(2.0) + margin_px
     w1, h1 = np.float32(width - 1), np.float32(height - 1)
-    m = 0
-    for i in range(n):          # branch-free: every particle is written at slot m, kept ones advance m
-        px, py, pz = pos[i, 0], pos[i, 1], pos[i, 2]
-        z = px * R[0, 2] + py * R[1, 2] + pz * R[2, 2] + off[2]
-        x = px * R[0, 0] + py * R[1, 0] + pz * R[2, 0] + off[0]
-        y = px * R[0, 1] + py * R[1, 1] + pz * R[2, 1] + off[1]
-        iz = _F1 / max(z, z_near)
-        xn, yn = x * iz, y * iz
-        u = fx * xn + sk * yn + cx
-        v = fy * yn + cy
+    Rs = (R[0, 0], R[0, 1], R[0, 2], R[1, 0], R[1, 1], R[1, 2], R[2, 0], R[2, 1], R[2, 2], off[0], off[1], off[2])
+    keep = np.empty(n, np.bool_)
+    for i in range(n):
         r = radii[i]
-        b = fb * r * iz
-        sec = np.float32(math.sqrt(xn * xn + yn * yn + _F1))
-        a = b * sec
+        x, y, z, u, v, a, b, sec = _camera(xyz[0, i], xyz[1, i], xyz[2, i], r, Rs, fx, sk, cx, fy, cy, fb, z_near)
         mm = a + m_extra
-        keep = (z > z_near) & (u > -mm) & (u < mm + w1) & (v > -mm) & (v < mm + h1) & (z * sec > r)
+        keep[i] = (z > z_near) & (u > -mm) & (u < mm + w1) & (v > -mm) & (v < mm + h1) & (z * sec > r)
+    m = np.count_nonzero(keep)
+    idx = np.empty(m, np.int64)
+    cols = np.empty((6, m), np.float32)
+    rng = np.empty(m, np.float32)
+    pc = np.empty((3, m), np.float32)
+    j = 0
+    for i in range(n):
+        if not keep[i]:
+            continue
+        r = radii[i]
+        x, y, z, u, v, a, b, sec = _camera(xyz[0, i], xyz[1, i], xyz[2, i], r, Rs, fx, sk, cx, fy, cy, fb, z_near)
         du, dv = u - cx, v - cy
         norm = np.float32(math.sqrt(du * du + dv * dv))
         inv = _F1 / max(norm, np.float32(1e-6))
         off_centre = norm > np.float32(1e-6)
-        idx[m] = i
-        cols[0, m], cols[1, m], cols[2, m], cols[3, m] = u, v, a, b
-        cols[4, m] = du * inv if off_centre else _F1
-        cols[5, m] = dv * inv if off_centre else _F0
-        rng[m] = z * sec - r
-        pc[0, m], pc[1, m], pc[2, m] = x, y, z
-        m += keep
-    return idx[:m], cols[:, :m], rng[:m], pc[:, :m]   # views: a strided copy costs ~5 ns/element
+        idx[j] = i
+        cols[0, j], cols[1, j], cols[2, j], cols[3, j] = u, v, a, b
+        cols[4, j] = du * inv if off_centre else _F1
+        cols[5, j] = dv * inv if off_centre else _F0
+        rng[j] = z * sec - r
+        pc[0, j], pc[1, j], pc[2, j] = x, y, z
+        j += 1
+    return idx, cols, rng, pc
 
 
 # ----------------------------------------------------------------------------- blur

@@ -107,6 +107,9 @@ class ParticleField:
 
     positions (N,3) float32 world metres, radii (N,) float32 metres,
     region_min / region_max (3,) float64 world metres (positions lie in [min, max)).
+    The positions are kept planar: ``positions`` is the (N, 3) view of :attr:`xyz` (3, N),
+    C-contiguous rows x, y, z that the compiled loops read (an (N, 3) layout kept them from
+    being vectorised: the projection's culling pass 0.4 -> 0.04 ms for 60000).
     """
     positions: np.ndarray
     radii: np.ndarray
@@ -114,7 +117,7 @@ class ParticleField:
     region_max: np.ndarray
 
     def __post_init__(self):
-        pos = np.asarray(self.positions, np.float32).reshape(-1, 3)
+        pos = np.ascontiguousarray(np.asarray(self.positions, np.float32).reshape(-1, 3).T).T   # planar
         radii = np.asarray(self.radii, np.float32).reshape(-1)
         lo, hi = _check_region(self.region_min, self.region_max)
         if radii.shape[0] != pos.shape[0]:
@@ -123,6 +126,11 @@ class ParticleField:
             raise ValueError("radii must be finite and >= 0 m")
         for name, val in (("positions", pos), ("radii", radii), ("region_min", lo), ("region_max", hi)):
             object.__setattr__(self, name, val)
+
+    @property
+    def xyz(self) -> np.ndarray:
+        """(3, N) float32 C-contiguous x, y, z rows (the storage of ``positions``)."""
+        return self.positions.T
 
     @property
     def n(self) -> int:
@@ -167,11 +175,11 @@ class ParticleField:
         n = _draw_count(rng, mean, count_dist, n_max, n_total)
         if n > MAX_PARTICLES:
             raise ValueError(f"particle count must be <= {MAX_PARTICLES}, got {n}")
-        pos = rng.random((n, 3), dtype=np.float32)            # in place: ~16 bytes/particle
-        pos *= (hi - lo).astype(np.float32)
-        pos += lo.astype(np.float32)
-        _clamp32(pos, lo, hi)                                # float32 rounding stays inside
-        return cls(pos, popt.sample_radii(rng, n, size_dist, r_min, r_max, size_slope), lo, hi)
+        xyz = rng.random((3, n), dtype=np.float32)            # planar, in place: ~16 bytes/particle
+        xyz *= (hi - lo).astype(np.float32)[:, None]
+        xyz += lo.astype(np.float32)[:, None]
+        _clamp32(xyz, lo, hi)                                # float32 rounding stays inside
+        return cls(xyz.T, popt.sample_radii(rng, n, size_dist, r_min, r_max, size_slope), lo, hi)
 
     def step(self, dt: float, v_flow, sigma, rng) -> "ParticleField":
         """Drift one time step: ``p + v_flow*dt + eta``, eta ~ N(0, Sigma), wrapped
@@ -190,18 +198,18 @@ class ParticleField:
         if v.shape != (3,) or not np.all(np.isfinite(v)):
             raise ValueError(f"v_flow must be a finite (3,) vector in m/s, got {v_flow}")
         L = _noise_factor(sigma)
-        noise, scale = np.zeros((0, 3)), np.ones(3)
+        noise, scale = np.zeros((3, 0)), np.ones(3)
         if np.any(L):
-            z = gauss.standard_normal32(rng, self.n * 3).reshape(self.n, 3)   # float32 Box-Muller
+            z = gauss.standard_normal32(rng, self.n * 3).reshape(3, self.n)   # float32 Box-Muller
             if np.count_nonzero(L - np.diag(np.diagonal(L))) == 0:
                 noise, scale = z, np.diagonal(L).copy()   # per-axis std-devs (the other terms are +-0)
-            else:                                          # eta = L z, as column sums (no BLAS threads)
+            else:                                          # eta = L z, as row sums (no BLAS threads)
                 noise = np.empty(z.shape)
                 for i in range(3):
-                    noise[:, i] = z[:, 0] * L[i, 0] + z[:, 1] * L[i, 1] + z[:, 2] * L[i, 2]
+                    noise[i] = z[0] * L[i, 0] + z[1] * L[i, 1] + z[2] * L[i, 2]
         lo, hi = self.region_min, self.region_max
-        pos = kern.drift(self.positions, v * dt, noise, scale, lo, hi, *_bounds32(lo, hi))
-        return ParticleField(pos, self.radii, lo, hi)
+        xyz = kern.drift(self.xyz, v * dt, noise, scale, lo, hi, *_bounds32(lo, hi))
+        return ParticleField(xyz.T, self.radii, lo, hi)
 
 
 def _noise_factor(sigma) -> np.ndarray:
@@ -229,11 +237,11 @@ def _bounds32(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return lo32.astype(np.float32), top.astype(np.float32)
 
 
-def _clamp32(pos: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """In place: keep float32 positions (N,3) in [lo, hi) despite rounding (lo, hi float64)."""
+def _clamp32(xyz: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """In place: keep planar float32 positions (3, N) in [lo, hi) despite rounding (lo, hi float64)."""
     lo32, top = _bounds32(lo, hi)
-    np.clip(pos, lo32, top, out=pos)
-    return pos
+    np.clip(xyz, lo32[:, None], top[:, None], out=xyz)
+    return xyz
 
 
 # ----------------------------------------------------------------------------- frustum
@@ -256,10 +264,10 @@ def _to_camera(field: ParticleField, T_world_cam: np.ndarray, z_min: float, z_ma
         raise ValueError(f"T_world_cam must be 4x4, got {T.shape}")
     R = T[:3, :3].astype(np.float32)
     t = T[:3, 3].astype(np.float32)
-    P = field.positions                     # explicit column sums: no BLAS threads here
-    z = P[:, 0] * R[0, 2] + P[:, 1] * R[1, 2] + P[:, 2] * R[2, 2] - np.float32(t @ R[:, 2])
+    P = field.xyz                           # explicit row sums: no BLAS threads here
+    z = P[0] * R[0, 2] + P[1] * R[1, 2] + P[2] * R[2, 2] - np.float32(t @ R[:, 2])
     idx = np.flatnonzero((z > z_min) & (z <= z_max))
-    d = P[idx] - t
+    d = P[:, idx].T - t
     pc = np.empty_like(d)
     for k in range(3):
         pc[:, k] = d[:, 0] * R[0, k] + d[:, 1] * R[1, k] + d[:, 2] * R[2, k]
@@ -318,7 +326,7 @@ def project_particles(field: ParticleField, K: np.ndarray, T_world_cam: np.ndarr
     R = T[:3, :3].astype(np.float32)
     off = (-(T[:3, 3] @ T[:3, :3])).astype(np.float32)   # -R^T t
     idx, cols, surf_range, pc = kern.project(
-        np.ascontiguousarray(field.positions, np.float32), np.ascontiguousarray(field.radii, np.float32), R, off,
+        field.xyz, np.ascontiguousarray(field.radii, np.float32), R, off,
         np.asarray(K, np.float32), int(width), int(height), np.float32(z_near), np.float32(margin_px))
     return ProjectedParticles(*cols, surf_range, pc, idx)
 
