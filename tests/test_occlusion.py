@@ -381,3 +381,12 @@ def test_drift_step_equals_the_written_formula_bit_for_bit(dt, vx, s, seed):
     got = f.step(dt, [vx, 0.0, -0.5 * vx], s, np.random.default_rng(seed)).positions
     ref = _step_as_written(f, dt, [vx, 0.0, -0.5 * vx], np.diag(s), np.random.default_rng(seed))
     assert got.tobytes() == ref.tobytes()
+
+
+def test_nan_range_is_background_like_inf():
+    """A NaN range pass (no surface hit) draws the particles exactly as inf does."""
+    f = ParticleField.sample(3, BOX_MIN, BOX_MAX, n_total=3000, count_dist="fixed")
+    _, out_inf, mask_inf, r_inf = draw(f, surface_range=np.inf, image_value=0.2, mode="backscatter")
+    _, out_nan, mask_nan, r_nan = draw(f, surface_range=np.nan, image_value=0.2, mode="backscatter")
+    assert mask_inf.any() and np.array_equal(out_inf, out_nan) and np.array_equal(mask_inf, mask_nan)
+    assert np.array_equal(r_inf[mask_inf], r_nan[mask_nan])

@@ -389,7 +389,7 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height):
 
     Per particle (M,) float32: centre u, v (px), semi-axes a, b (px), radial direction c, s,
     surface range d (m), blur opacity op; colour (M, C) float32. surf (H*W,) float32 scene
-    range (inf = background). Returns (hit (n,) int64 covered pixels, tile by tile, sums
+    range (inf or NaN = background). Returns (hit (n,) int64 covered pixels, tile by tile, sums
     (2 + C, n) float32 = [T, w, w c..], near (n,) float32 the nearest covering particle's
     surface range, far (n,) float32 the scene's range there). Coverage per :func:`_footprint`,
     small ellipses (a < NORMALISE_BELOW_PX, square box) scaled to the exact area pi a b over
@@ -431,7 +431,7 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height):
                     if x < tx0 or x >= tx1 or y < ty0 or y >= ty1:
                         continue
                     alpha = (fx if k & 1 else _F1 - fx) * (fy if k >> 1 else _F1 - fy) * scale
-                    if not (alpha > _F0 and surf[y * width + x] > di):      # depth test
+                    if not alpha > _F0 or surf[y * width + x] <= di:        # depth test (NaN: none)
                         continue
                     t = (y - ty0) * TILE_PX + x - tx0
                     touched[n_touched] = t       # listed for the write-out at its first touch
@@ -464,7 +464,7 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height):
                         alpha = min(buf[(y - y0) * sx + x - x0] * scale, _F1) * op[i]
                     else:
                         alpha = min(_coverage(x, y, u[i], v[i], ca, sa, cb, sb, k0, k1) * scale, _F1) * op[i]
-                    if not (alpha > _F0 and surf[y * width + x] > di):      # depth test
+                    if not alpha > _F0 or surf[y * width + x] <= di:        # depth test (NaN: none)
                         continue
                     t = (y - ty0) * TILE_PX + x - tx0
                     touched[n_touched] = t       # listed for the write-out at its first touch

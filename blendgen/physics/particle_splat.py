@@ -76,7 +76,7 @@ def boxes(p: Particles, sel: np.ndarray):
 def splat(p: Particles, surf: np.ndarray, width: int, height: int) -> Sums:
     """All particles' depth-tested coverage in per-pixel sums (module doc).
 
-    surf (H*W,) float32 scene range per pixel (inf = background, no NaN)."""
+    surf (H*W,) float32 scene range per pixel (inf or NaN = background)."""
     f32 = lambda x: np.ascontiguousarray(x, np.float32)
     hit, acc, near, far = kern.splat(f32(p.u), f32(p.v), f32(p.a), f32(p.b), f32(p.c), f32(p.s), f32(p.d),
                                 f32(p.op), f32(p.colour), f32(surf), int(width), int(height))

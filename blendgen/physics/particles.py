@@ -411,9 +411,7 @@ def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: Parti
     p = project_particles(field, K, T_world_cam, w, h, z_near, margin_px)
     if shape is not None and p.u.size:
         p = shape(p, w, h)
-    surf = np.asarray(range_m, np.float32).reshape(-1)
-    if np.isnan(surf).any():                            # NaN = no surface hit = background
-        surf = np.where(np.isnan(surf), np.float32(np.inf), surf)
+    surf = np.ascontiguousarray(range_m, np.float32).reshape(-1)     # NaN = no surface hit = background
     colours = (np.asarray(shade(p), np.float32).reshape(-1, 3) if shade is not None
                else np.zeros((p.u.size, 0), np.float32))
     sums = psplat.splat(_splat_input(p, colours), surf, w, h)
