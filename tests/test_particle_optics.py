@@ -209,13 +209,54 @@ def test_no_particles_costs_nothing():
     assert out is ps and occ is None
 
 
-def test_fast_light_terms_agree_with_shared_irradiance():
-    lamp = popt.lt.lamp_lights([Lamp(offset_m=[0.1, 0.3, 0.0], yaw_deg=5.0, half_angle_deg=30.0, edge_deg=5.0)])[0]
-    pts = np.random.default_rng(0).uniform([-2, -2, 0.5], [2, 2, 8], (500, 3)).astype(np.float32)
-    xyz = popt._columns(pts)
-    E, _ = popt._light_terms(lamp, xyz, popt._view_dirs(*xyz), np.array([0.1, 0.05, 0.2], np.float32))
-    ref = popt.lt.irradiance([lamp], pts, [0.1, 0.05, 0.2])
-    assert np.allclose(np.stack(E, axis=1), ref, rtol=1e-4, atol=1e-7)
+def _law(lights_c_beam, pts, mat, amb, gain):
+    """The light field written out in float64 numpy: amb albedo + gain sum E albedo p(theta), E from
+    the shared ``lights.irradiance`` (or the lamp's beam), p the numpy phase functions."""
+    pts = np.asarray(pts, float)
+    view = -pts / np.linalg.norm(pts, axis=1, keepdims=True)
+    art = np.zeros((pts.shape[0], 3))
+    for li, c, beam in lights_c_beam:
+        v = pts - li.position_m
+        d = np.maximum(np.linalg.norm(v, axis=1), 1e-3)
+        if beam is None:
+            E = popt.lt.irradiance([li], pts, c)
+        else:
+            b = beam(li, ((v / d[:, None]) @ li.axis)[None, :].astype(np.float32), d[None, :].astype(np.float32))[0]
+            E = b * (li.intensity_w_sr[None, :] / (d * d)[:, None])
+        mu = ((v / d[:, None]) * view).sum(axis=1)
+        art += E * (mat.phase(mu) * mat.albedo)[:, None]
+    return mat.albedo * np.asarray(amb, float) + art * gain.T
+
+
+@pytest.mark.parametrize("spread", [False, True])
+def test_compiled_light_field_matches_the_numpy_laws(spread):
+    """particle_light_kernels.radiance (vectorised: polynomial acos, exp32) against the laws in
+    float64: hard-edged LED hemispheres, a soft-edged lamp (its spread beam table or profile x
+    exp(-c' d)), a cosine-power emitter and an isotropic light, channel-dependent c, a gain."""
+    rng = np.random.default_rng(3)
+    pts = rng.uniform([-3, -2, 0.3], [3, 2, 9], (3000, 3))
+    water = Water(preset="moderate")
+    lamp = Lamp(offset_m=[0.1, 0.3, 0.0], yaw_deg=5.0, half_angle_deg=30.0, edge_deg=5.0, power_w=40.0)
+    lamps = lamp_water.LampWater.build(popt.lt.lamp_lights([lamp]), _optics(water), 0.7 if spread else 1.0)
+    assert lamps.spread == spread
+    led = popt.lt.PointLight(np.array([0.2, -0.1, 4.0]), np.array([0.0, 0.0, -1.0]), np.array([0.5, 0.2, 0.1]),
+                             math.pi / 2, 0.0)
+    axis = np.array([0.3, 0.0, -0.95]) / np.linalg.norm([0.3, 0.0, -0.95])
+    lambertian = popt.lt.PointLight(np.array([-0.5, 0.4, 3.0]), axis, np.array([0.2, 0.3, 0.4]), math.pi / 2, 0.0, 1.0)
+    iso = popt.lt.PointLight(np.array([1.0, 1.0, 1.0]), np.array([0.0, 0.0, 1.0]), np.array([0.1, 0.1, 0.1]))
+    c = np.array([0.45, 0.12, 0.08])
+    lights = [(lamps.lights[0], lamps.c_lamp, lamps.beam if spread else None), (led, c, None),
+              (lambertian, c, None), (iso, c, None)]
+    mat = popt.ParticleMaterial(0.3, 0.5, 0.9)
+    gain = rng.uniform(0.5, 2.0, (3, pts.shape[0]))
+    got = popt.light_field(tuple(pts.T.astype(np.float32)), mat, [0.01, 0.02, 0.03], lights, gain).T
+    ref = _law(lights, pts, mat, [0.01, 0.02, 0.03], gain)
+    assert np.allclose(got, ref, rtol=2e-4, atol=1e-9)
+    assert (got > 1.01 * mat.albedo * np.array([0.01, 0.02, 0.03])).mean() > 0.3       # lights do light them
+
+
+def _optics(water):
+    return compose.SequenceState.start(post(water=water.preset)).water
 
 
 def test_sun_lit_particle_radiance_is_lambert_sphere_reflection():

@@ -48,6 +48,7 @@ import numpy as np
 
 from blendgen.physics import lights as lt
 from blendgen.physics import particle_kernels as kern
+from blendgen.physics import particle_light_kernels as plk
 
 SIZE_DISTS = ("power_law", "uniform")
 MARINE_SNOW_R_MIN_M = 0.00025      # 0.5 mm diameter
@@ -124,59 +125,51 @@ def _columns(points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return tuple(np.ascontiguousarray(pts[:, k]) for k in range(3))
 
 
-def _view_dirs(x, y, z):
-    """Unit vectors (3 x (M,)) from the particles toward the camera at the origin."""
-    inv = np.float32(-1.0) / np.maximum(np.sqrt(x * x + y * y + z * z), np.float32(1e-9))
-    return x * inv, y * inv, z * inv
+def light_rows(point_lights: list, tabled=()) -> np.ndarray:
+    """(L, LIGHT_COLUMNS) float32 rows of ``lights.PointLight``s for the compiled light field
+    (particle_light_kernels): position, axis, intensity, cos of the half angle (-2: isotropic),
+    cos of the inner angle (= cos half: a hard edge), cosine power; -1 for the lights whose
+    index is in ``tabled`` (their beam is given as a table lookup)."""
+    rows = np.empty((len(point_lights), plk.LIGHT_COLUMNS), np.float32)
+    for k, li in enumerate(point_lights):
+        half, edge = float(li.half_angle_rad), float(li.edge_rad)
+        cos_half = -2.0 if half >= math.pi else math.cos(half)
+        cos_inner = math.cos(max(half - edge, 0.0)) if edge > 0 and half < math.pi else cos_half
+        rows[k, :3], rows[k, 3:6] = np.asarray(li.position_m, float), np.asarray(li.axis, float)
+        rows[k, 6:9] = np.asarray(li.intensity_w_sr, float).reshape(3)
+        rows[k, 9:] = cos_half, cos_inner, -1.0 if k in tabled else float(li.cosine_power)
+    return rows
 
 
-def _light_terms(light, xyz, view, c: np.ndarray, beam=None):
-    """(irradiance [3 x (M,)], cos of the scattering angle (M,)) of one point light at particles
-    xyz = (x, y, z) (M,) float32, view = unit directions to the camera: ``lights.irradiance``'s
-    law (inverse square, cone profile, exp(-c d), normals None) in float32, sharing the
-    light->particle directions. ``beam``: None, or callable(light, cos_psi (1, M), d (1, M)) ->
-    (1, M, 3) replacing profile x exp(-c d) (the lamp's spread beam, ``LampWater.beam``)."""
-    pos = np.asarray(light.position_m, np.float32)
-    ray = [xyz[k] - pos[k] for k in range(3)]
-    d = np.sqrt(ray[0] * ray[0] + ray[1] * ray[1] + ray[2] * ray[2])
-    np.maximum(d, np.float32(1e-3), out=d)
-    inv = np.float32(1.0) / d
-    ray = [r * inv for r in ray]
-    ax = np.asarray(light.axis, np.float32)
-    cos_psi = ray[0] * ax[0] + ray[1] * ax[1] + ray[2] * ax[2]
-    intensity = np.asarray(light.intensity_w_sr, np.float32).reshape(3)
-    if beam is not None:
-        b = beam(light, cos_psi[None, :], d[None, :])[0]
-        E = [b[:, k] * (inv * inv * intensity[k]) for k in range(3)]
-        return E, ray[0] * view[0] + ray[1] * view[1] + ray[2] * view[2]
-    base = light.profile(cos_psi).astype(np.float32) * inv * inv
-    if np.all(c == c[0]):                                   # grey water: one exp for all channels
-        base *= np.exp(-d * c[0])
-        E = [base * intensity[k] for k in range(3)]
-    else:
-        E = [base * intensity[k] * np.exp(-d * c[k]) for k in range(3)]
-    return E, ray[0] * view[0] + ray[1] * view[1] + ray[2] * view[2]
+def light_field(xyz, material: ParticleMaterial, ambient_rgb, lights: list, gain=None) -> np.ndarray:
+    """(3, M) float32 :func:`particle_radiance` on columns xyz = (x, y, z) (M,) float32, compiled
+    (``particle_light_kernels.radiance``). lights: (PointLight, c (3,) attenuation along its path
+    1/m, beam) triples, beam None (profile x exp(-c d)) or callable(light, cos_psi (1, M), d (1, M))
+    -> (1, M, 3) replacing it (the lamp's spread beam, ``LampWater.beam``); gain None or (3, M)."""
+    x, y, z = (np.ascontiguousarray(v, np.float32) for v in xyz)
+    n = x.size
+    amb = (np.float32(material.albedo) * np.asarray(ambient_rgb, np.float32).reshape(3)).astype(np.float32)
+    tabled = [k for k, (_, _, beam) in enumerate(lights) if beam is not None]
+    beams = np.zeros((len(lights), 3, n if tabled else 0), np.float32)
+    for k in tabled:
+        li, _, beam = lights[k]
+        d, cos_psi = plk.light_rays(x, y, z, np.asarray(li.position_m, np.float32), np.asarray(li.axis, np.float32))
+        beams[k] = beam(li, cos_psi[None, :], d[None, :])[0].T
+    rows = light_rows([li for li, _, _ in lights], tabled)
+    c = np.array([np.asarray(cl, np.float32).reshape(3) for _, cl, _ in lights], np.float32).reshape(-1, 3)
+    g = np.zeros((3, 0), np.float32) if gain is None else np.ascontiguousarray(gain, np.float32).reshape(3, n)
+    mat = np.array([material.albedo, material.forward_fraction, material.forward_g], np.float32)
+    return plk.radiance(x, y, z, rows, c, beams, g, mat, amb)
 
 
 def radiance_planar(xyz, material: ParticleMaterial, ambient_rgb, point_lights: list, c_per_m,
                     light_gain=None, beam=None) -> list:
     """:func:`particle_radiance` on columns: xyz = (x, y, z) (M,) float32, light_gain None or
-    3 x (M,) (per channel), beam None or the lights' beam (:func:`_light_terms`); returns 3 x (M,) float32."""
-    n = xyz[0].size
-    amb = np.float32(material.albedo) * np.asarray(ambient_rgb, np.float32).reshape(3)
-    if not point_lights or n == 0:
-        return [np.full(n, amb[k], np.float32) for k in range(3)]
-    view = _view_dirs(*xyz)
+    3 x (M,) (per channel), beam None or the lights' beam (:func:`light_field`); returns 3 x (M,)
+    float32."""
     c = np.asarray(c_per_m, np.float32).reshape(3)
-    art = [np.zeros(n, np.float32) for _ in range(3)]
-    for light in point_lights:
-        E, mu = _light_terms(light, xyz, view, c, beam)
-        ph = material.phase(mu) * np.float32(material.albedo)
-        for k in range(3):
-            art[k] += E[k] * ph
-    if light_gain is not None:
-        art = [art[k] * light_gain[k] for k in range(3)]
-    return [art[k] + amb[k] for k in range(3)]
+    gain = None if light_gain is None else np.stack([np.asarray(g, np.float32) for g in light_gain])
+    return list(light_field(xyz, material, ambient_rgb, [(li, c, beam) for li in point_lights], gain))
 
 
 def particle_radiance(points_cam: np.ndarray, material: ParticleMaterial, ambient_rgb,
@@ -197,13 +190,10 @@ def particle_radiance(points_cam: np.ndarray, material: ParticleMaterial, ambien
 
 
 def sun_planar(xyz, material: ParticleMaterial, suns_cam) -> np.ndarray:
-    """:func:`sun_radiance` on columns xyz = (x, y, z) (M,): (M,) float32 (grey)."""
-    view = _view_dirs(*xyz)
-    out = np.zeros(xyz[0].size, np.float32)
-    for direction, strength in suns_cam:
-        dv = np.asarray(direction, np.float32).reshape(3)
-        out += np.float32(strength) * lambert_sphere_phase(view[0] * dv[0] + view[1] * dv[1] + view[2] * dv[2])
-    return np.float32(material.albedo * (1.0 - material.forward_fraction)) * out
+    """:func:`sun_radiance` on columns xyz = (x, y, z) (M,): (M,) float32 (grey), compiled."""
+    x, y, z = (np.ascontiguousarray(v, np.float32) for v in xyz)
+    suns = np.array([[*np.asarray(d, float).reshape(3), float(e)] for d, e in suns_cam], np.float32).reshape(-1, 4)
+    return plk.sun_radiance(x, y, z, suns, np.float32(material.albedo * (1.0 - material.forward_fraction)))
 
 
 def sun_radiance(points_cam: np.ndarray, material: ParticleMaterial, suns_cam) -> np.ndarray:

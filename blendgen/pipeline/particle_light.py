@@ -24,6 +24,7 @@ from blendgen.physics import lamp_water
 from blendgen.physics import lights as lt
 from blendgen.physics import optics
 from blendgen.physics import particle_kernels as kern
+from blendgen.physics import particle_light_kernels as plk
 from blendgen.physics import particle_optics as popt
 from blendgen.physics.particles import ProjectedParticles
 
@@ -34,24 +35,17 @@ def material(occ) -> popt.ParticleMaterial:
     return popt.ParticleMaterial(occ.albedo, occ.forward_fraction, occ.forward_g)
 
 
-def _depth_gain(post, water, T_world_cam: np.ndarray, p: ProjectedParticles) -> list:
-    """3 x (M,) inverse of the depth factor the water model will apply to each particle's
+def _depth_gain(post, water, T_world_cam: np.ndarray, p: ProjectedParticles) -> np.ndarray:
+    """(3, M) float32 inverse of the depth factor the water model will apply to each particle's
     pixels (physical: exp(-Kd depth) at the depth compose.surface_depth computes from the range
     along the ray; article: exp(-Kd d) at the dock depth)."""
     if post.image_formation != "physical":
-        g = 1.0 / optics.depth_light(water, post.light_depth_m)
-        return [np.full(p.u.size, np.float32(g[k] if np.ndim(g) else g), np.float32) for k in range(3)]
+        g = np.broadcast_to(1.0 / optics.depth_light(water, post.light_depth_m), (3,))
+        return np.repeat(np.asarray(g, np.float32)[:, None], p.u.size, axis=1)
     T = np.asarray(T_world_cam, float)
-    x, y, z = p.pc
-    rz = T[2, :3].astype(np.float32)
-    dist = np.sqrt(x * x + y * y + z * z)
-    dir_z = (x * rz[0] + y * rz[1] + z * rz[2]) / np.maximum(dist, np.float32(1e-9))
-    depth = np.maximum(np.float32(post.surface_z_m - T[2, 3]) - p.surf_range * dir_z, np.float32(0.0))
-    kd = np.asarray(water.Kd, np.float32).reshape(-1)
-    if np.all(kd == kd[0]):
-        g = np.exp(kd[0] * depth)
-        return [g, g, g]
-    return [np.exp(kd[k] * depth) for k in range(3)]
+    kd = np.asarray(water.Kd, np.float32).reshape(3)
+    return plk.depth_gain(*p.pc, p.surf_range, T[2, :3].astype(np.float32),
+                          np.float32(post.surface_z_m - T[2, 3]), kd)
 
 
 def shader(post, water, T_world_cam, markers=None, T_cam_dock=None, lamp=None):
@@ -63,23 +57,19 @@ def shader(post, water, T_world_cam, markers=None, T_cam_dock=None, lamp=None):
         lamp = lamp_water.LampWater.build(lt.lamp_lights(post.lamps), water, post.lamp_forward_kept)
     lamps = list(lamp.lights) if lamp is not None else []
     leds = popt.led_point_lights(markers, T_cam_dock) if markers and T_cam_dock is not None else []
-    lights = lamps + leds
     mat = material(post.occlusion)
     amb = post.ambient_w_m2_sr
     R = np.asarray(T_world_cam, float)[:3, :3]
     suns = [(R.T @ np.asarray(d, float), e) for d, e in post.suns]
+    lights = [(li, lamp.c_lamp, lamp.beam if lamp.spread else None) for li in lamps] + \
+             [(li, water.c, None) for li in leds]
 
     def shade(p: ProjectedParticles) -> np.ndarray:
         gain = _depth_gain(post, water, T_world_cam, p) if lights else None
-        xyz = tuple(p.pc)
-        out = popt.radiance_planar(xyz, mat, [amb] * 3, leds, water.c, gain)
-        if lamps:
-            lit = popt.radiance_planar(xyz, mat, [0.0] * 3, lamps, lamp.c_lamp, gain, beam=lamp.beam)
-            out = [o + q for o, q in zip(out, lit)]
+        out = popt.light_field(p.pc, mat, [amb] * 3, lights, gain)
         if suns:
-            sun = popt.sun_planar(xyz, mat, suns)
-            out = [o + sun for o in out]
-        return np.stack(out, axis=1)
+            out += popt.sun_planar(p.pc, mat, suns)[None, :]
+        return out.T
     return shade
 
 
