@@ -232,7 +232,8 @@ def _law(lights_c_beam, pts, mat, amb, gain):
 def test_compiled_light_field_matches_the_numpy_laws(spread):
     """particle_light_kernels.radiance (vectorised: polynomial acos, exp32) against the laws in
     float64: hard-edged LED hemispheres, a soft-edged lamp (its spread beam table or profile x
-    exp(-c' d)), a cosine-power emitter and an isotropic light, channel-dependent c, a gain."""
+    exp(-c' d)), cosine-power emitters (power 1 compiled, 2.5 by numpy) and an isotropic light,
+    channel-dependent c, a gain."""
     rng = np.random.default_rng(3)
     pts = rng.uniform([-3, -2, 0.3], [3, 2, 9], (3000, 3))
     water = Water(preset="moderate")
@@ -244,9 +245,11 @@ def test_compiled_light_field_matches_the_numpy_laws(spread):
     axis = np.array([0.3, 0.0, -0.95]) / np.linalg.norm([0.3, 0.0, -0.95])
     lambertian = popt.lt.PointLight(np.array([-0.5, 0.4, 3.0]), axis, np.array([0.2, 0.3, 0.4]), math.pi / 2, 0.0, 1.0)
     iso = popt.lt.PointLight(np.array([1.0, 1.0, 1.0]), np.array([0.0, 0.0, 1.0]), np.array([0.1, 0.1, 0.1]))
+    narrow = popt.lt.PointLight(np.array([0.0, -0.5, 2.0]), np.array([0.0, 0.0, 1.0]), np.array([0.3, 0.3, 0.3]),
+                                math.pi / 3, 0.1, 2.5)                     # cos^2.5 inside a soft cone
     c = np.array([0.45, 0.12, 0.08])
     lights = [(lamps.lights[0], lamps.c_lamp, lamps.beam if spread else None), (led, c, None),
-              (lambertian, c, None), (iso, c, None)]
+              (lambertian, c, None), (iso, c, None), (narrow, c, None)]
     mat = popt.ParticleMaterial(0.3, 0.5, 0.9)
     gain = rng.uniform(0.5, 2.0, (3, pts.shape[0]))
     got = popt.light_field(tuple(pts.T.astype(np.float32)), mat, [0.01, 0.02, 0.03], lights, gain).T

@@ -54,14 +54,23 @@ def _phase(mu, forward, g):
 @_vec_inline
 def _profile(cos_psi, cos_half, cos_inner, power):
     """``lights.PointLight.profile``: a hard (cos_inner = cos_half) or smoothstep edge between
-    the inner and the half angle (cos_half < -1: none), times cos^power (power 0: none; 1, or
-    any other by pow)."""
+    the inner and the half angle (cos_half < -1: none), times cos^power for power 0 or 1 (other
+    powers go through the table path, ``particle_optics.light_field``: a pow would not vectorise)."""
     span = cos_inner - cos_half
     t = min(max((cos_psi - cos_half) / span, _F0), _F1) if span > _F0 else (_F1 if cos_psi >= cos_half else _F0)
     edge = t * t * (np.float32(3.0) - t - t) if span > _F0 else t
-    lam = max(cos_psi, _F0)
-    lam = lam if power == _F1 else (_F1 if power == _F0 else lam ** power)
-    return edge * lam
+    return edge * (_F1 + power * (max(cos_psi, _F0) - _F1))
+
+
+@_vec_inline
+def _scatter(x, y, z, px, py, pz, forward, g):
+    """p(theta) / d^2 (1/sr/m^2) at the particle (x, y, z) for light from (px, py, pz): the
+    phase at the scattering angle between the light's ray and the ray to the camera (origin)."""
+    rx, ry, rz = x - px, y - py, z - pz
+    d2 = max(rx * rx + ry * ry + rz * rz, np.float32(1e-6))
+    dist = max(np.sqrt(x * x + y * y + z * z), np.float32(1e-9))
+    mu = -(rx * x + ry * y + rz * z) / (np.sqrt(d2) * dist)
+    return _phase(mu, forward, g) / d2
 
 
 @_vec
@@ -95,23 +104,21 @@ def radiance(x, y, z, lights, c_light, beams, gain, mat, amb):
         px, py, pz, ax, ay, az = L[0], L[1], L[2], L[3], L[4], L[5]
         i0, i1, i2, cos_half, cos_inner, power = L[6], L[7], L[8], L[9], L[10], L[11]
         c0, c1, c2 = c_light[li, 0], c_light[li, 1], c_light[li, 2]
-        tabled = power < _F0
+        if power < _F0:                           # the beam given (a table lookup)
+            for i in range(n):
+                ph = _scatter(x[i], y[i], z[i], px, py, pz, forward, g) * albedo
+                art[0, i] += beams[li, 0, i] * i0 * ph
+                art[1, i] += beams[li, 1, i] * i1 * ph
+                art[2, i] += beams[li, 2, i] * i2 * ph
+            continue
         for i in range(n):
             rx, ry, rz = x[i] - px, y[i] - py, z[i] - pz
-            dist = np.sqrt(x[i] * x[i] + y[i] * y[i] + z[i] * z[i])
             d = max(np.sqrt(rx * rx + ry * ry + rz * rz), np.float32(1e-3))
-            inv = _F1 / d
-            inv_v = np.float32(-1.0) / max(dist, np.float32(1e-9))      # toward the camera
-            mu = (rx * x[i] + ry * y[i] + rz * z[i]) * inv * inv_v
-            ph = _phase(mu, forward, g) * albedo * inv * inv
-            if tabled:
-                b0, b1, b2 = beams[li, 0, i], beams[li, 1, i], beams[li, 2, i]
-            else:
-                prof = _profile((rx * ax + ry * ay + rz * az) * inv, cos_half, cos_inner, power)
-                b0, b1, b2 = prof * exp32(-c0 * d), prof * exp32(-c1 * d), prof * exp32(-c2 * d)
-            art[0, i] += b0 * i0 * ph
-            art[1, i] += b1 * i1 * ph
-            art[2, i] += b2 * i2 * ph
+            ph = _scatter(x[i], y[i], z[i], px, py, pz, forward, g) * albedo
+            prof = _profile((rx * ax + ry * ay + rz * az) / d, cos_half, cos_inner, power) * ph
+            art[0, i] += prof * exp32(-c0 * d) * i0
+            art[1, i] += prof * exp32(-c1 * d) * i1
+            art[2, i] += prof * exp32(-c2 * d) * i2
     out = np.empty((3, n), np.float32)
     gained = gain.shape[1] == n
     for k in range(3):

@@ -149,12 +149,15 @@ def light_field(xyz, material: ParticleMaterial, ambient_rgb, lights: list, gain
     x, y, z = (np.ascontiguousarray(v, np.float32) for v in xyz)
     n = x.size
     amb = (np.float32(material.albedo) * np.asarray(ambient_rgb, np.float32).reshape(3)).astype(np.float32)
-    tabled = [k for k, (_, _, beam) in enumerate(lights) if beam is not None]
+    tabled = [k for k, (li, _, beam) in enumerate(lights) if beam is not None or li.cosine_power not in (0, 1)]
     beams = np.zeros((len(lights), 3, n if tabled else 0), np.float32)
-    for k in tabled:
-        li, _, beam = lights[k]
+    for k in tabled:                       # beams given, or profiles the kernel has not: numpy
+        li, c, beam = lights[k]
         d, cos_psi = plk.light_rays(x, y, z, np.asarray(li.position_m, np.float32), np.asarray(li.axis, np.float32))
-        beams[k] = beam(li, cos_psi[None, :], d[None, :])[0].T
+        if beam is not None:
+            beams[k] = beam(li, cos_psi[None, :], d[None, :])[0].T
+        else:
+            beams[k] = li.profile(cos_psi)[None, :] * np.exp(-np.asarray(c, np.float32).reshape(3, 1) * d[None, :])
     rows = light_rows([li for li, _, _ in lights], tabled)
     c = np.array([np.asarray(cl, np.float32).reshape(3) for _, cl, _ in lights], np.float32).reshape(-1, 3)
     g = np.zeros((3, 0), np.float32) if gain is None else np.ascontiguousarray(gain, np.float32).reshape(3, n)
