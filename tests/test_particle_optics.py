@@ -167,7 +167,7 @@ def test_rendered_defocus_disc_has_thin_lens_diameter_and_conserves_light():
     sh = particle_light.shaper(st.post, K, T_WC)
     p = project_particles(st.field, K, T_WC, W, H, margin_px=8.0)
     out, _, _ = render_particles(np.zeros((H, W, 3), np.float32), np.full((H, W), np.inf, np.float32),
-                                 st.field, K, T_WC, colour=[1, 1, 1], shape=sh, margin_px=8.0)
+                                 st.field, K, T_WC, colour=[1, 1, 1], blur=sh)
     cov = out[..., 0].astype(np.float64)
     v, u = np.mgrid[0:H, 0:W]
     m = cov.sum()
@@ -184,7 +184,7 @@ def test_motion_streak_length_is_velocity_times_exposure():
     st = state_with(one([z, 0.0, -1.0], 0.002), exposure=0.01)
     st.post.occlusion.v_flow = [0.0, vy, 0.0]
     p = project_particles(st.field, K, T_WC, W, H)
-    s = particle_light.shaper(st.post, K, T_WC, prev_pose=(0.0, T_WC), t_s=0.1)(p, W, H)
+    s = project_particles(st.field, K, T_WC, W, H, blur=particle_light.shaper(st.post, K, T_WC, (0.0, T_WC), 0.1))
     streak = math.sqrt(3.0 * (s.a[0] ** 2 - s.b[0] ** 2))       # a'^2 = a^2 + L^2 / 3 along the streak
     assert s.b[0] == pytest.approx(p.b[0], rel=1e-5)              # across it: unchanged
     assert streak == pytest.approx(K[0, 0] * vy * 0.01 / z, rel=0.02)
@@ -300,3 +300,39 @@ def test_blurred_shape_is_the_eigen_decomposition_of_the_summed_moments(seed):
     same = popt.blurred_shapes(a, b, c, s)                   # no blur: the ellipse itself
     assert np.allclose(same[0], a, rtol=1e-5) and np.allclose(same[1], b, rtol=1e-4)
     assert np.allclose(same[4], 1.0, atol=1e-4)
+
+
+def test_blurred_projection_keeps_exactly_the_footprints_that_meet_the_image():
+    """project_particles with a blur keeps a particle iff its blurred footprint (a speck's 2 x 2
+    pixels, an ellipse's box) meets the image: the same set as projecting with a wide margin,
+    blurring (particle_optics.blurred_shapes) and testing the footprint box."""
+    from blendgen.physics.particle_kernels import box
+    f = ParticleField.sample(5, *BOX, n_total=40000, count_dist="fixed", size_dist="power_law",
+                             r_min=0.0005, r_max=0.03)
+    st = state_with(f, lens=Lens(focal_length_mm=6.0, f_number=1.4, focus_m=2.0), exposure=0.02)
+    st.post.occlusion.v_flow = [0.3, 0.5, 0.0]
+    T_prev = make_T(R_WC, [-0.2, 0.1, -1.0])
+    b = particle_light.shaper(st.post, K, T_WC, (0.0, T_prev), 0.1)
+    got = project_particles(f, K, T_WC, W, H, blur=b)
+    wide = project_particles(f, K, T_WC, W, H, margin_px=400.0)
+    x0, y0, z0 = (b.M.astype(float) @ wide.pc.astype(float) + b.o[:, None].astype(float))
+    u0 = K[0, 0] * x0 / z0 + K[0, 1] * y0 / z0 + K[0, 2]
+    v0 = K[1, 1] * y0 / z0 + K[1, 2]
+    st_uv = np.stack([(wide.u - u0) * b.scale, (wide.v - v0) * b.scale], axis=1)
+    coc = float(b.coc_k) * np.abs(wide.pc[2] - float(b.focus_m)) / wide.pc[2]
+    a2, b2, c2, s2, op = popt.blurred_shapes(wide.a, wide.b, wide.c, wide.s, 0.25 * coc * coc, st_uv)
+    keep = []
+    for i in range(wide.u.size):
+        if a2[i] < 0.5:
+            xa, ya, sx, sy = math.floor(wide.u[i]), math.floor(wide.v[i]), 2, 2
+        else:
+            xa, ya, sx, sy = box(wide.u[i], wide.v[i], a2[i], b2[i], c2[i], s2[i])
+        keep.append(xa + sx - 1 >= 0 and xa <= W - 1 and ya + sy - 1 >= 0 and ya <= H - 1)
+    keep = np.array(keep)
+    differ = np.isin(wide.index, got.index) != keep                  # float32 rounding at the box edge
+    assert got.u.size > 1000 and keep.sum() > 1000 and differ.sum() <= 2
+    assert np.isin(got.index, wide.index).all()
+    sel = np.isin(wide.index, got.index)
+    order = np.argsort(wide.index[sel])
+    assert np.allclose(got.a[np.argsort(got.index)], a2[sel][order], rtol=1e-4, atol=1e-6)
+    assert np.allclose(got.opacity[np.argsort(got.index)], op[sel][order], rtol=1e-4, atol=1e-6)

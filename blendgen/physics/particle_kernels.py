@@ -222,71 +222,72 @@ def blur(a, b, c, s, iso, du, dv):
 
 
 @_jit_vec
-def _shape_pass(u, v, a, b, c, s, px, py, pz, M, o, K, scale, coc_k, focus_m, width, height):
-    """:func:`shape` without the compaction: (6, M) float32 = a', b', c', s', opacity, keep."""
-    out = np.empty((6, u.size), np.float32)
+def _blurred_pass(xyz, radii, R, off, K, z_near, M, o, scale, coc_k, focus_m, width, height):
+    """:func:`project_blurred` for every particle, without the compaction (vectorised): (12, N)
+    float32 rows u, v, a', b', c', s', d, x, y, z, opacity, keep (0 / 1)."""
+    n = xyz.shape[1]
+    out = np.empty((12, n), np.float32)
     fx, sk, cx, fy, cy = K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
+    fb = _HALF * (fx + fy)
+    Rs = (R[0, 0], R[0, 1], R[0, 2], R[1, 0], R[1, 1], R[1, 2], R[2, 0], R[2, 1], R[2, 2], off[0], off[1], off[2])
     m00, m01, m02, m10, m11, m12 = M[0, 0], M[0, 1], M[0, 2], M[1, 0], M[1, 1], M[1, 2]
-    m20, m21, m22, o0, o1, o2 = M[2, 0], M[2, 1], M[2, 2], o[0], o[1], o[2]   # scalars: no aliasing
-    for i in range(u.size):
-        x, y, z = px[i], py[i], pz[i]            # planar: an (M, 3) layout is not vectorised
-        x0 = m00 * x + m01 * y + m02 * z + o0                    # where it was, seen from then
+    m20, m21, m22, o0, o1, o2 = M[2, 0], M[2, 1], M[2, 2], o[0], o[1], o[2]
+    w1, h1 = np.float32(width - 1), np.float32(height - 1)
+    for i in range(n):
+        r = radii[i]
+        x, y, z, u, v, a, b, sec = _camera(xyz[0, i], xyz[1, i], xyz[2, i], r, Rs, fx, sk, cx, fy, cy, fb, z_near)
+        du_c, dv_c = u - cx, v - cy
+        norm = np.sqrt(du_c * du_c + dv_c * dv_c)
+        inv = _F1 / max(norm, np.float32(1e-6))
+        c = du_c * inv if norm > np.float32(1e-6) else _F1           # radial direction
+        s = dv_c * inv if norm > np.float32(1e-6) else _F0
+        x0 = m00 * x + m01 * y + m02 * z + o0                         # where it was, seen from then
         y0 = m10 * x + m11 * y + m12 * z + o1
         z0 = m20 * x + m21 * y + m22 * z + o2
         iz = _F1 / max(z0, np.float32(1e-3))
         ahead = z0 > np.float32(1e-3)
-        du = (u[i] - (fx * x0 * iz + sk * y0 * iz + cx)) * scale if ahead else _F0
-        dv = (v[i] - (fy * y0 * iz + cy)) * scale if ahead else _F0
-        off = z - focus_m
-        coc = coc_k * max(off, -off) / z                          # thin-lens blur diameter (px)
-        out[0, i], out[1, i], out[2, i], out[3, i], out[4, i] = _moments(
-            a[i], b[i], c[i], s[i], np.float32(0.25) * coc * coc, du, dv)
-    for i in range(u.size):             # a second loop: one loop doing both is not vectorised
-        a2, b2, c2, s2 = out[0, i], out[1, i], out[2, i], out[3, i]
-        grow = _F1 + _HALF / np.sqrt(a2 * b2)                     # box(): the ellipse's pixel box
+        du = (u - (fx * x0 * iz + sk * y0 * iz + cx)) * scale if ahead else _F0
+        dv = (v - (fy * y0 * iz + cy)) * scale if ahead else _F0
+        dz = z - focus_m
+        coc = coc_k * max(dz, -dz) / max(z, z_near)                   # thin-lens blur diameter (px)
+        a2, b2, c2, s2, op = _moments(a, b, c, s, np.float32(0.25) * coc * coc, du, dv)
+        grow = _F1 + _HALF / np.sqrt(a2 * b2)                         # box(): the ellipse's pixel box
         ex = np.sqrt((a2 * c2) ** 2 + (b2 * s2) ** 2) * grow
         ey = np.sqrt((a2 * s2) ** 2 + (b2 * c2) ** 2) * grow
-        speck = a2 < np.float32(SPLAT_BELOW_PX)                   # _footprint: the 2 x 2 pixels
-        lo_x = np.floor(u[i]) if speck else np.ceil(u[i] - ex)
-        lo_y = np.floor(v[i]) if speck else np.ceil(v[i] - ey)
-        hi_x = np.floor(u[i]) + _F1 if speck else np.floor(u[i] + ex)
-        hi_y = np.floor(v[i]) + _F1 if speck else np.floor(v[i] + ey)
-        keep = (hi_x >= _F0) & (lo_x <= np.float32(width - 1)) & (hi_y >= _F0) & (lo_y <= np.float32(height - 1))
-        out[5, i] = _F1 if keep else _F0
+        speck = a2 < np.float32(SPLAT_BELOW_PX)                       # _footprint: the 2 x 2 pixels
+        lo_x = np.floor(u) if speck else np.ceil(u - ex)
+        lo_y = np.floor(v) if speck else np.ceil(v - ey)
+        hi_x = np.floor(u) + _F1 if speck else np.floor(u + ex)
+        hi_y = np.floor(v) + _F1 if speck else np.floor(v + ey)
+        keep = (z > z_near) & (z * sec > r) & (hi_x >= _F0) & (lo_x <= w1) & (hi_y >= _F0) & (lo_y <= h1)
+        out[0, i], out[1, i], out[2, i], out[3, i], out[4, i], out[5, i] = u, v, a2, b2, c2, s2
+        out[6, i], out[7, i], out[8, i], out[9, i], out[10, i] = z * sec - r, x, y, z, op
+        out[11, i] = _F1 if keep else _F0
     return out
 
 
 @_jit
-def shape(u, v, a, b, c, s, d, px, py, pz, index, M, o, K, scale, coc_k, focus_m, width, height):
-    """Defocus and motion blur of the projected particles, and the cull of those whose blurred
-    footprint misses the width x height image (they draw nothing): ``particle_light.shaper``.
-
-    Per particle (M,) float32: centre u, v (px), semi-axes a, b (px), radial direction c, s,
-    surface range d (m), px, py, pz camera-frame centre (m), index (M,) int64 into the field.
-    The streak: the particle's camera-frame point one frame earlier is ``M pc + o`` (M (3, 3),
-    o (3,) float32), projected by K (3, 3) float32, times ``scale`` = exposure / frame interval.
-    Defocus: thin-lens circle of confusion ``coc_k |z - focus_m| / z`` px (coc_k = 0: pinhole).
-    Returns the kept particles' (u, v, a', b', c', s', d, pc, index, opacity)."""
-    sh = _shape_pass(u, v, a, b, c, s, px, py, pz, M, o, K, scale, coc_k, focus_m, width, height)
-    keep = np.empty(u.size, np.int64)
+def project_blurred(xyz, radii, R, off, K, z_near, M, o, scale, coc_k, focus_m, width, height):
+    """:func:`project` with the defocus and motion blur of ``particle_light.shaper`` in the same
+    pass, keeping exactly the particles whose blurred footprint meets the width x height image
+    (no margin guess). The streak: a particle's camera-frame point one frame earlier is
+    ``M pc + o`` (M (3, 3), o (3,) float32), projected by K, times ``scale`` = exposure / frame
+    interval; defocus: thin-lens circle of confusion ``coc_k |z - focus_m| / z`` px (coc_k = 0:
+    pinhole); footprints add second moments (:func:`_moments`). Returns (idx (m,) int64,
+    uv_ab_cs (6, m) float32 of the blurred ellipses, surf_range (m,), pc (3, m), opacity (m,))."""
+    rows = _blurred_pass(xyz, radii, R, off, K, z_near, M, o, scale, coc_k, focus_m, width, height)
+    n = rows.shape[1]
+    idx = np.empty(n, np.int64)
     m = 0
-    for i in range(u.size):
-        keep[m] = i
-        m += sh[5, i] > _F0
-    keep = keep[:m]
-    cols = np.empty((7, m), np.float32)
-    pc_out = np.empty((3, m), np.float32)
-    idx = np.empty(m, np.int64)
-    for j in range(m):
-        i = keep[j]
-        cols[0, j], cols[1, j], cols[6, j] = u[i], v[i], d[i]
-        cols[2, j], cols[3, j], cols[4, j], cols[5, j] = sh[0, i], sh[1, i], sh[2, i], sh[3, i]
-        pc_out[0, j], pc_out[1, j], pc_out[2, j] = px[i], py[i], pz[i]
-        idx[j] = index[i]
-    op = np.empty(m, np.float32)
-    for j in range(m):
-        op[j] = sh[4, keep[j]]
-    return cols[0], cols[1], cols[2], cols[3], cols[4], cols[5], cols[6], pc_out, idx, op
+    for i in range(n):                   # branch-free: every index written, kept ones advance m
+        idx[m] = i
+        m += rows[11, i] > _F0
+    idx = idx[:m]
+    kept = np.empty((11, m), np.float32)
+    for k in range(11):                  # row by row: sequential writes, ascending reads
+        for j in range(m):
+            kept[k, j] = rows[k, idx[j]]
+    return idx, kept[:6], kept[6], kept[7:10], kept[10]
 
 
 # ----------------------------------------------------------------------------- splat

@@ -315,19 +315,27 @@ class ProjectedParticles:
 
 
 def project_particles(field: ParticleField, K: np.ndarray, T_world_cam: np.ndarray, width: int,
-                      height: int, z_near: float = 0.05, margin_px: float = 0.0) -> ProjectedParticles:
+                      height: int, z_near: float = 0.05, margin_px: float = 0.0, blur=None) -> ProjectedParticles:
     """Project the particles that can touch the image (vectorised culling, float32).
 
     Keeps particles with Z > z_near, the camera outside the sphere, and the ellipse
-    overlapping the image (1.5 px + ``margin_px`` margin: room for blur added later)."""
+    overlapping the image (1.5 px + ``margin_px`` margin: room for blur added later). With
+    ``blur`` (``pipeline/particle_light.Blur``: defocus and motion streak) the footprints are the
+    blurred ellipses, with their ``opacity``, and exactly those that meet the image are kept
+    (``particle_kernels.project_blurred``; ``margin_px`` unused)."""
     T = np.asarray(T_world_cam, float)
     if T.shape != (4, 4):
         raise ValueError(f"T_world_cam must be 4x4, got {T.shape}")
     R = T[:3, :3].astype(np.float32)
     off = (-(T[:3, 3] @ T[:3, :3])).astype(np.float32)   # -R^T t
-    idx, cols, surf_range, pc = kern.project(
-        field.xyz, np.ascontiguousarray(field.radii, np.float32), R, off,
-        np.asarray(K, np.float32), int(width), int(height), np.float32(z_near), np.float32(margin_px))
+    xyz, radii, K32 = field.xyz, np.ascontiguousarray(field.radii, np.float32), np.asarray(K, np.float32)
+    if blur is not None:
+        idx, cols, surf_range, pc, op = kern.project_blurred(
+            xyz, radii, R, off, K32, np.float32(z_near), blur.M, blur.o, blur.scale, blur.coc_k, blur.focus_m,
+            int(width), int(height))
+        return ProjectedParticles(*cols, surf_range, pc, idx, op)
+    idx, cols, surf_range, pc = kern.project(xyz, radii, R, off, K32, int(width), int(height), np.float32(z_near),
+                                             np.float32(margin_px))
     return ProjectedParticles(*cols, surf_range, pc, idx)
 
 
@@ -361,7 +369,7 @@ def _particle_colour(mode: str, colour, ambient) -> np.ndarray:
 def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: ParticleField,
                      K: np.ndarray, T_world_cam: np.ndarray, water=None, mode: str = "backscatter",
                      z_near: float = 0.05, colour=None, ambient=DEFAULT_AMBIENT_RGB,
-                     shade: Callable | None = None, shape: Callable | None = None, margin_px: float = 0.0,
+                     shade: Callable | None = None, blur=None, margin_px: float = 0.0,
                      merged_range: bool = False, background=None):
     """Draw the particle field into a linear RGB image with a depth test.
 
@@ -375,9 +383,9 @@ def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: Parti
     Colour: ``shade(projected) -> (M, 3)`` linear radiance per particle (the physical
     light field: particle_optics.particle_radiance); else ``colour`` (3,) linear RGB, else
     "backscatter" = ``ambient`` (a bright speck lit by the veiling light) or "silhouette" =
-    0.05 * ambient (dark). ``shape(projected, width, height) -> projected`` changes the footprints
-    before drawing and drops those that then miss the image (defocus, motion streaks:
-    particle_light.shaper); ``margin_px`` keeps particles up to that far outside the image for it.
+    0.05 * ambient (dark). ``blur`` (particle_light.Blur, from particle_light.shaper): the
+    footprints blurred by defocus and motion streaks (:func:`project_particles`); without it
+    ``margin_px`` keeps particles up to that far outside the image.
 
     Compositing: coverage T = prod(1 - alpha_i) is exact and order-independent; with one
     colour ``out = img T + colour (1 - T)`` equals painter's "over". With per-particle
@@ -408,9 +416,7 @@ def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: Parti
         raise ValueError(f"z_near must be > 0 m, got {z_near}")
     col = _particle_colour(mode, colour, ambient)
     water_fn = _water_callable(water)
-    p = project_particles(field, K, T_world_cam, w, h, z_near, margin_px)
-    if shape is not None and p.u.size:
-        p = shape(p, w, h)
+    p = project_particles(field, K, T_world_cam, w, h, z_near, margin_px, blur)
     surf = np.ascontiguousarray(range_m, np.float32).reshape(-1)     # NaN = no surface hit = background
     colours = (np.asarray(shade(p), np.float32).reshape(-1, 3) if shade is not None
                else np.zeros((p.u.size, 0), np.float32))

@@ -95,8 +95,7 @@ def add_particles(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam
     kw = {"mode": state.post.occlusion.mode}
     if state.post.occlusion.mode == "lit":
         kw = {"shade": particle_light.shader(state.post, state.water, T, markers, T_cam_dock, state.lamp),
-              "shape": particle_light.shaper(state.post, K, T, state.prev_pose, t_s),
-              "margin_px": particle_light.MARGIN_PX}
+              "blur": particle_light.shaper(state.post, K, T, state.prev_pose, t_s)}
     if water_after:
         kw["background"] = _particle_background(state, K, T)
     rgb, occ_mask, rng_eff = occlusion.render_particles(passes["rgb"], passes["range_m"], state.field, K, T,

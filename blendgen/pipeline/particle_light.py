@@ -28,9 +28,6 @@ from blendgen.physics import particle_light_kernels as plk
 from blendgen.physics import particle_optics as popt
 from blendgen.physics.particles import ProjectedParticles
 
-MARGIN_PX = 8.0     # particles centred this far outside the image may still blur into it
-
-
 def material(occ) -> popt.ParticleMaterial:
     return popt.ParticleMaterial(occ.albedo, occ.forward_fraction, occ.forward_g)
 
@@ -83,9 +80,21 @@ def frame_interval(post, prev_pose, t_s) -> tuple[float, np.ndarray | None]:
     return float(t_s - t0), T0
 
 
-def shaper(post, K: np.ndarray, T_world_cam, prev_pose=None, t_s: float | None = None):
-    """Callable(projected, width, height) -> projected with defocus and motion streaks, without
-    the particles whose blurred footprint misses the image (``particle_kernels.shape``).
+@dataclass(frozen=True)
+class Blur:
+    """A frame's particle blur (``particles.project_particles``' ``blur``): the previous camera
+    frame's point of each particle is ``M pc + o`` (M (3, 3), o (3,) float32), ``scale`` =
+    exposure / frame interval turns that displacement into the streak; defocus diameter
+    ``coc_k |z - focus_m| / z`` px (coc_k = 0: pinhole). All float32."""
+    M: np.ndarray
+    o: np.ndarray
+    scale: np.float32
+    coc_k: np.float32
+    focus_m: np.float32
+
+
+def shaper(post, K: np.ndarray, T_world_cam, prev_pose=None, t_s: float | None = None) -> Blur:
+    """The frame's :class:`Blur`: defocus and motion streaks.
 
     Streak: each particle's image displacement over the exposure, its position now minus where it
     was ``dt`` earlier (drifted back by v_flow, seen from the previous pose, or from this pose
@@ -99,23 +108,14 @@ def shaper(post, K: np.ndarray, T_world_cam, prev_pose=None, t_s: float | None =
     T = np.asarray(T_world_cam, float)
     T0 = np.array(T_prev if T_prev is not None else T, float)
     T0[:3, 3] += np.asarray(post.occlusion.v_flow, float) * dt     # drifting back = camera ahead
-    M = (T0[:3, :3].T @ T[:3, :3]).astype(np.float32)
-    o = (T0[:3, :3].T @ (T[:3, 3] - T0[:3, 3])).astype(np.float32)
-    scale = np.float32(min(post.sensor.exposure_s / dt, 1.0))
     coc_k, focus = 0.0, 1.0
     if lens is not None:                   # c_px = A |z - s_f| / z * f / (s_f - f) * f_px / f
         f = lens.focal_length_mm * 1e-3
         popt.coc_px(np.ones(1), f, lens.f_number, lens.focus_m, K[0, 0])     # validates the lens
         coc_k, focus = (f / lens.f_number) / (lens.focus_m - f) * K[0, 0], lens.focus_m
-    K32 = K.astype(np.float32)
-
-    def shape(p: ProjectedParticles, width: int, height: int) -> ProjectedParticles:
-        if p.u.size == 0:
-            return p
-        return ProjectedParticles(*kern.shape(p.u, p.v, p.a, p.b, p.c, p.s, p.surf_range, *p.pc, p.index, M, o,
-                                              K32, scale, np.float32(coc_k), np.float32(focus),
-                                              int(width), int(height)))
-    return shape
+    return Blur((T0[:3, :3].T @ T[:3, :3]).astype(np.float32),
+                (T0[:3, :3].T @ (T[:3, 3] - T0[:3, 3])).astype(np.float32),
+                np.float32(min(post.sensor.exposure_s / dt, 1.0)), np.float32(coc_k), np.float32(focus))
 
 
 @dataclass(frozen=True)

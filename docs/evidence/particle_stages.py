@@ -1,5 +1,5 @@
 """Per-stage CPU of the fast particle path on `bench particles`' scene (docs/particles.md, Speed):
-wraps the stages of compose.add_particles (projection, blur shapes, shading, splat, background
+wraps the stages of compose.add_particles (projection with the blur, shading, splat, background
 transfer, compositing with the mask and merged range) in timers and prints their medians over 30 frames, after one warm-up.
 
     python docs/evidence/particle_stages.py [power_law|uniform] [N]"""
@@ -33,12 +33,12 @@ def timed_factory(factory, label):
 
 
 def main(size_dist: str = "power_law", n: int = 60000) -> None:
-    P.project_particles = timed(P.project_particles, "projection")
+    P.project_particles = timed(P.project_particles, "projection + blur")
     ps.splat = timed(ps.splat, "splat")
     P.kern.resolve = timed(P.kern.resolve, "compositing")
     pl.Transfer.gain_add = timed(pl.Transfer.gain_add, "transfer")
     compose._particle_background = timed(compose._particle_background, "background setup")
-    for name, label in (("shader", "shading"), ("shaper", "blur shapes")):
+    for name, label in (("shader", "shading"),):
         setattr(pl, name, timed_factory(getattr(pl, name), label))
     r = pb.run(n, frames=30, size_dist=size_dist)
     print(pb.format_row(r))
