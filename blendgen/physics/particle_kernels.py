@@ -52,6 +52,8 @@ def _f32_from_bits(typingctx, bits):
 
 
 _EXP = {"nsz", "arcp", "contract", "afn"}    # no "reassoc": it would undo the Cody-Waite split
+_exp_vec = nb.njit(cache=True, nogil=True, fastmath=_EXP, error_model="numpy")
+_inline_exp = nb.njit(cache=True, nogil=True, fastmath=_EXP, error_model="numpy", inline="always")
 
 
 @nb.njit(cache=True, nogil=True, fastmath=_EXP, error_model="numpy", inline="always")
@@ -74,6 +76,82 @@ def exp32(x):
     p = p * r + np.float32(5.0000001201e-1)
     p = p * r * r + r + _F1
     return p * _f32_from_bits((np.int32(k) + np.int32(127)) << np.int32(23))
+
+
+# ----------------------------------------------------------------------------- normal draws
+@intrinsic
+def _bits_of_f32(typingctx, x):
+    """The int32 IEEE bits of the float32 ``x`` (an LLVM bitcast)."""
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], context.get_value_type(types.int32))
+    return types.int32(types.float32), codegen
+
+
+@_inline_exp
+def log32(x):
+    """ln(x) for float32 x > 0 normal, vectorisable: x = m 2^e with m in [sqrt(1/2), sqrt(2))
+    from the exponent bits, ``ln m`` by the Cephes logf polynomial (S. Moshier, Cephes Math
+    Library, logf.c) and ln 2 split in two as in :func:`exp32`. Relative error ~1e-7."""
+    bits = _bits_of_f32(x)
+    e = np.float32((bits >> np.int32(23)) - np.int32(127))
+    m = _f32_from_bits((bits & np.int32(0x7FFFFF)) | np.int32(0x3F800000))   # [1, 2)
+    big = m > np.float32(1.4142135623730951)
+    m = m * _HALF if big else m
+    e = e + _F1 if big else e
+    t = m - _F1
+    z = t * t
+    p = np.float32(7.0376836292e-2)
+    p = p * t - np.float32(1.1514610310e-1)
+    p = p * t + np.float32(1.1676998740e-1)
+    p = p * t - np.float32(1.2420140846e-1)
+    p = p * t + np.float32(1.4249322787e-1)
+    p = p * t - np.float32(1.6668057665e-1)
+    p = p * t + np.float32(2.0000714765e-1)
+    p = p * t - np.float32(2.4999993993e-1)
+    p = p * t + np.float32(3.3333331174e-1)
+    y = t * z * p + e * np.float32(-2.12194440e-4) - _HALF * z
+    return t + y + e * np.float32(0.693359375)
+
+
+@_inline_exp
+def _sin_cos_octant(r):
+    """(sin, cos) of phi = r 2 pi / 2^24 for an integer r in [0, 2^21] (phi in [0, pi/4]):
+    the Cephes sinf / cosf polynomials (|error| ~1e-7)."""
+    phi = np.float32(r) * np.float32(2.0 * math.pi / 2 ** 24)
+    z = phi * phi
+    sin = phi + phi * z * ((np.float32(-1.9515295891e-4) * z + np.float32(8.3321608736e-3)) * z
+                           - np.float32(1.6666654611e-1))
+    cos = _F1 - _HALF * z + z * z * ((np.float32(2.443315711809948e-5) * z - np.float32(1.388731625493765e-3)) * z
+                                     + np.float32(4.166664568298827e-2))
+    return sin, cos
+
+
+@_exp_vec
+def box_muller(bits):
+    """(2, n) float32 standard normal pairs from n uint64 random words (``physics/gauss.py``): the
+    top 24 bits make U1 = k 2^-24, the next 24 the angle theta = 2 pi j 2^-24, and
+    ``R = sqrt(-2 ln(1 - U1))``, (R cos theta, R sin theta). The angle is reduced to its octant in
+    integers (exact), so the polynomials only see [0, pi/4]; the octant's reflections and the
+    quadrant's rotation are arithmetic, not branches (the loop is vectorised)."""
+    n = bits.size
+    out = np.empty((2, n), np.float32)
+    for i in range(n):
+        w = bits[i]
+        k = np.int32(w >> np.uint64(40))                           # U1 = k 2^-24 in [0, 1)
+        j = np.int32((w >> np.uint64(16)) & np.uint64(0xFFFFFF))   # theta = 2 pi j 2^-24
+        radius = np.sqrt(np.float32(-2.0) * log32(np.float32(np.int32(16777216) - k) * np.float32(2.0 ** -24)))
+        odd = (j >> np.int32(21)) & np.int32(1)                    # odd octant: pi/4 - phi, swapped
+        r = j & np.int32(0x1FFFFF)
+        s, c = _sin_cos_octant(r + odd * (np.int32(0x200000) - r - r))
+        f = np.float32(odd)
+        s, c = s + f * (c - s), c + f * (s - c)                   # (sin, cos) within the quadrant
+        q = j >> np.int32(22)
+        f = np.float32(q & np.int32(1))                            # rotate by q quarter turns
+        sin_t = (s + f * (c - s)) * (_F1 - np.float32(2 * (q >> np.int32(1))))
+        cos_t = (c + f * (s - c)) * (_F1 - np.float32(2 * (((q + np.int32(1)) >> np.int32(1)) & np.int32(1))))
+        out[0, i] = radius * cos_t
+        out[1, i] = radius * sin_t
+    return out
 
 
 # ----------------------------------------------------------------------------- drift
@@ -385,6 +463,84 @@ def _bins(u, v, a, b, c, s, op, width, height):
 
 
 @_jit
+def _ellipse_sums(i, tx0, ty0, tx1, ty1, u, v, a, b, c, s, d, op, colour, surf, width, acc, near, touched,
+                  n_touched, buf):
+    """:func:`_tile_sums` for one particle larger than a speck (anti-aliased ellipse; rare in
+    marine snow, so a call of its own costs nothing); returns the new touched count."""
+    x0, y0, sx, sy, _, fx, fy, ca, sa, cb, sb, k0, k1, scale = _footprint(u[i], v[i], a[i], b[i], c[i], s[i], op[i])
+    small = sx <= GROUP_MAX_PX and a[i] < np.float32(NORMALISE_BELOW_PX)
+    if small:                # coverage of the whole square kept, scaled to the exact area pi a b
+        total = _F0
+        for g in range(sx * sx):
+            buf[g] = _coverage(x0 + g % sx, y0 + g // sx, u[i], v[i], ca, sa, cb, sb, k0, k1)
+            total += buf[g]
+        if total > _F0:
+            scale = _PI * a[i] * b[i] / max(total, np.float32(1e-12))
+    dd = max(d[i], np.float32(1e-3))
+    for y in range(max(y0, ty0), min(y0 + sy, ty1)):
+        for x in range(max(x0, tx0), min(x0 + sx, tx1)):
+            if small:
+                alpha = min(buf[(y - y0) * sx + x - x0] * scale, _F1) * op[i]
+            else:
+                alpha = min(_coverage(x, y, u[i], v[i], ca, sa, cb, sb, k0, k1) * scale, _F1) * op[i]
+            if not alpha > _F0 or surf[y * width + x] <= d[i]:          # depth test (NaN: none)
+                continue
+            t = (y - ty0) * TILE_PX + x - tx0
+            touched[n_touched] = t
+            n_touched += near[t] == np.inf
+            near[t] = min(near[t], d[i])
+            acc[t, 0] *= _F1 - min(alpha, np.float32(ALPHA_MAX))
+            w = alpha / (dd * dd)
+            acc[t, 1] += w
+            for j in range(2, acc.shape[1]):
+                acc[t, j] += w * colour[i, j - 2]
+    return n_touched
+
+
+@_jit
+def _tile_sums(tx0, ty0, tx1, ty1, members, u, v, a, b, c, s, d, op, colour, surf, width, acc, near, touched,
+               buf):
+    """The depth-tested samples of the tile [tx0, tx1) x [ty0, ty1)'s particles ``members`` into
+    its sums acc (TILE_PX^2, 2 + C) and near (TILE_PX^2,); returns the count of touched tile
+    pixels, listed in ``touched`` in first-touch order (:func:`splat`'s law). Specks here (their
+    2 x 2 pixels, bilinear weights), ellipses by :func:`_ellipse_sums`."""
+    rgb = acc.shape[1] == 5
+    n_touched = 0
+    for i in members:
+        if not a[i] < np.float32(SPLAT_BELOW_PX):
+            n_touched = _ellipse_sums(i, tx0, ty0, tx1, ty1, u, v, a, b, c, s, d, op, colour, surf, width, acc,
+                                      near, touched, n_touched, buf)
+            continue
+        di = d[i]
+        dd = max(di, np.float32(1e-3))
+        w_d = _F1 / (dd * dd)
+        x0, y0, fx, fy = _speck_box(u[i], v[i])
+        scale = _PI * a[i] * b[i] * op[i]
+        for k in range(4):
+            x, y = x0 + (k & 1), y0 + (k >> 1)
+            if x < tx0 or x >= tx1 or y < ty0 or y >= ty1:
+                continue
+            alpha = (fx if k & 1 else _F1 - fx) * (fy if k >> 1 else _F1 - fy) * scale
+            if not alpha > _F0 or surf[y * width + x] <= di:            # depth test (NaN: none)
+                continue
+            t = (y - ty0) * TILE_PX + x - tx0
+            touched[n_touched] = t               # listed for the write-out at its first touch
+            n_touched += near[t] == np.inf             # (no branch: it mispredicted half the time)
+            near[t] = min(near[t], di)
+            acc[t, 0] *= _F1 - min(alpha, np.float32(ALPHA_MAX))
+            w = alpha * w_d
+            acc[t, 1] += w
+            if rgb:                                          # the usual case, unrolled
+                acc[t, 2] += w * colour[i, 0]
+                acc[t, 3] += w * colour[i, 1]
+                acc[t, 4] += w * colour[i, 2]
+            else:
+                for j in range(2, acc.shape[1]):
+                    acc[t, j] += w * colour[i, j - 2]
+    return n_touched
+
+
+@_jit
 def splat(u, v, a, b, c, s, d, op, colour, surf, width, height):
     """All particles' depth-tested coverage in per-pixel sums (particle_splat module doc).
 
@@ -398,10 +554,10 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height):
     surface (depth test) and alpha > 0: T *= 1 - alpha, w += alpha / d^2.
 
     Tiled: the particles are binned by the TILE_PX x TILE_PX tiles they meet and each tile's
-    sums are accumulated in a small buffer (L1-resident) and then written out at its covered
-    pixels; a full-frame scratch walked in particle order missed the caches at every sample."""
+    sums are accumulated in a small buffer (L1-resident, :func:`_tile_sums`) and then written
+    out at its covered pixels; a full-frame scratch walked in particle order missed the caches
+    at every sample."""
     n_acc = 2 + colour.shape[1]
-    rgb = n_acc == 5
     start, members, samples = _bins(u, v, a, b, c, s, op, width, height)
     cap = min(samples, width * height)                        # each pixel at most once
     hit = np.empty(cap, np.int64)
@@ -416,76 +572,17 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height):
     tiles_x = (width + TILE_PX - 1) // TILE_PX
     n = 0
     for tile in range(start.size - 1):
+        if start[tile + 1] == start[tile]:
+            continue
         tx0, ty0 = (tile % tiles_x) * TILE_PX, (tile // tiles_x) * TILE_PX
-        tx1, ty1 = min(tx0 + TILE_PX, width), min(ty0 + TILE_PX, height)
-        n_touched = 0
-        for e in range(start[tile], start[tile + 1]):
-            i = members[e]
-            di = d[i]
-            dd = max(di, np.float32(1e-3))
-            w_d = _F1 / (dd * dd)
-            if a[i] < np.float32(SPLAT_BELOW_PX):              # a speck: its 2 x 2 pixels
-                x0, y0, fx, fy = _speck_box(u[i], v[i])
-                scale = _PI * a[i] * b[i] * op[i]
-                for k in range(4):
-                    x, y = x0 + (k & 1), y0 + (k >> 1)
-                    if x < tx0 or x >= tx1 or y < ty0 or y >= ty1:
-                        continue
-                    alpha = (fx if k & 1 else _F1 - fx) * (fy if k >> 1 else _F1 - fy) * scale
-                    if not alpha > _F0 or surf[y * width + x] <= di:        # depth test (NaN: none)
-                        continue
-                    t = (y - ty0) * TILE_PX + x - tx0
-                    touched[n_touched] = t       # listed for the write-out at its first touch
-                    n_touched += near[t] == np.inf     # (no branch: it mispredicted half the time)
-                    near[t] = min(near[t], di)
-                    acc[t, 0] *= _F1 - min(alpha, np.float32(ALPHA_MAX))
-                    w = alpha * w_d
-                    acc[t, 1] += w
-                    if rgb:                                  # the usual case, unrolled
-                        acc[t, 2] += w * colour[i, 0]
-                        acc[t, 3] += w * colour[i, 1]
-                        acc[t, 4] += w * colour[i, 2]
-                    else:
-                        for j in range(2, n_acc):
-                            acc[t, j] += w * colour[i, j - 2]
-                continue
-            x0, y0, sx, sy, speck, fx, fy, ca, sa, cb, sb, k0, k1, scale = _footprint(
-                u[i], v[i], a[i], b[i], c[i], s[i], op[i])
-            small = sx <= GROUP_MAX_PX and a[i] < np.float32(NORMALISE_BELOW_PX)
-            if small:        # coverage of the whole square kept, scaled to the exact area pi a b
-                total = _F0
-                for g in range(sx * sx):
-                    buf[g] = _coverage(x0 + g % sx, y0 + g // sx, u[i], v[i], ca, sa, cb, sb, k0, k1)
-                    total += buf[g]
-                if total > _F0:
-                    scale = _PI * a[i] * b[i] / max(total, np.float32(1e-12))
-            for y in range(max(y0, ty0), min(y0 + sy, ty1)):
-                for x in range(max(x0, tx0), min(x0 + sx, tx1)):
-                    if small:
-                        alpha = min(buf[(y - y0) * sx + x - x0] * scale, _F1) * op[i]
-                    else:
-                        alpha = min(_coverage(x, y, u[i], v[i], ca, sa, cb, sb, k0, k1) * scale, _F1) * op[i]
-                    if not alpha > _F0 or surf[y * width + x] <= di:        # depth test (NaN: none)
-                        continue
-                    t = (y - ty0) * TILE_PX + x - tx0
-                    touched[n_touched] = t       # listed for the write-out at its first touch
-                    n_touched += near[t] == np.inf     # (no branch: it mispredicted half the time)
-                    near[t] = min(near[t], di)
-                    acc[t, 0] *= _F1 - min(alpha, np.float32(ALPHA_MAX))
-                    w = alpha * w_d
-                    acc[t, 1] += w
-                    if rgb:                                  # the usual case, unrolled
-                        acc[t, 2] += w * colour[i, 0]
-                        acc[t, 3] += w * colour[i, 1]
-                        acc[t, 4] += w * colour[i, 2]
-                    else:
-                        for j in range(2, n_acc):
-                            acc[t, j] += w * colour[i, j - 2]
+        n_touched = _tile_sums(tx0, ty0, min(tx0 + TILE_PX, width), min(ty0 + TILE_PX, height),
+                               members[start[tile]:start[tile + 1]], u, v, a, b, c, s, d, op, colour, surf,
+                               width, acc, near, touched, buf)
         for q in range(n_touched):                            # write out, reset
             t = touched[q]
             pix = (ty0 + t // TILE_PX) * width + tx0 + t % TILE_PX
             hit[n], rng[n], far[n] = pix, near[t], surf[pix]
-            if rgb:
+            if n_acc == 5:                                    # RGB, unrolled
                 out[0, n], out[1, n], out[2, n] = acc[t, 0], acc[t, 1], acc[t, 2]
                 out[3, n], out[4, n] = acc[t, 3], acc[t, 4]
                 acc[t, 0], acc[t, 1], acc[t, 2], acc[t, 3], acc[t, 4] = _F1, _F0, _F0, _F0, _F0
