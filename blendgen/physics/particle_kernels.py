@@ -637,20 +637,33 @@ def transfer(hit, near, far, width, K, rz, c, kd, veil, cam_depth, physical):
 
 
 @_jit
-def resolve(flat_rgb, merged, mask, hit, acc, near, colour, gain_add):
-    """In place at the covered pixels hit (n,): the particles over the background,
-    ``out = (img gain + add) T + colour (1 - T)``, plus the occluder mask and the merged range.
+def resolve(out, img, merged, rng, mask, hit, acc, near, colour, gain_add, width):
+    """The particles over the background at the covered pixels hit (n,), ``out = (img gain + add)
+    T + colour (1 - T)``, with the occluder mask and the merged range; the other pixels copied.
 
-    flat_rgb (H*W*3,) float32 interleaved image; merged (H*W,) float32 range, set to the nearest
-    particle's; mask (H*W,) bool, set where 1 - T >= 0.5; acc (2 + C, n) float32 = [T, w, w c..]
-    (``splat``); near (n,) float32 the particles' range. colour: (3, n) float32 per pixel,
-    (3, 1) one for all, or (3, 0): the weighted mean ``w c / w``. gain_add: (6, n) float32 from
-    :func:`transfer`, or (6, 0) for none (gain 1, add 0)."""
+    out, img (H*W*3,) float32 interleaved: the result and the background; merged, rng (H*W,)
+    float32: the result (the nearest particle's range where covered) and the scene's range; mask
+    (H*W,) bool, set where 1 - T >= 0.5; acc (2 + C, n) float32 = [T, w, w c..] (``splat``);
+    near (n,) float32 the particles' range. colour: (3, n) float32 per pixel, (3, 1) one for
+    all, or (3, 0): the weighted mean ``w c / w``. gain_add: (6, n) float32 from
+    :func:`transfer`, or (6, 0) for none (gain 1, add 0). The hits come tile by tile (rows of
+    TILE_PX-pixel bands in order): each band of the image is copied just before its pixels are
+    composited, so that they are written while in cache (a whole-image copy first, then the
+    scattered writes, cost half again as much)."""
     n = hit.size
     per_pixel, one = colour.shape[1] == n and n > 0, colour.shape[1] == 1
     with_bg = gain_add.shape[1] == n
+    height = rng.size // width
+    inv_w = 1.0 / width
+    done = 0                                   # rows [0, done) copied
     for j in range(n):
         pix = hit[j]
+        row = int((np.float64(pix) + 0.5) * inv_w)
+        if row >= done:                        # a new band: copy up to its end
+            end = min((row // TILE_PX + 1) * TILE_PX, height)
+            out[done * width * 3:end * width * 3] = img[done * width * 3:end * width * 3]
+            merged[done * width:end * width] = rng[done * width:end * width]
+            done = end
         keep = acc[0, j]
         cov = _F1 - keep
         w = acc[1, j]
@@ -662,9 +675,11 @@ def resolve(flat_rgb, merged, mask, hit, acc, near, colour, gain_add):
                 col = colour[ch, 0]
             else:
                 col = acc[2 + ch, j] * inv
-            bg = flat_rgb[pix * 3 + ch]
+            bg = img[pix * 3 + ch]
             if with_bg:
                 bg = bg * gain_add[ch, j] + gain_add[3 + ch, j]
-            flat_rgb[pix * 3 + ch] = bg * keep + col * cov
+            out[pix * 3 + ch] = bg * keep + col * cov
         mask[pix] = cov >= _HALF
         merged[pix] = near[j]
+    out[done * width * 3:] = img[done * width * 3:]
+    merged[done * width:] = rng[done * width:]

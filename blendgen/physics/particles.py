@@ -429,12 +429,12 @@ def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: Parti
             else np.broadcast_to(col[:, None], (3, hit.size))
         colour_px = np.ascontiguousarray(
             np.asarray(water_fn(np.ascontiguousarray(c.T), sums.near), np.float32).T)
-    out = img.copy()
-    merged = np.array(range_m, np.float32).reshape(-1) if merged_range else np.full(h * w, np.inf, np.float32)
-    mask = np.zeros(h * w, bool)
+    out, merged, mask = np.empty_like(img), np.empty(h * w, np.float32), np.zeros(h * w, bool)
+    scene = surf if merged_range else np.full(h * w, np.inf, np.float32)
     gain_add = background.gain_add(hit, sums.near, sums.far, w) if background is not None and hit.size \
         else np.zeros((6, 0), np.float32)
-    kern.resolve(out.reshape(-1), merged, mask, hit, sums.acc, sums.near, colour_px, gain_add)
+    kern.resolve(out.reshape(-1), np.ascontiguousarray(img).reshape(-1), merged, scene, mask, hit, sums.acc,
+                 sums.near, colour_px, gain_add, w)
     return out, mask.reshape(h, w), merged.reshape(h, w)
 
 
