@@ -471,9 +471,11 @@ def _ellipse_sums(i, tx0, ty0, tx1, ty1, u, v, a, b, c, s, d, op, colour, surf, 
     small = sx <= GROUP_MAX_PX and a[i] < np.float32(NORMALISE_BELOW_PX)
     if small:                # coverage of the whole square kept, scaled to the exact area pi a b
         total = _F0
-        for g in range(sx * sx):
-            buf[g] = _coverage(x0 + g % sx, y0 + g // sx, u[i], v[i], ca, sa, cb, sb, k0, k1)
-            total += buf[g]
+        for gy in range(sx):                 # rows and columns: no integer division per sample
+            for gx in range(sx):
+                cov = _coverage(x0 + gx, y0 + gy, u[i], v[i], ca, sa, cb, sb, k0, k1)
+                buf[gy * sx + gx] = cov
+                total += cov
         if total > _F0:
             scale = _PI * a[i] * b[i] / max(total, np.float32(1e-12))
     dd = max(d[i], np.float32(1e-3))
