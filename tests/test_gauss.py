@@ -55,7 +55,8 @@ def test_compiled_transform_equals_box_muller_in_float64():
 
 def test_compiled_log_is_as_accurate_as_float32_allows():
     from blendgen.physics.particle_kernels import log32
-    x = np.concatenate([np.exp(np.random.default_rng(2).uniform(-40, 40, 3000)), [1.0, 2.0, 0.5, 2 ** -24, 1 - 2 ** -24]])
+    edges = [1.0, 2.0, 0.5, 2 ** -24, 1 - 2 ** -24]
+    x = np.concatenate([np.exp(np.random.default_rng(2).uniform(-40, 40, 3000)), edges])
     x32 = x.astype(np.float32)
     got = np.array([log32(v) for v in x32], np.float64)
     ref = np.log(x32.astype(np.float64))

@@ -1,18 +1,23 @@
-"""Compiled loops of the fast particle path (numba): drift, projection, splat, compositing.
+"""Compiled loops of the fast particle path (numba): drift, projection and blur, splat, transfer,
+compositing, and the float32 transcendentals they need.
 
 Issue 15 asks 60000 particles in the 600 m^3 pool to cost at most 5 ms per 640x480 frame.
 Written with numpy, every stage was a chain of ~10-40 passes over the particles or the
-covered pixels (gathers, tiles, a sparse product), ~14 ms in all; each loop here makes one
-pass and keeps the per-element arithmetic of the numpy code it replaced (float32 where that
-was float32, the same order of operations), so the laws and their oracles are unchanged:
+covered pixels; each loop here makes one or two passes, most of them vectorised by LLVM
+(docs/particles.md, "Speed", says what that takes), and keeps the laws, so their oracles are
+unchanged:
 
 - :func:`drift` -- ``p + v dt + eta`` wrapped periodically into the region, rounded to float32
-  and clamped inside it (``ParticleField.step``); the Gaussian draws are physics/gauss.py's.
+  and clamped inside it (``ParticleField.step``); the normals by :func:`box_muller`.
 - :func:`project` -- camera frame, pinhole projection, culling, ellipse semi-axes
-  (``particles.project_particles``).
-- :func:`splat` -- depth-tested coverage of every particle in per-pixel sums
+  (``particles.project_particles``); :func:`project_blurred` the same with the defocus and the
+  motion streak, culling exactly the blurred footprints that miss the image.
+- :func:`splat` -- depth-tested coverage of every particle in per-pixel sums, tile by tile
   (``particle_splat.splat``: bilinear specks, anti-aliased ellipses).
-- :func:`composite` -- ``out = (img gain + add) T + colour (1 - T)`` at the covered pixels.
+- :func:`transfer` -- the background's gain and add at the covered pixels (``particle_light``).
+- :func:`resolve` -- ``out = (img gain + add) T + colour (1 - T)``, the mask and merged range.
+- :func:`exp32`, :func:`log32`, the Box-Muller sin/cos: polynomials (Cephes) that vectorise,
+  where a libm call would not (numba here has no vector math library).
 
 numba (a well-kept JIT for numpy loops, LLVM) rather than C or Cython: no build step, the
 loops read like the formulas, and it is part of the render extra (generation only; evalkit

@@ -9,8 +9,8 @@ Per pixel (flat index ``k``) the sums are, over the samples in front of the surf
 the transmittance ``T[k] = prod(1 - alpha_i)``,
 ``w[k] = sum alpha_i / d_i^2`` and ``wc[c][k] = sum alpha_i c_i / d_i^2`` (the weights of the
 order-independent mean colour, McGuire & Bavoil 2013) and ``near[k] = min d_i``, at the pixels
-some sample covers. Coverage: specks (semi-axis < 0.5 px) are splat bilinearly with alpha = their area
-(px^2); larger ellipses get an anti-aliased ramp: with q the normalised elliptic radius (q = 1
+some sample covers. Coverage: specks (semi-axis < 0.5 px) are splat bilinearly with alpha = their
+area (px^2); larger ellipses get an anti-aliased ramp: with q the normalised elliptic radius (q = 1
 on the rim) and m = sqrt(a b), the signed distance to the rim is ~ (q - 1) m and alpha =
 clip(0.5 + m - m q, 0, 1). The rim is exact; only the 1-px ramp is approximate, so ellipses
 with a < 4 px are renormalised to the exact area pi a b over their (square) box.

@@ -1,6 +1,6 @@
 """Small-obstacle (particle) occlusion: a 3-D Poisson particle field, drift, and a
-depth-tested, anti-aliased renderer (numpy and scipy.sparse: no OpenCV drawing, no Blender;
-the splatting itself is in particle_splat.py).
+depth-tested, anti-aliased renderer (compiled loops in particle_kernels.py: no OpenCV drawing,
+no Blender; the splatting itself is in particle_splat.py).
 
 The article (SPEC section 4) draws ``Poisson(rho * V_cam)`` blobs in image space.
 Here the obstacles live in the world instead, which gives the same statistics and

@@ -7,12 +7,15 @@ strength S has radiance S / pi) and the ambient light field's mean radiance just
 surface (``E_d0 / (4 pi mu_d)``, plan.ambient_radiance, 0 where the ambient is off) -- which
 the water model then dims by the particle's own depth (physical) or the dock depth
 (article), plus the lamps' and LEDs' light (particle_optics.particle_radiance), pre-divided
-by that same depth factor so that it reaches the camera with inverse square and ``exp(-c d)`` along its own path only.
+by that same depth factor so that it reaches the camera with inverse square and ``exp(-c d)``
+along its own path only.
 Then compose's water model attenuates and veils the particle over its own range.
 
-``shaper`` blurs each footprint: thin-lens defocus (camera ``lens``, none = pinhole) and
-the streak of the particle's motion relative to the camera over the exposure (its drift
-``v_flow`` and the camera's motion between the previous and this frame).
+``shaper`` gives the frame's :class:`Blur` of each footprint, applied in the projection:
+thin-lens defocus (camera ``lens``, none = pinhole) and the streak of the particle's motion
+relative to the camera over the exposure (its drift ``v_flow`` and the camera's motion between
+the previous and this frame). ``background_transfer`` gives the :class:`Transfer` that keeps a
+partly covered pixel's background at its own range once the water model runs.
 """
 from __future__ import annotations
 
@@ -27,6 +30,7 @@ from blendgen.physics import particle_kernels as kern
 from blendgen.physics import particle_light_kernels as plk
 from blendgen.physics import particle_optics as popt
 from blendgen.physics.particles import ProjectedParticles
+
 
 def material(occ) -> popt.ParticleMaterial:
     return popt.ParticleMaterial(occ.albedo, occ.forward_fraction, occ.forward_g)
