@@ -1,7 +1,7 @@
 """Marine snow / small obstacles as physical particles: sizes, radiance and camera optics.
 
-Numpy, and one compiled loop (the blur's moments, particle_kernels.blur). Camera frame = OpenCV
-(x right, y down, z forward), metres.
+Numpy around compiled loops (the light field: particle_light_kernels; the blur's moments:
+particle_kernels). Camera frame = OpenCV (x right, y down, z forward), metres.
 
 Sizes (:func:`sample_radii`)
     ``power_law``: the number size spectrum of marine particles and aggregates is a power
@@ -28,7 +28,7 @@ Radiance (:func:`particle_radiance`)
     profile and beam attenuation ``exp(-c d)`` along the light's path. Attenuation and
     veiling between particle and camera are the water model's, as for any surface.
 
-Optics (:func:`coc_px`, :func:`blurred_shapes`)
+Optics (:func:`coc_px`, :func:`coc_scale`, :func:`blurred_shapes`)
     Thin-lens circle of confusion (e.g. Potmesil & Chakravarty 1981, ACM TOG): an object
     at distance ``s`` with the lens focused at ``s_f`` blurs to a disc of diameter
     ``c = A |s - s_f| / s * f / (s_f - f)`` on the sensor, ``A = f / N``; in pixels
@@ -230,15 +230,19 @@ def led_point_lights(markers: list[dict], T_cam_dock: np.ndarray, strength_scale
 
 
 # ----------------------------------------------------------------------------- optics
-def coc_px(z_m: np.ndarray, focal_length_m: float, f_number: float, focus_m: float, fx_px: float) -> np.ndarray:
-    """Thin-lens circle-of-confusion diameter (px) at object distances z_m (module doc)."""
+def coc_scale(focal_length_m: float, f_number: float, focus_m: float, fx_px: float) -> float:
+    """k (px) of the thin-lens circle of confusion ``c_px = k |s - s_f| / s`` (module doc):
+    ``k = A f / (s_f - f) * f_px / f``, A = f / N."""
     if not (focus_m > focal_length_m > 0 and f_number > 0):
         raise ValueError(f"need focus_m > focal_length > 0 and f_number > 0, got {focus_m}, "
                          f"{focal_length_m}, {f_number}")
+    return (focal_length_m / f_number) / (focus_m - focal_length_m) * fx_px
+
+
+def coc_px(z_m: np.ndarray, focal_length_m: float, f_number: float, focus_m: float, fx_px: float) -> np.ndarray:
+    """Thin-lens circle-of-confusion diameter (px) at object distances z_m (module doc)."""
     z = np.asarray(z_m, np.float64)
-    aperture = focal_length_m / f_number
-    c_m = aperture * np.abs(z - focus_m) / z * focal_length_m / (focus_m - focal_length_m)
-    return c_m * fx_px / focal_length_m
+    return coc_scale(focal_length_m, f_number, focus_m, fx_px) * np.abs(z - focus_m) / z
 
 
 def blurred_shapes(a, b, c, s, extra_iso_r2=None, streak_uv=None):

@@ -105,7 +105,7 @@ def shaper(post, K: np.ndarray, T_world_cam, prev_pose=None, t_s: float | None =
     when there is none), times exposure / dt (motion assumed uniform over dt). The earlier
     camera-frame point is ``M pc + o``, M = R0^T R, o = R0^T (t - t0), (R, t) this pose and
     (R0, t0) the previous one moved by v_flow dt. Defocus: thin-lens circle of confusion
-    (``particle_optics.coc_px``'s law, pinhole without a lens)."""
+    (``particle_optics.coc_scale``, pinhole without a lens)."""
     lens = post.lens
     K = np.asarray(K, float)
     dt, T_prev = frame_interval(post, prev_pose, t_s)
@@ -113,10 +113,9 @@ def shaper(post, K: np.ndarray, T_world_cam, prev_pose=None, t_s: float | None =
     T0 = np.array(T_prev if T_prev is not None else T, float)
     T0[:3, 3] += np.asarray(post.occlusion.v_flow, float) * dt     # drifting back = camera ahead
     coc_k, focus = 0.0, 1.0
-    if lens is not None:                   # c_px = A |z - s_f| / z * f / (s_f - f) * f_px / f
-        f = lens.focal_length_mm * 1e-3
-        popt.coc_px(np.ones(1), f, lens.f_number, lens.focus_m, K[0, 0])     # validates the lens
-        coc_k, focus = (f / lens.f_number) / (lens.focus_m - f) * K[0, 0], lens.focus_m
+    if lens is not None:
+        coc_k = popt.coc_scale(lens.focal_length_mm * 1e-3, lens.f_number, lens.focus_m, K[0, 0])
+        focus = lens.focus_m
     return Blur((T0[:3, :3].T @ T[:3, :3]).astype(np.float32),
                 (T0[:3, :3].T @ (T[:3, 3] - T0[:3, 3])).astype(np.float32),
                 np.float32(min(post.sensor.exposure_s / dt, 1.0)), np.float32(coc_k), np.float32(focus))
