@@ -195,6 +195,25 @@ def drift(xyz, v_dt, noise, scale, lo, hi, lo32, top32):
 
 # ----------------------------------------------------------------------------- projection
 @nb.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _radial(du, dv):
+    """Unit radial direction (c, s) of an image offset (du, dv) px from the principal point
+    ((1, 0) at the point itself)."""
+    norm = np.sqrt(du * du + dv * dv)
+    inv = _F1 / max(norm, np.float32(1e-6))
+    off_centre = norm > np.float32(1e-6)
+    return du * inv if off_centre else _F1, dv * inv if off_centre else _F0
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _half_extents(a, b, c, s):
+    """Half-widths (ex, ey) px of the pixel box of an ellipse (semi-axes a radial, b, radial
+    direction (c, s)) holding every pixel centre it covers: the ellipse's extents grown by the
+    anti-aliasing ramp (:func:`box`)."""
+    grow = _F1 + _HALF / np.sqrt(a * b)
+    return np.sqrt((a * c) ** 2 + (b * s) ** 2) * grow, np.sqrt((a * s) ** 2 + (b * c) ** 2) * grow
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _camera(px, py, pz, r, R, fx, sk, cx, fy, cy, fb, z_near):
     """One particle in the camera frame: (x, y, z, u, v, a, b, sec); R = the 9 entries of the
     world-from-camera rotation (row-major) and the 3 of off = -R^T t, as scalars."""
@@ -243,14 +262,9 @@ def project(xyz, radii, R, off, K, width, height, z_near, margin_px):
             continue
         r = radii[i]
         x, y, z, u, v, a, b, sec = _camera(xyz[0, i], xyz[1, i], xyz[2, i], r, Rs, fx, sk, cx, fy, cy, fb, z_near)
-        du, dv = u - cx, v - cy
-        norm = np.float32(math.sqrt(du * du + dv * dv))
-        inv = _F1 / max(norm, np.float32(1e-6))
-        off_centre = norm > np.float32(1e-6)
         idx[j] = i
         cols[0, j], cols[1, j], cols[2, j], cols[3, j] = u, v, a, b
-        cols[4, j] = du * inv if off_centre else _F1
-        cols[5, j] = dv * inv if off_centre else _F0
+        cols[4, j], cols[5, j] = _radial(u - cx, v - cy)
         rng[j] = z * sec - r
         pc[0, j], pc[1, j], pc[2, j] = x, y, z
         j += 1
@@ -319,11 +333,7 @@ def _blurred_pass(xyz, radii, R, off, K, z_near, M, o, scale, coc_k, focus_m, wi
     for i in range(n):
         r = radii[i]
         x, y, z, u, v, a, b, sec = _camera(xyz[0, i], xyz[1, i], xyz[2, i], r, Rs, fx, sk, cx, fy, cy, fb, z_near)
-        du_c, dv_c = u - cx, v - cy
-        norm = np.sqrt(du_c * du_c + dv_c * dv_c)
-        inv = _F1 / max(norm, np.float32(1e-6))
-        c = du_c * inv if norm > np.float32(1e-6) else _F1           # radial direction
-        s = dv_c * inv if norm > np.float32(1e-6) else _F0
+        c, s = _radial(u - cx, v - cy)
         x0 = m00 * x + m01 * y + m02 * z + o0                         # where it was, seen from then
         y0 = m10 * x + m11 * y + m12 * z + o1
         z0 = m20 * x + m21 * y + m22 * z + o2
@@ -334,9 +344,7 @@ def _blurred_pass(xyz, radii, R, off, K, z_near, M, o, scale, coc_k, focus_m, wi
         dz = z - focus_m
         coc = coc_k * max(dz, -dz) / max(z, z_near)                   # thin-lens blur diameter (px)
         a2, b2, c2, s2, op = _moments(a, b, c, s, np.float32(0.25) * coc * coc, du, dv)
-        grow = _F1 + _HALF / np.sqrt(a2 * b2)                         # box(): the ellipse's pixel box
-        ex = np.sqrt((a2 * c2) ** 2 + (b2 * s2) ** 2) * grow
-        ey = np.sqrt((a2 * s2) ** 2 + (b2 * c2) ** 2) * grow
+        ex, ey = _half_extents(a2, b2, c2, s2)                        # box(): the ellipse's pixel box
         speck = a2 < np.float32(SPLAT_BELOW_PX)                       # _footprint: the 2 x 2 pixels
         lo_x = np.floor(u) if speck else np.ceil(u - ex)
         lo_y = np.floor(v) if speck else np.ceil(v - ey)
@@ -389,9 +397,7 @@ def _coverage(x, y, u, v, ca, sa, cb, sb, k0, k1):
 @_inline
 def box(u, v, a, b, c, s):
     """Pixel box (x0, y0, sx, sy) holding every centre with alpha > 0 of an ellipse."""
-    grow = _F1 + _HALF / np.float32(math.sqrt(a * b))
-    ex = np.float32(math.sqrt((a * c) ** 2 + (b * s) ** 2)) * grow
-    ey = np.float32(math.sqrt((a * s) ** 2 + (b * c) ** 2)) * grow
+    ex, ey = _half_extents(a, b, c, s)
     x0, y0 = int(math.ceil(u - ex)), int(math.ceil(v - ey))
     return x0, y0, int(math.floor(u + ex)) + 1 - x0, int(math.floor(v + ey)) + 1 - y0
 
@@ -404,9 +410,8 @@ def _footprint(u, v, a, b, c, s, op):
     square (size x size from the box's corner), larger ones not. sx = 0: nothing to draw."""
     fx = fy = ca = sa = cb = sb = k0 = k1 = _F0
     if a < np.float32(SPLAT_BELOW_PX):
-        x0f, y0f = math.floor(u), math.floor(v)
-        return (int(x0f), int(y0f), 2, 2, True, np.float32(u - x0f), np.float32(v - y0f),
-                ca, sa, cb, sb, k0, k1, _PI * a * b * op)
+        x0, y0, fx, fy = _speck_box(u, v)
+        return x0, y0, 2, 2, True, fx, fy, ca, sa, cb, sb, k0, k1, _PI * a * b * op
     x0, y0, sx, sy = box(u, v, a, b, c, s)
     size = max(sx, sy)
     scale = _F1
