@@ -56,7 +56,7 @@ def _f32_from_bits(typingctx, bits):
     return types.float32(types.int32), codegen
 
 
-_EXP = {"nsz", "arcp", "contract", "afn"}    # no "reassoc": it would undo the Cody-Waite split
+_EXP = {"nsz"}          # as _VEC (below): no flag that lets a compile choose its own rounding
 _exp_vec = nb.njit(cache=True, nogil=True, fastmath=_EXP, error_model="numpy")
 _inline_exp = nb.njit(cache=True, nogil=True, fastmath=_EXP, error_model="numpy", inline="always")
 
@@ -272,11 +272,14 @@ def project(xyz, radii, R, off, K, width, height, z_near, margin_px):
 
 
 # ----------------------------------------------------------------------------- blur
-# Loops without branches, compiled with these fast-math flags and numpy's error model (a float
-# division by zero gives inf instead of raising, so no test and branch per division), are
-# vectorised by LLVM: sqrt, division, min/max run 8 float32 lanes at a time (the blur: 10x). No
-# "nnan"/"ninf": inf and NaN keep their meaning. abs() still blocks it: max(x, -x).
-_VEC = {"nsz", "arcp", "contract", "afn", "reassoc"}
+# Loops without branches, compiled with numpy's error model (a float division by zero gives inf
+# instead of raising, so no test and branch per division), are vectorised by LLVM: sqrt,
+# division, min/max run 8 float32 lanes at a time (the blur: 10x). The only fast-math flag is
+# "nsz": "reassoc", "contract", "afn" or "arcp" let each compile choose its own rounding, and a
+# kernel compiled in its caller's process (inlined there) then differed from the cached one by up
+# to 3e-5 -- a fresh machine's first dataset had other bytes (tests/test_kernel_determinism.py).
+# No "nnan"/"ninf" either: inf and NaN keep their meaning. abs() still blocks it: max(x, -x).
+_VEC = {"nsz"}
 _jit_vec = nb.njit(cache=True, nogil=True, fastmath=_VEC, error_model="numpy")
 _inline_vec = nb.njit(cache=True, nogil=True, fastmath=_VEC, error_model="numpy", inline="always")
 
