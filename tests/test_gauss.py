@@ -70,3 +70,34 @@ def test_same_state_same_draws_any_length(n):
     assert a.shape == (n,) and a.tobytes() == b.tobytes()
     with pytest.raises(ValueError):
         standard_normal32(np.random.default_rng(0), -1)
+
+
+# ----------------------------------------------------------------------------- drift normals
+def test_splitmix64_gives_the_reference_outputs():
+    """The first outputs from state 1234567 of Vigna's splitmix64.c (its published test values),
+    in numpy and in the compiled kernel."""
+    from blendgen.physics.gauss import splitmix64
+    from blendgen.physics.particle_kernels import splitmix64 as compiled
+    ref = [6457827717110365317, 3203168211198807973, 9817491932198370423, 4593380528125082431,
+           16408922859458223821]
+    assert splitmix64(1234567, 5).tolist() == ref
+    assert [int(compiled(np.uint64(1234567), k)) for k in range(1, 6)] == ref
+    assert splitmix64(2 ** 64 - 1, 3).tolist() == [int(compiled(np.uint64(2 ** 64 - 1), k)) for k in (1, 2, 3)]
+
+
+def test_drift_normals_follow_the_law_and_are_independent():
+    """The three normals per particle of a drift step: N(0, 1), uncorrelated across axes, across
+    neighbouring particles (consecutive words) and across steps (other seeds)."""
+    from blendgen.physics.gauss import drift_normals
+    n = 200_000
+    z = drift_normals(0x243F6A8885A308D3, n)
+    assert z.shape == (3, n) and z.dtype == np.float32
+    tol = 5 / np.sqrt(n)
+    for axis in z:
+        assert stats.kstest(axis, "norm").pvalue > 1e-3
+        assert abs(axis.mean()) < tol and abs(axis.std() - 1) < 0.01
+    assert np.all(np.abs(np.corrcoef(z) - np.eye(3)) < tol)
+    assert abs(np.corrcoef(z[0] ** 2, z[1] ** 2)[0, 1]) < tol           # R shared by the pair
+    assert abs(np.corrcoef(z[2, :-1], z[2, 1:])[0, 1]) < tol            # neighbours
+    other = drift_normals(0x243F6A8885A308D4, n)                         # the next seed
+    assert np.all(np.abs(np.corrcoef(z, other)[:3, 3:]) < tol)

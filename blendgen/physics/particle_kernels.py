@@ -8,7 +8,8 @@ covered pixels; each loop here makes one or two passes, most of them vectorised 
 unchanged:
 
 - :func:`drift` -- ``p + v dt + eta`` wrapped periodically into the region, rounded to float32
-  and clamped inside it (``ParticleField.step``); the normals by :func:`box_muller`.
+  and clamped inside it (``ParticleField.step``); the normals drawn in the same pass
+  (:func:`splitmix64` words, :func:`box_muller`'s transform).
 - :func:`project` -- camera frame, pinhole projection, culling, ellipse semi-axes
   (``particles.project_particles``); :func:`project_blurred` the same with the defocus and the
   motion streak, culling exactly the blurred footprints that miss the image.
@@ -131,65 +132,115 @@ def _sin_cos_octant(r):
     return sin, cos
 
 
+@_inline_exp
+def _normal_pair(w):
+    """Two standard normals (R cos theta, R sin theta) in float32 from one uint64 word: the top
+    24 bits make U1 = k 2^-24, the next 24 the angle theta = 2 pi j 2^-24, and
+    ``R = sqrt(-2 ln(1 - U1))``. The angle is reduced to its octant in integers (exact), so the
+    polynomials only see [0, pi/4]; the octant's reflections and the quadrant's rotation are
+    arithmetic, not branches (loops that call it are vectorised)."""
+    k = np.int32(w >> np.uint64(40))                           # U1 = k 2^-24 in [0, 1)
+    j = np.int32((w >> np.uint64(16)) & np.uint64(0xFFFFFF))   # theta = 2 pi j 2^-24
+    radius = np.sqrt(np.float32(-2.0) * log32(np.float32(np.int32(16777216) - k) * np.float32(2.0 ** -24)))
+    odd = (j >> np.int32(21)) & np.int32(1)                    # odd octant: pi/4 - phi, swapped
+    r = j & np.int32(0x1FFFFF)
+    s, c = _sin_cos_octant(r + odd * (np.int32(0x200000) - r - r))
+    f = np.float32(odd)
+    s, c = s + f * (c - s), c + f * (s - c)                   # (sin, cos) within the quadrant
+    q = j >> np.int32(22)
+    f = np.float32(q & np.int32(1))                            # rotate by q quarter turns
+    sin_t = (s + f * (c - s)) * (_F1 - np.float32(2 * (q >> np.int32(1))))
+    cos_t = (c + f * (s - c)) * (_F1 - np.float32(2 * (((q + np.int32(1)) >> np.int32(1)) & np.int32(1))))
+    return radius * cos_t, radius * sin_t
+
+
 @_exp_vec
 def box_muller(bits):
-    """(2, n) float32 standard normal pairs from n uint64 random words (``physics/gauss.py``): the
-    top 24 bits make U1 = k 2^-24, the next 24 the angle theta = 2 pi j 2^-24, and
-    ``R = sqrt(-2 ln(1 - U1))``, (R cos theta, R sin theta). The angle is reduced to its octant in
-    integers (exact), so the polynomials only see [0, pi/4]; the octant's reflections and the
-    quadrant's rotation are arithmetic, not branches (the loop is vectorised)."""
+    """(2, n) float32 standard normal pairs from n uint64 random words (``physics/gauss.py``,
+    :func:`_normal_pair`)."""
     n = bits.size
     out = np.empty((2, n), np.float32)
     for i in range(n):
-        w = bits[i]
-        k = np.int32(w >> np.uint64(40))                           # U1 = k 2^-24 in [0, 1)
-        j = np.int32((w >> np.uint64(16)) & np.uint64(0xFFFFFF))   # theta = 2 pi j 2^-24
-        radius = np.sqrt(np.float32(-2.0) * log32(np.float32(np.int32(16777216) - k) * np.float32(2.0 ** -24)))
-        odd = (j >> np.int32(21)) & np.int32(1)                    # odd octant: pi/4 - phi, swapped
-        r = j & np.int32(0x1FFFFF)
-        s, c = _sin_cos_octant(r + odd * (np.int32(0x200000) - r - r))
-        f = np.float32(odd)
-        s, c = s + f * (c - s), c + f * (s - c)                   # (sin, cos) within the quadrant
-        q = j >> np.int32(22)
-        f = np.float32(q & np.int32(1))                            # rotate by q quarter turns
-        sin_t = (s + f * (c - s)) * (_F1 - np.float32(2 * (q >> np.int32(1))))
-        cos_t = (c + f * (s - c)) * (_F1 - np.float32(2 * (((q + np.int32(1)) >> np.int32(1)) & np.int32(1))))
-        out[0, i] = radius * cos_t
-        out[1, i] = radius * sin_t
+        out[0, i], out[1, i] = _normal_pair(bits[i])
     return out
+
+
+GAMMA = np.uint64(0x9E3779B97F4A7C15)       # SplitMix64's increment (physics/gauss.py)
+
+
+@_inline_exp
+def splitmix64(seed, k):
+    """Output k (>= 1) of the SplitMix64 stream from state ``seed`` (uint64): ``mix(seed + k
+    GAMMA)``, Stafford's Mix13 finaliser (physics/gauss.py; wraps modulo 2^64)."""
+    z = seed + np.uint64(k) * GAMMA
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return z ^ (z >> np.uint64(31))
+
+
+@_inline_exp
+def _eta(seed, i, L):
+    """Particle i's displacement noise (3 float64) ``L z``: z0, z1 from SplitMix64 word 2i + 1
+    of ``seed``, z2 the cosine of word 2i + 2 (:func:`_normal_pair`); L 9 float64 row-major."""
+    z0, z1 = _normal_pair(splitmix64(seed, 2 * i + 1))
+    z2 = np.float64(_normal_pair(splitmix64(seed, 2 * i + 2))[0])
+    z0, z1 = np.float64(z0), np.float64(z1)
+    return (z0 * L[0] + z1 * L[1] + z2 * L[2], z0 * L[3] + z1 * L[4] + z2 * L[5],
+            z0 * L[6] + z1 * L[7] + z2 * L[8])
+
+
+@_inline_exp
+def _moved(x, vk, eta, lok, l32, t32):
+    """One coordinate moved, ``x + v dt + eta`` in float64 relative to the region's lower
+    bound: (q, the float32 position clamped into [l32, t32] assuming it stayed inside)."""
+    q = np.float64(x) + vk + eta - lok
+    return q, min(max(np.float32(q + lok), l32), t32)
+
+
+@_inline_exp
+def _wrapped(x, vk, eta, lok, ext, l32, t32):
+    """One coordinate moved and wrapped periodically: ``lo + mod(x + v dt + eta - lo, ext)`` in
+    float64, rounded to float32 and clamped into [l32, t32]."""
+    q = (np.float64(x) + vk + eta - lok) % ext
+    return min(max(np.float32(q + lok), l32), t32)
 
 
 # ----------------------------------------------------------------------------- drift
 _exact = nb.njit(cache=True, nogil=True, error_model="numpy")   # IEEE order kept: no fast-math
 
 
-@_exact
-def drift(xyz, v_dt, noise, scale, lo, hi, lo32, top32):
-    """New planar float32 positions (3, N): ``xyz + v_dt + noise * scale`` in float64, wrapped
-    into [lo, hi) per axis (``lo + mod(x - lo, hi - lo)``, the mod only for coordinates that
-    left), rounded to float32 and clamped into [lo32, top32] (float32 rounding stays inside).
-    xyz (3, N) float32; v_dt, scale, lo, hi (3,) float64; noise (3, N) float32 or float64, (3, 0)
-    for none; lo32, top32 (3,) float32. A first pass without branches (vectorised) moves every
-    coordinate and marks those that left; a second one wraps only those."""
+@_exp_vec
+def drift(xyz, v_dt, L, seed, lo, hi, lo32, top32):
+    """New planar float32 positions (3, N): ``xyz + v_dt + L z`` in float64, z three standard
+    normals per particle drawn from the SplitMix64 stream ``seed`` (uint64; :func:`_eta`,
+    physics/gauss.py ``drift_normals`` is the same in numpy), wrapped into [lo, hi) per axis
+    (``lo + mod(x - lo, hi - lo)``, the mod only for coordinates that left), rounded to float32
+    and clamped into [lo32, top32] (float32 rounding stays inside). xyz (3, N) float32; v_dt, lo,
+    hi (3,) float64; L (3, 3) float64 (all zero: no noise, no draws); lo32, top32 (3,) float32.
+    One pass draws and moves every particle (vectorised; the normals never reach memory) and
+    marks those that left; a second one wraps only those, drawing their noise again."""
     n = xyz.shape[1]
     out = np.empty((3, n), np.float32)
-    inside = np.empty((3, n), np.bool_)
-    has_noise = noise.shape[1] == n
-    for k in range(3):
-        vk, lok, ext, sk, l32, t32 = v_dt[k], lo[k], hi[k] - lo[k], scale[k], lo32[k], top32[k]
-        for i in range(n):
-            eta = noise[k, i] * sk if has_noise else 0.0
-            q = np.float64(xyz[k, i]) + vk + eta - lok
-            out[k, i] = min(max(np.float32(q + lok), l32), t32)
-            inside[k, i] = (q >= 0.0) & (q < ext)
-    for k in range(3):
-        for i in range(n):
-            if not inside[k, i]:
-                x = np.float64(xyz[k, i]) + v_dt[k]
-                if has_noise:
-                    x += noise[k, i] * scale[k]
-                q = (x - lo[k]) % (hi[k] - lo[k])
-                out[k, i] = min(max(np.float32(q + lo[k]), lo32[k]), top32[k])
+    left = np.zeros(n, np.bool_)
+    lm = (L[0, 0], L[0, 1], L[0, 2], L[1, 0], L[1, 1], L[1, 2], L[2, 0], L[2, 1], L[2, 2])
+    noisy = np.any(L != 0.0)
+    v0, v1, v2, lo0, lo1, lo2 = v_dt[0], v_dt[1], v_dt[2], lo[0], lo[1], lo[2]
+    e0, e1, e2 = hi[0] - lo0, hi[1] - lo1, hi[2] - lo2
+    for i in range(n):
+        n0 = n1 = n2 = 0.0
+        if noisy:
+            n0, n1, n2 = _eta(seed, i, lm)
+        q0, out[0, i] = _moved(xyz[0, i], v0, n0, lo0, lo32[0], top32[0])
+        q1, out[1, i] = _moved(xyz[1, i], v1, n1, lo1, lo32[1], top32[1])
+        q2, out[2, i] = _moved(xyz[2, i], v2, n2, lo2, lo32[2], top32[2])
+        left[i] = ((q0 < 0.0) | (q0 >= e0)) | ((q1 < 0.0) | (q1 >= e1)) | ((q2 < 0.0) | (q2 >= e2))
+    for i in np.flatnonzero(left):
+        n0 = n1 = n2 = 0.0
+        if noisy:
+            n0, n1, n2 = _eta(seed, i, lm)
+        out[0, i] = _wrapped(xyz[0, i], v0, n0, lo0, e0, lo32[0], top32[0])
+        out[1, i] = _wrapped(xyz[1, i], v1, n1, lo1, e1, lo32[1], top32[1])
+        out[2, i] = _wrapped(xyz[2, i], v2, n2, lo2, e2, lo32[2], top32[2])
     return out
 
 
@@ -401,29 +452,24 @@ def _coverage(x, y, u, v, ca, sa, cb, sb, k0, k1):
 def box(u, v, a, b, c, s):
     """Pixel box (x0, y0, sx, sy) holding every centre with alpha > 0 of an ellipse."""
     ex, ey = _half_extents(a, b, c, s)
-    x0, y0 = int(math.ceil(u - ex)), int(math.ceil(v - ey))
-    return x0, y0, int(math.floor(u + ex)) + 1 - x0, int(math.floor(v + ey)) + 1 - y0
+    x0, y0 = int(np.ceil(u - ex)), int(np.ceil(v - ey))           # np's: inlined (math's: 3 ns)
+    return x0, y0, int(np.floor(u + ex)) + 1 - x0, int(np.floor(v + ey)) + 1 - y0
 
 
 @_inline
-def _footprint(u, v, a, b, c, s, op):
-    """A particle's pixel box and coverage law: (x0, y0, sx, sy, speck, fx, fy, ca, sa, cb, sb,
-    k0, k1, scale). Specks (a < SPLAT_BELOW_PX): the 2 x 2 pixels around the centre, bilinear
-    weights from (fx, fy), scale = pi a b op. Ellipses (scale 1): boxes up to GROUP_MAX_PX are
+def _footprint(u, v, a, b, c, s):
+    """An ellipse's (a >= SPLAT_BELOW_PX; specks: :func:`_speck_box`) pixel box and coverage law:
+    (x0, y0, sx, sy, ca, sa, cb, sb, k0, k1) for :func:`_coverage`. Boxes up to GROUP_MAX_PX are
     square (size x size from the box's corner), larger ones not. sx = 0: nothing to draw."""
-    fx = fy = ca = sa = cb = sb = k0 = k1 = _F0
-    if a < np.float32(SPLAT_BELOW_PX):
-        x0, y0, fx, fy = _speck_box(u, v)
-        return x0, y0, 2, 2, True, fx, fy, ca, sa, cb, sb, k0, k1, _PI * a * b * op
+    ca = sa = cb = sb = k0 = k1 = _F0
     x0, y0, sx, sy = box(u, v, a, b, c, s)
     size = max(sx, sy)
-    scale = _F1
     if size > 0:
         k1 = np.float32(math.sqrt(a * b))
         ca, sa, cb, sb, k0 = c / a, s / a, c / b, s / b, _HALF + k1
         if size <= GROUP_MAX_PX:
             sx = sy = size
-    return x0, y0, max(sx, 0), max(sy, 0), False, fx, fy, ca, sa, cb, sb, k0, k1, scale
+    return x0, y0, max(sx, 0), max(sy, 0), ca, sa, cb, sb, k0, k1
 
 
 TILE_PX = 32                         # the splat's screen tiles: 32 x 32 pixels of sums stay in L1
@@ -432,8 +478,8 @@ TILE_PX = 32                         # the splat's screen tiles: 32 x 32 pixels 
 @_inline
 def _speck_box(u, v):
     """A speck's 2 x 2 pixels: (x0, y0) of its top-left one and the bilinear fractions (fx, fy)."""
-    x0f, y0f = math.floor(u), math.floor(v)
-    return int(x0f), int(y0f), np.float32(u - x0f), np.float32(v - y0f)
+    x0f, y0f = np.floor(u), np.floor(v)          # np's floor is inlined; math.floor cost 3 ns each
+    return int(x0f), int(y0f), u - x0f, v - y0f   # exact in float32
 
 
 @_jit
@@ -450,7 +496,7 @@ def _bins(u, v, a, b, c, s, op, width, height):
             x0, y0 = _speck_box(u[i], v[i])[:2]
             sx = sy = 2
         else:
-            x0, y0, sx, sy = _footprint(u[i], v[i], a[i], b[i], c[i], s[i], op[i])[:4]
+            x0, y0, sx, sy = _footprint(u[i], v[i], a[i], b[i], c[i], s[i])[:4]
         xa, ya = max(x0, 0), max(y0, 0)
         xb, yb = min(x0 + sx, width) - 1, min(y0 + sy, height) - 1
         if xb < xa or yb < ya:
@@ -480,7 +526,8 @@ def _ellipse_sums(i, tx0, ty0, tx1, ty1, u, v, a, b, c, s, d, op, colour, surf, 
                   n_touched, buf):
     """:func:`_tile_sums` for one particle larger than a speck (anti-aliased ellipse; rare in
     marine snow, so a call of its own costs nothing); returns the new touched count."""
-    x0, y0, sx, sy, _, fx, fy, ca, sa, cb, sb, k0, k1, scale = _footprint(u[i], v[i], a[i], b[i], c[i], s[i], op[i])
+    x0, y0, sx, sy, ca, sa, cb, sb, k0, k1 = _footprint(u[i], v[i], a[i], b[i], c[i], s[i])
+    scale = _F1
     small = sx <= GROUP_MAX_PX and a[i] < np.float32(NORMALISE_BELOW_PX)
     if small:                # coverage of the whole square kept, scaled to the exact area pi a b
         total = _F0
@@ -531,6 +578,9 @@ def _tile_sums(tx0, ty0, tx1, ty1, members, u, v, a, b, c, s, d, op, colour, sur
         w_d = _F1 / (dd * dd)
         x0, y0, fx, fy = _speck_box(u[i], v[i])
         scale = _PI * a[i] * b[i] * op[i]
+        c0 = c1 = c2 = _F0
+        if rgb:                                              # the usual case, unrolled
+            c0, c1, c2 = colour[i, 0], colour[i, 1], colour[i, 2]
         for k in range(4):
             x, y = x0 + (k & 1), y0 + (k >> 1)
             if x < tx0 or x >= tx1 or y < ty0 or y >= ty1:
@@ -545,10 +595,10 @@ def _tile_sums(tx0, ty0, tx1, ty1, members, u, v, a, b, c, s, d, op, colour, sur
             acc[t, 0] *= _F1 - min(alpha, np.float32(ALPHA_MAX))
             w = alpha * w_d
             acc[t, 1] += w
-            if rgb:                                          # the usual case, unrolled
-                acc[t, 2] += w * colour[i, 0]
-                acc[t, 3] += w * colour[i, 1]
-                acc[t, 4] += w * colour[i, 2]
+            if rgb:
+                acc[t, 2] += w * c0
+                acc[t, 3] += w * c1
+                acc[t, 4] += w * c2
             else:
                 for j in range(2, acc.shape[1]):
                     acc[t, j] += w * colour[i, j - 2]
@@ -651,6 +701,34 @@ def transfer(hit, near, far, width, K, rz, c, kd, veil, cam_depth, physical):
     return out
 
 
+@_inline
+def _copy(dst, src, start, stop):
+    """dst[start:stop] = src[start:stop] as a plain loop (vectorised; numba's slice assignment,
+    which guards against overlap, copied 3x slower)."""
+    d, s = dst[start:stop], src[start:stop]
+    for k in range(d.size):                  # k >= 0: no wraparound test, so LLVM vectorises
+        d[k] = s[k]
+
+
+@_inline
+def _composite(out, img, o, j, keep, cov, acc, colour, gain_add, per_pixel, one, with_bg):
+    """:func:`resolve`'s ``out = (img gain + add) T + colour (1 - T)`` at pixel offset o (= 3 pix)
+    for hit j, any colour source and background transfer (module doc of resolve)."""
+    w = acc[1, j]
+    inv = _F1 / w if w > _F0 else _F1
+    for ch in range(3):
+        if per_pixel:
+            col = colour[ch, j]
+        elif one:
+            col = colour[ch, 0]
+        else:
+            col = acc[2 + ch, j] * inv
+        bg = img[o + ch]
+        if with_bg:
+            bg = bg * gain_add[ch, j] + gain_add[3 + ch, j]
+        out[o + ch] = bg * keep + col * cov
+
+
 @_jit
 def resolve(out, img, merged, rng, mask, hit, acc, near, colour, gain_add, width):
     """The particles over the background at the covered pixels hit (n,), ``out = (img gain + add)
@@ -667,7 +745,7 @@ def resolve(out, img, merged, rng, mask, hit, acc, near, colour, gain_add, width
     scattered writes, cost half again as much)."""
     n = hit.size
     per_pixel, one = colour.shape[1] == n and n > 0, colour.shape[1] == 1
-    with_bg = gain_add.shape[1] == n
+    mean, with_bg = not (per_pixel or one), gain_add.shape[1] == n
     height = rng.size // width
     inv_w = 1.0 / width
     done = 0                                   # rows [0, done) copied
@@ -676,25 +754,21 @@ def resolve(out, img, merged, rng, mask, hit, acc, near, colour, gain_add, width
         row = int((np.float64(pix) + 0.5) * inv_w)
         if row >= done:                        # a new band: copy up to its end
             end = min((row // TILE_PX + 1) * TILE_PX, height)
-            out[done * width * 3:end * width * 3] = img[done * width * 3:end * width * 3]
-            merged[done * width:end * width] = rng[done * width:end * width]
+            _copy(out, img, done * width * 3, end * width * 3)
+            _copy(merged, rng, done * width, end * width)
             done = end
         keep = acc[0, j]
         cov = _F1 - keep
-        w = acc[1, j]
-        inv = _F1 / w if w > _F0 else _F1
-        for ch in range(3):
-            if per_pixel:
-                col = colour[ch, j]
-            elif one:
-                col = colour[ch, 0]
-            else:
-                col = acc[2 + ch, j] * inv
-            bg = img[pix * 3 + ch]
-            if with_bg:
-                bg = bg * gain_add[ch, j] + gain_add[3 + ch, j]
-            out[pix * 3 + ch] = bg * keep + col * cov
+        o = pix * 3
+        if mean and with_bg:                   # the lit, physical case: unrolled
+            w = acc[1, j]
+            inv = _F1 / w if w > _F0 else _F1
+            out[o] = (img[o] * gain_add[0, j] + gain_add[3, j]) * keep + acc[2, j] * inv * cov
+            out[o + 1] = (img[o + 1] * gain_add[1, j] + gain_add[4, j]) * keep + acc[3, j] * inv * cov
+            out[o + 2] = (img[o + 2] * gain_add[2, j] + gain_add[5, j]) * keep + acc[4, j] * inv * cov
+        else:
+            _composite(out, img, o, j, keep, cov, acc, colour, gain_add, per_pixel, one, with_bg)
         mask[pix] = cov >= _HALF
         merged[pix] = near[j]
-    out[done * width * 3:] = img[done * width * 3:]
-    merged[done * width:] = rng[done * width:]
+    _copy(out, img, done * width * 3, out.size)
+    _copy(merged, rng, done * width, merged.size)

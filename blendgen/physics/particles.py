@@ -43,7 +43,6 @@ from typing import Callable
 
 import numpy as np
 
-from blendgen.physics import gauss
 from blendgen.physics import particle_kernels as kern
 from blendgen.physics import particle_optics as popt
 from blendgen.physics import particle_splat as psplat
@@ -189,7 +188,8 @@ class ParticleField:
         covariance Sigma (m^2) of the displacement noise *per step* (the article's
         model; scale it with dt yourself for a diffusion). Returns a new field.
         Positions are re-rounded to float32 each step (~0.5 um at 5 m from the origin).
-        The normal draws are float32 Box-Muller (physics/gauss.py: exact, cut at 5.77 sigma).
+        The normal draws are float32 Box-Muller on a SplitMix64 stream seeded by one word of
+        ``rng`` (physics/gauss.py: exact, cut at 5.77 sigma), drawn inside the compiled move.
         """
         rng = _as_rng(rng)
         if not (math.isfinite(dt) and dt >= 0):
@@ -198,17 +198,12 @@ class ParticleField:
         if v.shape != (3,) or not np.all(np.isfinite(v)):
             raise ValueError(f"v_flow must be a finite (3,) vector in m/s, got {v_flow}")
         L = _noise_factor(sigma)
-        noise, scale = np.zeros((3, 0)), np.ones(3)
-        if np.any(L):
-            z = gauss.standard_normal32(rng, self.n * 3).reshape(3, self.n)   # float32 Box-Muller
-            if np.count_nonzero(L - np.diag(np.diagonal(L))) == 0:
-                noise, scale = z, np.diagonal(L).copy()   # per-axis std-devs (the other terms are +-0)
-            else:                                          # eta = L z, as row sums (no BLAS threads)
-                noise = np.empty(z.shape)
-                for i in range(3):
-                    noise[i] = z[0] * L[i, 0] + z[1] * L[i, 1] + z[2] * L[i, 2]
+        seed = np.uint64(0)
+        if np.any(L):                      # one word per step: the normals' SplitMix64 stream
+            seed = rng.integers(0, 2 ** 64, dtype=np.uint64)
         lo, hi = self.region_min, self.region_max
-        xyz = kern.drift(self.xyz, v * dt, noise, scale, lo, hi, *_bounds32(lo, hi))
+        xyz = kern.drift(self.xyz, v * dt, np.ascontiguousarray(L, float), np.uint64(seed), lo, hi,
+                         *_bounds32(lo, hi))
         return ParticleField(xyz.T, self.radii, lo, hi)
 
 
