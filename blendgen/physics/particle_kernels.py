@@ -425,13 +425,14 @@ def project_blurred(xyz, radii, R, off, K, z_near, M, o, scale, coc_k, focus_m, 
     idx = np.empty(n, np.int64)
     m = 0
     for i in range(n):                   # branch-free: every index written, kept ones advance m
-        idx[m] = i
+        idx[_U(m)] = i
         m += rows[11, i] > _F0
     idx = idx[:m]
     kept = np.empty((11, m), np.float32)
     for k in range(11):                  # row by row: sequential writes, ascending reads
+        row = rows[k]
         for j in range(m):
-            kept[k, j] = rows[k, idx[j]]
+            kept[k, j] = row[_U(idx[j])]
     return idx, kept[:6], kept[6], kept[7:10], kept[10]
 
 
@@ -473,6 +474,7 @@ def _footprint(u, v, a, b, c, s):
 
 
 TILE_PX = 32                         # the splat's screen tiles: 32 x 32 pixels of sums stay in L1
+_U = np.uint64                       # indices read from data, cast: no wraparound test (module doc)
 
 
 @_inline
@@ -506,7 +508,7 @@ def _bins(u, v, a, b, c, s, op, width, height):
             samples += (xb - xa + 1) * (yb - ya + 1)
             for ty in range(ya // TILE_PX, yb // TILE_PX + 1):
                 for tx in range(xa // TILE_PX, xb // TILE_PX + 1):
-                    start[ty * tiles_x + tx + 1] += 1
+                    start[_U(ty * tiles_x + tx + 1)] += 1
     for k in range(tiles_x * tiles_y):
         start[k + 1] += start[k]
     fill = start[:-1].copy()
@@ -516,14 +518,15 @@ def _bins(u, v, a, b, c, s, op, width, height):
         if xb >= xa:
             for ty in range(ya // TILE_PX, yb // TILE_PX + 1):
                 for tx in range(xa // TILE_PX, xb // TILE_PX + 1):
-                    members[fill[ty * tiles_x + tx]] = i
-                    fill[ty * tiles_x + tx] += 1
+                    k = _U(ty * tiles_x + tx)
+                    members[_U(fill[k])] = i
+                    fill[k] += 1
     return start, members, samples
 
 
 @_jit
-def _ellipse_sums(i, tx0, ty0, tx1, ty1, u, v, a, b, c, s, d, op, colour, surf, width, acc, near, touched,
-                  n_touched, buf):
+def _ellipse_sums(i, tx0, ty0, tx1, ty1, u, v, a, b, c, s, d, op, colour, n_col, surf, width, acc, near,
+                  touched, n_touched, buf):
     """:func:`_tile_sums` for one particle larger than a speck (anti-aliased ellipse; rare in
     marine snow, so a call of its own costs nothing); returns the new touched count."""
     x0, y0, sx, sy, ca, sa, cb, sb, k0, k1 = _footprint(u[i], v[i], a[i], b[i], c[i], s[i])
@@ -538,70 +541,72 @@ def _ellipse_sums(i, tx0, ty0, tx1, ty1, u, v, a, b, c, s, d, op, colour, surf, 
                 total += cov
         if total > _F0:
             scale = _PI * a[i] * b[i] / max(total, np.float32(1e-12))
-    dd = max(d[i], np.float32(1e-3))
+    di, opi, ci = d[i], op[i], i * _U(n_col)
+    dd = max(di, np.float32(1e-3))
     for y in range(max(y0, ty0), min(y0 + sy, ty1)):
         for x in range(max(x0, tx0), min(x0 + sx, tx1)):
             if small:
-                alpha = min(buf[(y - y0) * sx + x - x0] * scale, _F1) * op[i]
+                alpha = min(buf[_U((y - y0) * sx + x - x0)] * scale, _F1) * opi
             else:
-                alpha = min(_coverage(x, y, u[i], v[i], ca, sa, cb, sb, k0, k1) * scale, _F1) * op[i]
-            if not alpha > _F0 or surf[y * width + x] <= d[i]:          # depth test (NaN: none)
+                alpha = min(_coverage(x, y, u[i], v[i], ca, sa, cb, sb, k0, k1) * scale, _F1) * opi
+            if not alpha > _F0 or surf[_U(y * width + x)] <= di:       # depth test (NaN: none)
                 continue
-            t = (y - ty0) * TILE_PX + x - tx0
-            touched[n_touched] = t
+            t = _U((y - ty0) * TILE_PX + x - tx0)                      # as in _tile_sums
+            touched[_U(n_touched)] = t
             n_touched += near[t] == np.inf
-            near[t] = min(near[t], d[i])
-            acc[t, 0] *= _F1 - min(alpha, np.float32(ALPHA_MAX))
+            near[t] = min(near[t], di)
+            o = t * _U(2 + n_col)
+            acc[o] *= _F1 - min(alpha, np.float32(ALPHA_MAX))
             w = alpha / (dd * dd)
-            acc[t, 1] += w
-            for j in range(2, acc.shape[1]):
-                acc[t, j] += w * colour[i, j - 2]
+            acc[o + _U(1)] += w
+            for j in range(n_col):
+                acc[o + _U(2 + j)] += w * colour[ci + _U(j)]
     return n_touched
 
 
 @_jit
-def _tile_sums(tx0, ty0, tx1, ty1, members, u, v, a, b, c, s, d, op, colour, surf, width, acc, near, touched,
-               buf):
+def _tile_sums(tx0, ty0, tx1, ty1, members, u, v, a, b, c, s, d, op, colour, n_col, surf, width, acc, near,
+               touched, buf):
     """The depth-tested samples of the tile [tx0, tx1) x [ty0, ty1)'s particles ``members`` into
-    its sums acc (TILE_PX^2, 2 + C) and near (TILE_PX^2,); returns the count of touched tile
-    pixels, listed in ``touched`` in first-touch order (:func:`splat`'s law). Specks here (their
-    2 x 2 pixels, bilinear weights), ellipses by :func:`_ellipse_sums`."""
-    rgb = acc.shape[1] == 5
+    its sums acc (TILE_PX^2 (2 + n_col),) flat and near (TILE_PX^2,); returns the count of touched
+    tile pixels, listed in ``touched`` in first-touch order (:func:`splat`'s law). Specks here
+    (their 2 x 2 pixels, bilinear weights), ellipses by :func:`_ellipse_sums`. Indices read from
+    data are unsigned (module doc)."""
     n_touched = 0
     for i in members:
+        i = _U(i)
         if not a[i] < np.float32(SPLAT_BELOW_PX):
-            n_touched = _ellipse_sums(i, tx0, ty0, tx1, ty1, u, v, a, b, c, s, d, op, colour, surf, width, acc,
-                                      near, touched, n_touched, buf)
+            n_touched = _ellipse_sums(i, tx0, ty0, tx1, ty1, u, v, a, b, c, s, d, op, colour, n_col, surf,
+                                      width, acc, near, touched, n_touched, buf)
             continue
         di = d[i]
         dd = max(di, np.float32(1e-3))
         w_d = _F1 / (dd * dd)
         x0, y0, fx, fy = _speck_box(u[i], v[i])
         scale = _PI * a[i] * b[i] * op[i]
-        c0 = c1 = c2 = _F0
-        if rgb:                                              # the usual case, unrolled
-            c0, c1, c2 = colour[i, 0], colour[i, 1], colour[i, 2]
+        ci = i * _U(n_col)
         for k in range(4):
             x, y = x0 + (k & 1), y0 + (k >> 1)
             if x < tx0 or x >= tx1 or y < ty0 or y >= ty1:
                 continue
             alpha = (fx if k & 1 else _F1 - fx) * (fy if k >> 1 else _F1 - fy) * scale
-            if not alpha > _F0 or surf[y * width + x] <= di:            # depth test (NaN: none)
+            if not alpha > _F0 or surf[_U(y * width + x)] <= di:        # depth test (NaN: none)
                 continue
-            t = (y - ty0) * TILE_PX + x - tx0
-            touched[n_touched] = t               # listed for the write-out at its first touch
+            t = _U((y - ty0) * TILE_PX + x - tx0)
+            touched[_U(n_touched)] = t           # listed for the write-out at its first touch
             n_touched += near[t] == np.inf             # (no branch: it mispredicted half the time)
             near[t] = min(near[t], di)
-            acc[t, 0] *= _F1 - min(alpha, np.float32(ALPHA_MAX))
+            o = t * _U(2 + n_col)
+            acc[o] *= _F1 - min(alpha, np.float32(ALPHA_MAX))
             w = alpha * w_d
-            acc[t, 1] += w
-            if rgb:
-                acc[t, 2] += w * c0
-                acc[t, 3] += w * c1
-                acc[t, 4] += w * c2
+            acc[o + _U(1)] += w
+            if n_col == 3:                                   # the usual case, unrolled
+                acc[o + _U(2)] += w * colour[ci]
+                acc[o + _U(3)] += w * colour[ci + _U(1)]
+                acc[o + _U(4)] += w * colour[ci + _U(2)]
             else:
-                for j in range(2, acc.shape[1]):
-                    acc[t, j] += w * colour[i, j - 2]
+                for j in range(n_col):
+                    acc[o + _U(2 + j)] += w * colour[ci + _U(j)]
     return n_touched
 
 
@@ -622,18 +627,21 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height):
     sums are accumulated in a small buffer (L1-resident, :func:`_tile_sums`) and then written
     out at its covered pixels; a full-frame scratch walked in particle order missed the caches
     at every sample."""
-    n_acc = 2 + colour.shape[1]
+    n_col = colour.shape[1]
+    n_acc = 2 + n_col
     start, members, samples = _bins(u, v, a, b, c, s, op, width, height)
     cap = min(samples, width * height)                        # each pixel at most once
     hit = np.empty(cap, np.int64)
     out = np.empty((n_acc, cap), np.float32)
     rng = np.empty(cap, np.float32)
     far = np.empty(cap, np.float32)
-    acc = np.zeros((TILE_PX * TILE_PX, n_acc), np.float32)    # per tile pixel [T, w, w c..]
-    acc[:, 0] = _F1
+    acc = np.zeros(TILE_PX * TILE_PX * n_acc, np.float32)    # per tile pixel t: [T, w, w c..] at t n_acc
+    for t in range(TILE_PX * TILE_PX):
+        acc[t * n_acc] = _F1
     near = np.full(TILE_PX * TILE_PX, np.inf, np.float32)
-    touched = np.empty(TILE_PX * TILE_PX + 1, np.int64)       # + 1: written before the count
+    touched = np.empty(TILE_PX * TILE_PX + 1, np.uint64)      # + 1: written before the count
     buf = np.empty(GROUP_MAX_PX * GROUP_MAX_PX, np.float32)   # a small ellipse's square
+    col = colour.reshape(-1)
     tiles_x = (width + TILE_PX - 1) // TILE_PX
     n = 0
     for tile in range(start.size - 1):
@@ -641,21 +649,22 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height):
             continue
         tx0, ty0 = (tile % tiles_x) * TILE_PX, (tile // tiles_x) * TILE_PX
         n_touched = _tile_sums(tx0, ty0, min(tx0 + TILE_PX, width), min(ty0 + TILE_PX, height),
-                               members[start[tile]:start[tile + 1]], u, v, a, b, c, s, d, op, colour, surf,
+                               members[start[tile]:start[tile + 1]], u, v, a, b, c, s, d, op, col, n_col, surf,
                                width, acc, near, touched, buf)
         for q in range(n_touched):                            # write out, reset
             t = touched[q]
-            pix = (ty0 + t // TILE_PX) * width + tx0 + t % TILE_PX
-            hit[n], rng[n], far[n] = pix, near[t], surf[pix]
+            pix = (ty0 + np.int64(t // _U(TILE_PX))) * width + tx0 + np.int64(t % _U(TILE_PX))
+            hit[n], rng[n], far[n] = pix, near[t], surf[_U(pix)]
+            o = t * _U(n_acc)
             if n_acc == 5:                                    # RGB, unrolled
-                out[0, n], out[1, n], out[2, n] = acc[t, 0], acc[t, 1], acc[t, 2]
-                out[3, n], out[4, n] = acc[t, 3], acc[t, 4]
-                acc[t, 0], acc[t, 1], acc[t, 2], acc[t, 3], acc[t, 4] = _F1, _F0, _F0, _F0, _F0
+                out[0, n], out[1, n], out[2, n] = acc[o], acc[o + _U(1)], acc[o + _U(2)]
+                out[3, n], out[4, n] = acc[o + _U(3)], acc[o + _U(4)]
+                acc[o + _U(1)], acc[o + _U(2)], acc[o + _U(3)], acc[o + _U(4)] = _F0, _F0, _F0, _F0
             else:
                 for j in range(n_acc):
-                    out[j, n] = acc[t, j]
-                    acc[t, j] = _F0
-                acc[t, 0] = _F1
+                    out[j, n] = acc[o + _U(j)]
+                    acc[o + _U(j)] = _F0
+            acc[o] = _F1
             near[t] = np.inf
             n += 1
     return hit[:n], out[:, :n], rng[:n], far[:n]
@@ -712,8 +721,8 @@ def _copy(dst, src, start, stop):
 
 @_inline
 def _composite(out, img, o, j, keep, cov, acc, colour, gain_add, per_pixel, one, with_bg):
-    """:func:`resolve`'s ``out = (img gain + add) T + colour (1 - T)`` at pixel offset o (= 3 pix)
-    for hit j, any colour source and background transfer (module doc of resolve)."""
+    """:func:`resolve`'s ``out = (img gain + add) T + colour (1 - T)`` at pixel offset o (= 3 pix,
+    uint64) for hit j, any colour source and background transfer (module doc of resolve)."""
     w = acc[1, j]
     inv = _F1 / w if w > _F0 else _F1
     for ch in range(3):
@@ -723,10 +732,10 @@ def _composite(out, img, o, j, keep, cov, acc, colour, gain_add, per_pixel, one,
             col = colour[ch, 0]
         else:
             col = acc[2 + ch, j] * inv
-        bg = img[o + ch]
+        bg = img[o + _U(ch)]
         if with_bg:
             bg = bg * gain_add[ch, j] + gain_add[3 + ch, j]
-        out[o + ch] = bg * keep + col * cov
+        out[o + _U(ch)] = bg * keep + col * cov
 
 
 @_jit
@@ -750,7 +759,7 @@ def resolve(out, img, merged, rng, mask, hit, acc, near, colour, gain_add, width
     inv_w = 1.0 / width
     done = 0                                   # rows [0, done) copied
     for j in range(n):
-        pix = hit[j]
+        pix = _U(hit[j])
         row = int((np.float64(pix) + 0.5) * inv_w)
         if row >= done:                        # a new band: copy up to its end
             end = min((row // TILE_PX + 1) * TILE_PX, height)
@@ -759,13 +768,13 @@ def resolve(out, img, merged, rng, mask, hit, acc, near, colour, gain_add, width
             done = end
         keep = acc[0, j]
         cov = _F1 - keep
-        o = pix * 3
-        if mean and with_bg:                   # the lit, physical case: unrolled
+        o, o1, o2 = pix * _U(3), pix * _U(3) + _U(1), pix * _U(3) + _U(2)
+        if mean and with_bg:                   # the lit case: unrolled
             w = acc[1, j]
             inv = _F1 / w if w > _F0 else _F1
             out[o] = (img[o] * gain_add[0, j] + gain_add[3, j]) * keep + acc[2, j] * inv * cov
-            out[o + 1] = (img[o + 1] * gain_add[1, j] + gain_add[4, j]) * keep + acc[3, j] * inv * cov
-            out[o + 2] = (img[o + 2] * gain_add[2, j] + gain_add[5, j]) * keep + acc[4, j] * inv * cov
+            out[o1] = (img[o1] * gain_add[1, j] + gain_add[4, j]) * keep + acc[3, j] * inv * cov
+            out[o2] = (img[o2] * gain_add[2, j] + gain_add[5, j]) * keep + acc[4, j] * inv * cov
         else:
             _composite(out, img, o, j, keep, cov, acc, colour, gain_add, per_pixel, one, with_bg)
         mask[pix] = cov >= _HALF
