@@ -82,6 +82,38 @@ def test_splat_matches_brute_force_oracle(seed):
     assert np.allclose(sums.near, near.reshape(-1)[sums.hit])
 
 
+@pytest.mark.parametrize("seed", [3, 4])
+def test_splat_matches_the_oracle_over_a_rough_range_pass(seed):
+    """Per-pixel ranges scattered across the particles' (NaN = no surface, -0.0, inf): the tile's
+    nearest-range bound (particle_kernels._tile_near) may only skip tests that would pass."""
+    rng = np.random.default_rng(seed)
+    p = _particles(rng, 60)
+    surf = rng.uniform(0.3, 9.0, (H, W)).astype(np.float32)
+    surf[rng.random((H, W)) < 0.1] = np.nan
+    surf[:4, :5], surf[30:, 40:] = -0.0, np.inf
+    sums = ps.splat(p, surf.reshape(-1), W, H)
+    log_t, w, wc, near = _oracle(p, np.where(np.isnan(surf), np.inf, surf))
+    assert np.array_equal(np.sort(sums.hit), np.flatnonzero(np.isfinite(near)))
+    trans_f, w_f = np.ones(H * W), np.zeros(H * W)
+    trans_f[sums.hit], w_f[sums.hit] = sums.trans, sums.wc[0]
+    assert np.allclose(trans_f.reshape(H, W), np.exp(log_t), rtol=1e-4, atol=1e-5)
+    assert np.allclose(w_f.reshape(H, W), w, rtol=1e-4, atol=1e-5)
+
+
+@pytest.mark.parametrize("width, height", [(48, 36), (33, 31), (640, 480), (1, 1)])
+def test_tile_nearest_range_is_the_nan_ignoring_minimum(width, height):
+    from blendgen.physics.particle_kernels import TILE_PX, _tile_near
+    rng = np.random.default_rng(width)
+    surf = rng.uniform(0.0, 20.0, (height, width)).astype(np.float32)
+    surf[rng.random((height, width)) < 0.2] = np.nan
+    surf[: min(3, height), : min(3, width)] = np.inf
+    got = _tile_near(surf.reshape(-1), width, height)
+    tiles = [surf[ty:ty + TILE_PX, tx:tx + TILE_PX] for ty in range(0, height, TILE_PX)
+             for tx in range(0, width, TILE_PX)]
+    ref = np.array([np.min(t[~np.isnan(t)]) if np.any(~np.isnan(t)) else np.nan for t in tiles], np.float32)
+    assert np.array_equal(got, ref, equal_nan=True)
+
+
 def test_splat_without_colours_skips_the_colour_sums():
     p = _particles(np.random.default_rng(3), 30, colours=0)
     sums = ps.splat(p, np.full(W * H, np.inf, np.float32), W, H)
