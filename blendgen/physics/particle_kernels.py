@@ -560,44 +560,16 @@ def _tile_near(surf, width, height):
 
 
 @_inline
-def _ellipse_sums(i, tx0, ty0, tx1, ty1, u, v, a, b, c, s, d, op, colour, n_col, surf, zmin, width, acc,
-                  near, touched, n_touched, buf):
-    """:func:`_tile_sums` for one particle larger than a speck (anti-aliased ellipse); returns the
-    new touched count. Inlined: as a call it passed ~14 arrays per ellipse (uniform 5-20 mm
-    splat 7.5 -> 6.5 ms inlined; marine snow, nearly all specks, unchanged)."""
-    x0, y0, sx, sy, ca, sa, cb, sb, k0, k1 = _footprint(u[i], v[i], a[i], b[i], c[i], s[i])
-    scale = _F1
-    small = sx <= GROUP_MAX_PX and a[i] < np.float32(NORMALISE_BELOW_PX)
-    if small:                # coverage of the whole square kept, scaled to the exact area pi a b
-        total = _F0
-        for gy in range(sx):                 # rows and columns: no integer division per sample
-            for gx in range(sx):
-                cov = _coverage(x0 + gx, y0 + gy, u[i], v[i], ca, sa, cb, sb, k0, k1)
-                buf[gy * sx + gx] = cov
-                total += cov
-        if total > _F0:
-            scale = _PI * a[i] * b[i] / max(total, np.float32(1e-12))
-    di, opi, ci = d[i], op[i], i * _U(n_col)
-    dd = max(di, np.float32(1e-3))
-    for y in range(max(y0, ty0), min(y0 + sy, ty1)):
-        for x in range(max(x0, tx0), min(x0 + sx, tx1)):
-            if small:
-                alpha = min(buf[_U((y - y0) * sx + x - x0)] * scale, _F1) * opi
-            else:
-                alpha = min(_coverage(x, y, u[i], v[i], ca, sa, cb, sb, k0, k1) * scale, _F1) * opi
-            if not alpha > _F0 or (not di < zmin and surf[_U(y * width + x)] <= di):   # depth test
-                continue
-            t = _U((y - ty0) * TILE_PX + x - tx0)                      # as in _tile_sums
-            touched[_U(n_touched)] = t
-            n_touched += near[t] == np.inf
-            near[t] = min(near[t], di)
-            o = t * _U(2 + n_col)
-            acc[o] *= _F1 - min(alpha, np.float32(ALPHA_MAX))
-            w = alpha / (dd * dd)
-            acc[o + _U(1)] += w
-            for j in range(n_col):
-                acc[o + _U(2 + j)] += w * colour[ci + _U(j)]
-    return n_touched
+def _ellipse_square(x0, y0, sx, u, v, a, b, ca, sa, cb, sb, k0, k1, buf):
+    """A small ellipse's coverage over its sx x sx square (corner x0, y0) into buf (row-major);
+    returns the scale pi a b / sum that renormalises it to the exact area (1 for a zero sum)."""
+    total = _F0
+    for gy in range(sx):                     # rows and columns: no integer division per sample
+        for gx in range(sx):
+            cov = _coverage(x0 + gx, y0 + gy, u, v, ca, sa, cb, sb, k0, k1)
+            buf[gy * sx + gx] = cov
+            total += cov
+    return _PI * a * b / max(total, np.float32(1e-12)) if total > _F0 else _F1
 
 
 @_jit
@@ -605,22 +577,44 @@ def _tile_sums(tx0, ty0, tx1, ty1, members, u, v, a, b, c, s, d, op, colour, n_c
                near, touched, buf):
     """The depth-tested samples of the tile [tx0, tx1) x [ty0, ty1)'s particles ``members`` into
     its sums acc (TILE_PX^2 (2 + n_col),) flat and near (TILE_PX^2,); returns the count of touched
-    tile pixels, listed in ``touched`` in first-touch order (:func:`splat`'s law). Specks here
-    (their 2 x 2 pixels, bilinear weights), ellipses by :func:`_ellipse_sums`. zmin: the tile's
-    nearest scene range (:func:`_tile_near`). Indices read from data are unsigned (module doc)."""
+    tile pixels, listed in ``touched`` in first-touch order (:func:`splat`'s law). Specks: their
+    2 x 2 pixels, bilinear weights; ellipses: anti-aliased (:func:`_coverage`), small ones
+    renormalised over their square (:func:`_ellipse_square`). zmin: the tile's nearest scene
+    range (:func:`_tile_near`). Indices read from data are unsigned (module doc). One loop, no
+    helper taking the sums: a helper with array arguments costs reference counts per call, even
+    inlined (the ellipses' helper cost the uniform 5-20 mm splat ~1 ms)."""
     n_touched = 0
     for i in members:
         i = _U(i)
-        if not a[i] < np.float32(SPLAT_BELOW_PX):
-            n_touched = _ellipse_sums(i, tx0, ty0, tx1, ty1, u, v, a, b, c, s, d, op, colour, n_col, surf,
-                                      zmin, width, acc, near, touched, n_touched, buf)
-            continue
-        di = d[i]
+        di, ci = d[i], i * _U(n_col)
         dd = max(di, np.float32(1e-3))
-        w_d = _F1 / (dd * dd)
+        if not a[i] < np.float32(SPLAT_BELOW_PX):                   # an anti-aliased ellipse
+            x0, y0, sx, sy, ca, sa, cb, sb, k0, k1 = _footprint(u[i], v[i], a[i], b[i], c[i], s[i])
+            small = sx <= GROUP_MAX_PX and a[i] < np.float32(NORMALISE_BELOW_PX)
+            scale = _ellipse_square(x0, y0, sx, u[i], v[i], a[i], b[i], ca, sa, cb, sb, k0, k1, buf) if small \
+                else _F1
+            for y in range(max(y0, ty0), min(y0 + sy, ty1)):
+                for x in range(max(x0, tx0), min(x0 + sx, tx1)):
+                    if small:
+                        alpha = min(buf[_U((y - y0) * sx + x - x0)] * scale, _F1) * op[i]
+                    else:
+                        alpha = min(_coverage(x, y, u[i], v[i], ca, sa, cb, sb, k0, k1) * scale, _F1) * op[i]
+                    if not alpha > _F0 or (not di < zmin and surf[_U(y * width + x)] <= di):  # as below
+                        continue
+                    t = _U((y - ty0) * TILE_PX + x - tx0)
+                    touched[_U(n_touched)] = t
+                    n_touched += near[t] == np.inf
+                    near[t] = min(near[t], di)
+                    o = t * _U(2 + n_col)
+                    acc[o] *= _F1 - min(alpha, np.float32(ALPHA_MAX))
+                    w = alpha / (dd * dd)
+                    acc[o + _U(1)] += w
+                    for j in range(n_col):
+                        acc[o + _U(2 + j)] += w * colour[ci + _U(j)]
+            continue
+        w_d = _F1 / (dd * dd)                                            # a speck: 2 x 2 pixels
         x0, y0, fx, fy = _speck_box(u[i], v[i])
         scale = _PI * a[i] * b[i] * op[i]
-        ci = i * _U(n_col)
         for k in range(4):
             x, y = x0 + (k & 1), y0 + (k >> 1)
             if x < tx0 or x >= tx1 or y < ty0 or y >= ty1:
