@@ -51,7 +51,8 @@ GROUP_MAX_PX = 16                    # boxes up to this size are renormalised ov
 ALPHA_MAX = 1.0 - 1e-6               # keeps the transmittance T = prod(1 - alpha) > 0
 
 _jit = nb.njit(cache=True, nogil=True)
-_inline = nb.njit(cache=True, nogil=True, inline="always")   # helpers: no call or refcount overhead
+_inline = nb.njit(cache=True, nogil=True, inline="always")   # helpers: no call (array arguments still
+#                                                                cost reference counts: scalars in hot loops)
 _F0, _F1, _HALF, _PI = np.float32(0.0), np.float32(1.0), np.float32(0.5), np.float32(np.pi)
 
 
@@ -750,25 +751,6 @@ def _copy(dst, src, start, stop):
         d[k] = s[k]
 
 
-@_inline
-def _composite(out, img, o, j, keep, cov, acc, colour, gain_add, per_pixel, one, with_bg):
-    """:func:`resolve`'s ``out = (img gain + add) T + colour (1 - T)`` at pixel offset o (= 3 pix,
-    uint64) for hit j, any colour source and background transfer (module doc of resolve)."""
-    w = acc[1, j]
-    inv = _F1 / w if w > _F0 else _F1
-    for ch in range(3):
-        if per_pixel:
-            col = colour[ch, j]
-        elif one:
-            col = colour[ch, 0]
-        else:
-            col = acc[2 + ch, j] * inv
-        bg = img[o + _U(ch)]
-        if with_bg:
-            bg = bg * gain_add[ch, j] + gain_add[3 + ch, j]
-        out[o + _U(ch)] = bg * keep + col * cov
-
-
 @_jit
 def resolve(out, img, merged, rng, mask, hit, acc, near, colour, gain_add, width):
     """The particles over the background at the covered pixels hit (n,), ``out = (img gain + add)
@@ -806,8 +788,15 @@ def resolve(out, img, merged, rng, mask, hit, acc, near, colour, gain_add, width
             out[o] = (img[o] * gain_add[0, j] + gain_add[3, j]) * keep + acc[2, j] * inv * cov
             out[o1] = (img[o1] * gain_add[1, j] + gain_add[4, j]) * keep + acc[3, j] * inv * cov
             out[o2] = (img[o2] * gain_add[2, j] + gain_add[5, j]) * keep + acc[4, j] * inv * cov
-        else:
-            _composite(out, img, o, j, keep, cov, acc, colour, gain_add, per_pixel, one, with_bg)
+        else:                                  # any colour source and transfer (no helper: the
+            w = acc[1, j]                      # arrays it took cost reference counts per pixel)
+            inv = _F1 / w if w > _F0 else _F1
+            for ch in range(3):
+                col = colour[ch, j] if per_pixel else (colour[ch, 0] if one else acc[2 + ch, j] * inv)
+                bg = img[o + _U(ch)]
+                if with_bg:
+                    bg = bg * gain_add[ch, j] + gain_add[3 + ch, j]
+                out[o + _U(ch)] = bg * keep + col * cov
         mask[pix] = cov >= _HALF
         merged[pix] = near[j]
     _copy(out, img, done * width * 3, out.size)
