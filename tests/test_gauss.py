@@ -1,41 +1,29 @@
-"""Box-Muller float32 normals (physics/gauss.py): the law, independence, reproducibility."""
+"""Box-Muller float32 normals on SplitMix64 words (physics/gauss.py): the law, independence,
+reproducibility."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 from scipy import stats
 
-from blendgen.physics.gauss import TAIL_SIGMA, standard_normal32
+from blendgen.physics.gauss import TAIL_SIGMA, drift_normals
 
 
 def test_draws_follow_the_standard_normal_law():
-    z = standard_normal32(np.random.default_rng(7), 400_001)
-    assert z.dtype == np.float32 and z.shape == (400_001,)
+    z = drift_normals(7, 140_000).reshape(-1)
+    assert z.dtype == np.float32 and z.shape == (420_000,)
     assert stats.kstest(z, "norm").pvalue > 1e-3
     assert abs(z.mean()) < 5 / np.sqrt(z.size) and abs(z.std() - 1) < 0.005
     assert stats.kurtosis(z) == pytest.approx(0.0, abs=0.05)       # tails: 3 sigma share
     assert np.mean(np.abs(z) > 3) == pytest.approx(2 * stats.norm.sf(3), rel=0.1)
 
 
-def test_the_two_halves_and_neighbours_are_uncorrelated():
-    """cos and sin of the same angle, and the neighbours of a (N, 3) reshape, are independent."""
-    z = standard_normal32(np.random.default_rng(3), 300_000)
-    a, b = z[:150_000], z[150_000:]
-    tol = 5 / np.sqrt(150_000)
-    assert abs(np.corrcoef(a, b)[0, 1]) < tol
-    assert abs(np.corrcoef(a ** 2, b ** 2)[0, 1]) < tol               # R shared by the pair
-    xyz = z.reshape(-1, 3)
-    assert np.all(np.abs(np.corrcoef(xyz.T) - np.eye(3)) < 5 / np.sqrt(xyz.shape[0]))
-
-
 def test_the_tail_is_cut_at_the_float32_resolution_of_the_uniforms():
-    class Extreme:                                     # U1 = the largest 24-bit value below 1, angle 0
-        def integers(self, low, high, size, dtype):
-            return np.full(size, np.uint64(0xFFFFFF) << np.uint64(40), np.uint64)
-    z = standard_normal32(Extreme(), 4)
+    from blendgen.physics.particle_kernels import box_muller
+    z = box_muller(np.full(2, np.uint64(0xFFFFFF) << np.uint64(40), np.uint64))   # U1 = 1 - 2^-24, angle 0
     assert np.all(np.isfinite(z))
-    assert z[0] == pytest.approx(TAIL_SIGMA, rel=1e-5) and TAIL_SIGMA == pytest.approx(5.768, abs=1e-3)
-    assert np.all(np.abs(z[2:]) < 1e-6)                # sin(0) = 0
+    assert z[0, 0] == pytest.approx(TAIL_SIGMA, rel=1e-5) and TAIL_SIGMA == pytest.approx(5.768, abs=1e-3)
+    assert np.all(np.abs(z[1]) < 1e-6)                 # sin(0) = 0
 
 
 def test_compiled_transform_equals_box_muller_in_float64():
@@ -64,12 +52,12 @@ def test_compiled_log_is_as_accurate_as_float32_allows():
 
 
 @pytest.mark.parametrize("n", [0, 1, 2, 5])
-def test_same_state_same_draws_any_length(n):
-    a = standard_normal32(np.random.default_rng(11), n)
-    b = standard_normal32(np.random.default_rng(11), n)
-    assert a.shape == (n,) and a.tobytes() == b.tobytes()
+def test_same_seed_same_draws_any_length(n):
+    a, b = drift_normals(11, n), drift_normals(11, n)
+    assert a.shape == (3, n) and a.tobytes() == b.tobytes()
+    assert np.array_equal(drift_normals(11, n + 3)[:, :n], a)          # particle i's draw: its own words
     with pytest.raises(ValueError):
-        standard_normal32(np.random.default_rng(0), -1)
+        drift_normals(0, -1)
 
 
 # ----------------------------------------------------------------------------- drift normals
@@ -88,7 +76,6 @@ def test_splitmix64_gives_the_reference_outputs():
 def test_drift_normals_follow_the_law_and_are_independent():
     """The three normals per particle of a drift step: N(0, 1), uncorrelated across axes, across
     neighbouring particles (consecutive words) and across steps (other seeds)."""
-    from blendgen.physics.gauss import drift_normals
     n = 200_000
     z = drift_normals(0x243F6A8885A308D3, n)
     assert z.shape == (3, n) and z.dtype == np.float32
