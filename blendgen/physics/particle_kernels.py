@@ -782,16 +782,14 @@ def resolve(out, img, merged, rng, mask, hit, acc, near, colour, gain_add, width
         keep = acc[0, j]
         cov = _F1 - keep
         o, o1, o2 = pix * _U(3), pix * _U(3) + _U(1), pix * _U(3) + _U(2)
+        w = acc[1, j]
+        inv = _F1 / w if w > _F0 else _F1
         if mean and with_bg:                   # the lit case: unrolled
-            w = acc[1, j]
-            inv = _F1 / w if w > _F0 else _F1
             out[o] = (img[o] * gain_add[0, j] + gain_add[3, j]) * keep + acc[2, j] * inv * cov
             out[o1] = (img[o1] * gain_add[1, j] + gain_add[4, j]) * keep + acc[3, j] * inv * cov
             out[o2] = (img[o2] * gain_add[2, j] + gain_add[5, j]) * keep + acc[4, j] * inv * cov
         else:                                  # any colour source and transfer (no helper: the
-            w = acc[1, j]                      # arrays it took cost reference counts per pixel)
-            inv = _F1 / w if w > _F0 else _F1
-            for ch in range(3):
+            for ch in range(3):                # arrays it took cost reference counts per pixel)
                 col = colour[ch, j] if per_pixel else (colour[ch, 0] if one else acc[2 + ch, j] * inv)
                 bg = img[o + _U(ch)]
                 if with_bg:
