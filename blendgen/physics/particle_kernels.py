@@ -482,6 +482,7 @@ def _footprint(u, v, a, b, c, s):
 
 
 TILE_PX = 32                         # the splat's screen tiles: 32 x 32 pixels of sums stay in L1
+LIST = max(GROUP_MAX_PX, TILE_PX) ** 2   # an ellipse's samples listed at most: a tile or a square
 _U = np.uint64                       # indices read from data, cast: no wraparound test (module doc)
 
 
@@ -561,16 +562,24 @@ def _tile_near(surf, width, height):
 
 
 @_inline
-def _ellipse_square(x0, y0, sx, u, v, a, b, ca, sa, cb, sb, k0, k1, buf):
-    """A small ellipse's coverage over its sx x sx square (corner x0, y0) into buf (row-major);
-    returns the scale pi a b / sum that renormalises it to the exact area (1 for a zero sum)."""
+def _ellipse_samples(xs, ys, xe, ye, tx0, ty0, tx1, ty1, u, v, ca, sa, cb, sb, k0, k1, buf):
+    """An ellipse's coverage over the pixels [xs, xe) x [ys, ye), row by row: the samples with
+    coverage > 0 inside the tile [tx0, tx1) x [ty0, ty1) listed in buf, coverage at buf[k], the
+    tile pixel (y - ty0) TILE_PX + x - tx0 at buf[LIST + k] (exact in float32). Returns (their
+    count, the sum of the coverage over all the pixels, in the tile or not). Written always and
+    counted when kept: no branch on the rim, where about half a small ellipse's square is
+    outside it and the branch mispredicted (the update loop over the list has none)."""
     total = _F0
-    for gy in range(sx):                     # rows and columns: no integer division per sample
-        for gx in range(sx):
-            cov = _coverage(x0 + gx, y0 + gy, u, v, ca, sa, cb, sb, k0, k1)
-            buf[gy * sx + gx] = cov
+    n = 0
+    for y in range(ys, ye):                  # rows and columns: no integer division per sample
+        row_in = (y >= ty0) & (y < ty1)
+        for x in range(xs, xe):
+            cov = _coverage(x, y, u, v, ca, sa, cb, sb, k0, k1)
+            buf[_U(n)] = cov
+            buf[_U(LIST + n)] = np.float32((y - ty0) * TILE_PX + x - tx0)
+            n += (cov > _F0) & row_in & (x >= tx0) & (x < tx1)
             total += cov
-    return _PI * a * b / max(total, np.float32(1e-12)) if total > _F0 else _F1
+    return n, total
 
 
 @_jit
@@ -579,8 +588,9 @@ def _tile_sums(tx0, ty0, tx1, ty1, members, u, v, a, b, c, s, d, op, colour, n_c
     """The depth-tested samples of the tile [tx0, tx1) x [ty0, ty1)'s particles ``members`` into
     its sums acc (TILE_PX^2 (2 + n_col),) flat and near (TILE_PX^2,); returns the count of touched
     tile pixels, listed in ``touched`` in first-touch order (:func:`splat`'s law). Specks: their
-    2 x 2 pixels, bilinear weights; ellipses: anti-aliased (:func:`_coverage`), small ones
-    renormalised over their square (:func:`_ellipse_square`). zmin: the tile's nearest scene
+    2 x 2 pixels, bilinear weights; ellipses: anti-aliased (:func:`_coverage`), their covered
+    samples listed first (:func:`_ellipse_samples`), small ones renormalised over their square
+    (listing them first cut the uniform 5-20 mm splat 5.3 -> 4.4 ms). zmin: the tile's nearest scene
     range (:func:`_tile_near`). Indices read from data are unsigned (module doc). One loop, no
     helper taking the sums: a helper with array arguments costs reference counts per call, even
     inlined (the ellipses' helper cost the uniform 5-20 mm splat ~1 ms)."""
@@ -591,25 +601,35 @@ def _tile_sums(tx0, ty0, tx1, ty1, members, u, v, a, b, c, s, d, op, colour, n_c
         dd = max(di, np.float32(1e-3))
         if not a[i] < np.float32(SPLAT_BELOW_PX):                   # an anti-aliased ellipse
             x0, y0, sx, sy, ca, sa, cb, sb, k0, k1 = _footprint(u[i], v[i], a[i], b[i], c[i], s[i])
-            small = sx <= GROUP_MAX_PX and a[i] < np.float32(NORMALISE_BELOW_PX)
-            scale = _ellipse_square(x0, y0, sx, u[i], v[i], a[i], b[i], ca, sa, cb, sb, k0, k1, buf) if small \
-                else _F1
-            for y in range(max(y0, ty0), min(y0 + sy, ty1)):
-                for x in range(max(x0, tx0), min(x0 + sx, tx1)):
-                    if small:
-                        alpha = min(buf[_U((y - y0) * sx + x - x0)] * scale, _F1) * op[i]
-                    else:
-                        alpha = min(_coverage(x, y, u[i], v[i], ca, sa, cb, sb, k0, k1) * scale, _F1) * op[i]
-                    if not alpha > _F0 or (not di < zmin and surf[_U(y * width + x)] <= di):  # as below
-                        continue
-                    t = _U((y - ty0) * TILE_PX + x - tx0)
-                    touched[_U(n_touched)] = t
-                    n_touched += near[t] == np.inf
-                    near[t] = min(near[t], di)
-                    o = t * _U(2 + n_col)
-                    acc[o] *= _F1 - min(alpha, np.float32(ALPHA_MAX))
-                    w = alpha / (dd * dd)
-                    acc[o + _U(1)] += w
+            if sx <= GROUP_MAX_PX and a[i] < np.float32(NORMALISE_BELOW_PX):     # small: its square
+                n_cov, total = _ellipse_samples(x0, y0, x0 + sx, y0 + sx, tx0, ty0, tx1, ty1, u[i], v[i],
+                                                ca, sa, cb, sb, k0, k1, buf)
+                scale = _PI * a[i] * b[i] / max(total, np.float32(1e-12)) if total > _F0 else _F1
+            else:                                                      # its box, clipped to the tile
+                n_cov = _ellipse_samples(max(x0, tx0), max(y0, ty0), min(x0 + sx, tx1), min(y0 + sy, ty1), tx0,
+                                         ty0, tx1, ty1, u[i], v[i], ca, sa, cb, sb, k0, k1, buf)[0]
+                scale = _F1
+            opi = op[i]                      # locals: the stores to acc could alias them (reloads)
+            col0, col1, col2 = (colour[ci], colour[ci + _U(1)], colour[ci + _U(2)]) if n_col == 3 \
+                else (_F0, _F0, _F0)
+            for k in range(n_cov):
+                alpha = min(buf[_U(k)] * scale, _F1) * opi
+                t = _U(int(buf[_U(LIST + k)]))
+                if not alpha > _F0 or (not di < zmin and surf[_U((ty0 + int(t // _U(TILE_PX))) * width + tx0
+                                                              + int(t % _U(TILE_PX)))] <= di):
+                    continue                                            # as below
+                touched[_U(n_touched)] = t
+                n_touched += near[t] == np.inf
+                near[t] = min(near[t], di)
+                o = t * _U(2 + n_col)
+                acc[o] *= _F1 - min(alpha, np.float32(ALPHA_MAX))
+                w = alpha / (dd * dd)
+                acc[o + _U(1)] += w
+                if n_col == 3:                                        # the usual case, unrolled
+                    acc[o + _U(2)] += w * col0
+                    acc[o + _U(3)] += w * col1
+                    acc[o + _U(4)] += w * col2
+                else:
                     for j in range(n_col):
                         acc[o + _U(2 + j)] += w * colour[ci + _U(j)]
             continue
@@ -671,7 +691,7 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height):
         acc[t * n_acc] = _F1
     near = np.full(TILE_PX * TILE_PX, np.inf, np.float32)
     touched = np.empty(TILE_PX * TILE_PX + 1, np.uint64)      # + 1: written before the count
-    buf = np.empty(GROUP_MAX_PX * GROUP_MAX_PX, np.float32)   # a small ellipse's square
+    buf = np.empty(2 * LIST, np.float32)                     # an ellipse's covered samples
     col = colour.reshape(-1)
     tnear = _tile_near(surf, width, height)
     tiles_x = (width + TILE_PX - 1) // TILE_PX
