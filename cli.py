@@ -368,8 +368,9 @@ def bench_particles(counts: tuple[int, ...], size: tuple[int, int], frames: int,
     from blendgen.tools.particle_bench import format_row, run
     click.echo(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (wall times are upper bounds)")
     for n in counts or (600, 6000, 60000):
-        for dist in ("power_law", "uniform"):
-            click.echo(format_row(run(n, size[0], size[1], frames, dist)))
+        for dist, lamp, formation in (("power_law", True, "physical"), ("uniform", True, "physical"),
+                                      ("uniform", False, "article")):     # the last: paper_occlusion.yaml
+            click.echo(format_row(run(n, size[0], size[1], frames, dist, lamp, formation)))
 
 
 @bench.command("glow")
