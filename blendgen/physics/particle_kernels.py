@@ -47,7 +47,7 @@ except ImportError as exc:                      # pragma: no cover - the render 
 
 SPLAT_BELOW_PX = 0.5                 # semi-axis below which a particle is a bilinear speck
 NORMALISE_BELOW_PX = 4.0             # small ellipses: rescale coverage to the exact area
-GROUP_MAX_PX = 16                    # boxes up to this size are renormalised over their square
+GROUP_MAX_PX = 16                    # boxes up to this size are renormalised over the box
 ALPHA_MAX = 1.0 - 1e-6               # keeps the transmittance T = prod(1 - alpha) > 0
 
 _jit = nb.njit(cache=True, nogil=True)
@@ -468,21 +468,17 @@ def box(u, v, a, b, c, s):
 @_inline
 def _footprint(u, v, a, b, c, s):
     """An ellipse's (a >= SPLAT_BELOW_PX; specks: :func:`_speck_box`) pixel box and coverage law:
-    (x0, y0, sx, sy, ca, sa, cb, sb, k0, k1) for :func:`_coverage`. Boxes up to GROUP_MAX_PX are
-    square (size x size from the box's corner), larger ones not. sx = 0: nothing to draw."""
+    (x0, y0, sx, sy, ca, sa, cb, sb, k0, k1) for :func:`_coverage`. sx = 0: nothing to draw."""
     ca = sa = cb = sb = k0 = k1 = _F0
     x0, y0, sx, sy = box(u, v, a, b, c, s)
-    size = max(sx, sy)
-    if size > 0:
+    if max(sx, sy) > 0:
         k1 = np.float32(math.sqrt(a * b))
         ca, sa, cb, sb, k0 = c / a, s / a, c / b, s / b, _HALF + k1
-        if size <= GROUP_MAX_PX:
-            sx = sy = size
     return x0, y0, max(sx, 0), max(sy, 0), ca, sa, cb, sb, k0, k1
 
 
 TILE_PX = 32                         # the splat's screen tiles: 32 x 32 pixels of sums stay in L1
-LIST = max(GROUP_MAX_PX, TILE_PX) ** 2   # an ellipse's samples listed at most: a tile or a square
+LIST = max(GROUP_MAX_PX, TILE_PX) ** 2   # an ellipse's samples listed at most: a tile or a small box
 _U = np.uint64                       # indices read from data, cast: no wraparound test (module doc)
 
 
@@ -567,7 +563,7 @@ def _ellipse_samples(xs, ys, xe, ye, tx0, ty0, tx1, ty1, u, v, ca, sa, cb, sb, k
     coverage > 0 inside the tile [tx0, tx1) x [ty0, ty1) listed in buf, coverage at buf[k], the
     tile pixel (y - ty0) TILE_PX + x - tx0 at buf[LIST + k] (exact in float32). Returns (their
     count, the sum of the coverage over all the pixels, in the tile or not). Written always and
-    counted when kept: no branch on the rim, where about half a small ellipse's square is
+    counted when kept: no branch on the rim, where about half a small ellipse's box is
     outside it and the branch mispredicted (the update loop over the list has none)."""
     total = _F0
     n = 0
@@ -589,7 +585,7 @@ def _tile_sums(tx0, ty0, tx1, ty1, members, u, v, a, b, c, s, d, op, colour, n_c
     its sums acc (TILE_PX^2 (2 + n_col),) flat and near (TILE_PX^2,); returns the count of touched
     tile pixels, listed in ``touched`` in first-touch order (:func:`splat`'s law). Specks: their
     2 x 2 pixels, bilinear weights; ellipses: anti-aliased (:func:`_coverage`), their covered
-    samples listed first (:func:`_ellipse_samples`), small ones renormalised over their square
+    samples listed first (:func:`_ellipse_samples`), small ones renormalised over their box
     (listing them first cut the uniform 5-20 mm splat 5.3 -> 4.4 ms). zmin: the tile's nearest scene
     range (:func:`_tile_near`). Indices read from data are unsigned (module doc); numpy's error
     model (no zero test and branch per division: no divisor here can be 0). One loop, no
@@ -602,8 +598,8 @@ def _tile_sums(tx0, ty0, tx1, ty1, members, u, v, a, b, c, s, d, op, colour, n_c
         dd = max(di, np.float32(1e-3))
         if not a[i] < np.float32(SPLAT_BELOW_PX):                   # an anti-aliased ellipse
             x0, y0, sx, sy, ca, sa, cb, sb, k0, k1 = _footprint(u[i], v[i], a[i], b[i], c[i], s[i])
-            if sx <= GROUP_MAX_PX and a[i] < np.float32(NORMALISE_BELOW_PX):     # small: its square
-                n_cov, total = _ellipse_samples(x0, y0, x0 + sx, y0 + sx, tx0, ty0, tx1, ty1, u[i], v[i],
+            if max(sx, sy) <= GROUP_MAX_PX and a[i] < np.float32(NORMALISE_BELOW_PX):   # small: its box
+                n_cov, total = _ellipse_samples(x0, y0, x0 + sx, y0 + sy, tx0, ty0, tx1, ty1, u[i], v[i],
                                                 ca, sa, cb, sb, k0, k1, buf)
                 scale = _PI * a[i] * b[i] / max(total, np.float32(1e-12)) if total > _F0 else _F1
             else:                                                      # its box, clipped to the tile
@@ -671,8 +667,8 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height):
     range (inf or NaN = background). Returns (hit (n,) int64 covered pixels, tile by tile, sums
     (2 + C, n) float32 = [T, w, w c..], near (n,) float32 the nearest covering particle's
     surface range, far (n,) float32 the scene's range there). Coverage per :func:`_footprint`,
-    small ellipses (a < NORMALISE_BELOW_PX, square box) scaled to the exact area pi a b over
-    their square; a sample counts only where the scene surface is farther than the particle's
+    small ellipses (a < NORMALISE_BELOW_PX, box up to GROUP_MAX_PX) scaled to the exact area pi a b
+    over their box (it holds every pixel centre with alpha > 0); a sample counts only where the scene surface is farther than the particle's
     surface (depth test) and alpha > 0: T *= 1 - alpha, w += alpha / d^2.
 
     Tiled: the particles are binned by the TILE_PX x TILE_PX tiles they meet and each tile's

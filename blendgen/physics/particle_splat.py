@@ -13,7 +13,7 @@ some sample covers. Coverage: specks (semi-axis < 0.5 px) are splat bilinearly w
 area (px^2); larger ellipses get an anti-aliased ramp: with q the normalised elliptic radius (q = 1
 on the rim) and m = sqrt(a b), the signed distance to the rim is ~ (q - 1) m and alpha =
 clip(0.5 + m - m q, 0, 1). The rim is exact; only the 1-px ramp is approximate, so ellipses
-with a < 4 px are renormalised to the exact area pi a b over their (square) box.
+with a < 4 px are renormalised to the exact area pi a b over their box (up to GROUP_MAX_PX).
 """
 from __future__ import annotations
 
