@@ -385,6 +385,23 @@ def test_drift_step_equals_the_written_formula_bit_for_bit(dt, vx, s, seed):
     assert got.tobytes() == ref.tobytes()
 
 
+
+def test_chained_steps_equal_fresh_fields_stepped_once():
+    """A stepped field (built without a second validation, its region's float32 bounds carried
+    over) steps exactly as a field built anew from the same positions; a scalar sigma is the
+    same std-dev on every axis."""
+    lo, hi = np.array([0.0, -2.5, -5.0]), np.array([15.0, 2.5, 3.0])
+    f = ParticleField.sample(7, lo, hi, n_total=2000, count_dist="fixed")
+    rng_a, rng_b = np.random.default_rng(1), np.random.default_rng(1)
+    a, radii = f, f.radii
+    for _ in range(5):
+        a = a.step(0.1, [0.3, 0.0, -0.1], 0.05, rng_a)
+        b = ParticleField(np.array(f.positions), f.radii, lo, hi).step(0.1, [0.3, 0.0, -0.1], [0.05] * 3, rng_b)
+        assert a.positions.tobytes() == b.positions.tobytes() and a.xyz.flags.c_contiguous
+        assert a.radii is radii and np.array_equal(a.region_max, hi)
+        f = b
+    assert np.all((a.positions >= lo) & (a.positions < hi))
+
 def test_nan_range_is_background_like_inf():
     """A NaN range pass (no surface hit) draws the particles exactly as inf does."""
     f = ParticleField.sample(3, BOX_MIN, BOX_MAX, n_total=3000, count_dist="fixed")

@@ -36,6 +36,7 @@ keep region coordinates within a few hundred metres of the origin (float32 keeps
 """
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -197,14 +198,45 @@ class ParticleField:
         v = np.asarray(v_flow, float).reshape(-1)
         if v.shape != (3,) or not np.all(np.isfinite(v)):
             raise ValueError(f"v_flow must be a finite (3,) vector in m/s, got {v_flow}")
-        L = _noise_factor(sigma)
+        L = _noise_factor_cached(tuple(np.asarray(sigma, float).reshape(-1).tolist()))
         seed = np.uint64(0)
-        if np.any(L):                      # one word per step: the normals' SplitMix64 stream
+        if L is not None:                  # one word per step: the normals' SplitMix64 stream
             seed = rng.integers(0, 2 ** 64, dtype=np.uint64)
         lo, hi = self.region_min, self.region_max
-        xyz = kern.drift(self.xyz, v * dt, np.ascontiguousarray(L, float), np.uint64(seed), lo, hi,
-                         *_bounds32(lo, hi))
-        return ParticleField(xyz.T, self.radii, lo, hi)
+        xyz = kern.drift(self.xyz, v * dt, _ZERO_L if L is None else L, np.uint64(seed), lo, hi, *self._bounds32)
+        return self._moved(xyz)
+
+    @property
+    def _bounds32(self) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`_bounds32` of the region, computed once per field lineage (the drift's per-step
+        validation and float32 bounds were ~0.3 ms of Python per frame in the pipeline, where the
+        frame's work has evicted the interpreter's data from the caches)."""
+        b = self.__dict__.get("_b32")
+        if b is None:
+            b = _bounds32(self.region_min, self.region_max)
+            object.__setattr__(self, "_b32", b)
+        return b
+
+    def _moved(self, xyz: np.ndarray) -> "ParticleField":
+        """The field at planar positions xyz (3, N) float32 C-contiguous, the same radii and region
+        (already checked: no second validation)."""
+        new = object.__new__(ParticleField)
+        for name, val in (("positions", xyz.T), ("radii", self.radii), ("region_min", self.region_min),
+                          ("region_max", self.region_max), ("_b32", self._bounds32)):
+            object.__setattr__(new, name, val)
+        return new
+
+
+_ZERO_L = np.zeros((3, 3))
+
+
+@functools.lru_cache(maxsize=16)
+def _noise_factor_cached(sigma: tuple) -> np.ndarray | None:
+    """:func:`_noise_factor` of a sigma given as a flat tuple (1 or 3 std-devs or the 9 covariance
+    entries; cached: not to be modified); None when it is zero (no noise, no draw)."""
+    s = np.array(sigma, float)
+    L = _noise_factor(s.reshape(3, 3) if s.size == 9 else (s.reshape(()) if s.size == 1 else s))
+    return np.ascontiguousarray(L, float) if np.any(L) else None
 
 
 def _noise_factor(sigma) -> np.ndarray:
