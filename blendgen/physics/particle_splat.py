@@ -79,5 +79,15 @@ def splat(p: Particles, surf: np.ndarray, width: int, height: int) -> Sums:
     surf (H*W,) float32 scene range per pixel (inf or NaN = background)."""
     f32 = lambda x: np.ascontiguousarray(x, np.float32)
     hit, acc, near, far = kern.splat(f32(p.u), f32(p.v), f32(p.a), f32(p.b), f32(p.c), f32(p.s), f32(p.d),
-                                f32(p.op), f32(p.colour), f32(surf), int(width), int(height))
+                                f32(p.op), _records(p.colour), f32(surf), int(width), int(height))
     return Sums(hit, acc, near, far)
+
+
+def _records(colour: np.ndarray) -> np.ndarray:
+    """colour (M, C) as a C-contiguous float32 array. The light field gives it as the transpose of
+    planar (C, M) rows, which numpy's generic copy made 3x slower than stacking the rows (76 against
+    22 us for 21000 particles)."""
+    colour = np.asarray(colour, np.float32)
+    if colour.ndim == 2 and not colour.flags.c_contiguous and colour.T.flags.c_contiguous and colour.shape[1]:
+        return np.stack(colour.T, axis=1)
+    return np.ascontiguousarray(colour)
