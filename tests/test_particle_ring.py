@@ -68,3 +68,18 @@ def test_without_water_after_the_composite_is_the_plain_blend():
     a, _ = compose.add_particles(passes, st, K, T, t_s=0.0, water_after=False)
     cov = a["range_m"] < passes["range_m"]
     assert cov.any() and np.all(a["rgb"][cov] <= 0.8 + 1e-6)
+
+
+@pytest.mark.parametrize("mode", ["physical", "article"])
+@pytest.mark.parametrize("lamp", [True, False])
+def test_a_frame_without_a_particle_in_view_leaves_the_passes_as_they_are(mode, lamp):
+    """Every particle behind the camera (it left the pool): no particle draws, the passes come
+    back unchanged and the occluder mask is empty. The lamp's spread beam was read with an empty
+    map, which cv2.remap rejects: such a frame stopped the render."""
+    st = particle_bench._state(600, "power_law", lamp=lamp, formation=mode)
+    K = intrinsics_from_hfov(W, H, math.radians(60.0))
+    passes = {"rgb": np.full((H, W, 3), 0.1, np.float32), "range_m": np.full((H, W), 14.0, np.float32),
+              "index": np.zeros((H, W), np.int32)}
+    seen, occluded = compose.add_particles(passes, st, K, make_T(R, [20.0, 0.0, 2.0]), t_s=0.0)
+    assert not occluded.any()
+    assert np.array_equal(seen["rgb"], passes["rgb"]) and np.array_equal(seen["range_m"], passes["range_m"])

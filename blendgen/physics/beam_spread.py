@@ -165,6 +165,8 @@ def lookup(table: np.ndarray, cos_psi: np.ndarray, d: np.ndarray) -> np.ndarray:
     """The beam table (:func:`beam_table`) at angles ``cos_psi`` (h, w) and distances ``d``
     (h, w, m; clipped to [D_MIN, D_MAX]) -> (h, w, 3) float32, bilinear (``cv2.remap``)."""
     import cv2
+    if np.size(cos_psi) == 0:                 # cv2.remap rejects an empty map (a frame with no particle)
+        return np.zeros((*np.shape(cos_psi), 3), np.float32)
     x = np.arccos(np.clip(cos_psi, -1.0, 1.0)).astype(np.float32) * np.float32((N_PSI - 1) / PSI_MAX)
     y = np.log(np.clip(d, D_MIN, D_MAX).astype(np.float32) * np.float32(1.0 / D_MIN))
     y *= np.float32((N_D - 1) / math.log(D_MAX / D_MIN))
