@@ -668,8 +668,9 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height):
     (2 + C, n) float32 = [T, w, w c..], near (n,) float32 the nearest covering particle's
     surface range, far (n,) float32 the scene's range there). Coverage per :func:`_footprint`,
     small ellipses (a < NORMALISE_BELOW_PX, box up to GROUP_MAX_PX) scaled to the exact area pi a b
-    over their box (it holds every pixel centre with alpha > 0); a sample counts only where the scene surface is farther than the particle's
-    surface (depth test) and alpha > 0: T *= 1 - alpha, w += alpha / d^2.
+    over their box (it holds every pixel centre with alpha > 0); a sample counts only where the
+    scene surface is farther than the particle's surface (depth test) and alpha > 0:
+    T *= 1 - alpha, w += alpha / d^2.
 
     Tiled: the particles are binned by the TILE_PX x TILE_PX tiles they meet and each tile's
     sums are accumulated in a small buffer (L1-resident, :func:`_tile_sums`) and then written
@@ -728,9 +729,9 @@ def transfer(hit, near, far, width, K, rz, c, kd, veil, cam_depth, physical):
     background is open water, r_bg = inf, and c_k > 0). Depths ``max(cam_depth - r dir_z, 0)``,
     dir_z the world z of the pixel's unit ray (from K (3, 3) and rz (3,) = the camera axes'
     world z); article (``physical`` False): the depth factors are 1, so only the 3 exps of tr
-    are evaluated (5x faster; exp32(0) = 1 exactly, so the bytes are the same). hit (n,) int64 flat pixels,
-    near, far (n,) float32 the particle's and the scene's range there (m): no gather, so that
-    the loop is vectorised (with one it was 10x slower)."""
+    are evaluated (5x faster; exp32(0) = 1 exactly, so the bytes are the same). hit (n,) int64
+    flat pixels, near, far (n,) float32 the particle's and the scene's range there (m): no
+    gather, so that the loop is vectorised (with one it was 10x slower)."""
     n = hit.size
     out = np.empty((6, n), np.float32)
     c0, c1, c2, k0, k1, k2 = c[0], c[1], c[2], kd[0], kd[1], kd[2]
@@ -747,7 +748,6 @@ def transfer(hit, near, far, width, K, rz, c, kd, veil, cam_depth, physical):
         return out
     fx, sk, cx, fy, cy = K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
     rz0, rz1, rz2 = rz[0], rz[1], rz[2]
-    on = _F1 if physical else _F0
     inv_w = 1.0 / width
     for j in range(n):
         pix = hit[j]
@@ -758,8 +758,8 @@ def transfer(hit, near, far, width, K, rz, c, kd, veil, cam_depth, physical):
         y = (np.float32(row) - cy) / fy
         x = (np.float32(np.float64(pix) - row * width) - cx - sk * y) / fx
         dz = (x * rz0 + y * rz1 + rz2) / np.sqrt(x * x + y * y + _F1)
-        dp = max(cam_depth - r_p * dz, _F0) * on
-        ddep = max(cam_depth - (r_bg if finite else r_p) * dz, _F0) * on - dp
+        dp = max(cam_depth - r_p * dz, _F0)
+        ddep = max(cam_depth - (r_bg if finite else r_p) * dz, _F0) - dp
         t0 = exp32(-c0 * dr) if finite or not c0 > _F0 else _F0
         t1 = exp32(-c1 * dr) if finite or not c1 > _F0 else _F0
         t2 = exp32(-c2 * dr) if finite or not c2 > _F0 else _F0
