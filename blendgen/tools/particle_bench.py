@@ -5,9 +5,10 @@ camera 1 m below the surface at one end looking down the pool's length, a wall a
 the range pass, a moving camera (1 m/s) and the paper config's lens; physical image formation
 with the vehicle lamp on (the dearest case: the lamp's beam at every particle, depth factors per
 pixel), and the paper config itself (``configs/paper_occlusion.yaml``: the article's image
-formation, no lamp, uniform 5-20 mm). Times ``compose.add_particles`` (projection, culling, light, blur, coverage, compositing): wall time
-and the process's CPU time (all threads: what it costs the machine), median and minimum over
-frames after one warm-up; apart from it, the CPU time of the drift to the next frame
+formation, no lamp, uniform 5-20 mm). Times ``compose.add_particles`` (projection, culling,
+light, blur, coverage, compositing): wall time and the process's CPU time (all threads: what
+it costs the machine), median and minimum over frames after one warm-up; apart from it, the CPU
+time of the drift to the next frame
 (``SequenceState.advance``: random walk and periodic wrap of every particle in the pool, in
 view or not), median, with the heap policy of the render workers (pipeline/allocator.py).
 On a shared machine both are upper bounds; the minimum is the least disturbed frame.
@@ -72,7 +73,7 @@ def run(n: int = 60000, width: int = 640, height: int = 480, frames: int = 10, s
 
 
 def format_row(r: dict) -> str:
-    return (f"N={r['n']:>6d} {r['size_dist']:9s} {r.get('formation', 'physical'):8s} "
+    return (f"N={r['n']:>6d} {r['size_dist']:9s} {r['formation']:8s} "
             f"lamp={'on ' if r['lamp'] else 'off'} {r['size']}: "
             f"{r['in_view']:>6d} in view ({r['subpixel']} sub-pixel)  add_particles median "
             f"{r['ms_median']:.1f} ms wall (max {r['ms_max']:.1f}), CPU {r['cpu_ms_median']:.1f} ms "
