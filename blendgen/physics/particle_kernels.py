@@ -72,7 +72,7 @@ def _prefetch(typingctx, arr, idx):
     prefetcht0): a hint, never a fault (an index past the end is harmless), no value."""
     def codegen(context, builder, signature, args):
         ary = context.make_array(signature.args[0])(context, builder, args[0])
-        ptr = builder.gep(ary.data, [args[1]])
+        ptr = builder.bitcast(builder.gep(ary.data, [args[1]]), ir.IntType(8).as_pointer())   # one declaration
         i32 = ir.IntType(32)
         fnty = ir.FunctionType(ir.VoidType(), [ptr.type, i32, i32, i32])
         builder.call(cgutils.get_or_insert_function(builder.module, fnty, "llvm.prefetch.p0"),
