@@ -120,6 +120,38 @@ def test_prefetch_is_a_hint_on_any_array_at_any_index():
     assert f.tolist() == [0.0, 1.0, 2.0] and i.tolist() == [0, 1, 2, 3, 4]
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_binned_boxes_are_the_footprints_clipped_to_the_image(seed):
+    """particle_kernels._clipped_boxes (one vectorised pass for the binning) against the scalar
+    laws particle by particle: an ellipse's box (``box``), a speck's 2 x 2 pixels at floor(u, v),
+    clipped to the image, (xa, xb) = (1, 0) when nothing is left. Extremes included: semi-axes
+    at the speck threshold and of zero, tiny b, boxes over every edge and far off the image."""
+    from blendgen.physics import particle_kernels as kern
+    rng = np.random.default_rng(seed)
+    n = 400
+    a = np.concatenate([rng.uniform(0.0, 0.49, n // 4), rng.uniform(0.5, 4.0, n // 4),
+                        rng.uniform(4.0, 60.0, n // 4), np.full(n - 3 * (n // 4), ps.SPLAT_BELOW_PX)])
+    a[:3] = 0.0
+    b = a * rng.uniform(0.0, 1.0, n)
+    b[3:6] = 1e-6
+    phi = rng.uniform(0, 2 * math.pi, n)
+    u, v = rng.uniform(-80, W + 80, n), rng.uniform(-80, H + 80, n)
+    u[6:10], v[6:10] = [-0.5, W - 0.5, -1e4, 1e4], [-0.5, H - 0.5, 1e4, -1e4]
+    f32 = lambda x: np.asarray(x, np.float32)
+    u, v, a, b, c, s = f32(u), f32(v), f32(a), f32(b), f32(np.cos(phi)), f32(np.sin(phi))
+    got = np.empty((4, n), np.int64)
+    kern._clipped_boxes(u, v, a, b, c, s, W, H, got)
+    for i in range(n):
+        if a[i] < ps.SPLAT_BELOW_PX:
+            x0, y0, sx, sy = math.floor(u[i]), math.floor(v[i]), 2, 2
+        else:
+            x0, y0, sx, sy = kern.box(u[i], v[i], a[i], b[i], c[i], s[i])
+            sx, sy = max(sx, 0), max(sy, 0)
+        xa, ya, xb, yb = max(x0, 0), max(y0, 0), min(x0 + sx, W) - 1, min(y0 + sy, H) - 1
+        want = (1, ya, 0, yb) if xb < xa or yb < ya else (xa, ya, xb, yb)
+        assert tuple(got[:, i]) == want, (i, u[i], v[i], a[i], b[i])
+
+
 @pytest.mark.parametrize("width, height", [(48, 36), (33, 31), (640, 480), (1, 1)])
 def test_tile_nearest_range_is_the_nan_ignoring_minimum(width, height):
     from blendgen.physics.particle_kernels import TILE_PX, _tile_near

@@ -506,26 +506,38 @@ def _speck_box(u, v):
     return int(x0f), int(y0f), u - x0f, v - y0f   # exact in float32
 
 
+@_jit_vec
+def _clipped_boxes(u, v, a, b, c, s, width, height, box4):
+    """box4 (4, M) int64: each particle's pixel box clipped to the image, [xa, xb] x [ya, yb]
+    inclusive (xa = 1, xb = 0 off the image); one branch-free pass (vectorised)."""
+    for i in range(u.size):
+        ui, vi = u[i], v[i]
+        ex, ey = _half_extents(a[i], b[i], c[i], s[i])
+        ex0, ey0 = int(np.ceil(ui - ex)), int(np.ceil(vi - ey))
+        ex1, ey1 = int(np.floor(ui + ex)), int(np.floor(vi + ey))      # inclusive ends
+        sx0, sy0 = int(np.floor(ui)), int(np.floor(vi))
+        speck = a[i] < np.float32(SPLAT_BELOW_PX)
+        x0, y0 = (sx0 if speck else ex0), (sy0 if speck else ey0)
+        x1, y1 = (sx0 + 1 if speck else max(ex1, ex0 - 1)), (sy0 + 1 if speck else max(ey1, ey0 - 1))
+        xa, ya = max(x0, 0), max(y0, 0)
+        xb, yb = min(x1, width - 1), min(y1, height - 1)
+        off = (xb < xa) | (yb < ya)
+        box4[0, i], box4[1, i] = (1 if off else xa), ya
+        box4[2, i], box4[3, i] = (0 if off else xb), yb
+
+
 @_jit
 def _bins(u, v, a, b, c, s, op, width, height):
     """Particles binned by the TILE_PX tiles their footprint's clipped box meets (counting sort,
     field order within a tile): (start (n_tiles + 1,) int64, members (E,) int64, samples = the
     total clipped box area, an upper bound on the covered pixels)."""
     tiles_x, tiles_y = (width + TILE_PX - 1) // TILE_PX, (height + TILE_PX - 1) // TILE_PX
-    box4 = np.empty((u.size, 4), np.int64)
+    box4 = np.empty((4, u.size), np.int64)
+    _clipped_boxes(u, v, a, b, c, s, width, height, box4)
     start = np.zeros(tiles_x * tiles_y + 1, np.int64)
     samples = 0
     for i in range(u.size):
-        if a[i] < np.float32(SPLAT_BELOW_PX):
-            x0, y0 = _speck_box(u[i], v[i])[:2]
-            sx = sy = 2
-        else:
-            x0, y0, sx, sy = _footprint(u[i], v[i], a[i], b[i], c[i], s[i])[:4]
-        xa, ya = max(x0, 0), max(y0, 0)
-        xb, yb = min(x0 + sx, width) - 1, min(y0 + sy, height) - 1
-        if xb < xa or yb < ya:
-            xa, xb = 1, 0                       # off the image: no tile
-        box4[i, 0], box4[i, 1], box4[i, 2], box4[i, 3] = xa, ya, xb, yb
+        xa, ya, xb, yb = box4[0, i], box4[1, i], box4[2, i], box4[3, i]
         if xb >= xa:
             samples += (xb - xa + 1) * (yb - ya + 1)
             for ty in range(ya // TILE_PX, yb // TILE_PX + 1):
@@ -536,7 +548,7 @@ def _bins(u, v, a, b, c, s, op, width, height):
     fill = start[:-1].copy()
     members = np.empty(start[-1], np.int64)
     for i in range(u.size):
-        xa, ya, xb, yb = box4[i, 0], box4[i, 1], box4[i, 2], box4[i, 3]
+        xa, ya, xb, yb = box4[0, i], box4[1, i], box4[2, i], box4[3, i]
         if xb >= xa:
             for ty in range(ya // TILE_PX, yb // TILE_PX + 1):
                 for tx in range(xa // TILE_PX, xb // TILE_PX + 1):
