@@ -120,6 +120,37 @@ def test_prefetch_is_a_hint_on_any_array_at_any_index():
     assert f.tolist() == [0.0, 1.0, 2.0] and i.tolist() == [0, 1, 2, 3, 4]
 
 
+@pytest.mark.parametrize("mode", ["physical", "article", "none"])
+@pytest.mark.parametrize("seed", [5, 6])
+def test_fused_pass_gives_the_bytes_of_splat_transfer_and_resolve(seed, mode):
+    """particle_splat.over (splat, background transfer and compositing fused per tile) against the
+    three kernels in sequence, byte for byte: image, merged range and mask, over a rough range
+    pass (NaN, inf, a near dock) whose merged range keeps the scene's values."""
+    from blendgen.physics import particle_kernels as kern
+    rng = np.random.default_rng(seed)
+    p = _particles(rng, 80)
+    surf = rng.uniform(0.3, 9.0, (H, W)).astype(np.float32)
+    surf[rng.random((H, W)) < 0.1], surf[30:, 40:], surf[10:25, 15:35] = np.nan, np.inf, 3.0
+    surf = surf.reshape(-1)
+    img = rng.uniform(0, 2, H * W * 3).astype(np.float32)
+    K = np.array([[40.0, 0.5, 23.5], [0, 41.0, 17.5], [0, 0, 1]], np.float32)
+    args = (K, np.array([0.2, -0.9, 0.1], np.float32), np.array([0.3, 0.1, 0.05], np.float32),
+            np.array([0.2, 0.08, 0.03], np.float32), np.array([0.02, 0.05, 0.04], np.float32), np.float32(4.0))
+    sums = ps.splat(p, surf, W, H)
+    if mode == "none":
+        tp, gain_add = kern.NO_TRANSFER, np.zeros((6, 0), np.float32)
+    else:
+        tp = kern.transfer_params(*args, mode == "physical")
+        gain_add = kern.transfer(sums.hit, sums.near, sums.far, W, *args, mode == "physical")
+    out, merged, mask = np.empty_like(img), np.empty(H * W, np.float32), np.zeros(H * W, bool)
+    kern.resolve(out, img, merged, surf, mask, sums.hit, sums.acc, sums.near, np.zeros((3, 0), np.float32),
+                 gain_add, W)
+    got = ps.over(p, surf, surf, img, tp, W, H)
+    assert np.array_equal(got[0], out) and np.array_equal(got[2], mask)
+    assert np.array_equal(got[1], merged, equal_nan=True)
+    assert mask.any() and not mask.all()
+
+
 @pytest.mark.parametrize("seed", [0, 1])
 def test_binned_boxes_are_the_footprints_clipped_to_the_image(seed):
     """particle_kernels._clipped_boxes (one vectorised pass for the binning) against the scalar

@@ -17,6 +17,8 @@ unchanged:
   (``particle_splat.splat``: bilinear specks, anti-aliased ellipses).
 - :func:`transfer` -- the background's gain and add at the covered pixels (``particle_light``).
 - :func:`resolve` -- ``out = (img gain + add) T + colour (1 - T)``, the mask and merged range.
+- :func:`splat_over` -- the three above in one pass for particles with their own colours (the
+  pipeline's case): each tile's sums composited while in L1, no per-pixel lists through memory.
 - :func:`exp32`, :func:`log32`, the Box-Muller sin/cos: polynomials (Cephes) that vectorise,
   where a libm call would not (numba here has no vector math library).
 
@@ -752,6 +754,28 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height):
 
 
 # ----------------------------------------------------------------------------- compositing
+@_inline_exp
+def _gain_add(xf, yf, r_p, r_bg, physical, c0, c1, c2, k0, k1, k2, v0, v1, v2, cam_depth, fx, sk, cx, fy, cy,
+              rz0, rz1, rz2):
+    """The background transfer's (gain, add) per channel (6 float32) at pixel (xf, yf) (px), the
+    particle's and the scene's range r_p, r_bg (m): :func:`transfer`'s law, scalars only (a helper
+    taking arrays costs reference counts per call)."""
+    finite = r_bg < np.inf
+    dr = r_bg - r_p if finite else _F0
+    t0 = exp32(-c0 * dr) if finite or not c0 > _F0 else _F0
+    t1 = exp32(-c1 * dr) if finite or not c1 > _F0 else _F0
+    t2 = exp32(-c2 * dr) if finite or not c2 > _F0 else _F0
+    if not physical:                          # the depth factors are 1: 3 exps instead of 9
+        return t0, t1, t2, (_F1 - t0) * v0, (_F1 - t1) * v1, (_F1 - t2) * v2
+    y = (yf - cy) / fy
+    x = (xf - cx - sk * y) / fx
+    dz = (x * rz0 + y * rz1 + rz2) / np.sqrt(x * x + y * y + _F1)
+    dp = max(cam_depth - r_p * dz, _F0)
+    ddep = max(cam_depth - (r_bg if finite else r_p) * dz, _F0) - dp
+    return (t0 * exp32(-k0 * ddep), t1 * exp32(-k1 * ddep), t2 * exp32(-k2 * ddep),
+            (_F1 - t0) * exp32(k0 * dp) * v0, (_F1 - t1) * exp32(k1 * dp) * v1, (_F1 - t2) * exp32(k2 * dp) * v2)
+
+
 @nb.njit(cache=True, nogil=True, fastmath=_EXP, error_model="numpy")
 def transfer(hit, near, far, width, K, rz, c, kd, veil, cam_depth, physical):
     """The background transfer at the covered pixels (``particle_light.Transfer``): (6, n) float32
@@ -762,43 +786,46 @@ def transfer(hit, near, far, width, K, rz, c, kd, veil, cam_depth, physical):
     world z); article (``physical`` False): the depth factors are 1, so only the 3 exps of tr
     are evaluated (5x faster; exp32(0) = 1 exactly, so the bytes are the same). hit (n,) int64
     flat pixels, near, far (n,) float32 the particle's and the scene's range there (m): no
-    gather, so that the loop is vectorised (with one it was 10x slower)."""
+    gather, so that the loop is vectorised (with one it was 10x slower). One loop per mode, each
+    with the mode a constant (:func:`_gain_add`): no branch in the loop."""
     n = hit.size
     out = np.empty((6, n), np.float32)
-    c0, c1, c2, k0, k1, k2 = c[0], c[1], c[2], kd[0], kd[1], kd[2]
-    v0, v1, v2 = veil[0], veil[1], veil[2]
-    if not physical:                          # the depth factors are 1: 3 exps instead of 9
-        for j in range(n):
-            finite = far[j] < np.inf
-            dr = far[j] - near[j] if finite else _F0
-            t0 = exp32(-c0 * dr) if finite or not c0 > _F0 else _F0
-            t1 = exp32(-c1 * dr) if finite or not c1 > _F0 else _F0
-            t2 = exp32(-c2 * dr) if finite or not c2 > _F0 else _F0
-            out[0, j], out[1, j], out[2, j] = t0, t1, t2
-            out[3, j], out[4, j], out[5, j] = (_F1 - t0) * v0, (_F1 - t1) * v1, (_F1 - t2) * v2
-        return out
-    fx, sk, cx, fy, cy = K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
-    rz0, rz1, rz2 = rz[0], rz[1], rz[2]
-    inv_w = 1.0 / width
-    for j in range(n):
-        pix = hit[j]
-        r_p, r_bg = near[j], far[j]
-        finite = r_bg < np.inf
-        dr = r_bg - r_p if finite else _F0
-        row = np.floor((np.float64(pix) + 0.5) * inv_w)            # pix // width, vectorisable
-        y = (np.float32(row) - cy) / fy
-        x = (np.float32(np.float64(pix) - row * width) - cx - sk * y) / fx
-        dz = (x * rz0 + y * rz1 + rz2) / np.sqrt(x * x + y * y + _F1)
-        dp = max(cam_depth - r_p * dz, _F0)
-        ddep = max(cam_depth - (r_bg if finite else r_p) * dz, _F0) - dp
-        t0 = exp32(-c0 * dr) if finite or not c0 > _F0 else _F0
-        t1 = exp32(-c1 * dr) if finite or not c1 > _F0 else _F0
-        t2 = exp32(-c2 * dr) if finite or not c2 > _F0 else _F0
-        out[0, j], out[1, j], out[2, j] = t0 * exp32(-k0 * ddep), t1 * exp32(-k1 * ddep), t2 * exp32(-k2 * ddep)
-        out[3, j] = (_F1 - t0) * exp32(k0 * dp) * v0
-        out[4, j] = (_F1 - t1) * exp32(k1 * dp) * v1
-        out[5, j] = (_F1 - t2) * exp32(k2 * dp) * v2
+    tp = transfer_params(K, rz, c, kd, veil, cam_depth, physical)
+    if physical:
+        _transfer_loop(hit, near, far, width, tp, True, out)
+    else:
+        _transfer_loop(hit, near, far, width, tp, False, out)
     return out
+
+
+@_inline_exp
+def _transfer_loop(hit, near, far, width, tp, physical, out):
+    """:func:`transfer`'s loop, ``physical`` a constant where it is inlined."""
+    c0, c1, c2, k0, k1, k2, v0, v1, v2 = tp[1], tp[2], tp[3], tp[4], tp[5], tp[6], tp[7], tp[8], tp[9]
+    cam_depth, fx, sk, cx, fy, cy, rz0, rz1, rz2 = (tp[10], tp[11], tp[12], tp[13], tp[14], tp[15], tp[16],
+                                                    tp[17], tp[18])
+    inv_w = 1.0 / width
+    for j in range(hit.size):
+        pix = hit[j]
+        row = np.floor((np.float64(pix) + 0.5) * inv_w)            # pix // width, vectorisable
+        out[0, j], out[1, j], out[2, j], out[3, j], out[4, j], out[5, j] = _gain_add(
+            np.float32(np.float64(pix) - row * width), np.float32(row), near[j], far[j], physical, c0, c1, c2,
+            k0, k1, k2, v0, v1, v2, cam_depth, fx, sk, cx, fy, cy, rz0, rz1, rz2)
+
+
+@_inline_exp
+def transfer_params(K, rz, c, kd, veil, cam_depth, physical):
+    """:func:`transfer`'s inputs packed as (19,) float32: [physical, c (3), kd (3), veil (3),
+    cam_depth, fx, skew, cx, fy, cy, rz (3)] (:data:`NO_TRANSFER`: gain 1, add 0)."""
+    tp = np.empty(19, np.float32)
+    tp[0] = _F1 if physical else _F0
+    for k in range(3):
+        tp[1 + k], tp[4 + k], tp[7 + k], tp[16 + k] = c[k], kd[k], veil[k], rz[k]
+    tp[10], tp[11], tp[12], tp[13], tp[14], tp[15] = cam_depth, K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
+    return tp
+
+
+NO_TRANSFER = np.zeros(19, np.float32)   # article, c = 0, veil = 0: gain exp(0) = 1, add 0 exactly
 
 
 @_inline
@@ -858,3 +885,89 @@ def resolve(out, img, merged, rng, mask, hit, acc, near, colour, gain_add, width
         merged[pix] = near[j]
     _copy(out, img, done * width * 3, out.size)
     _copy(merged, rng, done * width, merged.size)
+
+
+# ----------------------------------------------------------------------------- splat over, fused
+@_inline_exp
+def _compact_transfer(tx0, ty0, n, ct, cnear, cfar, tp, physical, cga):
+    """:func:`_gain_add` at a tile's n touched pixels (tile pixel ct, ranges cnear, cfar) into cga
+    (6, n): compact inputs, one array written, ``physical`` a constant where it is inlined: the
+    loop is vectorised."""
+    c0, c1, c2, k0, k1, k2, v0, v1, v2 = tp[1], tp[2], tp[3], tp[4], tp[5], tp[6], tp[7], tp[8], tp[9]
+    cam_depth, fx, sk, cx, fy, cy, rz0, rz1, rz2 = (tp[10], tp[11], tp[12], tp[13], tp[14], tp[15], tp[16],
+                                                    tp[17], tp[18])
+    for q in range(n):
+        t = ct[q]
+        cga[0, q], cga[1, q], cga[2, q], cga[3, q], cga[4, q], cga[5, q] = _gain_add(
+            np.float32(tx0 + t % np.int32(TILE_PX)), np.float32(ty0 + t // np.int32(TILE_PX)), cnear[q], cfar[q],
+            physical, c0, c1, c2, k0, k1, k2, v0, v1, v2, cam_depth, fx, sk, cx, fy, cy, rz0, rz1, rz2)
+
+
+@_exp_vec
+def _tile_over(tx0, ty0, n, touched, acc, near, surf, img, out, merged, mask, tp, width, ct, cnear, cfar, cga):
+    """A tile's n touched pixels (``touched``, sums acc (TILE_PX^2 5,) = [T, w, w c], near) over
+    the background img at the same pixels of out (which holds img already): :func:`resolve`'s law
+    with :func:`transfer`'s gain and add (tp, :func:`transfer_params`), the mask and the merged
+    range; the tile's sums reset. The ranges are gathered into compact buffers (ct, cnear, cfar
+    (TILE_PX^2,)), the transfer evaluated on them in one vectorised loop (cga (6, TILE_PX^2))."""
+    for q in range(n):
+        t = touched[q]
+        ct[q] = np.int32(t)
+        cnear[q] = near[t]
+        cfar[q] = surf[_U((ty0 + np.int64(t // _U(TILE_PX))) * width + tx0 + np.int64(t % _U(TILE_PX)))]
+    if tp[0] > _F0:
+        _compact_transfer(tx0, ty0, n, ct, cnear, cfar, tp, True, cga)
+    else:
+        _compact_transfer(tx0, ty0, n, ct, cnear, cfar, tp, False, cga)
+    for q in range(n):
+        t = touched[q]
+        pix = _U((ty0 + np.int64(t // _U(TILE_PX))) * width + tx0 + np.int64(t % _U(TILE_PX)))
+        o = t * _U(5)
+        keep = acc[o]
+        cov = _F1 - keep
+        w = acc[o + _U(1)]
+        inv = _F1 / w if w > _F0 else _F1
+        p0, p1, p2 = pix * _U(3), pix * _U(3) + _U(1), pix * _U(3) + _U(2)
+        out[p0] = (img[p0] * cga[0, q] + cga[3, q]) * keep + acc[o + _U(2)] * inv * cov
+        out[p1] = (img[p1] * cga[1, q] + cga[4, q]) * keep + acc[o + _U(3)] * inv * cov
+        out[p2] = (img[p2] * cga[2, q] + cga[5, q]) * keep + acc[o + _U(4)] * inv * cov
+        mask[pix] = cov >= _HALF
+        merged[pix] = near[t]
+        acc[o], acc[o + _U(1)], acc[o + _U(2)], acc[o + _U(3)], acc[o + _U(4)] = _F1, _F0, _F0, _F0, _F0
+        near[t] = np.inf
+
+
+@_jit
+def splat_over(u, v, a, b, c, s, d, op, colour, surf, scene, img, out, merged, mask, tp, width, height):
+    """:func:`splat`, :func:`transfer` and :func:`resolve` in one pass, tile by tile, for particles
+    with their own colours (colour (M, 3): the covered part takes the weighted mean colour).
+    Inputs as :func:`splat`'s and :func:`resolve`'s (scene: the merged range's background, img,
+    out (H*W*3,), merged (H*W,), mask (H*W,) bool, all zero); tp: :func:`transfer_params` or
+    :data:`NO_TRANSFER`. Each band of TILE_PX image rows is copied to out and merged, then each of
+    its tiles' sums is composited over it while still in L1 (:func:`_tile_over`): no per-pixel
+    lists through memory. Same bytes as the three kernels in sequence (tests/test_particle_splat.py)."""
+    start, members, samples = _bins(u, v, a, b, c, s, op, width, height)
+    acc = np.zeros(TILE_PX * TILE_PX * 5, np.float32)        # per tile pixel t: [T, w, w c] at 5 t
+    for t in range(TILE_PX * TILE_PX):
+        acc[t * 5] = _F1
+    near = np.full(TILE_PX * TILE_PX, np.inf, np.float32)
+    touched = np.empty(TILE_PX * TILE_PX + 1, np.uint64)      # + 1: written before the count
+    buf = np.empty(2 * LIST, np.float32)                     # an ellipse's covered samples
+    ct = np.empty(TILE_PX * TILE_PX, np.int32)
+    cnear, cfar = np.empty(TILE_PX * TILE_PX, np.float32), np.empty(TILE_PX * TILE_PX, np.float32)
+    cga = np.empty((6, TILE_PX * TILE_PX), np.float32)
+    col = colour.reshape(-1)
+    tnear = _tile_near(surf, width, height)
+    tiles_x, tiles_y = (width + TILE_PX - 1) // TILE_PX, (height + TILE_PX - 1) // TILE_PX
+    for ty in range(tiles_y):
+        ty0, ty1 = ty * TILE_PX, min(ty * TILE_PX + TILE_PX, height)
+        _copy(out, img, ty0 * width * 3, ty1 * width * 3)    # the band, just before its pixels
+        _copy(merged, scene, ty0 * width, ty1 * width)
+        for tx in range(tiles_x):
+            tile = ty * tiles_x + tx
+            if start[tile + 1] == start[tile]:
+                continue
+            tx0 = tx * TILE_PX
+            n = _tile_sums(tx0, ty0, min(tx0 + TILE_PX, width), ty1, members, start[tile], start[tile + 1], u, v, a,
+                           b, c, s, d, op, col, 3, surf, tnear[tile], width, acc, near, touched, buf)
+            _tile_over(tx0, ty0, n, touched, acc, near, surf, img, out, merged, mask, tp, width, ct, cnear, cfar, cga)

@@ -25,7 +25,7 @@ from blendgen.physics import particle_kernels as kern
 from blendgen.physics.particle_kernels import ALPHA_MAX, GROUP_MAX_PX, NORMALISE_BELOW_PX, SPLAT_BELOW_PX
 
 __all__ = ["ALPHA_MAX", "GROUP_MAX_PX", "NORMALISE_BELOW_PX", "SPLAT_BELOW_PX", "Particles", "Sums",
-           "boxes", "splat"]
+           "boxes", "over", "splat"]
 
 
 @dataclass
@@ -81,6 +81,27 @@ def splat(p: Particles, surf: np.ndarray, width: int, height: int) -> Sums:
     hit, acc, near, far = kern.splat(f32(p.u), f32(p.v), f32(p.a), f32(p.b), f32(p.c), f32(p.s), f32(p.d),
                                 f32(p.op), _records(p.colour), f32(surf), int(width), int(height))
     return Sums(hit, acc, near, far)
+
+
+def over(p: Particles, surf: np.ndarray, scene: np.ndarray, img: np.ndarray, transfer: np.ndarray, width: int,
+         height: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`splat`, the background transfer and the compositing in one compiled pass
+    (``particle_kernels.splat_over``), for particles with their own RGB colours (p.colour (M, 3)):
+    the covered part of a pixel takes their weighted mean colour.
+
+    surf (H*W,) the scene range the depth test uses, scene (H*W,) what the merged range shows
+    where no particle covers, img (H*W*3,) float32 the background; transfer: the packed gain and
+    add (``particle_kernels.transfer_params``, ``NO_TRANSFER``). Returns (out (H*W*3,), merged
+    (H*W,) float32, mask (H*W,) bool = coverage >= 0.5). The same bytes as :func:`splat`, then
+    ``particle_kernels.transfer`` and ``resolve``, without their per-pixel lists."""
+    if np.shape(p.colour)[1:] != (3,):
+        raise ValueError(f"over needs one RGB colour per particle (M, 3), got {np.shape(p.colour)}")
+    f32 = lambda x: np.ascontiguousarray(x, np.float32)
+    out, merged, mask = np.empty(height * width * 3, np.float32), np.empty(height * width, np.float32), \
+        np.zeros(height * width, bool)
+    kern.splat_over(f32(p.u), f32(p.v), f32(p.a), f32(p.b), f32(p.c), f32(p.s), f32(p.d), f32(p.op), _records(p.colour),
+                    f32(surf), f32(scene), f32(img), out, merged, mask, f32(transfer), int(width), int(height))
+    return out, merged, mask
 
 
 def _records(colour: np.ndarray) -> np.ndarray:

@@ -433,7 +433,9 @@ def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: Parti
     particle's range r_p, the pixel shows ``T L_bg + (1 - T) L_p`` with each layer seen through
     water at its own range. Without it a defocused disc's faint rim shows the background at the
     particle's range: a bright or dark ring. The compositing, mask and merged range are one
-    compiled pass over the covered pixels (particle_kernels.resolve).
+    compiled pass over the covered pixels (particle_kernels.resolve); with ``shade`` and no
+    ``water`` (the pipeline's case) the splat, transfer and compositing are one pass, tile by
+    tile (particle_splat.over: the same bytes, no per-pixel lists through memory).
     """
     img = np.asarray(image_linear, np.float32)
     h, w = img.shape[:2]
@@ -447,6 +449,11 @@ def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: Parti
     surf = np.ascontiguousarray(range_m, np.float32).reshape(-1)     # NaN = no surface hit = background
     colours = (np.asarray(shade(p), np.float32).reshape(-1, 3) if shade is not None
                else np.zeros((p.u.size, 0), np.float32))
+    scene = surf if merged_range else np.full(h * w, np.inf, np.float32)
+    if shade is not None and water_fn is None:              # the pipeline's case: one fused pass
+        tp = background.packed() if background is not None else kern.NO_TRANSFER
+        out, merged, mask = psplat.over(_splat_input(p, colours), surf, scene, img.reshape(-1), tp, w, h)
+        return out.reshape(h, w, 3), mask.reshape(h, w), merged.reshape(h, w)
     sums = psplat.splat(_splat_input(p, colours), surf, w, h)
     hit = sums.hit
     colour_px = col[:, None] if shade is None else np.zeros((3, 0), np.float32)   # (3, 0): w c / w
@@ -457,7 +464,6 @@ def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: Parti
         colour_px = np.ascontiguousarray(
             np.asarray(water_fn(np.ascontiguousarray(c.T), sums.near), np.float32).T)
     out, merged, mask = np.empty_like(img), np.empty(h * w, np.float32), np.zeros(h * w, bool)
-    scene = surf if merged_range else np.full(h * w, np.inf, np.float32)
     gain_add = background.gain_add(hit, sums.near, sums.far, w) if background is not None and hit.size \
         else np.zeros((6, 0), np.float32)
     kern.resolve(out.reshape(-1), np.ascontiguousarray(img).reshape(-1), merged, scene, mask, hit, sums.acc,

@@ -149,6 +149,11 @@ class Transfer:
         return kern.transfer(hit, near, far, int(width), self.K, self.rz, self.c, self.kd, self.veil,
                              np.float32(self.cam_depth_m), self.physical)
 
+    def packed(self) -> np.ndarray:
+        """(19,) float32: the transfer packed for the fused pass (particle_kernels.transfer_params)."""
+        return kern.transfer_params(self.K, self.rz, self.c, self.kd, self.veil, np.float32(self.cam_depth_m),
+                                    self.physical)
+
 
 def background_transfer(water, veil_rgb, physical: bool, K=None, T_world_cam=None,
                         cam_depth_m: float = 0.0) -> Transfer:
