@@ -1,8 +1,12 @@
 """Per-stage CPU of the fast particle path on `bench particles`' scene (docs/particles.md, Speed):
-wraps the stages of compose.add_particles (projection with the blur, shading, splat, background
-transfer, compositing with the mask and merged range) in timers and prints their medians over 30 frames, after one warm-up.
+wraps the stages of compose.add_particles (projection with the blur, shading, and the fused splat,
+background transfer and compositing with the mask and merged range) in timers and prints their
+medians over 30 frames, after one warm-up; the rest of the total is Python around them.
 
-    python docs/evidence/particle_stages.py [power_law|uniform] [N]"""
+    python docs/evidence/particle_stages.py [power_law|uniform|paper] [N]
+
+``paper``: the paper config's row of ``bench particles`` (uniform 5-20 mm, the article's image
+formation, no lamp)."""
 import collections
 import sys
 import time
@@ -32,18 +36,19 @@ def timed_factory(factory, label):
     return lambda *a, **k: timed(factory(*a, **k), label)
 
 
-def main(size_dist: str = "power_law", n: int = 60000) -> None:
+def main(config: str = "power_law", n: int = 60000) -> None:
     P.project_particles = timed(P.project_particles, "projection + blur")
-    ps.splat = timed(ps.splat, "splat")
-    P.kern.resolve = timed(P.kern.resolve, "compositing")
-    pl.Transfer.gain_add = timed(pl.Transfer.gain_add, "transfer")
+    ps.over = timed(ps.over, "splat + transfer + compositing (fused)")
     compose._particle_background = timed(compose._particle_background, "background setup")
+    compose.add_particles = timed(compose.add_particles, "total add_particles")
     for name, label in (("shader", "shading"),):
         setattr(pl, name, timed_factory(getattr(pl, name), label))
-    r = pb.run(n, frames=30, size_dist=size_dist)
+    paper = config == "paper"
+    r = pb.run(n, frames=30, size_dist="uniform" if paper else config, lamp=not paper,
+               formation="article" if paper else "physical")
     print(pb.format_row(r))
     for label, t in TIMES.items():
-        print(f"  {label:18s} {np.median(t[1:]) * 1e3:6.2f} ms CPU")
+        print(f"  {label:40s} {np.median(t[1:]) * 1e3:6.2f} ms CPU")
 
 
 if __name__ == "__main__":
