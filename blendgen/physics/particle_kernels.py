@@ -616,7 +616,8 @@ REC = 8                              # floats per particle record: u, v, a, b, c
 def _particle_records(u, v, a, b, c, s, d, op):
     """(M REC,) float32: particle i's u, v, a, b, c, s, d, op at [REC i, REC i + REC) (two to a
     cache line). The tile loop reads its members, scattered over the particles, from one line
-    each (one prefetch) instead of eight arrays: 0.1-0.25 ms less per 640x480 frame."""
+    each (one prefetch) instead of eight arrays: 0.1-0.25 ms less on the captured 640x480 bench
+    frames (docs/particles.md, Session 16)."""
     rec = np.empty(u.size * REC, np.float32)
     for i in range(u.size):
         r = i * REC
@@ -629,7 +630,8 @@ def _particle_records(u, v, a, b, c, s, d, op):
 def _tile_sums(tx0, ty0, tx1, ty1, members, m0, m1, rec, colour, n_col, surf, zmin, width, acc,
                near, touched, buf):
     """The depth-tested samples of the tile [tx0, tx1) x [ty0, ty1)'s particles ``members[m0:m1]``
-    (their data in ``rec``, :func:`_particle_records`) into its sums acc (TILE_PX^2 (2 + n_col),) flat and near (TILE_PX^2,); returns the count of
+    (their data in ``rec``, :func:`_particle_records`; colour (M n_col,)) into its sums acc
+    (TILE_PX^2 (2 + n_col),) flat and near (TILE_PX^2,); returns the count of
     touched tile pixels, listed in ``touched`` in first-touch order (:func:`splat`'s law). Specks:
     2 x 2 pixels, bilinear; ellipses: anti-aliased (:func:`_coverage`), covered samples listed first
     (:func:`_ellipse_samples`), small ones renormalised over their box. zmin: the tile's nearest
@@ -958,8 +960,9 @@ def _tile_over(tx0, ty0, n, touched, acc, near, surf, img, out, merged, mask, tp
 def splat_over(u, v, a, b, c, s, d, op, colour, surf, scene, img, out, merged, mask, tp, width, height):
     """:func:`splat`, :func:`transfer` and :func:`resolve` in one pass, tile by tile, for particles
     with their own colours (colour (M, 3): the covered part takes the weighted mean colour).
-    Inputs as :func:`splat`'s and :func:`resolve`'s (scene: the merged range's background, img,
-    out (H*W*3,), merged (H*W,), mask (H*W,) bool, all zero); tp: :func:`transfer_params` or
+    Inputs as :func:`splat`'s and :func:`resolve`'s (scene (H*W,): the merged range where no
+    particle covers; img, out (H*W*3,); merged (H*W,); mask (H*W,) bool, False on entry: only
+    covered pixels are set); tp: :func:`transfer_params` or
     :data:`NO_TRANSFER`. Each band of TILE_PX image rows is copied to out and merged, then each of
     its tiles' sums is composited over it while still in L1 (:func:`_tile_over`): no per-pixel
     lists through memory. Same bytes as the three kernels in sequence (tests/test_particle_splat.py)."""
