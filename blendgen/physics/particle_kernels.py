@@ -710,6 +710,18 @@ def _tile_sums(tx0, ty0, tx1, ty1, members, m0, m1, rec, colour, n_col, surf, zm
 
 
 @_jit
+def _tile_buffers(n_acc):
+    """A tile's empty sums for :func:`_tile_sums`: acc (TILE_PX^2 n_acc,) = [T = 1, w = 0, w c = 0..]
+    per tile pixel, near (TILE_PX^2,) = inf, touched (TILE_PX^2 + 1,) uint64 (+ 1: written before
+    the count) and buf (2 LIST,) float32 for an ellipse's covered samples."""
+    acc = np.zeros(TILE_PX * TILE_PX * n_acc, np.float32)
+    for t in range(TILE_PX * TILE_PX):
+        acc[t * n_acc] = _F1
+    return (acc, np.full(TILE_PX * TILE_PX, np.inf, np.float32), np.empty(TILE_PX * TILE_PX + 1, np.uint64),
+            np.empty(2 * LIST, np.float32))
+
+
+@_jit
 def splat(u, v, a, b, c, s, d, op, colour, surf, width, height):
     """All particles' depth-tested coverage in per-pixel sums (particle_splat module doc).
 
@@ -735,12 +747,7 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height):
     out = np.empty((n_acc, cap), np.float32)
     rng = np.empty(cap, np.float32)
     far = np.empty(cap, np.float32)
-    acc = np.zeros(TILE_PX * TILE_PX * n_acc, np.float32)    # per tile pixel t: [T, w, w c..] at t n_acc
-    for t in range(TILE_PX * TILE_PX):
-        acc[t * n_acc] = _F1
-    near = np.full(TILE_PX * TILE_PX, np.inf, np.float32)
-    touched = np.empty(TILE_PX * TILE_PX + 1, np.uint64)      # + 1: written before the count
-    buf = np.empty(2 * LIST, np.float32)                     # an ellipse's covered samples
+    acc, near, touched, buf = _tile_buffers(n_acc)
     col = colour.reshape(-1)
     rec = _particle_records(u, v, a, b, c, s, d, op)
     tnear = _tile_near(surf, width, height)
@@ -820,9 +827,7 @@ def transfer(hit, near, far, width, K, rz, c, kd, veil, cam_depth, physical):
 @_inline_exp
 def _transfer_loop(hit, near, far, width, tp, physical, out):
     """:func:`transfer`'s loop, ``physical`` a constant where it is inlined."""
-    c0, c1, c2, k0, k1, k2, v0, v1, v2 = tp[1], tp[2], tp[3], tp[4], tp[5], tp[6], tp[7], tp[8], tp[9]
-    cam_depth, fx, sk, cx, fy, cy, rz0, rz1, rz2 = (tp[10], tp[11], tp[12], tp[13], tp[14], tp[15], tp[16],
-                                                    tp[17], tp[18])
+    c0, c1, c2, k0, k1, k2, v0, v1, v2, cam_depth, fx, sk, cx, fy, cy, rz0, rz1, rz2 = _transfer_consts(tp)
     inv_w = 1.0 / width
     for j in range(hit.size):
         pix = hit[j]
@@ -842,6 +847,14 @@ def transfer_params(K, rz, c, kd, veil, cam_depth, physical):
         tp[1 + k], tp[4 + k], tp[7 + k], tp[16 + k] = c[k], kd[k], veil[k], rz[k]
     tp[10], tp[11], tp[12], tp[13], tp[14], tp[15] = cam_depth, K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
     return tp
+
+
+@_inline_exp
+def _transfer_consts(tp):
+    """The 18 scalars of a packed transfer (:func:`transfer_params`) after its mode flag: c (3), kd
+    (3), veil (3), cam_depth, fx, skew, cx, fy, cy, rz (3)."""
+    return (tp[1], tp[2], tp[3], tp[4], tp[5], tp[6], tp[7], tp[8], tp[9], tp[10], tp[11], tp[12], tp[13],
+            tp[14], tp[15], tp[16], tp[17], tp[18])
 
 
 NO_TRANSFER = np.zeros(19, np.float32)   # article, c = 0, veil = 0: gain exp(0) = 1, add 0 exactly
@@ -912,9 +925,7 @@ def _compact_transfer(tx0, ty0, n, ct, cnear, cfar, tp, physical, cga):
     """:func:`_gain_add` at a tile's n touched pixels (tile pixel ct, ranges cnear, cfar) into cga
     (6, n): compact inputs, one array written, ``physical`` a constant where it is inlined: the
     loop is vectorised."""
-    c0, c1, c2, k0, k1, k2, v0, v1, v2 = tp[1], tp[2], tp[3], tp[4], tp[5], tp[6], tp[7], tp[8], tp[9]
-    cam_depth, fx, sk, cx, fy, cy, rz0, rz1, rz2 = (tp[10], tp[11], tp[12], tp[13], tp[14], tp[15], tp[16],
-                                                    tp[17], tp[18])
+    c0, c1, c2, k0, k1, k2, v0, v1, v2, cam_depth, fx, sk, cx, fy, cy, rz0, rz1, rz2 = _transfer_consts(tp)
     for q in range(n):
         t = ct[q]
         cga[0, q], cga[1, q], cga[2, q], cga[3, q], cga[4, q], cga[5, q] = _gain_add(
@@ -967,12 +978,7 @@ def splat_over(u, v, a, b, c, s, d, op, colour, surf, scene, img, out, merged, m
     its tiles' sums is composited over it while still in L1 (:func:`_tile_over`): no per-pixel
     lists through memory. Same bytes as the three kernels in sequence (tests/test_particle_splat.py)."""
     start, members, samples = _bins(u, v, a, b, c, s, op, width, height)
-    acc = np.zeros(TILE_PX * TILE_PX * 5, np.float32)        # per tile pixel t: [T, w, w c] at 5 t
-    for t in range(TILE_PX * TILE_PX):
-        acc[t * 5] = _F1
-    near = np.full(TILE_PX * TILE_PX, np.inf, np.float32)
-    touched = np.empty(TILE_PX * TILE_PX + 1, np.uint64)      # + 1: written before the count
-    buf = np.empty(2 * LIST, np.float32)                     # an ellipse's covered samples
+    acc, near, touched, buf = _tile_buffers(5)
     ct = np.empty(TILE_PX * TILE_PX, np.int32)
     cnear, cfar = np.empty(TILE_PX * TILE_PX, np.float32), np.empty(TILE_PX * TILE_PX, np.float32)
     cga = np.empty((6, TILE_PX * TILE_PX), np.float32)
