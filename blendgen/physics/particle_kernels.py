@@ -502,6 +502,13 @@ _U = np.uint64                       # indices read from data, cast: no wraparou
 
 
 @_inline
+def _image_pixel(t, tx0, ty0, width):
+    """The flat image pixel (uint64) of tile pixel t (uint64, (y - ty0) TILE_PX + x - tx0) of the
+    tile whose corner is (tx0, ty0)."""
+    return _U((ty0 + np.int64(t // _U(TILE_PX))) * width + tx0 + np.int64(t % _U(TILE_PX)))
+
+
+@_inline
 def _speck_box(u, v):
     """A speck's 2 x 2 pixels: (x0, y0) of its top-left one and the bilinear fractions (fx, fy)."""
     x0f, y0f = np.floor(u), np.floor(v)          # np's floor is inlined; math.floor cost 3 ns each
@@ -663,8 +670,7 @@ def _tile_sums(tx0, ty0, tx1, ty1, members, m0, m1, rec, colour, n_col, surf, zm
             for q in range(n_cov):
                 alpha = min(buf[_U(q)] * scale, _F1) * opi
                 t = _U(int(buf[_U(LIST + q)]))
-                if not alpha > _F0 or (not di < zmin and surf[_U((ty0 + int(t // _U(TILE_PX))) * width + tx0
-                                                              + int(t % _U(TILE_PX)))] <= di):
+                if not alpha > _F0 or (not di < zmin and surf[_image_pixel(t, tx0, ty0, width)] <= di):
                     continue                                            # as below
                 touched[_U(n_touched)] = t
                 n_touched += near[t] == np.inf
@@ -762,7 +768,7 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height):
                                acc, near, touched, buf)
         for q in range(n_touched):                            # write out, reset
             t = touched[q]
-            pix = (ty0 + np.int64(t // _U(TILE_PX))) * width + tx0 + np.int64(t % _U(TILE_PX))
+            pix = _image_pixel(t, tx0, ty0, width)
             hit[n], rng[n], far[n] = pix, near[t], surf[_U(pix)]
             o = t * _U(n_acc)
             if n_acc == 5:                                    # RGB, unrolled
@@ -944,14 +950,14 @@ def _tile_over(tx0, ty0, n, touched, acc, near, surf, img, out, merged, mask, tp
         t = touched[q]
         ct[q] = np.int32(t)
         cnear[q] = near[t]
-        cfar[q] = surf[_U((ty0 + np.int64(t // _U(TILE_PX))) * width + tx0 + np.int64(t % _U(TILE_PX)))]
+        cfar[q] = surf[_image_pixel(t, tx0, ty0, width)]
     if tp[0] > _F0:
         _compact_transfer(tx0, ty0, n, ct, cnear, cfar, tp, True, cga)
     else:
         _compact_transfer(tx0, ty0, n, ct, cnear, cfar, tp, False, cga)
     for q in range(n):
         t = touched[q]
-        pix = _U((ty0 + np.int64(t // _U(TILE_PX))) * width + tx0 + np.int64(t % _U(TILE_PX)))
+        pix = _image_pixel(t, tx0, ty0, width)
         o = t * _U(5)
         keep = acc[o]
         cov = _F1 - keep
