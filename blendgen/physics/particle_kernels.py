@@ -398,43 +398,67 @@ def blur(a, b, c, s, iso, du, dv):
     return out
 
 
-@_jit_vec
-def _blurred_pass(xyz, radii, R, off, K, z_near, M, o, scale, coc_k, focus_m, width, height):
-    """:func:`project_blurred` for every particle, without the compaction (vectorised): (12, N)
-    float32 rows u, v, a', b', c', s', d, x, y, z, opacity, keep (0 / 1)."""
-    n = xyz.shape[1]
-    out = np.empty((12, n), np.float32)
+@_inline_vec
+def _blurred_one(px, py, pz, r, Rs, fx, sk, cx, fy, cy, fb, z_near, Ms, scale, coc_k, focus_m, w1, h1):
+    """One particle of :func:`project_blurred` (world point px, py, pz, radius r; the constants of
+    :func:`_blur_consts`): its blurred ellipse u, v, a', b', c', s' (px), surface range d (m),
+    camera-frame x, y, z (m), opacity, and keep (whether the blurred footprint's pixel box meets
+    the image)."""
+    m00, m01, m02, m10, m11, m12, m20, m21, m22, o0, o1, o2 = Ms
+    x, y, z, u, v, a, b, sec = _camera(px, py, pz, r, Rs, fx, sk, cx, fy, cy, fb, z_near)
+    c, s = _radial(u - cx, v - cy)
+    x0 = m00 * x + m01 * y + m02 * z + o0                         # where it was, seen from then
+    y0 = m10 * x + m11 * y + m12 * z + o1
+    z0 = m20 * x + m21 * y + m22 * z + o2
+    iz = _F1 / max(z0, np.float32(1e-3))
+    ahead = z0 > np.float32(1e-3)
+    du = (u - (fx * x0 * iz + sk * y0 * iz + cx)) * scale if ahead else _F0
+    dv = (v - (fy * y0 * iz + cy)) * scale if ahead else _F0
+    dz = z - focus_m
+    coc = coc_k * max(dz, -dz) / max(z, z_near)                   # thin-lens blur diameter (px)
+    a2, b2, c2, s2, op = _moments(a, b, c, s, np.float32(0.25) * coc * coc, du, dv)
+    ex, ey = _half_extents(a2, b2, c2, s2)                        # box(): the ellipse's pixel box
+    speck = a2 < np.float32(SPLAT_BELOW_PX)                       # _footprint: the 2 x 2 pixels
+    lo_x = np.floor(u) if speck else np.ceil(u - ex)
+    lo_y = np.floor(v) if speck else np.ceil(v - ey)
+    hi_x = np.floor(u) + _F1 if speck else np.floor(u + ex)
+    hi_y = np.floor(v) + _F1 if speck else np.floor(v + ey)
+    keep = (z > z_near) & (z * sec > r) & (hi_x >= _F0) & (lo_x <= w1) & (hi_y >= _F0) & (lo_y <= h1)
+    return u, v, a2, b2, c2, s2, z * sec - r, x, y, z, op, keep
+
+
+@_inline_vec
+def _blur_consts(R, off, K, M, o, width, height):
+    """The scalars :func:`_blurred_one` takes: fx, skew, cx, fy, cy, the mean focal length (px),
+    the rotation and offset (12), the streak's M and o (12), and the image's last column and row."""
     fx, sk, cx, fy, cy = K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
-    fb = _HALF * (fx + fy)
     Rs = (R[0, 0], R[0, 1], R[0, 2], R[1, 0], R[1, 1], R[1, 2], R[2, 0], R[2, 1], R[2, 2], off[0], off[1], off[2])
-    m00, m01, m02, m10, m11, m12 = M[0, 0], M[0, 1], M[0, 2], M[1, 0], M[1, 1], M[1, 2]
-    m20, m21, m22, o0, o1, o2 = M[2, 0], M[2, 1], M[2, 2], o[0], o[1], o[2]
-    w1, h1 = np.float32(width - 1), np.float32(height - 1)
-    for i in range(n):
-        r = radii[i]
-        x, y, z, u, v, a, b, sec = _camera(xyz[0, i], xyz[1, i], xyz[2, i], r, Rs, fx, sk, cx, fy, cy, fb, z_near)
-        c, s = _radial(u - cx, v - cy)
-        x0 = m00 * x + m01 * y + m02 * z + o0                         # where it was, seen from then
-        y0 = m10 * x + m11 * y + m12 * z + o1
-        z0 = m20 * x + m21 * y + m22 * z + o2
-        iz = _F1 / max(z0, np.float32(1e-3))
-        ahead = z0 > np.float32(1e-3)
-        du = (u - (fx * x0 * iz + sk * y0 * iz + cx)) * scale if ahead else _F0
-        dv = (v - (fy * y0 * iz + cy)) * scale if ahead else _F0
-        dz = z - focus_m
-        coc = coc_k * max(dz, -dz) / max(z, z_near)                   # thin-lens blur diameter (px)
-        a2, b2, c2, s2, op = _moments(a, b, c, s, np.float32(0.25) * coc * coc, du, dv)
-        ex, ey = _half_extents(a2, b2, c2, s2)                        # box(): the ellipse's pixel box
-        speck = a2 < np.float32(SPLAT_BELOW_PX)                       # _footprint: the 2 x 2 pixels
-        lo_x = np.floor(u) if speck else np.ceil(u - ex)
-        lo_y = np.floor(v) if speck else np.ceil(v - ey)
-        hi_x = np.floor(u) + _F1 if speck else np.floor(u + ex)
-        hi_y = np.floor(v) + _F1 if speck else np.floor(v + ey)
-        keep = (z > z_near) & (z * sec > r) & (hi_x >= _F0) & (lo_x <= w1) & (hi_y >= _F0) & (lo_y <= h1)
+    Ms = (M[0, 0], M[0, 1], M[0, 2], M[1, 0], M[1, 1], M[1, 2], M[2, 0], M[2, 1], M[2, 2], o[0], o[1], o[2])
+    return fx, sk, cx, fy, cy, _HALF * (fx + fy), Rs, Ms, np.float32(width - 1), np.float32(height - 1)
+
+
+@_jit_vec
+def _blurred_keep(xyz, radii, R, off, K, z_near, M, o, scale, coc_k, focus_m, width, height, keep):
+    """keep (N,) float32: 1 where :func:`project_blurred` keeps the particle, else 0. Branch-free,
+    one array written: vectorised (16 float32 lanes here)."""
+    fx, sk, cx, fy, cy, fb, Rs, Ms, w1, h1 = _blur_consts(R, off, K, M, o, width, height)
+    for i in range(xyz.shape[1]):
+        k = _blurred_one(xyz[0, i], xyz[1, i], xyz[2, i], radii[i], Rs, fx, sk, cx, fy, cy, fb, z_near, Ms,
+                         scale, coc_k, focus_m, w1, h1)[11]
+        keep[i] = _F1 if k else _F0
+
+
+@_jit_vec
+def _blurred_rows(pts, R, off, K, z_near, M, o, scale, coc_k, focus_m, width, height, out):
+    """out (11, m) float32 rows u, v, a', b', c', s', d, x, y, z, opacity of the particles pts (4, m)
+    = x, y, z, r (vectorised)."""
+    fx, sk, cx, fy, cy, fb, Rs, Ms, w1, h1 = _blur_consts(R, off, K, M, o, width, height)
+    for i in range(pts.shape[1]):
+        u, v, a2, b2, c2, s2, d, x, y, z, op, k = _blurred_one(pts[0, i], pts[1, i], pts[2, i], pts[3, i], Rs, fx,
+                                                              sk, cx, fy, cy, fb, z_near, Ms, scale, coc_k, focus_m,
+                                                              w1, h1)
         out[0, i], out[1, i], out[2, i], out[3, i], out[4, i], out[5, i] = u, v, a2, b2, c2, s2
-        out[6, i], out[7, i], out[8, i], out[9, i], out[10, i] = z * sec - r, x, y, z, op
-        out[11, i] = _F1 if keep else _F0
-    return out
+        out[6, i], out[7, i], out[8, i], out[9, i], out[10, i] = d, x, y, z, op
 
 
 @_jit
@@ -445,20 +469,28 @@ def project_blurred(xyz, radii, R, off, K, z_near, M, o, scale, coc_k, focus_m, 
     ``M pc + o`` (M (3, 3), o (3,) float32), projected by K, times ``scale`` = exposure / frame
     interval; defocus: thin-lens circle of confusion ``coc_k |z - focus_m| / z`` px (coc_k = 0:
     pinhole); footprints add second moments (:func:`_moments`). Returns (idx (m,) int64,
-    uv_ab_cs (6, m) float32 of the blurred ellipses, surf_range (m,), pc (3, m), opacity (m,))."""
-    rows = _blurred_pass(xyz, radii, R, off, K, z_near, M, o, scale, coc_k, focus_m, width, height)
-    n = rows.shape[1]
+    uv_ab_cs (6, m) float32 of the blurred ellipses, surf_range (m,), pc (3, m), opacity (m,)).
+
+    Three passes: the test for every particle (:func:`_blurred_keep`), the kept ones' points
+    gathered, and their rows computed again from them (:func:`_blurred_rows`; the same arithmetic,
+    so the same bytes). Writing all 11 rows of every particle, ~70 % of them out of view in the
+    bench pool, and then compacting them cost more: 0.47 -> 0.37 ms for 60000 (docs/particles.md,
+    Session 17)."""
+    n = xyz.shape[1]
+    keep = np.empty(n, np.float32)
+    _blurred_keep(xyz, radii, R, off, K, z_near, M, o, scale, coc_k, focus_m, width, height, keep)
     idx = np.empty(n, np.int64)
     m = 0
     for i in range(n):                   # branch-free: every index written, kept ones advance m
         idx[_U(m)] = i
-        m += rows[11, i] > _F0
+        m += keep[i] > _F0
     idx = idx[:m]
+    pts = np.empty((4, m), np.float32)
+    for j in range(m):
+        i = _U(idx[j])
+        pts[0, j], pts[1, j], pts[2, j], pts[3, j] = xyz[0, i], xyz[1, i], xyz[2, i], radii[i]
     kept = np.empty((11, m), np.float32)
-    for k in range(11):                  # row by row: sequential writes, ascending reads
-        row = rows[k]
-        for j in range(m):
-            kept[k, j] = row[_U(idx[j])]
+    _blurred_rows(pts, R, off, K, z_near, M, o, scale, coc_k, focus_m, width, height, kept)
     return idx, kept[:6], kept[6], kept[7:10], kept[10]
 
 
