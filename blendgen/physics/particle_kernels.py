@@ -971,38 +971,176 @@ def _compact_transfer(tx0, ty0, n, ct, cnear, cfar, tp, physical, cga):
             physical, c0, c1, c2, k0, k1, k2, v0, v1, v2, cam_depth, fx, sk, cx, fy, cy, rz0, rz1, rz2)
 
 
+# The fused pass keeps a tile's sums planar (T, w, w c, near: one plane each), so that an ellipse's
+# row of pixels is a row of consecutive floats in every plane and its update one vectorised loop
+# of LANES lanes. Lanes that do not count (outside the ellipse's box or the tile, alpha = 0) add
+# identities: T x 1, w + 0, near min inf -- the same bytes, and full-width loads and stores
+# (LLVM made masked stores of a select, which stalled the following loads).
+LANES = 16                           # an ellipse's row segment: 16 float32 lanes (one AVX-512 register)
+PAD = LANES                          # lanes before and after each plane's TILE_PX^2 pixels
+PLANE = TILE_PX * TILE_PX + 2 * PAD  # floats per plane
+_NEAR = 5                            # planes: T, w, w c0, w c1, w c2, near
+
+
+@_jit
+def _planar_buffers():
+    """A tile's empty planar sums (6 PLANE,) float32: T = 1, w = w c = 0, near = inf."""
+    acc = np.zeros(6 * PLANE, np.float32)
+    acc[:PLANE] = _F1
+    acc[_NEAR * PLANE:] = np.inf
+    return acc
+
+
+@_inline
+def _lanes_coverage(cov, co, x0, y, u, v, ca, sa, cb, sb, k0, k1, sx):
+    """cov[co + j] = the coverage (:func:`_coverage`) of pixel (x0 + j, y) for j < sx, 0 for the
+    other lanes (vectorised)."""
+    for j in range(LANES):
+        c = _coverage(np.float32(x0 + j), np.float32(y), u, v, ca, sa, cb, sb, k0, k1)
+        cov[_U(co + j)] = c if j < sx else _F0
+
+
+@_inline
+def _lanes_update(acc, tb, x0, sx, tx0, tx1, cov, co, scale, opi, di, dd, col0, col1, col2):
+    """Pixels x0 .. x0 + LANES - 1 of one row of an ellipse (coverage cov[co:], :func:`_tile_sums`'
+    update: T *= 1 - alpha, w += alpha / d^2, w c += w colour, near = min(near, d)) into the planar
+    sums; lane j is at acc[k PLANE + tb + j] (tb = PAD + the tile pixel of x0). A lane counts where
+    j < sx, x0 + j is in the tile [tx0, tx1) and alpha > 0; the others add identities (module
+    comment above): no branch, vectorised."""
+    for j in range(LANES):
+        x = x0 + j
+        alpha = min(cov[_U(co + j)] * scale, _F1) * opi
+        ok = (j < sx) & (x >= tx0) & (x < tx1) & (alpha > _F0)
+        t = _U(tb + j)
+        w = alpha / (dd * dd)
+        keep = _F1 - min(alpha, np.float32(ALPHA_MAX)) if ok else _F1
+        w = w if ok else _F0
+        acc[t] = acc[t] * keep
+        acc[_U(PLANE) + t] = acc[_U(PLANE) + t] + w
+        acc[_U(2 * PLANE) + t] = acc[_U(2 * PLANE) + t] + w * col0
+        acc[_U(3 * PLANE) + t] = acc[_U(3 * PLANE) + t] + w * col1
+        acc[_U(4 * PLANE) + t] = acc[_U(4 * PLANE) + t] + w * col2
+        acc[_U(5 * PLANE) + t] = min(acc[_U(5 * PLANE) + t], di if ok else np.float32(np.inf))
+
+
+@_inline
+def _planar_add(acc, t, alpha, w, di, col0, col1, col2):
+    """One sample's update of the planar sums at acc[k PLANE + t] (scalar)."""
+    acc[t] *= _F1 - min(alpha, np.float32(ALPHA_MAX))
+    acc[_U(PLANE) + t] += w
+    acc[_U(2 * PLANE) + t] += w * col0
+    acc[_U(3 * PLANE) + t] += w * col1
+    acc[_U(4 * PLANE) + t] += w * col2
+    acc[_U(5 * PLANE) + t] = min(acc[_U(5 * PLANE) + t], di)
+
+
+@_inline
+def _lanes_tested(acc, tb, x0, sx, tx0, tx1, y, cov, co, scale, opi, di, dd, col0, col1, col2, surf, width):
+    """:func:`_lanes_update` with the per-pixel depth test (a particle not nearer than the tile's
+    nearest surface): scalar, the range read only where the lane would count."""
+    for j in range(min(sx, LANES)):
+        x = x0 + j
+        alpha = min(cov[_U(co + j)] * scale, _F1) * opi
+        if x < tx0 or x >= tx1 or not alpha > _F0 or surf[_U(y * width + x)] <= di:
+            continue
+        _planar_add(acc, _U(tb + j), alpha, alpha / (dd * dd), di, col0, col1, col2)
+
+
+@_exact
+def _planar_sums(tx0, ty0, tx1, ty1, members, m0, m1, rec, colour, surf, zmin, width, acc, cbuf):
+    """:func:`_tile_sums`' law into planar sums (:func:`_planar_buffers`), every pixel taking the
+    tile's particles in member order (so the same bytes): an ellipse row by row, LANES pixels at a
+    time (:func:`_lanes_update`); a small one's coverage over its box first (cbuf rows of
+    GROUP_MAX_PX, summed in row-major order as :func:`_ellipse_samples` does), then scaled; a
+    speck's 2 x 2 pixels one by one. colour (M 3,); zmin the tile's nearest scene range."""
+    last = members.size - 1
+    for k in range(m0, m1):
+        i = _U(members[k])
+        p = _U(members[min(k + AHEAD, last)])      # a later member's data on its way to the cache
+        _prefetch(rec, p * _U(REC)); _prefetch(colour, p * _U(3))
+        r, ci = i * _U(REC), i * _U(3)
+        ui, vi, ai, bi = rec[r], rec[r + _U(1)], rec[r + _U(2)], rec[r + _U(3)]
+        cs, sn, di, opi = rec[r + _U(4)], rec[r + _U(5)], rec[r + _U(6)], rec[r + _U(7)]
+        dd = max(di, np.float32(1e-3))
+        col0, col1, col2 = colour[ci], colour[ci + _U(1)], colour[ci + _U(2)]
+        tested = not di < zmin                                       # depth test per pixel
+        if not ai < np.float32(SPLAT_BELOW_PX):                      # an anti-aliased ellipse
+            x0, y0, sx, sy, ca, sa, cb, sb, k0, k1 = _footprint(ui, vi, ai, bi, cs, sn)
+            if max(sx, sy) <= GROUP_MAX_PX and ai < np.float32(NORMALISE_BELOW_PX):   # small: its box
+                total = _F0
+                for q in range(sy):
+                    _lanes_coverage(cbuf, q * LANES, x0, y0 + q, ui, vi, ca, sa, cb, sb, k0, k1, sx)
+                    for j in range(sx):
+                        total += cbuf[_U(q * LANES + j)]
+                scale = _PI * ai * bi / max(total, np.float32(1e-12)) if total > _F0 else _F1
+                for q in range(max(0, ty0 - y0), min(sy, ty1 - y0)):
+                    y = y0 + q
+                    tb = PAD + (y - ty0) * TILE_PX + x0 - tx0
+                    if tested:
+                        _lanes_tested(acc, tb, x0, sx, tx0, tx1, y, cbuf, q * LANES, scale, opi, di, dd, col0, col1,
+                                      col2, surf, width)
+                    else:
+                        _lanes_update(acc, tb, x0, sx, tx0, tx1, cbuf, q * LANES, scale, opi, di, dd, col0, col1, col2)
+            else:                                                     # its box, clipped to the tile
+                xs, xe = max(x0, tx0), min(x0 + sx, tx1)
+                for y in range(max(y0, ty0), min(y0 + sy, ty1)):
+                    for xc in range(xs, xe, LANES):
+                        _lanes_coverage(cbuf, 0, xc, y, ui, vi, ca, sa, cb, sb, k0, k1, xe - xc)
+                        tb = PAD + (y - ty0) * TILE_PX + xc - tx0
+                        if tested:
+                            _lanes_tested(acc, tb, xc, xe - xc, tx0, tx1, y, cbuf, 0, _F1, opi, di, dd, col0, col1,
+                                          col2, surf, width)
+                        else:
+                            _lanes_update(acc, tb, xc, xe - xc, tx0, tx1, cbuf, 0, _F1, opi, di, dd, col0, col1, col2)
+            continue
+        w_d = _F1 / (dd * dd)                                            # a speck: 2 x 2 pixels
+        x0, y0, fx, fy = _speck_box(ui, vi)
+        scale = _PI * ai * bi * opi
+        for q in range(4):
+            x, y = x0 + (q & 1), y0 + (q >> 1)
+            if x < tx0 or x >= tx1 or y < ty0 or y >= ty1:
+                continue
+            alpha = (fx if q & 1 else _F1 - fx) * (fy if q >> 1 else _F1 - fy) * scale
+            if not alpha > _F0 or (tested and surf[_U(y * width + x)] <= di):
+                continue
+            _planar_add(acc, _U(PAD + (y - ty0) * TILE_PX + x - tx0), alpha, alpha * w_d, di, col0, col1, col2)
+
+
 @_exp_vec
-def _tile_over(tx0, ty0, n, touched, acc, near, surf, img, out, merged, mask, tp, width, ct, cnear, cfar, cga):
-    """A tile's n touched pixels (``touched``, sums acc (TILE_PX^2 5,) = [T, w, w c], near) over
-    the background img at the same pixels of out (which holds img already): :func:`resolve`'s law
-    with :func:`transfer`'s gain and add (tp, :func:`transfer_params`), the mask and the merged
-    range; the tile's sums reset. The ranges are gathered into compact buffers (ct, cnear, cfar
-    (TILE_PX^2,)), the transfer evaluated on them in one vectorised loop (cga (6, TILE_PX^2))."""
+def _planar_over(tx0, ty0, ty1, acc, surf, img, out, merged, mask, tp, width, ct, cnear, cfar, cga):
+    """A tile's covered pixels (near < inf in the planar sums acc) over the background img at the
+    same pixels of out (which holds img already): :func:`resolve`'s law with :func:`transfer`'s
+    gain and add (tp, :func:`transfer_params`), the mask and the merged range; the sums reset.
+    The covered pixels are listed in raster order (ct), their ranges gathered (cnear, cfar
+    (TILE_PX^2,)) and the transfer evaluated on them in one vectorised loop (cga (6, TILE_PX^2))."""
+    n = 0
+    for t in range((ty1 - ty0) * TILE_PX):                  # written always, counted when covered
+        ct[_U(n)] = np.int32(t)
+        n += acc[_U(_NEAR * PLANE + PAD + t)] < np.inf
     for q in range(n):
-        t = touched[q]
-        ct[q] = np.int32(t)
-        cnear[q] = near[t]
+        t = _U(ct[q])
+        cnear[q] = acc[_U(_NEAR * PLANE + PAD) + t]
         cfar[q] = surf[_image_pixel(t, tx0, ty0, width)]
     if tp[0] > _F0:
         _compact_transfer(tx0, ty0, n, ct, cnear, cfar, tp, True, cga)
     else:
         _compact_transfer(tx0, ty0, n, ct, cnear, cfar, tp, False, cga)
     for q in range(n):
-        t = touched[q]
+        t = _U(ct[q])
         pix = _image_pixel(t, tx0, ty0, width)
-        o = t * _U(5)
+        o = t + _U(PAD)
         keep = acc[o]
         cov = _F1 - keep
-        w = acc[o + _U(1)]
+        w = acc[o + _U(PLANE)]
         inv = _F1 / w if w > _F0 else _F1
         p0, p1, p2 = pix * _U(3), pix * _U(3) + _U(1), pix * _U(3) + _U(2)
-        out[p0] = (img[p0] * cga[0, q] + cga[3, q]) * keep + acc[o + _U(2)] * inv * cov
-        out[p1] = (img[p1] * cga[1, q] + cga[4, q]) * keep + acc[o + _U(3)] * inv * cov
-        out[p2] = (img[p2] * cga[2, q] + cga[5, q]) * keep + acc[o + _U(4)] * inv * cov
+        out[p0] = (img[p0] * cga[0, q] + cga[3, q]) * keep + acc[o + _U(2 * PLANE)] * inv * cov
+        out[p1] = (img[p1] * cga[1, q] + cga[4, q]) * keep + acc[o + _U(3 * PLANE)] * inv * cov
+        out[p2] = (img[p2] * cga[2, q] + cga[5, q]) * keep + acc[o + _U(4 * PLANE)] * inv * cov
         mask[pix] = cov >= _HALF
-        merged[pix] = near[t]
-        acc[o], acc[o + _U(1)], acc[o + _U(2)], acc[o + _U(3)], acc[o + _U(4)] = _F1, _F0, _F0, _F0, _F0
-        near[t] = np.inf
+        merged[pix] = cnear[q]
+        acc[o], acc[o + _U(PLANE)], acc[o + _U(2 * PLANE)] = _F1, _F0, _F0
+        acc[o + _U(3 * PLANE)], acc[o + _U(4 * PLANE)], acc[o + _U(5 * PLANE)] = _F0, _F0, np.inf
 
 
 @_jit
@@ -1013,10 +1151,12 @@ def splat_over(u, v, a, b, c, s, d, op, colour, surf, scene, img, out, merged, m
     particle covers; img, out (H*W*3,); merged (H*W,); mask (H*W,) bool, False on entry: only
     covered pixels are set); tp: :func:`transfer_params` or
     :data:`NO_TRANSFER`. Each band of TILE_PX image rows is copied to out and merged, then each of
-    its tiles' sums is composited over it while still in L1 (:func:`_tile_over`): no per-pixel
-    lists through memory. Same bytes as the three kernels in sequence (tests/test_particle_splat.py)."""
+    its tiles' sums (planar, :func:`_planar_sums`) is composited over it while still in L1
+    (:func:`_planar_over`): no per-pixel lists through memory. Same bytes as the three kernels in
+    sequence (tests/test_particle_splat.py)."""
     start, members, samples = _bins(u, v, a, b, c, s, op, width, height)
-    acc, near, touched, buf = _tile_buffers(5)
+    acc = _planar_buffers()
+    cbuf = np.zeros(GROUP_MAX_PX * LANES, np.float32)
     ct = np.empty(TILE_PX * TILE_PX, np.int32)
     cnear, cfar = np.empty(TILE_PX * TILE_PX, np.float32), np.empty(TILE_PX * TILE_PX, np.float32)
     cga = np.empty((6, TILE_PX * TILE_PX), np.float32)
@@ -1033,6 +1173,6 @@ def splat_over(u, v, a, b, c, s, d, op, colour, surf, scene, img, out, merged, m
             if start[tile + 1] == start[tile]:
                 continue
             tx0 = tx * TILE_PX
-            n = _tile_sums(tx0, ty0, min(tx0 + TILE_PX, width), ty1, members, start[tile], start[tile + 1], rec, col,
-                           3, surf, tnear[tile], width, acc, near, touched, buf)
-            _tile_over(tx0, ty0, n, touched, acc, near, surf, img, out, merged, mask, tp, width, ct, cnear, cfar, cga)
+            _planar_sums(tx0, ty0, min(tx0 + TILE_PX, width), ty1, members, start[tile], start[tile + 1], rec, col,
+                         surf, tnear[tile], width, acc, cbuf)
+            _planar_over(tx0, ty0, ty1, acc, surf, img, out, merged, mask, tp, width, ct, cnear, cfar, cga)
