@@ -4,6 +4,7 @@ summed with plain Python loops. Catches any grouping, clipping, compaction or sp
 error (a sample dropped, doubled or given to the wrong particle)."""
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -121,14 +122,19 @@ def test_prefetch_is_a_hint_on_any_array_at_any_index():
 
 
 @pytest.mark.parametrize("mode", ["physical", "article", "none"])
-@pytest.mark.parametrize("seed", [5, 6])
+@pytest.mark.parametrize("seed", [5, 6, 7])
 def test_fused_pass_gives_the_bytes_of_splat_transfer_and_resolve(seed, mode):
-    """particle_splat.over (splat, background transfer and compositing fused per tile) against the
-    three kernels in sequence, byte for byte: image, merged range and mask, over a rough range
-    pass (NaN, inf, a near dock) whose merged range keeps the scene's values."""
+    """particle_splat.over (splat, background transfer and compositing fused per tile, the sums
+    planar) against the three kernels in sequence, byte for byte: image, merged range and mask,
+    over a rough range pass (NaN, inf, a near dock) whose merged range keeps the scene's values.
+    Specks, small and large ellipses over partial tiles and the image's edges; seed 7 has specks
+    only (their tiles list the covered pixels instead of scanning them)."""
     from blendgen.physics import particle_kernels as kern
     rng = np.random.default_rng(seed)
     p = _particles(rng, 80)
+    if seed == 7:
+        a = rng.uniform(0.35, 0.49, p.a.size).astype(np.float32)
+        p = dataclasses.replace(p, a=a, b=(a * rng.uniform(0.8, 1.0, a.size)).astype(np.float32))
     surf = rng.uniform(0.3, 9.0, (H, W)).astype(np.float32)
     surf[rng.random((H, W)) < 0.1], surf[30:, 40:], surf[10:25, 15:35] = np.nan, np.inf, 3.0
     surf = surf.reshape(-1)

@@ -1047,13 +1047,17 @@ def _lanes_tested(acc, tb, x0, sx, tx0, tx1, y, cov, co, scale, opi, di, dd, col
 
 
 @_exact
-def _planar_sums(tx0, ty0, tx1, ty1, members, m0, m1, rec, colour, surf, zmin, width, acc, cbuf):
+def _planar_sums(tx0, ty0, tx1, ty1, members, m0, m1, rec, colour, surf, zmin, width, acc, cbuf, touched):
     """:func:`_tile_sums`' law into planar sums (:func:`_planar_buffers`), every pixel taking the
     tile's particles in member order (so the same bytes): an ellipse row by row, LANES pixels at a
     time (:func:`_lanes_update`); a small one's coverage over its box first (cbuf rows of
     GROUP_MAX_PX, summed in row-major order as :func:`_ellipse_samples` does), then scaled; a
-    speck's 2 x 2 pixels one by one. colour (M 3,); zmin the tile's nearest scene range."""
+    speck's 2 x 2 pixels one by one. colour (M 3,); zmin the tile's nearest scene range.
+    Returns the count of covered tile pixels listed in ``touched`` (int32, first-touch order)
+    when the tile had specks only, else -1 (an ellipse's rows are not listed: the pixels are
+    found by a scan, :func:`_planar_over`; listing each row's lanes cost more than the scan)."""
     last = members.size - 1
+    n_touched, rows = 0, False
     for k in range(m0, m1):
         i = _U(members[k])
         p = _U(members[min(k + AHEAD, last)])      # a later member's data on its way to the cache
@@ -1066,6 +1070,7 @@ def _planar_sums(tx0, ty0, tx1, ty1, members, m0, m1, rec, colour, surf, zmin, w
         tested = not di < zmin                                       # depth test per pixel
         if not ai < np.float32(SPLAT_BELOW_PX):                      # an anti-aliased ellipse
             x0, y0, sx, sy, ca, sa, cb, sb, k0, k1 = _footprint(ui, vi, ai, bi, cs, sn)
+            rows = True
             if max(sx, sy) <= GROUP_MAX_PX and ai < np.float32(NORMALISE_BELOW_PX):   # small: its box
                 total = _F0
                 for q in range(sy):
@@ -1103,20 +1108,26 @@ def _planar_sums(tx0, ty0, tx1, ty1, members, m0, m1, rec, colour, surf, zmin, w
             alpha = (fx if q & 1 else _F1 - fx) * (fy if q >> 1 else _F1 - fy) * scale
             if not alpha > _F0 or (tested and surf[_U(y * width + x)] <= di):
                 continue
-            _planar_add(acc, _U(PAD + (y - ty0) * TILE_PX + x - tx0), alpha, alpha * w_d, di, col0, col1, col2)
+            t = _U((y - ty0) * TILE_PX + x - tx0)
+            touched[_U(n_touched)] = np.int32(t)
+            n_touched += acc[_U(_NEAR * PLANE + PAD) + t] == np.inf
+            _planar_add(acc, t + _U(PAD), alpha, alpha * w_d, di, col0, col1, col2)
+    return -1 if rows else n_touched
 
 
 @_exp_vec
-def _planar_over(tx0, ty0, ty1, acc, surf, img, out, merged, mask, tp, width, ct, cnear, cfar, cga):
+def _planar_over(tx0, ty0, ty1, n, acc, surf, img, out, merged, mask, tp, width, ct, cnear, cfar, cga):
     """A tile's covered pixels (near < inf in the planar sums acc) over the background img at the
     same pixels of out (which holds img already): :func:`resolve`'s law with :func:`transfer`'s
     gain and add (tp, :func:`transfer_params`), the mask and the merged range; the sums reset.
-    The covered pixels are listed in raster order (ct), their ranges gathered (cnear, cfar
-    (TILE_PX^2,)) and the transfer evaluated on them in one vectorised loop (cga (6, TILE_PX^2))."""
-    n = 0
-    for t in range((ty1 - ty0) * TILE_PX):                  # written always, counted when covered
-        ct[_U(n)] = np.int32(t)
-        n += acc[_U(_NEAR * PLANE + PAD + t)] < np.inf
+    The covered pixels: the n listed in ct (n >= 0, :func:`_planar_sums`) or, for n = -1, found
+    by a scan in raster order; their ranges gathered (cnear, cfar (TILE_PX^2,)) and the transfer
+    evaluated on them in one vectorised loop (cga (6, TILE_PX^2))."""
+    if n < 0:
+        n = 0
+        for t in range((ty1 - ty0) * TILE_PX):                  # written always, counted when covered
+            ct[_U(n)] = np.int32(t)
+            n += acc[_U(_NEAR * PLANE + PAD + t)] < np.inf
     for q in range(n):
         t = _U(ct[q])
         cnear[q] = acc[_U(_NEAR * PLANE + PAD) + t]
@@ -1157,7 +1168,7 @@ def splat_over(u, v, a, b, c, s, d, op, colour, surf, scene, img, out, merged, m
     start, members, samples = _bins(u, v, a, b, c, s, op, width, height)
     acc = _planar_buffers()
     cbuf = np.zeros(GROUP_MAX_PX * LANES, np.float32)
-    ct = np.empty(TILE_PX * TILE_PX, np.int32)
+    ct = np.empty(TILE_PX * TILE_PX + 1, np.int32)
     cnear, cfar = np.empty(TILE_PX * TILE_PX, np.float32), np.empty(TILE_PX * TILE_PX, np.float32)
     cga = np.empty((6, TILE_PX * TILE_PX), np.float32)
     col = colour.reshape(-1)
@@ -1173,6 +1184,6 @@ def splat_over(u, v, a, b, c, s, d, op, colour, surf, scene, img, out, merged, m
             if start[tile + 1] == start[tile]:
                 continue
             tx0 = tx * TILE_PX
-            _planar_sums(tx0, ty0, min(tx0 + TILE_PX, width), ty1, members, start[tile], start[tile + 1], rec, col,
-                         surf, tnear[tile], width, acc, cbuf)
-            _planar_over(tx0, ty0, ty1, acc, surf, img, out, merged, mask, tp, width, ct, cnear, cfar, cga)
+            n = _planar_sums(tx0, ty0, min(tx0 + TILE_PX, width), ty1, members, start[tile], start[tile + 1], rec,
+                             col, surf, tnear[tile], width, acc, cbuf, ct)
+            _planar_over(tx0, ty0, ty1, n, acc, surf, img, out, merged, mask, tp, width, ct, cnear, cfar, cga)
