@@ -975,7 +975,9 @@ def _compact_transfer(tx0, ty0, n, ct, cnear, cfar, tp, physical, cga):
 # row of pixels is a row of consecutive floats in every plane and its update one vectorised loop
 # of LANES lanes. Lanes that do not count (outside the ellipse's box or the tile, alpha = 0) add
 # identities: T x 1, w + 0, near min inf -- the same bytes, and full-width loads and stores
-# (LLVM made masked stores of a select, which stalled the following loads).
+# (LLVM made masked stores of a select, which are slow on this CPU and stalled the loads after
+# them: a select per lane and masked stores measured no faster than the per-sample list).
+INF_BITS = np.int32(0x7F800000)      # the IEEE bits of float32 inf
 LANES = 16                           # an ellipse's row segment: 16 float32 lanes (one AVX-512 register)
 PAD = LANES                          # lanes before and after each plane's TILE_PX^2 pixels
 PLANE = TILE_PX * TILE_PX + 2 * PAD  # floats per plane
@@ -1006,7 +1008,9 @@ def _lanes_update(acc, tb, x0, sx, tx0, tx1, cov, co, scale, opi, di, dd, col0, 
     update: T *= 1 - alpha, w += alpha / d^2, w c += w colour, near = min(near, d)) into the planar
     sums; lane j is at acc[k PLANE + tb + j] (tb = PAD + the tile pixel of x0). A lane counts where
     j < sx, x0 + j is in the tile [tx0, tx1) and alpha > 0; the others add identities (module
-    comment above): no branch, vectorised."""
+    comment above): no branch, vectorised. The nearest range is a minimum of the IEEE bits as
+    int32 (ranges are >= 0, so ordered alike): LLVM turned the float minimum into a masked store."""
+    dbits = _bits_of_f32(di)
     for j in range(LANES):
         x = x0 + j
         alpha = min(cov[_U(co + j)] * scale, _F1) * opi
@@ -1020,7 +1024,8 @@ def _lanes_update(acc, tb, x0, sx, tx0, tx1, cov, co, scale, opi, di, dd, col0, 
         acc[_U(2 * PLANE) + t] = acc[_U(2 * PLANE) + t] + w * col0
         acc[_U(3 * PLANE) + t] = acc[_U(3 * PLANE) + t] + w * col1
         acc[_U(4 * PLANE) + t] = acc[_U(4 * PLANE) + t] + w * col2
-        acc[_U(5 * PLANE) + t] = min(acc[_U(5 * PLANE) + t], di if ok else np.float32(np.inf))
+        near = _bits_of_f32(acc[_U(5 * PLANE) + t])
+        acc[_U(5 * PLANE) + t] = _f32_from_bits(min(near, dbits if ok else INF_BITS))
 
 
 @_inline
