@@ -157,6 +157,20 @@ def test_fused_pass_gives_the_bytes_of_splat_transfer_and_resolve(seed, mode):
     assert mask.any() and not mask.all()
 
 
+def test_fused_pass_refuses_negative_or_nan_ranges():
+    """The fused pass keeps the nearest range as a minimum of IEEE bits, valid for ranges >= 0:
+    a negative or NaN range is refused with a clear error, not drawn wrongly."""
+    rng = np.random.default_rng(3)
+    p = _particles(rng, 6)
+    surf = np.full(H * W, 5.0, np.float32)
+    img = np.zeros(H * W * 3, np.float32)
+    for bad in (-0.1, np.nan):
+        d = p.d.copy()
+        d[2] = bad
+        with pytest.raises(ValueError, match="d >= 0"):
+            ps.over(dataclasses.replace(p, d=d), surf, surf, img, np.zeros(19, np.float32), W, H)
+
+
 @pytest.mark.parametrize("seed", [0, 1])
 def test_binned_boxes_are_the_footprints_clipped_to_the_image(seed):
     """particle_kernels._clipped_boxes (one vectorised pass for the binning) against the scalar
