@@ -157,9 +157,10 @@ def test_fused_pass_gives_the_bytes_of_splat_transfer_and_resolve(seed, mode):
     assert mask.any() and not mask.all()
 
 
-def test_fused_pass_refuses_negative_or_nan_ranges():
-    """The fused pass keeps the nearest range as a minimum of IEEE bits, valid for ranges >= 0:
-    a negative or NaN range is refused with a clear error, not drawn wrongly."""
+def test_fused_pass_refuses_negative_or_nan_ranges_and_colours():
+    """The fused pass keeps the nearest range as a minimum of IEEE bits, valid for ranges >= 0,
+    and its idle lanes add 0 x colour: a negative or NaN range, or a non-finite colour, is refused
+    with a clear error, not drawn wrongly."""
     rng = np.random.default_rng(3)
     p = _particles(rng, 6)
     surf = np.full(H * W, 5.0, np.float32)
@@ -169,6 +170,10 @@ def test_fused_pass_refuses_negative_or_nan_ranges():
         d[2] = bad
         with pytest.raises(ValueError, match="d >= 0"):
             ps.over(dataclasses.replace(p, d=d), surf, surf, img, np.zeros(19, np.float32), W, H)
+    colour = p.colour.copy()
+    colour[1, 2] = np.inf                      # the row's idle lanes add 0 x colour: refused, not NaN
+    with pytest.raises(ValueError, match="finite particle colours"):
+        ps.over(dataclasses.replace(p, colour=colour), surf, surf, img, np.zeros(19, np.float32), W, H)
 
 
 @pytest.mark.parametrize("seed", [0, 1])

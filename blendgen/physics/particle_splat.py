@@ -98,6 +98,8 @@ def over(p: Particles, surf: np.ndarray, scene: np.ndarray, img: np.ndarray, tra
         raise ValueError(f"over needs one RGB colour per particle (M, 3), got {np.shape(p.colour)}")
     if np.size(p.d) and not np.min(p.d) >= 0:          # the kernel's nearest range: a minimum of IEEE bits
         raise ValueError(f"over needs particle surface ranges d >= 0 m, got min {np.min(p.d)}")
+    if np.size(p.colour) and not np.isfinite(p.colour).all():   # idle lanes add 0 x colour (kernel)
+        raise ValueError("over needs finite particle colours (linear radiance), got inf or NaN")
     f32 = lambda x: np.ascontiguousarray(x, np.float32)
     out, merged, mask = np.empty(height * width * 3, np.float32), np.empty(height * width, np.float32), \
         np.zeros(height * width, bool)
