@@ -547,6 +547,16 @@ def _speck_box(u, v):
     return int(x0f), int(y0f), u - x0f, v - y0f   # exact in float32
 
 
+@_inline
+def _speck_pixel(q, x0, y0, fx, fy, scale, tx0, ty0, tx1, ty1):
+    """Pixel q (0..3) of a speck's 2 x 2 block (top-left (x0, y0), bilinear fractions fx, fy,
+    alpha at full cover ``scale``): (x, y, alpha), alpha 0 outside the tile [tx0, tx1) x [ty0, ty1)."""
+    x, y = x0 + (q & 1), y0 + (q >> 1)
+    inside = (x >= tx0) & (x < tx1) & (y >= ty0) & (y < ty1)
+    alpha = (fx if q & 1 else _F1 - fx) * (fy if q >> 1 else _F1 - fy) * scale
+    return x, y, alpha if inside else _F0
+
+
 @_jit_vec
 def _clipped_boxes(u, v, a, b, c, s, width, height, box4):
     """box4 (4, M) int64: each particle's pixel box clipped to the image, [xa, xb] x [ya, yb]
@@ -723,10 +733,7 @@ def _tile_sums(tx0, ty0, tx1, ty1, members, m0, m1, rec, colour, n_col, surf, zm
         x0, y0, fx, fy = _speck_box(ui, vi)
         scale = _PI * ai * bi * opi
         for q in range(4):
-            x, y = x0 + (q & 1), y0 + (q >> 1)
-            if x < tx0 or x >= tx1 or y < ty0 or y >= ty1:
-                continue
-            alpha = (fx if q & 1 else _F1 - fx) * (fy if q >> 1 else _F1 - fy) * scale
+            x, y, alpha = _speck_pixel(q, x0, y0, fx, fy, scale, tx0, ty0, tx1, ty1)
             if not alpha > _F0 or (not di < zmin and surf[_U(y * width + x)] <= di):   # depth test:
                 continue                         # nearer than the tile's nearest surface, or NaN: none
             t = _U((y - ty0) * TILE_PX + x - tx0)
@@ -1107,10 +1114,7 @@ def _planar_sums(tx0, ty0, tx1, ty1, members, m0, m1, rec, colour, surf, zmin, w
         x0, y0, fx, fy = _speck_box(ui, vi)
         scale = _PI * ai * bi * opi
         for q in range(4):
-            x, y = x0 + (q & 1), y0 + (q >> 1)
-            if x < tx0 or x >= tx1 or y < ty0 or y >= ty1:
-                continue
-            alpha = (fx if q & 1 else _F1 - fx) * (fy if q >> 1 else _F1 - fy) * scale
+            x, y, alpha = _speck_pixel(q, x0, y0, fx, fy, scale, tx0, ty0, tx1, ty1)
             if not alpha > _F0 or (tested and surf[_U(y * width + x)] <= di):
                 continue
             t = _U((y - ty0) * TILE_PX + x - tx0)
