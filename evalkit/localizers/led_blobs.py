@@ -85,16 +85,20 @@ def background(img: np.ndarray, cell: int) -> np.ndarray:
 
 def noise_sigma(v: np.ndarray) -> float:
     """Robust noise standard deviation (DN) of the brightness (H,W) uint8: the median
-    absolute difference of diagonal neighbours on a 2-px lattice, / (0.6745 sqrt 2) (the
-    MAD of a Gaussian difference of two independent pixels); edges and LEDs are a small
-    share of the pixels and do not move the median. At least MIN_SIGMA_DN."""
-    a = v[0:-1:2, 0:-1:2].astype(np.int16)
-    b = v[1::2, 1::2][: a.shape[0], : a.shape[1]]
-    d = np.abs(a - b).ravel()
-    if d.size == 0:
+    absolute difference of diagonal neighbours, / (0.6745 sqrt 2) (the MAD of a Gaussian
+    difference of two independent pixels), sampled on a 4-px lattice (2-px below 400 x 400
+    px: ~19 000 pairs at 640x480); edges and LEDs are a small share of the pixels and do
+    not move the median. At least MIN_SIGMA_DN."""
+    step = 4 if v.size >= 160_000 else 2
+    a = np.ascontiguousarray(v[0:-1:step, 0:-1:step])
+    b = np.ascontiguousarray(v[1::step, 1::step][: a.shape[0], : a.shape[1]])
+    if a.size == 0:
         return MIN_SIGMA_DN
-    hist = np.bincount(d, minlength=256)
-    med = float(np.searchsorted(np.cumsum(hist), 0.5 * d.size))
+    hist = np.bincount(cv2.absdiff(a, b).ravel(), minlength=256)
+    cum = np.cumsum(hist)
+    k = int(np.searchsorted(cum, 0.5 * a.size))   # the median's bin, interpolated within it
+    below = float(cum[k - 1]) if k > 0 else 0.0
+    med = max(0.0, k - 0.5 + (0.5 * a.size - below) / max(float(hist[k]), 1.0))
     return max(MIN_SIGMA_DN, med / (0.6745 * math.sqrt(2.0)))
 
 
