@@ -113,7 +113,7 @@ def match_rotation(labels: np.ndarray, pattern: np.ndarray) -> int | None:
 
 
 class LedLocalizer:
-    """LED array (N >= 4): threshold, blobs, reference LEDs by colour, pattern order, IPPE PnP."""
+    """LED array (N >= 4): noise-aware threshold, LED-like blobs, reference LEDs by colour, pattern order, IPPE PnP."""
 
     name = "led"
     outputs = ("distance", "T_cam_dock", "marker_id")
