@@ -132,10 +132,13 @@ class LedLocalizer:
         min_circularity: area / (pi (max(w,h)/2)^2) for blobs of >= 12 px.
         ref_hue: reference LED hue in degrees (None: from the marker's colours).
         max_candidates: most LED-like coloured blobs considered (None: N + 3); max_blobs:
-        give up above this many blobs. max_reproj_px: RMS reprojection error (px) above
+        give up above this many blobs (the sunlit demo pool holds 200-370 at 0.6 x max; blob
+        statistics are vectorised, so only the measured candidates cost). max_reproj_px: RMS reprojection error (px) above
         which a blob set is rejected. min_saturation: chroma / brightness of a blob's
         background-subtracted colour (0 grey, ~0.9 the LEDs' own colours) it needs to
-        count as a coloured LED, so white/grey highlights are not taken for LEDs.
+        count as a coloured LED, so white/grey highlights are not taken for LEDs (measured
+        on the sunlit frame of tests/data/sunlit_pool: LEDs 1.2-1.8, caustics 0.4-0.7;
+        0.2 rejects only near-grey blobs, shape and geometry do the rest).
         max_hue_err_deg: hue distance allowed between a blob and its expected LED
         colour. centroid: "core" or "weighted" (see the module docstring).
         max_view_deg: largest angle (deg) between the array's normal and the line of sight
@@ -145,13 +148,16 @@ class LedLocalizer:
         ladder: higher thresholds (fractions of the frame's max brightness) tried in turn
         when the first level gives no pose (module docstring, step 1); () disables it.
         prior: rank the blobs near the LEDs projected with the previous frame's pose first
-        (False: every frame alone); prior_gate_px: smallest gate radius (px) of that.
+        (False: every frame alone); prior_gate_px: smallest gate radius (px) of that (8 px:
+        1 deg of yaw between frames moves the image by f x 0.017 = 9.7 px at f = 554 px).
         measure_factor: at most measure_factor x max_candidates blobs are measured (colour,
         centroid), most LED-like first, which bounds the time spent on clutter.
         accept_px: a blob set fitting within this RMS reprojection error (px) ends the
         search (2.5 x the p95 centroid error of the core centroid, module docstring step 3).
         min_size_frac: a blob's diameter must be at least this fraction of the LED disc's
-        image diameter the set's span implies, less 1.5 px (``_sizes_fit``).
+        image diameter the set's span implies, less 1.5 px (``_sizes_fit``; 0.4: a
+        blurred disc cut at 0.97 of its peak by the ladder keeps about half its diameter).
+        max_solves: PnP solves per threshold level at most (35 = every 4-subset of 7).
         Reason for > 8 params: every threshold of the blob pipeline is a documented knob."""
         if centroid not in ("weighted", "core"):
             raise ValueError(f"centroid must be weighted or core, got {centroid!r}")
