@@ -19,7 +19,7 @@ from evalkit.localizers import led_blobs as lb  # noqa: E402
 from evalkit.localizers.led import LedLocalizer  # noqa: E402
 
 DATA = Path(__file__).parent / "data" / "sunlit_pool"
-VEIL = np.array([30.0, 72.0, 66.0])   # a green-blue veil (8-bit sRGB), the 72 at 8 m in moderate water
+VEIL = np.array([30.0, 72.0, 66.0])   # a green-blue veil (8-bit sRGB): 72 DN, as at 8 m in moderate water (article mode)
 
 
 def veiled(d: float, gain: float, seed: int = 1):
