@@ -184,3 +184,16 @@ def test_hybrid_is_never_worse_than_its_better_part_when_the_qr_pose_is_poor():
             assert e_h <= min(parts) + 1e-3                       # and as well as the better one
     assert sum(e is not None and e > 0.05 for e in qr) >= 4       # the fixture's QR is poor ...
     assert sum(e is not None and e > 0.05 for e in article) >= 3  # ... and the article's rule takes it
+
+
+def test_led_prior_is_dropped_when_the_hybrid_skips_the_led():
+    """prefer=near runs the LED only when the QR fails: the LED's prior must then be the
+    previous frame's pose or none, never a pose from frames ago."""
+    truth, images = _poor_qr_sequence()
+    h = registry.resolve("hybrid", {"prefer": "near"})
+    h.reset(CAMERA)
+    led = h.subs["far"]
+    h.localize(images[0])                      # 2.9 m: LED first, QR fails or is beyond range
+    assert led._prev_T is not None
+    h.localize(images[3])                      # 2.0 m, previous within the near range: QR first, decodes
+    assert led._prev_T is None

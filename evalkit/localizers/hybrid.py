@@ -106,6 +106,7 @@ class HybridLocalizer:
         self.near_range_m = self.switch_m if self.switch_m is not None else float("inf")
         self._last_d = None
         self._last_far_T = None
+        self._ran: set[str] = set()
 
     def reset(self, camera: dict) -> None:
         """New sequence: reset both sub-localizers, derive the near range, forget the last distance."""
@@ -131,12 +132,17 @@ class HybridLocalizer:
 
     def localize(self, image: np.ndarray) -> dict | None:
         """The chosen estimate (``prefer``, module docstring), or None."""
+        self._ran = set()
         if self.prefer == "footprint":
             est, used = self._by_footprint(image)
         elif self.prefer == "uncertainty":
             est, used = self._by_uncertainty(image)
         else:
             est, used = self._near_first(image)
+        if "far" not in self._ran:   # its prior is the previous *frame's* pose: none now
+            forget = getattr(self.subs["far"], "forget_prior", None)
+            if callable(forget):
+                forget()
         self._last_d = None if est is None else float(est["distance"])
         self._last_far_T = est.get("T_cam_dock") if est is not None and used == "far" else None
         if est is None:
@@ -206,6 +212,7 @@ class HybridLocalizer:
             hint(T_cam_dock)
 
     def _try(self, role: str, image: np.ndarray) -> dict | None:
+        self._ran.add(role)
         est = self.subs[role].localize(image)
         if not isinstance(est, dict):
             return None

@@ -231,6 +231,11 @@ class LedLocalizer:
         """Take the prior the memoised call left (its pose, or None)."""
         self._prev_T = None if after is None else np.array(after, np.float64)
 
+    def forget_prior(self) -> None:
+        """Drop the previous pose (a caller that skipped frames: it is no longer the
+        previous frame's)."""
+        self._prev_T = None
+
     def localize(self, image: np.ndarray) -> dict | None:
         """Dock pose from one RGB uint8 image (H,W,3), or None. Remembers the pose (or
         None) as the prior of the next frame's candidate ranking."""
