@@ -151,6 +151,8 @@ def evaluate(dataset: Path, localizers: tuple[str, ...], params: tuple[str, ...]
         click.echo(results.json_summary(paths["run"]))
     elif not quiet:
         click.echo("\n" + paths["article_md"].read_text())
+        click.echo(paths["range_bins_md"].read_text())
+        click.echo(f"plots: {paths['plot_range_bins'].parent}" if "plot_range_bins" in paths else "")
         click.echo(f"per-frame estimates: {paths['estimates']}\nmetrics: {paths['metrics']}\nrun: {paths['run']}")
         click.echo(f"(success: {criteria.as_dict()}; only 0 <= d_true <= 10 m count; "
                    f"e_rel excludes d_true < {ds.d_min_rel_m} m)")

@@ -1,4 +1,5 @@
-"""The hybrid localizer: QR whenever it decodes, LED otherwise; QR skipped beyond its px/module range."""
+"""The hybrid localizer: by predicted range error (default) or the article's rule (QR whenever it
+decodes, LED otherwise); QR skipped beyond its px/module range."""
 from __future__ import annotations
 
 import sys
@@ -12,7 +13,7 @@ import synth_images as synth  # noqa: E402
 from test_localizers import led_marker, square_marker  # noqa: E402
 
 from evalkit import registry  # noqa: E402
-from evalkit.localizers.hybrid import HybridLocalizer  # noqa: E402
+from evalkit.localizers.hybrid import HybridLocalizer, range_sigma_m  # noqa: E402
 
 W, H = 640, 480
 K = synth.k_from_hfov(W, H, 60.0)
@@ -35,11 +36,13 @@ class Script:
     def localize(self, image):
         self.calls += 1
         d = self.values.pop(0) if self.values else None
+        if isinstance(d, tuple):    # (distance, RMS reprojection residual px)
+            return {"distance": d[0], "marker_id": self.marker_id, "reproj_err_px": d[1], "n_points": 4}
         return None if d is None else {"distance": d, "marker_id": self.marker_id}
 
 
 def stubbed(**kw):
-    h = HybridLocalizer(**kw)
+    h = HybridLocalizer(**{"prefer": "near", **kw})
     h.subs = {"near": Script("qr", QR), "far": Script("led", LED)}
     h.reset(CAMERA)
     return h
@@ -105,8 +108,8 @@ def frames():
                          noise_std=2.0, seed=i) for i, d in enumerate(TRUTH)]
 
 
-def _run_rendered(frames):
-    h = registry.resolve("hybrid", {})
+def _run_rendered(frames, prefer="near"):
+    h = registry.resolve("hybrid", {"prefer": prefer})
     h.reset(CAMERA)
     return [h.localize(img) for img in frames]
 
@@ -135,3 +138,62 @@ def test_prefer_footprint_takes_the_marker_spanning_more_pixels():
     assert frame(h, None, 8.0) == ("led", (0, 1))    # beyond the near range: QR not run
     with pytest.raises(ValueError):
         HybridLocalizer(prefer="bogus")
+
+
+def test_prefer_uncertainty_takes_the_pose_with_the_smaller_predicted_range_error():
+    h = stubbed(prefer="uncertainty")
+    # same residual: the LED array's 0.85 m diagonal beats the QR's 0.21 m (sigma_Z ~ 1 / span)
+    assert frame(h, (2.0, 0.1), (2.0, 0.1)) == ("led", (1, 1))
+    # an LED fit 10x worse than the QR's: 0.85 / 1.0 px < 0.21 / 0.1 px, the QR wins
+    assert frame(h, (2.0, 0.1), (2.0, 1.0)) == ("qr", (1, 1))
+    assert frame(h, (0.5, 0.1), None) == ("qr", (1, 1))          # LED array out of view: QR
+    assert frame(h, None, (8.0, 0.1)) == ("led", (0, 1))         # beyond the near range: QR not run
+    f, qr_span = K[0, 0], np.hypot(0.15, 0.15)
+    sigma = range_sigma_m(2.0, f, qr_span, 0.1, 4, 0.1)          # 0.1 px x sqrt(8 / 2) = 0.2 px
+    assert sigma == pytest.approx(0.87 * 4.0 * 0.2 / (f * qr_span))
+    assert range_sigma_m(2.0, f, qr_span, None, None, 0.1) == pytest.approx(sigma / 2)  # floor only
+
+
+def _poor_qr_sequence():
+    """Frames 0.7-2.9 m from the dock with the QR drawn 6 % larger than the manifest's
+    0.15 m (its pose then reads ~6 % short: 15 cm at 2.5 m, like the 20-24 cm QR range
+    errors of the physical turbidity experiment at 2-3 m), LED array exact."""
+    big_qr = dict(QR, size_m=0.15 * 1.06)
+    truth = [2.9, 2.6, 2.3, 2.0, 1.7, 1.4, 1.1, 0.8, 0.7]
+    poses = [synth.pose_looking_at_dock(d, 8.0, -4.0, 10.0) for d in truth]
+    return truth, [synth.render(K, T, [LED, big_qr], W, H, ss=2, noise_std=2.0, seed=i)
+                   for i, T in enumerate(poses)]
+
+
+def _range_errors(loc, truth, images):
+    loc.reset(CAMERA)
+    ests = [loc.localize(img) for img in images]
+    return [None if e is None else abs(e["distance"] - d) for d, e in zip(truth, ests)]
+
+
+def test_hybrid_is_never_worse_than_its_better_part_when_the_qr_pose_is_poor():
+    truth, images = _poor_qr_sequence()
+    led = _range_errors(registry.resolve("led", {}), truth, images)
+    qr = _range_errors(registry.resolve("qr", {}), truth, images)
+    hyb = _range_errors(registry.resolve("hybrid", {}), truth, images)
+    article = _range_errors(registry.resolve("hybrid", {"prefer": "near"}), truth, images)
+    for e_led, e_qr, e_h in zip(led, qr, hyb):
+        parts = [e for e in (e_led, e_qr) if e is not None]
+        assert (e_h is None) == (not parts)                       # answers whenever a part does
+        if parts:
+            assert e_h <= min(parts) + 1e-3                       # and as well as the better one
+    assert sum(e is not None and e > 0.05 for e in qr) >= 4       # the fixture's QR is poor ...
+    assert sum(e is not None and e > 0.05 for e in article) >= 3  # ... and the article's rule takes it
+
+
+def test_led_prior_is_dropped_when_the_hybrid_skips_the_led():
+    """prefer=near runs the LED only when the QR fails: the LED's prior must then be the
+    previous frame's pose or none, never a pose from frames ago."""
+    truth, images = _poor_qr_sequence()
+    h = registry.resolve("hybrid", {"prefer": "near"})
+    h.reset(CAMERA)
+    led = h.subs["far"]
+    h.localize(images[0])                      # 2.9 m: LED first, QR fails or is beyond range
+    assert led._prev_T is not None
+    h.localize(images[3])                      # 2.0 m, previous within the near range: QR first, decodes
+    assert led._prev_T is None

@@ -20,6 +20,7 @@ from blendgen import markers as mk  # noqa: E402
 from blendgen.config.models import LedArray, SquareMarker  # noqa: E402
 from evalkit.localizers.aruco import ArucoLocalizer  # noqa: E402
 from evalkit.localizers.led import LedLocalizer, match_rotation  # noqa: E402
+from evalkit.localizers.led_blobs import centroid  # noqa: E402
 from evalkit.localizers.qr import QrLocalizer  # noqa: E402
 from evalkit.localizers.square import SquareMarkerLocalizer  # noqa: E402
 
@@ -107,8 +108,7 @@ def test_core_centroid_resists_one_sided_glow():
     lab = int(np.argmax(stats[1:, cv2.CC_STAT_AREA])) + 1
     res = {}
     for mode in ("weighted", "core"):
-        loc = LedLocalizer(centroid=mode)
-        res[mode] = loc._measure(img, v, labels, stats[lab], lab, 50.0)[0]
+        res[mode] = centroid(v, labels, lab, 50.0, mode, 0, 0)
     assert abs(res["core"][0] - 30.0) < 0.1 and abs(res["core"][1] - 30.0) < 0.1
     assert res["weighted"][0] - 30.0 > 1.0
 

@@ -238,13 +238,14 @@ def test_article_tables(tmp_path):
     res = mx.compute_all(run_fake(ds), mx.EvalSettings(n_boot=100))
     art = tables.article_table(res["metrics"])
     assert list(art.columns) == ["trajectory", "condition", "localizer", "M", tables.ARTICLE_SUCCESS,
-                                 tables.ARTICLE_DETECT, tables.ARTICLE_ERROR]
+                                 tables.ARTICLE_DETECT, tables.ARTICLE_ERROR, tables.ARTICLE_MATCHED,
+                                 tables.ARTICLE_MATCHED_RANGE]
     oracle = art[art.localizer == "oracle"].iloc[0]
     assert oracle[tables.ARTICLE_SUCCESS].startswith("100.0 [100.0, 100.0]") and oracle["M"] == "2*"
     md = tables.article_markdown(res["metrics"])
     tex = tables.article_latex(res["metrics"], caption="x", label="tab:x")
     assert "### trajectory straight" in md and "M < 10 trials" in md
-    assert r"\begin{tabular}{lllrrrr}" in tex and r"(\%)" in tex and r"\label{tab:x}" in tex
+    assert r"\begin{tabular}{lllrrrrrl}" in tex and r"(\%)" in tex and r"\label{tab:x}" in tex
 
 
 def _request(ds_path, out, **kw):

@@ -259,7 +259,7 @@ def led_centroid_table(dataset: Path) -> pd.DataFrame:
             for frame, img in frames:
                 T = np.asarray(frame["T_cam_dock"], float)
                 uv = cv2.projectPoints(kp, cv2.Rodrigues(T[:3, :3])[0], T[:3, 3], K, dist)[0].reshape(-1, 2)
-                blobs = loc._blobs(np.ascontiguousarray(img))
+                blobs = loc.candidates(np.ascontiguousarray(img))
                 if blobs is None:
                     continue
                 for p in uv:

@@ -3,7 +3,10 @@
 For ``turbidity``, ``depth``, ``current`` and ``occlusion`` (configs/paper_NAME.yaml):
 generate the dataset (resumable), evaluate the LED, QR and hybrid localizers, and
 report the article-shaped table (condition, average positioning error = E_rel_mean,
-success rate = P_succ_mean, with bootstrap 95% CIs over trials), the error-vs-distance
+success rate = P_succ_mean, with bootstrap 95% CIs over trials, and beside the pooled
+error the range-matched one over the 1 m bins every condition answers in), success and
+error per 1 m range bin for every condition (table and ``plots/range_bins.png``: one
+figure per experiment, conditions as lines), the error-vs-distance
 plot of one representative trial per condition, and the breakdown by marker with the
 usable range of each (largest 1 m bin with P_succ >= 0.9). Trends are reported as they
 come out. ``all`` generates the four together, rendering each camera path once for
@@ -64,11 +67,20 @@ def report(name: str, paths: dict) -> str:
         rng = "-" if pd.isna(r["max_range_m"]) else f"{r['max_range_m']:.0f} m"
         lines.append(f"- {r['localizer']:7s} {r['trajectory']}/{r['condition']:12s} "
                      f"P_succ {100 * r['P_succ_mean']:5.1f}%  P_detect {100 * r['P_detect_mean']:5.1f}%  "
-                     f"E_rel {100 * r['E_rel_mean']:.2f}%  usable range {rng}  "
+                     f"E_rel {100 * r['E_rel_mean']:.2f}% (range-matched {_matched(r)})  usable range {rng}  "
                      f"{r['ms_median']:.1f} ms/frame")
+    lines += ["", Path(paths["range_bins_md"]).read_text().strip()]
     plots = Path(paths["article_md"]).parent.parent / "plots"
-    lines += ["", f"plots: {plots / 'error_vs_distance.png'}, {plots / 'success_vs_distance.png'}"]
+    lines += ["", f"plots: {plots / 'range_bins.png'} (success and error per range bin, conditions as lines), "
+                  f"{plots / 'error_vs_distance.png'}, {plots / 'success_vs_distance.png'}"]
     return "\n".join(lines)
+
+
+def _matched(r) -> str:
+    """``0.41% over 1-7 m``: a metrics row's range-matched error and its bins, or ``-``."""
+    if pd.isna(r.get("E_rel_matched")) or pd.isna(r.get("matched_lo_m")):
+        return "-"
+    return f"{100 * r['E_rel_matched']:.2f}% over {r['matched_lo_m']:g}-{r['matched_hi_m']:g} m"
 
 
 def reproduce(names: tuple[str, ...], out_root: Path, trials: int | None, workers: int | None,

@@ -2,16 +2,22 @@
 
 The array has N >= 4 LEDs in convex position; one or more reference LEDs have another
 colour, and the cyclic reference/other pattern has no rotational symmetry (blendgen
-checks it), so the colour pattern fixes the order. Pipeline (640x480: ~0.5 ms + PnP):
-1. brightness = max(R, G, B); threshold at ``min(threshold, rel_threshold * max)`` (not
-   below ``min_threshold``) so dim (attenuated) arrays still pass; when no pose comes out
-   of that level (too many blobs, or no subset passes the checks), the threshold climbs a
-   ladder (``ladder``: fractions of the frame's maximum, default 0.8 and 0.97) and the search
-   repeats: LED cores are the brightest things in the frame, so a high level keeps them and
-   drops sunlit clutter (caustic networks on tiled walls, the surface's bright ripples:
-   on the physical demo pool 823 blobs at 0.6 x max, 7-16 at 0.97 x max). Frames that
-   succeed at the first level are unchanged;
-2. connected components (8-connected) with area and circularity limits;
+checks it), so the colour pattern fixes the order. Pipeline (blob stage in
+:mod:`evalkit.localizers.led_blobs`):
+1. brightness v = max(R, G, B), its local background (median over 160 px at 640 px) and
+   the frame's noise sigma (robust, from neighbour differences). A pixel is bright when
+   v exceeds the relative level ``min(threshold, rel_threshold * max)`` (not below
+   ``min_threshold``) *and* its local background by 5 sigma (the absolute, noise-aware
+   floor: in a veil brighter than 0.6 x max the relative level alone merges the frame
+   into one component). When no pose comes out of that level the threshold climbs a
+   ladder (``ladder``: fractions of the frame's maximum, default 0.8 and 0.97) and the
+   search repeats (a caustic line touching an LED separates higher up);
+2. connected components (8-connected) with area and circularity limits, ranked by
+   LED-likeness: first the blobs within the gate of an LED projected with the previous
+   frame's pose (``prior``), then by compactness^2 x excess mass (compactness = fill x
+   aspect, 1 for a disc; caustic filaments and networks 0.05-0.3). By mass alone, on the
+   sunlit pool at 5.75 m (tests/data/sunlit_pool) the 7 heaviest of 256 blobs hold 0-3
+   LEDs; by LED-likeness the 4 LEDs come first;
 3. centroid of each blob (``centroid=``): ``core`` (default: intensity-weighted over
    the pixels above the middle of the blob's range, (threshold/2 + peak)/2, i.e. the
    saturated core and its anti-aliased rim; glow around the LED then cannot pull it) or
@@ -22,26 +28,32 @@ checks it), so the colour pattern fixes the order. Pipeline (640x480: ~0.5 ms + 
    centroid by pixels and the core one by < 0.1 px (test oracle). An unweighted centroid
    of the saturated pixels only was also measured: same on the demo, but quantised on
    small (2-3 px) cores, 3-6 deg rotation errors at 5-10 m on the synthetic oracles;
-4. colour: the brightness-weighted mean chroma vector (opponent axes
-   a = R - (G+B)/2, b = sqrt(3)/2 (G - B)) over the box, so a saturated white core adds
-   nothing and the coloured halo decides; the R reference LEDs are the R blobs whose
-   hue is closest to the reference colour relative to the other LEDs' colour;
+4. colour: the chroma (opponent axes a = R - (G+B)/2, b = sqrt(3)/2 (G - B)) of the
+   blob's pixels and its halo above the floor, each minus the local background colour,
+   leaving out white-clipped pixels (colour lost): the veil adds nothing, so a reference
+   LED in a bright veil still reads as itself (the former mean over the blob's box, veil
+   included, read every blob as the veil's green). A blob must be saturated enough
+   (``min_saturation``) and of the reference or the other LEDs' hue to be a candidate;
+   candidates are measured lazily, most LED-like first, until ``max_candidates``;
 5. order: angles around the centroid, counter-clockwise as seen from the camera with
    image y flipped to point up; the cyclic reference/other label sequence is matched
    against the keypoints' (dock frame, y up) at the single rotation where it agrees;
 6. PnP: SOLVEPNP_IPPE on the dock-frame keypoints, both solutions checked, LM refine.
 
-Particles and reflections (more than N blobs): an assignment search with a geometric
-consistency check. The N-subsets of the ``max_candidates`` brightest blobs (N + 3 by
-default) are all tried; a subset must be in convex position,
-show the colour pattern at exactly one rotation, and its PnP pose must reproject all N
-LEDs within ``max_reproj_px`` (RMS); the best fit wins. (The first passing subset by
-brightness lost to tinted QR/ArUco patches under water light: four points in convex
-position admit a strongly tilted pose within a fraction of a pixel, so the best fit, not
-the brightest, separates the array from lookalikes.) Chosen over RANSAC
-because N is small (C(7,4) = 35 subsets, most rejected by the cheap convexity and
-colour tests before any PnP) and the search is exhaustive within the candidates, where
-RANSAC's minimal samples would still need the same colour/order bookkeeping.
+Particles, caustics and reflections (more than N blobs): the N most LED-like candidates
+are solved first; when they do not fit within ``accept_px``, an assignment search with a
+geometric consistency check over the ``max_candidates`` candidates (N + 3 by default):
+N-subsets in order of summed LED-likeness rank, each in convex position, showing the
+colour pattern at exactly one rotation, with blobs not far below the LED disc size the
+subset's span implies (``min_size_frac``), seen within ``max_view_deg`` and reprojecting
+all N LEDs within ``max_reproj_px`` (RMS); the first within ``accept_px`` ends the
+search, otherwise the best fit wins. (The first passing subset by brightness lost to
+tinted QR/ArUco patches under water light: four points in convex position admit a
+strongly tilted pose within a fraction of a pixel, so fit and view angle, not
+brightness, separate the array from lookalikes.) Chosen over RANSAC because N is small
+(C(7,4) = 35 subsets, most rejected by the cheap convexity, colour and size tests before
+any PnP), where RANSAC's minimal samples would still need the same colour/order
+bookkeeping.
 """
 from __future__ import annotations
 
@@ -51,6 +63,7 @@ import math
 import cv2
 import numpy as np
 
+from evalkit.localizers import led_blobs as lb
 from evalkit.localizers.pnp import camera_matrices, estimate_dict, solve_planar
 
 _SQ3_2 = math.sqrt(3.0) / 2.0
@@ -100,7 +113,7 @@ def match_rotation(labels: np.ndarray, pattern: np.ndarray) -> int | None:
 
 
 class LedLocalizer:
-    """LED array (N >= 4): threshold, blobs, reference LEDs by colour, pattern order, IPPE PnP."""
+    """LED array (N >= 4): noise-aware threshold, LED-like blobs, reference LEDs by colour, pattern order, IPPE PnP."""
 
     name = "led"
     outputs = ("distance", "T_cam_dock", "marker_id")
@@ -108,19 +121,25 @@ class LedLocalizer:
     def __init__(self, marker_id: str | None = None, threshold: float = 200.0,
                  rel_threshold: float = 0.6, min_threshold: float = 40.0,
                  min_area_px: int = 1, max_area_frac: float = 0.05, min_circularity: float = 0.4,
-                 ref_hue: float | None = None, max_candidates: int | None = None, max_blobs: int = 200,
-                 max_reproj_px: float = 3.0, min_chroma: float = 12.0, max_hue_err_deg: float = 60.0,
-                 centroid: str = "core", max_view_deg: float = 70.0, ladder: tuple = (0.8, 0.97)):
+                 ref_hue: float | None = None, max_candidates: int | None = None, max_blobs: int = 2000,
+                 max_reproj_px: float = 3.0, min_saturation: float = 0.2, max_hue_err_deg: float = 60.0,
+                 centroid: str = "core", max_view_deg: float = 70.0, ladder: tuple = (0.8, 0.97),
+                 prior: bool = True, prior_gate_px: float = 8.0, measure_factor: int = 3,
+                 accept_px: float = 0.5, min_size_frac: float = 0.4, max_solves: int = 35):
         """threshold: brightness (max channel, 0-255) that LED cores exceed; lowered to
         rel_threshold * image max (not below min_threshold) for dim images.
         min_area_px / max_area_frac: blob area limits (px / fraction of the image).
         min_circularity: area / (pi (max(w,h)/2)^2) for blobs of >= 12 px.
         ref_hue: reference LED hue in degrees (None: from the marker's colours).
-        max_candidates: brightest blobs considered (None: N + 3); max_blobs: give up above
-        this many blobs. max_reproj_px: RMS reprojection error (px) above which a blob
-        set is rejected. min_chroma: mean chroma (8-bit units) a blob needs to count as a
-        coloured LED, so white/grey highlights (marker plates, walls) are not taken for
-        LEDs. max_hue_err_deg: hue distance allowed between a blob and its expected LED
+        max_candidates: most LED-like coloured blobs considered (None: N + 3); max_blobs:
+        give up above this many blobs (the sunlit demo pool holds 200-370 at 0.6 x max; blob
+        statistics are vectorised, so only the measured candidates cost). max_reproj_px: RMS reprojection error (px) above
+        which a blob set is rejected. min_saturation: chroma / brightness of a blob's
+        background-subtracted colour (0 grey, ~0.9 the LEDs' own colours) it needs to
+        count as a coloured LED, so white/grey highlights are not taken for LEDs (measured
+        on the sunlit frame of tests/data/sunlit_pool: LEDs 1.2-1.8, caustics 0.4-0.7;
+        0.2 rejects only near-grey blobs, shape and geometry do the rest).
+        max_hue_err_deg: hue distance allowed between a blob and its expected LED
         colour. centroid: "core" or "weighted" (see the module docstring).
         max_view_deg: largest angle (deg) between the array's normal and the line of sight
         to it that a pose may have; flat LED discs seen beyond ~70 deg are foreshortened
@@ -128,6 +147,17 @@ class LedLocalizer:
         LEDs) fit only at ~78 deg (measured on the physical-mode demo).
         ladder: higher thresholds (fractions of the frame's max brightness) tried in turn
         when the first level gives no pose (module docstring, step 1); () disables it.
+        prior: rank the blobs near the LEDs projected with the previous frame's pose first
+        (False: every frame alone); prior_gate_px: smallest gate radius (px) of that (8 px:
+        1 deg of yaw between frames moves the image by f x 0.017 = 9.7 px at f = 554 px).
+        measure_factor: at most measure_factor x max_candidates blobs are measured (colour,
+        centroid), most LED-like first, which bounds the time spent on clutter.
+        accept_px: a blob set fitting within this RMS reprojection error (px) ends the
+        search (2.5 x the p95 centroid error of the core centroid, module docstring step 3).
+        min_size_frac: a blob's diameter must be at least this fraction of the LED disc's
+        image diameter the set's span implies, less 1.5 px (``_sizes_fit``; 0.4: a
+        blurred disc cut at 0.97 of its peak by the ladder keeps about half its diameter).
+        max_solves: PnP solves per threshold level at most (35 = every 4-subset of 7).
         Reason for > 8 params: every threshold of the blob pipeline is a documented knob."""
         if centroid not in ("weighted", "core"):
             raise ValueError(f"centroid must be weighted or core, got {centroid!r}")
@@ -142,7 +172,13 @@ class LedLocalizer:
         self.max_candidates = None if max_candidates in (None, "None", "") else int(max_candidates)
         self.max_blobs = int(max_blobs)
         self.max_reproj_px = float(max_reproj_px)
-        self.min_chroma = float(min_chroma)
+        self.min_saturation = float(min_saturation)
+        self.prior = str(prior).lower() not in ("false", "0", "no", "off")
+        self.prior_gate_px = float(prior_gate_px)
+        self.measure_factor = max(1, int(measure_factor))
+        self.accept_px = float(accept_px)
+        self.min_size_frac = float(min_size_frac)
+        self.max_solves = max(1, int(max_solves))
         self.cos_hue = math.cos(math.radians(float(max_hue_err_deg)))
         self.centroid = centroid
         self.cos_view = math.cos(math.radians(float(max_view_deg)))
@@ -152,10 +188,12 @@ class LedLocalizer:
         if any(not 0.0 < f <= 1.0 for f in self.ladder):
             raise ValueError(f"ladder fractions must be in (0, 1], got {self.ladder}")
         self._marker = None
+        self._prev_T = None
 
     def reset(self, camera: dict) -> None:
         """Pick the LED marker; precompute its keypoint order, colour pattern and colour axis."""
         self._K, self._dist = camera_matrices(camera)
+        self._prev_T = None
         markers = list(camera.get("markers") or [])
         if self.marker_id is not None:
             m = next((x for x in markers if str(x.get("id")) == str(self.marker_id)), None)
@@ -177,35 +215,77 @@ class LedLocalizer:
         self._colour_axis = _unit(h_ref) - u_other  # score = chroma_dir . axis
         self._u_ref = _unit(h_ref)
         self._u_other = u_other / max(np.linalg.norm(u_other), 1e-9)
+        span_m = float(np.max(np.linalg.norm(self._kp[:, None] - self._kp[None], axis=2)))
+        r_led = float(m.get("led_radius_m") or 0.0)
+        self._disc_per_span = 2.0 * r_led / span_m if span_m > 0 else 0.0
 
-    # stateless between frames: one call per frame is shared with the hybrid's LED (evalkit.memo)
+    # one call per frame is shared with the hybrid's LED (evalkit.memo): the state is the prior
     def memo_state(self) -> bytes:
-        return b""
+        """The previous frame's pose (the candidate ranking's prior), as bytes."""
+        return b"-" if self._prev_T is None else self._prev_T.tobytes()
 
-    def memo_after(self) -> None:
-        return None
+    def memo_after(self):
+        return None if self._prev_T is None else self._prev_T.copy()
 
     def memo_apply(self, before, after, est) -> None:
-        """Nothing to move: the result depends on the image only."""
+        """Take the prior the memoised call left (its pose, or None)."""
+        self._prev_T = None if after is None else np.array(after, np.float64)
+
+    def forget_prior(self) -> None:
+        """Drop the previous pose (a caller that skipped frames: it is no longer the
+        previous frame's)."""
+        self._prev_T = None
 
     def localize(self, image: np.ndarray) -> dict | None:
-        """Dock pose from one RGB uint8 image (H,W,3), or None."""
+        """Dock pose from one RGB uint8 image (H,W,3), or None. Remembers the pose (or
+        None) as the prior of the next frame's candidate ranking."""
         if self._marker is None:
             return None
         a = np.asarray(image)
         if a.dtype != np.uint8 or a.ndim != 3 or a.shape[2] != 3 or min(a.shape[:2]) < 8:
             return None
         try:
-            rgb = np.ascontiguousarray(a)
-            v = cv2.max(cv2.max(rgb[:, :, 0], rgb[:, :, 1]), rgb[:, :, 2])
-            for t in self._levels(float(v.max())):
-                blobs = self._blobs(rgb, v, t)
-                est = self._best_pose(*blobs) if blobs is not None else None
-                if est is not None:
-                    return est
-            return None
+            est = self._localize(lb.prepare(a))
         except (cv2.error, ValueError, FloatingPointError, np.linalg.LinAlgError):
+            est = None
+        if self.prior:
+            self._prev_T = None if est is None else np.array(est["T_cam_dock"], np.float64)
+        return est
+
+    def _localize(self, fr: lb.Frame) -> dict | None:
+        """Threshold levels in turn (module docstring, step 1) until one gives a pose."""
+        for t in self._levels(float(fr.v.max())):
+            est = self._pose_at(fr, t)
+            if est is not None:
+                return est
+        return None
+
+    def _pose_at(self, fr: lb.Frame, t: float) -> dict | None:
+        """Pose at level ``t``: the N most LED-like coloured blobs alone first (one PnP on
+        a clean frame); when they give no fit within ``accept_px``, the assignment search
+        over the ``max_candidates`` most LED-like."""
+        meas = self._measured(fr, t)
+        taken = list(itertools.islice(meas, self._n))
+        if len(taken) < self._n:
             return None
+        est = self._best_pose(*_columns(taken))
+        if est is not None and est["reproj_err_px"] <= self.accept_px:
+            return est
+        taken += list(itertools.islice(meas, self._k() - self._n))
+        return est if len(taken) == self._n else self._best_pose(*_columns(taken))
+
+    def _k(self) -> int:
+        return self.max_candidates if self.max_candidates is not None else self._n + 3
+
+    def candidates(self, image: np.ndarray):
+        """The candidate blobs of ``image`` (H,W,3 uint8) at the first threshold level, as
+        the pose search sees them: centroids (M,2) px, masses (M,), unit chroma (M,2),
+        diameters (M,) px; or None (for benches of the blob stage)."""
+        if self._marker is None:
+            return None
+        fr = lb.prepare(np.asarray(image))
+        levels = self._levels(float(fr.v.max()))
+        return self._blobs(fr, levels[0]) if levels else None
 
     def _levels(self, vmax: float) -> list[float]:
         """Brightness thresholds (0-255) to try in turn: the first level, then the ladder
@@ -214,84 +294,99 @@ class LedLocalizer:
         levels = [t0] + [f * vmax for f in self.ladder if f * vmax > t0]
         return [t for t in levels if t < vmax]
 
-    def _blobs(self, rgb: np.ndarray, v: np.ndarray, t: float):
-        """Candidate blobs above brightness ``t`` (``v`` the (H,W) max-channel image):
-        centroids (M,2) px, masses (M,), unit chroma directions (M,2); None if too few/many."""
-        mask = cv2.threshold(v, t, 255, cv2.THRESH_BINARY)[1]
-        # Labelling only the box around the bright pixels (2 px margin for _measure) skips
-        # the dark rest of the frame: 0.02 ms instead of ~1.9 ms at 640x480.
-        x, y, bw, bh = cv2.boundingRect(mask)
-        x0, y0 = max(0, x - 2), max(0, y - 2)
-        x1, y1 = min(v.shape[1], x + bw + 2), min(v.shape[0], y + bh + 2)
-        n, labels, stats, _ = cv2.connectedComponentsWithStatsWithAlgorithm(
-            np.ascontiguousarray(mask[y0:y1, x0:x1]), 8, cv2.CV_32S, cv2.CCL_BBDT)
-        if n - 1 < self._n or n - 1 > self.max_blobs:
-            return None
-        area = stats[1:, cv2.CC_STAT_AREA]
-        w, h = stats[1:, cv2.CC_STAT_WIDTH], stats[1:, cv2.CC_STAT_HEIGHT]
+    def _blobs(self, fr: lb.Frame, t: float):
+        """Candidate blobs at level ``t``, most LED-like first (module docstring, steps
+        2-4): centroids (M,2) px, masses (M,), unit chroma directions (M,2), blob
+        diameters (M,) px, M <= max_candidates; None if fewer than N."""
+        taken = list(itertools.islice(self._measured(fr, t), self._k()))
+        return _columns(taken) if len(taken) >= self._n else None
+
+    def _measured(self, fr: lb.Frame, t: float):
+        """The coloured blobs at level ``t`` (:class:`led_blobs.BlobMeasure`), measured
+        lazily in LED-likeness order (at most measure_factor x max_candidates measured);
+        a blob counts when saturated enough and of the reference or the other LEDs' hue."""
+        blobs = lb.components(fr, t, self.max_blobs)
+        if blobs is None or blobs.count < self._n:
+            return
+        for lab in self._ranked(blobs, fr.v.size)[: self.measure_factor * self._k()]:
+            m = lb.measure(fr, blobs, int(lab), t, self.centroid)
+            if m is None or m.saturation < self.min_saturation:
+                continue
+            if max(float(m.chroma @ self._u_ref), float(m.chroma @ self._u_other)) < self.cos_hue:
+                continue   # neither the reference LEDs' colour nor the others'
+            yield m
+
+    def _ranked(self, blobs: lb.Blobs, n_px: int) -> np.ndarray:
+        """Labels of the blobs that pass the area and circularity limits, most LED-like
+        first: those within the gate of an LED predicted by the previous frame's pose,
+        then by compactness^2 x excess mass (a compact bright spot beats a caustic
+        filament of the same mass by 10-400x)."""
+        st = blobs.stats[1:]
+        area = st[:, cv2.CC_STAT_AREA]
+        w, h = st[:, cv2.CC_STAT_WIDTH], st[:, cv2.CC_STAT_HEIGHT]
         circ = area / (np.pi * (np.maximum(w, h) / 2.0) ** 2)
-        ok = (area >= self.min_area_px) & (area <= self.max_area_frac * v.size)
+        ok = (area >= self.min_area_px) & (area <= self.max_area_frac * n_px)
         ok &= (area < 12) | (circ >= self.min_circularity)
-        idx = np.nonzero(ok)[0] + 1
-        if len(idx) < self._n:
-            return None
-        rgb_c, v_c = rgb[y0:y1, x0:x1], v[y0:y1, x0:x1]
-        cents, masses, chroma = [], [], []
-        for lab in idx:
-            c = self._measure(rgb_c, v_c, labels, stats[lab], lab, 0.5 * t)
-            if c is not None:
-                cents.append(c[0]), masses.append(c[1]), chroma.append(c[2])
-        if len(cents) < self._n:
-            return None
-        k = self.max_candidates if self.max_candidates is not None else self._n + 3
-        order = np.argsort(masses)[::-1][:k]
-        return np.array(cents)[order] + (x0, y0), np.array(masses)[order], np.array(chroma)[order]
+        score = blobs.compact[1:] ** 2 * blobs.mass[1:]
+        near = self._near_prior(blobs.centres[1:] + blobs.origin)
+        idx = np.nonzero(ok)[0]
+        order = idx[np.lexsort((-score[idx], ~near[idx]))]
+        return order + 1
 
-    def _measure(self, rgb, v, labels, st, lab, t_low):
-        """Centroid (u, v) px, mass and unit chroma direction (2,) of blob ``lab``
-        (stats row ``st``), or None for an uncoloured blob."""
-        x0, y0, bw, bh = (int(s) for s in st[:4])
-        m = 2
-        xa, ya = max(0, x0 - m), max(0, y0 - m)
-        xb, yb = min(v.shape[1], x0 + bw + m), min(v.shape[0], y0 + bh + m)
-        lab_roi = labels[ya:yb, xa:xb]
-        v_roi = v[ya:yb, xa:xb]
-        wgt = np.clip(v_roi.astype(np.float32) - t_low, 0, None)
-        wgt[(lab_roi != lab) & (lab_roi != 0)] = 0.0
-        s = float(wgt.sum())
-        if s <= 0:
-            return None
-        yy, xx = np.mgrid[ya:yb, xa:xb]
-        px = rgb[ya:yb, xa:xb].astype(np.float32)
-        ca = (wgt * (px[:, :, 0] - 0.5 * (px[:, :, 1] + px[:, :, 2]))).sum()
-        cb = (wgt * _SQ3_2 * (px[:, :, 1] - px[:, :, 2])).sum()
-        norm = math.hypot(ca, cb)
-        if norm / s < self.min_chroma:  # mean chroma (8-bit units) too low: a white/grey blob
-            return None
-        if self.centroid == "core":  # weights above the middle of the blob's range: the core
-            peak = float(v_roi[lab_roi == lab].max())
-            w2 = np.clip(v_roi.astype(np.float32) - 0.5 * (t_low + peak), 0, None)
-            w2[lab_roi != lab] = 0.0
-            s2 = float(w2.sum())
-            cu, cv_ = float((w2 * xx).sum() / s2), float((w2 * yy).sum() / s2)
-        else:
-            cu, cv_ = float((wgt * xx).sum() / s), float((wgt * yy).sum() / s)
-        return (cu, cv_), s, np.array([ca, cb]) / norm
+    def _near_prior(self, uv: np.ndarray) -> np.ndarray:
+        """(M,) bool: blob centres (M,2) px within the gate of an LED projected with the
+        previous frame's pose (all False without one). Gate: a quarter of the smallest
+        predicted LED spacing, at least ``prior_gate_px``."""
+        if self._prev_T is None or len(uv) == 0:
+            return np.zeros(len(uv), bool)
+        T = self._prev_T
+        pred = cv2.projectPoints(self._kp.reshape(-1, 1, 3), cv2.Rodrigues(T[:3, :3])[0], T[:3, 3],
+                                 self._K, self._dist)[0].reshape(-1, 2)
+        gaps = np.linalg.norm(pred[:, None] - pred[None], axis=2)[np.triu_indices(len(pred), 1)]
+        gate = max(self.prior_gate_px, 0.25 * float(gaps.min()))
+        d = np.linalg.norm(uv[:, None, :] - pred[None, :, :], axis=2).min(axis=1)
+        return d <= gate
 
-    def _best_pose(self, cents, masses, chroma):
-        """The N-subset with the smallest reprojection error among those that pass the
-        convexity, colour-pattern and reprojection checks (the assignment search of the
-        module docstring). Exactly N candidates: the one subset, no search."""
-        n = self._n
-        best = None
-        for combo in itertools.combinations(range(len(cents)), n):
-            est = self._solve(cents[list(combo)], chroma[list(combo)])
+    def _best_pose(self, cents, masses, chroma, sizes=None):
+        """The assignment search of the module docstring over the candidates (most
+        LED-like first; ``masses`` is not used, ``sizes`` (M,) px blob diameters or None):
+        N-subsets in order of their candidates' summed rank, each checked for convexity,
+        colour pattern, blob size against the range its span implies, view angle and
+        reprojection; the first within ``accept_px`` wins at once, otherwise the best fit."""
+        best, best_c, solves = None, None, 0
+        combos = sorted(itertools.combinations(range(len(cents)), self._n), key=sum)
+        for combo in combos:
+            c = list(combo)
+            if sizes is not None and not self._sizes_fit(cents[c], sizes[c]):
+                continue
+            if solves == self.max_solves:
+                break
+            solves += 1
+            est = self._solve(cents[c], chroma[c], refine=solves == 1)
             if est is not None and (best is None or est["reproj_err_px"] < best["reproj_err_px"]):
-                best = est
-        return best
+                best, best_c = est, c
+                if best["reproj_err_px"] <= self.accept_px:
+                    break
+        self.last_solves = solves
+        if best_c is None or best_c == list(combos[0]):   # none, or the first set (refined)
+            return best
+        return self._solve(cents[best_c], chroma[best_c], refine=True)
 
-    def _solve(self, uv, chroma):
-        """Pose from N blob centroids (N,2) and their chroma directions (N,2), or None."""
+    def _sizes_fit(self, uv: np.ndarray, diam: np.ndarray) -> bool:
+        """Blob diameters (N,) px not far below the LED discs' image diameter at the range
+        the subset's span implies (the array's span S m seen over the subset's largest
+        image distance s px: disc diameter 2 r s / S px, an upper bound on the range and a
+        lower bound on the disc for a tilted array). Catches clutter sets spanning more
+        pixels than their blobs' size allows (a close array has big LEDs). Without the
+        LED radius in the manifest: True."""
+        if self._disc_per_span <= 0:
+            return True
+        span = float(np.max(np.linalg.norm(uv[:, None] - uv[None], axis=2)))
+        return bool(np.all(diam >= self.min_size_frac * self._disc_per_span * span - 1.5))
+
+    def _solve(self, uv, chroma, refine: bool = True):
+        """Pose from N blob centroids (N,2) and their chroma directions (N,2), or None;
+        ``refine``: Levenberg-Marquardt after IPPE (the search ranks unrefined fits)."""
         if not _convex(uv):
             return None
         score = chroma @ self._colour_axis
@@ -308,7 +403,7 @@ class LedLocalizer:
             return None
         img_pts = np.empty((self._n, 2))
         img_pts[self._kp_ccw] = uv[np.roll(ccw, -k)]
-        pose = solve_planar(self._kp, img_pts, self._K, self._dist)
+        pose = solve_planar(self._kp, img_pts, self._K, self._dist, refine=refine)
         if pose is None or pose.reproj_err_px > self.max_reproj_px or not self._seen_frontally(pose.T_cam_target):
             return None
         return estimate_dict(pose.T_cam_target, self._marker["id"], pose)
@@ -318,6 +413,12 @@ class LedLocalizer:
         centre = T_cam_target[:3, :3] @ self._kp.mean(axis=0) + T_cam_target[:3, 3]
         cos_view = float(-T_cam_target[:3, 2] @ centre) / max(float(np.linalg.norm(centre)), 1e-12)
         return cos_view >= self.cos_view
+
+
+def _columns(meas: list) -> tuple:
+    """Measured blobs -> (centroids (M,2) px, masses (M,), unit chroma (M,2), diameters (M,) px)."""
+    return (np.array([m.centre for m in meas]), np.array([m.mass for m in meas]),
+            np.array([m.chroma for m in meas]), np.array([m.diameter for m in meas]))
 
 
 def _unit(h_deg: float) -> np.ndarray:

@@ -17,6 +17,12 @@ milliseconds; rates are fractions.
   marker in view / such frames.
 * **Distance bins** (1 m by default) pool the counted frames of a group; **usable
   range** = upper edge of the farthest bin whose ``P_succ >= 0.9``.
+* **Range-matched error** (:func:`range_matched`): a condition that loses its far frames
+  reports a lower mean error over the frames it keeps only because they are nearer (the
+  relative error grows with range). ``E_rel_matched`` / ``e_abs_matched`` average the
+  per-bin errors over the bins where *every* condition of the (localizer, trajectory)
+  has an estimate, each bin weighted equally, so conditions are compared at the same
+  ranges; ``matched_lo_m`` / ``matched_hi_m`` / ``n_matched_bins`` say which.
 * **Runtime**: ``ms`` per ``localize`` call, median and 95th percentile (frames that
   never reached ``localize`` because ``reset`` failed excluded).
 """
@@ -42,7 +48,9 @@ METRIC_COLUMNS = GROUP + [
     "n_trials", "few_trials", "P_succ_mean", "P_succ_lo", "P_succ_hi", "P_detect_mean", "P_detect_lo",
     "P_detect_hi", "E_rel_mean", "E_rel_lo", "E_rel_hi", "e_abs_mean", "e_trans_mean", "e_rot_deg_mean",
     "e_range_abs_mean", "e_lateral_mean", "AR", "AR_MSSD", "AR_MSPD", "n_targets", "n_frames", "n_est",
-    "n_fp", "fp_rate", "fp_rate_no_view", "max_range_m"]
+    "n_fp", "fp_rate", "fp_rate_no_view", "max_range_m", "E_rel_matched", "e_abs_matched",
+    "n_matched_bins", "matched_lo_m", "matched_hi_m"]
+MATCHED_COLUMNS = ["E_rel_matched", "e_abs_matched", "n_matched_bins", "matched_lo_m", "matched_hi_m"]
 RUNTIME_COLUMNS = ["localizer", "n_calls", "ms_median", "ms_p95", "ms_mean"]
 
 
@@ -163,6 +171,27 @@ def max_usable_range(bins: pd.DataFrame, threshold: float = 0.9, min_frames: int
         .reset_index(drop=True)
 
 
+def range_matched(bins: pd.DataFrame) -> pd.DataFrame:
+    """Per group: the error over the bins every condition of its (localizer, trajectory)
+    has an error in (module docstring): ``E_rel_matched``, ``e_abs_matched`` (means of
+    the bins' ``e_rel_mean`` / ``e_abs_mean``, bins weighted equally), ``n_matched_bins``
+    and the matched bins' extent ``matched_lo_m``, ``matched_hi_m`` (NaN without any)."""
+    rows = []
+    for (loc, traj), g in bins.groupby(["localizer", "trajectory"], sort=True, dropna=False):
+        has = g.assign(_ok=np.isfinite(g["e_rel_mean"].astype(float))).pivot_table(
+            index="bin_lo", columns="condition", values="_ok", aggfunc="all", dropna=False)
+        common = has.index[has.fillna(False).astype(bool).all(axis=1)]
+        for cond, c in g.groupby("condition", sort=True, dropna=False):
+            m = c[c["bin_lo"].isin(common)]
+            rows.append({"localizer": loc, "trajectory": traj, "condition": cond,
+                         "E_rel_matched": float(m["e_rel_mean"].mean()) if len(m) else np.nan,
+                         "e_abs_matched": float(m["e_abs_mean"].mean()) if len(m) else np.nan,
+                         "n_matched_bins": int(len(m)),
+                         "matched_lo_m": float(m["bin_lo"].min()) if len(m) else np.nan,
+                         "matched_hi_m": float(m["bin_hi"].max()) if len(m) else np.nan})
+    return pd.DataFrame(rows, columns=GROUP + MATCHED_COLUMNS)
+
+
 # -- false positives and runtime ---------------------------------------------
 def false_positive_table(frames: pd.DataFrame) -> pd.DataFrame:
     """Per group, all frames: ``n_frames, n_est, n_fp, fp_rate, n_no_view, fp_rate_no_view``."""
@@ -237,7 +266,7 @@ def compute_all(estimates: pd.DataFrame, settings: EvalSettings | None = None,
     out = frames[GROUP].drop_duplicates().merge(_group_means(trials), on=GROUP, how="left")
     for part in (condition_cis(trials, settings), recall,
                  fp[GROUP + ["n_frames", "n_est", "n_fp", "fp_rate", "fp_rate_no_view"]],
-                 max_usable_range(bins, settings.usable_threshold)):
+                 max_usable_range(bins, settings.usable_threshold), range_matched(bins)):
         out = out.merge(part, on=GROUP, how="left")
     out["n_trials"] = out["n_trials"].fillna(0).astype("int64")
     out["few_trials"] = out["n_trials"] < MIN_TRIALS_FOR_CI

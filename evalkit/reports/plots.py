@@ -6,6 +6,8 @@
   panel per localizer, each panel with its own y axis.
 * :func:`plot_success_vs_distance` -- ``P_succ`` per distance bin (frames of
   all trials pooled), one line per condition, one panel per localizer.
+* :func:`plot_range_bins` -- the experiment's figure: success and error per 1 m range
+  bin, one column per localizer, conditions as lines (physics at equal range).
 """
 from __future__ import annotations
 
@@ -122,3 +124,55 @@ def plot_success_vs_distance(bins: pd.DataFrame, path: str | Path, threshold: fl
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=7)
     return _save(plt, fig, axes, "P_succ (%)", title, path)
+
+
+def plot_range_bins(bins: pd.DataFrame, path: str | Path, threshold: float | None = 0.9,
+                    title: str | None = None) -> Path:
+    """One figure of an experiment: success (top row, ``P_succ`` %) and error (bottom row,
+    ``e_rel_mean`` % over the frames with an estimate) against the 1 m range bin, one
+    column per localizer, one line per condition (``trajectory/condition`` when the run
+    has several trajectories). Read along a line, the error at a given range shows what
+    the water does there; where a line stops, the condition lost its frames (the pooled
+    error of such a condition is lower by selection, not by physics). Writes ``path``."""
+    plt = _pyplot()
+    path = Path(path)
+    locs = sorted(bins["localizer"].unique()) or ["(none)"]
+    several = bins["trajectory"].nunique() > 1
+    fig, axes = plt.subplots(2, len(locs), figsize=(4.6 * len(locs), 6.4), squeeze=False, sharex=True,
+                             sharey="row")   # one error scale: localizers compare at a glance
+    for col, loc in enumerate(locs):
+        b = bins[(bins["localizer"] == loc) & (bins["n_total"] > 0)]
+        for (traj, cond), g in b.groupby(["trajectory", "condition"], sort=True, dropna=False):
+            g = g.sort_values("bin_lo")
+            centre = (g["bin_lo"] + g["bin_hi"]) / 2.0
+            label = f"{traj}/{cond}" if several else str(cond)
+            line = axes[0, col].plot(centre, 100.0 * g["P_succ"], marker="o", ms=3, label=label)[0]
+            axes[1, col].plot(centre, 100.0 * g["e_rel_mean"], marker="o", ms=3, color=line.get_color(),
+                              label=label)
+        _range_bin_axes(axes[:, col], str(loc), threshold, b)
+    axes[0, 0].set_ylabel("P_succ (%)", fontsize=8)
+    axes[1, 0].set_ylabel("relative error e_rel (%)", fontsize=8)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _range_bin_axes(pair, loc: str, threshold: float | None, b: pd.DataFrame) -> None:
+    """Titles, limits, grid and legend of one localizer's (success, error) panels."""
+    top, bottom = pair
+    top.set_title(loc)
+    top.set_ylim(-2, 102)
+    if threshold is not None:
+        top.axhline(100.0 * threshold, ls="--", lw=0.8, color="grey")
+    bottom.set_xlabel("d_true (m), 1 m bin centre")
+    bottom.set_ylim(bottom=0)
+    if len(b):
+        bottom.set_xlim(0, float(np.nanmax(b["bin_hi"])))
+    for ax in pair:
+        ax.grid(alpha=0.3)
+    if top.get_legend_handles_labels()[0]:
+        top.legend(fontsize=7)

@@ -10,8 +10,8 @@ A run directory (written by :func:`save_run`, atomically via
     summary.csv        per trial (P_succ, P_detect, errors)
     metrics.csv        per (localizer, trajectory, condition): CIs, pose errors, AR, FP, usable range
     bins.csv, false_positives.csv, recall.csv, runtime.csv
-    tables/article.md|tex, tables/metrics.md|tex
-    plots/error_vs_distance.png, plots/success_vs_distance.png
+    tables/article.md|tex, tables/metrics.md|tex, tables/range_bins.md
+    plots/error_vs_distance.png, plots/success_vs_distance.png, plots/range_bins.png
 
 summary.csv and metrics.csv hold no timings, so the same inputs give byte-identical
 files; runtimes are in runtime.csv. Runs are comparable only when computed on the
@@ -139,12 +139,13 @@ def _write_tables(res: dict, out: Path, label: str) -> dict[str, Path]:
     paths["article_tex"] = _write(tdir / "article.tex", tables.article_latex(
         res["metrics"], caption=caption, label="tab:dockbench-article"))
     paths["metrics_md"] = _write(tdir / "metrics.md", tables.to_markdown(res["metrics"]))
+    paths["range_bins_md"] = _write(tdir / "range_bins.md", tables.range_bins_markdown(res["bins"]))
     paths["metrics_tex"] = _write(tdir / "metrics.tex", tables.to_latex(res["metrics"]))
     return paths
 
 
 def _write_plots(res: dict, out: Path, settings: EvalSettings, label: str) -> dict[str, Path]:
-    """The two PNGs of a run."""
+    """The PNGs of a run."""
     from evalkit.reports import plots
     pdir = out / "plots"
     return {"plot_error": plots.plot_error_vs_distance(
@@ -152,7 +153,10 @@ def _write_plots(res: dict, out: Path, settings: EvalSettings, label: str) -> di
                 d_max=settings.d_max_m, title=f"error vs distance, one representative trial ({label})"),
             "plot_success": plots.plot_success_vs_distance(
                 res["bins"], pdir / "success_vs_distance.png", threshold=settings.usable_threshold,
-                title=f"P_succ per {settings.bin_m:g} m bin ({label})")}
+                title=f"P_succ per {settings.bin_m:g} m bin ({label})"),
+            "plot_range_bins": plots.plot_range_bins(
+                res["bins"], pdir / "range_bins.png", threshold=settings.usable_threshold,
+                title=f"success and error per {settings.bin_m:g} m range bin ({label})")}
 
 
 def save_run(estimates_df: pd.DataFrame, out_dir: str | Path, record: RunRecord) -> tuple[dict[str, Path], dict]:

@@ -122,6 +122,11 @@ def to_latex(df: pd.DataFrame, floatfmt: str = ".4g", caption: str | None = None
 ARTICLE_SUCCESS = "P_succ (%)"
 ARTICLE_DETECT = "P_detect (%)"
 ARTICLE_ERROR = "E_rel (%)"
+ARTICLE_MATCHED = "E_rel matched (%)"
+ARTICLE_MATCHED_RANGE = "matched bins"
+MATCHED_NOTE = ("E_rel pools every frame a condition answers; E_rel matched averages the 1 m bins that "
+                "every condition of the trajectory answers in (each bin weighted equally), so conditions "
+                "are compared at the same ranges.")
 FEW_TRIALS_NOTE = (f"* M < {MIN_TRIALS_FOR_CI} trials: the bootstrap CI is unreliable "
                    "(M = 1: no CI at all); generate more trials (config `trials:`).")
 
@@ -143,9 +148,11 @@ def _pct(value, lo=None, hi=None, digits: int = 1) -> str:
 def article_table(metrics: pd.DataFrame, with_ci: bool = True, digits: int = 1) -> pd.DataFrame:
     """One row per (trajectory, condition, localizer): ``M`` (trials, ``*`` below
     :data:`MIN_TRIALS_FOR_CI`), :data:`ARTICLE_SUCCESS`, :data:`ARTICLE_DETECT`,
-    :data:`ARTICLE_ERROR` in percent with the bootstrap CI in brackets (text cells).
+    :data:`ARTICLE_ERROR` in percent with the bootstrap CI in brackets (text cells), and
+    beside the pooled error the range-matched one (:data:`ARTICLE_MATCHED`) with its bins.
     ``metrics`` is :func:`evalkit.metrics.extra.compute_all`'s ``metrics`` table."""
     rows = []
+    err_digits = max(digits, 2)    # relative errors of a few tenths of a percent need two decimals
     order = metrics.sort_values(["trajectory", "condition", "localizer"], kind="stable")
     for _, r in order.iterrows():
         def cell(mean_col, prefix):
@@ -156,9 +163,20 @@ def article_table(metrics: pd.DataFrame, with_ci: bool = True, digits: int = 1) 
                      "M": f"{m}*" if m < MIN_TRIALS_FOR_CI else str(m),
                      ARTICLE_SUCCESS: cell("P_succ_mean", "P_succ"),
                      ARTICLE_DETECT: cell("P_detect_mean", "P_detect"),
-                     ARTICLE_ERROR: cell("E_rel_mean", "E_rel")})
+                     ARTICLE_ERROR: _pct(r.get("E_rel_mean"), *((r.get("E_rel_lo"), r.get("E_rel_hi"))
+                                                               if with_ci else (None, None)), digits=err_digits),
+                     ARTICLE_MATCHED: _pct(r.get("E_rel_matched"), digits=err_digits),
+                     ARTICLE_MATCHED_RANGE: _bins_text(r)})
     return pd.DataFrame(rows, columns=["trajectory", "condition", "localizer", "M", ARTICLE_SUCCESS,
-                                       ARTICLE_DETECT, ARTICLE_ERROR])
+                                       ARTICLE_DETECT, ARTICLE_ERROR, ARTICLE_MATCHED, ARTICLE_MATCHED_RANGE])
+
+
+def _bins_text(r) -> str:
+    """``"2-7 m (5)"``: extent and number of the matched bins of a metrics row; ``-`` if none."""
+    n, lo, hi = r.get("n_matched_bins"), r.get("matched_lo_m"), r.get("matched_hi_m")
+    if n is None or pd.isna(n) or not n or pd.isna(lo) or pd.isna(hi):
+        return "-"
+    return f"{float(lo):g}-{float(hi):g} m ({int(n)})"
 
 
 def _few(metrics: pd.DataFrame) -> bool:
@@ -171,6 +189,7 @@ def article_markdown(metrics: pd.DataFrame, with_ci: bool = True) -> str:
     parts = []
     for traj, g in art.groupby("trajectory", sort=True):
         parts.append(f"### trajectory {traj or '(unnamed)'}\n\n" + to_markdown(g.drop(columns="trajectory")))
+    parts.append(MATCHED_NOTE + "\n")
     if _few(metrics):
         parts.append(FEW_TRIALS_NOTE + "\n")
     return "\n".join(parts)
@@ -181,8 +200,42 @@ def article_latex(metrics: pd.DataFrame, with_ci: bool = True, caption: str | No
     """:func:`article_table` as a LaTeX ``booktabs`` tabular (``%`` escaped); a footnote
     row when some group has fewer than :data:`MIN_TRIALS_FOR_CI` trials."""
     df = article_table(metrics, with_ci)
-    out = to_latex(df, caption=caption, label=label, column_format="lllrrrr")
+    out = to_latex(df, caption=caption, label=label, column_format="lllrrrrrl")
     if _few(metrics):
         note = latex_escape(FEW_TRIALS_NOTE)
-        out = out.replace(r"\bottomrule", r"\bottomrule" + "\n" + rf"\multicolumn{{7}}{{l}}{{\footnotesize {note}}} \\", 1)
+        out = out.replace(r"\bottomrule", r"\bottomrule" + "\n" + rf"\multicolumn{{9}}{{l}}{{\footnotesize {note}}} \\", 1)
     return out
+
+
+# -- per range bin ------------------------------------------------------------------
+def range_bin_table(bins: pd.DataFrame, localizer: str, trajectory: str) -> pd.DataFrame:
+    """One row per condition of (``localizer``, ``trajectory``), one column per distance
+    bin that holds frames: ``"P_succ / E_rel"`` in percent (``-`` where a condition has no
+    frame or no estimate). ``bins`` is :func:`evalkit.metrics.extra.distance_bins`'s table."""
+    b = bins[(bins["localizer"] == localizer) & (bins["trajectory"] == trajectory)]
+    used = sorted(b.loc[b["n_total"] > 0, "bin_lo"].unique())
+    rows = []
+    for cond, g in b.groupby("condition", sort=True, dropna=False):
+        row = {"condition": cond}
+        for _, r in g[g["bin_lo"].isin(used)].sort_values("bin_lo").iterrows():
+            key = f"{r['bin_lo']:g}-{r['bin_hi']:g} m"
+            if r["n_total"] <= 0:
+                row[key] = "-"
+                continue
+            err = "-" if pd.isna(r["e_rel_mean"]) else f"{100 * r['e_rel_mean']:.2f}"
+            row[key] = f"{100 * r['P_succ']:.0f} / {err}"
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def range_bins_markdown(bins: pd.DataFrame) -> str:
+    """Per (trajectory, localizer) a :func:`range_bin_table` as Markdown: success and error
+    against range for every condition, which separates what water does at a given range
+    from which ranges a condition keeps."""
+    parts = ["P_succ (%) / E_rel (%) per 1 m bin of d_true (frames of all trials pooled; "
+             "E_rel over the frames with an estimate)\n"]
+    for (traj, loc), _ in bins.groupby(["trajectory", "localizer"], sort=True, dropna=False):
+        table = range_bin_table(bins, loc, traj)
+        if len(table):
+            parts.append(f"### {traj or '(unnamed)'}: {loc}\n\n" + to_markdown(table))
+    return "\n".join(parts)
