@@ -654,7 +654,9 @@ def leaderboard(results_dirs: tuple[Path, ...], out: Path, title: str, shot: Pat
 @click.option("-o", "--out", "out", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="BOP dataset directory to write")
 @click.option("--split", default="test", show_default=True, help="BOP split folder name")
-@click.option("--copy", "copy_images", is_flag=True, help="copy RGB images instead of symlinking them")
+@click.option("--copy/--symlink", "copy_images", default=True, show_default=True,
+              help="copy the RGB images, or link them by relative symlinks (move the export and the "
+                   "dataset together)")
 @click.option("--depth-scale", type=click.FloatRange(min=0.0, min_open=True), default=1.0,
               show_default=True, help="mm per depth PNG unit (1.0: up to 65.5 m; 0.1: up to 6.5 m)")
 @click.option("--no-masks", is_flag=True, help="do not write mask_visib PNGs")
@@ -674,6 +676,9 @@ def export_bop(dataset: Path, out: Path, split: str, copy_images: bool, depth_sc
         sys.exit(2)
     click.echo(f"BOP export: {s['scenes']} scenes, {s['images']} images, {s['objects']} objects -> {out}")
     info = json.loads((out / "dockbench_scenes.json").read_text())["visib_fract"]
+    if info["from_object_index"]:
+        click.echo(f"note: {info['from_object_index']} visib_fract values from the object-index pass "
+                   "(no depth pass for the toolkit's depth test)", err=True)
     if info["copied_from_dataset"]:
         click.echo(f"note: {info['copied_from_dataset']} visib_fract values copied from the dataset's "
                    "visible_fraction (no object-index pass to compute them from)", err=True)
