@@ -662,9 +662,13 @@ def leaderboard(results_dirs: tuple[Path, ...], out: Path, title: str, shot: Pat
 @click.option("--no-masks", is_flag=True, help="do not write mask_visib PNGs")
 @click.option("--undistort", is_flag=True, help="camera with lens distortion: remap images, depth and masks "
                                                 "to the pinhole camera of the same K (else refused)")
+@click.option("--results", "results_dirs", multiple=True, type=click.Path(file_okay=False, path_type=Path),
+              help="a results folder of `dockbench evaluate` on DATASET (repeatable): write each pose "
+                   "localizer's estimates as OUT/results/METHOD_dockbench-SPLIT.csv and print its BOP19 AR")
 def export_bop(dataset: Path, out: Path, split: str, copy_images: bool, depth_scale: float,
-                   no_masks: bool, undistort: bool):
-    """Export DATASET in the BOP format (scene_camera/scene_gt/scene_gt_info, rgb, depth) to OUT."""
+                   no_masks: bool, undistort: bool, results_dirs: tuple[Path, ...]):
+    """Export DATASET in the BOP format (scene_camera/scene_gt/scene_gt_info, rgb, depth) to OUT;
+    with --results also BOP results files and their scores (docs/bop.md)."""
     import json
     from evalkit.dataset import DatasetError
     from evalkit.reports.bop import export_bop as run
@@ -685,6 +689,37 @@ def export_bop(dataset: Path, out: Path, split: str, copy_images: bool, depth_sc
     if s["depth_clipped_px"]:
         click.echo(f"note: {s['depth_clipped_px']} depth pixels beyond {65535 * depth_scale / 1000:.1f} m "
                    f"written as 0 (use a larger --depth-scale)", err=True)
+    if results_dirs:
+        _bop_results(dataset, out, results_dirs)
+
+
+def _bop_results(dataset: Path, out: Path, results_dirs: tuple[Path, ...]) -> None:
+    """Results CSVs of every pose localizer in ``results_dirs`` and a table: the BOP19 AR (per
+    marker, VSD + MSSD + MSPD) next to dockbench's AR_dock (the dock as one object)."""
+    import pandas as pd
+    from evalkit.dataset import Dataset, DatasetError
+    from evalkit.reports.bop_results import pooled_dock_ar, write_results
+    from evalkit.reports.bop_score import bop19_scores
+    from evalkit.reports.results import ResultsError, load_run
+    from evalkit.reports.tables import print_table
+    ds = Dataset.open(dataset)
+    rows = []
+    for rdir in results_dirs:
+        try:
+            run = load_run(rdir)
+            est = run.estimates
+        except (ResultsError, OSError) as exc:
+            raise DatasetError(f"{rdir}: not a results folder of `dockbench evaluate` ({exc})") from None
+        if run.content_hash not in (None, ds.manifest.get("content_hash")):
+            raise DatasetError(f"{rdir}: evaluated another dataset (content hash {run.content_hash[:12]}, "
+                               f"{dataset} has {str(ds.manifest.get('content_hash'))[:12]})")
+        dock_ar = pooled_dock_ar(est, ds.markers, ds.camera)
+        for name, path in write_results(est, ds.markers, out, out / "results").items():
+            rows.append({"localizer": name, **bop19_scores(out, path), "AR_dock": dock_ar.get(name), "file": str(path)})
+    if rows:
+        print_table(pd.DataFrame(rows), floatfmt=".3f")
+    click.echo("AR_BOP19: per marker object, (AR_VSD + AR_MSSD + AR_MSPD) / 3 over test_targets_bop19 (the BOP "
+               "toolkit's definition); AR_dock: the dock as one object, MSSD + MSPD only (dockbench's own)")
 
 
 @main.command("dock")

@@ -14,6 +14,9 @@
                                         origin in the marker frame (mm)
     DIR/dockbench_scenes.json           scene id -> sequence id, condition, trial; dataset identity;
                                         where visib_fract came from
+    DIR/register_bop_toolkit.py         registers the export as dataset "dockbench" in a BOP
+                                        toolkit clone (docs/bop.md)
+    DIR/results/METHOD_dockbench-SPLIT.csv  with ``--results``: BOP19 results per pose localizer
     DIR/<split>/<scene:06d>/            one scene per sequence (manifest order)
         scene_camera.json   per image: cam_K (row-major 9), depth_scale, cam_R_w2c, cam_t_w2c (mm)
         scene_gt.json       per image: [{obj_id, cam_R_m2c (row-major 9), cam_t_m2c (mm)}] per marker
@@ -67,6 +70,7 @@ from evalkit.metrics.recall import marker_points
 from evalkit.reports.bop_coco import SceneCoco
 from evalkit.reports.bop_gtinfo import ImageView, gt_info
 from evalkit.reports.bop_models import EVAL_STEP_MM, ObjectModel, write_ply
+from evalkit.reports.bop_register import registration_script
 
 MIN_TARGET_VISIB = 0.1          # BOP19 targets: visib_fract >= 0.1 (BOP Challenge 2019 rules)
 VISIB_DELTA_MM = 15.0           # the visibility test's tolerance, calc_gt_info.py's delta (BOP toolkit)
@@ -358,5 +362,8 @@ def export_bop(dataset: Dataset | str | Path, out_dir: str | Path, split: str = 
         "visib_fract": {"from_depth_test": ex.visib_sources["depth_test"],
                         "from_object_index": ex.visib_sources["object_index"],
                         "copied_from_dataset": ex.visib_sources["copied"], "delta_mm": VISIB_DELTA_MM}})
+    (ex.out / "register_bop_toolkit.py").write_text(registration_script(
+        BOP_DATASET_NAME, sorted(ex.obj_ids.values()), [int(k) for k in scenes], cam["width"], cam["height"],
+        VISIB_DELTA_MM))
     return {"scenes": len(scenes), "images": n_images, "objects": len(ds.markers),
             "depth_clipped_px": ex.clipped, "undistorted": distorted}

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from evalkit.reports.bop_raster import Window, depth_to_dist, projected_window, render_depth
+from evalkit.reports.bop_raster import OPENCV_SAMPLE_OFFSET, Window, depth_to_dist, projected_window, render_depth
 
 NO_BOX = [-1, -1, -1, -1]
 
@@ -42,14 +42,16 @@ class ImageView:
 
 
 def render_model_dist(vertices_mm: np.ndarray, faces: np.ndarray, R: np.ndarray, t_mm: np.ndarray,
-                      view: ImageView, enlarged: bool = True) -> tuple[np.ndarray, Window]:
+                      view: ImageView, enlarged: bool = True,
+                      sample_offset: float = OPENCV_SAMPLE_OFFSET) -> tuple[np.ndarray, Window]:
     """Distance image (mm, 0 = no surface) of the posed model over the pixels it covers, on the
-    enlarged canvas (or the image), and the window those pixels are."""
+    enlarged canvas (or the image), and the window those pixels are (``sample_offset``: see
+    :func:`evalkit.reports.bop_raster.render_depth`; distances use the pixel's own ray)."""
     cam = np.asarray(vertices_mm, float) @ np.asarray(R, float).T + np.asarray(t_mm, float)
     w, h = view.width, view.height
     bounds = Window(-w, -h, 2 * w, 2 * h) if enlarged else Window(0, 0, w, h)
     win = projected_window(cam, view.K, bounds)
-    depth = render_depth(cam, faces, view.K, win)
+    depth = render_depth(cam, faces, view.K, win, sample_offset)
     return depth_to_dist(depth, view.K, win.x0, win.y0), win
 
 

@@ -8,6 +8,13 @@ pixel centre in OpenCV's convention, where ``K`` maps a ray to ``u = fx x + cx``
 a projected triangle (edges inclusive). The depth there is the planar ``z`` of the triangle's
 plane along that pixel's ray (exact, no interpolation error).
 
+The BOP toolkit's OpenGL renderers (``renderer_vispy``, ``renderer_py``: the projection matrix of
+``_calc_calib_proj``) put ``K``'s coordinate ``u`` at the *edge* of window pixel ``u``, so their pixel
+``(i, j)`` samples the point ``(i + 0.5, j + 0.5)``: half a pixel off OpenCV's convention.
+``sample_offset`` selects that convention (:data:`TOOLKIT_SAMPLE_OFFSET`) where dockbench must
+reproduce the toolkit's numbers (:mod:`evalkit.reports.bop_score`); the export itself follows the
+renderer (offset 0), whose depth and index passes it is tested against.
+
 A triangle with a vertex at or behind ``NEAR_MM`` is skipped (the exported objects are markers
 in front of the camera; a marker crossing the image plane has no meaningful silhouette).
 """
@@ -18,6 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 
 NEAR_MM = 1.0
+OPENCV_SAMPLE_OFFSET = 0.0      # pixel (i, j) samples (i, j): dockbench's renderer, OpenCV
+TOOLKIT_SAMPLE_OFFSET = 0.5     # pixel (i, j) samples (i + 0.5, j + 0.5): the BOP toolkit's OpenGL renderers
 
 
 @dataclass(frozen=True)
@@ -34,24 +43,26 @@ class Window:
         return max(self.y1 - self.y0, 0), max(self.x1 - self.x0, 0)
 
 
-def render_depth(vertices_cam: np.ndarray, faces: np.ndarray, K: np.ndarray, window: Window) -> np.ndarray:
+def render_depth(vertices_cam: np.ndarray, faces: np.ndarray, K: np.ndarray, window: Window,
+                 sample_offset: float = OPENCV_SAMPLE_OFFSET) -> np.ndarray:
     """Planar depth of the mesh over ``window``: ``(H, W)`` float64 in the vertices' unit, 0 = no surface.
 
     ``vertices_cam``: ``(N, 3)`` camera-frame points (OpenCV axes, z forward, mm);
-    ``faces``: ``(F, 3)`` vertex indices; ``K``: 3x3 intrinsics (px)."""
+    ``faces``: ``(F, 3)`` vertex indices; ``K``: 3x3 intrinsics (px); pixel ``(u, v)`` samples the
+    image point ``(u + sample_offset, v + sample_offset)``."""
     depth = np.full(window.shape, np.inf)
     tri = np.asarray(vertices_cam, float)[np.asarray(faces, int)]            # (F, 3, 3)
     ok = (tri[:, :, 2] > NEAR_MM).all(axis=1)
     for t in tri[ok]:
-        _draw_triangle(depth, t, np.asarray(K, float), window)
+        _draw_triangle(depth, t, np.asarray(K, float), window, sample_offset)
     depth[~np.isfinite(depth)] = 0.0
     return depth
 
 
-def _draw_triangle(depth: np.ndarray, t: np.ndarray, K: np.ndarray, win: Window) -> None:
+def _draw_triangle(depth: np.ndarray, t: np.ndarray, K: np.ndarray, win: Window, off: float) -> None:
     """z-buffer one camera-frame triangle ``t`` (3, 3) into ``depth`` (the window's pixels)."""
     p = t @ K.T
-    uv = p[:, :2] / p[:, 2:3]
+    uv = p[:, :2] / p[:, 2:3] - off                       # pixel indices whose sample point is the vertex
     area = (uv[1, 0] - uv[0, 0]) * (uv[2, 1] - uv[0, 1]) - (uv[2, 0] - uv[0, 0]) * (uv[1, 1] - uv[0, 1])
     if abs(area) < 1e-12:
         return                                                            # seen edge-on: no pixel
@@ -74,7 +85,7 @@ def _draw_triangle(depth: np.ndarray, t: np.ndarray, K: np.ndarray, win: Window)
 
 
 def projected_window(vertices_cam: np.ndarray, K: np.ndarray, bounds: Window) -> Window:
-    """The pixels the projected vertices span, clipped to ``bounds`` (an empty window when
+    """The pixels the projected vertices span (and one more each side, for any sample offset), clipped to ``bounds`` (an empty window when
     every vertex is behind ``NEAR_MM``)."""
     pts = np.asarray(vertices_cam, float)
     pts = pts[pts[:, 2] > NEAR_MM]
@@ -82,7 +93,7 @@ def projected_window(vertices_cam: np.ndarray, K: np.ndarray, bounds: Window) ->
         return Window(bounds.x0, bounds.y0, bounds.x0, bounds.y0)
     p = pts @ np.asarray(K, float).T
     uv = p[:, :2] / p[:, 2:3]
-    return Window(max(int(np.floor(uv[:, 0].min())), bounds.x0), max(int(np.floor(uv[:, 1].min())), bounds.y0),
+    return Window(max(int(np.floor(uv[:, 0].min())) - 1, bounds.x0), max(int(np.floor(uv[:, 1].min())) - 1, bounds.y0),
                   min(int(np.ceil(uv[:, 0].max())) + 1, bounds.x1), min(int(np.ceil(uv[:, 1].max())) + 1, bounds.y1))
 
 

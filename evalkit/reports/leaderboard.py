@@ -39,7 +39,8 @@ COLUMNS: list[tuple[str, str, str, str]] = [
     ("P_succ_mean", "P_succ %", "pct_ci", "frames localized within the success thresholds"),
     ("P_detect_mean", "P_detect %", "pct", "frames with any answer (the article's success rate)"),
     ("E_rel_mean", "E_rel %", "pct_ci", "mean relative distance error over answered frames"),
-    ("AR", "AR", "num", "BOP average recall, mean of AR_MSSD and AR_MSPD (pose localizers)"),
+    ("AR_dock", "AR_dock", "num", "dockbench's dock-as-one-object recall: mean of MSSD and MSPD recalls (no VSD; "
+     "not the BOP19 AR, see export-bop --results)"),
     ("e_rot_deg_mean", "rot deg", "num", "mean rotation error (deg)"),
     ("n_fp", "FP", "int", "false positives: answers with no marker in view or a wrong id"),
     ("max_range_m", "range m", "num", "usable range: farthest 1 m bin with P_succ >= 90%"),

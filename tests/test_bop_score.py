@@ -1,0 +1,108 @@
+"""BOP19 AR as the BOP toolkit computes it (pinned toolkit outputs) and the BOP results writer."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from bop_fixture import RESULTS_NAME, write_fixture
+from evalkit.dataset import Dataset
+from evalkit.reports import bop
+from evalkit.reports.bop_results import HEADER, method_name, write_results
+from evalkit.reports.bop_score import bop19_scores, target_errors
+
+PINNED = json.loads((Path(__file__).parent / "data" / "bop19_toolkit_scores.json").read_text())
+
+
+@pytest.fixture(scope="module")
+def fixture(tmp_path_factory):
+    return write_fixture(tmp_path_factory.mktemp("bop19"))
+
+
+def test_scores_equal_the_toolkits(fixture):
+    """eval_bop19_pose.py's AR_VSD / AR_MSSD / AR_MSPD / AR on the fixture (run once with the real toolkit,
+    tests/data/bop19_toolkit_scores.json has the command), reproduced without the toolkit."""
+    s = bop19_scores(*fixture)
+    want = PINNED["scores"]
+    assert s["AR_VSD"] == pytest.approx(want["bop19_average_recall_vsd"], abs=1e-12)
+    assert s["AR_MSSD"] == pytest.approx(want["bop19_average_recall_mssd"], abs=1e-12)
+    assert s["AR_MSPD"] == pytest.approx(want["bop19_average_recall_mspd"], abs=1e-12)
+    assert s["AR_BOP19"] == pytest.approx(want["bop19_average_recall"], abs=1e-12)
+    assert 0.3 < s["AR_BOP19"] < 0.9                          # the fixture is neither all right nor all wrong
+
+
+def test_per_target_errors_equal_the_toolkits(fixture):
+    export, csv = fixture
+    diam = json.loads((export / "models_eval" / "models_info.json").read_text())["1"]["diameter"]
+    rows = {f"{r['scene_id']}/{r['im_id']}/{r['obj_id']}": r for r in target_errors(export, csv)}
+    errors = PINNED["errors"]
+    assert set(errors["mssd_mm"]) == {k for k, r in rows.items() if r["mssd"] is not None}
+    for key, mssd in errors["mssd_mm"].items():
+        assert rows[key]["mssd"] * diam == pytest.approx(mssd, rel=1e-6)
+        assert rows[key]["mspd"] * 64 / 640 == pytest.approx(errors["mspd_px"][key], rel=1e-6)   # 64 px wide
+        np.testing.assert_allclose(rows[key]["vsd"], errors["vsd_by_tau"][key], atol=1e-9)
+    assert any(0 < e < 1 for v in errors["vsd_by_tau"].values() for e in v)        # partial overlaps too
+
+
+def _run_estimates(ds: Dataset, shift_m: float) -> pd.DataFrame:
+    """A run's estimates: every frame answered with the true dock pose shifted by ``shift_m`` along x."""
+    rows = []
+    for seq in ds.sequences:
+        for f in ds.iter_frames(seq["id"]):
+            T = np.array(f["T_cam_dock"], float)
+            T[0, 3] += shift_m
+            rows.append({"localizer": "qr_track", "sequence": seq["id"], "index": f["index"], "detected": True,
+                         "d_est": 1.0, "ms": 12.5, "T_cam_dock_est": T.ravel().tolist()})
+    return pd.DataFrame(rows)
+
+
+def test_results_writer_round_trip(fixture, tmp_path):
+    """The true dock pose written as results gives the export's GT pose per object (so every error is 0
+    and AR_BOP19 = 1); a 1 m shift misses everything (AR 0)."""
+    export = fixture[0]
+    ds = Dataset.open(export.parent / "ds")
+    paths = write_results(_run_estimates(ds, 0.0), ds.markers, export, tmp_path / "exact")
+    path = paths["qr_track"]
+    assert path.name == "qr-track_dockbench-test.csv" and method_name("a_b_c") == "a-b-c"
+    lines = path.read_text().splitlines()
+    assert lines[0] == HEADER and len(lines) == 1 + 12                  # one object, 12 images
+    s, i, o, score, R, t, time_s = lines[1].split(",")
+    gt = json.loads((export / "test" / f"{int(s):06d}" / "scene_gt.json").read_text())[i][0]
+    np.testing.assert_allclose(np.array(R.split(), float), gt["cam_R_m2c"], atol=1e-8)
+    np.testing.assert_allclose(np.array(t.split(), float), gt["cam_t_m2c"], atol=1e-5)
+    assert (int(o), float(score), float(time_s)) == (1, 1.0, 0.0125)
+    assert bop19_scores(export, path)["AR_BOP19"] == pytest.approx(1.0)
+    far = write_results(_run_estimates(ds, 1.0), ds.markers, export, tmp_path / "far")["qr_track"]
+    miss = bop19_scores(export, far)
+    assert miss["AR_MSSD"] == 0.0 and miss["AR_MSPD"] < 0.02 and miss["AR_VSD"] < 0.01      # 1 m: far off
+
+
+def test_registration_script_is_idempotent(fixture, tmp_path):
+    """register_bop_toolkit.py adds the export to a toolkit-shaped tree once; a changed toolkit is refused."""
+    import subprocess
+    import sys
+    tk = tmp_path / "tk"
+    (tk / "bop_toolkit_lib").mkdir(parents=True)
+    (tk / "scripts").mkdir()
+    (tk / "bop_toolkit_lib" / "dataset_params.py").write_text(
+        '    obj_ids = {\n        "lm": [1],\n    }\n    symmetric_obj_ids = {\n        "lm": [],\n    }\n'
+        '    # Linemod (LM).\n    if dataset_name == "lm":\n        pass\n')
+    (tk / "scripts" / "eval_bop19_pose.py").write_text('            "vsd_deltas": {\n                "lm": 15,\n')
+    script = fixture[0] / "register_bop_toolkit.py"
+    for _ in range(2):
+        res = subprocess.run([sys.executable, str(script), str(tk)], capture_output=True, text=True)
+        assert res.returncode == 0, res.stderr
+    text = (tk / "bop_toolkit_lib" / "dataset_params.py").read_text()
+    assert text.count("'dockbench': [1]") == 1 and "p[\"im_size\"] = (64, 48)" in text
+    assert 'elif dataset_name == "lm"' in text and "p[\"scene_ids\"] = [0, 1]" in text
+    assert "'dockbench': 15" in (tk / "scripts" / "eval_bop19_pose.py").read_text()
+    (tk / "scripts" / "eval_bop19_pose.py").write_text("changed\n")
+    res = subprocess.run([sys.executable, str(script), str(tk)], capture_output=True, text=True)
+    assert res.returncode != 0 and "another toolkit version" in res.stderr
+
+
+def test_fixture_name_is_the_results_name():
+    assert RESULTS_NAME.split("_")[1].split("-")[0] == bop.BOP_DATASET_NAME
