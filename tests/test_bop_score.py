@@ -80,25 +80,39 @@ def test_results_writer_round_trip(fixture, tmp_path):
     assert miss["AR_MSSD"] == 0.0 and miss["AR_MSPD"] < 0.02 and miss["AR_VSD"] < 0.01      # 1 m: far off
 
 
-def test_registration_script_is_idempotent(fixture, tmp_path):
-    """register_bop_toolkit.py adds the export to a toolkit-shaped tree once; a changed toolkit is refused."""
+_PARAMS = ('    obj_ids = {\n        "lm": list(range(1, 16)),\n    }\n    symmetric_obj_ids = {\n'
+           '        "lm": [3, 7, 10, 11],\n    }\n    if dataset_name == "lm":\n        pass\n'
+           '    else:\n        raise ValueError("Unknown BOP dataset ({}).".format(dataset_name))\n')
+
+
+def _toolkit_tree(root: Path) -> Path:
+    """The lines of a BOP toolkit clone that registration touches (a stand-in for a clone)."""
+    (root / "bop_toolkit_lib").mkdir(parents=True)
+    (root / "scripts").mkdir()
+    (root / "bop_toolkit_lib" / "dataset_params.py").write_text(_PARAMS)
+    (root / "scripts" / "eval_bop19_pose.py").write_text('            "vsd_deltas": {\n                "hb": 15,\n')
+    return root
+
+
+def test_registration_script(fixture, tmp_path):
+    """register_bop_toolkit.py adds the export to a clone, replaces an earlier registration (run twice:
+    one entry each), and refuses a toolkit whose anchors changed; the edited module still parses."""
+    import ast
     import subprocess
     import sys
-    tk = tmp_path / "tk"
-    (tk / "bop_toolkit_lib").mkdir(parents=True)
-    (tk / "scripts").mkdir()
-    (tk / "bop_toolkit_lib" / "dataset_params.py").write_text(
-        '    obj_ids = {\n        "lm": [1],\n    }\n    symmetric_obj_ids = {\n        "lm": [],\n    }\n'
-        '    # Linemod (LM).\n    if dataset_name == "lm":\n        pass\n')
-    (tk / "scripts" / "eval_bop19_pose.py").write_text('            "vsd_deltas": {\n                "lm": 15,\n')
+    import textwrap
+    tk = _toolkit_tree(tmp_path / "tk")
     script = fixture[0] / "register_bop_toolkit.py"
     for _ in range(2):
         res = subprocess.run([sys.executable, str(script), str(tk)], capture_output=True, text=True)
         assert res.returncode == 0, res.stderr
     text = (tk / "bop_toolkit_lib" / "dataset_params.py").read_text()
-    assert text.count("'dockbench': [1]") == 1 and "p[\"im_size\"] = (64, 48)" in text
-    assert 'elif dataset_name == "lm"' in text and "p[\"scene_ids\"] = [0, 1]" in text
-    assert "'dockbench': 15" in (tk / "scripts" / "eval_bop19_pose.py").read_text()
+    ast.parse(textwrap.dedent(text))
+    assert text.count("'dockbench': [1],") == 1 and text.count("'dockbench': [],") == 1
+    assert text.count("elif dataset_name == 'dockbench':") == 1 and 'p["im_size"] = (64, 48)' in text
+    assert 'p["scene_ids"] = [0, 1]' in text
+    assert "".join(x for x in text.splitlines(True) if "registered by dockbench" not in x) == _PARAMS
+    assert "'dockbench': 15," in (tk / "scripts" / "eval_bop19_pose.py").read_text()
     (tk / "scripts" / "eval_bop19_pose.py").write_text("changed\n")
     res = subprocess.run([sys.executable, str(script), str(tk)], capture_output=True, text=True)
     assert res.returncode != 0 and "another toolkit version" in res.stderr

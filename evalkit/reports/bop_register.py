@@ -19,29 +19,33 @@ import pathlib
 import sys
 
 NAME, OBJ_IDS, SCENE_IDS, IM_SIZE, DELTA = {name!r}, {obj_ids!r}, {scene_ids!r}, {im_size!r}, {delta!r}
-EDITS = [
-    ("bop_toolkit_lib/dataset_params.py", "    obj_ids = {{\\n",
-     "    obj_ids = {{\\n        %r: %r,\\n" % (NAME, OBJ_IDS)),
-    ("bop_toolkit_lib/dataset_params.py", "    symmetric_obj_ids = {{\\n",
-     "    symmetric_obj_ids = {{\\n        %r: [],\\n" % (NAME,)),
-    ("bop_toolkit_lib/dataset_params.py", '    # Linemod (LM).\\n    if dataset_name == "lm":',
-     '    if dataset_name == %r:\\n        p["scene_ids"] = %r\\n        p["im_size"] = %r\\n\\n'
-     '    # Linemod (LM).\\n    elif dataset_name == "lm":' % (NAME, SCENE_IDS, IM_SIZE)),
-    ("scripts/eval_bop19_pose.py", '            "vsd_deltas": {{\\n',
-     '            "vsd_deltas": {{\\n                %r: %r,\\n' % (NAME, DELTA)),
+TAG = "  # registered by dockbench"
+EDITS = [   # (file, anchor, lines inserted before it)
+    ("bop_toolkit_lib/dataset_params.py", '        "lm": list(range(1, 16)),\\n',
+     ["        %r: %r," % (NAME, OBJ_IDS)]),
+    ("bop_toolkit_lib/dataset_params.py", '        "lm": [3, 7, 10, 11],\\n',
+     ["        %r: []," % (NAME,)]),
+    ("bop_toolkit_lib/dataset_params.py", '    else:\\n        raise ValueError("Unknown BOP dataset ({{}}).".format(dataset_name))',
+     ["    elif dataset_name == %r:" % (NAME,), '        p["scene_ids"] = %r' % (SCENE_IDS,),
+      '        p["im_size"] = %r' % (IM_SIZE,)]),
+    ("scripts/eval_bop19_pose.py", '                "hb": 15,\\n',
+     ["                %r: %r," % (NAME, DELTA)]),
 ]
 
 
 def main(root):
-    for rel, anchor, new in EDITS:
+    texts = {{}}
+    for rel, _, _ in EDITS:                      # an earlier registration's lines go first
         path = root / rel
-        text = path.read_text()
-        if new in text:
-            continue
-        if text.count(anchor) != 1:
+        texts[path] = "".join(x for x in path.read_text().splitlines(True) if not x.rstrip().endswith(TAG.strip()))
+    for rel, anchor, lines in EDITS:
+        path = root / rel
+        if texts[path].count(anchor) != 1:
             sys.exit(f"{{path}}: expected the text {{anchor!r}} once; another toolkit version? "
                      "Add the dataset by hand (dockbench docs/bop.md)")
-        path.write_text(text.replace(anchor, new, 1))
+        texts[path] = texts[path].replace(anchor, "".join(x + TAG + "\\n" for x in lines) + anchor, 1)
+    for path, text in texts.items():
+        path.write_text(text)
     print(f"{{root}}: dataset {{NAME!r}} registered (objects {{OBJ_IDS}}, scenes {{SCENE_IDS}}, size {{IM_SIZE}})")
 
 

@@ -7,7 +7,9 @@ re-derived here, the BOP toolkit's ``eval_bop19_pose.py`` computes the same):
   (instances with ``visib_fract >= 0.1``); per target only the estimate with the highest
   score counts (``inst_count`` = 1), a target without one is a miss;
 * **VSD** (delta 15 mm, step cost, taus 0.05..0.5 x the diameter): the model's depth is
-  rendered in the GT and the estimated pose over the image; visible masks by the BOP19 depth
+  rendered in the GT and the estimated pose over the image (the toolkit renders ``models_eval``;
+  its surface is that of ``models``, which renders the same depth from far fewer triangles), in
+  the toolkit's pixel convention (:data:`evalkit.reports.bop_raster.TOOLKIT_SAMPLE_OFFSET`); visible masks by the BOP19 depth
   test against the test depth (the estimate's mask also takes the GT-visible pixels it
   covers); ``e = (#{inter: |d_gt - d_est| >= tau} + #(union - inter)) / #union`` (1 for an
   empty union);
@@ -93,7 +95,8 @@ class _Export:
     split: str
     width: int
     height: int
-    meshes: dict
+    meshes: dict          # obj_id -> (vertices, faces) of models/ (the surface VSD renders)
+    points: dict          # obj_id -> vertices of models_eval/ (MSSD, MSPD)
     diameters: dict
 
     @classmethod
@@ -102,8 +105,9 @@ class _Export:
         info = json.loads((root / "dockbench_scenes.json").read_text())
         cam = json.loads((root / "camera.json").read_text())
         models = json.loads((root / "models_eval" / "models_info.json").read_text())
-        meshes = {int(o): read_ply(root / "models_eval" / f"obj_{int(o):06d}.ply") for o in models}
-        return cls(root, info["split"], int(cam["width"]), int(cam["height"]), meshes,
+        meshes = {int(o): read_ply(root / "models" / f"obj_{int(o):06d}.ply") for o in models}
+        points = {int(o): read_ply(root / "models_eval" / f"obj_{int(o):06d}.ply")[0] for o in models}
+        return cls(root, info["split"], int(cam["width"]), int(cam["height"]), meshes, points,
                    {int(o): float(m["diameter"]) for o, m in models.items()})
 
     def scene(self, scene_id: int) -> tuple[dict, dict]:
@@ -137,7 +141,7 @@ def target_errors(export_dir: Path, results_csv: Path) -> list[dict]:
         R_gt, t_gt = np.array(gt["cam_R_m2c"], float).reshape(3, 3), np.array(gt["cam_t_m2c"], float)
         _, R_est, t_est = max(cand, key=lambda c: c[0])
         view = ex.view(s, i, scene_cam[str(i)])
-        row["mssd"], row["mspd"] = pose_errors(ex.meshes[o][0], view.K, R_est, t_est, R_gt, t_gt)
+        row["mssd"], row["mspd"] = pose_errors(ex.points[o], view.K, R_est, t_est, R_gt, t_gt)
         row["mspd"] *= 640.0 / ex.width
         row["mssd"] /= ex.diameters[o]
         row["vsd"] = vsd(ex.meshes[o], R_est, t_est, R_gt, t_gt, view, ex.diameters[o])
