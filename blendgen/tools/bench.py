@@ -239,6 +239,16 @@ def qr_decode_table(dataset: Path, detectors=QR_DETECTORS, marker_id: str | None
     return pd.DataFrame(rows)
 
 
+def _led_blobs(loc, img: np.ndarray):
+    """The LED localizer's candidate blobs of ``img`` at its first brightness level (as
+    ``LedLocalizer.localize`` starts), or None."""
+    import cv2
+    rgb = np.ascontiguousarray(img)
+    v = cv2.max(cv2.max(rgb[:, :, 0], rgb[:, :, 1]), rgb[:, :, 2])
+    levels = loc._levels(float(v.max()))
+    return loc._blobs(rgb, v, levels[0]) if levels else None
+
+
 def led_centroid_table(dataset: Path) -> pd.DataFrame:
     """LED blob centroid error (px) against the true projected LED centres, per centroid
     mode (intensity-weighted vs saturated core) and d_true bin: each true LED in the image
@@ -259,7 +269,7 @@ def led_centroid_table(dataset: Path) -> pd.DataFrame:
             for frame, img in frames:
                 T = np.asarray(frame["T_cam_dock"], float)
                 uv = cv2.projectPoints(kp, cv2.Rodrigues(T[:3, :3])[0], T[:3, 3], K, dist)[0].reshape(-1, 2)
-                blobs = loc._blobs(np.ascontiguousarray(img))
+                blobs = _led_blobs(loc, img)
                 if blobs is None:
                     continue
                 for p in uv:
