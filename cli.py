@@ -61,7 +61,7 @@ def main():
 @_user_errors
 def generate(config: Path, out: Path, workers: int | None, overwrite: bool, executor: str,
              ray_address: str | None):
-    """Render the dataset described by CONFIG (YAML) into OUT."""
+    """Render the dataset described by CONFIG (a YAML file, or a bundled config's name: dockbench configs) into OUT."""
     from blendgen.pipeline.generate import generate as run, check_out_dir
     from blendgen.config.models import load_experiment
     exp = load_experiment(config)
@@ -154,6 +154,15 @@ def evaluate(dataset: Path, localizers: tuple[str, ...], params: tuple[str, ...]
         click.echo(f"per-frame estimates: {paths['estimates']}\nmetrics: {paths['metrics']}\nrun: {paths['run']}")
         click.echo(f"(success: {criteria.as_dict()}; only 0 <= d_true <= 10 m count; "
                    f"e_rel excludes d_true < {ds.d_min_rel_m} m)")
+
+
+@main.command("configs")
+def list_configs():
+    """List the bundled configs (usable by name: dockbench generate quickstart -o OUT)."""
+    from blendgen.config.bundled import bundled_file, bundled_names, config_summary
+    for name in bundled_names("configs"):
+        click.echo(f"{name:18s} {config_summary(name)}")
+    click.echo(f"(files in {bundled_file('configs', '')})")
 
 
 @main.command("localizers")

@@ -1,0 +1,53 @@
+"""CLI paper cuts: bundled configs by name, the quickstart's header, the demo target."""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+import yaml
+from click.testing import CliRunner
+
+import cli
+from blendgen.config.bundled import bundled_file, bundled_names, resolve_config
+from blendgen.config.models import ConfigError, load_experiment
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_bundled_configs_by_name_from_any_directory(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)                                 # no configs/ folder here
+    for spec in ("quickstart", "quickstart.yaml", "configs/quickstart.yaml"):
+        assert resolve_config(spec) == bundled_file("configs", "quickstart.yaml")
+        assert load_experiment(spec).name == "quickstart"
+    (tmp_path / "quickstart.yaml").write_text((ROOT / "configs" / "quickstart.yaml").read_text()
+                                              .replace("name: quickstart", "name: mine"))
+    assert load_experiment("quickstart.yaml").name == "mine"   # a real file wins over the bundled name
+    with pytest.raises(ConfigError, match="bundled configs.*quickstart"):
+        load_experiment("no_such_config")
+
+
+def test_configs_command_lists_every_bundled_config():
+    res = CliRunner().invoke(cli.main, ["configs"])
+    assert res.exit_code == 0, res.output
+    names = [line.split()[0] for line in res.output.splitlines() if not line.startswith("(")]
+    assert names == bundled_names("configs") and "quickstart" in names and "paper_turbidity" in names
+    assert "Small demo" in res.output
+
+
+def test_generate_unknown_config_is_a_one_line_error(tmp_path):
+    res = CliRunner().invoke(cli.main, ["generate", "nope", "-o", str(tmp_path / "o")])
+    assert res.exit_code == 2 and res.output.count("\n") == 1 and "dockbench configs" in res.output
+    assert not (tmp_path / "o").exists()
+
+
+def test_quickstart_header_says_what_it_runs():
+    text = (ROOT / "configs" / "quickstart.yaml").read_text()
+    approach = next(t for t in yaml.safe_load(text)["trajectories"] if t["kind"] == "linear")
+    m = re.search(r"from ([\d.]+) m to ([\d.]+) m", text.splitlines()[0])
+    assert (float(m.group(1)), float(m.group(2))) == (approach["start_range_m"], approach["end_range_m"])
+
+
+def test_demo_evaluates_the_hybrid_too():
+    demo = re.search(r"^demo:.*?(?=^\S)", (ROOT / "Makefile").read_text(), re.S | re.M).group(0)
+    assert all(f"-l {name}" in demo for name in ("led", "qr", "aruco", "hybrid"))
