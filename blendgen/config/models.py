@@ -797,7 +797,7 @@ def load_experiment(path: str | Path) -> Experiment:
     as ``quickstart``); raise ConfigError on any user error."""
     path = resolve_config(path)
     if not path.exists():
-        raise ConfigError(f"{path}: no such config file; bundled configs (give the name): "
+        raise ConfigError(f"{path}: cannot read config (no such file); bundled configs (give the name): "
                           f"{', '.join(bundled_names('configs'))} (dockbench configs)")
     raw = _read_yaml(path)
     if not isinstance(raw, dict):
