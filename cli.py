@@ -351,8 +351,8 @@ def bench_pnp(trials: int, seed: int, out: Path):
 @bench.command("particles")
 @click.option("-n", "--count", "counts", type=click.IntRange(0, 20_000_000), multiple=True,
               help="particles in the 600 m^3 pool (repeatable; default 600, 6000, 60000)")
-@click.option("--size", type=(click.IntRange(16, 8192), click.IntRange(16, 8192)), default=(640, 480),
-              show_default=True)
+@click.option("--size", callback=lambda c, p, v: _suite_size(c, p, v), default="640x480", show_default=True,
+              metavar="WxH", help="image size, e.g. 320x240")
 @click.option("--frames", type=click.IntRange(1, 1000), default=10, show_default=True)
 @click.option("--fidelity", "fidelity_out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="instead: fast particles vs real spheres in the render (Blender), datasets under this dir "
@@ -599,11 +599,14 @@ def run(config: Path, localizers: tuple[str, ...], params: tuple[str, ...], out:
 @click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
               default=Path("out/calibration"), show_default=True,
               help="output directory (rendered frames, calibration.csv, calibration_trials.csv)")
-def calibrate(config: Path | None, out: Path):
-    """Render chessboards and check Zhang's calibration against the true K (SPEC section 6)."""
+@click.option("--size", callback=lambda c, p, v: _suite_size(c, p, v), default=None, metavar="WxH",
+              help="one resolution instead of the config's list, e.g. 320x240")
+@click.option("--trials", type=click.IntRange(1, 100), default=None, help="trials per resolution (default: the config's)")
+def calibrate(config: Path | None, out: Path, size: tuple[int, int] | None, trials: int | None):
+    """Render chessboards and check Zhang's calibration against the true K."""
     import time
     from blendgen.tools import calibration as cal
-    cfg = cal.load_config(config or cal.DEFAULT_CONFIG)
+    cfg = cal.with_overrides(cal.load_config(config or cal.DEFAULT_CONFIG), size, trials)
     t0 = time.perf_counter()
     try:
         results = cal.run_calibration(cfg, out)

@@ -51,3 +51,44 @@ def test_quickstart_header_says_what_it_runs():
 def test_demo_evaluates_the_hybrid_too():
     demo = re.search(r"^demo:.*?(?=^\S)", (ROOT / "Makefile").read_text(), re.S | re.M).group(0)
     assert all(f"-l {name}" in demo for name in ("led", "qr", "aruco", "hybrid"))
+
+
+def test_calibrate_size_and_trials_override_the_config():
+    from blendgen.tools import calibration as cal
+    cfg = cal.load_config(cal.DEFAULT_CONFIG)
+    small = cal.with_overrides(cfg, (320, 240), 2)
+    assert small.resolutions == [(320, 240)] and small.trials == 2
+    assert cal.with_overrides(cfg).resolutions == cfg.resolutions and cfg.trials == 5
+
+
+@pytest.mark.parametrize("args", [["calibrate", "--size", "320 240"], ["calibrate", "--size", "8x8"],
+                                  ["bench", "particles", "--size", "640", "480"],
+                                  ["bench", "particles", "--size", "abc"]])
+def test_one_size_syntax_wxh(args, tmp_path):
+    """--size is WxH everywhere (16..8192 each); `W H` and out-of-range sizes are usage errors, before any work."""
+    res = CliRunner().invoke(cli.main, args + ["-o", str(tmp_path / "o")] if args[0] == "calibrate" else args)
+    assert res.exit_code == 2, res.output
+    assert not (tmp_path / "o").exists()
+
+
+def test_size_options_share_one_parser():
+    import click
+    sizes = {}
+    for path, cmd in _walk(cli.main):
+        for p in cmd.params:
+            if "--size" in getattr(p, "opts", ()) and path not in ("bench glow", "bench caustics"):
+                sizes[path] = p
+    assert {"calibrate", "bench particles", "bench suite", "dock", "bench closed-loop"} <= set(sizes)
+    for path, p in sizes.items():
+        assert p.type == click.STRING or isinstance(p.type, click.types.StringParamType), path
+        assert p.nargs == 1, path
+
+
+def _walk(group, prefix=""):
+    import click
+    for name, cmd in group.commands.items():
+        path = f"{prefix} {name}".strip()
+        if isinstance(cmd, click.Group):
+            yield from _walk(cmd, path)
+        else:
+            yield path, cmd
