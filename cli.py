@@ -440,9 +440,11 @@ def bench_caustics(depths: tuple[float, ...], waters: tuple[str, ...], size: int
               default=Path("out/bench_lamp"), show_default=True)
 def bench_lamp(samples: int, bounces: int, out: Path):
     """Vehicle lamp: grey card vs inverse square x attenuation, and the backscatter veil, fast vs Cycles."""
+    from blendgen.tools import lamp_bench
     from blendgen.tools.lamp_bench import card_table, shadow_table, veil_table
     from evalkit.reports.tables import print_table
     out.mkdir(parents=True, exist_ok=True)
+    lamp_bench.ON_RENDER = lambda m: click.echo(f"bench lamp: {m} ...", err=True)
     card = card_table(out / "renders", samples=samples)
     click.echo("grey card (albedo 0.5) centre radiance, green, lamp 0.3 m off the camera; card - black card:")
     print_table(card, floatfmt=".4g")

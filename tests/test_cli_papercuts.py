@@ -92,3 +92,23 @@ def _walk(group, prefix=""):
             yield from _walk(cmd, path)
         else:
             yield path, cmd
+
+
+def test_lamp_bench_announces_each_cycles_render(tmp_path, monkeypatch):
+    """bench lamp's renders take minutes: each uncached one is announced (the CLI prints the line)."""
+    import subprocess
+    import numpy as np
+    from blendgen.tools import lamp_bench as lb
+
+    def fake_run(cmd, **kw):
+        np.save(cmd[-1], np.zeros((2, 2, 3)))
+        return subprocess.CompletedProcess(cmd, 0, "", "")
+
+    seen = []
+    monkeypatch.setattr(lb.subprocess, "run", fake_run)
+    monkeypatch.setattr(lb, "ON_RENDER", seen.append)
+    spec = {"width": 96, "height": 72, "samples": 64, "volume_bounces": 0, "seed": 1}
+    lb.reference(spec, tmp_path)
+    lb.reference(spec, tmp_path)                              # cached: no render, no line
+    lb.reference({**spec, "samples": 8}, tmp_path)
+    assert len(seen) == 2 and "96x72, 64 spp, 0 volume bounces" in seen[0] and "8 spp" in seen[1]

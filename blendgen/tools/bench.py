@@ -42,13 +42,14 @@ def bench_experiment(frames: int, samples: int, mode: str = "physical"):
     return exp
 
 
-def render_stages(out: Path, frames: int, samples: int, mode: str = "physical") -> dict:
-    """Generate the bench dataset; median ms/frame per stage and the wall time per frame."""
+def render_stages(out: Path, frames: int, samples: int, mode: str = "physical", progress: bool = False) -> dict:
+    """Generate the bench dataset (``progress``: generate's frame counter on stderr); median
+    ms/frame per stage and the wall time per frame."""
     if out.exists():
         shutil.rmtree(out)
     exp = bench_experiment(frames, samples, mode)
     t0 = time.perf_counter()
-    man = generate(exp, out, workers=1, progress=False)
+    man = generate(exp, out, workers=1, progress=progress)
     wall = time.perf_counter() - t0
     st = timing_summary(out)
     n = sum(s["n_frames"] for s in man["sequences"])
@@ -314,7 +315,7 @@ def run_bench(out: Path, frames: int, samples: tuple[int, ...]) -> None:
     for mode in ("physical", "article"):
         for s in samples:
             click.echo(f"rendering {frames} frames at 640x480, {s} spp, {mode} mode ...", err=True)
-            rows.append(render_stages(out / f"{mode}-s{s}", frames, s, mode))
+            rows.append(render_stages(out / f"{mode}-s{s}", frames, s, mode, progress=True))
     render_df = pd.DataFrame(rows)
     click.echo("\nrender stages (median ms/frame; scene_build once per sequence):")
     print_table(render_df, floatfmt=".1f")
