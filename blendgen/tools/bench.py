@@ -297,10 +297,19 @@ def run_localizer_bench(dataset: Path, out: Path) -> None:
     click.echo("localizers, CPU ms per frame on one thread (cv2.setNumThreads(1), images decoded beforehand):")
     print_table(cpu, floatfmt=".2f")
     cpu.to_csv(out / "bench_localizer_cpu.csv", index=False)
+    from evalkit.dataset import Dataset
+    kinds = {m.get("kind") for m in Dataset.open(dataset).markers}
+    for kind, table in (("qr", "QR decoders"), ("led_array", "LED centroids")):
+        if kind not in kinds:
+            click.echo(f"\n(no {kind} marker in {dataset}: no {table} table)")
+    if "qr" not in kinds:
+        return
     qr = qr_decode_table(dataset)
     click.echo("\nQR detectors on the frames with the QR in view (success = payload decoded + pose):")
     print_table(qr, floatfmt=".2f")
     qr.to_csv(out / "bench_qr_decoders.csv", index=False)
+    if "led_array" not in kinds:
+        return
     led = led_centroid_table(dataset)
     click.echo("\nLED centroid error vs the true projected LED centres (px):")
     print_table(led, floatfmt=".3f")
