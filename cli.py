@@ -686,6 +686,7 @@ def export_bop(dataset: Path, out: Path, split: str, copy_images: bool, depth_sc
     import json
     from evalkit.dataset import DatasetError
     from evalkit.reports.bop import export_bop as run
+    runs = _bop_runs(dataset, results_dirs) if results_dirs else []
     try:
         s = run(dataset, out, split=split, copy_images=copy_images, depth_scale=depth_scale,
                        masks=not no_masks, undistort=undistort)
@@ -704,20 +705,15 @@ def export_bop(dataset: Path, out: Path, split: str, copy_images: bool, depth_sc
         click.echo(f"note: {s['depth_clipped_px']} depth pixels beyond {65535 * depth_scale / 1000:.1f} m "
                    f"written as 0 (use a larger --depth-scale)", err=True)
     if results_dirs:
-        _bop_results(dataset, out, results_dirs)
+        _bop_results(dataset, out, runs)
 
 
-def _bop_results(dataset: Path, out: Path, results_dirs: tuple[Path, ...]) -> None:
-    """Results CSVs of every pose localizer in ``results_dirs`` and a table: the BOP19 AR (per
-    marker, VSD + MSSD + MSPD) next to dockbench's AR_dock (the dock as one object)."""
-    import pandas as pd
+def _bop_runs(dataset: Path, results_dirs: tuple[Path, ...]) -> list:
+    """The estimates of each results folder, checked to be of DATASET (before anything is written)."""
     from evalkit.dataset import Dataset, DatasetError
-    from evalkit.reports.bop_results import pooled_dock_ar, write_results
-    from evalkit.reports.bop_score import bop19_scores
     from evalkit.reports.results import ResultsError, load_run
-    from evalkit.reports.tables import print_table
     ds = Dataset.open(dataset)
-    rows = []
+    out = []
     for rdir in results_dirs:
         try:
             run = load_run(rdir)
@@ -727,6 +723,21 @@ def _bop_results(dataset: Path, out: Path, results_dirs: tuple[Path, ...]) -> No
         if run.content_hash not in (None, ds.manifest.get("content_hash")):
             raise DatasetError(f"{rdir}: evaluated another dataset (content hash {run.content_hash[:12]}, "
                                f"{dataset} has {str(ds.manifest.get('content_hash'))[:12]})")
+        out.append(est)
+    return out
+
+
+def _bop_results(dataset: Path, out: Path, runs: list) -> None:
+    """Results CSVs of every pose localizer in ``runs`` (estimates tables) and a table: the BOP19 AR
+    (per marker, VSD + MSSD + MSPD) next to dockbench's AR_dock (the dock as one object)."""
+    import pandas as pd
+    from evalkit.dataset import Dataset
+    from evalkit.reports.bop_results import pooled_dock_ar, write_results
+    from evalkit.reports.bop_score import bop19_scores
+    from evalkit.reports.tables import print_table
+    ds = Dataset.open(dataset)
+    rows = []
+    for est in runs:
         dock_ar = pooled_dock_ar(est, ds.markers, ds.camera)
         for name, path in write_results(est, ds.markers, out, out / "results").items():
             rows.append({"localizer": name, **bop19_scores(out, path), "AR_dock": dock_ar.get(name), "file": str(path)})

@@ -120,3 +120,30 @@ def test_registration_script(fixture, tmp_path):
 
 def test_fixture_name_is_the_results_name():
     assert RESULTS_NAME.split("_")[1].split("-")[0] == bop.BOP_DATASET_NAME
+
+
+def test_export_bop_results_cli(tmp_path):
+    """export-bop --results: one CSV per pose localizer, the table names both recalls; the exact oracle
+    scores 1 on every MSSD/MSPD threshold; a run of another dataset is refused (exit 2)."""
+    from click.testing import CliRunner
+
+    import cli
+    from fake_dataset import write_fake_dataset
+    from evalkit.metrics.extra import EvalSettings
+    from evalkit.reports import results
+    from test_metrics_extra import Oracle, run_fake
+    ds = Dataset.open(write_fake_dataset(tmp_path / "ds"))
+    est = run_fake(ds, [("oracle", Oracle())])
+    results.save_run(est, tmp_path / "run", results.RunRecord(ds, ["oracle"], EvalSettings(n_boot=50),
+                                                               make_plots=False))
+    res = CliRunner().invoke(cli.main, ["export-bop", str(ds.root), "-o", str(tmp_path / "b" / "dockbench"),
+                                        "--results", str(tmp_path / "run")])
+    assert res.exit_code == 0, res.output
+    csv = tmp_path / "b" / "dockbench" / "results" / "oracle_dockbench-test.csv"
+    assert csv.is_file() and "AR_BOP19" in res.output and "AR_dock" in res.output
+    s = bop19_scores(tmp_path / "b" / "dockbench", csv)
+    assert s["AR_MSSD"] == s["AR_MSPD"] == 1.0
+    other = write_fake_dataset(tmp_path / "ds2", sequences=[("x", "murky", 0, [1.0, 2.0])])
+    res = CliRunner().invoke(cli.main, ["export-bop", str(other), "-o", str(tmp_path / "c"),
+                                        "--results", str(tmp_path / "run")])
+    assert res.exit_code == 2 and "evaluated another dataset" in res.output and not (tmp_path / "c").exists()
