@@ -676,11 +676,14 @@ def leaderboard(results_dirs: tuple[Path, ...], out: Path, title: str, shot: Pat
 @click.option("--no-masks", is_flag=True, help="do not write mask_visib PNGs")
 @click.option("--undistort", is_flag=True, help="camera with lens distortion: remap images, depth and masks "
                                                 "to the pinhole camera of the same K (else refused)")
+@click.option("--pixels", type=click.Choice(["opencv", "toolkit"]), default="opencv", show_default=True,
+              help="silhouette pixel convention: the renderer's (OpenCV pixel centres) or the BOP toolkit's "
+                   "OpenGL renderers' (half a pixel off; scene_gt_info then equals its calc_gt_info.py)")
 @click.option("--results", "results_dirs", multiple=True, type=click.Path(file_okay=False, path_type=Path),
               help="a results folder of `dockbench evaluate` on DATASET (repeatable): write each pose "
                    "localizer's estimates as OUT/results/METHOD_dockbench-SPLIT.csv and print its BOP19 AR")
 def export_bop(dataset: Path, out: Path, split: str, copy_images: bool, depth_scale: float,
-                   no_masks: bool, undistort: bool, results_dirs: tuple[Path, ...]):
+                   no_masks: bool, undistort: bool, pixels: str, results_dirs: tuple[Path, ...]):
     """Export DATASET in the BOP format (scene_camera/scene_gt/scene_gt_info, rgb, depth) to OUT;
     with --results also BOP results files and their scores (docs/bop.md)."""
     import json
@@ -689,7 +692,7 @@ def export_bop(dataset: Path, out: Path, split: str, copy_images: bool, depth_sc
     runs = _bop_runs(dataset, results_dirs) if results_dirs else []
     try:
         s = run(dataset, out, split=split, copy_images=copy_images, depth_scale=depth_scale,
-                       masks=not no_masks, undistort=undistort)
+                       masks=not no_masks, undistort=undistort, pixels=pixels)
     except DatasetError as exc:
         click.echo(f"error: {exc}", err=True)
         sys.exit(2)

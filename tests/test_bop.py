@@ -41,11 +41,12 @@ def _corners_uv(T_cam_marker) -> np.ndarray:
     return uv.reshape(-1, 2).astype(np.float32)
 
 
-def _silhouette(T_cam_marker, x0=0, y0=0, w=WIDTH, h=HEIGHT) -> np.ndarray:
-    """Pixel centres (u, v) in ``[x0, x0 + w) x [y0, y0 + h)`` inside or on the convex hull of the projected
-    corners (cv2.pointPolygonTest: the oracle of the rasterised silhouette)."""
+def _silhouette(T_cam_marker, x0=0, y0=0, w=WIDTH, h=HEIGHT, off=0.0) -> np.ndarray:
+    """Pixels (u, v) in ``[x0, x0 + w) x [y0, y0 + h)`` whose sample point ``(u + off, v + off)`` is inside or
+    on the convex hull of the projected corners (cv2.pointPolygonTest: the oracle of the rasterised
+    silhouette; ``off`` 0.5 is the BOP toolkit's OpenGL convention)."""
     hull = cv2.convexHull(_corners_uv(T_cam_marker))
-    uu, vv = np.meshgrid(np.arange(x0, x0 + w), np.arange(y0, y0 + h))
+    uu, vv = np.meshgrid(np.arange(x0, x0 + w) + off, np.arange(y0, y0 + h) + off)
     inside = [cv2.pointPolygonTest(hull, (float(a), float(b)), False) >= 0 for a, b in zip(uu.ravel(), vv.ravel())]
     return np.array(inside).reshape(h, w)
 
@@ -267,6 +268,19 @@ def test_truncated_silhouette_counts_outside_the_image(exported):
     assert info["bbox_obj"][0] < 0
     mask = cv2.imread(str(out / "test" / "000001" / "mask" / f"{TRUNCATED[1]:06d}_000000.png"), cv2.IMREAD_UNCHANGED)
     assert np.array_equal(mask > 0, inside)
+
+
+def test_toolkit_pixel_convention(tmp_path):
+    """--pixels toolkit: silhouettes sample (u + 0.5, v + 0.5) as the toolkit's OpenGL renderers do."""
+    ds = Dataset.open(_enrich(write_fake_dataset(tmp_path / "ds")))
+    bop.export_bop(ds, tmp_path / "b", pixels="toolkit")
+    T = np.array(_frame(ds, *TRUNCATED)["markers"]["0"]["T_cam_marker"])
+    info = _info(tmp_path / "b", "000001", TRUNCATED[1])
+    shifted = _silhouette(T, -WIDTH, -HEIGHT, 3 * WIDTH, 3 * HEIGHT, off=0.5)
+    assert info["px_count_all"] == int(shifted.sum()) != int(_silhouette(T, -WIDTH, -HEIGHT, 3 * WIDTH,
+                                                                           3 * HEIGHT).sum())
+    with pytest.raises(ValueError, match="pixels"):
+        bop.export_bop(ds, tmp_path / "c", pixels="gl")
 
 
 def _decode_rle(rle):

@@ -70,10 +70,12 @@ from evalkit.metrics.recall import marker_points
 from evalkit.reports.bop_coco import SceneCoco
 from evalkit.reports.bop_gtinfo import ImageView, gt_info
 from evalkit.reports.bop_models import EVAL_STEP_MM, ObjectModel, write_ply
+from evalkit.reports.bop_raster import OPENCV_SAMPLE_OFFSET, TOOLKIT_SAMPLE_OFFSET
 from evalkit.reports.bop_register import registration_script
 
 MIN_TARGET_VISIB = 0.1          # BOP19 targets: visib_fract >= 0.1 (BOP Challenge 2019 rules)
 VISIB_DELTA_MM = 15.0           # the visibility test's tolerance, calc_gt_info.py's delta (BOP toolkit)
+PIXEL_CONVENTIONS = {"opencv": OPENCV_SAMPLE_OFFSET, "toolkit": TOOLKIT_SAMPLE_OFFSET}
 BOP_DATASET_NAME = "dockbench"  # the name results files and the toolkit's registration use (docs/bop.md)
 
 
@@ -149,6 +151,7 @@ class _Export:
     clipped: int = 0
     visib_sources: dict = field(default_factory=lambda: {"depth_test": 0, "object_index": 0, "copied": 0})
     targets: list = field(default_factory=list)
+    sample_offset: float = OPENCV_SAMPLE_OFFSET          # the silhouettes' pixel convention
 
     @property
     def K(self) -> np.ndarray:
@@ -265,7 +268,7 @@ def _object_info(ex: _Export, marker: dict, R, t_mm, view: ImageView, frame: dic
     mid, oid = str(marker["id"]), ex.obj_ids[str(marker["id"])]
     if view.dist_mm is not None or (view.index is not None and mid in ex.index_values):
         ex.visib_sources["depth_test" if view.dist_mm is not None else "object_index"] += 1
-        return gt_info(*ex.meshes[oid], R, t_mm, view, VISIB_DELTA_MM, ex.index_values.get(mid))
+        return gt_info(*ex.meshes[oid], R, t_mm, view, VISIB_DELTA_MM, ex.index_values.get(mid), ex.sample_offset)
     ex.visib_sources["copied"] += 1
     fm = (frame.get("markers") or {}).get(mid) or {}
     return {"visib_fract": float(fm.get("visible_fraction") or 0.0), "bbox_obj": [-1, -1, -1, -1],
@@ -324,22 +327,26 @@ def _export_scene(ex: _Export, scene_id: int, seq: dict) -> int:
 
 def export_bop(dataset: Dataset | str | Path, out_dir: str | Path, split: str = "test",
                copy_images: bool = True, depth_scale: float = 1.0, masks: bool = True,
-               sequences: list[str] | None = None, undistort: bool = False) -> dict:
+               sequences: list[str] | None = None, undistort: bool = False, pixels: str = "opencv") -> dict:
     """Write ``dataset`` as a BOP dataset into ``out_dir`` (see the module docstring); images are
-    copied unless ``copy_images=False`` (relative symlinks).
+    copied unless ``copy_images=False`` (relative symlinks). ``pixels``: the silhouettes' pixel
+    convention, ``"opencv"`` (the renderer's, default) or ``"toolkit"`` (the BOP toolkit's OpenGL
+    renderers, half a pixel off: ``scene_gt_info`` then equals its ``calc_gt_info.py``).
     A camera with lens distortion raises :class:`DatasetError` unless ``undistort``.
 
     Returns a summary ``{scenes, images, objects, depth_clipped_px, undistorted}``."""
     ds = dataset if isinstance(dataset, Dataset) else Dataset.open(dataset)
     if depth_scale <= 0:
         raise ValueError("depth_scale must be > 0")
+    if pixels not in PIXEL_CONVENTIONS:
+        raise ValueError(f"pixels must be one of {sorted(PIXEL_CONVENTIONS)}, got {pixels!r}")
     distorted = has_distortion(ds)
     if distorted and not undistort:
         raise DatasetError(f"{ds.root}: the camera has lens distortion {ds.camera['dist'].tolist()} but BOP "
                            "cameras are pinhole (cam_K only); export with --undistort (undistort=True) to "
                            "remap images, depth and masks to the pinhole camera of the same K")
     ex = _Export(ds, Path(out_dir), split, copy_images, depth_scale, masks, index_values=_index_values(ds),
-                 undistort_maps=_undistort_maps(ds) if distorted else None)
+                 undistort_maps=_undistort_maps(ds) if distorted else None, sample_offset=PIXEL_CONVENTIONS[pixels])
     ex.out.mkdir(parents=True, exist_ok=True)
     cam = ds.camera
     _json(ex.out / "camera.json", {"cx": float(ex.K[0, 2]), "cy": float(ex.K[1, 2]), "fx": float(ex.K[0, 0]),
@@ -361,7 +368,8 @@ def export_bop(dataset: Dataset | str | Path, out_dir: str | Path, split: str = 
         "undistorted_from": ds.camera["dist"].tolist() if distorted else None,
         "visib_fract": {"from_depth_test": ex.visib_sources["depth_test"],
                         "from_object_index": ex.visib_sources["object_index"],
-                        "copied_from_dataset": ex.visib_sources["copied"], "delta_mm": VISIB_DELTA_MM}})
+                        "copied_from_dataset": ex.visib_sources["copied"], "delta_mm": VISIB_DELTA_MM,
+                        "pixel_convention": pixels}})
     (ex.out / "register_bop_toolkit.py").write_text(registration_script(
         BOP_DATASET_NAME, sorted(ex.obj_ids.values()), [int(k) for k in scenes], cam["width"], cam["height"],
         VISIB_DELTA_MM))

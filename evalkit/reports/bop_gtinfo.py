@@ -77,12 +77,14 @@ def calc_2d_bbox(xs: np.ndarray, ys: np.ndarray) -> list[int]:
 
 
 def gt_info(vertices_mm: np.ndarray, faces: np.ndarray, R: np.ndarray, t_mm: np.ndarray, view: ImageView,
-            delta_mm: float, index_value: int | None = None) -> tuple[dict, np.ndarray, np.ndarray]:
+            delta_mm: float, index_value: int | None = None,
+            sample_offset: float = OPENCV_SAMPLE_OFFSET) -> tuple[dict, np.ndarray, np.ndarray]:
     """``(scene_gt_info entry, mask, mask_visib)`` of one posed model; masks are ``(H, W)`` bool.
 
     Visibility from ``view.dist_mm`` (the depth test); without it from ``view.index ==
-    index_value``; raises ValueError with neither."""
-    patch, win = render_model_dist(vertices_mm, faces, R, t_mm, view)
+    index_value``; raises ValueError with neither. ``sample_offset``: the pixel convention
+    (:func:`evalkit.reports.bop_raster.render_depth`)."""
+    patch, win = render_model_dist(vertices_mm, faces, R, t_mm, view, sample_offset=sample_offset)
     dist_gt = crop_to_image(patch, win, view.width, view.height)
     mask = dist_gt > 0
     if view.dist_mm is not None:
