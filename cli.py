@@ -259,8 +259,18 @@ def _size_options(fn):
                       help="frames of the approach, evenly spaced from 10 m to 1 m")(fn)
     fn = click.option("--ref-samples", type=click.IntRange(1, 65536), default=64, show_default=True,
                       help="reference spp (the medium is single-scatter and low-noise)")(fn)
-    fn = click.option("--height", type=click.IntRange(16, 4096), default=240, show_default=True)(fn)
-    return click.option("--width", type=click.IntRange(16, 4096), default=320, show_default=True)(fn)
+    return _wh_size("320x240")(fn)
+
+
+def _wh_size(default: str):
+    """``--size WxH`` (16..8192 px each), given to the command as ``width=``, ``height=``."""
+    def deco(fn):
+        @functools.wraps(fn)
+        def inner(*args, size, **kwargs):
+            return fn(*args, width=size[0], height=size[1], **kwargs)
+        return click.option("--size", callback=lambda c, p, v: _suite_size(c, p, v), default=default,
+                            show_default=True, metavar="WxH", help="image size, e.g. 320x240")(inner)
+    return deco
 
 
 @bench.command("io")
@@ -507,8 +517,7 @@ def calibrate_veil(out: Path, data: Path | None, presets: tuple[str, ...]):
 @main.command("preview")
 @click.option("-o", "--out", "out", type=click.Path(dir_okay=False, path_type=Path),
               default=Path("out/preview.png"), show_default=True)
-@click.option("--width", type=click.IntRange(16, 4096), default=320, show_default=True)
-@click.option("--height", type=click.IntRange(16, 4096), default=240, show_default=True)
+@_wh_size("320x240")
 @click.option("--samples", type=click.IntRange(1, 65536), default=4, show_default=True)
 @click.option("--fidelity", type=click.Choice(["fast", "reference"]), default="fast", show_default=True)
 @click.option("--mode", type=click.Choice(["physical", "article"]), default="physical", show_default=True,

@@ -71,6 +71,11 @@ def test_one_size_syntax_wxh(args, tmp_path):
     assert not (tmp_path / "o").exists()
 
 
+def test_no_width_height_options_left():
+    assert not [path for path, cmd in _walk(cli.main) for p in cmd.params
+                if {"--width", "--height"} & set(getattr(p, "opts", ()))]
+
+
 def test_size_options_share_one_parser():
     import click
     sizes = {}
@@ -78,7 +83,8 @@ def test_size_options_share_one_parser():
         for p in cmd.params:
             if "--size" in getattr(p, "opts", ()) and path not in ("bench glow", "bench caustics"):
                 sizes[path] = p
-    assert {"calibrate", "bench particles", "bench suite", "dock", "bench closed-loop"} <= set(sizes)
+    assert {"calibrate", "bench particles", "bench suite", "dock", "bench closed-loop", "preview",
+            "bench fidelity", "calibrate-water"} <= set(sizes)
     for path, p in sizes.items():
         assert p.type == click.STRING or isinstance(p.type, click.types.StringParamType), path
         assert p.nargs == 1, path

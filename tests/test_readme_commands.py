@@ -93,7 +93,7 @@ def test_calibrate_smallest(tmp_path):
 
 @pytest.mark.blender
 def test_preview_smallest(tmp_path):
-    _ok(["preview", "--width", "64", "--height", "48", "--samples", "1", "-o", tmp_path / "p.png"])
+    _ok(["preview", "--size", "64x48", "--samples", "1", "-o", tmp_path / "p.png"])
     assert (tmp_path / "p.png").is_file()
 
 
