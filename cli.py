@@ -701,7 +701,7 @@ def export_bop(dataset: Path, out: Path, split: str, copy_images: bool, depth_sc
     runs = _bop_runs(dataset, results_dirs) if results_dirs else []
     try:
         s = run(dataset, out, split=split, copy_images=copy_images, depth_scale=depth_scale,
-                       masks=not no_masks, undistort=undistort, pixels=pixels)
+                       masks=not no_masks, undistort=undistort, pixels=pixels, progress=True)
     except DatasetError as exc:
         click.echo(f"error: {exc}", err=True)
         sys.exit(2)
@@ -752,7 +752,8 @@ def _bop_results(dataset: Path, out: Path, runs: list) -> None:
     for est in runs:
         dock_ar = pooled_dock_ar(est, ds.markers, ds.camera)
         for name, path in write_results(est, ds.markers, out, out / "results").items():
-            rows.append({"localizer": name, **bop19_scores(out, path), "AR_dock": dock_ar.get(name), "file": str(path)})
+            rows.append({"localizer": name, **bop19_scores(out, path, progress=True), "AR_dock": dock_ar.get(name),
+                         "file": str(path)})
     if rows:
         print_table(pd.DataFrame(rows), floatfmt=".3f")
     click.echo("AR_BOP19: per marker object, (AR_VSD + AR_MSSD + AR_MSPD) / 3 over test_targets_bop19 (the BOP "

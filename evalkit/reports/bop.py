@@ -72,6 +72,7 @@ from evalkit.reports.bop_gtinfo import ImageView, gt_info
 from evalkit.reports.bop_models import EVAL_STEP_MM, ObjectModel, write_ply
 from evalkit.reports.bop_raster import OPENCV_SAMPLE_OFFSET, TOOLKIT_SAMPLE_OFFSET
 from evalkit.reports.bop_register import registration_script
+from evalkit.runner import progress_bar
 
 MIN_TARGET_VISIB = 0.1          # BOP19 targets: visib_fract >= 0.1 (BOP Challenge 2019 rules)
 VISIB_DELTA_MM = 15.0           # the visibility test's tolerance, calc_gt_info.py's delta (BOP toolkit)
@@ -152,6 +153,7 @@ class _Export:
     visib_sources: dict = field(default_factory=lambda: {"depth_test": 0, "object_index": 0, "copied": 0})
     targets: list = field(default_factory=list)
     sample_offset: float = OPENCV_SAMPLE_OFFSET          # the silhouettes' pixel convention
+    tick: object = None                                  # progress: tick(n) per n images written
 
     @property
     def K(self) -> np.ndarray:
@@ -318,6 +320,8 @@ def _export_scene(ex: _Export, scene_id: int, seq: dict) -> int:
     for frame in ex.ds.iter_frames(seq["id"]):
         key = str(int(frame["index"]))
         scene_camera[key], scene_gt[key], scene_gt_info[key] = _export_frame(ex, sdir, scene_id, frame, coco)
+        if ex.tick is not None:
+            ex.tick(1)
     _json(sdir / "scene_camera.json", scene_camera)
     _json(sdir / "scene_gt.json", scene_gt)
     _json(sdir / "scene_gt_info.json", scene_gt_info)
@@ -327,11 +331,13 @@ def _export_scene(ex: _Export, scene_id: int, seq: dict) -> int:
 
 def export_bop(dataset: Dataset | str | Path, out_dir: str | Path, split: str = "test",
                copy_images: bool = True, depth_scale: float = 1.0, masks: bool = True,
-               sequences: list[str] | None = None, undistort: bool = False, pixels: str = "opencv") -> dict:
+               sequences: list[str] | None = None, undistort: bool = False, pixels: str = "opencv",
+               progress: bool = False) -> dict:
     """Write ``dataset`` as a BOP dataset into ``out_dir`` (see the module docstring); images are
     copied unless ``copy_images=False`` (relative symlinks). ``pixels``: the silhouettes' pixel
     convention, ``"opencv"`` (the renderer's, default) or ``"toolkit"`` (the BOP toolkit's OpenGL
     renderers, half a pixel off: ``scene_gt_info`` then equals its ``calc_gt_info.py``).
+    ``progress``: a progress bar over the images on stderr.
     A camera with lens distortion raises :class:`DatasetError` unless ``undistort``.
 
     Returns a summary ``{scenes, images, objects, depth_clipped_px, undistorted}``."""
@@ -354,8 +360,10 @@ def export_bop(dataset: Dataset | str | Path, out_dir: str | Path, split: str = 
                                    "depth_scale": depth_scale})
     _write_models(ex)
     scenes, n_images = {}, 0
-    for scene_id, seq in enumerate(ds.sequences):
-        if sequences is None or seq["id"] in sequences:
+    chosen = [(i, q) for i, q in enumerate(ds.sequences) if sequences is None or q["id"] in sequences]
+    with progress_bar(sum(int(q.get("n_frames") or 0) for _, q in chosen), progress, "export-bop: images") as tick:
+        ex.tick = tick
+        for scene_id, seq in chosen:
             scenes[f"{scene_id:06d}"] = {"sequence": seq["id"], "condition": seq.get("condition"),
                                          "trajectory": seq.get("trajectory"), "trial": seq.get("trial")}
             n_images += _export_scene(ex, scene_id, seq)

@@ -122,12 +122,15 @@ class _Export:
         return ImageView.from_depth_png(K, self.width, self.height, depth, float(cam.get("depth_scale", 1.0)))
 
 
-def target_errors(export_dir: Path, results_csv: Path) -> list[dict]:
-    """Per target: ``{scene_id, im_id, obj_id, vsd (10,) | None, mssd, mspd}`` (errors None = no estimate)."""
+def target_errors(export_dir: Path, results_csv: Path, tick=None) -> list[dict]:
+    """Per target: ``{scene_id, im_id, obj_id, vsd (10,) | None, mssd, mspd}`` (errors None = no estimate);
+    ``tick(1)`` after each target when given."""
     ex = _Export.open(export_dir)
     targets = json.loads((Path(export_dir) / "test_targets_bop19.json").read_text())
     ests, rows, cache = read_results(results_csv), [], {}
     for t in targets:
+        if tick is not None:
+            tick(1)
         s, i, o = int(t["scene_id"]), int(t["im_id"]), int(t["obj_id"])
         row = {"scene_id": s, "im_id": i, "obj_id": o, "vsd": None, "mssd": None, "mspd": None}
         rows.append(row)
@@ -148,9 +151,13 @@ def target_errors(export_dir: Path, results_csv: Path) -> list[dict]:
     return rows
 
 
-def bop19_scores(export_dir: Path, results_csv: Path) -> dict:
-    """``{AR_BOP19, AR_VSD, AR_MSSD, AR_MSPD, n_targets}`` of one results file (NaN ARs without targets)."""
-    rows = target_errors(export_dir, results_csv)
+def bop19_scores(export_dir: Path, results_csv: Path, progress: bool = False) -> dict:
+    """``{AR_BOP19, AR_VSD, AR_MSSD, AR_MSPD, n_targets}`` of one results file (NaN ARs without targets);
+    ``progress``: a progress bar over the targets on stderr."""
+    from evalkit.runner import progress_bar
+    n = len(json.loads((Path(export_dir) / "test_targets_bop19.json").read_text()))
+    with progress_bar(n, progress, f"BOP19 scores of {Path(results_csv).name}: targets") as tick:
+        rows = target_errors(export_dir, results_csv, tick)
     n = len(rows)
     if not n:
         nan = float("nan")
