@@ -40,10 +40,11 @@ def write_results(export: Path, out_csv: Path) -> None:
 
 def write_fixture(root: Path) -> tuple[Path, Path]:
     """``(export dir, results csv)`` under ``root``."""
-    from evalkit.dataset import Dataset
-    from evalkit.reports import bop
     from fake_dataset import write_fake_dataset
     from test_bop import _enrich
+
+    from evalkit.dataset import Dataset
+    from evalkit.reports import bop
     export = root / "dockbench"
     bop.export_bop(Dataset.open(_enrich(write_fake_dataset(root / "ds"))), export, depth_scale=1.0)
     csv = root / "results" / RESULTS_NAME

@@ -3,10 +3,10 @@ private LED API) and finds the true LED centres to sub-pixel accuracy."""
 from __future__ import annotations
 
 import numpy as np
-
-from blendgen.tools import bench
 from synth_images import k_from_hfov, pose_looking_at_dock, render
 from test_localizers import led_marker
+
+from blendgen.tools import bench
 
 W, H = 320, 240
 
@@ -19,11 +19,10 @@ def test_led_centroid_table_on_synthetic_frames(monkeypatch):
         T = pose_looking_at_dock(d)
         frames.append(({"index": i, "d_true": d, "T_cam_dock": np.asarray(T).tolist()}, render(K, T, [led], W, H)))
 
-    class _Ds:
-        markers = [led]
-
+    from types import SimpleNamespace
+    ds = SimpleNamespace(markers=[led])
     camera = {"K": K, "dist": None, "width": W, "height": H, "markers": [led]}
-    monkeypatch.setattr(bench, "load_sequences", lambda dataset: (_Ds(), camera, [("s", frames)]))
+    monkeypatch.setattr(bench, "load_sequences", lambda dataset: (ds, camera, [("s", frames)]))
     table = bench.led_centroid_table("unused")
     every = table[table["d_true"] == "0-inf m"].iloc[0]
     assert every["core_n"] == every["weighted_n"] == 4 * len(frames)       # every LED matched

@@ -9,13 +9,11 @@ import cv2
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from fake_dataset import HEIGHT, WIDTH, K, write_fake_dataset
 
 import cli
-
-from evalkit.reports import bop
 from evalkit.dataset import Dataset
-
-from fake_dataset import K, WIDTH, HEIGHT, write_fake_dataset
+from evalkit.reports import bop
 
 KM = np.array(K)
 

@@ -49,7 +49,7 @@ def test_quickstart_header_says_what_it_runs():
 
 
 def test_demo_evaluates_the_hybrid_too():
-    demo = re.search(r"^demo:.*?(?=^\S)", (ROOT / "Makefile").read_text(), re.S | re.M).group(0)
+    demo = re.search(r"^demo:.*?(?=^\S)", (ROOT / "Makefile").read_text(), re.DOTALL | re.MULTILINE).group(0)
     assert all(f"-l {name}" in demo for name in ("led", "qr", "aruco", "hybrid"))
 
 
@@ -103,7 +103,9 @@ def _walk(group, prefix=""):
 def test_lamp_bench_announces_each_cycles_render(tmp_path, monkeypatch):
     """bench lamp's renders take minutes: each uncached one is announced (the CLI prints the line)."""
     import subprocess
+
     import numpy as np
+
     from blendgen.tools import lamp_bench as lb
 
     def fake_run(cmd, **kw):

@@ -10,9 +10,9 @@ from pathlib import Path
 import click
 import pytest
 from click.testing import CliRunner
+from fake_dataset import write_fake_dataset
 
 import cli
-from fake_dataset import write_fake_dataset
 
 ROOT = Path(__file__).resolve().parents[1]
 ELSEWHERE = {   # command -> the test that runs it
@@ -24,7 +24,7 @@ ELSEWHERE = {   # command -> the test that runs it
 
 
 def _readme_commands() -> list[str]:
-    block = re.search(r"## Commands\n```\n(.*?)```", (ROOT / "README.md").read_text(), re.S).group(1)
+    block = re.search(r"## Commands\n```\n(.*?)```", (ROOT / "README.md").read_text(), re.DOTALL).group(1)
     out = []
     for line in block.splitlines():
         m = re.match(r"dockbench ([a-z-]+)(?: ([a-z|-]+))?", line)

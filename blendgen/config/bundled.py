@@ -41,7 +41,7 @@ def resolve_config(spec: str | Path) -> Path:
     p = Path(spec)
     if p.exists():
         return p
-    stem = p.name[:-5] if p.name.endswith(".yaml") else p.name
+    stem = p.name.removesuffix(".yaml")
     short = len(p.parts) == 1 or (len(p.parts) == 2 and p.parts[0] == "configs")
     if short and stem in bundled_names("configs"):
         return bundled_file("configs", f"{stem}.yaml")

@@ -14,7 +14,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from evalkit.reports.bop_raster import OPENCV_SAMPLE_OFFSET, Window, depth_to_dist, projected_window, render_depth
+from evalkit.reports.bop_raster import (
+    OPENCV_SAMPLE_OFFSET,
+    Window,
+    depth_to_dist,
+    projected_window,
+    render_depth,
+)
 
 NO_BOX = [-1, -1, -1, -1]
 
@@ -34,7 +40,7 @@ class ImageView:
 
     @classmethod
     def from_depth_png(cls, K, width: int, height: int, depth_png: np.ndarray | None, depth_scale: float,
-                       index: np.ndarray | None = None) -> "ImageView":
+                       index: np.ndarray | None = None) -> ImageView:
         """The view of an exported uint16 depth image (``z_mm = value * depth_scale``)."""
         dist = None if depth_png is None else depth_to_dist(depth_png.astype(np.float64) * depth_scale,
                                                             np.asarray(K, float))

@@ -39,7 +39,7 @@ class ObjectModel:
     centre_mm: np.ndarray
 
     @classmethod
-    def from_marker(cls, marker: dict) -> "ObjectModel":
+    def from_marker(cls, marker: dict) -> ObjectModel:
         vertices, _ = marker_model(marker)
         v = vertices * 1000.0
         return cls(v.reshape(-1, 8, 3), (v.min(axis=0) + v.max(axis=0)) / 2.0)

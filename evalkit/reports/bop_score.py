@@ -30,7 +30,12 @@ from pathlib import Path
 
 import numpy as np
 
-from evalkit.reports.bop_gtinfo import ImageView, crop_to_image, render_model_dist, visible_mask
+from evalkit.reports.bop_gtinfo import (
+    ImageView,
+    crop_to_image,
+    render_model_dist,
+    visible_mask,
+)
 from evalkit.reports.bop_raster import TOOLKIT_SAMPLE_OFFSET
 
 VSD_DELTA_MM = 15.0                                   # eval_bop19_pose.py: vsd_deltas (15 mm but ITODD)
@@ -100,7 +105,7 @@ class _Export:
     diameters: dict
 
     @classmethod
-    def open(cls, root: Path) -> "_Export":
+    def open(cls, root: Path) -> _Export:
         root = Path(root)
         info = json.loads((root / "dockbench_scenes.json").read_text())
         cam = json.loads((root / "camera.json").read_text())
