@@ -26,7 +26,7 @@ setup: $(STAMP)
 
 demo: setup
 	$(BIN)/dockbench generate configs/quickstart.yaml -o out/demo/dataset
-	$(BIN)/dockbench evaluate out/demo/dataset -l led -l qr -l aruco -o out/demo/results --overwrite
+	$(BIN)/dockbench evaluate out/demo/dataset -l led -l qr -l aruco -l hybrid -o out/demo/results --overwrite
 
 # the leaderboard test opens the page in headless Chromium (Debian package)
 chromium:

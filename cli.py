@@ -61,7 +61,7 @@ def main():
 @_user_errors
 def generate(config: Path, out: Path, workers: int | None, overwrite: bool, executor: str,
              ray_address: str | None):
-    """Render the dataset described by CONFIG (YAML) into OUT."""
+    """Render the dataset described by CONFIG (a YAML file, or a bundled config's name: dockbench configs) into OUT."""
     from blendgen.pipeline.generate import generate as run, check_out_dir
     from blendgen.config.models import load_experiment
     exp = load_experiment(config)
@@ -158,6 +158,15 @@ def evaluate(dataset: Path, localizers: tuple[str, ...], params: tuple[str, ...]
                    f"e_rel excludes d_true < {ds.d_min_rel_m} m)")
 
 
+@main.command("configs")
+def list_configs():
+    """List the bundled configs (usable by name: dockbench generate quickstart -o OUT)."""
+    from blendgen.config.bundled import bundled_file, bundled_names, config_summary
+    for name in bundled_names("configs"):
+        click.echo(f"{name:18s} {config_summary(name)}")
+    click.echo(f"(files in {bundled_file('configs', '')})")
+
+
 @main.command("localizers")
 def list_localizers():
     """List registered localizers (built-ins and entry points)."""
@@ -252,8 +261,18 @@ def _size_options(fn):
                       help="frames of the approach, evenly spaced from 10 m to 1 m")(fn)
     fn = click.option("--ref-samples", type=click.IntRange(1, 65536), default=64, show_default=True,
                       help="reference spp (the medium is single-scatter and low-noise)")(fn)
-    fn = click.option("--height", type=click.IntRange(16, 4096), default=240, show_default=True)(fn)
-    return click.option("--width", type=click.IntRange(16, 4096), default=320, show_default=True)(fn)
+    return _wh_size("320x240")(fn)
+
+
+def _wh_size(default: str):
+    """``--size WxH`` (16..8192 px each), given to the command as ``width=``, ``height=``."""
+    def deco(fn):
+        @functools.wraps(fn)
+        def inner(*args, size, **kwargs):
+            return fn(*args, width=size[0], height=size[1], **kwargs)
+        return click.option("--size", callback=lambda c, p, v: _suite_size(c, p, v), default=default,
+                            show_default=True, metavar="WxH", help="image size, e.g. 320x240")(inner)
+    return deco
 
 
 @bench.command("io")
@@ -344,8 +363,8 @@ def bench_pnp(trials: int, seed: int, out: Path):
 @bench.command("particles")
 @click.option("-n", "--count", "counts", type=click.IntRange(0, 20_000_000), multiple=True,
               help="particles in the 600 m^3 pool (repeatable; default 600, 6000, 60000)")
-@click.option("--size", type=(click.IntRange(16, 8192), click.IntRange(16, 8192)), default=(640, 480),
-              show_default=True)
+@click.option("--size", callback=lambda c, p, v: _suite_size(c, p, v), default="640x480", show_default=True,
+              metavar="WxH", help="image size, e.g. 320x240")
 @click.option("--frames", type=click.IntRange(1, 1000), default=10, show_default=True)
 @click.option("--fidelity", "fidelity_out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="instead: fast particles vs real spheres in the render (Blender), datasets under this dir "
@@ -433,9 +452,11 @@ def bench_caustics(depths: tuple[float, ...], waters: tuple[str, ...], size: int
               default=Path("out/bench_lamp"), show_default=True)
 def bench_lamp(samples: int, bounces: int, out: Path):
     """Vehicle lamp: grey card vs inverse square x attenuation, and the backscatter veil, fast vs Cycles."""
+    from blendgen.tools import lamp_bench
     from blendgen.tools.lamp_bench import card_table, shadow_table, veil_table
     from evalkit.reports.tables import print_table
     out.mkdir(parents=True, exist_ok=True)
+    lamp_bench.ON_RENDER = lambda m: click.echo(f"bench lamp: {m} ...", err=True)
     card = card_table(out / "renders", samples=samples)
     click.echo("grey card (albedo 0.5) centre radiance, green, lamp 0.3 m off the camera; card - black card:")
     print_table(card, floatfmt=".4g")
@@ -498,8 +519,7 @@ def calibrate_veil(out: Path, data: Path | None, presets: tuple[str, ...]):
 @main.command("preview")
 @click.option("-o", "--out", "out", type=click.Path(dir_okay=False, path_type=Path),
               default=Path("out/preview.png"), show_default=True)
-@click.option("--width", type=click.IntRange(16, 4096), default=320, show_default=True)
-@click.option("--height", type=click.IntRange(16, 4096), default=240, show_default=True)
+@_wh_size("320x240")
 @click.option("--samples", type=click.IntRange(1, 65536), default=4, show_default=True)
 @click.option("--fidelity", type=click.Choice(["fast", "reference"]), default="fast", show_default=True)
 @click.option("--mode", type=click.Choice(["physical", "article"]), default="physical", show_default=True,
@@ -592,11 +612,14 @@ def run(config: Path, localizers: tuple[str, ...], params: tuple[str, ...], out:
 @click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
               default=Path("out/calibration"), show_default=True,
               help="output directory (rendered frames, calibration.csv, calibration_trials.csv)")
-def calibrate(config: Path | None, out: Path):
-    """Render chessboards and check Zhang's calibration against the true K (SPEC section 6)."""
+@click.option("--size", callback=lambda c, p, v: _suite_size(c, p, v), default=None, metavar="WxH",
+              help="one resolution instead of the config's list, e.g. 320x240")
+@click.option("--trials", type=click.IntRange(1, 100), default=None, help="trials per resolution (default: the config's)")
+def calibrate(config: Path | None, out: Path, size: tuple[int, int] | None, trials: int | None):
+    """Render chessboards and check Zhang's calibration against the true K."""
     import time
     from blendgen.tools import calibration as cal
-    cfg = cal.load_config(config or cal.DEFAULT_CONFIG)
+    cfg = cal.with_overrides(cal.load_config(config or cal.DEFAULT_CONFIG), size, trials)
     t0 = time.perf_counter()
     try:
         results = cal.run_calibration(cfg, out)
@@ -656,32 +679,87 @@ def leaderboard(results_dirs: tuple[Path, ...], out: Path, title: str, shot: Pat
 @click.option("-o", "--out", "out", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="BOP dataset directory to write")
 @click.option("--split", default="test", show_default=True, help="BOP split folder name")
-@click.option("--copy", "copy_images", is_flag=True, help="copy RGB images instead of symlinking them")
+@click.option("--copy/--symlink", "copy_images", default=True, show_default=True,
+              help="copy the RGB images, or link them by relative symlinks (move the export and the "
+                   "dataset together)")
 @click.option("--depth-scale", type=click.FloatRange(min=0.0, min_open=True), default=1.0,
               show_default=True, help="mm per depth PNG unit (1.0: up to 65.5 m; 0.1: up to 6.5 m)")
 @click.option("--no-masks", is_flag=True, help="do not write mask_visib PNGs")
 @click.option("--undistort", is_flag=True, help="camera with lens distortion: remap images, depth and masks "
                                                 "to the pinhole camera of the same K (else refused)")
+@click.option("--pixels", type=click.Choice(["opencv", "toolkit"]), default="opencv", show_default=True,
+              help="silhouette pixel convention: the renderer's (OpenCV pixel centres) or the BOP toolkit's "
+                   "OpenGL renderers' (half a pixel off; scene_gt_info then equals its calc_gt_info.py)")
+@click.option("--results", "results_dirs", multiple=True, type=click.Path(file_okay=False, path_type=Path),
+              help="a results folder of `dockbench evaluate` on DATASET (repeatable): write each pose "
+                   "localizer's estimates as OUT/results/METHOD_dockbench-SPLIT.csv and print its BOP19 AR")
 def export_bop(dataset: Path, out: Path, split: str, copy_images: bool, depth_scale: float,
-                   no_masks: bool, undistort: bool):
-    """Export DATASET in the BOP format (scene_camera/scene_gt/scene_gt_info, rgb, depth) to OUT."""
+                   no_masks: bool, undistort: bool, pixels: str, results_dirs: tuple[Path, ...]):
+    """Export DATASET in the BOP format (scene_camera/scene_gt/scene_gt_info, rgb, depth) to OUT;
+    with --results also BOP results files and their scores (docs/bop.md)."""
     import json
     from evalkit.dataset import DatasetError
     from evalkit.reports.bop import export_bop as run
+    runs = _bop_runs(dataset, results_dirs) if results_dirs else []
     try:
         s = run(dataset, out, split=split, copy_images=copy_images, depth_scale=depth_scale,
-                       masks=not no_masks, undistort=undistort)
+                       masks=not no_masks, undistort=undistort, pixels=pixels, progress=True)
     except DatasetError as exc:
         click.echo(f"error: {exc}", err=True)
         sys.exit(2)
     click.echo(f"BOP export: {s['scenes']} scenes, {s['images']} images, {s['objects']} objects -> {out}")
     info = json.loads((out / "dockbench_scenes.json").read_text())["visib_fract"]
+    if info["from_object_index"]:
+        click.echo(f"note: {info['from_object_index']} visib_fract values from the object-index pass "
+                   "(no depth pass for the toolkit's depth test)", err=True)
     if info["copied_from_dataset"]:
         click.echo(f"note: {info['copied_from_dataset']} visib_fract values copied from the dataset's "
                    "visible_fraction (no object-index pass to compute them from)", err=True)
     if s["depth_clipped_px"]:
         click.echo(f"note: {s['depth_clipped_px']} depth pixels beyond {65535 * depth_scale / 1000:.1f} m "
                    f"written as 0 (use a larger --depth-scale)", err=True)
+    if results_dirs:
+        _bop_results(dataset, out, runs)
+
+
+def _bop_runs(dataset: Path, results_dirs: tuple[Path, ...]) -> list:
+    """The estimates of each results folder, checked to be of DATASET (before anything is written)."""
+    from evalkit.dataset import Dataset, DatasetError
+    from evalkit.reports.results import ResultsError, load_run
+    ds = Dataset.open(dataset)
+    out = []
+    for rdir in results_dirs:
+        try:
+            run = load_run(rdir)
+            est = run.estimates
+        except (ResultsError, OSError) as exc:
+            raise DatasetError(f"{rdir}: not a results folder of `dockbench evaluate` ({exc})") from None
+        if run.content_hash not in (None, ds.manifest.get("content_hash")):
+            raise DatasetError(f"{rdir}: evaluated another dataset (content hash {run.content_hash[:12]}, "
+                               f"{dataset} has {str(ds.manifest.get('content_hash'))[:12]})")
+        out.append(est)
+    return out
+
+
+def _bop_results(dataset: Path, out: Path, runs: list) -> None:
+    """Results CSVs of every pose localizer in ``runs`` (estimates tables) and a table: the BOP19 AR
+    (per marker, VSD + MSSD + MSPD) next to dockbench's AR_dock (the dock as one object)."""
+    import pandas as pd
+    from evalkit.dataset import Dataset
+    from evalkit.reports.bop_results import pooled_dock_ar, write_results
+    from evalkit.reports.bop_score import bop19_scores
+    from evalkit.reports.tables import print_table
+    ds = Dataset.open(dataset)
+    rows = []
+    for est in runs:
+        dock_ar = pooled_dock_ar(est, ds.markers, ds.camera)
+        for name, path in write_results(est, ds.markers, out, out / "results").items():
+            rows.append({"localizer": name, **bop19_scores(out, path, progress=True), "AR_dock": dock_ar.get(name),
+                         "file": str(path)})
+    if rows:
+        print_table(pd.DataFrame(rows), floatfmt=".3f")
+    click.echo("AR_BOP19: per marker object, (AR_VSD + AR_MSSD + AR_MSPD) / 3 over test_targets_bop19 (the BOP "
+               "toolkit's definition); AR_dock: the dock as one object, MSSD + MSPD only (dockbench's own)")
 
 
 @main.command("dock")

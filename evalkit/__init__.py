@@ -5,7 +5,7 @@ Modules: ``dataset`` (read and verify a dataset), ``registry`` (find localizers)
 (child processes: spawn with a memory cap, kill and reap), ``runner`` (run them),
 ``metrics.core`` (judge each frame: errors, false positives, thresholded success; per trial),
 ``metrics.extra`` (the one path to every table: CIs, bins, usable range, runtime),
-``metrics.recall`` (BOP-style AR), ``reports.tables`` / ``reports.plots`` (output),
+``metrics.recall`` (AR_dock, BOP-style), ``reports.tables`` / ``reports.plots`` (output),
 ``reports.results`` (run directories, provenance), ``reports.leaderboard`` (static HTML)
 and ``reports.bop`` (BOP export).
 This package imports nothing heavy at import time; the names below are

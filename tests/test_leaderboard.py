@@ -113,3 +113,19 @@ def test_renders_in_headless_chromium_within_1280px(runs, tmp_path):
     assert width <= 1280, width
     png = leaderboard.screenshot(html_path, tmp_path / "b.png", size=(1280, 900))
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_legends_and_bin_frame_counts_are_on_the_page(runs):
+    """A screenshot or print shows what every column means and how many frames each range bin holds
+    (not only hover tooltips); the matrix has no averaged column (trajectories are never averaged)."""
+    import html
+    root, dirs = runs
+    text = leaderboard.build_leaderboard([dirs["runA"]], root / "legend.html").read_text()
+    legend = html.unescape(re.search(r'<dl class="legend">(.*?)</dl>', text, re.S).group(1))
+    for key, header, _, help_text in leaderboard.COLUMNS:
+        assert f"<dt>{header}</dt><dd>{help_text}</dd>" in legend, header
+    bins = re.search(r'<table class="bins">(.*?)</table>', text, re.S).group(1)
+    titles = re.findall(r'title="(\d+) frames">[^<]*<span class="ci">n=(\d+)</span>', bins)
+    assert titles and all(a == b for a, b in titles)                   # the tooltip's count, visible
+    head = re.search(r'<table class="matrix">(.*?)</thead>', text, re.S).group(1)
+    assert "<th>worst</th>" in head and ">mean<" not in head

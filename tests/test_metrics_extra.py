@@ -272,7 +272,7 @@ def test_save_and_load_run(tmp_path):
     loaded = results.load_run(tmp_path / "run")
     m = loaded.metrics.set_index("localizer")
     assert m.loc["oracle", "e_trans_mean"] == pytest.approx(0.0, abs=1e-12)
-    assert m.loc["oracle", "AR"] == pytest.approx(1.0) and math.isnan(m.loc["constant", "AR"])
+    assert m.loc["oracle", "AR_dock"] == pytest.approx(1.0) and math.isnan(m.loc["constant", "AR_dock"])
     assert m.loc["constant", "P_detect_mean"] == 1.0 and m.loc["constant", "P_succ_mean"] < 0.2
     assert m.loc["constant", "n_fp"] == 1                   # the out-of-view frame
     assert loaded.estimates["T_cam_dock_est"].notna().any()

@@ -32,3 +32,27 @@ def bundled_file(kind: str, name: str) -> Path:
 def bundled_names(kind: str, suffix: str = ".yaml") -> list[str]:
     """Sorted stems of the bundled files of ``kind`` with ``suffix``."""
     return sorted(p.stem for p in bundled_dir(kind).glob(f"*{suffix}"))
+
+
+def resolve_config(spec: str | Path) -> Path:
+    """The config file ``spec`` names: the path itself when it exists, else the bundled config of
+    that name (``quickstart``, ``quickstart.yaml`` or ``configs/quickstart.yaml``, which a wheel
+    install has no file for), else ``spec`` unchanged (the caller reports it missing)."""
+    p = Path(spec)
+    if p.exists():
+        return p
+    stem = p.name.removesuffix(".yaml")
+    short = len(p.parts) == 1 or (len(p.parts) == 2 and p.parts[0] == "configs")
+    if short and stem in bundled_names("configs"):
+        return bundled_file("configs", f"{stem}.yaml")
+    return p
+
+
+def config_summary(name: str) -> str:
+    """The first comment line of a bundled config (its one-line description), or ''."""
+    for line in bundled_file("configs", f"{name}.yaml").read_text().splitlines():
+        if line.startswith("#"):
+            return line.lstrip("# ").strip()
+        if line.strip():
+            break
+    return ""

@@ -13,7 +13,7 @@ from typing import Annotated, Any, Literal, Optional, Union
 import yaml
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from blendgen.config.bundled import bundled_dir, bundled_names
+from blendgen.config.bundled import bundled_dir, bundled_names, resolve_config
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 
@@ -793,8 +793,12 @@ def format_validation_error(path: Path, err: ValidationError) -> str:
 
 
 def load_experiment(path: str | Path) -> Experiment:
-    """Read, template-merge and validate a config file; raise ConfigError on any user error."""
-    path = Path(path)
+    """Read, template-merge and validate a config file (a path, or a bundled config's name such
+    as ``quickstart``); raise ConfigError on any user error."""
+    path = resolve_config(path)
+    if not path.exists():
+        raise ConfigError(f"{path}: cannot read config (no such file); bundled configs (give the name): "
+                          f"{', '.join(bundled_names('configs'))} (dockbench configs)")
     raw = _read_yaml(path)
     if not isinstance(raw, dict):
         raise ConfigError(f"{path}: the config must be a YAML mapping, got {type(raw).__name__}")

@@ -42,13 +42,14 @@ def bench_experiment(frames: int, samples: int, mode: str = "physical"):
     return exp
 
 
-def render_stages(out: Path, frames: int, samples: int, mode: str = "physical") -> dict:
-    """Generate the bench dataset; median ms/frame per stage and the wall time per frame."""
+def render_stages(out: Path, frames: int, samples: int, mode: str = "physical", progress: bool = False) -> dict:
+    """Generate the bench dataset (``progress``: generate's frame counter on stderr); median
+    ms/frame per stage and the wall time per frame."""
     if out.exists():
         shutil.rmtree(out)
     exp = bench_experiment(frames, samples, mode)
     t0 = time.perf_counter()
-    man = generate(exp, out, workers=1, progress=False)
+    man = generate(exp, out, workers=1, progress=progress)
     wall = time.perf_counter() - t0
     st = timing_summary(out)
     n = sum(s["n_frames"] for s in man["sequences"])
@@ -286,10 +287,19 @@ def run_localizer_bench(dataset: Path, out: Path) -> None:
     click.echo("localizers, CPU ms per frame on one thread (cv2.setNumThreads(1), images decoded beforehand):")
     print_table(cpu, floatfmt=".2f")
     cpu.to_csv(out / "bench_localizer_cpu.csv", index=False)
+    from evalkit.dataset import Dataset
+    kinds = {m.get("kind") for m in Dataset.open(dataset).markers}
+    for kind, table in (("qr", "QR decoders"), ("led_array", "LED centroids")):
+        if kind not in kinds:
+            click.echo(f"\n(no {kind} marker in {dataset}: no {table} table)")
+    if "qr" not in kinds:
+        return
     qr = qr_decode_table(dataset)
     click.echo("\nQR detectors on the frames with the QR in view (success = payload decoded + pose):")
     print_table(qr, floatfmt=".2f")
     qr.to_csv(out / "bench_qr_decoders.csv", index=False)
+    if "led_array" not in kinds:
+        return
     led = led_centroid_table(dataset)
     click.echo("\nLED centroid error vs the true projected LED centres (px):")
     print_table(led, floatfmt=".3f")
@@ -304,7 +314,7 @@ def run_bench(out: Path, frames: int, samples: tuple[int, ...]) -> None:
     for mode in ("physical", "article"):
         for s in samples:
             click.echo(f"rendering {frames} frames at 640x480, {s} spp, {mode} mode ...", err=True)
-            rows.append(render_stages(out / f"{mode}-s{s}", frames, s, mode))
+            rows.append(render_stages(out / f"{mode}-s{s}", frames, s, mode, progress=True))
     render_df = pd.DataFrame(rows)
     click.echo("\nrender stages (median ms/frame; scene_build once per sequence):")
     print_table(render_df, floatfmt=".1f")

@@ -352,9 +352,21 @@ def write_job(cfg: CalibrationConfig, board: ChessBoard, texture: Path, width: i
     return jf, Ts, paths
 
 
+def with_overrides(cfg: CalibrationConfig, size: tuple[int, int] | None = None,
+                   trials: int | None = None) -> CalibrationConfig:
+    """``cfg`` with one resolution ``size`` (px) instead of the config's list and/or ``trials``."""
+    update = {}
+    if size is not None:
+        update["resolutions"] = [tuple(int(v) for v in size)]
+    if trials is not None:
+        update["trials"] = int(trials)
+    return cfg.model_copy(update=update)
+
+
 def run_calibration(cfg: CalibrationConfig, out: Path, progress: bool = True) -> list[TrialResult]:
-    """Render and calibrate every (resolution, trial). Rendering of the next trial
-    overlaps the detection and calibration of the previous one."""
+    """Render and calibrate every (resolution, trial), with a progress bar (stderr) over the
+    trials. Rendering of the next trial overlaps the detection and calibration of the previous one."""
+    from evalkit.runner import progress_bar
     ex.require_render_stack()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -380,7 +392,8 @@ def run_calibration(cfg: CalibrationConfig, out: Path, progress: bool = True) ->
                        + f" ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
 
     children = ex.Children()
-    with ThreadPoolExecutor(max_workers=1) as pool:
+    with ThreadPoolExecutor(max_workers=1) as pool, \
+            progress_bar(len(todo), progress, "calibrate: render + Zhang, trials") as tick:
         try:
             for w, h, k in todo:
                 jf, Ts, paths = write_job(cfg, board, texture, w, h, k, out, threads)
@@ -388,13 +401,15 @@ def run_calibration(cfg: CalibrationConfig, out: Path, progress: bool = True) ->
                                         ex.calibration_command)
                 if pending is not None:      # calibrate the previous trial while this one renders
                     finish(pending)
+                    tick(1)
                 rendering.result()
                 pending = (jf, Ts, paths, (w, h, k))
         except BaseException:
             children.kill()                  # an interrupt or a failed render ends every worker
             raise
-    if pending is not None:
-        finish(pending)
+        if pending is not None:
+            finish(pending)
+            tick(1)
     return results
 
 

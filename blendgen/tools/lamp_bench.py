@@ -48,12 +48,20 @@ def water_dict(w: optics.WaterOptics) -> dict | None:
             "g": float(w.g), "ff_ior": float(w.ff_ior), "ff_backscatter": float(w.ff_backscatter)}
 
 
+ON_RENDER = None    # callable(message) told before each Cycles render (the CLI's progress line), or None
+_RENDERS = [0]
+
+
 def reference(spec: dict, work: Path) -> np.ndarray:
     """Render one lamp scene (subprocess, nice 10); returns linear RGB (H, W, 3)."""
     work.mkdir(parents=True, exist_ok=True)
     key = hashlib.sha256(json.dumps(spec, sort_keys=True).encode()).hexdigest()[:16]
     sp, out = work / f"lamp_{key}.json", work / f"lamp_{key}.npy"
     if not out.exists():
+        _RENDERS[0] += 1
+        if ON_RENDER is not None:
+            ON_RENDER(f"Cycles render {_RENDERS[0]} ({spec.get('width')}x{spec.get('height')}, "
+                      f"{spec.get('samples')} spp, {spec.get('volume_bounces')} volume bounces)")
         sp.write_text(json.dumps(spec))
         res = subprocess.run(["nice", "-n", "10", sys.executable, "-m", "blendgen.blender.lamp_scene", str(sp),
                               str(out)], capture_output=True, text=True, timeout=3600)

@@ -47,7 +47,7 @@ BIN_COLUMNS = GROUP + ["bin_lo", "bin_hi", "n_total", "n_detect", "n_succ", "P_d
 METRIC_COLUMNS = GROUP + [
     "n_trials", "few_trials", "P_succ_mean", "P_succ_lo", "P_succ_hi", "P_detect_mean", "P_detect_lo",
     "P_detect_hi", "E_rel_mean", "E_rel_lo", "E_rel_hi", "e_abs_mean", "e_trans_mean", "e_rot_deg_mean",
-    "e_range_abs_mean", "e_lateral_mean", "AR", "AR_MSSD", "AR_MSPD", "n_targets", "n_frames", "n_est",
+    "e_range_abs_mean", "e_lateral_mean", "AR_dock", "AR_dock_MSSD", "AR_dock_MSPD", "n_targets", "n_frames", "n_est",
     "n_fp", "fp_rate", "fp_rate_no_view", "max_range_m", "E_rel_matched", "e_abs_matched",
     "n_matched_bins", "matched_lo_m", "matched_hi_m"]
 MATCHED_COLUMNS = ["E_rel_matched", "e_abs_matched", "n_matched_bins", "matched_lo_m", "matched_hi_m"]
@@ -256,7 +256,7 @@ def compute_all(estimates: pd.DataFrame, settings: EvalSettings | None = None,
     (:data:`~evalkit.metrics.core.TRIAL_COLUMNS`); ``metrics`` one row per group with
     :data:`METRIC_COLUMNS` (means over the group's trials with CIs; FP and recall pool
     frames; no timings, so the same inputs give the same table: ``runtime`` is apart);
-    ``model`` (the dock's marker models) enables AR."""
+    ``model`` (the dock's marker models) enables AR_dock."""
     settings = settings or EvalSettings()
     frames = score(estimates, settings, model)
     trials = core.per_trial(frames, settings.d_max_m)

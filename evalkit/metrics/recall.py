@@ -1,7 +1,11 @@
-"""Pose-level recall, BOP style: MSSD / MSPD errors with the marker models and AR over a threshold sweep.
+"""Pose-level recall of the dock, BOP style: MSSD / MSPD errors with the marker models and ``AR_dock``.
 
-Follows the BOP Challenge 2019+ definitions (Hodan et al., "BOP Challenge 2020 on
-6D object localization", section 2.2) with the dock as the object:
+``AR_dock`` is dockbench's own number, **not** the BOP Challenge's average recall: it uses the
+MSSD and MSPD of the BOP Challenge 2019+ (Hodan et al., "BOP Challenge 2020 on 6D object
+localization", section 2.2) with the whole dock as one object and without VSD, per trajectory.
+The BOP19 AR as the BOP toolkit computes it (every marker its own object, VSD + MSSD + MSPD
+pooled over the targets of a BOP export) is :func:`evalkit.reports.bop_score.bop19_scores`
+(``dockbench export-bop --results``). Here:
 
 * the **dock model** is the vertices of every marker's model (:func:`marker_model`: a
   plate :data:`MODEL_THICKNESS_M` deep for printed markers, a small cube per LED for
@@ -9,14 +13,14 @@ Follows the BOP Challenge 2019+ definitions (Hodan et al., "BOP Challenge 2020 o
 * ``MSSD = max_x |T_est x - T_true x|`` (m) over the model vertices ``x``;
 * ``MSPD = max_x |proj(T_est x) - proj(T_true x)|`` (px), pinhole ``K`` (BOP ignores
   distortion too);
-* ``AR_MSSD`` = mean over thresholds ``0.05, 0.10, ..., 0.50 x`` the model diameter of
-  the fraction of *targets* whose MSSD is below the threshold; ``AR_MSPD`` the same
-  with ``5, 10, ..., 50 px x width/640``; ``AR = (AR_MSSD + AR_MSPD) / 2``.
+* ``AR_dock_MSSD`` = mean over thresholds ``0.05, 0.10, ..., 0.50 x`` the dock model's diameter
+  of the fraction of *targets* whose MSSD is below the threshold; ``AR_dock_MSPD`` the same
+  with ``5, 10, ..., 50 px x width/640``; ``AR_dock = (AR_dock_MSSD + AR_dock_MSPD) / 2``.
 
 Targets are the counted frames (``0 <= d_true <= d_max``) with a marker in view; a
 target without a detected pose is a miss. Marker symmetries are not modelled: the
 coded markers (ArUco, QR, LED layouts with a reference LED) have none. A localizer
-that never returns a pose has no AR (NaN), not 0.
+that never returns a pose has no AR_dock (NaN), not 0.
 """
 from __future__ import annotations
 
@@ -30,7 +34,7 @@ from evalkit.metrics import core
 MODEL_THICKNESS_M = 0.005
 MSSD_FRACTIONS = np.round(np.arange(1, 11) * 0.05, 2)
 MSPD_PX_AT_640 = np.arange(1, 11) * 5.0
-RECALL_COLUMNS = ["AR_MSSD", "AR_MSPD", "AR"]
+RECALL_COLUMNS = ["AR_dock_MSSD", "AR_dock_MSPD", "AR_dock"]
 
 
 def _inv(T: np.ndarray) -> np.ndarray:
@@ -183,8 +187,8 @@ def recall_table(frames: pd.DataFrame, model: DockModel | None, d_max: float = c
         row = dict(zip(group, key), n_targets=len(t))
         has_pose = model is not None and "mssd_m" in g.columns and g["mssd_m"].notna().any()
         if has_pose:
-            row["AR_MSSD"] = average_recall(t["mssd_m"].to_numpy(), model.mssd_thresholds())
-            row["AR_MSPD"] = average_recall(t["mspd_px"].to_numpy(), model.mspd_thresholds())
-            row["AR"] = (row["AR_MSSD"] + row["AR_MSPD"]) / 2.0
+            row["AR_dock_MSSD"] = average_recall(t["mssd_m"].to_numpy(), model.mssd_thresholds())
+            row["AR_dock_MSPD"] = average_recall(t["mspd_px"].to_numpy(), model.mspd_thresholds())
+            row["AR_dock"] = (row["AR_dock_MSSD"] + row["AR_dock_MSPD"]) / 2.0
         rows.append(row)
     return pd.DataFrame(rows, columns=group + ["n_targets"] + RECALL_COLUMNS)

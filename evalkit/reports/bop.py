@@ -1,42 +1,46 @@
 """Export a dockbench dataset in the BOP format (https://bop.felk.cvut.cz, toolkit conventions).
 
-``dockbench export-bop DATASET -o DIR`` writes::
+``dockbench export-bop DATASET -o DIR`` writes what the BOP toolkit's own scripts would compute
+(``calc_gt_info.py``, ``calc_gt_masks.py``, ``calc_gt_coco.py``, ``calc_model_info.py``)::
 
     DIR/camera.json                     fx, fy, cx, cy, width, height, depth_scale
-    DIR/models/obj_XXXXXX.ply           one closed mesh per marker (mm, marker frame)
+    DIR/models/obj_XXXXXX.ply           one closed mesh per marker (mm, vertex normals, origin at
+                                        the bounding-box centre; :mod:`evalkit.reports.bop_models`)
     DIR/models/models_info.json         diameter, min_*, size_* (mm); no symmetries
-    DIR/models_eval/                    the same meshes (bop_toolkit evaluates with these)
+    DIR/models_eval/                    the same surfaces densely resampled (MSSD/MSPD/VSD use these)
     DIR/test_targets_bop19.json         [{scene_id, im_id, obj_id, inst_count}]: markers with
                                         visib_fract >= 0.1 (BOP's own annotation threshold)
-    DIR/dockbench_objects.json          obj_id -> marker id, kind, keypoints (mm, marker frame)
+    DIR/dockbench_objects.json          obj_id -> marker id, kind, keypoints (mm, model frame), model
+                                        origin in the marker frame (mm)
     DIR/dockbench_scenes.json           scene id -> sequence id, condition, trial; dataset identity;
                                         where visib_fract came from
+    DIR/register_bop_toolkit.py         registers the export as dataset "dockbench" in a BOP
+                                        toolkit clone (docs/bop.md)
+    DIR/results/METHOD_dockbench-SPLIT.csv  with ``--results``: BOP19 results per pose localizer
     DIR/<split>/<scene:06d>/            one scene per sequence (manifest order)
         scene_camera.json   per image: cam_K (row-major 9), depth_scale, cam_R_w2c, cam_t_w2c (mm)
         scene_gt.json       per image: [{obj_id, cam_R_m2c (row-major 9), cam_t_m2c (mm)}] per marker
         scene_gt_info.json  per image: [{visib_fract, bbox_obj, bbox_visib, px_count_all,
                             px_count_valid, px_count_visib}]
-        rgb/<im:06d>.png    symlink to the dataset image (or a copy)
+        scene_gt_coco.json  COCO annotations of the target images (RLE of mask_visib, amodal bbox)
+        rgb/<im:06d>.png    a copy of the dataset image (a relative symlink with ``symlink=True``)
         depth/<im:06d>.png  uint16 planar depth z, ``z_mm = value * depth_scale`` (0 = no data)
-        mask/<im:06d>_<gt:06d>.png        the model's silhouette (unoccluded)
-        mask_visib/<im:06d>_<gt:06d>.png  its visible pixels (silhouette and the object index)
+        mask/<im:06d>_<gt:06d>.png        the model's silhouette in the image
+        mask_visib/<im:06d>_<gt:06d>.png  its visible pixels
 
-Objects are the dataset's markers (``obj_id`` = 1-based position in the manifest),
-posed by the frame's ``T_cam_marker``. Models (:func:`evalkit.metrics.recall.marker_model`,
-the same meshes ``evaluate`` computes MSSD/MSPD with): printed markers are plates 5 mm
-deep (bop_toolkit's MSSD/MSPD use the vertices; a closed mesh also renders for VSD);
-LED arrays are one cube per LED. **visib_fract** is computed from the rendered
-object-index pass as in bop_toolkit's ``calc_gt_info``: the silhouette of the model in
-its GT pose (convex hull of each box's projected vertices) is ``mask``
-(``px_count_all``), the part of it where the index shows that marker is
-``mask_visib``; ``visib_fract = px_count_visib / px_count_all``. Without an index
-pass the dataset's ``visible_fraction`` is copied and ``dockbench_scenes.json`` says so.
-For LED arrays the silhouette is that of the cubes around the LEDs, which the rendered
-LED discs only partly fill: an unoccluded LED array reads about 0.45 on the quickstart
-demo (printed markers read 1.0), still well above BOP's 0.1 target threshold.
-Checked against bop_toolkit (thodan/bop_toolkit cea62d6): its ``inout`` loaders read the
-export and its ``pose_error.mssd``/``mspd`` on ``models_eval`` reproduce ``evaluate``'s
-per-frame MSSD/MSPD to 1e-13.
+Objects are the dataset's markers (``obj_id`` = 1-based position in the manifest), posed by
+the frame's ``T_cam_marker`` moved to the model origin (``t + R c``). **scene_gt_info** is
+``calc_gt_info``'s definition: the model's depth is rendered in its GT pose
+(:mod:`evalkit.reports.bop_raster`: same projection and pixel convention as the renderer,
+OpenCV pixel centres) on a canvas three times the image in each direction, so the part of
+a marker outside the image still counts in ``px_count_all``; a pixel is visible when the
+rendered distance is at most :data:`VISIB_DELTA_MM` behind the exported depth image's distance
+or that depth is missing (BOP19 visibility); ``visib_fract = px_count_visib / px_count_all``;
+``bbox_obj`` (of the whole silhouette, may extend past the image) and ``bbox_visib`` are
+``[x, y, x_max - x, y_max - y]`` as the toolkit's ``calc_2d_bbox``, and ``[-1, -1, -1, -1]``
+when nothing is visible. Without a depth pass the dataset's object-index pass decides
+visibility (silhouette pixels showing the marker's index), and without that the dataset's
+``visible_fraction`` is copied; ``dockbench_scenes.json`` counts each source.
 Lens distortion: BOP cameras are pinhole (``cam_K`` only). A dataset whose camera has
 distortion is refused unless ``undistort=True`` (``--undistort``): then every image, the
 range and the object-index pass are remapped to the pinhole camera of the same K with
@@ -62,9 +66,18 @@ import numpy as np
 
 from datasets_spec.io import load_index, load_range
 from evalkit.dataset import Dataset, DatasetError
-from evalkit.metrics.recall import marker_model, marker_points
+from evalkit.metrics.recall import marker_points
+from evalkit.reports.bop_coco import SceneCoco
+from evalkit.reports.bop_gtinfo import ImageView, gt_info
+from evalkit.reports.bop_models import EVAL_STEP_MM, ObjectModel, write_ply
+from evalkit.reports.bop_raster import OPENCV_SAMPLE_OFFSET, TOOLKIT_SAMPLE_OFFSET
+from evalkit.reports.bop_register import registration_script
+from evalkit.runner import progress_bar
 
-MIN_TARGET_VISIB = 0.1
+MIN_TARGET_VISIB = 0.1          # BOP19 targets: visib_fract >= 0.1 (BOP Challenge 2019 rules)
+VISIB_DELTA_MM = 15.0           # the visibility test's tolerance, calc_gt_info.py's delta (BOP toolkit)
+PIXEL_CONVENTIONS = {"opencv": OPENCV_SAMPLE_OFFSET, "toolkit": TOOLKIT_SAMPLE_OFFSET}
+BOP_DATASET_NAME = "dockbench"  # the name results files and the toolkit's registration use (docs/bop.md)
 
 
 def _inv(T: np.ndarray) -> np.ndarray:
@@ -103,62 +116,17 @@ def range_to_depth_png(range_m: np.ndarray, norms: np.ndarray, depth_scale: floa
     return img, int(too_far.sum())
 
 
-def _write_ply(path: Path, vertices_mm: np.ndarray, faces: np.ndarray) -> None:
-    """ASCII PLY of a triangle mesh (mm)."""
-    lines = ["ply", "format ascii 1.0", f"element vertex {len(vertices_mm)}", "property float x",
-             "property float y", "property float z", f"element face {len(faces)}",
-             "property list uchar int vertex_indices", "end_header"]
-    lines += [" ".join(f"{c:.6f}" for c in p) for p in vertices_mm]
-    lines += ["3 " + " ".join(str(int(i)) for i in f) for f in faces]
-    path.write_text("\n".join(lines) + "\n")
-
-
-def _model_info(vertices_mm: np.ndarray) -> dict:
-    lo, hi = vertices_mm.min(axis=0), vertices_mm.max(axis=0)
-    diam = float(np.max(np.linalg.norm(vertices_mm[:, None] - vertices_mm[None], axis=2)))
-    return {"diameter": diam, "min_x": float(lo[0]), "min_y": float(lo[1]), "min_z": float(lo[2]),
-            "size_x": float(hi[0] - lo[0]), "size_y": float(hi[1] - lo[1]), "size_z": float(hi[2] - lo[2])}
-
-
-def _index_values(dataset: Dataset) -> dict[str, int]:
-    """Marker id -> value in the object-index PNG."""
-    out = {}
-    for value, name in (dataset.manifest.get("object_index") or {}).items():
-        try:
-            out[str(name)] = int(value)
-        except (TypeError, ValueError):
-            pass
-    for m in dataset.markers:
-        if "object_index" in m:
-            out[str(m["id"])] = int(m["object_index"])
-    return out
-
-
-def _project(points_cam: np.ndarray, K: np.ndarray, dist) -> np.ndarray | None:
-    """Pixel coordinates of camera-frame points, or None if any is behind the camera."""
-    if np.any(points_cam[:, 2] <= 1e-9):
-        return None
-    if dist is not None and np.any(np.asarray(dist) != 0):
-        import cv2
-        uv, _ = cv2.projectPoints(points_cam.reshape(-1, 1, 3), np.zeros(3), np.zeros(3),
-                                  np.asarray(K, float), np.asarray(dist, float))
-        return uv.reshape(-1, 2)
-    p = points_cam @ np.asarray(K, float).T
-    return p[:, :2] / p[:, 2:3]
-
-
-def _bbox(x0: float, y0: float, x1: float, y1: float) -> list[int]:
-    """BOP bbox ``[x, y, w, h]`` (ints) of the pixel range ``x0..x1, y0..y1`` inclusive."""
-    return [int(x0), int(y0), int(x1) - int(x0) + 1, int(y1) - int(y0) + 1]
 
 
 def _link_or_copy(src: Path, dst: Path, copy: bool) -> None:
+    """Copy ``src`` to ``dst``, or link it by a path relative to ``dst``'s folder (the export
+    and the dataset can then move together)."""
     if dst.is_symlink() or dst.exists():
         dst.unlink()
     if copy:
         shutil.copy2(src, dst)
     else:
-        os.symlink(src.resolve(), dst)
+        os.symlink(os.path.relpath(src.resolve(), dst.parent.resolve()), dst)
 
 
 def _json(path: Path, obj) -> None:
@@ -176,14 +144,16 @@ class _Export:
     depth_scale: float
     masks: bool
     obj_ids: dict = field(default_factory=dict)        # marker id -> obj_id
-    models: dict = field(default_factory=dict)         # obj_id -> vertices (m, marker frame)
+    models: dict = field(default_factory=dict)         # obj_id -> ObjectModel
+    meshes: dict = field(default_factory=dict)         # obj_id -> (vertices mm, faces) about the origin
     index_values: dict = field(default_factory=dict)   # marker id -> object-index value
     norms: np.ndarray | None = None
     undistort_maps: tuple | None = None                  # (map_x, map_y) when undistorting
     clipped: int = 0
-    visib_from_index: int = 0
-    visib_copied: int = 0
+    visib_sources: dict = field(default_factory=lambda: {"depth_test": 0, "object_index": 0, "copied": 0})
     targets: list = field(default_factory=list)
+    sample_offset: float = OPENCV_SAMPLE_OFFSET          # the silhouettes' pixel convention
+    tick: object = None                                  # progress: tick(n) per n images written
 
     @property
     def K(self) -> np.ndarray:
@@ -217,62 +187,39 @@ def _undistort_maps(dataset: Dataset) -> tuple:
                                        (int(cam["width"]), int(cam["height"])), cv2.CV_32FC1)
 
 
+def _index_values(dataset: Dataset) -> dict[str, int]:
+    """Marker id -> value in the object-index PNG."""
+    out = {}
+    for value, name in (dataset.manifest.get("object_index") or {}).items():
+        try:
+            out[str(name)] = int(value)
+        except (TypeError, ValueError):
+            pass
+    for m in dataset.markers:
+        if "object_index" in m:
+            out[str(m["id"])] = int(m["object_index"])
+    return out
+
+
 def _write_models(ex: _Export) -> None:
-    """models/ and models_eval/ (PLY + models_info.json) and dockbench_objects.json."""
+    """models/ (box faces with normals) and models_eval/ (resampled), models_info.json, dockbench_objects.json."""
     infos, objects = {}, {}
+    for sub in ("models", "models_eval"):
+        (ex.out / sub).mkdir(exist_ok=True)
     for i, m in enumerate(ex.ds.markers):
         oid = ex.obj_ids[str(m["id"])] = i + 1
-        vertices, faces = marker_model(m)
-        ex.models[oid] = vertices
-        for sub in ("models", "models_eval"):
-            (ex.out / sub).mkdir(exist_ok=True)
-            _write_ply(ex.out / sub / f"obj_{oid:06d}.ply", vertices * 1000.0, faces)
-        infos[str(oid)] = _model_info(vertices * 1000.0)
+        model = ex.models[oid] = ObjectModel.from_marker(m)
+        v, n, f = model.mesh()
+        ex.meshes[oid] = (v, f)
+        write_ply(ex.out / "models" / f"obj_{oid:06d}.ply", v, n, f)
+        write_ply(ex.out / "models_eval" / f"obj_{oid:06d}.ply", *model.mesh(EVAL_STEP_MM))
+        infos[str(oid)] = model.info()
         objects[str(oid)] = {"marker_id": str(m["id"]), "kind": m.get("kind"),
-                             "keypoints_mm": (marker_points(m) * 1000.0).tolist()}
+                             "keypoints_mm": (marker_points(m) * 1000.0 - model.centre_mm).tolist(),
+                             "model_origin_in_marker_mm": model.centre_mm.tolist()}
     for sub in ("models", "models_eval"):
         _json(ex.out / sub / "models_info.json", infos)
     _json(ex.out / "dockbench_objects.json", objects)
-
-
-def _silhouette(vertices: np.ndarray, T: np.ndarray, K: np.ndarray, dist, shape: tuple[int, int]):
-    """Pixels covered by the model (boxes of 8 vertices, m) in pose ``T`` (4x4, marker to
-    camera): a bool ``(H, W)`` mask, or None when a vertex is behind the camera."""
-    import cv2
-    uv = _project(vertices @ T[:3, :3].T + T[:3, 3], K, dist)
-    if uv is None:
-        return None
-    canvas = np.zeros(shape, np.uint8)
-    for box in uv.reshape(-1, 8, 2):
-        hull = cv2.convexHull(np.round(box * 16).astype(np.int32))   # 4 bits of sub-pixel precision
-        cv2.fillConvexPoly(canvas, hull, 1, lineType=cv2.LINE_8, shift=4)
-    return canvas.astype(bool)
-
-
-def _gt_info(ex: _Export, mid: str, T: np.ndarray, frame_marker: dict, index, depth) -> tuple[dict, tuple]:
-    """scene_gt_info entry of one marker in one image and its ``(mask, mask_visib)`` (or Nones)."""
-    oid = ex.obj_ids[mid]
-    cam = ex.ds.camera
-    info = {"bbox_obj": [-1, -1, -1, -1], "bbox_visib": [-1, -1, -1, -1]}
-    uv = _project(ex.models[oid] @ T[:3, :3].T + T[:3, 3], ex.K, ex.dist)
-    if uv is not None:
-        info["bbox_obj"] = _bbox(np.floor(uv[:, 0].min()), np.floor(uv[:, 1].min()),
-                                 np.floor(uv[:, 0].max()), np.floor(uv[:, 1].max()))
-    if index is None or mid not in ex.index_values:
-        ex.visib_copied += 1
-        return {**info, "visib_fract": float(frame_marker.get("visible_fraction") or 0.0)}, (None, None)
-    ex.visib_from_index += 1
-    sil = _silhouette(ex.models[oid], T, ex.K, ex.dist, index.shape[:2])
-    if sil is None:
-        sil = np.zeros(index.shape[:2], bool)
-    visib = sil & (index == ex.index_values[mid])
-    n_all, n_visib = int(sil.sum()), int(visib.sum())
-    info.update(px_count_all=n_all, px_count_valid=int((sil & (depth > 0)).sum()) if depth is not None else n_all,
-                px_count_visib=n_visib, visib_fract=n_visib / n_all if n_all else 0.0)
-    if n_visib:
-        ys, xs = np.nonzero(visib)
-        info["bbox_visib"] = _bbox(xs.min(), ys.min(), xs.max(), ys.max())
-    return info, (sil, visib)
 
 
 def _frame_depth(ex: _Export, frame: dict, path: Path):
@@ -291,43 +238,76 @@ def _frame_depth(ex: _Export, frame: dict, path: Path):
     return img
 
 
-def _export_frame(ex: _Export, sdir: Path, scene_id: int, frame: dict) -> tuple[dict, list, list]:
-    """Write one image's files; return its ``(scene_camera, scene_gt, scene_gt_info)`` entries."""
+def _frame_rgb(ex: _Export, frame: dict, dst: Path) -> None:
     import cv2
-    im = int(frame["index"])
     if ex.undistort_maps is None:
-        _link_or_copy(ex.ds.image_path(frame), sdir / "rgb" / f"{im:06d}.png", ex.copy_images)
+        _link_or_copy(ex.ds.image_path(frame), dst, ex.copy_images)
     else:
         rgb = cv2.imread(str(ex.ds.image_path(frame)), cv2.IMREAD_UNCHANGED)
-        cv2.imwrite(str(sdir / "rgb" / f"{im:06d}.png"), ex.remap(rgb, nearest=False))
+        cv2.imwrite(str(dst), ex.remap(rgb, nearest=False))
+
+
+def _camera_entry(ex: _Export, frame: dict) -> dict:
     cam_entry = {"cam_K": [float(v) for v in ex.K.ravel()], "depth_scale": ex.depth_scale}
     if frame.get("T_world_cam") is not None:
         T_cam_world = _inv(np.asarray(frame["T_world_cam"], dtype=float))
         cam_entry["cam_R_w2c"] = [float(v) for v in T_cam_world[:3, :3].ravel()]
         cam_entry["cam_t_w2c"] = [float(v) * 1000.0 for v in T_cam_world[:3, 3]]
+    return cam_entry
+
+
+def _marker_pose(frame: dict, marker: dict) -> np.ndarray:
+    """``T_cam_marker`` (4x4, m) of ``marker`` in ``frame``."""
+    fm = (frame.get("markers") or {}).get(str(marker["id"])) or {}
+    if fm.get("T_cam_marker") is not None:
+        return np.asarray(fm["T_cam_marker"], dtype=float)
+    T_cam_dock = np.asarray(frame.get("T_cam_dock", np.eye(4)), dtype=float)
+    return T_cam_dock @ np.asarray(marker.get("T_dock_marker", np.eye(4)), dtype=float)
+
+
+def _object_info(ex: _Export, marker: dict, R, t_mm, view: ImageView, frame: dict):
+    """scene_gt_info entry and masks (None when visibility is copied) of one marker."""
+    mid, oid = str(marker["id"]), ex.obj_ids[str(marker["id"])]
+    if view.dist_mm is not None or (view.index is not None and mid in ex.index_values):
+        ex.visib_sources["depth_test" if view.dist_mm is not None else "object_index"] += 1
+        return gt_info(*ex.meshes[oid], R, t_mm, view, VISIB_DELTA_MM, ex.index_values.get(mid), ex.sample_offset)
+    ex.visib_sources["copied"] += 1
+    fm = (frame.get("markers") or {}).get(mid) or {}
+    return {"visib_fract": float(fm.get("visible_fraction") or 0.0), "bbox_obj": [-1, -1, -1, -1],
+            "bbox_visib": [-1, -1, -1, -1]}, None, None
+
+
+def _export_frame(ex: _Export, sdir: Path, scene_id: int, frame: dict, coco: SceneCoco) -> tuple[dict, list, list]:
+    """Write one image's files; return its ``(scene_camera, scene_gt, scene_gt_info)`` entries."""
+    import cv2
+    im = int(frame["index"])
+    _frame_rgb(ex, frame, sdir / "rgb" / f"{im:06d}.png")
     depth = _frame_depth(ex, frame, sdir / "depth" / f"{im:06d}.png")
     index = None
     if frame.get("object_index"):
         index = ex.remap(load_index(ex.ds.frame_file(frame, "object_index")), nearest=True)
-    T_cam_dock = np.asarray(frame.get("T_cam_dock", np.eye(4)), dtype=float)
-    fmarkers = frame.get("markers") or {}
-    gts, infos = [], []
+    cam = ex.ds.camera
+    view = ImageView.from_depth_png(ex.K, cam["width"], cam["height"], depth, ex.depth_scale, index)
+    gts, infos, coco_objects, is_target = [], [], [], False
     for m in ex.ds.markers:
-        mid = str(m["id"])
-        fm = fmarkers.get(mid) or {}
-        T = (np.asarray(fm["T_cam_marker"], dtype=float) if fm.get("T_cam_marker") is not None
-             else T_cam_dock @ np.asarray(m.get("T_dock_marker", np.eye(4)), dtype=float))
-        gts.append({"obj_id": ex.obj_ids[mid], "cam_R_m2c": [float(v) for v in T[:3, :3].ravel()],
-                    "cam_t_m2c": [float(v) * 1000.0 for v in T[:3, 3]]})
-        info, (sil, visib) = _gt_info(ex, mid, T, fm, index, depth)
-        if ex.masks and sil is not None:
+        oid = ex.obj_ids[str(m["id"])]
+        R, t_mm = ex.models[oid].pose_m2c(_marker_pose(frame, m))
+        gts.append({"obj_id": oid, "cam_R_m2c": [float(v) for v in R.ravel()],
+                    "cam_t_m2c": [float(v) for v in t_mm]})
+        info, mask, visib = _object_info(ex, m, R, t_mm, view, frame)
+        if ex.masks and mask is not None:
             name = f"{im:06d}_{len(infos):06d}.png"
-            cv2.imwrite(str(sdir / "mask" / name), sil.astype(np.uint8) * 255)
+            cv2.imwrite(str(sdir / "mask" / name), mask.astype(np.uint8) * 255)
             cv2.imwrite(str(sdir / "mask_visib" / name), visib.astype(np.uint8) * 255)
         if info["visib_fract"] >= MIN_TARGET_VISIB:
-            ex.targets.append({"scene_id": scene_id, "im_id": im, "obj_id": ex.obj_ids[mid], "inst_count": 1})
+            ex.targets.append({"scene_id": scene_id, "im_id": im, "obj_id": oid, "inst_count": 1})
+            is_target = True
+        if mask is not None:
+            coco_objects.append((oid, info["visib_fract"], mask, visib))
         infos.append(info)
-    return cam_entry, gts, infos
+    if is_target:
+        coco.add_image(im, f"rgb/{im:06d}.png", int(cam["width"]), int(cam["height"]), coco_objects)
+    return _camera_entry(ex, frame), gts, infos
 
 
 def _export_scene(ex: _Export, scene_id: int, seq: dict) -> int:
@@ -335,33 +315,44 @@ def _export_scene(ex: _Export, scene_id: int, seq: dict) -> int:
     sdir = ex.out / ex.split / f"{scene_id:06d}"
     for sub in ("rgb", "depth", "mask", "mask_visib"):
         (sdir / sub).mkdir(parents=True, exist_ok=True)
+    coco = SceneCoco(sorted(ex.obj_ids.values()), BOP_DATASET_NAME, ex.split)
     scene_camera, scene_gt, scene_gt_info = {}, {}, {}
     for frame in ex.ds.iter_frames(seq["id"]):
         key = str(int(frame["index"]))
-        scene_camera[key], scene_gt[key], scene_gt_info[key] = _export_frame(ex, sdir, scene_id, frame)
+        scene_camera[key], scene_gt[key], scene_gt_info[key] = _export_frame(ex, sdir, scene_id, frame, coco)
+        if ex.tick is not None:
+            ex.tick(1)
     _json(sdir / "scene_camera.json", scene_camera)
     _json(sdir / "scene_gt.json", scene_gt)
     _json(sdir / "scene_gt_info.json", scene_gt_info)
+    _json(sdir / "scene_gt_coco.json", coco.doc)
     return len(scene_camera)
 
 
 def export_bop(dataset: Dataset | str | Path, out_dir: str | Path, split: str = "test",
-               copy_images: bool = False, depth_scale: float = 1.0, masks: bool = True,
-               sequences: list[str] | None = None, undistort: bool = False) -> dict:
-    """Write ``dataset`` as a BOP dataset into ``out_dir`` (see the module docstring).
+               copy_images: bool = True, depth_scale: float = 1.0, masks: bool = True,
+               sequences: list[str] | None = None, undistort: bool = False, pixels: str = "opencv",
+               progress: bool = False) -> dict:
+    """Write ``dataset`` as a BOP dataset into ``out_dir`` (see the module docstring); images are
+    copied unless ``copy_images=False`` (relative symlinks). ``pixels``: the silhouettes' pixel
+    convention, ``"opencv"`` (the renderer's, default) or ``"toolkit"`` (the BOP toolkit's OpenGL
+    renderers, half a pixel off: ``scene_gt_info`` then equals its ``calc_gt_info.py``).
+    ``progress``: a progress bar over the images on stderr.
     A camera with lens distortion raises :class:`DatasetError` unless ``undistort``.
 
     Returns a summary ``{scenes, images, objects, depth_clipped_px, undistorted}``."""
     ds = dataset if isinstance(dataset, Dataset) else Dataset.open(dataset)
     if depth_scale <= 0:
         raise ValueError("depth_scale must be > 0")
+    if pixels not in PIXEL_CONVENTIONS:
+        raise ValueError(f"pixels must be one of {sorted(PIXEL_CONVENTIONS)}, got {pixels!r}")
     distorted = has_distortion(ds)
     if distorted and not undistort:
         raise DatasetError(f"{ds.root}: the camera has lens distortion {ds.camera['dist'].tolist()} but BOP "
                            "cameras are pinhole (cam_K only); export with --undistort (undistort=True) to "
                            "remap images, depth and masks to the pinhole camera of the same K")
     ex = _Export(ds, Path(out_dir), split, copy_images, depth_scale, masks, index_values=_index_values(ds),
-                 undistort_maps=_undistort_maps(ds) if distorted else None)
+                 undistort_maps=_undistort_maps(ds) if distorted else None, sample_offset=PIXEL_CONVENTIONS[pixels])
     ex.out.mkdir(parents=True, exist_ok=True)
     cam = ds.camera
     _json(ex.out / "camera.json", {"cx": float(ex.K[0, 2]), "cy": float(ex.K[1, 2]), "fx": float(ex.K[0, 0]),
@@ -369,8 +360,10 @@ def export_bop(dataset: Dataset | str | Path, out_dir: str | Path, split: str = 
                                    "depth_scale": depth_scale})
     _write_models(ex)
     scenes, n_images = {}, 0
-    for scene_id, seq in enumerate(ds.sequences):
-        if sequences is None or seq["id"] in sequences:
+    chosen = [(i, q) for i, q in enumerate(ds.sequences) if sequences is None or q["id"] in sequences]
+    with progress_bar(sum(int(q.get("n_frames") or 0) for _, q in chosen), progress, "export-bop: images") as tick:
+        ex.tick = tick
+        for scene_id, seq in chosen:
             scenes[f"{scene_id:06d}"] = {"sequence": seq["id"], "condition": seq.get("condition"),
                                          "trajectory": seq.get("trajectory"), "trial": seq.get("trial")}
             n_images += _export_scene(ex, scene_id, seq)
@@ -378,8 +371,15 @@ def export_bop(dataset: Dataset | str | Path, out_dir: str | Path, split: str = 
     m = ds.manifest
     _json(ex.out / "dockbench_scenes.json", {
         "dataset": {"name": m.get("name"), "version": m.get("version"), "content_hash": m.get("content_hash")},
-        "split": split, "depth_scale": depth_scale, "scenes": scenes,
+        "bop_name": BOP_DATASET_NAME, "split": split, "depth_scale": depth_scale, "scenes": scenes,
+        "width": int(cam["width"]), "height": int(cam["height"]),
         "undistorted_from": ds.camera["dist"].tolist() if distorted else None,
-        "visib_fract": {"from_object_index": ex.visib_from_index, "copied_from_dataset": ex.visib_copied}})
+        "visib_fract": {"from_depth_test": ex.visib_sources["depth_test"],
+                        "from_object_index": ex.visib_sources["object_index"],
+                        "copied_from_dataset": ex.visib_sources["copied"], "delta_mm": VISIB_DELTA_MM,
+                        "pixel_convention": pixels}})
+    (ex.out / "register_bop_toolkit.py").write_text(registration_script(
+        BOP_DATASET_NAME, sorted(ex.obj_ids.values()), [int(k) for k in scenes], cam["width"], cam["height"],
+        VISIB_DELTA_MM))
     return {"scenes": len(scenes), "images": n_images, "objects": len(ds.markers),
             "depth_clipped_px": ex.clipped, "undistorted": distorted}

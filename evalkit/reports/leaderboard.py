@@ -39,7 +39,8 @@ COLUMNS: list[tuple[str, str, str, str]] = [
     ("P_succ_mean", "P_succ %", "pct_ci", "frames localized within the success thresholds"),
     ("P_detect_mean", "P_detect %", "pct", "frames with any answer (the article's success rate)"),
     ("E_rel_mean", "E_rel %", "pct_ci", "mean relative distance error over answered frames"),
-    ("AR", "AR", "num", "BOP average recall, mean of AR_MSSD and AR_MSPD (pose localizers)"),
+    ("AR_dock", "AR_dock", "num", "dockbench's dock-as-one-object recall: mean of MSSD and MSPD recalls (no VSD; "
+     "not the BOP19 AR, see export-bop --results)"),
     ("e_rot_deg_mean", "rot deg", "num", "mean rotation error (deg)"),
     ("n_fp", "FP", "int", "false positives: answers with no marker in view or a wrong id"),
     ("max_range_m", "range m", "num", "usable range: farthest 1 m bin with P_succ >= 90%"),
@@ -63,6 +64,8 @@ td.n{text-align:right;font-variant-numeric:tabular-nums}td.lbl{max-width:190px;o
 table.lb tr.first td{background:#eaf5ea}table.lb tr.baseline td{background:#f3f0ff;font-style:italic}td.bar-cell{position:relative}
 .bar{position:absolute;left:0;bottom:0;height:3px;background:#2da44e}
 .ci{color:#6e7781;font-size:10px}code{font-size:11px}
+dl.legend{font-size:11px;color:#57606a;margin:4px 0;display:grid;grid-template-columns:max-content auto;gap:0 8px}
+dl.legend dt{font-weight:600}dl.legend dd{margin:0}
 """
 
 JS = """
@@ -177,7 +180,8 @@ def _shade(p) -> str:
 
 
 def _matrix(table: pd.DataFrame) -> dict:
-    """Localizer x (trajectory / condition) of P_succ, rows by mean P_succ (then label)."""
+    """Localizer x (trajectory / condition) of P_succ, rows by their worst cell (lowest P_succ, then
+    label): trajectories are never averaged."""
     table = table.assign(_col=table["trajectory"].astype(str) + " / " + table["condition"].astype(str))
     cols = sorted(table["_col"].unique())
     rows = []
@@ -189,9 +193,9 @@ def _matrix(table: pd.DataFrame) -> dict:
             p = None if r is None else r["P_succ_mean"]
             star = "*" if r is not None and bool(r.get("few_trials")) else ""
             cells.append({"text": _pct_text(p) + star if r is not None else "", "shade": _shade(p)})
-        mean = g["P_succ_mean"].astype(float).mean()
-        rows.append({"label": label, "full": g["full"].iloc[0], "cells": cells, "_m": mean,
-                     "mean": _pct_text(mean)})
+        worst = g["P_succ_mean"].astype(float).min()   # never a mean: trajectories are not averaged
+        rows.append({"label": label, "full": g["full"].iloc[0], "cells": cells, "_m": worst,
+                     "worst": _pct_text(worst)})
     rows.sort(key=lambda r: (-(r["_m"] if _finite(r["_m"]) else -1.0), r["label"]))
     for i, r in enumerate(rows, start=1):
         r["rank"] = i
@@ -215,7 +219,7 @@ def _bins(bins: pd.DataFrame | None) -> dict | None:
             n = int(r["n_total"]) if r is not None else 0
             p = r["P_succ"] if r is not None and n else None
             cells.append({"text": f"{100 * float(p):.0f}" if _finite(p) else "", "shade": _shade(p),
-                          "title": f"{n} frames"})
+                          "title": f"{n} frames", "n": n})
         rows.append({"label": label, "cells": cells})
     return {"edges": [f"{lo:g}-{hi:g}" for lo, hi in edges], "rows": rows}
 def _criteria(run: Run) -> dict:

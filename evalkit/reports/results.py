@@ -8,7 +8,7 @@ A run directory (written by :func:`save_run`, atomically via
                        sha256), options, scoring settings, per-group metrics
     estimates.parquet  per-frame estimates, truth and scores (CSV if parquet is unavailable)
     summary.csv        per trial (P_succ, P_detect, errors)
-    metrics.csv        per (localizer, trajectory, condition): CIs, pose errors, AR, FP, usable range
+    metrics.csv        per (localizer, trajectory, condition): CIs, pose errors, AR_dock, FP, usable range
     bins.csv, false_positives.csv, recall.csv, runtime.csv
     tables/article.md|tex, tables/metrics.md|tex, tables/range_bins.md
     plots/error_vs_distance.png, plots/success_vs_distance.png, plots/range_bins.png
