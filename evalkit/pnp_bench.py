@@ -208,7 +208,7 @@ def run_cell(target: Target, Z: float, angle_deg: float, sigma_px: float, n_tria
     ``nan_m`` / ``behind_m`` non-finite / behind-camera poses returned as successes,
     ``wrong_m`` ambiguous trials whose success lies on the wrong IPPE branch."""
     c = {f"{k}_{m}": 0 for k in ("ok", "none", "nan", "behind", "wrong") for m in METHODS}
-    ez = {m: [] for m in METHODS}
+    ez: dict[str, list[float]] = {m: [] for m in METHODS}
     rot_ours, px, n_amb, in_image, n = [], [], 0, 0, 0
     for _ in range(n_trials):
         T_true = _valid_pose(rng, target, Z, angle_deg)

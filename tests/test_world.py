@@ -28,7 +28,8 @@ def _looking_up(cam_z: float) -> np.ndarray:
     return T
 
 
-def _post(world: WorldPost | None, water=Water(preset="jerlov_IB")) -> SequencePost:
+def _post(world: WorldPost | None, water: Water | None = None) -> SequencePost:
+    water = Water(preset="jerlov_IB") if water is None else water
     return SequencePost(seed=0, fps=10, image_formation="physical", water=water, light_depth_m=3.0,
                         surface_z_m=0.0, irradiance_w_m2=3.0, world=world)
 

@@ -26,8 +26,12 @@ It checks the building blocks of the reference's caustics (``caustic_sun.gobo_sp
 import math
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from blendgen.physics import caustic_beam as cb
 
 H, TILT, E, SIGMA_A, N_GOBO, W_GOBO = 2.0, math.radians(20.0), 3.0, 0.2, 512, 12.0
 

@@ -392,11 +392,11 @@ class Render(Strict):
 
 
 Coef = Annotated[float, Field(ge=0.0, le=5.0)]
-Coef3 = Union[Coef, Annotated[list[Coef], Field(min_length=3, max_length=3)]]
+Coef3 = Coef | Annotated[list[Coef], Field(min_length=3, max_length=3)]
 Unit = Annotated[float, Field(ge=0.0, le=1.0)]
-Unit3 = Union[Unit, Annotated[list[Unit], Field(min_length=3, max_length=3)]]
+Unit3 = Unit | Annotated[list[Unit], Field(min_length=3, max_length=3)]
 Veil = Annotated[float, Field(ge=0.0, le=10.0)]
-Veil3 = Union[Veil, Annotated[list[Veil], Field(min_length=3, max_length=3)]]
+Veil3 = Veil | Annotated[list[Veil], Field(min_length=3, max_length=3)]
 
 #: The two image-formation modes (OPTICS.md): ``physical`` (what water and light do) and
 #: ``article`` (the article's formulas: blend toward the water colour with

@@ -307,7 +307,8 @@ def fast_water(spec, mode: str, irradiance: float, calibration: dict | None = No
     ``calibrated`` is set and the preset is bare and listed; the calibrated veil model
     ``veil`` (:func:`veil_parameters`; returned as ``opts["veil"]`` and evaluated per frame
     by :func:`veil_radiance_at` at the camera's depth and view elevation, ``B_inf`` then
-    holds its value at the surface, horizontal, for the record); else :func:`light_field_veil`. In ``article`` mode it is the water colour ``C`` (the
+    holds its value at the surface, horizontal, for the record); else :func:`light_field_veil`. In ``article`` mode
+    it is the water colour ``C`` (the
     article presets' colour, or the veil above times the irradiance) and is used as is.
     Coefficients: :func:`water_for_mode`.
     Returns ``(water, {"irradiance", "blur", "calibrated"})``."""

@@ -45,7 +45,8 @@ class FilterParams:
     gain of the dock heading/depth, dropout hold and lost-target times (s).
 
     Defaults: 0.3 m/s^2 is about a quarter of the horizontal acceleration the lateral
-    thrusters can give the vehicle (2 x 36.6 N / 66 kg sway mass = 1.1 m/s^2); 0.005 m^-1 is the order of the LED array's range error at 320x240 (the
+    thrusters can give the vehicle (2 x 36.6 N / 66 kg sway mass = 1.1 m/s^2); 0.005 m^-1 is the order of the LED
+    array's range error at 320x240 (the
     ``0.7 Z^2 sigma_px / (f s)`` rule with f = 277 px, s = 0.6 m, sigma_px = 1)."""
     accel_std: float = 0.3
     meas_std_per_m2: float = 0.005

@@ -45,6 +45,8 @@ RANSAC's minimal samples would still need the same colour/order bookkeeping.
 """
 from __future__ import annotations
 
+from typing import Any
+
 import itertools
 import math
 
@@ -138,8 +140,9 @@ class LedLocalizer:
         self.min_area_px = int(min_area_px)
         self.max_area_frac = float(max_area_frac)
         self.min_circularity = float(min_circularity)
-        self.ref_hue = None if ref_hue in (None, "None", "") else float(ref_hue)
-        self.max_candidates = None if max_candidates in (None, "None", "") else int(max_candidates)
+        self.ref_hue = None if ref_hue is None or str(ref_hue) in ("None", "") else float(ref_hue)
+        self.max_candidates = (None if max_candidates is None or str(max_candidates) in ("None", "")
+                               else int(max_candidates))
         self.max_blobs = int(max_blobs)
         self.max_reproj_px = float(max_reproj_px)
         self.min_chroma = float(min_chroma)
@@ -151,7 +154,7 @@ class LedLocalizer:
         self.ladder = tuple(sorted(float(f) for f in ladder))
         if any(not 0.0 < f <= 1.0 for f in self.ladder):
             raise ValueError(f"ladder fractions must be in (0, 1], got {self.ladder}")
-        self._marker = None
+        self._marker: Any = None            # the manifest's LED marker dict, set by reset()
 
     def reset(self, camera: dict) -> None:
         """Pick the LED marker; precompute its keypoint order, colour pattern and colour axis."""
@@ -162,9 +165,9 @@ class LedLocalizer:
         else:
             m = next((x for x in markers if x.get("kind") == "led_array"), None)
         self._marker = m if m is not None and m.get("kind") == "led_array" else None
-        if self._marker is None:
+        if m is None or self._marker is None:
             return
-        self._kp = np.asarray(m["keypoints"], float).reshape(-1, 3)
+        self._kp = np.asarray(m["keypoints"], np.float64).reshape(-1, 3)
         self._n = len(self._kp)
         refs = sorted({int(i) for i in m.get("reference_indices", [m.get("reference_index", 0)])})
         self._kp_ccw = ccw_order(self._kp)
@@ -240,7 +243,9 @@ class LedLocalizer:
         for lab in idx:
             c = self._measure(rgb_c, v_c, labels, stats[lab], lab, 0.5 * t)
             if c is not None:
-                cents.append(c[0]), masses.append(c[1]), chroma.append(c[2])
+                cents.append(c[0])
+                masses.append(c[1])
+                chroma.append(c[2])
         if len(cents) < self._n:
             return None
         k = self.max_candidates if self.max_candidates is not None else self._n + 3

@@ -52,6 +52,8 @@ are the frame indices.
 """
 from __future__ import annotations
 
+from typing import Any
+
 import json
 import os
 import shutil
@@ -199,7 +201,8 @@ class _Export:
         if self.undistort_maps is None:
             return img
         import cv2
-        return cv2.remap(img, *self.undistort_maps, cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR,
+        interpolation = cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR
+        return cv2.remap(img, *self.undistort_maps, interpolation,  # type: ignore[call-overload]  # OpenCV's stubs
                          borderMode=cv2.BORDER_CONSTANT, borderValue=border)
 
 
@@ -252,8 +255,7 @@ def _silhouette(vertices: np.ndarray, T: np.ndarray, K: np.ndarray, dist, shape:
 def _gt_info(ex: _Export, mid: str, T: np.ndarray, frame_marker: dict, index, depth) -> tuple[dict, tuple]:
     """scene_gt_info entry of one marker in one image and its ``(mask, mask_visib)`` (or Nones)."""
     oid = ex.obj_ids[mid]
-    cam = ex.ds.camera
-    info = {"bbox_obj": [-1, -1, -1, -1], "bbox_visib": [-1, -1, -1, -1]}
+    info: dict[str, Any] = {"bbox_obj": [-1, -1, -1, -1], "bbox_visib": [-1, -1, -1, -1]}
     uv = _project(ex.models[oid] @ T[:3, :3].T + T[:3, 3], ex.K, ex.dist)
     if uv is not None:
         info["bbox_obj"] = _bbox(np.floor(uv[:, 0].min()), np.floor(uv[:, 1].min()),
@@ -299,6 +301,8 @@ def _export_frame(ex: _Export, sdir: Path, scene_id: int, frame: dict) -> tuple[
         _link_or_copy(ex.ds.image_path(frame), sdir / "rgb" / f"{im:06d}.png", ex.copy_images)
     else:
         rgb = cv2.imread(str(ex.ds.image_path(frame)), cv2.IMREAD_UNCHANGED)
+        if rgb is None:
+            raise OSError(f"cannot read {ex.ds.image_path(frame)}")
         cv2.imwrite(str(sdir / "rgb" / f"{im:06d}.png"), ex.remap(rgb, nearest=False))
     cam_entry = {"cam_K": [float(v) for v in ex.K.ravel()], "depth_scale": ex.depth_scale}
     if frame.get("T_world_cam") is not None:
@@ -311,7 +315,8 @@ def _export_frame(ex: _Export, sdir: Path, scene_id: int, frame: dict) -> tuple[
         index = ex.remap(load_index(ex.ds.frame_file(frame, "object_index")), nearest=True)
     T_cam_dock = np.asarray(frame.get("T_cam_dock", np.eye(4)), dtype=float)
     fmarkers = frame.get("markers") or {}
-    gts, infos = [], []
+    gts: list[dict] = []
+    infos: list[dict] = []
     for m in ex.ds.markers:
         mid = str(m["id"])
         fm = fmarkers.get(mid) or {}
