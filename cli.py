@@ -592,7 +592,7 @@ def run(config: Path, localizers: tuple[str, ...], params: tuple[str, ...], out:
               default=Path("out/calibration"), show_default=True,
               help="output directory (rendered frames, calibration.csv, calibration_trials.csv)")
 def calibrate(config: Path | None, out: Path):
-    """Render chessboards and check Zhang's calibration against the true K (SPEC section 6)."""
+    """Render chessboards and check Zhang's calibration against the true K (the article's Table 4)."""
     import time
     from blendgen.tools import calibration as cal
     cfg = cal.load_config(config or cal.DEFAULT_CONFIG)

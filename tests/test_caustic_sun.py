@@ -1,4 +1,4 @@
-"""Reference caustics in datasets (issue 14): the sun as a far spot whose light texture is the
+"""Reference caustics in datasets (docs/light.md): the sun as a far spot whose light texture is the
 frame's photon map (``blender/caustic_sun.py``, ``physics/caustic_beam.py``).
 
 Oracles: a flat surface's photons give the pattern that undoes the spot's inverse square

@@ -1,4 +1,4 @@
-"""Hostile inputs (issue 18): every case of tests/hostile_corpus.py through the CLI.
+"""Hostile inputs: every case of tests/hostile_corpus.py through the CLI.
 
 Config, dataset and verify cases run in this process (click's CliRunner; generation stops
 where Blender would start, so an accepted config shows as "accepted"); they must exit 2

@@ -177,7 +177,7 @@ def test_python_example_program_on_a_rendered_aruco(tmp_path):
     assert est["marker_id"] == "tag" and est["distance"] == pytest.approx(1.5, rel=0.02)
 
 
-# -- built-ins added by this issue ------------------------------------------
+# -- the newer built-ins (apriltag, hybrid, ...) ------------------------------
 def test_builtins_registered_and_listed():
     names = [r[0] for r in registry.list_localizers()]
     assert names[:5] == ["led", "qr", "aruco", "apriltag", "hybrid"]

@@ -1,4 +1,4 @@
-"""The world around the dock (issue 14): Snell's window, caustics, their zero cost when off.
+"""The world around the dock (docs/light.md): Snell's window, caustics, their zero cost when off.
 
 Oracles: the critical angle asin(1/1.333) = 48.6 deg; Fresnel reflectance at normal incidence
 ((n-1)/(n+1))^2; energy conservation (mean caustic irradiance = flat-surface value); the

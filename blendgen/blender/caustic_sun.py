@@ -1,4 +1,4 @@
-"""Reference caustics in datasets (issue 14): on every opaque surface the sun becomes a far
+"""Reference caustics in datasets (docs/light.md): on every opaque surface the sun becomes a far
 spot light whose light texture is this frame's photon map.
 
 Why (``caustic_reference``, ``caustic_gobo``): the reference's sun is a delta light under a

@@ -1,4 +1,4 @@
-"""Fast image-space particles vs real instanced spheres in the Blender render (issue 15).
+"""Fast image-space particles vs real instanced spheres in the Blender render (docs/particles.md).
 
 Two datasets of the same seeded particle fields, one drawn by the fast path (``geometry:
 image``, lit by particle_optics) and one as smooth instanced spheres in the Cycles render

@@ -9,7 +9,7 @@ horizontal position in the dock frame (x lateral and z range, each a constant-ve
 state [position, rate] driven by white acceleration noise ``accel_std``; one update per
 camera frame; the two axes are decoupled, so each is an alpha-beta filter whose gains come
 from the Kalman recursion instead of being fixed). The measurement noise grows with range as
-marker PnP error does (DYNAMICS_AND_POSE.md: error ~ Z^2): ``std = max(meas_std_min_m,
+marker PnP error does (docs/dynamics.md: error ~ Z^2): ``std = max(meas_std_min_m,
 meas_std_per_m2 * z^2)``. A fix whose innovation exceeds ``gate_sigma`` standard deviations
 is rejected as an outlier (counted as a dropout), except when the estimate is stale: then the
 filter restarts on it. The vehicle's own sensors are fused as follows:

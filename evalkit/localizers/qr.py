@@ -1,7 +1,7 @@
 """QR-code localizer: zxing-cpp (default) or OpenCV detector, payload check, ECC-aligned corners, PnP.
 
-Detectors (``detector=``), measured on the quickstart demo (see ``dockbench bench`` and
-issue 16): ``zxing`` (zxing-cpp, default: decodes the 21-module code down to ~1.4 px per
+Detectors (``detector=``), measured on the quickstart demo (``dockbench bench localizers``):
+``zxing`` (zxing-cpp, default: decodes the 21-module code down to ~1.4 px per
 module, ~0.3 ms per 640x480 frame), ``aruco`` (cv2.QRCodeDetectorAruco) and ``classic``
 (cv2.QRCodeDetector). Only a decoded payload equal to the marker's counts (unless
 ``allow_undecoded``).
