@@ -1,6 +1,6 @@
 # dockbench: `make demo` (set up, render a small dataset, evaluate it, print the table)
 #            `make test` (set up, run the whole test suite)
-# Development: `make test-fast` (unit tests: no Blender renders, no installs, no Ray; < 2 min),
+# Development: `make test-fast` (unit tests: no Blender render, install or Ray; ~100 CPU s),
 #              `make lint` (ruff lint + format check, mypy on datasets_spec and evalkit).
 # The render stack is Python 3.13 + bpy 5.2 LTS (bpy >= 5.1 ships for 3.13 only). The exact tested
 # set is constraints/py313.txt; pyproject.toml keeps ranges so the evaluator installs anywhere.
@@ -43,7 +43,7 @@ test: setup chromium
 
 # unit tests only: pure numpy/OpenCV, no Blender render, no wheel install, no Ray runtime
 test-fast: setup
-	$(BIN)/python -m pytest -q -m "not blender and not install and not ray and not integration"
+	$(BIN)/python -m pytest -q -m "not blender and not install and not ray and not integration and not heavy"
 
 # the code style the project holds (pyproject.toml [tool.ruff], [tool.mypy]); CI runs it (.ci/run)
 lint: setup

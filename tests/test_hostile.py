@@ -18,6 +18,8 @@ from click.testing import CliRunner
 import cli
 from tests import hostile_corpus as hc
 
+pytestmark = pytest.mark.integration   # every case through the CLI in a subprocess
+
 SUMMARY: list[tuple[str, int, str]] = []
 IN_PROCESS = hc.CONFIG_CASES + hc.DATASET_CASES + hc.VERIFY_CASES
 

@@ -31,6 +31,8 @@ from evalkit.dataset import Dataset  # noqa: E402
 from evalkit.external import ExternalLocalizer  # noqa: E402
 from evalkit.registry import RegistryError  # noqa: E402
 
+pytestmark = pytest.mark.integration   # plugins end to end through the CLI, child processes
+
 N_FRAMES = sum(len(s[3]) for s in SEQUENCES)
 
 PLUGIN_SRC = textwrap.dedent('''

@@ -24,7 +24,7 @@ import pytest
 
 from blendgen.config.models import Experiment
 
-pytestmark = pytest.mark.blender
+pytestmark = [pytest.mark.blender, pytest.mark.ray]
 
 TINY = {  # 64x48, 1 spp, two camera paths: one Ray task each, so both nodes get work
     "name": "tiny-ray", "version": "1.0.0", "seed": 5,
