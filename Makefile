@@ -1,5 +1,7 @@
 # dockbench: `make demo` (set up, render a small dataset, evaluate it, print the table)
 #            `make test` (set up, run the whole test suite)
+# Development: `make test-fast` (unit tests: no Blender render, install or Ray; ~100 CPU s),
+#              `make lint` (ruff lint + format check, mypy on datasets_spec and evalkit).
 # The render stack is Python 3.13 + bpy 5.2 LTS (bpy >= 5.1 ships for 3.13 only). The exact tested
 # set is constraints/py313.txt; pyproject.toml keeps ranges so the evaluator installs anywhere.
 # The first python3.13 that really runs (a pyenv shim on the PATH may not, where 3.13 is not `pyenv global`).
@@ -10,7 +12,7 @@ BIN   := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 CONSTRAINTS := constraints/py313.txt
 
-.PHONY: setup chromium demo test test-slow bench clean
+.PHONY: setup chromium demo test test-fast test-slow lint bench clean
 
 $(STAMP): pyproject.toml $(CONSTRAINTS)
 	@[ -n "$(PY)" ] && "$(PY)" -c 'import sys; assert sys.version_info[:2] == (3, 13)' 2>/dev/null || { \
@@ -19,7 +21,9 @@ $(STAMP): pyproject.toml $(CONSTRAINTS)
 	  echo "Evaluation alone installs on Python 3.11-3.13: pip install dockbench (no render extra)." >&2; exit 2; }
 	"$(PY)" -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -c $(CONSTRAINTS) -e ".[render,apriltag,ray,dev]"
+	@# setuptools' notice about editable installs is advice, not a problem: keep the set-up quiet
+	PYTHONWARNINGS="ignore:Editable installation" \
+	  $(BIN)/python -m pip install --quiet -c $(CONSTRAINTS) -e ".[render,apriltag,ray,dev]"
 	touch $(STAMP)
 
 setup: $(STAMP)
@@ -36,6 +40,16 @@ chromium:
 
 test: setup chromium
 	$(BIN)/python -m pytest -q
+
+# unit tests only: pure numpy/OpenCV, no Blender render, no wheel install, no Ray runtime
+test-fast: setup
+	$(BIN)/python -m pytest -q -m "not blender and not install and not ray and not integration and not heavy"
+
+# the code style the project holds (pyproject.toml [tool.ruff], [tool.mypy]); CI runs it (.ci/run)
+lint: setup
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+	$(BIN)/mypy
 
 test-slow: setup
 	$(BIN)/python -m pytest -q --slow

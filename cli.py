@@ -250,7 +250,8 @@ def bench(ctx: click.Context):
               default=Path("out/bench"), show_default=True)
 @_user_errors
 def bench_stages(frames: int, samples: tuple[int, ...], out: Path):
-    """Time each stage at 640x480 (scene build, render + EXR read, depth to range, post+write) and localizer frames/s."""
+    """Time each stage at 640x480 (scene build, render + EXR read, depth to range, post+write) and localizer
+    frames/s."""
     from blendgen.tools.bench import run_bench
     run_bench(out, frames, samples or (1, 4))
 

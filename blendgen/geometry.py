@@ -1,6 +1,6 @@
 """Rigid transforms, camera intrinsics and Blender <-> OpenCV conventions.
 
-Conventions (DESIGN.md, *must*):
+Conventions (docs/conventions.md, *must*):
 - metres and radians; poses are 4x4 float64 homogeneous matrices named ``T_a_b``:
   the pose of frame b expressed in frame a, mapping points from b into a.
 - The camera frame is OpenCV's: +x right, +y down, +z forward (optical axis).

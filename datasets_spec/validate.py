@@ -122,11 +122,11 @@ def frame_problem(frame: Any) -> tuple[str, str] | None:
         return "d_true", "must be a finite number >= 0 (m)"
     # depth: 1.1 writes uint16 millimetre PNGs, 1.0 wrote float32 NPZ (both readable)
     for key, suffix in (("image", (".png",)), ("depth", (".png", ".npz")), ("object_index", (".png",))):
-        if key in frame and _path_problem(frame[key], suffix):
-            return key, _path_problem(frame[key], suffix)
+        if key in frame and (problem := _path_problem(frame[key], suffix)):
+            return key, problem
     for key in ("T_world_cam", "T_cam_dock"):
-        if _mat4_problem(frame[key]):
-            return key, _mat4_problem(frame[key])
+        if problem := _mat4_problem(frame[key]):
+            return key, problem
     return _markers_problem(frame["markers"])
 
 

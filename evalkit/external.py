@@ -106,7 +106,7 @@ class ExternalLocalizer(ProcessLocalizer):
         to os.environ). memory_limit_mb: the program's address space (RLIMIT_AS, MiB,
         set right after it starts; None = unlimited). Other keyword params are sent to
         the program in the reset request as ``"params"``."""
-        kw = {k: v for k, v in (("reset_timeout_s", reset_timeout_s), ("start_timeout_s", start_timeout_s),
+        kw: dict[str, Any] = {k: v for k, v in (("reset_timeout_s", reset_timeout_s), ("start_timeout_s", start_timeout_s),
                                 ("max_restarts", max_restarts)) if v is not None}
         super().__init__(timeout_s=timeout_s, **kw)
         argv = shlex.split(cmd) if isinstance(cmd, str) else [str(c) for c in cmd]
@@ -127,7 +127,7 @@ class ExternalLocalizer(ProcessLocalizer):
         self._lines: queue.Queue | None = None
         self._pending_index: Any = None
         self._counter = 0
-        self._tmp = None
+        self._tmp: Any = None   # a tempfile.TemporaryDirectory once localize() writes an image
 
     def __repr__(self) -> str:
         return f"ExternalLocalizer({shlex.join(self.argv)!r})"
@@ -195,13 +195,18 @@ class ExternalLocalizer(ProcessLocalizer):
     def _send(self, request: dict) -> None:
         try:
             line = json.dumps(request, default=_jsonable, separators=(",", ":")) + "\n"
-            self._proc.stdin.write(line.encode("utf-8"))
-            self._proc.stdin.flush()
+            proc = self._proc
+            if proc is None or proc.stdin is None:
+                raise ChildDead()
+            proc.stdin.write(line.encode("utf-8"))
+            proc.stdin.flush()
         except (OSError, ValueError, AttributeError):
             raise ChildDead() from None
 
     def _recv(self, timeout_s: float | None) -> dict:
         try:
+            if self._lines is None:
+                raise ChildDead()
             line = self._lines.get(timeout=timeout_s)
         except queue.Empty:
             raise ChildTimeout() from None
@@ -238,6 +243,8 @@ class ExternalLocalizer(ProcessLocalizer):
 
     def _stop_gracefully(self) -> None:
         proc = self._proc
+        if proc is None or proc.stdin is None:
+            return
         try:
             proc.stdin.close()
             proc.wait(EXIT_GRACE_S)

@@ -99,8 +99,9 @@ class IsolatedLocalizer(ProcessLocalizer):
         self.memory_limit_mb = memory_limit_mb
         self.spec, self.params, self.preprocess = spec, dict(params or {}), preprocess
         self.name = spec
-        self._proc = None
-        self._rx = self._tx = None
+        self._proc: Any = None              # subprocess.Popen once started
+        self._rx: Any = None                # multiprocessing Connection ends once started
+        self._tx: Any = None
         from evalkit.registry import RegistryError
         try:
             self._start()

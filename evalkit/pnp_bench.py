@@ -8,7 +8,7 @@ projects the keypoints with a 640x480, 60 deg camera, adds Gaussian pixel noise 
 
 Per cell it reports
   * ``rms_ez_m``: RMS of the error of the target's depth t_z (m), mostly along the viewing
-    axis, against the theory ``0.7 Z^2 sigma / (f s)`` (DYNAMICS_AND_POSE.md);
+    axis, against the theory ``0.7 Z^2 sigma / (f s)`` (docs/dynamics.md);
   * ``wrong_naive`` / ``wrong_ours``: share of *ambiguous* trials (the two IPPE branches
     differ by > ``AMBIGUOUS_DEG``) in which the pose lies on the wrong branch (nearer, in
     rotation, to the flipped branch than to the true one). ``naive`` = OpenCV's first
@@ -145,7 +145,7 @@ def true_branches(T_true: np.ndarray, obj: np.ndarray, uv: np.ndarray, square: b
 
 
 def solve_with_prior(R_prior: np.ndarray, obj: np.ndarray, uv: np.ndarray, square: bool):
-    """Attitude-prior disambiguation (DESIGN.md: "attitude prior, reprojection"): of the
+    """Attitude-prior disambiguation (docs/dynamics.md): of the
     IPPE solutions in front of the camera, the one nearest in rotation to R_prior (e.g.
     IMU roll/pitch + compass heading against the dock's known heading), then LM refine."""
     sols, G, obj_f, uv_f = _prerotated(R_prior, obj, uv, square)
@@ -208,7 +208,7 @@ def run_cell(target: Target, Z: float, angle_deg: float, sigma_px: float, n_tria
     ``nan_m`` / ``behind_m`` non-finite / behind-camera poses returned as successes,
     ``wrong_m`` ambiguous trials whose success lies on the wrong IPPE branch."""
     c = {f"{k}_{m}": 0 for k in ("ok", "none", "nan", "behind", "wrong") for m in METHODS}
-    ez = {m: [] for m in METHODS}
+    ez: dict[str, list[float]] = {m: [] for m in METHODS}
     rot_ours, px, n_amb, in_image, n = [], [], 0, 0, 0
     for _ in range(n_trials):
         T_true = _valid_pose(rng, target, Z, angle_deg)

@@ -136,6 +136,28 @@ class ProcessLocalizer:
         self._restarts = 0
         self.n_restarts_total = 0
 
+    # -- transport: implemented by the subclasses (see the class docstring) --
+    def _start(self) -> None:
+        raise NotImplementedError
+
+    def _alive(self) -> bool:
+        raise NotImplementedError
+
+    def _send(self, request: Any) -> None:
+        raise NotImplementedError
+
+    def _recv(self, timeout_s: float | None) -> Any:
+        raise NotImplementedError
+
+    def _kill(self) -> None:
+        raise NotImplementedError
+
+    def _reply(self, kind: str, raw: Any) -> Any:
+        raise NotImplementedError
+
+    def _reset_request(self, camera: dict) -> Any:
+        raise NotImplementedError
+
     # -- localizer API ------------------------------------------------------
     def reset(self, camera: dict) -> None:
         """Start (or reuse) the child and reset it for a new sequence."""
@@ -201,6 +223,8 @@ class ProcessLocalizer:
         self._restarts += 1
         self.n_restarts_total += 1
         self._start_child()
+        if self._camera is None:
+            raise FrameFailure("crash: restarted before any reset")
         try:
             self._exchange("reset", self._reset_request(self._camera), self.reset_timeout_s)
         except FrameFailure as exc:

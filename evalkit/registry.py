@@ -139,6 +139,7 @@ def resolve(spec: str, params: dict | None = None) -> Any:
         target = functools.partial(ExternalLocalizer, spec[len(EXEC_PREFIX):])
     else:
         target = load_target(spec)
+    obj: Any
     if callable(target) and not _is_localizer(target):
         try:
             obj = target(**params)

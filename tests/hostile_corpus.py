@@ -1,4 +1,4 @@
-"""A corpus of hostile inputs for dockbench (issue 18): bad configs, crafted datasets
+"""A corpus of hostile inputs for dockbench: bad configs, crafted datasets
 and misbehaving localizers, each with the CLI arguments that feed it to dockbench.
 
 ``python tests/hostile_corpus.py [--before]`` runs every case and prints the table

@@ -94,7 +94,7 @@ def test_bpy_only_under_blendgen_blender():
 
 def test_functions_fit_on_a_screen():
     long = []
-    for m, p in _modules().items():
+    for p in _modules().values():
         for node in ast.walk(ast.parse(p.read_text())):
             if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
                 n = node.end_lineno - node.lineno + 1

@@ -1,4 +1,4 @@
-"""Auto-exposure (physics/sensor.AutoExposure) and default blooming of saturated LEDs (issue 13)."""
+"""Auto-exposure (physics/sensor.AutoExposure) and default blooming of saturated LEDs (docs/sensor.md)."""
 from __future__ import annotations
 
 import math

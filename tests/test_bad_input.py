@@ -20,6 +20,8 @@ from blendgen.config.models import ConfigError, load_experiment
 from tests.fake_dataset import write_fake_dataset
 from tests.test_config import patched
 
+pytestmark = pytest.mark.integration   # the CLI end to end on malformed datasets and configs
+
 SEQ = Path("sequences") / "clear_000"
 NAN, INF = float("nan"), float("inf")
 

@@ -1,4 +1,4 @@
-"""Calibration check (SPEC section 6): pose sampler, board geometry, and one small
+"""Calibration check (the article's Table 4): pose sampler, board geometry, and one small
 rendered Zhang calibration against the ground-truth K."""
 import csv
 import math

@@ -1,4 +1,4 @@
-"""Reference caustics in datasets (issue 14): the sun as a far spot whose light texture is the
+"""Reference caustics in datasets (docs/light.md): the sun as a far spot whose light texture is the
 frame's photon map (``blender/caustic_sun.py``, ``physics/caustic_beam.py``).
 
 Oracles: a flat surface's photons give the pattern that undoes the spot's inverse square
@@ -40,6 +40,7 @@ def _flat_photons(grid: cb.Grid, air, t, pitch: float, rng) -> np.ndarray:
     return xi + (6.0 / -t[2]) * t                                              # 6 m below it
 
 
+@pytest.mark.heavy   # ~11 CPU s each: 400 photons per bin over a 6 x 6 m grid
 @pytest.mark.parametrize("zenith_deg, azimuth_deg", [(0.0, 0.0), (41.8, 0.0), (60.0, 150.0)])
 def test_flat_surface_gives_the_flat_pattern(zenith_deg, azimuth_deg):
     air, t = _sun(zenith_deg, azimuth_deg)

@@ -1,5 +1,5 @@
 """Same config + seed -> identical ground truth and images within a stated tolerance;
-a different seed -> different data (DESIGN.md, Reliability). Renders a tiny dataset with
+a different seed -> different data (docs/conventions.md, Randomness). Renders a tiny dataset with
 Blender three times (64x48, 1 sample, 3 frames per sequence).
 
 Tolerance: frames.jsonl must be byte-identical; images may differ by at most IMAGE_TOL

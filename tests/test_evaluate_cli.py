@@ -14,6 +14,8 @@ from click.testing import CliRunner
 import cli
 from fake_dataset import write_fake_dataset
 
+pytestmark = pytest.mark.integration   # the CLI end to end: subprocesses, concurrent writers
+
 ROOT = Path(__file__).resolve().parents[1]
 PLUGIN = '''
 import time

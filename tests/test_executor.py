@@ -16,6 +16,8 @@ import pytest
 from blendgen.pipeline import executor as ex
 from blendgen.config.models import ConfigError, Experiment
 
+pytestmark = pytest.mark.integration   # worker processes, signals, the orphan guard
+
 ROOT = Path(__file__).resolve().parent.parent
 
 # 64x48 at 1 spp: three short sequences (14 frames), a few seconds to render
@@ -109,6 +111,7 @@ def test_importing_generate_does_not_import_ray():
     assert subprocess.run([sys.executable, "-c", code], cwd=ROOT).returncode == 0
 
 
+@pytest.mark.ray
 def test_bad_executor_choice_is_a_user_error_and_writes_nothing(tmp_path, monkeypatch):
     from blendgen.pipeline.generate import generate
     exp = Experiment.model_validate(TINY)
@@ -127,6 +130,7 @@ def test_bad_executor_choice_is_a_user_error_and_writes_nothing(tmp_path, monkey
 
 
 @pytest.mark.blender
+@pytest.mark.ray
 def test_ray_writes_the_same_dataset_as_local(tmp_path):
     ray = pytest.importorskip("ray", reason="ray not installed (optional extra: pip install 'dockbench[ray]')")
     from blendgen.pipeline.generate import generate

@@ -58,7 +58,6 @@ def test_invert_and_compose(seed):
 
 
 def test_long_chain_stays_orthonormal():
-    rng = np.random.default_rng(0)
     T = np.eye(4)
     step = g.make_T(g.rpy_to_R(1e-3, -2e-3, 3e-3), [0.01, 0, 0])
     for _ in range(100_000):

@@ -1,4 +1,4 @@
-"""Hostile inputs (issue 18): every case of tests/hostile_corpus.py through the CLI.
+"""Hostile inputs: every case of tests/hostile_corpus.py through the CLI.
 
 Config, dataset and verify cases run in this process (click's CliRunner; generation stops
 where Blender would start, so an accepted config shows as "accepted"); they must exit 2
@@ -17,6 +17,8 @@ from click.testing import CliRunner
 
 import cli
 from tests import hostile_corpus as hc
+
+pytestmark = pytest.mark.integration   # every case through the CLI in a subprocess
 
 SUMMARY: list[tuple[str, int, str]] = []
 IN_PROCESS = hc.CONFIG_CASES + hc.DATASET_CASES + hc.VERIFY_CASES

@@ -23,6 +23,8 @@ from evalkit.external import ExternalLocalizer  # noqa: E402
 from evalkit.isolation import IsolatedLocalizer  # noqa: E402
 from evalkit.registry import RegistryError  # noqa: E402
 
+pytestmark = pytest.mark.integration   # child processes killed on timeouts (wall-clock waits)
+
 N_FRAMES = sum(len(s[3]) for s in SEQUENCES)
 TIMEOUT = 1.0
 

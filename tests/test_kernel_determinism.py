@@ -11,6 +11,10 @@ import subprocess
 import sys
 import textwrap
 
+import pytest
+
+pytestmark = pytest.mark.integration   # two fresh interpreters compile the kernels
+
 SCRIPT = textwrap.dedent("""
     import hashlib, math
     import numpy as np

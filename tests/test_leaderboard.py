@@ -92,6 +92,7 @@ def test_cli_and_errors(runs, tmp_path):
     assert res.exit_code == 2 and "not a dockbench results directory" in res.output
 
 
+@pytest.mark.integration   # a headless browser
 @pytest.mark.skipif(leaderboard.find_chromium() is None,
                     reason="chromium not installed (Debian: apt-get install -y chromium)")
 def test_renders_in_headless_chromium_within_1280px(runs, tmp_path):

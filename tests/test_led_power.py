@@ -1,4 +1,4 @@
-"""LED power as a physical value (issue 13): radiant intensity (W/sr) -> disc radiance, the same
+"""LED power as a physical value (docs/light.md): radiant intensity (W/sr) -> disc radiance, the same
 in both fidelities; the old ``strength`` key still reads (exactly converted)."""
 from __future__ import annotations
 

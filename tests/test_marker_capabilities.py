@@ -1,4 +1,4 @@
-"""Issue 16 oracles: N-LED arrays with several reference LEDs and distractors, the QR
+"""Marker capability oracles: N-LED arrays with several reference LEDs and distractors, the QR
 marker description (version, ECC, quiet zone) and the zxing-cpp QR default, the shared
 square-marker base (ROI search, metadata)."""
 from __future__ import annotations

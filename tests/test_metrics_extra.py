@@ -21,9 +21,9 @@ from fake_dataset import decode_distance, write_fake_dataset
 NAN = float("nan")
 
 
-def _pose(R=np.eye(3), t=(0.0, 0.0, 5.0)) -> list[float]:
+def _pose(R=None, t=(0.0, 0.0, 5.0)) -> list[float]:
     T = np.eye(4)
-    T[:3, :3] = R
+    T[:3, :3] = np.eye(3) if R is None else R
     T[:3, 3] = t
     return T.ravel().tolist()
 

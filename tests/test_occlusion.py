@@ -354,7 +354,7 @@ def test_bad_drift_and_render_parameters_raise():
 
 
 def _step_as_written(f: ParticleField, dt, v, L, rng) -> np.ndarray:
-    """The drift as SPEC section 4 writes it, with broadcasting and column sums (the code before
+    """The drift as the article writes it, with broadcasting and column sums (the code before
     the flat, tiled loops): lo + mod(p + v dt + L z - lo, ext), rounded to float32 and kept inside."""
     pos = f.positions.astype(np.float64) + np.asarray(v, float) * dt
     z = np.zeros((f.n, 3))

@@ -1,4 +1,4 @@
-"""Water optics: presets, config validation, fast model, analytic oracles (OPTICS.md)."""
+"""Water optics: presets, config validation, fast model, analytic oracles (docs/water.md)."""
 from __future__ import annotations
 
 import math

@@ -28,12 +28,16 @@ def _pyproject() -> dict:
 
 
 def test_package_list_matches_the_tree():
-    """pyproject lists packages by hand (bundled data is mapped in): every package dir is listed."""
-    listed = set(_pyproject()["tool"]["setuptools"]["packages"])
+    """pyproject lists packages by hand (bundled data is mapped in): every package dir is listed,
+    and so is every data folder inside a package (a folder with package data and no __init__.py)."""
+    tool = _pyproject()["tool"]["setuptools"]
+    listed = set(tool["packages"])
     found = {str(p.parent.relative_to(ROOT)).replace(os.sep, ".")
              for top in ("blendgen", "evalkit", "datasets_spec") for p in (ROOT / top).rglob("__init__.py")}
-    mapped = set(_pyproject()["tool"]["setuptools"]["package-dir"])
-    assert found | mapped == listed
+    mapped = set(tool["package-dir"])
+    data_dirs = set(tool["package-data"]) - found - mapped
+    assert all((ROOT / d.replace(".", os.sep)).is_dir() for d in data_dirs), data_dirs
+    assert found | mapped | data_dirs == listed
 
 
 def test_bundled_data_resolves_in_the_source_tree():

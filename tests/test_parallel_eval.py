@@ -6,12 +6,15 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
 from fake_dataset import write_fake_dataset  # noqa: E402
 
 from evalkit import assemble, parallel, runner  # noqa: E402
 from evalkit.dataset import Dataset  # noqa: E402
+
+pytestmark = pytest.mark.integration   # a pool of evaluation processes
 
 PLUGIN = '''
 import numpy as np

@@ -1,4 +1,4 @@
-"""Particles as a physical population (issue 15): sizes, lit radiance in water, coverage,
+"""Particles as a physical population (docs/particles.md): sizes, lit radiance in water, coverage,
 thin-lens defocus, motion streaks, depth test under blur, zero cost without particles."""
 from __future__ import annotations
 

@@ -109,7 +109,7 @@ def test_job_record_is_typed_versioned_and_round_trips():
                          frames=jobs[0].frames,
                          camera=plan.JobCamera(width=64, height=48, hfov_rad=1.0, K=np.eye(3).tolist()),
                          gt=plan.JobTruth(T_world_dock=np.eye(4).tolist(), markers=[]),
-                         outputs=[plan.JobOutput(seq_dir="/tmp/x", rel="sequences/x", post=post)])
+                         outputs=[plan.JobOutput(seq_dir="/data/x", rel="sequences/x", post=post)])
     back = plan.JobRecord.model_validate_json(rec.model_dump_json())
     assert back.model_dump_json() == rec.model_dump_json() and back.version == plan.JOB_RECORD_VERSION
     assert back.outputs[0].post.water.preset == post.water.preset

@@ -31,6 +31,8 @@ from evalkit.dataset import Dataset  # noqa: E402
 from evalkit.external import ExternalLocalizer  # noqa: E402
 from evalkit.registry import RegistryError  # noqa: E402
 
+pytestmark = pytest.mark.integration   # plugins end to end through the CLI, child processes
+
 N_FRAMES = sum(len(s[3]) for s in SEQUENCES)
 
 PLUGIN_SRC = textwrap.dedent('''
@@ -177,7 +179,7 @@ def test_python_example_program_on_a_rendered_aruco(tmp_path):
     assert est["marker_id"] == "tag" and est["distance"] == pytest.approx(1.5, rel=0.02)
 
 
-# -- built-ins added by this issue ------------------------------------------
+# -- the newer built-ins (apriltag, hybrid, ...) ------------------------------
 def test_builtins_registered_and_listed():
     names = [r[0] for r in registry.list_localizers()]
     assert names[:5] == ["led", "qr", "aruco", "apriltag", "hybrid"]

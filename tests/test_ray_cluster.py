@@ -16,6 +16,7 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -23,7 +24,7 @@ import pytest
 
 from blendgen.config.models import Experiment
 
-pytestmark = pytest.mark.blender
+pytestmark = [pytest.mark.blender, pytest.mark.ray]
 
 TINY = {  # 64x48, 1 spp, two camera paths: one Ray task each, so both nodes get work
     "name": "tiny-ray", "version": "1.0.0", "seed": 5,
@@ -73,7 +74,7 @@ def cluster(tmp_path_factory):
     ray_bin = Path(sys.executable).with_name("ray")
     if not ray_bin.is_file():
         pytest.skip("ray not installed (optional extra: pip install 'dockbench[ray]')")
-    temp_dir = Path(f"/tmp/dbray{secrets.token_hex(3)}")    # short: Ray's socket paths have a length limit
+    temp_dir = Path(tempfile.gettempdir()) / f"dbray{secrets.token_hex(3)}"   # short: Ray's socket paths have a length limit
     port, client_port = _free_port(), _free_port()
     env = {**os.environ, "RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN": secrets.token_hex(32),
            "RAY_USAGE_STATS_ENABLED": "0"}

@@ -1,10 +1,10 @@
-"""OPTICS.md oracles through the project's own water module (reference fidelity).
+"""Analytic oracles of the Cycles medium (docs/water.md) through the project's own water module (reference fidelity).
 
 Each scene is built by ``blendgen.blender.oracle_scenes`` (scene builder + water
 box of ``blendgen.blender.water``) and rendered in a subprocess (the test process
 never imports bpy). Images are tiny (8x8 to 32x32 px) and each render takes < 2 s.
 Type I Jerlov E(10 m)/E0 is asserted on the coefficients in tests/test_optics.py
-(the 0-bounce medium attenuates the sun with c, not Kd: see OPTICS.md).
+(the 0-bounce medium attenuates the sun with c, not Kd: see docs/water.md).
 """
 import json
 import math
@@ -43,7 +43,7 @@ def transmission_scene(w: dict, d: float, samples: int = 4) -> dict:
 
 
 def backscatter_scene(w: dict, samples: int, size: int) -> dict:
-    """OPTICS.md oracle 4: horizontal view at 2 m depth, sun straight down (E = 3),
+    """Oracle 4 (single-scatter backscatter): horizontal view at 2 m depth, sun straight down (E = 3),
     black target at 8 m, 0 volume bounces."""
     return {"water": w, "camera": {"z": -2.0, "clip_start": CLIP},
             "target": {"kind": "black", "x": 8.0}, "sun": {"direction": [0, 0, -1], "strength": 3.0},
@@ -65,7 +65,7 @@ def test_coefficients_mapping(tmp_path):
 
 
 def test_beer_lambert_absorption_only(tmp_path):
-    """OPTICS.md oracle 1 (with the Coefficients node): sigma_a (.4, .25, .1), d = 2 m."""
+    """Oracle 1 (absorption, with the Coefficients node): sigma_a (.4, .25, .1), d = 2 m."""
     sa = np.array([0.4, 0.25, 0.1])
     out = oracle(tmp_path, transmission_scene(water(sa, [0, 0, 0]), 2.0))
     expect = np.exp(-sa * (2.0 - CLIP))
@@ -74,7 +74,7 @@ def test_beer_lambert_absorption_only(tmp_path):
 
 
 def test_beer_lambert_absorbing_and_scattering(tmp_path):
-    """OPTICS.md oracle 3: exp(-(sigma_a + sigma_s) d) when the emitter is hidden from scatter rays."""
+    """Oracle 3 (transmission): exp(-(sigma_a + sigma_s) d) when the emitter is hidden from scatter rays."""
     sa, ss = np.array([0.35, 0.07, 0.03]), np.array([0.2, 0.3, 0.4])
     out = oracle(tmp_path, transmission_scene(water(sa, ss, g=0.9), 3.0, samples=16))
     expect = np.exp(-(sa + ss) * (3.0 - CLIP))
@@ -84,7 +84,7 @@ def test_beer_lambert_absorbing_and_scattering(tmp_path):
 @pytest.mark.parametrize("g,size,published", [(0.0, 16, (0.0286, 0.0912, 0.1103)),
                                               (0.9, 32, (0.00223, 0.00711, 0.00860))])
 def test_single_scatter_backscatter(tmp_path, g, size, published):
-    """OPTICS.md oracle 4 at 64 spp over 16x16 / 32x32 px (Cycles 5 samples homogeneous media
+    """Oracle 4 at 64 spp over 16x16 / 32x32 px (Cycles 5 samples homogeneous media
     with low variance: the pixel spread is ~1%); matches optics.single_scatter_backscatter."""
     sa, ss = [0.35, 0.07, 0.03], [0.2, 0.2, 0.2]
     out = oracle(tmp_path, backscatter_scene(water(sa, ss, g=g), samples=64, size=size))
@@ -120,7 +120,7 @@ def test_sun_through_surface_box_is_attenuated_by_c(tmp_path):
 @pytest.mark.slow
 @pytest.mark.parametrize("g", [0.0, 0.9])
 def test_single_scatter_backscatter_1024spp(tmp_path, g):
-    """OPTICS.md oracle 4 as published: 1024 spp, within 2%."""
+    """Oracle 4 as published: 1024 spp, within 2%."""
     sa, ss = [0.35, 0.07, 0.03], [0.2, 0.2, 0.2]
     out = oracle(tmp_path, backscatter_scene(water(sa, ss, g=g), samples=1024, size=16))
     expect = optics.single_scatter_backscatter(sa, ss, g, 3.0, 2.0, 8.0 - CLIP)

@@ -54,8 +54,7 @@ def tiny(tmp_path_factory):
 
 def frames(ds):
     for seq in ds.sequences:
-        for f in ds.iter_frames(seq["id"]):
-            yield f
+        yield from ds.iter_frames(seq["id"])
 
 
 def test_manifest_and_frames_follow_format(tiny):

@@ -19,7 +19,7 @@ N6 = {
     "scene": {"template": "pool_15x5x8", "dock": {"markers": [
         {"kind": "led_array", "id": "led", "layout": "circle", "count": 6, "size_m": 0.7,
          "led_radius_m": 0.035, "reference_index": [0, 1], "strength": 20.0}]},
-        # the textured pool with caustics (issue 14) stays on: its sun-lit clutter passes the
+        # the textured pool with caustics (docs/light.md) stays on: its sun-lit clutter passes the
         # first LED threshold as dozens of blobs, and the threshold ladder must find the array
         },
     "camera": {"width": 320, "height": 240, "hfov_deg": 60, "fps": 2},

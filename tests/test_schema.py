@@ -197,7 +197,7 @@ BAD_MANIFESTS = [
 ]
 BAD_FRAMES = [
     ("d_true", _DEL), ("d_true", -1.0), ("index", -1), ("index", 1.5), ("image", "rgb/000000.jpg"),
-    ("image", "/tmp/x.png"), ("depth", "a/b.exr"), ("T_cam_dock", [[1, 0, 0], [0, 1, 0], [0, 0, 1]]),
+    ("image", "/abs/x.png"), ("depth", "a/b.exr"), ("T_cam_dock", [[1, 0, 0], [0, 1, 0], [0, 0, 1]]),
     ("markers.0.visible_fraction", 1.5), ("markers.0.in_fov", "yes"), ("markers.0.T_cam_marker", _DEL),
     ("markers.0.extra", 0), ("extra_key", 1), ("t", "0.1"),
 ]

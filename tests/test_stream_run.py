@@ -14,6 +14,8 @@ import pandas as pd
 import pytest
 import yaml
 
+pytestmark = pytest.mark.integration   # `dockbench run` end to end
+
 ROOT = Path(__file__).resolve().parent.parent
 
 # 160x120 at 1 spp, two camera paths x two image-space conditions: 4 sequences, 2 renders

@@ -1,4 +1,4 @@
-"""The world around the dock (issue 14): Snell's window, caustics, their zero cost when off.
+"""The world around the dock (docs/light.md): Snell's window, caustics, their zero cost when off.
 
 Oracles: the critical angle asin(1/1.333) = 48.6 deg; Fresnel reflectance at normal incidence
 ((n-1)/(n+1))^2; energy conservation (mean caustic irradiance = flat-surface value); the
@@ -28,7 +28,8 @@ def _looking_up(cam_z: float) -> np.ndarray:
     return T
 
 
-def _post(world: WorldPost | None, water=Water(preset="jerlov_IB")) -> SequencePost:
+def _post(world: WorldPost | None, water: Water | None = None) -> SequencePost:
+    water = Water(preset="jerlov_IB") if water is None else water
     return SequencePost(seed=0, fps=10, image_formation="physical", water=water, light_depth_m=3.0,
                         surface_z_m=0.0, irradiance_w_m2=3.0, world=world)
 

@@ -1,8 +1,8 @@
 """Can the Cycles reference carry caustics? A far spot light with a light texture (a gobo) as the
-sun: tested here on a pattern of known shape (issue 14; docs/evidence/README.md).
+sun: tested here on a pattern of known shape (docs/evidence/README.md).
 
 Why: the reference's sun is a delta light under a refracting surface, so path tracing finds no
-caustics, and Cycles' MNEE does not carry an absorbing medium (session 7). But the caustic
+caustics, and Cycles' MNEE does not carry an absorbing medium. But the caustic
 irradiance on a receiver is the flat-surface sun times a pattern ``M(xi)`` of the point ``xi``
 where the receiver's sun ray crosses the surface plane (the coordinates ``physics/caustic_map.py`` bins its maps in;
 for a planar receiver at fixed depth, the photon map of ``caustic_reference`` at that depth).
@@ -20,14 +20,18 @@ orthographic from above, 128 px over 6 m, 16 spp. Expected radiance on the floor
 ``E cos(20 deg) / pi * M(x - H tan 20 deg) * exp(-sigma_a H (1/cos + 1))``.
 
 It checks the building blocks of the reference's caustics (``caustic_sun.gobo_spot``,
-``link_only``), which datasets use since session 9.
+``link_only``), which reference datasets use.
 
     python -m blendgen.blender.caustic_gobo WORK_DIR  (~10 s; docs/evidence/caustic_gobo.txt)"""
 import math
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from blendgen.physics import caustic_beam as cb
 
 H, TILT, E, SIGMA_A, N_GOBO, W_GOBO = 2.0, math.radians(20.0), 3.0, 0.2, 512, 12.0
 

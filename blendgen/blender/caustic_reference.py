@@ -23,9 +23,11 @@ set of directions within it, one render each. Reflected rays leave to a black sk
 
 ``python -m blendgen.blender.caustic_reference SPEC.json OUT.npz``. SPEC keys: ``depth_m``,
 ``wave_seed``, ``wind_mps``, ``t`` (s), ``patch_m`` (side of the binned floor square, centred
-at the origin), ``bins`` (rows along +y, columns along +x, both ascending), ``margin_m`` (camera footprint beyond the patch, for light that
+at the origin), ``bins`` (rows along +y, columns along +x, both ascending), ``margin_m`` (camera footprint beyond
+the patch, for light that
 scatters in), ``size`` (pixels per render side), ``renders`` (sun directions),
-``sun_radius_deg``, ``sun_zenith_deg`` (in air, heading +x; default 0), ``sigma_a``, ``sigma_s`` (grey, 1/m; 0 and 0: no medium), ``g``,
+``sun_radius_deg``, ``sun_zenith_deg`` (in air, heading +x; default 0), ``sigma_a``, ``sigma_s`` (grey, 1/m; 0 and
+0: no medium), ``g``,
 ``volume_bounces``, ``seed``. OUT: ``E`` (bins, bins) irradiance over the sun's (above the
 surface, normal to its rays), ``E2`` the per-bin sum of squared photon contributions (for
 the shot-noise variance), ``photons`` the number of camera rays.

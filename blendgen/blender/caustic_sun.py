@@ -1,4 +1,4 @@
-"""Reference caustics in datasets (issue 14): on every opaque surface the sun becomes a far
+"""Reference caustics in datasets (docs/light.md): on every opaque surface the sun becomes a far
 spot light whose light texture is this frame's photon map.
 
 Why (``caustic_reference``, ``caustic_gobo``): the reference's sun is a delta light under a
@@ -9,7 +9,8 @@ line. So:
 
 1. **Photon map** (a second Blender scene, rendered per frame): an orthographic camera in the
    air plays the sun (rays along the sun's direction in the sky, ``surface.sun_in_air``, each
-   turned to a uniform direction within its disc by the camera's depth of field), the frame's wavy glass surface (the dataset's own object, same
+   turned to a uniform direction within its disc by the camera's depth of field), the frame's wavy glass surface
+   (the dataset's own object, same
    waves and time) refracts them, and every polygon of the receivers (pool floor and walls,
    dock body) records where they land: its emission is ``(u + OFFSET,
    v + OFFSET, id + 1)``, its own plane coordinates and number. Clear water (the dataset's

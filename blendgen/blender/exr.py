@@ -3,7 +3,7 @@
 The render worker writes its passes as an uncompressed 32-bit multilayer EXR
 (:func:`blendgen.blender.render.setup_cycles`) and reads them straight back. OpenImageIO
 reads such a file at ~0.85 GB/s (17 CPU-ms for the 14.8 MB of a 640x480 frame with five
-passes, ``/tmp/h19w/exrbench.py``); the pixels, however, sit in the file as plain little-endian
+passes, ``dockbench bench io``); the pixels, however, sit in the file as plain little-endian
 float32 scanlines, so numpy views over the file's bytes give the same values with one copy.
 
 Layout (OpenEXR "File Layout" and "Multi-Part" technical docs, openexr.com): magic

@@ -32,7 +32,7 @@ def add_lamps(cam_obj: bpy.types.Object, lamps: list[dict]) -> list[bpy.types.Ob
     if not lamps:
         return out
     from types import SimpleNamespace
-    for i, (lamp, pl) in enumerate(zip(lamps, lamp_lights([SimpleNamespace(**d) for d in lamps]))):
+    for i, (_lamp, pl) in enumerate(zip(lamps, lamp_lights([SimpleNamespace(**d) for d in lamps]))):
         i0 = np.asarray(pl.intensity_w_sr, float)
         peak = float(i0.max())
         light = bpy.data.lights.new(f"lamp_{i}", type="SPOT")

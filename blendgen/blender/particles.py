@@ -2,7 +2,8 @@
 
 One object holds a point cloud (world positions, a per-point ``radius`` attribute);
 a geometry-nodes modifier instances a smooth-shaded icosphere of radius 1 (subdivision 4:
-2562 vertices, shared by every instance) on every point, scaled by ``radius``. Moving the particles between frames rewrites the point positions only.
+2562 vertices, shared by every instance) on every point, scaled by ``radius``. Moving the particles between frames
+rewrites the point positions only.
 Particles are grey diffuse spheres of the config's albedo lit by the scene's lights (the
 fast path's Lambertian-sphere part; its forward lobe has no counterpart here),
 and every instance carries the object's pass index, so the object-index pass shows

@@ -5,7 +5,8 @@ surface of :func:`blendgen.blender.world.add_water_surface` (flat, at z = 0, wit
 above it; optional water volume) seen from ``depth_m`` below by a pinhole camera of
 horizontal field ``hfov_deg``, and saves the linear RGB (H, W, 3) float32.
 SPEC: ``{"depth_m", "hfov_deg", "size", "samples", "sky_radiance", "water": null|dict}``, optional
-``"tilt_deg"`` (view axis from the zenith towards +x), ``"wind_mps"``, ``"wave_seed"`` (the waves) and ``"sun"`` (``to_sun``, ``irradiance``:
+``"tilt_deg"`` (view axis from the zenith towards +x), ``"wind_mps"``, ``"wave_seed"`` (the waves) and ``"sun"``
+(``to_sun``, ``irradiance``:
 the sun's disc in the sky, :func:`blendgen.blender.world.world_sky_through_surface`);
 with ``"kind": "albedo"`` (``{"size", "height_m", "seed"}``) it saves the albedo pass of the
 tiled pool floor instead (:func:`render_albedo`).

@@ -1,7 +1,7 @@
 """Reference-fidelity water: a Cycles participating medium in a mesh box.
 
 The medium is a closed box whose top face is the water surface. A World volume
-would also fill the sky and kill sunlight (OPTICS.md); with a box, the sun lamp's
+would also fill the sky and kill sunlight (docs/water.md); with a box, the sun lamp's
 shadow rays leave the medium through the top face, so sunlight reaching a point
 at depth ``h`` is attenuated by ``exp(-c h / sin(elevation))`` -- with 0 volume
 bounces (our default: **single scattering**), the unscattered beam. The box has
@@ -93,7 +93,7 @@ def reference_settings(scene: bpy.types.Scene, volume_bounces: int = 0) -> None:
 
     ``volume_bounces = 0`` (default) is single scattering: each camera-ray scatter
     point is lit directly by the sun (next-event estimation through the medium);
-    multiple scattering (bounces 8-64) raises the veiling light 1.5-7x (OPTICS.md).
+    multiple scattering (bounces 8-64) raises the veiling light 1.5-7x (docs/water.md).
     Homogeneous media are integrated analytically, so the step rate only matters
     for heterogeneous ones; it is left at Cycles' default (1)."""
     cy = scene.cycles

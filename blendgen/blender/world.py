@@ -1,4 +1,4 @@
-"""The world around the dock in Blender (issue 14): textured pool, dock materials, seabed,
+"""The world around the dock in Blender (docs/light.md): textured pool, dock materials, seabed,
 and (reference fidelity) the refracting water surface with the sky above it.
 
 Procedural Cycles shader nodes only (nothing is downloaded or bundled). Texture

@@ -104,7 +104,7 @@ class LedArray(Strict):
     @model_validator(mode="before")
     @classmethod
     def _old_strength(cls, data):
-        """Configs before issue 13 gave ``strength`` (radiance per colour weight, W/m^2/sr):
+        """Configs of generator 1.0 gave ``strength`` (radiance per colour weight, W/m^2/sr):
         read as ``intensity_w_sr = strength * pi * led_radius_m^2`` (exact)."""
         if isinstance(data, dict) and "strength" in data:
             if "intensity_w_sr" in data:
@@ -206,7 +206,7 @@ class Dock(Strict):
 
 
 class WorldLook(Strict):
-    """What surrounds the dock (issue 14): the water surface seen from below, textured pool
+    """What surrounds the dock (docs/light.md): the water surface seen from below, textured pool
     and dock, caustics. ``null`` switches: on in ``physical`` mode, off in ``article`` mode
     (which keeps the article's flat look). Physics: ``physics/surface.py``."""
     surface: Optional[bool] = Field(None, description="water surface seen from below (Snell's window, "
@@ -273,7 +273,7 @@ class AutoExposureConfig(Strict):
 
 
 class Sensor(Strict):
-    """The camera's sensor (EMVA 1288 photon-transfer model, OPTICS.md): radiance -> electrons
+    """The camera's sensor (EMVA 1288 photon-transfer model, docs/sensor.md): radiance -> electrons
     over the exposure -> saturation at the full well -> digital numbers with system gain
     ``K = gain * 255 / full_well_e`` DN/e- -> response curve -> 8 bits."""
     exposure_s: float = Field(
@@ -304,7 +304,7 @@ class Sensor(Strict):
 
 
 class Lens(Strict):
-    """Thin lens (issue 15: defocus of small obstacles). The pixel pitch follows from
+    """Thin lens (docs/sensor.md: defocus of small obstacles). The pixel pitch follows from
     ``focal_length_mm`` and the focal length in pixels (hfov, width)."""
     focal_length_mm: float = Field(4.0, gt=0.1, le=500.0, description="focal length (mm)")
     f_number: float = Field(2.8, ge=0.5, le=64.0, description="f-number N (aperture diameter f/N)")
@@ -331,7 +331,7 @@ class Camera(Strict):
 
 
 class Lamp(Strict):
-    """A lamp on the vehicle (issue 14): a spot of radiant flux ``power_w`` spread over a cone.
+    """A lamp on the vehicle (docs/LAMP.md): a spot of radiant flux ``power_w`` spread over a cone.
 
     Mounted at ``offset_m`` in the camera frame (OpenCV: x right, y down, z forward), aimed
     ``yaw_deg`` right and ``pitch_deg`` down of the optical axis. Physics: ``physics/lights.py``."""
@@ -392,13 +392,13 @@ class Render(Strict):
 
 
 Coef = Annotated[float, Field(ge=0.0, le=5.0)]
-Coef3 = Union[Coef, Annotated[list[Coef], Field(min_length=3, max_length=3)]]
+Coef3 = Coef | Annotated[list[Coef], Field(min_length=3, max_length=3)]
 Unit = Annotated[float, Field(ge=0.0, le=1.0)]
-Unit3 = Union[Unit, Annotated[list[Unit], Field(min_length=3, max_length=3)]]
+Unit3 = Unit | Annotated[list[Unit], Field(min_length=3, max_length=3)]
 Veil = Annotated[float, Field(ge=0.0, le=10.0)]
-Veil3 = Union[Veil, Annotated[list[Veil], Field(min_length=3, max_length=3)]]
+Veil3 = Veil | Annotated[list[Veil], Field(min_length=3, max_length=3)]
 
-#: The two image-formation modes (OPTICS.md): ``physical`` (what water and light do) and
+#: The two image-formation modes (docs/water.md): ``physical`` (what water and light do) and
 #: ``article`` (the article's formulas: blend toward the water colour with
 #: ``w = 1 - exp(-beta d)``, every pixel scaled by ``exp(-k depth)``).
 ImageFormation = Literal["physical", "article"]
@@ -545,7 +545,7 @@ class Fluid(Strict):
 
 
 class Occlusion(Strict):
-    """Small obstacles / marine snow (the article's section 2.2.3, made physical: issue 15):
+    """Small obstacles / marine snow (the article's section 2.2.3, made physical: docs/particles.md):
     N_total particles in a region of volume V_env (default: the pool, 600 m^3 for 15x5x8),
     radii from ``size_dist`` in [r_min, r_max], drifting with the current plus Gaussian
     noise, lit by the light field (physics/particle_optics.py)."""

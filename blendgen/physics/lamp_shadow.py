@@ -31,7 +31,8 @@ depth ``z`` is met at an offset ``delta ~ f |S_perp| / z``, where one step cover
 along the offset are never stepped over. The march stops where the segment is nearer than
 the nearest surface of the frame (nothing can hide it there) or leaves the image (no data:
 lit). Cost: the test runs on every ``GRID_PX``-th pixel (every 2nd at 240 px, every pixel at
-120), the visibility is interpolated bilinearly, and the pixels where it is fractional (shadow edges) are marched again at full
+120), the visibility is interpolated bilinearly, and the pixels where it is fractional (shadow edges) are marched
+again at full
 resolution, so edges are exact to the pixel; a shadow narrower than ``GRID_PX`` falling
 between grid pixels is missed (documented limit).
 

@@ -30,7 +30,7 @@ Conventions chosen here:
   gives it (or asks for the reference calibration), :func:`light_field_veil`
   estimates it from the single-scattering albedo.
 
-What the fast model misses (OPTICS.md), to be calibrated/published against the
+What the fast model misses (docs/water.md), to be calibrated/published against the
 reference Cycles renders:
 
 - forward-scatter halo/blur energy (about +9% at 1 m with sigma_s 0.3): the
@@ -263,7 +263,7 @@ def light_field_veil(water: WaterOptics, mean_cosine_down: float = MEAN_COSINE_D
     ``L_inf = (b / c) L_mean`` when the light field is treated as isotropic-equivalent,
     with the mean radiance ``L_mean = E_0 / (4 pi)`` and the scalar irradiance
     ``E_0 = E_d / mu_d`` (mean cosine of downwelling light). It includes multiple
-    scattering, which the 0-bounce reference medium leaves out (OPTICS.md: 1.5-7x
+    scattering, which the 0-bounce reference medium leaves out (docs/water.md: 1.5-7x
     single scatter). Zero where the water is clear.
 
     Measured residual (2026-11-23, ``blendgen.blender.oracle_scenes``, physical ``mild``:
@@ -307,7 +307,8 @@ def fast_water(spec, mode: str, irradiance: float, calibration: dict | None = No
     ``calibrated`` is set and the preset is bare and listed; the calibrated veil model
     ``veil`` (:func:`veil_parameters`; returned as ``opts["veil"]`` and evaluated per frame
     by :func:`veil_radiance_at` at the camera's depth and view elevation, ``B_inf`` then
-    holds its value at the surface, horizontal, for the record); else :func:`light_field_veil`. In ``article`` mode it is the water colour ``C`` (the
+    holds its value at the surface, horizontal, for the record); else :func:`light_field_veil`. In ``article`` mode
+    it is the water colour ``C`` (the
     article presets' colour, or the veil above times the irradiance) and is used as is.
     Coefficients: :func:`water_for_mode`.
     Returns ``(water, {"irradiance", "blur", "calibrated"})``."""

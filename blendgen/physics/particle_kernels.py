@@ -1,7 +1,7 @@
 """Compiled loops of the fast particle path (numba): drift, projection and blur, splat, transfer,
 compositing, and the float32 transcendentals they need.
 
-Issue 15 asks 60000 particles in the 600 m^3 pool to cost at most 5 ms per 640x480 frame.
+The budget: 60000 particles in the 600 m^3 pool at most 5 ms per 640x480 frame (docs/particles.md).
 Written with numpy, every stage was a chain of ~10-40 passes over the particles or the
 covered pixels; each loop here makes one or two passes, most of them vectorised by LLVM
 (docs/particles.md, "Speed", says what that takes), and keeps the laws, so their oracles are
@@ -474,8 +474,8 @@ def project_blurred(xyz, radii, R, off, K, z_near, M, o, scale, coc_k, focus_m, 
     Three passes: the test for every particle (:func:`_blurred_keep`), the kept ones' points
     gathered, and their rows computed again from them (:func:`_blurred_rows`; the same arithmetic,
     so the same bytes). Writing all 11 rows of every particle, ~70 % of them out of view in the
-    bench pool, and then compacting them cost more: 0.47 -> 0.37 ms for 60000 (docs/particles.md,
-    Session 17)."""
+    bench pool, and then compacting them cost more: 0.47 -> 0.37 ms for 60000
+    (docs/history/particles-speed.md)."""
     n = xyz.shape[1]
     keep = np.empty(n, np.float32)
     _blurred_keep(xyz, radii, R, off, K, z_near, M, o, scale, coc_k, focus_m, width, height, keep)
@@ -666,7 +666,7 @@ def _particle_records(u, v, a, b, c, s, d, op):
     """(M REC,) float32: particle i's u, v, a, b, c, s, d, op at [REC i, REC i + REC) (two to a
     cache line). The tile loop reads its members, scattered over the particles, from one line
     each (one prefetch) instead of eight arrays: 0.1-0.25 ms less on the captured 640x480 bench
-    frames (docs/particles.md, Session 16)."""
+    frames (docs/history/particles-speed.md)."""
     rec = np.empty(u.size * REC, np.float32)
     for i in range(u.size):
         r = i * REC

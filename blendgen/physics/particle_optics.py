@@ -11,7 +11,7 @@ Sizes (:func:`sample_radii`)
     Front. Mar. Sci. 6:196, the Underwater Vision Profiler's ~0.1 mm to a few cm range).
     Default ``xi = 3.5`` (inside the reported range), radii 0.25 mm to 15 mm (diameters
     0.5 mm to 3 cm). Sampled by the inverse CDF of the truncated law.
-    ``uniform``: the article's radius uniform in ``[r_min, r_max]`` (SPEC section 4).
+    ``uniform``: the article's radius uniform in ``[r_min, r_max]`` (its section 2.2.3).
 
 Radiance (:func:`particle_radiance`)
     A particle of albedo ``omega`` under irradiance ``E`` (W/m^2) coming from one direction
@@ -214,7 +214,7 @@ def led_point_lights(markers: list[dict], T_cam_dock: np.ndarray, strength_scale
     render's emission, W/m^2/sr) has on-axis intensity ``I = L pi r^2`` (W/sr); it faces
     the dock's +z. Modelled as a hemisphere emitter (half-angle 90 deg) without the
     cos falloff (an upper bound off-axis). ``strength_scale`` is the hook for a physical
-    LED intensity (issue 13): multiply the manifest's strength by it."""
+    LED intensity (docs/light.md): multiply the manifest's strength by it."""
     T = np.asarray(T_cam_dock, float)
     axis = T[:3, 2] / np.linalg.norm(T[:3, 2])
     out = []

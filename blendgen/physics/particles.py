@@ -2,7 +2,7 @@
 depth-tested, anti-aliased renderer (compiled loops in particle_kernels.py: no OpenCV drawing,
 no Blender; the splatting itself is in particle_splat.py).
 
-The article (SPEC section 4) draws ``Poisson(rho * V_cam)`` blobs in image space.
+The article (section 2.2.3) draws ``Poisson(rho * V_cam)`` blobs in image space.
 Here the obstacles live in the world instead, which gives the same statistics and
 more:
 

@@ -73,7 +73,8 @@ def veil_radiance(sigma_a, sigma_s, K_v, phase_fn, kappa, depth_m: float, view_e
     or (3,); ``depth_m`` the camera's depth >= 0; elevations/azimuth in radians (default: sun
     overhead, horizontal view); ``eta`` the diffuse path function's elevation dependence
     ``J_diff(theta) ~ 1 + eta sin(theta)`` (two-term expansion of the light field about the
-    vertical: more light scattered into a ray looking up than down). ``parts=True`` returns ``(beam, diffuse)`` instead of the sum."""
+    vertical: more light scattered into a ray looking up than down). ``parts=True`` returns ``(beam, diffuse)``
+    instead of the sum."""
     a = np.broadcast_to(np.asarray(sigma_a, float), (3,))
     b = np.broadcast_to(np.asarray(sigma_s, float), (3,))
     K = np.broadcast_to(np.asarray(K_v, float), (3,))

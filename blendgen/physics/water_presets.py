@@ -23,7 +23,7 @@ also our choice (the article only says "greenish"): linear RGB
 package (v0.22.0), reduced to RGB with a *band-sampled* camera response: each
 channel is the equal-weight mean of the coefficient at Jerlov's printed
 wavelengths R = 600/625/650 nm, G = 525/550 nm, B = 450/475 nm (exactly the
-convention of OPTICS.md's Kd table; a comb response, no interpolation between
+convention of Jerlov's printed Kd table; a comb response, no interpolation between
 tabulated points). Sources:
 
 - ``Kd``: Jerlov (1976) *Marine Optics* Table XXVII (``source="jerlov1976"``,
@@ -42,7 +42,7 @@ tabulated points). Sources:
   horizontal view with the sun straight down, ``sigma_s p_HG(90 deg) / c``
   (see :func:`blendgen.physics.optics.single_scatter_backscatter`). This is what the
   reference medium gives with 0 volume bounces; multiple scattering raises it
-  1.5-7x (OPTICS.md). Calibrate it against reference renders before use.
+  1.5-7x (docs/water.md). Calibrate it against reference renders before use.
 """
 from __future__ import annotations
 
@@ -52,12 +52,12 @@ import warnings
 
 import numpy as np
 
-#: Jerlov's printed wavelengths used for each channel (nm), OPTICS.md convention.
+#: Jerlov's printed wavelengths used for each channel (nm) (Jerlov 1976, Table XXVII).
 RGB_BANDS_NM = {"R": (600.0, 625.0, 650.0), "G": (525.0, 550.0), "B": (450.0, 475.0)}
 
 JERLOV_TYPES = ("I", "IA", "IB", "II", "III", "1C", "3C", "5C", "7C", "9C")
 
-#: Petzold average-particle mean scattering cosine (OPTICS.md: about 0.92).
+#: Petzold average-particle mean scattering cosine (Petzold 1972: about 0.92).
 PARTICLE_G = 0.92
 
 #: The article's levels: turbidity beta (1/m) for each named condition.

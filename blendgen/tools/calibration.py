@@ -1,4 +1,4 @@
-"""Camera calibration check (SPEC section 6): Zhang's method on rendered chessboards.
+"""Camera calibration check (the article's Table 4): Zhang's method on rendered chessboards.
 
 For each resolution and trial a seeded set of board poses is drawn (tilt up to
 ``max_tilt_deg``, projected plate area ``fill`` of the image, whole plate inside

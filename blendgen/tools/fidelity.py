@@ -30,8 +30,12 @@ import math
 import shutil
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 from blendgen.config.bundled import bundled_file
 
@@ -189,7 +193,7 @@ def calibrate(ref_path: Path, clean_path: Path, light_depth_m: float, irradiance
             e_d = irradiance * math.sin(math.radians(sun_elevation_deg))
             w, fo = optics.fast_water(Water(preset=cond, calibrated=use), "physical", e_d, cal)
             err = []
-            for k, (y, J, r) in zip(keys, pix):
+            for _k, (y, J, r) in zip(keys, pix):
                 pred = optics.apply_water(J[None].astype(np.float64), r[None], None, w, light_depth_m,
                                           irradiance=fo["irradiance"])[0]
                 err.append(np.abs(pred - y))

@@ -1,5 +1,5 @@
 """``dockbench bench io``: CPU cost of the per-frame file I/O a streaming run can skip, and of
-the render EXR read (issue 19).
+the render EXR read (README, "Cost of the whole suite").
 
 * camera image (640x480x3 uint8): PNG encode + write (generate, ``--images all``) and read +
   sha256 + decode (the evaluator) vs raw ``.npy`` write and read + pixel sha256 (frames a

@@ -1,4 +1,4 @@
-"""``bench particles``: cost of the fast particle path per frame (issue 15's <= 5 ms budget).
+"""``bench particles``: cost of the fast particle path per frame (the <= 5 ms budget of docs/particles.md).
 
 A synthetic frame (no Blender): the 15x5x8 m pool (600 m^3) filled with N particles, the
 camera 1 m below the surface at one end looking down the pool's length, a wall at 15 m as

@@ -1,4 +1,4 @@
-"""Fast image-space particles vs real instanced spheres in the Blender render (issue 15).
+"""Fast image-space particles vs real instanced spheres in the Blender render (docs/particles.md).
 
 Two datasets of the same seeded particle fields, one drawn by the fast path (``geometry:
 image``, lit by particle_optics) and one as smooth instanced spheres in the Cycles render
@@ -21,8 +21,12 @@ from __future__ import annotations
 
 import shutil
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 CHANGE_DN = 3
 COUNTS = (6000, 60000)

@@ -1,5 +1,5 @@
 """Contact sheet of small obstacles: 600 / 6000 / 60000 in the pool at 8 / 5 / 2 m from the dock,
-lamp off and on (issue 15's evidence). Rendered through the normal pipeline (fast fidelity)
+lamp off and on (docs/evidence/README.md). Rendered through the normal pipeline (fast fidelity)
 from the occlusion paper config; one approach with one frame per view distance."""
 from __future__ import annotations
 

@@ -82,7 +82,8 @@ ETA_GRID = np.round(np.linspace(0.0, 1.0, 11), 2)
 def fit_preset(water, points: list[dict]) -> tuple[np.ndarray, np.ndarray, float]:
     """(kappa, K_v) (3,) each and eta, fitted to ``points`` (their ``reference``): for each eta
     of :data:`ETA_GRID`, kappa and K_v channel by channel (K_v in [0, c]: a diffuse field cannot
-    dim faster than the beam; the transient field above 6 m can dim slower than absorption); the eta with the least total squared relative residual."""
+    dim faster than the beam; the transient field above 6 m can dim slower than absorption); the eta with the least
+    total squared relative residual."""
     from blendgen.physics import veil
     hs = [(p["depth_m"], p["elevation_deg"]) for p in points]
     ref = np.array([p["reference"] for p in points])

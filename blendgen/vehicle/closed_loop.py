@@ -193,7 +193,8 @@ def simulate_closed_loop(setup: TrialSetup, observe: Observer | None = None) -> 
     "final_lateral_m", "final_vertical_m", "final_range_m", "final_heading_deg" (body origin
     at the last frame), "frames": list of per-frame dicts}`` with frame keys ``t``,
     ``x_world``, ``y_world``, ``z_world`` (body origin, m), ``lateral_m``, ``vertical_m``,
-    ``range_m`` (body origin, dock frame), ``x_cam_world``, ``y_cam_world`` (camera = nose), ``heading_err_deg``, ``fix`` (bool), ``est_lateral_m``,
+    ``range_m`` (body origin, dock frame), ``x_cam_world``, ``y_cam_world`` (camera = nose), ``heading_err_deg``,
+    ``fix`` (bool), ``est_lateral_m``,
     ``est_range_m`` (filtered, NaN if none) and the observer's ``info``."""
     plant, ap, sensors, n_sub, dt = _start(setup)
     rng = np.random.default_rng(setup.seed)

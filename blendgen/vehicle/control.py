@@ -4,7 +4,7 @@ and step-response tools. Pure numpy/Python.
 Everything here works in Fossen's frames (NED inertial, FRD body; see
 :mod:`blendgen.vehicle.dynamics`); public poses are converted there.
 
-Gains (DYNAMICS_AND_POSE.md): for an axis with mass/inertia m (rigid body + added
+Gains (Fossen 2021, ch. 15; docs/dynamics.md): for an axis with mass/inertia m (rigid body + added
 mass), linear damping d and restoring stiffness k, a PID placed at natural frequency
 w and damping ratio zeta has
     Kp = m w^2 - k,   Kd = 2 zeta w m - d,   Ki = (w / 10) Kp.
@@ -17,7 +17,7 @@ heading and pitch PIDs as in track mode; integrals with anti-windup (clamped so 
 integral term alone cannot exceed a stated force, and frozen while the output
 saturates in the error's direction).
 
-Sensors (SPEC section 4): depth 0-50 m quantised at 0.01 m; heading 0-360 deg,
+Sensors (docs/dynamics.md): depth 0-50 m quantised at 0.01 m; heading 0-360 deg,
 pitch/roll +-90 deg quantised at 0.1 deg. Pitch is reported nose-up positive and roll
 starboard-down positive (Fossen/aviation convention; note the public FLU world pitch
 angle of :func:`blendgen.geometry.R_to_rpy` is nose-DOWN positive). Heading is the

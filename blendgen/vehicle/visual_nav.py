@@ -9,7 +9,7 @@ horizontal position in the dock frame (x lateral and z range, each a constant-ve
 state [position, rate] driven by white acceleration noise ``accel_std``; one update per
 camera frame; the two axes are decoupled, so each is an alpha-beta filter whose gains come
 from the Kalman recursion instead of being fixed). The measurement noise grows with range as
-marker PnP error does (DYNAMICS_AND_POSE.md: error ~ Z^2): ``std = max(meas_std_min_m,
+marker PnP error does (docs/dynamics.md: error ~ Z^2): ``std = max(meas_std_min_m,
 meas_std_per_m2 * z^2)``. A fix whose innovation exceeds ``gate_sigma`` standard deviations
 is rejected as an outlier (counted as a dropout), except when the estimate is stale: then the
 filter restarts on it. The vehicle's own sensors are fused as follows:
@@ -45,7 +45,8 @@ class FilterParams:
     gain of the dock heading/depth, dropout hold and lost-target times (s).
 
     Defaults: 0.3 m/s^2 is about a quarter of the horizontal acceleration the lateral
-    thrusters can give the vehicle (2 x 36.6 N / 66 kg sway mass = 1.1 m/s^2); 0.005 m^-1 is the order of the LED array's range error at 320x240 (the
+    thrusters can give the vehicle (2 x 36.6 N / 66 kg sway mass = 1.1 m/s^2); 0.005 m^-1 is the order of the LED
+    array's range error at 320x240 (the
     ``0.7 Z^2 sigma_px / (f s)`` rule with f = 277 px, s = 0.6 m, sigma_px = 1)."""
     accel_std: float = 0.3
     meas_std_per_m2: float = 0.005

@@ -1,6 +1,6 @@
 """Run: PYTHONPATH=. python docs/evidence/particle_ring_before_after.py OUT.png
 
-Ring evidence (issue 15): a defocused 3 mm particle 0.25 m ahead straddling a near (1.5 m) / far (12 m) wall edge."""
+Ring evidence (docs/particles.md): a defocused 3 mm particle 0.25 m ahead straddling a near (1.5 m) / far (12 m) wall edge."""
 import math, sys
 import numpy as np, cv2
 from blendgen.config.models import Lens

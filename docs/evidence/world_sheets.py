@@ -1,4 +1,4 @@
-"""Contact sheets for issue 14a (run with PYTHONPATH=worktree)."""
+"""Contact sheets of the world around the dock (docs/evidence/README.md; run with PYTHONPATH=.)."""
 import os
 import shutil
 import sys
@@ -12,7 +12,7 @@ from blendgen.config.models import Condition, Water, load_experiment, WorldLook,
 from blendgen.pipeline.generate import generate
 from evalkit.dataset import Dataset
 
-OUT = Path(os.environ.get("EV_OUT", "/tmp/h14/ev"))          # EV_OUT: where the sheets go
+OUT = Path(os.environ.get("EV_OUT", "out/evidence"))        # EV_OUT: where the sheets go
 W, H = int(sys.argv[2]) if len(sys.argv) > 2 else 320, int(sys.argv[3]) if len(sys.argv) > 3 else 240
 VIEWS = (8.0, 5.0, 2.0)
 

@@ -12,6 +12,8 @@ from the shared square-marker code (:mod:`evalkit.localizers.square`).
 """
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from evalkit.localizers.square import SquareMarkerLocalizer, linear_gray, refine_corners, square_pose_estimate
@@ -77,8 +79,8 @@ class AprilTagLocalizer(SquareMarkerLocalizer):
         self.max_hamming = int(max_hamming)
         self.max_shift_px = float(max_shift_px)
         self.nthreads = int(nthreads)
-        self._detectors: dict[str, object] = {}
-        self._family = None
+        self._detectors: dict[str, Any] = {}   # pupil_apriltags.Detector per family
+        self._family: str | None = None
 
     def reset(self, camera: dict) -> None:
         """Pick the marker (an apriltag, else an aruco marker with an AprilTag dictionary)."""
@@ -105,6 +107,8 @@ class AprilTagLocalizer(SquareMarkerLocalizer):
     def detect(self, gray: np.ndarray) -> list[np.ndarray]:
         """Quads (4,2) TL, TR, BR, BL of the wanted tag id within max_hamming."""
         want = int(self._marker["marker_id"])
+        if self._family is None:
+            return []
         return [np.asarray(det.corners, np.float64).reshape(4, 2)[_TO_FORMAT_ORDER] - 0.5
                 for det in self._detectors[self._family].detect(np.ascontiguousarray(gray))
                 if int(det.tag_id) == want and int(det.hamming) <= self.max_hamming]

@@ -1,6 +1,8 @@
 """ArUco / AprilTag localizer: cv2.aruco.ArucoDetector + IPPE_SQUARE PnP."""
 from __future__ import annotations
 
+from typing import Any
+
 import cv2
 import numpy as np
 
@@ -25,7 +27,7 @@ class ArucoLocalizer(SquareMarkerLocalizer):
             raise ValueError(f"refine must be one of {sorted(_REFINE)}, got {refine!r}")
         super().__init__(marker_id, roi)
         self.refine = str(refine)
-        self._detector = None
+        self._detector: Any = None          # cv2.aruco.ArucoDetector, built by setup()
 
     def setup(self, marker: dict) -> dict | None:
         """Build the detector for the marker's dictionary."""

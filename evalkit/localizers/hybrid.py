@@ -91,7 +91,7 @@ class HybridLocalizer:
         self._f = None
         self._span_m: dict[str, float] = {}
         self.min_px_per_module = float(min_px_per_module)
-        self.switch_m = None if switch_m in (None, "None", "") else float(switch_m)
+        self.switch_m = None if switch_m is None or str(switch_m) in ("None", "") else float(switch_m)
         if not self.min_px_per_module > 0 or (self.switch_m is not None and not self.switch_m > 0):
             raise ValueError(f"need min_px_per_module > 0 and switch_m > 0, "
                              f"got {self.min_px_per_module}, {self.switch_m}")
@@ -104,8 +104,8 @@ class HybridLocalizer:
             subs[role] = registry.resolve(str(spec), p)
         self.subs = subs
         self.near_range_m = self.switch_m if self.switch_m is not None else float("inf")
-        self._last_d = None
-        self._last_far_T = None
+        self._last_d: float | None = None
+        self._last_far_T: np.ndarray | None = None
         self._ran: set[str] = set()
 
     def reset(self, camera: dict) -> None:
@@ -217,8 +217,8 @@ class HybridLocalizer:
         if not isinstance(est, dict):
             return None
         try:
-            d = float(est.get("distance"))
-        except (TypeError, ValueError):
+            d = float(est["distance"])
+        except (KeyError, TypeError, ValueError):
             return None
         return est if np.isfinite(d) and d >= 0 else None
 

@@ -57,6 +57,8 @@ bookkeeping.
 """
 from __future__ import annotations
 
+from typing import Any
+
 import itertools
 import math
 
@@ -168,8 +170,9 @@ class LedLocalizer:
         self.min_area_px = int(min_area_px)
         self.max_area_frac = float(max_area_frac)
         self.min_circularity = float(min_circularity)
-        self.ref_hue = None if ref_hue in (None, "None", "") else float(ref_hue)
-        self.max_candidates = None if max_candidates in (None, "None", "") else int(max_candidates)
+        self.ref_hue = None if ref_hue is None or str(ref_hue) in ("None", "") else float(ref_hue)
+        self.max_candidates = (None if max_candidates is None or str(max_candidates) in ("None", "")
+                               else int(max_candidates))
         self.max_blobs = int(max_blobs)
         self.max_reproj_px = float(max_reproj_px)
         self.min_saturation = float(min_saturation)
@@ -187,7 +190,7 @@ class LedLocalizer:
         self.ladder = tuple(sorted(float(f) for f in ladder))
         if any(not 0.0 < f <= 1.0 for f in self.ladder):
             raise ValueError(f"ladder fractions must be in (0, 1], got {self.ladder}")
-        self._marker = None
+        self._marker: Any = None            # the manifest's LED marker dict, set by reset()
         self._prev_T = None
 
     def reset(self, camera: dict) -> None:
@@ -200,9 +203,9 @@ class LedLocalizer:
         else:
             m = next((x for x in markers if x.get("kind") == "led_array"), None)
         self._marker = m if m is not None and m.get("kind") == "led_array" else None
-        if self._marker is None:
+        if m is None or self._marker is None:
             return
-        self._kp = np.asarray(m["keypoints"], float).reshape(-1, 3)
+        self._kp = np.asarray(m["keypoints"], np.float64).reshape(-1, 3)
         self._n = len(self._kp)
         refs = sorted({int(i) for i in m.get("reference_indices", [m.get("reference_index", 0)])})
         self._kp_ccw = ccw_order(self._kp)

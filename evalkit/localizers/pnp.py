@@ -1,6 +1,6 @@
 """Pose of a planar point set from its image (OpenCV 4.11), shared by the localizers.
 
-Conventions (FORMAT.md / DESIGN.md): metres; camera frame OpenCV (+x right, +y down,
+Conventions (datasets_spec/FORMAT.md, docs/conventions.md): metres; camera frame OpenCV (+x right, +y down,
 +z forward); pixel centres at integer coordinates; ``T_a_b`` maps points from b to a.
 Only named PnP flags are used (``SOLVEPNP_IPPE``, ``SOLVEPNP_IPPE_SQUARE``), never integers.
 

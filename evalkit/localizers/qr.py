@@ -1,7 +1,7 @@
 """QR-code localizer: zxing-cpp (default) or OpenCV detector, payload check, ECC-aligned corners, PnP.
 
-Detectors (``detector=``), measured on the quickstart demo (see ``dockbench bench`` and
-issue 16): ``zxing`` (zxing-cpp, default: decodes the 21-module code down to ~1.4 px per
+Detectors (``detector=``), measured on the quickstart demo (``dockbench bench localizers``):
+``zxing`` (zxing-cpp, default: decodes the 21-module code down to ~1.4 px per
 module, ~0.3 ms per 640x480 frame), ``aruco`` (cv2.QRCodeDetectorAruco) and ``classic``
 (cv2.QRCodeDetector). Only a decoded payload equal to the marker's counts (unless
 ``allow_undecoded``).
@@ -27,6 +27,8 @@ off). Sub-pixel refinement (``refine=``) before PnP:
 Whatever fails falls back to IPPE_SQUARE on the detector's 4 corners.
 """
 from __future__ import annotations
+
+from typing import Any
 
 import cv2
 import numpy as np
@@ -90,7 +92,7 @@ def refine_finder_corners(gray: np.ndarray, quad: np.ndarray, n: int,
     win_img = gray[y0:y1, x0:x1]
     if win_img.dtype == np.uint8:
         win_img = linear_gray(win_img)
-    ref = (pred - np.float32([x0, y0])).copy()
+    ref = (pred - np.array([x0, y0], np.float32)).copy()
     cv2.cornerSubPix(np.ascontiguousarray(win_img), ref, (win, win), (-1, -1), SUBPIX_CRITERIA)
     ref = ref.reshape(-1, 2).astype(np.float64) + (x0, y0)
     keep = np.all(np.isfinite(ref), axis=1) & (np.linalg.norm(ref - p, axis=1) <= 1.5 * win)
@@ -138,12 +140,12 @@ class QrLocalizer(SquareMarkerLocalizer):
         self.detector = detector
         self.allow_undecoded = _as_bool(allow_undecoded)
         self.refine = refine
-        self.modules = None if modules in (None, "None", "") else int(modules)
+        self.modules = None if modules is None or str(modules) in ("None", "") else int(modules)
         self.binarizer = str(binarizer)
         self.min_ecc = float(min_ecc)
-        self._read = None
-        self._n = None
-        self._cells = None
+        self._read: Any = None              # gray image -> [(text, quad)], built by setup()
+        self._n: int | None = None          # modules per side
+        self._cells: np.ndarray | None = None
 
     def setup(self, marker: dict) -> dict | None:
         """Build the detector; module count from the params, the manifest or the payload."""
@@ -228,7 +230,7 @@ def ecc_align_quad(gray: np.ndarray, quad: np.ndarray, cells: np.ndarray, min_ec
     tmpl = cv2.resize(tmpl, None, fx=s, fy=s, interpolation=cv2.INTER_NEAREST)
     tmpl = cv2.GaussianBlur(tmpl, (0, 0), max(0.5, 0.5 * s / module_px))
     a, b = q * s - 0.5, (q + n) * s - 0.5  # template px of the code's edges
-    code_t = np.float32([[a, a], [b, a], [b, b], [a, b]])
+    code_t = np.array([[a, a], [b, a], [b, b], [a, b]], np.float32)
     span = quad.max(axis=0) - quad.min(axis=0)
     h, w = gray.shape
     x0, y0 = (int(max(0, v)) for v in np.floor(quad.min(axis=0) - 0.5 * span))
@@ -265,7 +267,8 @@ def zxing_reader(binarizer: str = "LocalAverage", with_errors: bool = False):
 
     def read(gray: np.ndarray):
         out = []
-        for b in zxingcpp.read_barcodes(gray, formats=fmt, try_rotate=False, try_downscale=False,
+        for b in zxingcpp.read_barcodes(gray, formats=fmt,  # type: ignore[arg-type]  # stub wants BarcodeFormats
+                                        try_rotate=False, try_downscale=False,
                                         try_invert=False, binarizer=binz, return_errors=with_errors):
             p = b.position
             quad = np.array([[c.x, c.y] for c in (p.top_left, p.top_right, p.bottom_right, p.bottom_left)],
@@ -351,6 +354,8 @@ class QrTrackLocalizer(QrLocalizer):
             starts = [(quad, 3)]  # last frame's corners: coarse-to-fine (moves of a few modules)
         else:  # a locator's corner order may start at another finder: ECC decides
             starts = [(np.roll(quad, -k, axis=0), 0) for k in range(4)]
+        if self._cells is None:
+            return None
         for start, coarse in starts:
             aligned = ecc_align_quad(gray, start, self._cells, self.min_ecc, coarse)
             if aligned is not None:

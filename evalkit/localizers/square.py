@@ -7,6 +7,8 @@ the marker frame and moved to the dock: ``T_cam_dock = T_cam_marker @ inv(T_dock
 """
 from __future__ import annotations
 
+from typing import Any
+
 import cv2
 import numpy as np
 
@@ -134,9 +136,10 @@ class SquareMarkerLocalizer:
         the whole frame if that finds nothing."""
         self.marker_id = marker_id
         self.roi = _as_bool(roi)
-        self._marker = None
-        self._K = self._dist = None
-        self._last_quad = None
+        self._marker: Any = None            # the manifest's marker dict, set by reset()
+        self._K: Any = None                 # 3x3 intrinsics and distortion, set by reset()
+        self._dist: Any = None
+        self._last_quad: np.ndarray | None = None
         self._misses = 0
 
     # ---- hooks -----------------------------------------------------------------

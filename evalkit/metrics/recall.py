@@ -186,7 +186,7 @@ def recall_table(frames: pd.DataFrame, model: DockModel | None, d_max: float = c
         t = targets[(targets[group] == pd.Series(key, index=group)).all(axis=1)]
         row = dict(zip(group, key), n_targets=len(t))
         has_pose = model is not None and "mssd_m" in g.columns and g["mssd_m"].notna().any()
-        if has_pose:
+        if has_pose and model is not None:
             row["AR_dock_MSSD"] = average_recall(t["mssd_m"].to_numpy(), model.mssd_thresholds())
             row["AR_dock_MSPD"] = average_recall(t["mspd_px"].to_numpy(), model.mspd_thresholds())
             row["AR_dock"] = (row["AR_dock_MSSD"] + row["AR_dock_MSPD"]) / 2.0

@@ -56,6 +56,8 @@ are the frame indices.
 """
 from __future__ import annotations
 
+from typing import Any
+
 import json
 import os
 import shutil
@@ -169,7 +171,8 @@ class _Export:
         if self.undistort_maps is None:
             return img
         import cv2
-        return cv2.remap(img, *self.undistort_maps, cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR,
+        interpolation = cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR
+        return cv2.remap(img, *self.undistort_maps, interpolation,  # type: ignore[call-overload]  # OpenCV's stubs
                          borderMode=cv2.BORDER_CONSTANT, borderValue=border)
 
 

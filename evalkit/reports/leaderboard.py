@@ -21,7 +21,7 @@ import shutil
 import subprocess
 import tempfile
 from pathlib import Path
-from typing import TYPE_CHECKING, Iterable, Sequence
+from typing import TYPE_CHECKING, Any, Iterable, Sequence
 
 
 if TYPE_CHECKING:
@@ -61,7 +61,8 @@ th,td{border:1px solid #d0d7de;padding:2px 6px;white-space:nowrap}
 th{background:#f6f8fa}table.lb th{cursor:pointer;user-select:none}
 table.lb th.sorted-asc::after{content:" \\25B2"}table.lb th.sorted-desc::after{content:" \\25BC"}
 td.n{text-align:right;font-variant-numeric:tabular-nums}td.lbl{max-width:190px;overflow:hidden;text-overflow:ellipsis}
-table.lb tr.first td{background:#eaf5ea}table.lb tr.baseline td{background:#f3f0ff;font-style:italic}td.bar-cell{position:relative}
+table.lb tr.first td{background:#eaf5ea}table.lb tr.baseline td{background:#f3f0ff;font-style:italic}
+td.bar-cell{position:relative}
 .bar{position:absolute;left:0;bottom:0;height:3px;background:#2da44e}
 .ci{color:#6e7781;font-size:10px}code{font-size:11px}
 dl.legend{font-size:11px;color:#57606a;margin:4px 0;display:grid;grid-template-columns:max-content auto;gap:0 8px}
@@ -138,7 +139,7 @@ def _ci_text(row, key: str) -> str | None:
 def _cell(row, key: str, kind: str) -> dict:
     """One table cell: text, sort value, CI, bar width (% for P_succ)."""
     v = row.get(key)
-    out = {"cls": "n", "v": "", "text": "-", "ci": None, "bar": None, "title": None}
+    out: dict[str, Any] = {"cls": "n", "v": "", "text": "-", "ci": None, "bar": None, "title": None}
     if kind == "text":
         return {**out, "cls": "lbl", "v": str(v), "text": str(v), "title": row.get("full")}
     if not _finite(v):
@@ -218,7 +219,7 @@ def _bins(bins: pd.DataFrame | None) -> dict | None:
             r = by.get(e)
             n = int(r["n_total"]) if r is not None else 0
             p = r["P_succ"] if r is not None and n else None
-            cells.append({"text": f"{100 * float(p):.0f}" if _finite(p) else "", "shade": _shade(p),
+            cells.append({"text": f"{100 * float(p):.0f}" if p is not None and _finite(p) else "", "shade": _shade(p),
                           "title": f"{n} frames", "n": n})
         rows.append({"label": label, "cells": cells})
     return {"edges": [f"{lo:g}-{hi:g}" for lo, hi in edges], "rows": rows}
@@ -287,7 +288,7 @@ def _cl_matrix(rows: list[dict], conds: list[str]) -> dict:
     by: dict[str, dict] = {}
     for r in rows:
         by.setdefault(r["label"], {})[r["condition"]] = r
-    out = []
+    out: list[dict[str, Any]] = []
     for label, cells in by.items():
         mean = sum(float(c["success_rate"]) for c in cells.values()) / len(cells)
         out.append({"label": label, "baseline": any(c.get("baseline") for c in cells.values()), "_m": mean,

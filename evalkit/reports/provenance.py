@@ -90,8 +90,9 @@ def code_artifacts(spec: str) -> list[dict]:
     if spec.startswith(registry.EXEC_PREFIX):
         words = shlex.split(spec[len(registry.EXEC_PREFIX):])
         out = []
-        if words and shutil.which(words[0]):
-            out.append(_file_entry(Path(shutil.which(words[0])).resolve(), "program"))
+        program = shutil.which(words[0]) if words else None
+        if program:
+            out.append(_file_entry(Path(program).resolve(), "program"))
         out += [_file_entry(Path(w).resolve(), "argument") for w in words[1:] if Path(w).is_file()]
         return out
     target = registry.BUILTINS.get(spec)
@@ -102,8 +103,8 @@ def code_artifacts(spec: str) -> list[dict]:
     if registry._is_file_target(target):
         path = Path(mod).expanduser().resolve()
         return [_file_entry(path, "plugin file")] if path.is_file() else []
-    path = _module_file(mod)
-    return [_file_entry(path, "module")] if path else []
+    module_path = _module_file(mod)
+    return [_file_entry(module_path, "module")] if module_path else []
 
 
 def localizer_record(spec: str, params: dict, obj: Any = None) -> dict:
