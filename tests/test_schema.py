@@ -97,7 +97,7 @@ def test_fake_dataset_validates(tmp_path):
 
 def _writer_dataset(tmp_path: Path, n_frames: int = 3) -> Path:
     """A dataset from the real generation pieces, with synthetic passes instead of Blender
-    (the same calls as blendgen/blender/worker.py and blendgen.pipeline.generate.generate)."""
+    (the same calls as blendgen/pipeline/frameloop.py and blendgen.pipeline.generate.generate)."""
     from blendgen.pipeline import generate as gen
     from blendgen.pipeline import plan
     from blendgen.pipeline import compose as pp
