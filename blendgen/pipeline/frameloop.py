@@ -32,6 +32,7 @@ from blendgen.pipeline import renderer as rd
 from blendgen.pipeline.frameshare import FrameShare
 from blendgen.pipeline.passstore import PassStore
 from blendgen.pipeline.stagetimer import StageTimer
+from blendgen.render_spec import FramePlan
 
 
 # -- the per-frame stages (datasets and the closed loop) ----------------------------
@@ -87,13 +88,13 @@ def _geometry_particles(job: plan.JobRecord, renderer: rd.Renderer, states: list
     """Real-geometry particles of this job (validation mode), driven by the same seeded
     field as the image-space model, added to the renderer's scene; returns their sequence
     state (the field moves with it), or None."""
-    p = job.scene.get("particles")
-    if not p:
+    p = job.scene.particles
+    if p is None:
         return None
     st = next((s for s in states if s.field is not None), None) or pp.SequenceState.start(
-        states[0].post.model_copy(update={"seed": p["seed"], "fps": p["fps"], "occlusion": plan.OcclusionPost(
-            **{k: v for k, v in p.items() if k not in ("seed", "fps", "object_index")})}))
-    renderer.add_particles(st.field.positions, st.field.radii, p["object_index"], color=[p.get("albedo", 0.3)] * 3)
+        states[0].post.model_copy(update={"seed": p.seed, "fps": p.fps, "occlusion": plan.OcclusionPost(
+            **p.model_dump(exclude={"seed", "fps", "object_index"}))}))
+    renderer.add_particles(st.field.positions, st.field.radii, p.object_index, color=[p.albedo] * 3)
     return st
 
 
@@ -126,7 +127,7 @@ class _Job:
         self.job = job
         self.K = np.asarray(job.camera.K, float)
         self.T_wd = np.asarray(job.gt.T_world_dock, float)
-        self.markers = job.gt.markers
+        self.markers = [m.model_dump(mode="json") for m in job.gt.markers]    # plain data for the image-space stages
         self.outputs = [_Output(o) for o in job.outputs]
         self.store = PassStore.from_job(job)
         self.distortion = _shared_distortion(job)
@@ -150,15 +151,16 @@ class _Job:
                 out.frames.write(json.dumps({**r, **paths}) + "\n")
             st.advance()
 
-    def frame(self, renderer: rd.Renderer, fr: dict, geo, times: dict) -> None:
+    def frame(self, renderer: rd.Renderer, frame: FramePlan, geo, times: dict) -> None:
         """Render, compose and write one planned frame; per-frame seconds appended to ``times``."""
         job, clock, K = self.job, self.clock, self.K
+        fr = frame.plain()
         t1 = time.perf_counter()
         with clock("render"):
-            raw = renderer.render(fr, None if geo is None else geo.field.positions)
+            raw = renderer.render(frame, None if geo is None else geo.field.positions)
         t2 = time.perf_counter()
         with clock("compose"):
-            passes = clean_passes(raw, K, job.render.get("ambient_radiance", 0.0))
+            passes = clean_passes(raw, K, job.render.ambient_radiance)
         t3 = time.perf_counter()
         with clock("write"):
             pass_paths = self.store.write(fr["index"], pp.output_passes(passes, K, self.distortion)) if self.store else {}

@@ -25,6 +25,7 @@ from blendgen import markers as mk
 from blendgen.pipeline import groundtruth
 from blendgen.physics import surface as sf
 from blendgen.vehicle import trajectories as tj
+from blendgen.render_spec import FramePlan, Marker, RenderScene, RenderSettings
 from blendgen.geometry import intrinsics_from_hfov, make_T, rpy_to_R
 from blendgen.config.models import (ConfigError, Experiment, ImageFormation, Lamp, Lens, Occlusion, Sensor, Strict, Vec3,
                                     Water)
@@ -104,7 +105,7 @@ class JobCamera(Strict):
 
 class JobTruth(Strict):
     T_world_dock: list[list[float]]
-    markers: list[dict]
+    markers: list[Marker]
 
 
 class JobOutput(Strict):
@@ -125,13 +126,14 @@ class JobPasses(Strict):
 
 class JobRecord(Strict):
     """What a render worker process is given (JSON on disk, parsed once by the worker).
-    ``scene``, ``render`` and ``frames`` are the plain data of :func:`scene_description`,
-    :func:`render_settings` and the camera path."""
+    ``scene``, ``render`` and ``frames`` are :func:`scene_description`, :func:`render_settings`
+    and the camera path, typed (:mod:`blendgen.render_spec`): the planner's plain data is
+    validated when the record is made, the file again when the worker reads it."""
     version: Literal[1] = JOB_RECORD_VERSION
-    scene: dict
+    scene: RenderScene
     fidelity: Literal["fast", "reference"]
-    render: dict
-    frames: list[dict]
+    render: RenderSettings
+    frames: list[FramePlan]
     camera: JobCamera
     gt: JobTruth
     outputs: list[JobOutput]

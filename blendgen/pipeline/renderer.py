@@ -14,9 +14,11 @@ from typing import Protocol
 
 import numpy as np
 
+from blendgen.render_spec import FramePlan, RenderScene, RenderSettings
+
 
 class Renderer(Protocol):
-    def render(self, frame: dict, particles: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    def render(self, frame: FramePlan | dict, particles: np.ndarray | None = None) -> dict[str, np.ndarray]:
         """Clean passes of one planned frame (``T_world_cam`` 4x4, ``index``, ``t`` s, ROI boxes);
         ``particles`` (N,3) m world: where the real-geometry particles are at this frame."""
 
@@ -27,7 +29,7 @@ class Renderer(Protocol):
         """Release per-job scratch (the built scene may be kept for the next job)."""
 
 
-def build(scene: dict, camera: dict, render: dict, cache: dict | None = None) -> Renderer:
+def build(scene: RenderScene, camera: dict, render: RenderSettings, cache: dict | None = None) -> Renderer:
     """The renderer of one job (Blender; ``cache``: a persistent worker's dict that keeps the
     built scene while consecutive jobs share it)."""
     from blendgen.blender import renderer
