@@ -2,9 +2,11 @@
 byte for byte (tests/golden_datasets.py: how they are shrunk, what is hashed, how to re-record).
 
 Two of them are rendered here (quickstart: two paths, ROI renders; paper_occlusion: article mode,
-particles); ``python -m tests.golden_datasets check OUT`` renders all of them. The recorded
-hashes came from the code before the frame loop moved into the pipeline; a deliberate change of
-the output re-records them (and says why in its commit)."""
+particles); ``python -m tests.golden_datasets check OUT`` renders all of them. The images,
+passes and frame records were recorded from the code before the frame loop moved into the
+pipeline; the manifests were re-recorded once when they started to record the effective config
+(``effective_config`` and each sequence's resolved ``sensor.noise``). A deliberate change of the
+output re-records them (and says why in its commit)."""
 from __future__ import annotations
 
 import json

@@ -80,9 +80,9 @@ def test_schema_keys_match_format_md():
     assert _format_table_keys("manifest.json") == set(m["properties"])
     assert _format_table_keys("frames.jsonl") == set(f["properties"])
     # the documented required keys (optional: d_min_rel_m has a default; reference_caustics is written by
-    # reference renders with caustics only; depth/object_index may be absent; exposure_s is written with
-    # auto-exposure only)
-    assert set(m["properties"]) - set(m["required"]) == {"d_min_rel_m", "reference_caustics"}
+    # reference renders with caustics only; effective_config is absent from datasets written before it;
+    # depth/object_index may be absent; exposure_s is written with auto-exposure only)
+    assert set(m["properties"]) - set(m["required"]) == {"d_min_rel_m", "reference_caustics", "effective_config"}
     assert set(f["properties"]) - set(f["required"]) == {"depth", "object_index", "exposure_s"}
     assert m["properties"]["spec_version"]["enum"] == ["1.0", "1.1"]     # 1.1 written, 1.0 still read
 
