@@ -2,7 +2,8 @@
 loop, the job records or the config resolution must leave every dataset byte-identical.
 
 ``shrink(cfg)`` turns a shipped config into a tiny one (80 x 60 pixels, 1 sample, 1 trial,
-3 frames per trajectory starting at most 6 m from the dock; every condition, preset and effect kept). ``content_hashes(root)``
+3 frames per trajectory starting at most 6 m from the dock; every condition, preset and effect
+kept). ``content_hashes(root)``
 hashes every file of a dataset (``.work/`` excluded: scratch) except the manifest fields that
 record when and with what it was made (``created_utc``, ``generator``: they differ between two
 runs of the same config; everything else of the manifest is hashed).

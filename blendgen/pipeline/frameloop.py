@@ -127,7 +127,7 @@ class _Job:
         self.job = job
         self.K = np.asarray(job.camera.K, float)
         self.T_wd = np.asarray(job.gt.T_world_dock, float)
-        self.markers = [m.model_dump(mode="json") for m in job.gt.markers]    # plain data for the image-space stages
+        self.markers = [m.model_dump(mode="json") for m in job.gt.markers]    # plain data for compose
         self.outputs = [_Output(o) for o in job.outputs]
         self.store = PassStore.from_job(job)
         self.distortion = _shared_distortion(job)
@@ -143,7 +143,8 @@ class _Job:
             with clock("compose"):
                 img, occluded = condition_image(passes, st, self.K, fr, self.markers, job.fidelity,
                                                 T_world_dock=self.T_wd, T_cam_dock=rec["T_cam_dock"], share=self.share)
-                r = rec if occluded is None else pp.with_visibility(rec, self.markers, self.K, passes["index"], occluded)
+                r = rec if occluded is None else pp.with_visibility(rec, self.markers, self.K, passes["index"],
+                                                                    occluded)
                 if st.auto_exposure is not None:
                     r = {**r, "exposure_s": st.exposure_s}
             with clock("write"):
@@ -163,7 +164,8 @@ class _Job:
             passes = clean_passes(raw, K, job.render.ambient_radiance)
         t3 = time.perf_counter()
         with clock("write"):
-            pass_paths = self.store.write(fr["index"], pp.output_passes(passes, K, self.distortion)) if self.store else {}
+            pass_paths = (self.store.write(fr["index"], pp.output_passes(passes, K, self.distortion))
+                          if self.store else {})
         with clock("compose"):
             rec = pp.frame_record(fr, self.T_wd, self.markers, K, job.camera.width, job.camera.height, passes["index"])
             self.share.begin(passes)          # sequences that are one condition under two names: one image
