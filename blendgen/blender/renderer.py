@@ -77,6 +77,11 @@ class BlenderRenderer:
             os.remove(self.exr)
 
 
+def load() -> None:
+    """Import Blender (bpy, seconds; once per process)."""
+    from blendgen.blender import lamps, render, scene  # noqa: F401
+
+
 def build(scene: RenderScene | dict, camera: dict, render: RenderSettings | dict,
           cache: dict | None = None) -> BlenderRenderer:
     """The renderer of one job: the Blender scene of ``scene`` seen by ``camera`` with the Cycles

@@ -181,6 +181,7 @@ def run(job: plan.JobRecord, cache: dict | None = None) -> dict:
     """Render the job; returns timing figures (s) per stage.
 
     ``cache`` (a persistent worker's dict) keeps the built scene for the next job."""
+    rd.load()
     t0 = time.perf_counter()
     renderer = rd.build(job.scene, job.camera.model_dump(), job.render, cache)
     loop = _Job(job)

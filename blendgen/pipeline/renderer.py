@@ -29,6 +29,13 @@ class Renderer(Protocol):
         """Release per-job scratch (the built scene may be kept for the next job)."""
 
 
+def load() -> None:
+    """Import the renderer (Blender: seconds, once per process) before a job's clock starts, so
+    its ``scene_build`` time is the build alone."""
+    from blendgen.blender import renderer
+    renderer.load()
+
+
 def build(scene: RenderScene, camera: dict, render: RenderSettings, cache: dict | None = None) -> Renderer:
     """The renderer of one job (Blender; ``cache``: a persistent worker's dict that keeps the
     built scene while consecutive jobs share it)."""
