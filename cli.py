@@ -49,8 +49,8 @@ def main():
 
 @main.command()
 @click.argument("config", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("-o", "--out", "out", required=True, type=click.Path(file_okay=False, path_type=Path),
-              help="dataset directory (created; an interrupted run in it is resumed)")
+@click.option("-o", "--out", "out", default=None, type=click.Path(file_okay=False, path_type=Path),
+              help="dataset directory (created; an interrupted run in it is resumed); required unless --show-config")
 @click.option("--workers", type=click.IntRange(1, 256), default=None,
               help="render processes at once (default: one per core)")
 @click.option("--overwrite", is_flag=True, help="replace a dataset made from a different config")
@@ -58,13 +58,21 @@ def main():
               help="local process pool, or Ray tasks (pip install 'dockbench[ray]')")
 @click.option("--address", "ray_address", default=None,
               help="Ray cluster address (auto, host:6379, ray://host:10001); default: start a local Ray")
+@click.option("--show-config", is_flag=True,
+              help="print the effective config (YAML: every mode-dependent default resolved) and exit; renders nothing")
 @_user_errors
-def generate(config: Path, out: Path, workers: int | None, overwrite: bool, executor: str,
-             ray_address: str | None):
+def generate(config: Path, out: Path | None, workers: int | None, overwrite: bool, executor: str,
+             ray_address: str | None, show_config: bool):
     """Render the dataset described by CONFIG (a YAML file, or a bundled config's name: dockbench configs) into OUT."""
     from blendgen.pipeline.generate import generate as run, check_out_dir
     from blendgen.config.models import load_experiment
     exp = load_experiment(config)
+    if show_config:
+        from blendgen.config.effective import as_yaml
+        click.echo(as_yaml(exp), nl=False)
+        return
+    if out is None:
+        raise click.UsageError("Missing option '-o' / '--out' (the dataset directory).")
     check_out_dir(exp, out, overwrite)
     manifest = run(exp, out, workers=workers, executor=executor, ray_address=ray_address)
     n = sum(s["n_frames"] for s in manifest["sequences"])

@@ -101,3 +101,30 @@ def test_functions_fit_on_a_screen():
                 if n > MAX_FUNCTION_LINES:
                     long.append(f"{p.relative_to(ROOT)}:{node.lineno} {node.name} {n}")
     assert long == []
+
+
+def _subpackage(module: str) -> str | None:
+    """``blendgen.<sub>`` of a module two levels down (``blendgen.pipeline.plan`` -> ``pipeline``)."""
+    parts = module.split(".")
+    return parts[1] if parts[0] == "blendgen" and len(parts) >= 3 else None
+
+
+def package_cycles(edges: dict[str, set[str]]) -> list[str]:
+    """Pairs of blendgen subpackages that import each other, e.g. ``blender<->pipeline``."""
+    pairs = {(_subpackage(a), _subpackage(b)) for a, targets in edges.items() for b in targets}
+    pairs = {(a, b) for a, b in pairs if a and b and a != b}
+    return sorted(f"{a}<->{b}" for a, b in pairs if (b, a) in pairs and a < b)
+
+
+def test_no_package_cycles():
+    """Subpackages layer too: blender (the renderer) imports nothing from pipeline (which drives it)."""
+    _, edges, _ = _graph()
+    assert package_cycles(edges) == []
+
+
+def test_package_cycles_are_seen():
+    edges = {"blendgen.pipeline.frameloop": {"blendgen.blender.renderer"},
+             "blendgen.blender.renderer": {"blendgen.pipeline.plan"}, "blendgen.geometry": {"blendgen.physics.optics"}}
+    assert package_cycles(edges) == ["blender<->pipeline"]
+    edges["blendgen.blender.renderer"] = set()
+    assert package_cycles(edges) == []

@@ -80,9 +80,9 @@ def test_schema_keys_match_format_md():
     assert _format_table_keys("manifest.json") == set(m["properties"])
     assert _format_table_keys("frames.jsonl") == set(f["properties"])
     # the documented required keys (optional: d_min_rel_m has a default; reference_caustics is written by
-    # reference renders with caustics only; depth/object_index may be absent; exposure_s is written with
-    # auto-exposure only)
-    assert set(m["properties"]) - set(m["required"]) == {"d_min_rel_m", "reference_caustics"}
+    # reference renders with caustics only; effective_config is absent from datasets written before it;
+    # depth/object_index may be absent; exposure_s is written with auto-exposure only)
+    assert set(m["properties"]) - set(m["required"]) == {"d_min_rel_m", "reference_caustics", "effective_config"}
     assert set(f["properties"]) - set(f["required"]) == {"depth", "object_index", "exposure_s"}
     assert m["properties"]["spec_version"]["enum"] == ["1.0", "1.1"]     # 1.1 written, 1.0 still read
 
@@ -97,7 +97,7 @@ def test_fake_dataset_validates(tmp_path):
 
 def _writer_dataset(tmp_path: Path, n_frames: int = 3) -> Path:
     """A dataset from the real generation pieces, with synthetic passes instead of Blender
-    (the same calls as blendgen/blender/worker.py and blendgen.pipeline.generate.generate)."""
+    (the same calls as blendgen/pipeline/frameloop.py and blendgen.pipeline.generate.generate)."""
     from blendgen.pipeline import generate as gen
     from blendgen.pipeline import plan
     from blendgen.pipeline import compose as pp

@@ -76,10 +76,10 @@ def run(job: dict) -> dict:
 
 
 def main(argv: list[str]) -> int:
-    from blendgen.blender.worker import _quiet_stdout
+    from blendgen.workerio import quiet_stdout
 
     job = json.loads(Path(argv[1]).read_text())
-    _quiet_stdout(job.get("log", os.devnull))
+    quiet_stdout(job.get("log", os.devnull))
     times = run(job)
     if job.get("timing_out"):
         Path(job["timing_out"]).write_text(json.dumps(times))

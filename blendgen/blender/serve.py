@@ -6,7 +6,7 @@ requests on stdin, one reply line per request on the original stdout (Blender's 
 goes to ``LOG_FILE``):
 
 - ``{"cmd": "init", "scene": ..., "camera": ..., "render": ...}`` (the same scene, camera and
-  render records a dataset job file holds, :mod:`blendgen.pipeline.plan`) ->
+  render records a dataset job file holds) ->
   ``{"ok": true, "scene_build_s": s}``;
 - ``{"cmd": "render", "T_world_cam": 4x4, "roi": [x0, y0, x1, y1] | null, "out": path}`` ->
   the clean passes written to ``path`` as an uncompressed ``.npz`` (``rgb`` (H,W,3) float32
@@ -15,9 +15,9 @@ goes to ``LOG_FILE``):
 - ``{"cmd": "quit"}`` or end of input -> exit 0.
 
 A failing request replies ``{"ok": false, "error": "..."}`` and the server keeps serving.
-The frame is rendered exactly as the dataset worker renders it (``render.render_roi_frame``);
-the image-space stages (water, particles, sensor) run in the client with
-:mod:`blendgen.pipeline.compose`.
+The frame is rendered exactly as a dataset job renders it (``renderer.BlenderRenderer.render``);
+the image-space stages (water, particles, sensor) run in the client with the dataset frame
+loop's stage functions (``blendgen.pipeline.frameloop``).
 """
 from __future__ import annotations
 
@@ -32,36 +32,27 @@ import numpy as np
 
 class _Server:
     def __init__(self):
-        self.sc = self.cam = self.cfg = None
-        self.exr = None
+        self.renderer = None
 
     def init(self, req: dict) -> dict:
-        from blendgen.blender import lamps, render, scene as scn
+        from blendgen.blender.renderer import build
         t0 = time.perf_counter()
-        self.sc = scn.build(req["scene"])
-        self.cam = render.setup_camera(self.sc, req["camera"])
-        lamps.add_lamps(self.cam, req["scene"].get("lamps") or [])
-        render.setup_cycles(self.sc, req["render"])
-        self.cfg = req["render"]
-        self.size = (int(req["camera"]["width"]), int(req["camera"]["height"]))
-        self.exr = os.path.join(render.scratch_dir(), f"dockbench-serve-{os.getpid()}.exr")
+        self.renderer = build(req["scene"], req["camera"], req["render"])
         return {"ok": True, "scene_build_s": time.perf_counter() - t0}
 
     def render(self, req: dict) -> dict:
-        from blendgen.blender import render
-        if self.sc is None:
+        if self.renderer is None:
             raise RuntimeError("render before init")
         t0 = time.perf_counter()
-        frame = {"T_world_cam": req["T_world_cam"], "roi": req.get("roi")}
-        passes = render.render_roi_frame(self.sc, self.cam, frame, self.cfg, *self.size, self.exr)
+        passes = self.renderer.render({"T_world_cam": req["T_world_cam"], "roi": req.get("roi")})
         with open(req["out"] + ".tmp", "wb") as fh:
             np.savez(fh, **passes)             # rgb, depth_z, index (+ albedo, normal when asked)
         os.replace(req["out"] + ".tmp", req["out"])
         return {"ok": True, "ms": 1e3 * (time.perf_counter() - t0)}
 
     def close(self) -> None:
-        if self.exr and os.path.exists(self.exr):
-            os.remove(self.exr)
+        if self.renderer is not None:
+            self.renderer.close()
 
 
 def serve(requests, reply) -> int:
@@ -88,7 +79,7 @@ def serve(requests, reply) -> int:
 
 
 def main(argv: list[str]) -> int:
-    from blendgen.blender.worker import log_to, reply_channel
+    from blendgen.workerio import log_to, reply_channel
     reply = reply_channel()
     log_to(argv[1] if len(argv) > 1 else os.devnull)
     return serve(sys.stdin, reply)

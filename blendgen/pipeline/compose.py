@@ -270,15 +270,12 @@ def lamp_image(passes: dict, lamp: lamp_water.LampWater, K: np.ndarray, T_world_
 
 
 def sensor_model(post: SequencePost) -> sensor.SensorModel:
-    """The sequence's camera sensor; shot/read noise and blooming (``sensor.BLOOM_FRACTION_PHYSICAL``)
-    default on in physical mode only."""
+    """The sequence's camera sensor (noise and blooming as resolved in ``post.sensor``:
+    config/effective.py)."""
     s = post.sensor
-    physical = post.image_formation == "physical"
-    noise = s.noise if s.noise is not None else physical
-    bloom = s.bloom_fraction if s.bloom_fraction is not None else (sensor.BLOOM_FRACTION_PHYSICAL if physical else 0.0)
     return sensor.SensorModel(exposure_s=s.exposure_s, responsivity_e_per_s=s.responsivity_e_per_s,
-                              full_well_e=s.full_well_e, read_noise_e=s.read_noise_e, gain=s.gain, noise=noise,
-                              response=s.response, bloom_fraction=bloom,
+                              full_well_e=s.full_well_e, read_noise_e=s.read_noise_e, gain=s.gain, noise=s.noise,
+                              response=s.response, bloom_fraction=s.bloom_fraction,
                               bloom_sigma_px=s.bloom_sigma_px, noise_std=post.noise_std)
 
 

@@ -2,7 +2,7 @@
 
 One job function for every executor: a render job is a job file
 (``OUT/.work/jobs/<id>.json``, a whole camera path and the sequences it feeds)
-run by a render worker (``blendgen.blender.worker``, with an orphan guard) until the
+run by a render worker (``blendgen.pipeline.frameloop``, with an orphan guard) until the
 job's ``sequences/.<id>.tmp/`` dirs are complete; the caller then commits them.
 
 - ``local`` (default): ``workers`` processes at once on this machine; each gets
@@ -184,7 +184,7 @@ class PersistentWorker:
     """One long-lived render worker (``executor --serve``) taking job after job.
 
     bpy is imported once and the Blender scene is kept while consecutive jobs share it
-    (``blender.worker.serve``). Started lazily; replaced after a failed job or when its
+    (``frameloop.serve``). Started lazily; replaced after a failed job or when its
     memory passed ``RECYCLE_MB`` (Blender leaks across renders). A job is done only when
     the worker replied ok: a killed or crashed worker raises RenderError with the job's
     log tail, exactly as a one-shot worker's non-zero exit does."""
@@ -505,13 +505,13 @@ def _child_main(argv: list[str]) -> int:
     allocator.keep_heap()                     # per-frame image arrays reuse heap pages
     allocator.one_thread_per_process()        # one worker per core: no BLAS or OpenCV pools spinning
     if len(argv) > 1 and argv[1] == "--serve":
-        from blendgen.blender import worker
-        return worker.serve_main()
+        from blendgen.pipeline import frameloop
+        return frameloop.serve_main()
     if len(argv) > 2 and argv[1] == "--calibration":
         from blendgen.blender import calibration_scene
         return calibration_scene.main([argv[0], argv[2]])
-    from blendgen.blender import worker
-    return worker.main(argv)
+    from blendgen.pipeline import frameloop
+    return frameloop.main(argv)
 
 
 if __name__ == "__main__":

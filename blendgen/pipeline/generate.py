@@ -24,6 +24,7 @@ from blendgen.pipeline import executor as ex
 
 from blendgen.pipeline import plan
 from blendgen.pipeline import passstore
+from blendgen.config.effective import effective
 from blendgen.config.models import Experiment, OutputDirError
 from datasets_spec.io import path_inside
 from blendgen.pipeline.writer import FORMAT, SPEC_VERSION, DatasetWriter
@@ -76,12 +77,15 @@ def _job_record(t: "_Target", job: plan.RenderJob, render: dict, parts: list,
 
 def manifest_base(exp: Experiment, K: np.ndarray, markers: list[dict], scene: dict,
                   jobs: list[plan.RenderJob]) -> dict:
+    """The manifest without its ``files``: ``config`` as given (nulls kept: the config's identity),
+    ``effective_config`` as rendered (config/effective.py: every mode-dependent null resolved)."""
     c = exp.camera
     seqs = [{"id": s.id, "path": f"sequences/{s.id}", "condition": s.condition,
              "conditions": {"label": s.condition, **s.post.model_dump(mode="json", exclude_none=True)}, "trial": s.trial,
              "trajectory": s.trajectory, "n_frames": len(j.frames)} for j in jobs for s in j.sequences]
     return {"format": FORMAT, "spec_version": SPEC_VERSION, "name": exp.name, "version": exp.version,
-            "generator": versions(), "config": exp.model_dump(mode="json"), "seed": exp.seed,
+            "generator": versions(), "config": exp.model_dump(mode="json"),
+            "effective_config": effective(exp).model_dump(mode="json"), "seed": exp.seed,
             "camera": {"width": c.width, "height": c.height, "K": K.tolist(), "fps": c.fps,
                        "latency_s": c.latency_s, "hfov_deg": c.hfov_deg, "distortion": c.distortion},
             "dock": {"T_world_dock": scene["dock"]["T_world_dock"]},
@@ -178,7 +182,8 @@ def generate_many(items: list[tuple[Experiment, Path]], workers: int | None = No
 
 @dataclass
 class _Target:
-    """One dataset being generated: its writer, work dir, planned jobs."""
+    """One dataset being generated: its writer, work dir, planned jobs. ``exp`` is the config
+    as given (manifest, resume stamp); everything rendered is planned from ``effective(exp)``."""
     exp: Experiment
     out: Path
     writer: DatasetWriter
@@ -196,10 +201,11 @@ class _Target:
         work = out / ".work"
         for sub in ("jobs", "logs", "timing"):
             (work / sub).mkdir(parents=True, exist_ok=True)
-        markers = plan.manifest_markers(exp)
-        scene = plan.scene_description(exp, markers, write_textures(exp, out))
-        return cls(exp, out, writer, work, plan.camera_K(exp), markers, scene,
-                   plan.plan_jobs(exp, scene))
+        eff = effective(exp)                       # mode-dependent defaults resolved once
+        markers = plan.manifest_markers(eff)
+        scene = plan.scene_description(eff, markers, write_textures(eff, out))
+        return cls(exp, out, writer, work, plan.camera_K(eff), markers, scene,
+                   plan.plan_jobs(eff, scene))
 
     def manifest_base(self) -> dict:
         """The manifest of this dataset without its ``files`` map (see :func:`manifest_base`)."""
@@ -229,7 +235,7 @@ def _render(targets: list[_Target], workers: int | None, progress: bool, kind: s
             shutil.rmtree(pt.writer.render_tmp_dir(j.key), ignore_errors=True)
             for s in seqs:
                 shutil.rmtree(pt.writer.tmp_dir(s.id), ignore_errors=True)
-        render = plan.render_settings(t.exp, threads)
+        render = plan.render_settings(effective(t.exp), threads)
         # named by dataset and first sequence: unique across the datasets of one run
         jf = ex.write_job(_job_record(t, j, render, parts, hooks.raw_images(j)),
                           path_inside(t.work, f"jobs/{t.exp.name}--{j.sequences[0].id}.json", "job file"))

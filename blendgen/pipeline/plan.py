@@ -18,13 +18,16 @@ from pathlib import Path
 from typing import Literal, Optional
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from blendgen import markers as mk
 
 from blendgen.pipeline import groundtruth
 from blendgen.physics import surface as sf
 from blendgen.vehicle import trajectories as tj
+from blendgen.config import effective as eff
+from blendgen.config.effective import SKY_FRACTION_PHYSICAL  # noqa: F401 - re-exported
+from blendgen.render_spec import FramePlan, Marker, RenderScene, RenderSettings
 from blendgen.geometry import intrinsics_from_hfov, make_T, rpy_to_R
 from blendgen.config.models import (ConfigError, Experiment, ImageFormation, Lamp, Lens, Occlusion, Sensor, Strict, Vec3,
                                     Water)
@@ -34,9 +37,6 @@ INDEX_POOL, INDEX_DOCK, INDEX_MARKER0, INDEX_OBSTACLE0, INDEX_PARTICLES = 1, 2, 
 JOB_RECORD_VERSION = 1
 #: The camera must stay this far (m) in front of the dock's marker plane: no frame from inside the dock.
 MIN_CLEARANCE_M = 0.05
-#: Diffuse sky irradiance as a fraction of the direct sun's on a horizontal plane (clear sky:
-#: about 0.1-0.3); our choice for the physical mode.
-SKY_FRACTION_PHYSICAL = 0.25
 
 
 class OcclusionPost(Occlusion):
@@ -94,6 +94,13 @@ class SequencePost(Strict):
     ambient_w_m2_sr: float = Field(0.0, ge=0.0, description="the render's ambient light field (fast "
                                    "fidelity: plan.ambient_radiance), lighting fast particles")
 
+    @model_validator(mode="after")
+    def _effective_sensor(self):
+        """The sensor's mode-dependent nulls (noise, blooming) resolved once, here (config/effective.py):
+        the image-space stages read the values and the manifest records them."""
+        self.sensor = eff.effective_sensor(self.sensor, self.image_formation)
+        return self
+
 
 class JobCamera(Strict):
     width: int
@@ -104,7 +111,7 @@ class JobCamera(Strict):
 
 class JobTruth(Strict):
     T_world_dock: list[list[float]]
-    markers: list[dict]
+    markers: list[Marker]
 
 
 class JobOutput(Strict):
@@ -125,13 +132,14 @@ class JobPasses(Strict):
 
 class JobRecord(Strict):
     """What a render worker process is given (JSON on disk, parsed once by the worker).
-    ``scene``, ``render`` and ``frames`` are the plain data of :func:`scene_description`,
-    :func:`render_settings` and the camera path."""
+    ``scene``, ``render`` and ``frames`` are :func:`scene_description`, :func:`render_settings`
+    and the camera path, typed (:mod:`blendgen.render_spec`): the planner's plain data is
+    validated when the record is made, the file again when the worker reads it."""
     version: Literal[1] = JOB_RECORD_VERSION
-    scene: dict
+    scene: RenderScene
     fidelity: Literal["fast", "reference"]
-    render: dict
-    frames: list[dict]
+    render: RenderSettings
+    frames: list[FramePlan]
     camera: JobCamera
     gt: JobTruth
     outputs: list[JobOutput]
@@ -222,8 +230,7 @@ def scene_description(exp: Experiment, markers: list[dict], textures: dict[str, 
 
 def sky_fraction(exp: Experiment) -> float:
     """Diffuse sky light as a fraction of the sun's horizontal irradiance (config, else by mode)."""
-    f = exp.scene.sky_fraction
-    return f if f is not None else (SKY_FRACTION_PHYSICAL if exp.image_formation == "physical" else 0.0)
+    return eff.value(exp, "scene.sky_fraction")
 
 
 def sun_horizontal_irradiance(exp: Experiment) -> float:
@@ -237,8 +244,7 @@ def downwelling_irradiance(exp: Experiment) -> float:
 
 
 def ambient_on(exp: Experiment) -> bool:
-    a = exp.scene.ambient
-    return a if a is not None else exp.image_formation == "physical"
+    return eff.value(exp, "scene.ambient")
 
 
 def ambient_radiance(exp: Experiment) -> float:
@@ -412,14 +418,9 @@ def occlusion_region(exp: Experiment, occ) -> tuple[list[float], list[float]]:
 
 
 def resolved_sensor(exp: Experiment):
-    """The camera's sensor with the mode-dependent blooming default filled in (so every
-    sequence's manifest entry records the value used)."""
-    from blendgen.physics.sensor import BLOOM_FRACTION_PHYSICAL
-    s = exp.camera.sensor
-    if s.bloom_fraction is not None:
-        return s
-    bloom = BLOOM_FRACTION_PHYSICAL if exp.image_formation == "physical" else 0.0
-    return s.model_copy(update={"bloom_fraction": bloom})
+    """The camera's sensor with the mode-dependent noise and blooming defaults filled in (so
+    every sequence's manifest entry records the values used)."""
+    return eff.effective_sensor(exp.camera.sensor, exp.image_formation)
 
 
 def condition_post(exp: Experiment, cond, seed: int) -> SequencePost:
@@ -451,9 +452,8 @@ def condition_post(exp: Experiment, cond, seed: int) -> SequencePost:
 
 
 def world_on(exp: Experiment, what: str) -> bool:
-    """``scene.world.<what>`` (surface, caustics, textures): null means on in physical mode only."""
-    v = getattr(exp.scene.world, what)
-    return v if v is not None else exp.image_formation == "physical"
+    """``scene.world.<what>`` (surface, caustics, textures, sun_glint) of the effective config."""
+    return eff.value(exp, f"scene.world.{what}")
 
 
 def world_post(exp: Experiment) -> WorldPost | None:
@@ -472,7 +472,7 @@ def world_post(exp: Experiment) -> WorldPost | None:
                           f"sunlight below a surface stays above {low:.1f} deg (Snell's window); allowed "
                           f"{low:.1f} < elevation <= 90 while scene.world.surface or caustics is on")
     return WorldPost(surface=surface, caustics=caustics, wind_mps=w.wind_mps,
-                     wave_seed=w.wave_seed if w.wave_seed is not None else exp.seed, sky_radiance=sky,
+                     wave_seed=eff.value(exp, "scene.world.wave_seed"), sky_radiance=sky,
                      ambient_radiance=ambient_radiance(exp) if exp.render.fidelity == "fast" else 0.0,
                      sun_travel_dir=sf.sun_in_air(_sun_dir(s.sun_elevation_deg, s.sun_azimuth_deg)).tolist(),
                      sun_irradiance=s.sun_strength if surface and world_on(exp, "sun_glint") else 0.0,
@@ -483,7 +483,7 @@ def world_look(exp: Experiment) -> dict:
     """Blender side of ``scene.world``: textures (both fidelities share the scene)."""
     w = exp.scene.world
     return {"textures": world_on(exp, "textures"),
-            "texture_seed": w.texture_seed if w.texture_seed is not None else exp.seed,
+            "texture_seed": eff.value(exp, "scene.world.texture_seed"),
             "tile_size_m": w.tile_size_m, "grime": w.grime, "seabed_depth_m": w.seabed_depth_m}
 
 
@@ -625,7 +625,7 @@ def render_settings(exp: Experiment, threads: int) -> dict:
             "write_depth": r.write_depth, "write_index": r.write_index,
             "roi": r.roi and r.fidelity == "fast", "background_scale": r.background_scale,
             "background_samples": r.background_samples, "roi_max_fraction": r.roi_max_fraction,
-            "light_tree": r.fidelity == "reference" if r.light_tree is None else r.light_tree}
+            "light_tree": eff.value(exp, "render.light_tree")}
     if lamps:
         out["normal_pass"] = True
     if r.fidelity == "fast" and exp.image_formation == "physical" and world_on(exp, "caustics"):

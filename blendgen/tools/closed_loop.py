@@ -5,8 +5,8 @@ starts as the open-loop datasets: :func:`blendgen.pipeline.plan.trial_seed`), th
 vehicle (:mod:`blendgen.vehicle.closed_loop`) asks for a camera frame at its current pose
 every 1/fps s. A warm Blender process (:mod:`blendgen.blender.serve`) renders the clean
 passes with the dataset's own scene description and render settings; the condition's water,
-depth light, small obstacles and sensor noise are applied by
-:mod:`blendgen.pipeline.compose` exactly as for a dataset; the localizer (any registry spec,
+depth light, small obstacles and sensor noise are applied by the dataset frame loop's own
+stages (:func:`blendgen.pipeline.frameloop.clean_passes`, :func:`~blendgen.pipeline.frameloop.condition_image`); the localizer (any registry spec,
 with the same isolation options as ``dockbench evaluate``) returns its estimate, and
 guidance steers on it. ``truth`` is the ground-truth-guidance baseline (nothing rendered).
 
@@ -35,7 +35,7 @@ import numpy as np
 
 from blendgen.config.models import ConfigError, DockingTrajectory, Experiment
 from blendgen.geometry import invert_T
-from blendgen.pipeline import compose, groundtruth, plan
+from blendgen.pipeline import compose, frameloop, groundtruth, plan
 from blendgen.vehicle import docking, trajectories as tj
 from blendgen.vehicle.closed_loop import Observation, TrialSetup, simulate_closed_loop
 from blendgen.vehicle.dynamics import VehicleParams
@@ -192,12 +192,11 @@ class VisionCamera:
         T_cd = invert_T(T_wc) @ b.T_world_dock
         roi = None if self.box is None else groundtruth.dock_roi(T_cd, b.K, c.width, c.height, self.box)
         t0 = time.perf_counter()
-        passes = compose.add_ambient(compose.add_range(self.client.render(T_wc, roi), b.K), self.ambient)
+        passes = frameloop.clean_passes(self.client.render(T_wc, roi), b.K, self.ambient)
         t1 = time.perf_counter()
         gt = groundtruth.frame_truth(T_wc, b.T_world_dock, b.markers, b.K, c.width, c.height)
-        seen, occluded = compose.add_particles(passes, self.state, b.K, T_wc)
-        img = compose.camera_image(seen, self.state, b.K, {"T_world_cam": T_wc, "t": t}, b.markers, "fast", occluded,
-                                   T_world_dock=b.T_world_dock)
+        img, _ = frameloop.condition_image(passes, self.state, b.K, {"T_world_cam": T_wc, "t": t}, b.markers, "fast",
+                                           T_world_dock=b.T_world_dock, particle_time=False)
         self.state.advance()
         times = {"render_ms": 1e3 * (t1 - t0), "compose_ms": 1e3 * (time.perf_counter() - t1)}
         return img, gt, times
