@@ -162,6 +162,40 @@ class Bench:
                           compute_latency=self.compute_latency)
 
 
+    def condition_authority(self, cond) -> dict:
+        """:func:`condition_authority` of this bench's experiment."""
+        return condition_authority(self.exp, cond)
+
+
+def condition_authority(exp: Experiment, cond) -> dict:
+    """Can the vehicle dock against this condition's mean current at all
+    (:func:`blendgen.vehicle.authority.docking_authority` at the docking trajectory's final approach
+    speed within the capture heading limit)? Adds ``max_current_mps``: the largest current in the
+    same direction that it can (NaN in still water) and a one-line ``verdict``."""
+    from blendgen.vehicle import authority
+    traj = next((t for t in exp.trajectories if t.kind == "docking"), DockingTrajectory())
+    capture = capture_spec(traj, exp.scene.dock.body_size_m, VehicleParams().diameter / 2)
+    a = -tj.T_world_dock_from_spec(exp.scene.dock)[:3, 2]
+    a[2] = 0.0
+    fluid = cond.fluid or exp.fluid
+    cur = np.asarray(fluid.current_mps, float)
+    args = (a / np.linalg.norm(a), traj.final_speed_mps, capture.max_heading_deg, fluid.density_kg_m3)
+    res = authority.docking_authority(cur, *args)
+    speed = float(np.linalg.norm(cur))
+    res["max_current_mps"] = authority.max_docking_current(cur, *args) if speed > 0 else math.nan
+    res["verdict"] = authority_verdict(res, speed)
+    return res
+
+
+def authority_verdict(res: dict, speed: float) -> str:
+    """``within (margin N%)`` or ``beyond the vehicle's authority (...)`` for a docking_authority dict."""
+    if res["holds"]:
+        return f"within (margin {100 * res['margin']:.0f}%)"
+    lim = res.get("max_current_mps", math.nan)
+    return (f"beyond the vehicle's authority ({res['limiting']} thrusters at {res['utilisation']:.2f}x their "
+            f"limit; max {lim:.2f} m/s, current {speed:.2f} m/s)")
+
+
 def capture_spec(traj: DockingTrajectory, body_size_m, hull_radius_m: float) -> CaptureSpec:
     """The trajectory's ``capture`` limits on the dock face; the radius defaults from the face."""
     lim = traj.capture
