@@ -8,7 +8,8 @@ goes to ``LOG_FILE``):
 - ``{"cmd": "init", "scene": ..., "camera": ..., "render": ...}`` (the same scene, camera and
   render records a dataset job file holds, :mod:`blendgen.pipeline.plan`) ->
   ``{"ok": true, "scene_build_s": s}``;
-- ``{"cmd": "render", "T_world_cam": 4x4, "roi": [x0, y0, x1, y1] | null, "out": path}`` ->
+- ``{"cmd": "render", "T_world_cam": 4x4, "roi": [x0, y0, x1, y1] | null, "rois": [[x0, y0, x1, y1], ...],
+  "out": path}`` (``rois``, per-marker boxes, optional and winning over ``roi``, as in a dataset frame) ->
   the clean passes written to ``path`` as an uncompressed ``.npz`` (``rgb`` (H,W,3) float32
   linear, ``depth_z`` (H,W) float32 planar depth m, ``index`` (H,W) uint8), reply
   ``{"ok": true, "ms": render + read time}``;
@@ -53,6 +54,8 @@ class _Server:
             raise RuntimeError("render before init")
         t0 = time.perf_counter()
         frame = {"T_world_cam": req["T_world_cam"], "roi": req.get("roi")}
+        if req.get("rois") is not None:
+            frame["rois"] = req["rois"]
         passes = render.render_roi_frame(self.sc, self.cam, frame, self.cfg, *self.size, self.exr)
         with open(req["out"] + ".tmp", "wb") as fh:
             np.savez(fh, **passes)             # rgb, depth_z, index (+ albedo, normal when asked)

@@ -15,8 +15,13 @@ localizer's compute time (``--compute-latency``: seconds, or ``measured`` = each
 measured time, which makes a run depend on machine load) after the frame's capture; the
 filter treats it as a delayed measurement (:class:`blendgen.vehicle.closed_loop.DelayLine`).
 
-Not modelled here (said so in the report): reference (volumetric) fidelity and ``geometry: blender``
-particles; the config is rejected for the latter two.
+Same images as datasets: each frame gets the dataset's ROI boxes
+(:class:`blendgen.pipeline.plan.RenderRegions`), ambient term, particles lit by the LEDs and the
+vehicle lamp, water and sensor stages, in the worker's order; a frame at the same pose and seed is
+byte-identical to the dataset's (tests/test_closed_loop_render.py).
+
+Not modelled here: reference (volumetric) fidelity, ``geometry: blender`` particles and sensor
+motion blur (a dataset blurs by the planned next pose); the config is rejected for these three.
 """
 from __future__ import annotations
 
@@ -79,11 +84,15 @@ class RenderClient:
         """Build the scene; returns the build time (s)."""
         return float(self._ask({"cmd": "init", "scene": scene, "camera": camera, "render": render})["scene_build_s"])
 
-    def render(self, T_world_cam: np.ndarray, roi) -> dict:
-        """Clean passes (``rgb``, ``depth_z``, ``index``) at the camera pose (4x4, OpenCV)."""
+    def render(self, T_world_cam: np.ndarray, regions: dict | None = None) -> dict:
+        """Clean passes (``rgb``, ``depth_z``, ``index``) at the camera pose (4x4, OpenCV); ``regions``
+        the frame's ROI boxes (:meth:`blendgen.pipeline.plan.RenderRegions.boxes`; None: whole frame)."""
         out = os.path.join(self.scratch, "frame.npz")
+        regions = regions or {}
+        roi, rois = regions.get("roi"), regions.get("rois")
         self._ask({"cmd": "render", "T_world_cam": np.asarray(T_world_cam).tolist(),
-                   "roi": None if roi is None else [int(v) for v in roi], "out": out})
+                   "roi": None if roi is None else [int(v) for v in roi],
+                   "rois": None if rois is None else [[int(v) for v in b] for b in rois], "out": out})
         with np.load(out) as z:
             return {k: z[k] for k in z.files}
 
@@ -126,6 +135,10 @@ class Bench:
             if occ is not None and occ.geometry == "blender":
                 raise ConfigError(f"{exp.name}: conditions[{c.label}].occlusion.geometry: closed-loop docking "
                                   "supports 'image' only")
+        if exp.camera.sensor.motion_blur:
+            raise ConfigError(f"{exp.name}: camera.sensor.motion_blur: closed-loop docking renders no motion blur "
+                              "(a dataset blurs by the planned next pose, which a closed loop does not know yet); "
+                              "set it to false")
         traj = next((t for t in exp.trajectories if t.kind == "docking"), DockingTrajectory())
         markers = plan.manifest_markers(exp)
         scene = plan.scene_description(exp, markers, write_textures(exp, assets))
@@ -214,7 +227,7 @@ class VisionCamera:
         self.b, self.client, self.loc, self.executor, self.post = bench, client, localizer, executor, post
         self.state = compose.SequenceState.start(post)
         self.ambient = plan.ambient_radiance(bench.exp)   # the same ambient term datasets get
-        self.box = plan.dock_corners(bench.exp) if bench.exp.render.roi else None
+        self.regions = plan.RenderRegions.of(bench.exp) if bench.exp.render.roi else None
         self.by_file = callable(getattr(localizer, "localize_file", None))
         self.image_dir = image_dir
         if image_dir is not None or self.by_file:
@@ -222,14 +235,17 @@ class VisionCamera:
             self.image_dir.mkdir(parents=True, exist_ok=True)
 
     def _image(self, k: int, t: float, T_wc: np.ndarray) -> tuple[np.ndarray, dict, dict]:
+        """Frame ``k`` at ``t`` s: the dataset's stages in the dataset's order (blender/worker.py): the
+        same ROI boxes, ambient term, particles lit by the LEDs and the lamp, water and sensor; so a
+        frame at the same pose and seed is the dataset's frame, byte for byte."""
         b, c = self.b, self.b.exp.camera
-        T_cd = invert_T(T_wc) @ b.T_world_dock
-        roi = None if self.box is None else groundtruth.dock_roi(T_cd, b.K, c.width, c.height, self.box)
+        regions = None if self.regions is None else self.regions.boxes(T_wc, b.T_world_dock)
         t0 = time.perf_counter()
-        passes = compose.add_ambient(compose.add_range(self.client.render(T_wc, roi), b.K), self.ambient)
+        passes = compose.add_ambient(compose.add_range(self.client.render(T_wc, regions), b.K), self.ambient)
         t1 = time.perf_counter()
         gt = groundtruth.frame_truth(T_wc, b.T_world_dock, b.markers, b.K, c.width, c.height)
-        seen, occluded = compose.add_particles(passes, self.state, b.K, T_wc)
+        seen, occluded = compose.add_particles(passes, self.state, b.K, T_wc, b.markers, gt["T_cam_dock"], t,
+                                               water_after=True)
         img = compose.camera_image(seen, self.state, b.K, {"T_world_cam": T_wc, "t": t}, b.markers, "fast", occluded,
                                    T_world_dock=b.T_world_dock)
         self.state.advance()
