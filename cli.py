@@ -258,15 +258,16 @@ def _experiment_authority(experiment: str) -> str:
 @click.option("-o", "--out", "out", type=click.Path(dir_okay=False, path_type=Path),
               default=Path("out/docking_paths.png"), show_default=True)
 def docking_paths_cmd(currents: tuple[float, ...], seed: int, out: Path):
-    """Plot one docking trial per lateral current (same start) and time the dynamics."""
+    """Plot one docking trial per lateral current (same start), judged by `dock`'s capture geometry."""
     import numpy as np
     from blendgen.tools.dynamics_report import docking_paths, plot_docking_paths
     runs = docking_paths(currents or (0.0, 0.5, 1.0), seed=seed)
     for r in runs:
-        click.echo(f"current {r['current_mps']:.2f} m/s: {r['stop_reason']} (stop range) after {r['t'][-1]:.1f} s, "
-                   f"by geometry: {r['verdict']}, "
-                   f"heading std {np.std(r['heading_error_deg']):.2f} deg, "
-                   f"final lateral {r['p_dock'][-1, 0]:+.2f} m, {r['ms_per_sim_s']:.2f} ms CPU per simulated s")
+        hit = f", impact {r['impact_speed_mps']:.2f} m/s" if r["outcome"] == "collision" else ""
+        click.echo(f"current {r['current_mps']:.2f} m/s: {r['outcome']}{hit} after {r['t'][-1]:.1f} s "
+                   f"(crossing lateral {r['cross_lateral_m']:+.2f} m, heading {r['cross_heading_deg']:+.1f} deg), "
+                   f"authority: {r['authority']}, heading std {np.std(r['heading_error_deg']):.2f} deg, "
+                   f"{r['ms_per_sim_s']:.2f} ms CPU per simulated s")
     click.echo(f"plot: {plot_docking_paths(runs, out)}")
 
 

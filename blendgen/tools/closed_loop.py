@@ -176,8 +176,11 @@ class Bench:
 
 
     def condition_authority(self, cond) -> dict:
-        """:func:`condition_authority` of this bench's experiment."""
-        return condition_authority(self.exp, cond)
+        """:func:`condition_authority` of this bench's experiment (computed once per condition)."""
+        cache = self.__dict__.setdefault("_authority", {})
+        if cond.label not in cache:
+            cache[cond.label] = condition_authority(self.exp, cond)
+        return cache[cond.label]
 
 
 def condition_authority(exp: Experiment, cond) -> dict:
@@ -277,7 +280,8 @@ class VisionCamera:
 TRIAL_COLUMNS = ["localizer", "condition", "trial", "seed", "outcome", "docked", "t_end_s", "time_to_dock_s",
                  "cross_lateral_m", "cross_vertical_m", "cross_heading_deg", "cross_lateral_speed_mps",
                  "final_lateral_m", "final_vertical_m", "final_range_m", "final_heading_deg",
-                 "start_range_m", "start_lateral_m", "start_heading_deg", "n_frames", "wall_s"]
+                 "start_range_m", "start_lateral_m", "start_heading_deg", "n_frames", "wall_s",
+                 "impact_speed_mps", "reacquisitions", "lost_after_s", "authority"]
 
 
 @dataclass
@@ -306,6 +310,7 @@ def run_trial(bench: Bench, cond, trial: int, name: str, observer_factory=None) 
            "docked": res["outcome"] == "docked", "t_end_s": res["t_end"], "n_frames": len(res["frames"]),
            "start_range_m": st["range_m"], "start_lateral_m": st["lateral_m"],
            "start_heading_deg": st["heading_error_deg"], "wall_s": time.perf_counter() - t0,
+           "authority": "within" if bench.condition_authority(cond)["holds"] else "beyond",
            **{k: res[k] for k in TRIAL_COLUMNS if k in res}}
     frames = [{"localizer": name, "condition": cond.label, "trial": trial, **f} for f in res["frames"]]
     return row, frames
@@ -373,7 +378,8 @@ def start_client(bench: Bench, log: Path, threads: int) -> RenderClient:
 # ------------------------------------------------------------------ reporting ----------
 SUMMARY_COLUMNS = ["localizer", "condition", "n_trials", "n_docked", "success_rate", "ci_low", "ci_high",
                    "time_to_dock_median_s", "final_lateral_abs_mean_m", "final_heading_abs_mean_deg",
-                   "outcomes", "P_detect_mean", "P_succ_mean", "E_rel_mean"]
+                   "outcomes", "n_reacquired", "lost_after_s_median", "impact_speed_median_mps", "authority",
+                   "P_detect_mean", "P_succ_mean", "E_rel_mean"]
 
 
 def write_tables(rows: list[dict], frames: list[dict], out: Path) -> dict[str, Path]:
@@ -418,21 +424,30 @@ def _localization(frames, d_min_rel: float):
     return cond[cols]
 
 
-def summary_table(trials, frames, d_min_rel: float = 0.2):
+def summary_table(trials, frames, d_min_rel: float = 0.2, authority: dict | None = None):
     """Per (localizer, condition): docking success rate with its Wilson 95% CI, median time to
     dock (docked trials), mean |final lateral| (m) and |final heading| (deg) at the last frame,
-    outcome counts, and the per-frame localization metrics of the same run."""
+    outcome counts, trials that re-acquired a lost target, median seconds without a fix at a
+    lost-target abort, median impact speed of collisions (m/s), the condition's docking authority
+    (``authority``: label -> verdict text, :func:`condition_authority`; empty when not given) and
+    the per-frame localization metrics of the same run. Trial tables of older runs (without the
+    lost-target and contact columns) give NaN there."""
     import pandas as pd
     out = []
     for (loc, cond), g in trials.groupby(["localizer", "condition"], sort=False):
         k, n = int(g["docked"].sum()), len(g)
         lo, hi = wilson_ci(k, n)
         counts = g["outcome"].value_counts()
+        col = lambda c: g[c] if c in g else pd.Series(math.nan, index=g.index)   # noqa: E731
         out.append({"localizer": loc, "condition": cond, "n_trials": n, "n_docked": k, "success_rate": k / n,
                     "ci_low": lo, "ci_high": hi, "time_to_dock_median_s": g["time_to_dock_s"].median(),
                     "final_lateral_abs_mean_m": g["final_lateral_m"].abs().mean(),
                     "final_heading_abs_mean_deg": g["final_heading_deg"].abs().mean(),
-                    "outcomes": ", ".join(f"{o} {c}" for o, c in counts.items())})
+                    "outcomes": ", ".join(f"{o} {c}" for o, c in counts.items()),
+                    "n_reacquired": int((col("reacquisitions").fillna(0) > 0).sum()),
+                    "lost_after_s_median": col("lost_after_s").median(),
+                    "impact_speed_median_mps": col("impact_speed_mps").median(),
+                    "authority": (authority or {}).get(cond, "")})
     df = pd.DataFrame(out)
     df = df.merge(_localization(frames, d_min_rel), on=["localizer", "condition"], how="left")
     return df[SUMMARY_COLUMNS]
@@ -532,7 +547,14 @@ def report(summary, out: Path, exp: Experiment, capture: CaptureSpec) -> str:
              f"centre, |heading error| <= {capture.max_heading_deg:g} deg, |lateral speed| <= "
              f"{capture.max_lateral_speed_mps:g} m/s; success rate with a Wilson 95% CI; 'truth' = ground-truth "
              "guidance (baseline); P_detect_mean / P_succ_mean / E_rel_mean: per-frame localization of the "
-             "same run scored by evalkit (frames with 0 <= d_true <= 10 m)", "", to_markdown(summary, floatfmt=".3g")]
+             "same run scored by evalkit (frames with 0 <= d_true <= 10 m); authority: can the thrusters hold "
+             "the condition's mean current at the final approach speed within the heading limit at all "
+             "(`dockbench authority`)", ""]
+    beyond = sorted({r["condition"] for _, r in summary.iterrows() if str(r.get("authority", "")).startswith("beyond")})
+    if beyond:
+        lines += [f"**{', '.join(beyond)}: beyond the vehicle's authority** -- no guidance law docks there within the "
+                  "capture limits; its failures are not localization or guidance failures.", ""]
+    lines += [to_markdown(summary, floatfmt=".3g")]
     text = "\n".join(lines) + "\n"
     (out / "summary.md").write_text(text)
     return text
@@ -594,7 +616,8 @@ def run_dock(exp: Experiment, specs: list[LocalizerSpec], trials: int, out: Path
         rows, frames = run_suite(bench, specs, trials, out, images, threads, baseline, progress)
         paths = write_tables(rows, frames, out)
     tr, fr = pd.read_parquet(paths["trials"]), pd.read_parquet(paths["frames"])
-    summary = summary_table(tr, fr, exp.d_min_rel_m)
+    verdicts = {c.label: bench.condition_authority(c)["verdict"] for c in exp.conditions}
+    summary = summary_table(tr, fr, exp.d_min_rel_m, verdicts)
     summary.to_csv(out / "summary.csv", index=False)
     paths["summary"] = out / "summary.csv"
     pool = exp.scene.pool if exp.scene.kind == "pool" else None
