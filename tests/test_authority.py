@@ -61,3 +61,16 @@ def test_docking_authority_uses_the_crab_angle_within_the_heading_limit():
     c15 = authority.max_docking_current((0, 1, 0), (1, 0, 0), 0.2, 15.0, RHO)
     c45 = authority.max_docking_current((0, 1, 0), (1, 0, 0), 0.2, 45.0, RHO)
     assert 0.577 < c15 < c45
+
+
+def test_authority_command_judges_the_current_ladder_and_refuses_bad_input():
+    from click.testing import CliRunner
+    from cli import main
+    r = CliRunner().invoke(main, ["authority", "--speed", "1.0", "--experiment", "current"])
+    assert r.exit_code == 0, r.output
+    lines = {ln.split("|")[1].strip(): ln for ln in r.output.splitlines() if ln.startswith("| current_")}
+    assert "within" in lines["current_0.5"] and "beyond the vehicle's authority" in lines["current_1.0"]
+    bad = CliRunner().invoke(main, ["authority", "--experiment", "no_such_experiment"])
+    assert bad.exit_code == 2 and len(bad.output.strip().splitlines()) == 1
+    neg = CliRunner().invoke(main, ["authority", "--speed", "-1"])
+    assert neg.exit_code == 2
