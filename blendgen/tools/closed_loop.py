@@ -477,7 +477,7 @@ def plot_paths(trials, frames, capture: CaptureSpec, T_world_dock: np.ndarray, p
     colours = dict(zip(locs, plt.get_cmap("tab10").colors))
     ncols = min(3, len(conds))
     nrows = -(-len(conds) // ncols)
-    fig, axes = plt.subplots(nrows, ncols, figsize=(5.4 * ncols, 4.2 * nrows), squeeze=False)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(max(5.4 * ncols, 9.0), 4.2 * nrows), squeeze=False)
     o, xd = T_world_dock[:3, 3], T_world_dock[:3, 0]
     for ax, cond in zip(axes.ravel(), conds):
         for (loc, trial), g in frames[frames["condition"] == cond].groupby(["localizer", "trial"], sort=False):
