@@ -354,8 +354,10 @@ def run_suite(bench: Bench, localizers: list[LocalizerSpec], trials: int, out: P
                     rows.append(row)
                     frames.extend(fr)
                     write_tables(rows, frames, out)
+                    extra = (f", re-acquired {row['reacquisitions']}x" if row.get("reacquisitions") else "") + \
+                        (f", impact {row['impact_speed_mps']:.2f} m/s" if row["outcome"] == "collision" else "")
                     progress(f"{cond.label:14s} {name:10s} trial {trial:3d}: {row['outcome']:15s} "
-                             f"{row['t_end_s']:5.1f} s sim, {row['wall_s']:6.1f} s wall")
+                             f"{row['t_end_s']:5.1f} s sim, {row['wall_s']:6.1f} s wall{extra}")
     finally:
         if client is not None:
             client.close()
