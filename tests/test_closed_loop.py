@@ -363,3 +363,15 @@ def test_nose_closing_speed_of_a_straight_approach_and_of_a_turn():
     # sway at a 90 deg heading error is all closing speed
     eta90 = eta[:5] + [axes.approach_psi + math.pi / 2]
     assert abs(nose_closing_speed(axes, eta90, [0.0, 0.25, 0, 0, 0, 0], T_BC)) == pytest.approx(0.25)
+
+
+def test_before_the_first_fix_the_vehicle_creeps_on_along_its_start_heading_until_it_sees_the_dock():
+    r = simulate_closed_loop(setup(), scripted_dropout(0.0, 6.0))
+    f = pd.DataFrame(r["frames"]).set_index("t")
+    assert set(f["nav_mode"].loc[0.0:5.9]) == {"acquire"}
+    assert f["nav_mode"].loc[6.5] == "tracking"
+    # heading held at the start's, forward at about the final approach speed (0.2 m/s) once up to speed
+    assert f["heading_err_deg"].loc[0.0:5.9].sub(START["heading_error_deg"]).abs().max() < 1.0
+    assert (f["range_m"].loc[3.0] - f["range_m"].loc[5.9]) / 2.9 == pytest.approx(0.2 * math.cos(
+        math.radians(START["heading_error_deg"])), abs=0.05)
+    assert r["outcome"] == "docked" and r["reacquisitions"] == 0

@@ -28,7 +28,10 @@ the dock's estimated depth and backs off along that bearing at ``backoff_speed_m
 ``backoff_s`` (``back_off``: the dock re-enters a wider part of the field of view), then holds
 there facing the dock (``hold``). A fix accepted in any of these modes re-acquires the target
 (the filter restarts on it; counted in ``reacquisitions``); none for ``FilterParams.lost_s`` aborts
-the trial (``lost_target``, with ``lost_after_s``). This is the abort-and-retry pattern of
+the trial (``lost_target``, with ``lost_after_s``). Before the first fix the vehicle holds its start heading (the prior bearing to the dock that
+a homing stage, e.g. acoustic, hands over; the starts face the dock within their heading range)
+and depth and creeps on at the final approach speed (``acquire``) until the camera sees the dock,
+or ``lost_s`` after the start. This is the abort-and-retry pattern of
 operational docking (the REMUS docking system backs out and re-tries a missed approach: Stokey
 et al., "Enabling technologies for REMUS docking", IEEE J. Oceanic Eng. 26(4), 2001).
 """
@@ -163,14 +166,15 @@ class _TruthNav:
 
 class _EstimateNav:
     """LOS on the filtered relative pose (dead-reckoned between fixes for ``hold_s``); then the
-    :class:`Recovery` manoeuvre: face the last estimated dock bearing, back off, hold. ``mode`` is
-    the current one (``tracking``, ``dead_reckoning``, ``back_off``, ``hold``)."""
+    :class:`Recovery` manoeuvre: face the last estimated dock bearing, back off, hold. Before the
+    first fix: ``acquire``. ``mode`` is the current one (``acquire``, ``tracking``,
+    ``dead_reckoning``, ``back_off``, ``hold``)."""
 
     def __init__(self, filt: RelativePoseFilter, origin_xy: np.ndarray, guidance: LosGuidance, stop_m: float,
                  recovery: Recovery = Recovery(), frame_s: float = 0.1):
         self.filt, self.origin_xy, self.guidance, self.stop_m = filt, origin_xy, guidance, stop_m
         self.recovery, self.frame_s = recovery, frame_s      # frame_s: camera frame period (s)
-        self._axes_key, self._axes, self._held, self.mode = None, None, None, "tracking"
+        self._axes_key, self._axes, self._held, self.mode = None, None, None, "acquire"
 
     def _axes_hat(self) -> DockAxesNED:
         key = (self.filt.psi_dock, self.filt.depth_dock)
@@ -179,16 +183,18 @@ class _EstimateNav:
         return self._axes
 
     def _recover(self, t: float, sens: dict):
-        """References while the target is lost (after the dead-reckoning window)."""
-        if self._held is None:                   # freeze the last dock estimate: bearing and depth
-            psi, depth = math.radians(sens["heading_deg"]), sens["depth_m"]
-            if self.filt.initialised:
-                p, _ = self.filt.state(self.filt.t_fix + self.filt.p.hold_s, sens["depth_m"])
-                to_dock = -(self._axes_hat().R_dock_ned.T @ p)         # NED, vehicle -> dock origin
-                psi = math.atan2(to_dock[1], to_dock[0])
-                depth = self.filt.depth_dock if math.isfinite(self.filt.depth_dock) else depth
-            self._held = (psi, depth)
-        lost_for = self.filt.since_fix(t) - (self.filt.p.hold_s if self.filt.initialised else 0.0)
+        """References while the target is lost (after the dead-reckoning window), or not yet seen."""
+        if not self.filt.initialised:            # never seen: creep on along the start (prior) bearing
+            if self._held is None:
+                self._held = (math.radians(sens["heading_deg"]), sens["depth_m"])
+            self.mode = "acquire"
+            return self._held[0], self._held[1], self.guidance.final_speed, None
+        if self._held is None or self.mode == "acquire":   # freeze the last dock estimate: bearing, depth
+            p, _ = self.filt.state(self.filt.t_fix + self.filt.p.hold_s, sens["depth_m"])
+            to_dock = -(self._axes_hat().R_dock_ned.T @ p)             # NED, vehicle -> dock origin
+            depth = self.filt.depth_dock if math.isfinite(self.filt.depth_dock) else sens["depth_m"]
+            self._held = (math.atan2(to_dock[1], to_dock[0]), depth)
+        lost_for = self.filt.since_fix(t) - self.filt.p.hold_s
         backing = lost_for <= self.recovery.backoff_s
         self.mode = "back_off" if backing else "hold"
         return self._held[0], self._held[1], -self.recovery.backoff_speed_mps if backing else 0.0, None
