@@ -375,3 +375,13 @@ def test_before_the_first_fix_the_vehicle_creeps_on_along_its_start_heading_unti
     assert (f["range_m"].loc[3.0] - f["range_m"].loc[5.9]) / 2.9 == pytest.approx(0.2 * math.cos(
         math.radians(START["heading_error_deg"])), abs=0.05)
     assert r["outcome"] == "docked" and r["reacquisitions"] == 0
+
+
+def test_summary_of_an_older_run_without_lost_target_and_contact_columns():
+    from blendgen.tools.closed_loop import summary_table
+    old = pd.DataFrame({"localizer": ["truth"] * 2, "condition": ["c"] * 2, "trial": [0, 1], "outcome":
+                        ["docked", "collision"], "docked": [True, False], "time_to_dock_s": [20.0, math.nan],
+                        "final_lateral_m": [0.1, -0.5], "final_heading_deg": [1.0, 2.0]})
+    s = summary_table(old, pd.DataFrame(), authority={"c": "within (margin 61%)"}).iloc[0]
+    assert s["n_docked"] == 1 and s["n_reacquired"] == 0 and math.isnan(s["impact_speed_median_mps"])
+    assert s["authority"] == "within (margin 61%)"
