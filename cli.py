@@ -232,6 +232,7 @@ def authority_cmd(speeds: tuple[float, ...], density: float, experiment: str | N
 def _experiment_authority(experiment: str) -> str:
     """The docking authority of each condition of an experiment, as text."""
     import pandas as pd
+    from blendgen.config.models import ConfigError
     from blendgen.tools.closed_loop import capture_spec, condition_authority, load_bench_experiment
     from blendgen.vehicle.dynamics import VehicleParams
     exp = load_bench_experiment(experiment, None, ())

@@ -1,7 +1,6 @@
 """Thruster authority against hand calculations of drag vs thrust (no simulation)."""
 import math
 
-import numpy as np
 import pytest
 
 from blendgen.vehicle import authority
@@ -65,6 +64,7 @@ def test_docking_authority_uses_the_crab_angle_within_the_heading_limit():
 
 def test_authority_command_judges_the_current_ladder_and_refuses_bad_input():
     from click.testing import CliRunner
+
     from cli import main
     r = CliRunner().invoke(main, ["authority", "--speed", "1.0", "--experiment", "current"])
     assert r.exit_code == 0, r.output

@@ -39,7 +39,6 @@ import cv2
 import numpy as np
 
 from blendgen.config.models import ConfigError, DockingTrajectory, Experiment
-from blendgen.geometry import invert_T
 from blendgen.pipeline import compose, groundtruth, plan
 from blendgen.vehicle import docking, trajectories as tj
 from blendgen.vehicle.closed_loop import Observation, TrialSetup, simulate_closed_loop
@@ -426,6 +425,12 @@ def _localization(frames, d_min_rel: float):
     return cond[cols]
 
 
+def _column(table, name: str):
+    """``table[name]``, or NaN for every row when an older run's table lacks the column."""
+    import pandas as pd
+    return table[name] if name in table else pd.Series(math.nan, index=table.index)
+
+
 def summary_table(trials, frames, d_min_rel: float = 0.2, authority: dict | None = None):
     """Per (localizer, condition): docking success rate with its Wilson 95% CI, median time to
     dock (docked trials), mean |final lateral| (m) and |final heading| (deg) at the last frame,
@@ -440,15 +445,14 @@ def summary_table(trials, frames, d_min_rel: float = 0.2, authority: dict | None
         k, n = int(g["docked"].sum()), len(g)
         lo, hi = wilson_ci(k, n)
         counts = g["outcome"].value_counts()
-        col = lambda c: g[c] if c in g else pd.Series(math.nan, index=g.index)   # noqa: E731
         out.append({"localizer": loc, "condition": cond, "n_trials": n, "n_docked": k, "success_rate": k / n,
                     "ci_low": lo, "ci_high": hi, "time_to_dock_median_s": g["time_to_dock_s"].median(),
                     "final_lateral_abs_mean_m": g["final_lateral_m"].abs().mean(),
                     "final_heading_abs_mean_deg": g["final_heading_deg"].abs().mean(),
                     "outcomes": ", ".join(f"{o} {c}" for o, c in counts.items()),
-                    "n_reacquired": int((col("reacquisitions").fillna(0) > 0).sum()),
-                    "lost_after_s_median": col("lost_after_s").median(),
-                    "impact_speed_median_mps": col("impact_speed_mps").median(),
+                    "n_reacquired": int((_column(g, "reacquisitions").fillna(0) > 0).sum()),
+                    "lost_after_s_median": _column(g, "lost_after_s").median(),
+                    "impact_speed_median_mps": _column(g, "impact_speed_mps").median(),
                     "authority": (authority or {}).get(cond, "")})
     df = pd.DataFrame(out)
     df = df.merge(_localization(frames, d_min_rel), on=["localizer", "condition"], how="left")
@@ -545,17 +549,17 @@ def report(summary, out: Path, exp: Experiment, capture: CaptureSpec) -> str:
     from evalkit.reports.tables import to_markdown
     c = exp.camera
     lines = [f"## closed-loop docking: {exp.name} ({c.width}x{c.height} at {c.fps:g} Hz, fast fidelity)", "",
-             f"docked = the camera/nose crosses the dock face plane within {capture.capture_radius_m:.2f} m of its "
-             f"centre, |heading error| <= {capture.max_heading_deg:g} deg, |lateral speed| <= "
-             f"{capture.max_lateral_speed_mps:g} m/s; success rate with a Wilson 95% CI; 'truth' = ground-truth "
-             "guidance (baseline); P_detect_mean / P_succ_mean / E_rel_mean: per-frame localization of the "
-             "same run scored by evalkit (frames with 0 <= d_true <= 10 m); authority: can the thrusters hold "
-             "the condition's mean current at the final approach speed within the heading limit at all "
-             "(`dockbench authority`)", ""]
+             (f"docked = the camera/nose crosses the dock face plane within {capture.capture_radius_m:.2f} m of its "
+              f"centre, |heading error| <= {capture.max_heading_deg:g} deg, |lateral speed| <= "
+              f"{capture.max_lateral_speed_mps:g} m/s; success rate with a Wilson 95% CI; 'truth' = ground-truth "
+              "guidance (baseline); P_detect_mean / P_succ_mean / E_rel_mean: per-frame localization of the "
+              "same run scored by evalkit (frames with 0 <= d_true <= 10 m); authority: can the thrusters hold "
+              "the condition's mean current at the final approach speed within the heading limit at all "
+              "(`dockbench authority`)"), ""]
     beyond = sorted({r["condition"] for _, r in summary.iterrows() if str(r.get("authority", "")).startswith("beyond")})
     if beyond:
-        lines += [f"**{', '.join(beyond)}: beyond the vehicle's authority** -- no guidance law docks there within the "
-                  "capture limits; its failures are not localization or guidance failures.", ""]
+        lines += [(f"**{', '.join(beyond)}: beyond the vehicle's authority** -- no guidance law docks there within "
+                   "the capture limits; its failures are not localization or guidance failures."), ""]
     lines += [to_markdown(summary, floatfmt=".3g")]
     text = "\n".join(lines) + "\n"
     (out / "summary.md").write_text(text)

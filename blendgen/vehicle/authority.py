@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from blendgen.vehicle.dynamics import F_WORLD_NED, R_ned_frd, VehicleParams
-from blendgen.vehicle.thrusters import GROUPS, F_FLU_FRD, ThrusterSet
+from blendgen.vehicle.thrusters import F_FLU_FRD, GROUPS, ThrusterSet
 
 # Directions of the flow in the vehicle's FLU body axes ("forward" pushes the vehicle forward).
 FLOW_DIRECTIONS_FLU = {
@@ -172,5 +172,14 @@ def max_docking_current(cross_dir_world, approach_world, final_speed_mps: float,
     return lo
 
 
-__all__ = ["FLOW_DIRECTIONS_FLU", "required_force_frd", "thruster_utilisation", "Hold", "hold",
-           "max_holdable_speed", "station_keeping_authority", "docking_authority", "max_docking_current"]
+__all__ = [
+    "FLOW_DIRECTIONS_FLU",
+    "Hold",
+    "docking_authority",
+    "hold",
+    "max_docking_current",
+    "max_holdable_speed",
+    "required_force_frd",
+    "station_keeping_authority",
+    "thruster_utilisation",
+]
