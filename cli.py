@@ -223,6 +223,54 @@ def station_keeping(flow: float, duration: float, out: Path | None):
         df.to_csv(out, index=False)
 
 
+@main.command("authority")
+@click.option("--speed", "speeds", multiple=True, type=click.FloatRange(0.0, 5.0),
+              help="flow speed (m/s), repeatable (default 0.5 and 1.0)")
+@click.option("--density", type=click.FloatRange(900.0, 1100.0), default=1025.0, show_default=True,
+              help="water density (kg/m^3)")
+@click.option("--experiment", default=None, help="also judge each condition of this paper experiment or config")
+@click.option("-o", "--out", "out", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="also write the station-keeping table as CSV")
+def authority_cmd(speeds: tuple[float, ...], density: float, experiment: str | None, out: Path | None):
+    """Can the thrusters hold station (and dock) against a steady current? Steady drag vs thrust limits."""
+    import pandas as pd
+    from blendgen.vehicle.authority import station_keeping_authority
+    from evalkit.reports.tables import print_table
+    exp_table = _experiment_authority(experiment) if experiment else None   # user errors first
+    df = pd.DataFrame(station_keeping_authority(speeds or (0.5, 1.0), density))
+    print_table(df, floatfmt=".3g")
+    click.echo("flow = direction the water pushes the vehicle (body axes); group thrust = mean of each pair "
+               "(N, + forward/left/up); utilisation = largest thruster share / its forward or reverse limit; "
+               "max_speed = largest holdable flow in that direction")
+    if exp_table is not None:
+        click.echo(exp_table)
+    if out:
+        df.to_csv(out, index=False)
+
+
+def _experiment_authority(experiment: str) -> str:
+    """The docking authority of each condition of an experiment, as text."""
+    import pandas as pd
+    from blendgen.config.models import ConfigError
+    from blendgen.tools.closed_loop import capture_spec, condition_authority, load_bench_experiment
+    from blendgen.vehicle.dynamics import VehicleParams
+    exp = load_bench_experiment(experiment, None, ())
+    traj = next((t for t in exp.trajectories if t.kind == "docking"), None)
+    if traj is None:
+        raise ConfigError(f"--experiment {experiment}: the config has no docking trajectory")
+    capture = capture_spec(traj, exp.scene.dock.body_size_m, VehicleParams().diameter / 2)
+    rows = []
+    for c in exp.conditions:
+        a = condition_authority(exp, c)
+        rows.append({"condition": c.label, "current_mps": str(list((c.fluid or exp.fluid).current_mps)),
+                     "heading_offset_deg": a["heading_offset_deg"], "utilisation": a["utilisation"],
+                     "max_current_mps": a["max_current_mps"], "verdict": a["verdict"]})
+    from evalkit.reports.tables import to_markdown
+    return (f"\n{exp.name}: docking at {traj.final_speed_mps:g} m/s with |heading error| <= "
+            f"{capture.max_heading_deg:g} deg (best crab angle within it)\n"
+            + to_markdown(pd.DataFrame(rows), floatfmt=".3g"))
+
+
 @main.command("docking-paths")
 @click.option("--current", "currents", multiple=True, type=click.FloatRange(0.0, 2.0),
               help="lateral current (m/s), repeatable (default 0, 0.5, 1.0)")
@@ -230,15 +278,16 @@ def station_keeping(flow: float, duration: float, out: Path | None):
 @click.option("-o", "--out", "out", type=click.Path(dir_okay=False, path_type=Path),
               default=Path("out/docking_paths.png"), show_default=True)
 def docking_paths_cmd(currents: tuple[float, ...], seed: int, out: Path):
-    """Plot one docking trial per lateral current (same start) and time the dynamics."""
+    """Plot one docking trial per lateral current (same start), judged by `dock`'s capture geometry."""
     import numpy as np
     from blendgen.tools.dynamics_report import docking_paths, plot_docking_paths
     runs = docking_paths(currents or (0.0, 0.5, 1.0), seed=seed)
     for r in runs:
-        click.echo(f"current {r['current_mps']:.2f} m/s: {r['stop_reason']} (stop range) after {r['t'][-1]:.1f} s, "
-                   f"by geometry: {r['verdict']}, "
-                   f"heading std {np.std(r['heading_error_deg']):.2f} deg, "
-                   f"final lateral {r['p_dock'][-1, 0]:+.2f} m, {r['ms_per_sim_s']:.2f} ms CPU per simulated s")
+        hit = f", impact {r['impact_speed_mps']:.2f} m/s" if r["outcome"] == "collision" else ""
+        click.echo(f"current {r['current_mps']:.2f} m/s: {r['outcome']}{hit} after {r['t'][-1]:.1f} s "
+                   f"(crossing lateral {r['cross_lateral_m']:+.2f} m, heading {r['cross_heading_deg']:+.1f} deg), "
+                   f"authority: {r['authority']}, heading std {np.std(r['heading_error_deg']):.2f} deg, "
+                   f"{r['ms_per_sim_s']:.2f} ms CPU per simulated s")
     click.echo(f"plot: {plot_docking_paths(runs, out)}")
 
 

@@ -294,3 +294,94 @@ def test_closed_loop_modules_never_import_bpy():
     code = ("import sys\nimport blendgen.vehicle.closed_loop, blendgen.tools.closed_loop, blendgen.blender.serve\n"
             "sys.exit(1 if 'bpy' in sys.modules else 0)\n")
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
+
+
+# ---------------------------------------------------------------- lost target, contact
+def scripted_dropout(t_from, t_to, **kw):
+    """The oracle, blind for capture times in [t_from, t_to) s."""
+    see = oracle(**kw)
+
+    def observe(k, t, T_world_cam):
+        return Observation(None, {}) if t_from <= t < t_to else see(k, t, T_world_cam)
+    return observe
+
+
+def test_a_long_dropout_dead_reckons_backs_off_and_reacquires():
+    from blendgen.vehicle.closed_loop import Recovery
+    fp = FilterParams(hold_s=2.0, lost_s=30.0)
+    r = simulate_closed_loop(setup(filter=fp, recovery=Recovery(backoff_s=12.0)), scripted_dropout(5.0, 22.0))
+    f = pd.DataFrame(r["frames"])
+    modes = f.set_index("t")["nav_mode"]
+    assert modes.loc[4.0] == "tracking"
+    assert set(modes.loc[5.2:6.9]) == {"dead_reckoning"}           # within hold_s of the last fix (4.9 s)
+    assert set(modes.loc[7.1:18.8]) == {"back_off"}                 # then back off for backoff_s
+    assert set(modes.loc[19.1:21.9]) == {"hold"}
+    # backing off: the vehicle stops and the range to the dock grows again while it faces the dock
+    rng = f.set_index("t")["range_m"]
+    assert rng.loc[18.8] > rng.loc[7.0:18.8].min() + 1.0
+    assert abs(f.set_index("t")["heading_err_deg"].loc[18.8]) < 5.0
+    assert r["reacquisitions"] == 1 and r["outcome"] == "docked"
+    assert math.isnan(r["lost_after_s"])
+
+
+def test_a_localizer_that_goes_blind_for_good_aborts_after_lost_s():
+    fp = FilterParams(hold_s=2.0, lost_s=10.0)
+    r = simulate_closed_loop(setup(filter=fp), scripted_dropout(3.0, 1e9))
+    assert r["outcome"] == "lost_target" and r["reacquisitions"] == 0
+    assert r["lost_after_s"] == pytest.approx(10.1, abs=1e-6)       # last fix at 2.9 s, abort at 13.0 s
+    assert r["t_end"] == pytest.approx(13.0)
+
+
+def test_hitting_the_dock_frame_is_a_collision_with_the_nose_speed_into_the_face():
+    # steering onto an axis 0.5 m beside the true one: the nose meets the face plate between the
+    # capture radius (0.40 m) and the face edge plus hull radius (0.60 m)
+    r = simulate_closed_loop(setup(start={**START, "lateral_m": 0.5, "heading_error_deg": 0.0}),
+                             oracle(lateral_bias_m=0.5))
+    assert r["outcome"] == "collision"
+    assert CAPTURE.capture_radius_m < abs(r["cross_lateral_m"]) < CAPTURE.frame_half_m[0]
+    # independent: the nose's range rate over the last frame (finite difference of logged poses)
+    f = pd.DataFrame(r["frames"])
+    axes = DockAxesNED(T_WD)
+    noses = [axes.p_dock(F_WORLD_NED @ np.array([x, y, z]))[2] for x, y, z in
+             zip(f["x_cam_world"], f["y_cam_world"], f["z_world"])]
+    fd = (noses[-2] - noses[-1]) / 0.1
+    assert r["impact_speed_mps"] == pytest.approx(fd, abs=0.02)
+    assert 0.2 <= r["impact_speed_mps"] < 0.5                       # between final and cruise speed
+    # 0.1 m further out, the nose passes beside the face: no contact, no impact speed
+    miss = simulate_closed_loop(setup(start={**START, "lateral_m": 0.7, "heading_error_deg": 0.0}),
+                                oracle(lateral_bias_m=0.7))
+    assert miss["outcome"] == "out_of_capture" and math.isnan(miss["impact_speed_mps"])
+
+
+def test_nose_closing_speed_of_a_straight_approach_and_of_a_turn():
+    from blendgen.vehicle.closed_loop import nose_closing_speed
+    axes = DockAxesNED(T_WD)
+    eta = [0.0, 0.0, 1.0, 0.0, 0.0, axes.approach_psi]
+    assert nose_closing_speed(axes, eta, [0.3, 0, 0, 0, 0, 0], T_BC) == pytest.approx(0.3)
+    # a yaw rate swings the nose sideways, not into the face
+    assert nose_closing_speed(axes, eta, [0.3, 0, 0, 0, 0, 0.5], T_BC) == pytest.approx(0.3)
+    # sway at a 90 deg heading error is all closing speed
+    eta90 = eta[:5] + [axes.approach_psi + math.pi / 2]
+    assert abs(nose_closing_speed(axes, eta90, [0.0, 0.25, 0, 0, 0, 0], T_BC)) == pytest.approx(0.25)
+
+
+def test_before_the_first_fix_the_vehicle_creeps_on_along_its_start_heading_until_it_sees_the_dock():
+    r = simulate_closed_loop(setup(), scripted_dropout(0.0, 6.0))
+    f = pd.DataFrame(r["frames"]).set_index("t")
+    assert set(f["nav_mode"].loc[0.0:5.9]) == {"acquire"}
+    assert f["nav_mode"].loc[6.5] == "tracking"
+    # heading held at the start's, forward at about the final approach speed (0.2 m/s) once up to speed
+    assert f["heading_err_deg"].loc[0.0:5.9].sub(START["heading_error_deg"]).abs().max() < 1.0
+    assert (f["range_m"].loc[3.0] - f["range_m"].loc[5.9]) / 2.9 == pytest.approx(0.2 * math.cos(
+        math.radians(START["heading_error_deg"])), abs=0.05)
+    assert r["outcome"] == "docked" and r["reacquisitions"] == 0
+
+
+def test_summary_of_an_older_run_without_lost_target_and_contact_columns():
+    from blendgen.tools.closed_loop import summary_table
+    old = pd.DataFrame({"localizer": ["truth"] * 2, "condition": ["c"] * 2, "trial": [0, 1], "outcome":
+                        ["docked", "collision"], "docked": [True, False], "time_to_dock_s": [20.0, math.nan],
+                        "final_lateral_m": [0.1, -0.5], "final_heading_deg": [1.0, 2.0]})
+    s = summary_table(old, pd.DataFrame(), authority={"c": "within (margin 61%)"}).iloc[0]
+    assert s["n_docked"] == 1 and s["n_reacquired"] == 0 and math.isnan(s["impact_speed_median_mps"])
+    assert s["authority"] == "within (margin 61%)"

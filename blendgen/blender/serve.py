@@ -8,7 +8,8 @@ goes to ``LOG_FILE``):
 - ``{"cmd": "init", "scene": ..., "camera": ..., "render": ...}`` (the same scene, camera and
   render records a dataset job file holds) ->
   ``{"ok": true, "scene_build_s": s}``;
-- ``{"cmd": "render", "T_world_cam": 4x4, "roi": [x0, y0, x1, y1] | null, "out": path}`` ->
+- ``{"cmd": "render", "T_world_cam": 4x4, "roi": [x0, y0, x1, y1] | null, "rois": [[x0, y0, x1, y1], ...],
+  "out": path}`` (``rois``, per-marker boxes, optional and winning over ``roi``, as in a dataset frame) ->
   the clean passes written to ``path`` as an uncompressed ``.npz`` (``rgb`` (H,W,3) float32
   linear, ``depth_z`` (H,W) float32 planar depth m, ``index`` (H,W) uint8), reply
   ``{"ok": true, "ms": render + read time}``;
@@ -44,7 +45,10 @@ class _Server:
         if self.renderer is None:
             raise RuntimeError("render before init")
         t0 = time.perf_counter()
-        passes = self.renderer.render({"T_world_cam": req["T_world_cam"], "roi": req.get("roi")})
+        frame = {"T_world_cam": req["T_world_cam"], "roi": req.get("roi")}
+        if req.get("rois") is not None:
+            frame["rois"] = req["rois"]
+        passes = self.renderer.render(frame)
         with open(req["out"] + ".tmp", "wb") as fh:
             np.savez(fh, **passes)             # rgb, depth_z, index (+ albedo, normal when asked)
         os.replace(req["out"] + ".tmp", req["out"])

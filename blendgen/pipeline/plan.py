@@ -350,18 +350,38 @@ def _frames(exp: Experiment, traj, T_wd: np.ndarray, T_body_cam: np.ndarray, see
               for i, (t, tp, T) in enumerate(zip(smp.t[:n], smp.t_pose[:n], T_wc[:n]))
               if d_max is None or groundtruth.d_true(T, T_wd) <= d_max]
     if exp.render.roi and exp.render.fidelity == "fast":
-        box = dock_corners(exp)
+        regions = RenderRegions.of(exp)
+        for f in frames:
+            f.update(regions.boxes(np.asarray(f["T_world_cam"]), T_wd))
+    return frames
+
+
+@dataclass(frozen=True)
+class RenderRegions:
+    """Where a fast-fidelity frame spends its samples (``render.roi_regions``): one box around the
+    dock, or a box per marker plate / code square and LED disc. Datasets and the closed loop both
+    ask this for each frame, so a frame at the same pose renders the same boxes."""
+    K: np.ndarray
+    width: int
+    height: int
+    box: np.ndarray                    # dock_corners (8,3), used for roi_regions "dock"
+    regions: list | None               # marker_regions, None for roi_regions "dock"
+    max_boxes: int
+
+    @classmethod
+    def of(cls, exp: Experiment) -> "RenderRegions":
         regions = (None if exp.render.roi_regions == "dock" else
                    marker_regions(manifest_markers(exp), quiet_zone=exp.render.roi_regions == "markers"))
-        K, c = camera_K(exp), exp.camera
-        for f in frames:
-            T_cd = np.linalg.inv(np.asarray(f["T_world_cam"])) @ T_wd
-            if regions is None:
-                f["roi"] = groundtruth.dock_roi(T_cd, K, c.width, c.height, box)
-            else:
-                f["rois"] = [list(b) for b in groundtruth.marker_rois(T_cd, K, c.width, c.height, regions,
-                                                                      max_boxes=exp.render.roi_max_boxes)]
-    return frames
+        return cls(camera_K(exp), exp.camera.width, exp.camera.height, dock_corners(exp), regions,
+                   exp.render.roi_max_boxes)
+
+    def boxes(self, T_world_cam: np.ndarray, T_world_dock: np.ndarray) -> dict:
+        """``{"roi": box or None}`` or ``{"rois": [boxes]}`` (pixel boxes x0, y0, x1, y1) of one frame."""
+        T_cd = np.linalg.inv(np.asarray(T_world_cam, float)) @ T_world_dock
+        if self.regions is None:
+            return {"roi": groundtruth.dock_roi(T_cd, self.K, self.width, self.height, self.box)}
+        return {"rois": [list(b) for b in groundtruth.marker_rois(T_cd, self.K, self.width, self.height,
+                                                                  self.regions, max_boxes=self.max_boxes)]}
 
 
 def marker_regions(markers: list[dict], quiet_zone: bool = True) -> list[np.ndarray]:

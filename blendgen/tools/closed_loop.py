@@ -15,8 +15,13 @@ localizer's compute time (``--compute-latency``: seconds, or ``measured`` = each
 measured time, which makes a run depend on machine load) after the frame's capture; the
 filter treats it as a delayed measurement (:class:`blendgen.vehicle.closed_loop.DelayLine`).
 
-Not modelled here (said so in the report): reference (volumetric) fidelity and ``geometry: blender``
-particles; the config is rejected for the latter two.
+Same images as datasets: each frame gets the dataset's ROI boxes
+(:class:`blendgen.pipeline.plan.RenderRegions`), ambient term, particles lit by the LEDs and the
+vehicle lamp, water and sensor stages, in the worker's order; a frame at the same pose and seed is
+byte-identical to the dataset's (tests/test_closed_loop_render.py).
+
+Not modelled here: reference (volumetric) fidelity, ``geometry: blender`` particles and sensor
+motion blur (a dataset blurs by the planned next pose); the config is rejected for these three.
 """
 from __future__ import annotations
 
@@ -34,7 +39,6 @@ import cv2
 import numpy as np
 
 from blendgen.config.models import ConfigError, DockingTrajectory, Experiment
-from blendgen.geometry import invert_T
 from blendgen.pipeline import compose, frameloop, groundtruth, plan
 from blendgen.vehicle import docking, trajectories as tj
 from blendgen.vehicle.closed_loop import Observation, TrialSetup, simulate_closed_loop
@@ -79,11 +83,15 @@ class RenderClient:
         """Build the scene; returns the build time (s)."""
         return float(self._ask({"cmd": "init", "scene": scene, "camera": camera, "render": render})["scene_build_s"])
 
-    def render(self, T_world_cam: np.ndarray, roi) -> dict:
-        """Clean passes (``rgb``, ``depth_z``, ``index``) at the camera pose (4x4, OpenCV)."""
+    def render(self, T_world_cam: np.ndarray, regions: dict | None = None) -> dict:
+        """Clean passes (``rgb``, ``depth_z``, ``index``) at the camera pose (4x4, OpenCV); ``regions``
+        the frame's ROI boxes (:meth:`blendgen.pipeline.plan.RenderRegions.boxes`; None: whole frame)."""
         out = os.path.join(self.scratch, "frame.npz")
+        regions = regions or {}
+        roi, rois = regions.get("roi"), regions.get("rois")
         self._ask({"cmd": "render", "T_world_cam": np.asarray(T_world_cam).tolist(),
-                   "roi": None if roi is None else [int(v) for v in roi], "out": out})
+                   "roi": None if roi is None else [int(v) for v in roi],
+                   "rois": None if rois is None else [[int(v) for v in b] for b in rois], "out": out})
         with np.load(out) as z:
             return {k: z[k] for k in z.files}
 
@@ -126,6 +134,10 @@ class Bench:
             if occ is not None and occ.geometry == "blender":
                 raise ConfigError(f"{exp.name}: conditions[{c.label}].occlusion.geometry: closed-loop docking "
                                   "supports 'image' only")
+        if exp.camera.sensor.motion_blur:
+            raise ConfigError(f"{exp.name}: camera.sensor.motion_blur: closed-loop docking renders no motion blur "
+                              "(a dataset blurs by the planned next pose, which a closed loop does not know yet); "
+                              "set it to false")
         traj = next((t for t in exp.trajectories if t.kind == "docking"), DockingTrajectory())
         markers = plan.manifest_markers(exp)
         scene = plan.scene_description(exp, markers, write_textures(exp, assets))
@@ -162,6 +174,43 @@ class Bench:
                           compute_latency=self.compute_latency)
 
 
+    def condition_authority(self, cond) -> dict:
+        """:func:`condition_authority` of this bench's experiment (computed once per condition)."""
+        cache = self.__dict__.setdefault("_authority", {})
+        if cond.label not in cache:
+            cache[cond.label] = condition_authority(self.exp, cond)
+        return cache[cond.label]
+
+
+def condition_authority(exp: Experiment, cond) -> dict:
+    """Can the vehicle dock against this condition's mean current at all
+    (:func:`blendgen.vehicle.authority.docking_authority` at the docking trajectory's final approach
+    speed within the capture heading limit)? Adds ``max_current_mps``: the largest current in the
+    same direction that it can (NaN in still water) and a one-line ``verdict``."""
+    from blendgen.vehicle import authority
+    traj = next((t for t in exp.trajectories if t.kind == "docking"), DockingTrajectory())
+    capture = capture_spec(traj, exp.scene.dock.body_size_m, VehicleParams().diameter / 2)
+    a = -tj.T_world_dock_from_spec(exp.scene.dock)[:3, 2]
+    a[2] = 0.0
+    fluid = cond.fluid or exp.fluid
+    cur = np.asarray(fluid.current_mps, float)
+    args = (a / np.linalg.norm(a), traj.final_speed_mps, capture.max_heading_deg, fluid.density_kg_m3)
+    res = authority.docking_authority(cur, *args)
+    speed = float(np.linalg.norm(cur))
+    res["max_current_mps"] = authority.max_docking_current(cur, *args) if speed > 0 else math.nan
+    res["verdict"] = authority_verdict(res, speed)
+    return res
+
+
+def authority_verdict(res: dict, speed: float) -> str:
+    """``within (margin N%)`` or ``beyond the vehicle's authority (...)`` for a docking_authority dict."""
+    if res["holds"]:
+        return f"within (margin {100 * res['margin']:.0f}%)"
+    lim = res.get("max_current_mps", math.nan)
+    return (f"beyond the vehicle's authority ({res['limiting']} thrusters at {res['utilisation']:.2f}x their "
+            f"limit; max {lim:.2f} m/s, current {speed:.2f} m/s)")
+
+
 def capture_spec(traj: DockingTrajectory, body_size_m, hull_radius_m: float) -> CaptureSpec:
     """The trajectory's ``capture`` limits on the dock face; the radius defaults from the face."""
     lim = traj.capture
@@ -180,7 +229,7 @@ class VisionCamera:
         self.b, self.client, self.loc, self.executor, self.post = bench, client, localizer, executor, post
         self.state = compose.SequenceState.start(post)
         self.ambient = plan.ambient_radiance(bench.exp)   # the same ambient term datasets get
-        self.box = plan.dock_corners(bench.exp) if bench.exp.render.roi else None
+        self.regions = plan.RenderRegions.of(bench.exp) if bench.exp.render.roi else None
         self.by_file = callable(getattr(localizer, "localize_file", None))
         self.image_dir = image_dir
         if image_dir is not None or self.by_file:
@@ -188,15 +237,17 @@ class VisionCamera:
             self.image_dir.mkdir(parents=True, exist_ok=True)
 
     def _image(self, k: int, t: float, T_wc: np.ndarray) -> tuple[np.ndarray, dict, dict]:
+        """Frame ``k`` at ``t`` s: the dataset's stages in the dataset's order (pipeline/frameloop.py): the
+        same ROI boxes, ambient term, particles lit by the LEDs and the lamp, water and sensor; so a
+        frame at the same pose and seed is the dataset's frame, byte for byte."""
         b, c = self.b, self.b.exp.camera
-        T_cd = invert_T(T_wc) @ b.T_world_dock
-        roi = None if self.box is None else groundtruth.dock_roi(T_cd, b.K, c.width, c.height, self.box)
+        regions = None if self.regions is None else self.regions.boxes(T_wc, b.T_world_dock)
         t0 = time.perf_counter()
-        passes = frameloop.clean_passes(self.client.render(T_wc, roi), b.K, self.ambient)
+        passes = frameloop.clean_passes(self.client.render(T_wc, regions), b.K, self.ambient)
         t1 = time.perf_counter()
         gt = groundtruth.frame_truth(T_wc, b.T_world_dock, b.markers, b.K, c.width, c.height)
         img, _ = frameloop.condition_image(passes, self.state, b.K, {"T_world_cam": T_wc, "t": t}, b.markers, "fast",
-                                           T_world_dock=b.T_world_dock, particle_time=False)
+                                           T_world_dock=b.T_world_dock, T_cam_dock=gt["T_cam_dock"])
         self.state.advance()
         times = {"render_ms": 1e3 * (t1 - t0), "compose_ms": 1e3 * (time.perf_counter() - t1)}
         return img, gt, times
@@ -226,7 +277,8 @@ class VisionCamera:
 TRIAL_COLUMNS = ["localizer", "condition", "trial", "seed", "outcome", "docked", "t_end_s", "time_to_dock_s",
                  "cross_lateral_m", "cross_vertical_m", "cross_heading_deg", "cross_lateral_speed_mps",
                  "final_lateral_m", "final_vertical_m", "final_range_m", "final_heading_deg",
-                 "start_range_m", "start_lateral_m", "start_heading_deg", "n_frames", "wall_s"]
+                 "start_range_m", "start_lateral_m", "start_heading_deg", "n_frames", "wall_s",
+                 "impact_speed_mps", "reacquisitions", "lost_after_s", "authority"]
 
 
 @dataclass
@@ -255,6 +307,7 @@ def run_trial(bench: Bench, cond, trial: int, name: str, observer_factory=None) 
            "docked": res["outcome"] == "docked", "t_end_s": res["t_end"], "n_frames": len(res["frames"]),
            "start_range_m": st["range_m"], "start_lateral_m": st["lateral_m"],
            "start_heading_deg": st["heading_error_deg"], "wall_s": time.perf_counter() - t0,
+           "authority": "within" if bench.condition_authority(cond)["holds"] else "beyond",
            **{k: res[k] for k in TRIAL_COLUMNS if k in res}}
     frames = [{"localizer": name, "condition": cond.label, "trial": trial, **f} for f in res["frames"]]
     return row, frames
@@ -298,8 +351,10 @@ def run_suite(bench: Bench, localizers: list[LocalizerSpec], trials: int, out: P
                     rows.append(row)
                     frames.extend(fr)
                     write_tables(rows, frames, out)
+                    extra = (f", re-acquired {row['reacquisitions']}x" if row.get("reacquisitions") else "") + \
+                        (f", impact {row['impact_speed_mps']:.2f} m/s" if row["outcome"] == "collision" else "")
                     progress(f"{cond.label:14s} {name:10s} trial {trial:3d}: {row['outcome']:15s} "
-                             f"{row['t_end_s']:5.1f} s sim, {row['wall_s']:6.1f} s wall")
+                             f"{row['t_end_s']:5.1f} s sim, {row['wall_s']:6.1f} s wall{extra}")
     finally:
         if client is not None:
             client.close()
@@ -322,7 +377,8 @@ def start_client(bench: Bench, log: Path, threads: int) -> RenderClient:
 # ------------------------------------------------------------------ reporting ----------
 SUMMARY_COLUMNS = ["localizer", "condition", "n_trials", "n_docked", "success_rate", "ci_low", "ci_high",
                    "time_to_dock_median_s", "final_lateral_abs_mean_m", "final_heading_abs_mean_deg",
-                   "outcomes", "P_detect_mean", "P_succ_mean", "E_rel_mean"]
+                   "outcomes", "n_reacquired", "lost_after_s_median", "impact_speed_median_mps", "authority",
+                   "P_detect_mean", "P_succ_mean", "E_rel_mean"]
 
 
 def write_tables(rows: list[dict], frames: list[dict], out: Path) -> dict[str, Path]:
@@ -367,10 +423,20 @@ def _localization(frames, d_min_rel: float):
     return cond[cols]
 
 
-def summary_table(trials, frames, d_min_rel: float = 0.2):
+def _column(table, name: str):
+    """``table[name]``, or NaN for every row when an older run's table lacks the column."""
+    import pandas as pd
+    return table[name] if name in table else pd.Series(math.nan, index=table.index)
+
+
+def summary_table(trials, frames, d_min_rel: float = 0.2, authority: dict | None = None):
     """Per (localizer, condition): docking success rate with its Wilson 95% CI, median time to
     dock (docked trials), mean |final lateral| (m) and |final heading| (deg) at the last frame,
-    outcome counts, and the per-frame localization metrics of the same run."""
+    outcome counts, trials that re-acquired a lost target, median seconds without a fix at a
+    lost-target abort, median impact speed of collisions (m/s), the condition's docking authority
+    (``authority``: label -> verdict text, :func:`condition_authority`; empty when not given) and
+    the per-frame localization metrics of the same run. Trial tables of older runs (without the
+    lost-target and contact columns) give NaN there."""
     import pandas as pd
     out = []
     for (loc, cond), g in trials.groupby(["localizer", "condition"], sort=False):
@@ -381,7 +447,11 @@ def summary_table(trials, frames, d_min_rel: float = 0.2):
                     "ci_low": lo, "ci_high": hi, "time_to_dock_median_s": g["time_to_dock_s"].median(),
                     "final_lateral_abs_mean_m": g["final_lateral_m"].abs().mean(),
                     "final_heading_abs_mean_deg": g["final_heading_deg"].abs().mean(),
-                    "outcomes": ", ".join(f"{o} {c}" for o, c in counts.items())})
+                    "outcomes": ", ".join(f"{o} {c}" for o, c in counts.items()),
+                    "n_reacquired": int((_column(g, "reacquisitions").fillna(0) > 0).sum()),
+                    "lost_after_s_median": _column(g, "lost_after_s").median(),
+                    "impact_speed_median_mps": _column(g, "impact_speed_mps").median(),
+                    "authority": (authority or {}).get(cond, "")})
     df = pd.DataFrame(out)
     df = df.merge(_localization(frames, d_min_rel), on=["localizer", "condition"], how="left")
     return df[SUMMARY_COLUMNS]
@@ -411,7 +481,7 @@ def plot_paths(trials, frames, capture: CaptureSpec, T_world_dock: np.ndarray, p
     colours = dict(zip(locs, plt.get_cmap("tab10").colors))
     ncols = min(3, len(conds))
     nrows = -(-len(conds) // ncols)
-    fig, axes = plt.subplots(nrows, ncols, figsize=(5.4 * ncols, 4.2 * nrows), squeeze=False)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(max(5.4 * ncols, 9.0), 4.2 * nrows), squeeze=False)
     o, xd = T_world_dock[:3, 3], T_world_dock[:3, 0]
     for ax, cond in zip(axes.ravel(), conds):
         for (loc, trial), g in frames[frames["condition"] == cond].groupby(["localizer", "trial"], sort=False):
@@ -477,11 +547,18 @@ def report(summary, out: Path, exp: Experiment, capture: CaptureSpec) -> str:
     from evalkit.reports.tables import to_markdown
     c = exp.camera
     lines = [f"## closed-loop docking: {exp.name} ({c.width}x{c.height} at {c.fps:g} Hz, fast fidelity)", "",
-             f"docked = the camera/nose crosses the dock face plane within {capture.capture_radius_m:.2f} m of its "
-             f"centre, |heading error| <= {capture.max_heading_deg:g} deg, |lateral speed| <= "
-             f"{capture.max_lateral_speed_mps:g} m/s; success rate with a Wilson 95% CI; 'truth' = ground-truth "
-             "guidance (baseline); P_detect_mean / P_succ_mean / E_rel_mean: per-frame localization of the "
-             "same run scored by evalkit (frames with 0 <= d_true <= 10 m)", "", to_markdown(summary, floatfmt=".3g")]
+             (f"docked = the camera/nose crosses the dock face plane within {capture.capture_radius_m:.2f} m of its "
+              f"centre, |heading error| <= {capture.max_heading_deg:g} deg, |lateral speed| <= "
+              f"{capture.max_lateral_speed_mps:g} m/s; success rate with a Wilson 95% CI; 'truth' = ground-truth "
+              "guidance (baseline); P_detect_mean / P_succ_mean / E_rel_mean: per-frame localization of the "
+              "same run scored by evalkit (frames with 0 <= d_true <= 10 m); authority: can the thrusters hold "
+              "the condition's mean current at the final approach speed within the heading limit at all "
+              "(`dockbench authority`)"), ""]
+    beyond = sorted({r["condition"] for _, r in summary.iterrows() if str(r.get("authority", "")).startswith("beyond")})
+    if beyond:
+        lines += [(f"**{', '.join(beyond)}: beyond the vehicle's authority** -- no guidance law docks there within "
+                   "the capture limits; its failures are not localization or guidance failures."), ""]
+    lines += [to_markdown(summary, floatfmt=".3g")]
     text = "\n".join(lines) + "\n"
     (out / "summary.md").write_text(text)
     return text
@@ -543,7 +620,8 @@ def run_dock(exp: Experiment, specs: list[LocalizerSpec], trials: int, out: Path
         rows, frames = run_suite(bench, specs, trials, out, images, threads, baseline, progress)
         paths = write_tables(rows, frames, out)
     tr, fr = pd.read_parquet(paths["trials"]), pd.read_parquet(paths["frames"])
-    summary = summary_table(tr, fr, exp.d_min_rel_m)
+    verdicts = {c.label: bench.condition_authority(c)["verdict"] for c in exp.conditions}
+    summary = summary_table(tr, fr, exp.d_min_rel_m, verdicts)
     summary.to_csv(out / "summary.csv", index=False)
     paths["summary"] = out / "summary.csv"
     pool = exp.scene.pool if exp.scene.kind == "pool" else None

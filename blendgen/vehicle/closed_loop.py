@@ -15,8 +15,25 @@ and is processed as a delayed measurement stamped ``t``, then re-propagated to n
 (:class:`DelayLine`); with both 0 the fix updates the filter at its capture time, as before.
 
 Docking is judged by geometry (:func:`blendgen.vehicle.visual_nav.crossing_outcome`) when
-the camera (at the nose) crosses the dock's entry plane; a trial also ends when the target
-is lost (no fix for ``lost_s``) or at ``max_time_s`` (``timeout``).
+the camera (at the nose) crosses the dock's entry plane: inside the capture radius it is
+``docked`` (or ``misaligned``), on the dock's frame (the face plate around the mouth, grown by
+the hull radius) a ``collision`` whose impact speed (the nose's speed into the face, m/s) is
+recorded, beside the dock ``out_of_capture``; a trial also ends when the target is lost or at
+``max_time_s`` (``timeout``).
+
+Lost target (:class:`Recovery`), like a vehicle without a fix: for ``FilterParams.hold_s`` after
+the last accepted fix guidance keeps steering on the navigation filter's dead-reckoned estimate
+(mode ``dead_reckoning``); then it turns the nose to the last estimated bearing of the dock, holds
+the dock's estimated depth and backs off along that bearing at ``backoff_speed_mps`` for
+``backoff_s`` (``back_off``: the dock re-enters a wider part of the field of view), then holds
+there facing the dock (``hold``). A fix accepted in any of these modes re-acquires the target
+(the filter restarts on it; counted in ``reacquisitions``); none for ``FilterParams.lost_s`` aborts
+the trial (``lost_target``, with ``lost_after_s``). Before the first fix the vehicle holds its start heading (the prior bearing to the dock that
+a homing stage, e.g. acoustic, hands over; the starts face the dock within their heading range)
+and depth and creeps on at the final approach speed (``acquire``) until the camera sees the dock,
+or ``lost_s`` after the start. This is the abort-and-retry pattern of
+operational docking (the REMUS docking system backs out and re-tries a missed approach: Stokey
+et al., "Enabling technologies for REMUS docking", IEEE J. Oceanic Eng. 26(4), 2001).
 """
 from __future__ import annotations
 
@@ -45,6 +62,24 @@ class Observation:
 
 
 Observer = Callable[[int, float, np.ndarray], Observation]
+RECOVERY_MODES = ("back_off", "hold")       # lost-target modes of :class:`_EstimateNav`
+
+
+@dataclass(frozen=True)
+class Recovery:
+    """Lost-target behaviour after the dead-reckoning window (module doc): back off at
+    ``backoff_speed_mps`` (m/s; default the final approach speed of
+    :class:`blendgen.vehicle.docking.LosGuidance`, a speed the autopilot is tuned for) for
+    ``backoff_s`` (s; 12 s: ~3 s to stop from the 0.5 m/s cruise through the autopilot's speed
+    reference model, then ~9 s x 0.2 m/s = 1.8 m back, about the 1.5 m half-width of the start box),
+    then hold until ``FilterParams.lost_s`` after the last fix."""
+    backoff_speed_mps: float = 0.2
+    backoff_s: float = 12.0
+
+    def __post_init__(self):
+        if not (0.0 <= self.backoff_speed_mps <= 2.0 and 0.0 <= self.backoff_s <= 600.0):
+            raise ValueError(f"Recovery: need backoff_speed_mps in [0, 2] m/s and backoff_s in [0, 600] s, got "
+                             f"{self.backoff_speed_mps}, {self.backoff_s}")
 
 
 @dataclass(frozen=True)
@@ -64,6 +99,7 @@ class TrialSetup:
     guidance: LosGuidance = LosGuidance()
     turbulence: Turbulence = Turbulence()
     filter: FilterParams = FilterParams()
+    recovery: Recovery = Recovery()
     params: VehicleParams = VehicleParams()
     latency_s: float = 0.0
     compute_latency: float | str = 0.0
@@ -116,6 +152,8 @@ class DelayLine:
 class _TruthNav:
     """Ground-truth navigation: LOS on the true pose, true lateral rate."""
 
+    mode = "truth"
+
     def __init__(self, axes: DockAxesNED, guidance: LosGuidance, stop_m: float):
         self.axes, self.guidance, self.stop_m = axes, guidance, stop_m
 
@@ -127,11 +165,16 @@ class _TruthNav:
 
 
 class _EstimateNav:
-    """LOS on the filtered relative pose; hold heading and depth at zero surge while stale."""
+    """LOS on the filtered relative pose (dead-reckoned between fixes for ``hold_s``); then the
+    :class:`Recovery` manoeuvre: face the last estimated dock bearing, back off, hold. Before the
+    first fix: ``acquire``. ``mode`` is the current one (``acquire``, ``tracking``,
+    ``dead_reckoning``, ``back_off``, ``hold``)."""
 
-    def __init__(self, filt: RelativePoseFilter, origin_xy: np.ndarray, guidance: LosGuidance, stop_m: float):
+    def __init__(self, filt: RelativePoseFilter, origin_xy: np.ndarray, guidance: LosGuidance, stop_m: float,
+                 recovery: Recovery = Recovery(), frame_s: float = 0.1):
         self.filt, self.origin_xy, self.guidance, self.stop_m = filt, origin_xy, guidance, stop_m
-        self._axes_key, self._axes, self._held = None, None, None
+        self.recovery, self.frame_s = recovery, frame_s      # frame_s: camera frame period (s)
+        self._axes_key, self._axes, self._held, self.mode = None, None, None, "acquire"
 
     def _axes_hat(self) -> DockAxesNED:
         key = (self.filt.psi_dock, self.filt.depth_dock)
@@ -139,12 +182,28 @@ class _EstimateNav:
             self._axes_key, self._axes = key, DockAxesNED(self.filt.T_world_dock(self.origin_xy))
         return self._axes
 
-    def references(self, ap: Autopilot, t: float, eta, nu, sens: dict, dt: float):
-        if not self.filt.fresh(t):
+    def _recover(self, t: float, sens: dict):
+        """References while the target is lost (after the dead-reckoning window), or not yet seen."""
+        if not self.filt.initialised:            # never seen: creep on along the start (prior) bearing
             if self._held is None:
                 self._held = (math.radians(sens["heading_deg"]), sens["depth_m"])
-            return self._held[0], self._held[1], 0.0, None
+            self.mode = "acquire"
+            return self._held[0], self._held[1], self.guidance.final_speed, None
+        if self._held is None or self.mode == "acquire":   # freeze the last dock estimate: bearing, depth
+            p, _ = self.filt.state(self.filt.t_fix + self.filt.p.hold_s, sens["depth_m"])
+            to_dock = -(self._axes_hat().R_dock_ned.T @ p)             # NED, vehicle -> dock origin
+            depth = self.filt.depth_dock if math.isfinite(self.filt.depth_dock) else sens["depth_m"]
+            self._held = (math.atan2(to_dock[1], to_dock[0]), depth)
+        lost_for = self.filt.since_fix(t) - self.filt.p.hold_s
+        backing = lost_for <= self.recovery.backoff_s
+        self.mode = "back_off" if backing else "hold"
+        return self._held[0], self._held[1], -self.recovery.backoff_speed_mps if backing else 0.0, None
+
+    def references(self, ap: Autopilot, t: float, eta, nu, sens: dict, dt: float):
+        if not self.filt.fresh(t):
+            return self._recover(t, sens)
         self._held = None
+        self.mode = "tracking" if self.filt.since_fix(t) <= self.frame_s + 1e-9 else "dead_reckoning"
         p, v = self.filt.state(t, sens["depth_m"])
         axes = self._axes_hat()
         pos = axes.origin + axes.R_dock_ned.T @ p
@@ -180,22 +239,37 @@ def _crossing(setup: TrialSetup, axes: DockAxesNED, prev: np.ndarray, nose: np.n
     eta, nu = plant.s[:6], plant.s[6:]
     pt = interpolate_crossing(prev, nose, setup.capture.entry_plane_m)
     head = -math.degrees(wrap_pi(eta[5] - axes.approach_psi))
-    v_lat = float((Autopilot._R(eta) @ np.asarray(nu[:3])) @ axes.R_dock_ned[0])
-    return {"outcome": crossing_outcome(setup.capture, pt, head, v_lat), "cross_lateral_m": float(pt[0]),
-            "cross_vertical_m": float(pt[1]), "cross_heading_deg": head, "cross_lateral_speed_mps": v_lat}
+    R = Autopilot._R(eta)
+    v_lat = float((R @ np.asarray(nu[:3])) @ axes.R_dock_ned[0])
+    outcome = crossing_outcome(setup.capture, pt, head, v_lat)
+    out = {"outcome": outcome, "cross_lateral_m": float(pt[0]), "cross_vertical_m": float(pt[1]),
+           "cross_heading_deg": head, "cross_lateral_speed_mps": v_lat}
+    if outcome == "collision":
+        out["impact_speed_mps"] = nose_closing_speed(axes, eta, nu, setup.T_body_cam)
+    return out
+
+
+def nose_closing_speed(axes: DockAxesNED, eta, nu, T_body_cam: np.ndarray) -> float:
+    """Speed (m/s) of the nose (the camera centre, ``T_body_cam``) toward the dock face, along the face
+    normal: the impact speed of a hit on the dock's frame. Rigid body: v_nose = v + omega x r (FRD)."""
+    r = F_WORLD_NED @ np.asarray(T_body_cam, float)[:3, 3]          # FLU -> FRD (same diag flip)
+    v = np.asarray(nu[:3], float) + np.cross(np.asarray(nu[3:6], float), r)
+    return float(-(axes.R_dock_ned @ (Autopilot._R(eta) @ v))[2])
 
 
 def simulate_closed_loop(setup: TrialSetup, observe: Observer | None = None) -> dict:
     """Run one trial; ``observe`` None = ground-truth guidance (no camera needed).
 
     Returns ``{"outcome": str (visual_nav.OUTCOMES), "t_end": s, "time_to_dock_s": s or NaN,
-    "cross_*": crossing offsets (m), heading (deg), lateral speed (m/s) or NaN,
+    "cross_*": crossing offsets (m), heading (deg), lateral speed (m/s) or NaN, "impact_speed_mps"
+    (collision only, else NaN), "lost_after_s" (lost_target only: s since the last fix, else NaN),
+    "reacquisitions" (fixes that ended a back_off/hold),
     "final_lateral_m", "final_vertical_m", "final_range_m", "final_heading_deg" (body origin
     at the last frame), "frames": list of per-frame dicts}`` with frame keys ``t``,
     ``x_world``, ``y_world``, ``z_world`` (body origin, m), ``lateral_m``, ``vertical_m``,
-    ``range_m`` (body origin, dock frame), ``x_cam_world``, ``y_cam_world`` (camera = nose), ``heading_err_deg``,
-    ``fix`` (bool), ``est_lateral_m``,
-    ``est_range_m`` (filtered, NaN if none) and the observer's ``info``."""
+    ``range_m`` (body origin, dock frame), ``x_cam_world``, ``y_cam_world`` (camera = nose), ``heading_err_deg``, ``fix`` (bool), ``est_lateral_m``,
+    ``est_range_m`` (filtered, NaN if none), ``nav_mode`` (truth, tracking, dead_reckoning, back_off,
+    hold) and the observer's ``info``."""
     plant, ap, sensors, n_sub, dt = _start(setup)
     rng = np.random.default_rng(setup.seed)
     axes = DockAxesNED(setup.T_world_dock)
@@ -205,7 +279,9 @@ def simulate_closed_loop(setup: TrialSetup, observe: Observer | None = None) -> 
     stop_m = float(setup.T_body_cam[0, 3]) + setup.capture.entry_plane_m
     filt = RelativePoseFilter(setup.filter)
     nav = (_TruthNav(axes, setup.guidance, stop_m) if observe is None else
-           _EstimateNav(filt, np.asarray(setup.T_world_dock)[:2, 3], setup.guidance, stop_m))
+           _EstimateNav(filt, np.asarray(setup.T_world_dock)[:2, 3], setup.guidance, stop_m, setup.recovery,
+                        1.0 / setup.fps))
+    reacquired = 0
     delay = DelayLine(setup.latency_s, setup.compute_latency) if setup.delayed and observe is not None else None
     frames, res, prev = [], {"outcome": "timeout"}, None
     for k in range(n_max):
@@ -220,11 +296,13 @@ def simulate_closed_loop(setup: TrialSetup, observe: Observer | None = None) -> 
         row.update(x_cam_world=float(T_wc[0, 3]), y_cam_world=float(T_wc[1, 3]))
         if observe is not None:
             _observe_frame(observe, setup, filt, delay, k, t, T_wc, sens, row)
+            if nav.mode in RECOVERY_MODES and filt.fresh(t):
+                reacquired, nav.mode = reacquired + 1, "tracking"
             if filt.lost(t):
-                frames.append(row)
-                res = {"outcome": "lost_target"}
+                frames.append({**row, "nav_mode": nav.mode})
+                res = {"outcome": "lost_target", "lost_after_s": filt.since_fix(t)}
                 break
-        frames.append(row)
+        frames.append({**row, "nav_mode": nav.mode})
         if k == n_max - 1:
             break
         for j in range(n_sub):
@@ -237,7 +315,7 @@ def simulate_closed_loop(setup: TrialSetup, observe: Observer | None = None) -> 
             plant.step(ap.thruster_command(tau), gusts.next(), dt)
         if not all(map(math.isfinite, plant.s)):
             raise FloatingPointError("closed-loop docking simulation diverged")
-    return _summary(res, frames, setup.fps, k)
+    return _summary({**res, "reacquisitions": reacquired}, frames, setup.fps, k)
 
 
 def _observe_frame(observe: Observer, setup: TrialSetup, filt: RelativePoseFilter, delay: DelayLine | None,
@@ -269,11 +347,12 @@ def _summary(res: dict, frames: list[dict], fps: float, k_end: int) -> dict:
     nan = math.nan
     last = frames[-1]
     out = {"cross_lateral_m": nan, "cross_vertical_m": nan, "cross_heading_deg": nan,
-           "cross_lateral_speed_mps": nan, **res, "t_end": k_end / fps,
+           "cross_lateral_speed_mps": nan, "impact_speed_mps": nan, "lost_after_s": nan, **res, "t_end": k_end / fps,
            "final_lateral_m": last["lateral_m"], "final_vertical_m": last["vertical_m"],
            "final_range_m": last["range_m"], "final_heading_deg": last["heading_err_deg"], "frames": frames}
     out["time_to_dock_s"] = out["t_end"] if out["outcome"] == "docked" else nan
     return out
 
 
-__all__ = ["Observation", "Observer", "TrialSetup", "DelayLine", "simulate_closed_loop"]
+__all__ = ["Observation", "Observer", "TrialSetup", "Recovery", "DelayLine", "simulate_closed_loop",
+           "nose_closing_speed", "RECOVERY_MODES"]

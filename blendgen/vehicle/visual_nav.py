@@ -23,8 +23,9 @@ filter restarts on it. The vehicle's own sensors are fused as follows:
   first-order low-pass (gain ``const_gain``). Between fixes the relative heading and
   depth come from the sensors at the control rate, not from the (older, noisier) fix;
 - between fixes and through dropouts the position is dead-reckoned with the filter's
-  velocity for at most ``hold_s``; after that the estimate is *stale* and guidance stops
-  the vehicle (zero surge, hold heading and depth) until a new fix; a vehicle without an
+  velocity for at most ``hold_s``; after that the estimate is *stale* and guidance runs the
+  lost-target recovery (:class:`blendgen.vehicle.closed_loop.Recovery`: face the last dock
+  bearing, back off, hold) until a new fix re-acquires the target; a vehicle without an
   accepted fix for ``lost_s`` (including before the first one) has *lost the target*.
 """
 from __future__ import annotations
@@ -45,9 +46,12 @@ class FilterParams:
     gain of the dock heading/depth, dropout hold and lost-target times (s).
 
     Defaults: 0.3 m/s^2 is about a quarter of the horizontal acceleration the lateral
-    thrusters can give the vehicle (2 x 36.6 N / 66 kg sway mass = 1.1 m/s^2); 0.005 m^-1 is the order of the LED
-    array's range error at 320x240 (the
-    ``0.7 Z^2 sigma_px / (f s)`` rule with f = 277 px, s = 0.6 m, sigma_px = 1)."""
+    thrusters can give the vehicle (2 x 36.6 N / 66 kg sway mass = 1.1 m/s^2); 0.005 m^-1 is the order of the LED array's range error at 320x240 (the
+    ``0.7 Z^2 sigma_px / (f s)`` rule with f = 277 px, s = 0.6 m, sigma_px = 1).
+    ``hold_s`` = 3 s of dead reckoning: the filter's own position std grows as
+    ``accel_std sqrt(t^3 / 3)`` without fixes, 0.9 m after 3 s, more than twice the 0.40 m capture
+    radius: beyond that the estimate cannot steer into the mouth. ``lost_s`` = 20 s covers the dead
+    reckoning, the 12 s back-off and 5 s of hold (:class:`blendgen.vehicle.closed_loop.Recovery`)."""
     accel_std: float = 0.3
     meas_std_per_m2: float = 0.005
     meas_std_min_m: float = 0.01
@@ -56,7 +60,7 @@ class FilterParams:
     psi_std_per_m: float = 0.02
     psi_std_min_rad: float = 0.005
     hold_s: float = 3.0
-    lost_s: float = 8.0
+    lost_s: float = 20.0
 
     def __post_init__(self):
         if not 0.0 < self.const_gain <= 1.0:

@@ -37,6 +37,8 @@ CL_COLUMNS: list[tuple[str, str, str, str]] = [
     ("P_detect_mean", "P_detect %", "pct", "per-frame answers of the same run"),
     ("P_succ_mean", "P_succ %", "pct", "per-frame right answers of the same run"),
     ("outcomes", "outcomes", "text", "outcome counts"),
+    ("authority", "authority", "text", "can the thrusters hold the condition's mean current while docking at all "
+                                      "(`dockbench authority`); 'beyond': failures there are not the localizer's"),
 ]
 
 
