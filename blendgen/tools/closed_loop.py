@@ -35,7 +35,7 @@ import numpy as np
 
 from blendgen.config.models import ConfigError, DockingTrajectory, Experiment
 from blendgen.geometry import invert_T
-from blendgen.pipeline import compose, groundtruth, plan
+from blendgen.pipeline import compose, groundtruth, plan, scene_check
 from blendgen.vehicle import docking, trajectories as tj
 from blendgen.vehicle.closed_loop import Observation, TrialSetup, simulate_closed_loop
 from blendgen.vehicle.dynamics import VehicleParams
@@ -127,6 +127,7 @@ class Bench:
                 raise ConfigError(f"{exp.name}: conditions[{c.label}].occlusion.geometry: closed-loop docking "
                                   "supports 'image' only")
         traj = next((t for t in exp.trajectories if t.kind == "docking"), DockingTrajectory())
+        scene_check.check_scene(exp)       # the dock and the start box inside the water
         markers = plan.manifest_markers(exp)
         scene = plan.scene_description(exp, markers, write_textures(exp, assets))
         hull_r = VehicleParams().diameter / 2
