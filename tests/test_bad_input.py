@@ -368,3 +368,14 @@ def test_bad_turbidity_reading(tmp_path, water, message):
     p = _cfg(tmp_path, "water", water)
     res, text = _run(["generate", str(p), "-o", str(tmp_path / "out")])
     _check(res, text, f"{p}: {message}", tmp_path / "out")
+
+
+def test_physical_depth_condition_above_the_pool_rim_refused(tmp_path):
+    cfg = patched("image_formation", "physical")
+    cfg["conditions"] = [{"label": "d1", "dock_water_depth_m": 1.0}, {"label": "d5", "dock_water_depth_m": 5.0}]
+    p = tmp_path / "bad.yaml"
+    p.write_text(yaml.safe_dump(cfg))
+    res, text = _run(["generate", str(p), "-o", str(tmp_path / "out")])
+    _check(res, text, "conditions[1].dock_water_depth_m: 5 puts the water surface 4.00 m above the pool's rim "
+                      "(a depth condition moves the surface, not the dock); allowed <= scene.dock.water_depth_m "
+                      "(1): put the dock at the deepest condition", tmp_path / "out")

@@ -130,3 +130,16 @@ def test_turbidity_ladder_is_reachable_and_spans_I_to_9C():
                       "max_range_m": [8.0] * len(labels)})
     table = water_ladder.ladder_table(exp, m)
     assert "| jerlov_9C |" in table and "/ 8.0" in table
+
+
+def test_physical_depth_experiment_puts_the_dock_at_the_deepest_condition():
+    """reproduce depth --mode physical: the dock's top 5 m deep, the 0 m condition's surface at
+    the dock's top, every condition's surface inside the pool's walls (z <= 0)."""
+    from blendgen.pipeline.plan import condition_post
+    from blendgen.tools import reproduce
+    exp = reproduce.experiment("depth", 1, "physical")
+    assert exp.scene.dock.water_depth_m == 5.0
+    top = tj.T_world_dock_from_spec(exp.scene.dock)[2, 3] + tj.dock_top_m(exp.scene.dock)
+    surfaces = {c.label: condition_post(exp, c, 0).surface_z_m for c in exp.conditions}
+    assert surfaces["depth_0m"] == pytest.approx(top) and surfaces["depth_5m"] == pytest.approx(0.0)
+    assert reproduce.experiment("depth", 1, "article").scene.dock.water_depth_m == 1.0

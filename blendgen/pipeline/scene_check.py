@@ -113,9 +113,24 @@ def check_dock(exp: Experiment, T_wd: np.ndarray, box: WaterBox) -> None:
                       f"(x in [{box.lo[0]:g}, {box.hi[0]:g}], y in [{box.lo[1]:g}, {box.hi[1]:g}])")
 
 
+def check_surfaces(exp: Experiment) -> None:
+    """Physical mode: no condition's surface above the pool's rim (z = 0), where the walls end."""
+    if exp.image_formation != "physical" or exp.scene.kind != "pool":
+        return
+    base = exp.scene.dock.water_depth_m
+    for i, c in enumerate(exp.conditions):
+        if c.dock_water_depth_m is not None and c.dock_water_depth_m > base + 1e-9:
+            raise ConfigError(f"conditions[{i}].dock_water_depth_m: {c.dock_water_depth_m:g} puts the water "
+                              f"surface {c.dock_water_depth_m - base:.2f} m above the pool's rim (a depth "
+                              "condition moves the surface, not the dock); allowed <= scene.dock.water_depth_m "
+                              f"({base:g}): put the dock at the deepest condition")
+
+
 def check_scene(exp: Experiment) -> None:
     """Raise ConfigError (one line: the key, how far out, the allowed range) when the dock,
-    a kinematic camera path or a docking start box is not inside the water."""
+    a kinematic camera path or a docking start box is not inside the water, or (physical
+    mode) a condition's surface is above the pool's rim."""
+    check_surfaces(exp)
     T_wd = tj.T_world_dock_from_spec(exp.scene.dock)
     T_bc = tj.T_body_cam_from_spec(exp.camera.T_body_cam)
     box = water_box(exp)

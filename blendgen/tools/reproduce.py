@@ -46,7 +46,9 @@ def localizers_of(names) -> list[str]:
 
 def experiment(name: str, trials: int | None, mode: str | None = None):
     """The paper config, optionally with fewer trials or another image formation (the
-    dataset name records both)."""
+    dataset name records both). In physical mode the dock sits at the deepest condition's
+    depth, so every depth condition lowers the surface inside the pool's walls
+    (``scene_check.check_surfaces``)."""
     path = bundled_file("configs", config_file(name))
     exp = load_experiment(path)
     raw = exp.model_dump()
@@ -54,6 +56,9 @@ def experiment(name: str, trials: int | None, mode: str | None = None):
         raw.update(trials=trials, name=f"{raw['name']}-{trials}trials")
     if mode is not None and mode != exp.image_formation:
         raw.update(image_formation=mode, name=f"{raw['name']}-{mode}")
+    if raw["image_formation"] == "physical":      # the dock at the deepest condition: the surface
+        depths = [c["dock_water_depth_m"] for c in raw["conditions"] if c.get("dock_water_depth_m") is not None]
+        raw["scene"]["dock"]["water_depth_m"] = max([raw["scene"]["dock"]["water_depth_m"], *depths])
     try:
         exp = type(exp).model_validate(raw)
     except ValidationError as e:
