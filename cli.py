@@ -512,7 +512,7 @@ def preview(out: Path, width: int, height: int, samples: int, fidelity: str, mod
 @click.argument("name", type=click.Choice(("turbidity", "depth", "current", "occlusion", "turbidity_ladder",
                                            "all")))
 @click.option("--trials", type=click.IntRange(1, 100000), default=None,
-              help="trials per condition (default: the config's 100)")
+              help="trials per condition (default: the config's, 100; turbidity_ladder 50)")
 @click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
               default=Path("out/reproduce"), show_default=True)
 @click.option("--workers", type=click.IntRange(1, 256), default=None)

@@ -12,8 +12,8 @@ from blendgen.config.models import Condition, Dock, Experiment, Water
 from blendgen.physics import optics, turbidity, visibility, water_presets as wp
 from blendgen.vehicle import trajectories as tj
 
-# Band-mean beam attenuation c (1/m, R/G/B) of the Jerlov types, as tabulated by the issue
-# that asked for this (from the `jerlov` package: Solonenko & Mobley 2015 a + b).
+# Band-mean beam attenuation c (1/m, R/G/B) of the Jerlov types, summed by hand from the
+# source spectra (docs/waters.md: Solonenko & Mobley 2015 a + b at the channel wavelengths).
 JERLOV_C = {"I": (0.29, 0.06, 0.02), "IB": (0.33, 0.11, 0.09), "II": (0.575, 0.427, 0.505),
             "1C": (0.588, 0.452, 0.582), "9C": (2.94, 3.64, 5.03)}
 
