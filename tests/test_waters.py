@@ -143,3 +143,13 @@ def test_physical_depth_experiment_puts_the_dock_at_the_deepest_condition():
     surfaces = {c.label: condition_post(exp, c, 0).surface_z_m for c in exp.conditions}
     assert surfaces["depth_0m"] == pytest.approx(top) and surfaces["depth_5m"] == pytest.approx(0.0)
     assert reproduce.experiment("depth", 1, "article").scene.dock.water_depth_m == 1.0
+
+
+def test_closed_loop_refuses_a_start_box_out_of_the_water(tmp_path):
+    from blendgen.config.models import ConfigError
+    from blendgen.tools.closed_loop import Bench
+    exp = _exp(trajectories=[{"kind": "docking", "id": "d", "start": {"vertical_m": 5}}])
+    with pytest.raises(ConfigError, match=r"trajectories\[0\]\.start\.vertical_m: 5.0 puts a start 3.50 m above "
+                                          r"the water surface \('d'\); allowed vertical_m <= 1.50"):
+        Bench.prepare(exp, tmp_path / "assets")
+    assert not (tmp_path / "assets").exists()
