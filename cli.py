@@ -589,9 +589,10 @@ def preview(out: Path, width: int, height: int, samples: int, fidelity: str, mod
 
 
 @main.command("reproduce")
-@click.argument("name", type=click.Choice(("turbidity", "depth", "current", "occlusion", "all")))
+@click.argument("name", type=click.Choice(("turbidity", "depth", "current", "occlusion", "turbidity_ladder",
+                                           "all")))
 @click.option("--trials", type=click.IntRange(1, 100000), default=None,
-              help="trials per condition (default: the config's 100)")
+              help="trials per condition (default: the config's, 100; turbidity_ladder 50)")
 @click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
               default=Path("out/reproduce"), show_default=True)
 @click.option("--workers", type=click.IntRange(1, 256), default=None)
@@ -603,7 +604,8 @@ def preview(out: Path, width: int, height: int, samples: int, fidelity: str, mod
                    "runs while rendering either way")
 def reproduce(name: str, trials: int | None, out: Path, workers: int | None, overwrite: bool,
               mode: str | None, images: str):
-    """Run one of the article's experiments (or all): generate, evaluate, report."""
+    """Run one of the article's experiments (or all of them), or the physical turbidity ladder over
+    Jerlov I ... 9C (turbidity_ladder): generate, evaluate, report."""
     from blendgen.tools.reproduce import EXPERIMENTS, reproduce as run
     for text in run(EXPERIMENTS if name == "all" else (name,), out, trials, workers, overwrite, mode, images):
         click.echo(text)

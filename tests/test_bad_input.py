@@ -301,3 +301,83 @@ def test_cli_generate_bad_config_exit_2_nothing_written(tmp_path, key, value, ex
     out = tmp_path / "out"
     res, text = _run(["generate", str(p), "-o", str(out)])
     _check(res, text, expect, out)
+
+
+# ------------------------------------------------------------------ impossible scenes
+# (dotted key of configs/quickstart.yaml, value, the exact one-line message): refused by the
+# planner before anything is written (blendgen/pipeline/scene_check.py). Pool 15 x 5 x 8 m,
+# dock face centre 1.5 m deep (its top 1 m), 7 m from the pool's centre, camera 0.65 m ahead.
+IMPOSSIBLE_SCENES = [
+    ("trajectories.0.vertical_m", 100,
+     "trajectories[0].vertical_m: 100 puts the camera 98.50 m above the water surface at t = 0.00 s "
+     "('approach'); allowed -6.50 <= vertical_m <= 1.50"),
+    ("trajectories.0.vertical_m", -100,
+     "trajectories[0].vertical_m: -100 puts the camera 93.50 m below the pool's floor at t = 0.00 s "
+     "('approach'); allowed -6.50 <= vertical_m <= 1.50"),
+    ("trajectories.0.start_range_m", 1000,
+     "trajectories[0].start_range_m: 1000 puts the camera 984.85 m outside the pool's walls at t = 0.00 s "
+     "('approach'); allowed 1.00 <= start_range_m <= 15.15"),
+    ("trajectories.1.height_m", 5,
+     "trajectories[1].height_m: 5 puts the camera 2.94 m above the water surface at t = 0.00 s ('circle'); "
+     "allowed -5.94 <= height_m <= 2.06"),
+    ("scene.dock.water_depth_m", 10,
+     "scene.dock.water_depth_m: 10 puts the dock 3.00 m below the pool's floor; allowed 0.00 <= water_depth_m "
+     "<= 7.00"),
+    ("render.max_distance_m", 0.2,
+     "render.max_distance_m: 0.2 leaves trajectories[0] ('approach') no frame (no camera pose that close to the "
+     "dock before contact); allowed: max_distance_m >= 0.35"),
+    ("trajectories", [{"kind": "docking", "id": "d", "start": {"range_m": [1000, 1000]}}],
+     "trajectories[0].start.range_m: [1000.0, 1000.0] puts a start 985.50 m outside the pool's walls ('d'); "
+     "allowed range_m <= 14.50"),
+    ("trajectories", [{"kind": "docking", "id": "d", "start": {"vertical_m": 5}}],
+     "trajectories[0].start.vertical_m: 5.0 puts a start 3.50 m above the water surface ('d'); "
+     "allowed vertical_m <= 1.50"),
+    ("trajectories", [{"kind": "docking", "id": "d", "start": {"lateral_m": 5}}],
+     "trajectories[0].start.lateral_m: 5.0 puts a start 2.50 m outside the pool's walls ('d'); "
+     "allowed lateral_m <= 2.50"),
+]
+
+
+@pytest.mark.parametrize("key,value,message", IMPOSSIBLE_SCENES, ids=[f"{k}={v!r}"[:48] for k, v, _ in IMPOSSIBLE_SCENES])
+def test_impossible_scene_refused_exit_2_nothing_written(tmp_path, key, value, message):
+    p = _cfg(tmp_path, key, value)
+    out = tmp_path / "out"
+    res, text = _run(["generate", str(p), "-o", str(out)])
+    _check(res, text, message, out)
+    assert text.strip() == f"error: {message}"
+
+
+def test_physical_depth_condition_puts_the_surface_below_the_camera(tmp_path):
+    """Physical mode: a 0 m condition lifts nothing: the surface drops to the dock's top, and a
+    path 0.6 m above the face centre (0.1 m above the top) is then in the air."""
+    cfg = patched("trajectories.0.vertical_m", 0.6)
+    cfg.update(image_formation="physical", conditions=[{"label": "d0", "dock_water_depth_m": 0.0},
+                                                        {"label": "d1", "dock_water_depth_m": 1.0}])
+    p = tmp_path / "bad.yaml"
+    p.write_text(yaml.safe_dump(cfg))
+    res, text = _run(["generate", str(p), "-o", str(tmp_path / "out")])
+    _check(res, text, "trajectories[0].vertical_m: 0.6 puts the camera 0.10 m above the water surface at "
+                      "t = 0.00 s ('approach'); allowed -6.50 <= vertical_m <= 0.50", tmp_path / "out")
+
+
+@pytest.mark.parametrize("water,message", [
+    ({"secchi_m": 0.5}, "water: secchi_m 0.5 is outside the Jerlov ladder I..9C; allowed 2 <= secchi_m <= 79.9 m"),
+    ({"ntu": 50}, "water: ntu 50 is outside the Jerlov ladder I..9C; allowed 0.00187 <= ntu <= 3.25 NTU"),
+    ({"secchi_m": 5, "ntu": 1}, "water: give one of preset, secchi_m or ntu (a reading names the water)"),
+    ({"secchi_m": 5, "preset": "jerlov_I"}, "water: give one of preset, secchi_m or ntu (a reading names the water)"),
+])
+def test_bad_turbidity_reading(tmp_path, water, message):
+    p = _cfg(tmp_path, "water", water)
+    res, text = _run(["generate", str(p), "-o", str(tmp_path / "out")])
+    _check(res, text, f"{p}: {message}", tmp_path / "out")
+
+
+def test_physical_depth_condition_above_the_pool_rim_refused(tmp_path):
+    cfg = patched("image_formation", "physical")
+    cfg["conditions"] = [{"label": "d1", "dock_water_depth_m": 1.0}, {"label": "d5", "dock_water_depth_m": 5.0}]
+    p = tmp_path / "bad.yaml"
+    p.write_text(yaml.safe_dump(cfg))
+    res, text = _run(["generate", str(p), "-o", str(tmp_path / "out")])
+    _check(res, text, "conditions[1].dock_water_depth_m: 5 puts the water surface 4.00 m above the pool's rim "
+                      "(a depth condition moves the surface, not the dock); allowed <= scene.dock.water_depth_m "
+                      "(1): put the dock at the deepest condition", tmp_path / "out")

@@ -94,7 +94,8 @@ def test_fix_from_true_pose_recovers_relative_pose_heading_and_dock_depth():
     np.testing.assert_allclose(fix.p_dock, axes.p_dock(F_WORLD_NED @ T_wb[:3, 3]), atol=1e-9)
     assert fix.p_dock[2] == pytest.approx(5.0)
     assert fix.psi_dock == pytest.approx(axes.approach_psi, abs=1e-9)
-    assert fix.depth_dock == pytest.approx(1.0, abs=1e-9)
+    # the face centre: the dock's top 1 m deep, the 1 m face's centre 0.5 m below it
+    assert fix.depth_dock == pytest.approx(1.5, abs=1e-9)
 
 
 def test_a_wrong_pnp_rotation_does_not_move_the_filtered_position():

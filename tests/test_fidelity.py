@@ -47,12 +47,13 @@ def test_srgb_round_trip():
 
 
 def test_fast_water_veil_per_mode_and_calibration():
-    cal = {**CAL, "sun_elevation_deg": 30.0}
+    # a bare physical moderate is Jerlov II: calibrated under that name
+    cal = {**CAL, "presets": {"jerlov_II": CAL["presets"]["moderate"]}, "sun_elevation_deg": 30.0}
     w, fo = optics.fast_water(Water(preset="moderate", calibrated=True), "physical", 3.0, cal)
     assert fo["calibrated"] and fo["irradiance"] == 3.0
     assert np.allclose(w.B_inf, np.array([0.01, 0.02, 0.03]) / 0.5)    # per unit sun -> per unit E_d
-    assert np.allclose(w.c, optics.get_preset("moderate").c)           # c is never calibrated
-    assert np.allclose(w.Kd, optics.get_preset("jerlov_1C").Kd)        # physical: moderate -> Jerlov 1C Kd
+    assert np.allclose(w.c, optics.get_preset("jerlov_II").c)          # c is never calibrated
+    assert np.allclose(w.Kd, optics.get_preset("jerlov_II").Kd)        # physical: moderate -> Jerlov II
     w2, fo2 = optics.fast_water(Water(preset="moderate"), "physical", 3.0, cal)    # default: light field
     assert not fo2["calibrated"]
     assert np.allclose(w2.B_inf, w2.albedo / (4 * np.pi * optics.MEAN_COSINE_DOWN))

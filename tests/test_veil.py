@@ -114,8 +114,8 @@ def test_fit_recovers_known_parameters():
 
 
 def test_physical_default_uses_the_calibrated_veil_and_off_paths_skip_it():
-    v = optics.veil_parameters(Water(preset="mild"), "physical")
-    assert v is not None and v["kappa"] == VEIL["mild"]["kappa"]
+    v = optics.veil_parameters(Water(preset="mild"), "physical")          # physical mild = Jerlov IB
+    assert v is not None and v["kappa"] == VEIL["jerlov_IB"]["kappa"]
     w, opts = optics.fast_water(Water(preset="mild"), "physical", 3.0, veil=v)
     assert opts["veil"] is v and "veil model" in w.provenance
     # far dimmer than the isotropic-equivalent estimate it replaces (4-5x too bright in G/B)

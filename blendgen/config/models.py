@@ -189,9 +189,10 @@ Marker = Annotated[Union[LedArray, SquareMarker], Field(discriminator="kind")]
 
 
 class Dock(Strict):
-    """Docking station: its face centre at ``water_depth_m``, face normal along ``facing_deg``."""
+    """Docking station: its top ``water_depth_m`` below the surface, face normal along ``facing_deg``."""
     position_xy_m: Annotated[list[float], Field(min_length=2, max_length=2)] = [7.0, 0.0]
-    water_depth_m: float = Field(1.0, ge=0.0, le=1000.0)
+    water_depth_m: float = Field(1.0, ge=0.0, le=1000.0, description="depth (m) of the dock's top (the highest "
+                                 "point of body and markers) below the water surface; 0: just under it")
     facing_deg: float = Field(180.0, ge=-360, le=360, description="world yaw of the face normal (180 = -x)")
     body_size_m: Vec3 = [1.0, 1.0, 0.4]
     face_color: Color = [0.25, 0.27, 0.28]
@@ -430,6 +431,10 @@ class Water(Strict):
                                                 "(blendgen/data/water_calibration.json) instead of the "
                                                 "light-field estimate")
     blur: bool = Field(False, description="fast fidelity: range-dependent forward-scatter blur")
+    secchi_m: Optional[float] = Field(None, gt=0.0, le=1000.0, description="a Secchi depth reading (m): the water "
+                                      "between the Jerlov types of that clarity (physics/turbidity.py)")
+    ntu: Optional[float] = Field(None, gt=0.0, le=1e4, description="a nephelometric turbidity reading (NTU): "
+                                 "the water between the Jerlov types of that scattering (physics/turbidity.py)")
 
     @field_validator("preset", mode="before")
     @classmethod
@@ -449,6 +454,20 @@ class Water(Strict):
                              f"{self.preset!r}; give sigma_a/sigma_s instead")
         if self.albedo is not None and not article:
             raise ValueError("'albedo' only applies with 'beta' or an article preset")
+        return self._reading()
+
+    def _reading(self):
+        """A turbidity reading (``secchi_m`` or ``ntu``) names the water itself: its preset
+        becomes the clearer ladder type it lies above (recorded), its range is checked."""
+        given = [k for k in ("secchi_m", "ntu") if getattr(self, k) is not None]
+        if not given:
+            return self
+        if len(given) > 1 or "preset" in self.model_fields_set or self.beta is not None:
+            raise ValueError("give one of preset, secchi_m or ntu (a reading names the water)")
+        from blendgen.physics import turbidity
+        kind = given[0]
+        turbidity.water_from_reading(kind, getattr(self, kind))        # ValueError: the allowed range
+        self.preset = f"jerlov_{turbidity.ladder_type(kind, getattr(self, kind))}"
         return self
 
     @property
@@ -597,7 +616,8 @@ class Condition(Strict):
     occlusion are image-space (the clean render is shared); fluid changes the motion."""
     label: SafeId
     water: Optional[Water] = None
-    dock_water_depth_m: Optional[float] = Field(None, ge=0.0, le=1000.0)
+    dock_water_depth_m: Optional[float] = Field(None, ge=0.0, le=1000.0, description="depth (m) of the dock's "
+                                                "top below the surface in this condition (moves the surface)")
     occlusion: Optional[Occlusion] = None
     fluid: Optional[Fluid] = None
 
@@ -809,3 +829,10 @@ def load_experiment(path: str | Path) -> Experiment:
         raise ConfigError(format_validation_error(path, e)) from None
     return exp
 
+
+
+def article_grey_spec(name: str) -> Water:
+    """The water section of an article level's own grey water (``beta`` given), which the
+    ``physical`` mode keeps as is, with a Jerlov Kd (``physics.optics.water_for_mode``)."""
+    from blendgen.physics import water_presets
+    return Water(preset=name, beta=water_presets.ARTICLE_BETAS[name])

@@ -213,15 +213,16 @@ def _first(*values):
 def water_optics(spec) -> WaterOptics:
     """:class:`WaterOptics` of a validated water section (``blendgen.config.models.Water``).
 
-    The preset gives every coefficient; the section's non-null fields override them.
-    Article presets take ``beta``, ``water_color``, ``k``/``Kd`` and ``albedo`` through
+    The preset (or a turbidity reading, ``secchi_m`` / ``ntu``) gives every coefficient; the
+    section's non-null fields override them. Article presets take ``beta``, ``water_color``, ``k``/``Kd`` and ``albedo`` through
     :func:`article_water`; a Jerlov preset takes ``water_color`` as its ``B_inf``."""
     key = spec.preset
-    if key in ARTICLE_PRESETS:
+    reading = _reading(spec)
+    if key in ARTICLE_PRESETS and reading is None:
         w = article_water(_first(spec.beta, wp.ARTICLE_BETAS[key]), _first(spec.water_color, wp.ARTICLE_WATER_COLOR),
                           _first(spec.k, spec.Kd, wp.ARTICLE_K), spec.albedo, name=key)
     else:
-        w = get_preset(key)
+        w = get_preset(key) if reading is None else reading_water(*reading)
         if spec.water_color is not None:
             w = w.replace(B_inf=spec.water_color)
         if _first(spec.k, spec.Kd) is not None:
@@ -278,19 +279,46 @@ def light_field_veil(water: WaterOptics, mean_cosine_down: float = MEAN_COSINE_D
     return water.albedo / (4.0 * math.pi * float(mean_cosine_down))
 
 
+def reading_water(kind: str, value: float) -> WaterOptics:
+    """The water of a turbidity reading (``secchi_m`` m or ``ntu``; :mod:`physics.turbidity`)."""
+    from blendgen.physics import turbidity
+    return WaterOptics(name=f"{kind}={value:g}", **turbidity.water_from_reading(kind, value))
+
+
+def _reading(spec):
+    """(kind, value) of a water section's turbidity reading, or None."""
+    for kind in ("secchi_m", "ntu"):
+        v = getattr(spec, kind, None)
+        if v is not None:
+            return kind, float(v)
+    return None
+
+
+def effective_preset(spec, mode: str) -> str:
+    """The preset whose coefficients a water section has in ``mode``: in ``physical`` mode a
+    bare article level is its Jerlov type (``water_presets.ARTICLE_JERLOV``)."""
+    if mode == "physical" and spec.preset in ARTICLE_PRESETS and spec.is_bare:
+        return f"jerlov_{wp.ARTICLE_JERLOV[spec.preset]}"
+    return spec.preset
+
+
 def water_for_mode(spec, mode: str) -> WaterOptics:
     """The water's coefficients in an image-formation mode (both fidelities use these).
 
-    ``article``: :func:`water_optics` as configured. ``physical``: an article level's
-    depth light is the per-channel Kd of the Jerlov type ``water_presets.ARTICLE_KD_JERLOV``
-    names (unless ``k``/``Kd`` is given), and a bare ``clear`` is that type's water
-    (Jerlov I: real water absorbs red even when clear; the article's clear is no water)."""
+    ``article``: :func:`water_optics` as configured. ``physical``: a bare article level is
+    the water of the Jerlov type ``water_presets.ARTICLE_JERLOV`` names (per-channel a, b,
+    Kd: real water absorbs red even when clear); an article level with overridden
+    coefficients (the article's grey water, e.g. ``beta`` given) keeps them and takes the
+    per-channel Kd of ``water_presets.ARTICLE_KD_JERLOV`` (unless ``k``/``Kd`` is given)."""
     water = water_optics(spec)
     if mode != "physical" or spec.preset not in ARTICLE_PRESETS:
         return water
+    if spec.is_bare:
+        jerlov = get_preset(effective_preset(spec, mode))
+        beta = wp.ARTICLE_BETAS[spec.preset]
+        return jerlov.replace(name=spec.preset, provenance=f"physical {spec.preset} (article beta {beta:g} 1/m) = "
+                              f"{jerlov.name}, the type of nearest per-channel c: " + jerlov.provenance)
     jerlov = get_preset(f"jerlov_{wp.ARTICLE_KD_JERLOV[spec.preset]}")
-    if spec.preset == "clear" and spec.is_bare:
-        return jerlov.replace(name="clear", provenance=f"physical clear = {jerlov.name}: " + jerlov.provenance)
     if spec.k is None and spec.Kd is None:
         water = water.replace(Kd=jerlov.Kd, provenance=water.provenance + f"; Kd: {jerlov.name} (physical mode)")
     return water
@@ -314,7 +342,7 @@ def fast_water(spec, mode: str, irradiance: float, calibration: dict | None = No
     Returns ``(water, {"irradiance", "blur", "calibrated"})``."""
     water = water_for_mode(spec, mode)
     cal = calibration if calibration is not None else (load_calibration() if spec.calibrated else {})
-    entry = (cal.get("presets") or {}).get(spec.preset)
+    entry = (cal.get("presets") or {}).get(effective_preset(spec, mode))
     use = bool(spec.calibrated and entry and spec.is_bare and not water.is_clear)
     article_colour = mode == "article" and spec.preset in ARTICLE_PRESETS and spec.B_inf is None
     if use:
@@ -346,7 +374,7 @@ def veil_parameters(spec, mode: str, calibration: dict | None = None) -> dict | 
         return None
     cal = calibration if calibration is not None else load_calibration()
     section = cal.get("veil") or {}
-    entry = (section.get("presets") or {}).get(spec.preset)
+    entry = (section.get("presets") or {}).get(effective_preset(spec, mode))
     if not entry or water_for_mode(spec, mode).is_clear:
         return None
     return {"kappa": list(entry["kappa"]), "K_v": list(entry["K_v"]), "eta": float(entry["eta"]),

@@ -64,9 +64,17 @@ PARTICLE_G = 0.92
 ARTICLE_BETAS = {"clear": 0.0, "mild": 0.2, "moderate": 0.5}
 #: The article's typical depth-light coefficient k (1/m).
 ARTICLE_K = 0.2
-#: Jerlov type whose measured per-channel Kd is the depth light of each article level in the
-#: ``physical`` mode (the article gives one grey k). Our choice, by beam attenuation and
-#: colour: clear -> oceanic I, mild (c 0.2/m) -> oceanic II, moderate (0.5/m, greenish) -> coastal 1C.
+#: The real water each article level is in the ``physical`` mode: the Jerlov type whose
+#: per-channel beam attenuation c (RGB band means) is nearest the article's grey ``beta``
+#: (:func:`nearest_jerlov_type`: RMS of ln(c_type / beta) over R, G, B; mild -> IB at 0.65,
+#: moderate -> II at 0.12, 1C next at 0.14). The article's clear (beta 0, no water at all) is
+#: the clearest type, I. A bare article preset in physical mode is that type's water (a, b,
+#: Kd, g), so a red LED fades as in real water; docs/waters.md has the table.
+ARTICLE_JERLOV = {"clear": "I", "mild": "IB", "moderate": "II"}
+#: Depth light (per-channel Kd) of an article level whose coefficients are given (``beta`` or
+#: ``sigma_a``/``sigma_s``: the article's grey water kept) in the ``physical`` mode: the Jerlov
+#: type of about its beam attenuation and colour (our choice, by c and the greenish colour:
+#: clear -> oceanic I, mild (0.2/m) -> oceanic II, moderate (0.5/m) -> coastal 1C).
 ARTICLE_KD_JERLOV = {"clear": "I", "mild": "II", "moderate": "1C"}
 #: Greenish water colour, linear RGB (our choice; the article names no numbers).
 ARTICLE_WATER_COLOR = (0.03, 0.20, 0.15)
@@ -99,6 +107,18 @@ def article_coefficients(beta, water_color=ARTICLE_WATER_COLOR, k=ARTICLE_K,
 def _band_means(fn) -> np.ndarray:
     """(3,) equal-weight means of fn(wavelengths) over :data:`RGB_BANDS_NM`."""
     return np.array([float(np.mean(fn(np.array(wl)))) for wl in RGB_BANDS_NM.values()])
+
+
+def nearest_jerlov_type(c_rgb) -> tuple[str, float]:
+    """The Jerlov type whose beam attenuation c (3,) is nearest ``c_rgb`` (3,), 1/m, > 0, and
+    the distance: RMS over R, G, B of ln(c_type / c_rgb) (logarithms, as
+    ``jerlov.classify_kd`` ranks Kd spectra: 10 % counts alike in clear and turbid water)."""
+    target = np.broadcast_to(np.asarray(c_rgb, float), (3,))
+    if not np.all(target > 0):
+        raise ValueError(f"c must be > 0 in every channel to compare on a log scale, got {target}")
+    best = min((float(np.sqrt(np.mean(np.log((d["sigma_a"] + d["sigma_s"]) / target) ** 2))), t)
+               for t, d in ((t, jerlov_coefficients(t)) for t in JERLOV_TYPES))
+    return best[1], best[0]
 
 
 def hg_phase_90(g: float) -> float:

@@ -22,7 +22,7 @@ from pydantic import Field, model_validator
 
 from blendgen import markers as mk
 
-from blendgen.pipeline import groundtruth
+from blendgen.pipeline import groundtruth, scene_check
 from blendgen.physics import surface as sf
 from blendgen.vehicle import trajectories as tj
 from blendgen.config import effective as eff
@@ -73,7 +73,9 @@ class SequencePost(Strict):
     fps: float
     image_formation: ImageFormation
     water: Water
-    light_depth_m: float = Field(ge=0.0, description="the dock's depth (the article's d)")
+    water_effective: Optional[dict] = Field(None, description="the water's coefficients in this image formation "
+                                            "(per channel, 1/m), the preset they come from and their provenance")
+    light_depth_m: float = Field(ge=0.0, description="the dock's depth: its top below the surface (the article's d)")
     surface_z_m: float = Field(description="world z of the water surface for this condition")
     irradiance_w_m2: float = Field(ge=0.0, description="downwelling irradiance just below the surface")
     noise_std: float = 0.0
@@ -319,20 +321,26 @@ def exposure_flow(exp: Experiment, T_wc: np.ndarray, T_wd: np.ndarray) -> np.nda
 
 def check_before_writing(exp: Experiment) -> None:
     """Raise ConfigError for what planning would refuse, before anything is written: the
-    paths (:func:`check_paths`) and the world's surface and sun (:func:`world_post`)."""
+    paths (:func:`check_paths`), the world's surface and sun (:func:`world_post`), and the dock,
+    camera paths and docking starts inside the water (:func:`scene_check.check_scene`)."""
+    scene_check.check_scene(exp)
     check_paths(exp)
     world_post(exp)
 
 
 def check_paths(exp: Experiment) -> None:
     """Raise ConfigError before anything is written if a kinematic path (linear, circle) brings
-    the camera to the dock's marker plane (:func:`until_contact`); docking trials end there."""
+    the camera to the dock's marker plane (:func:`until_contact`; docking trials end there) or
+    yields no frame (:func:`scene_check.check_frames`)."""
     T_wd = tj.T_world_dock_from_spec(exp.scene.dock)
     T_bc = tj.T_body_cam_from_spec(exp.camera.T_body_cam)
-    for traj in exp.trajectories:
+    for i, traj in enumerate(exp.trajectories):
         if traj.kind != "docking":
             smp = tj.sample(traj, T_wd, exp.camera.fps, exp.camera.latency_s, seed=0, fluid=exp.fluid)
-            until_contact(exp, traj, smp.T_world_body @ T_bc, T_wd)
+            T_wc = smp.T_world_body @ T_bc
+            n = until_contact(exp, traj, T_wc, T_wd)
+            nearest = min((groundtruth.d_true(T, T_wd) for T in T_wc[:n]), default=None)
+            scene_check.check_frames(exp, i, None, _frames(exp, traj, T_wd, T_bc, 0, exp.fluid), nearest)
 
 
 def _frames(exp: Experiment, traj, T_wd: np.ndarray, T_body_cam: np.ndarray, seed: int, fluid) -> list[dict]:
@@ -407,15 +415,7 @@ def marker_regions(markers: list[dict], quiet_zone: bool = True) -> list[np.ndar
 
 def dock_corners(exp: Experiment) -> np.ndarray:
     """The 8 corners (dock frame, m) of a box holding the dock body and every marker."""
-    sx, sy, sz = exp.scene.dock.body_size_m
-    x, y = sx / 2, sy / 2
-    for m in exp.scene.dock.markers:
-        r = getattr(m, "led_radius_m", 0.0)
-        side = max(m.size_m, getattr(m, "height_m", None) or 0.0)
-        half = side / 2 * (1.5 if m.kind != "led_array" else 1.0) + r  # 1.5: plate with quiet zone
-        x = max(x, abs(m.center_m[0]) + half)
-        y = max(y, abs(m.center_m[1]) + half)
-    return np.array([[a, b, c] for a in (-x, x) for b in (-y, y) for c in (0.01, -sz - 0.01)])
+    return tj.dock_corners(exp.scene.dock)
 
 
 def trial_seed(exp: Experiment, trial: int) -> int:
@@ -447,7 +447,8 @@ def condition_post(exp: Experiment, cond, seed: int) -> SequencePost:
     """Image-space processing of one condition: water, depth light, particles, sensor.
 
     A depth condition moves the water surface (``surface_z_m``), not the geometry, so the
-    clean render is shared: the surface sits ``light_depth_m`` above the dock's face centre."""
+    clean render is shared: the surface sits ``light_depth_m`` above the dock's top
+    (``trajectories.dock_top_m``), which the scene puts at z = -scene.dock.water_depth_m."""
     depth = cond.dock_water_depth_m if cond.dock_water_depth_m is not None else exp.scene.dock.water_depth_m
     occ = cond.occlusion or exp.occlusion
     fluid = cond.fluid or exp.fluid
@@ -457,8 +458,9 @@ def condition_post(exp: Experiment, cond, seed: int) -> SequencePost:
         occ_post = OcclusionPost(**occ.model_dump(exclude={"region_min", "region_max"}), region_min=lo,
                                  region_max=hi, v_flow=list(fluid.current_mps))
     from blendgen.physics import optics
+    water = cond.water or exp.water
     return SequencePost(seed=seed, fps=exp.camera.fps, image_formation=exp.image_formation,
-                        water=cond.water or exp.water, light_depth_m=depth,
+                        water=water, water_effective=effective_water(water, exp.image_formation), light_depth_m=depth,
                         surface_z_m=-exp.scene.dock.water_depth_m + depth,
                         irradiance_w_m2=downwelling_irradiance(exp), noise_std=exp.camera.noise_std,
                         sensor=resolved_sensor(exp),
@@ -469,6 +471,15 @@ def condition_post(exp: Experiment, cond, seed: int) -> SequencePost:
                         lamp_forward_kept=exp.vehicle.lamp_forward_kept if exp.vehicle.lamps else None,
                         lamp_shadows=exp.vehicle.lamp_shadows if exp.vehicle.lamps else None,
                         lens=exp.camera.lens, suns=sun_lights(exp), ambient_w_m2_sr=ambient_radiance(exp))
+
+
+def effective_water(water: Water, mode: str) -> dict:
+    """The manifest's record of a condition's water in an image formation: the coefficients
+    used (1/m, R/G/B; ``B_inf`` before the veil model), ``c``, the preset they come from
+    (in physical mode an article level is its Jerlov type) and their provenance."""
+    from blendgen.physics import optics
+    w = optics.water_for_mode(water, mode)
+    return {**w.to_dict(), "c": w.c.tolist(), "preset": optics.effective_preset(water, mode)}
 
 
 def world_on(exp: Experiment, what: str) -> bool:
@@ -574,7 +585,7 @@ def water_volume(exp: Experiment, post: SequencePost) -> dict | None:
     if w.is_clear:
         return None
     s = exp.scene
-    dock_z = -s.dock.water_depth_m
+    dock_z = float(tj.T_world_dock_from_spec(s.dock)[2, 3])
     surface_z = post.surface_z_m
     if s.kind == "pool":
         lo = [-s.pool.length_m / 2, -s.pool.width_m / 2, -s.pool.depth_m]
@@ -614,6 +625,7 @@ def plan_jobs(exp: Experiment, scene: dict) -> list[RenderJob]:
                         None if fluid is None else json.dumps(fluid.model_dump(), sort_keys=True))
                 if mkey not in paths:
                     paths[mkey] = _frames(exp, traj, T_wd, T_bc, seed, fluid or exp.fluid)
+                    scene_check.check_frames(exp, exp.trajectories.index(traj), trial, paths[mkey])
                 frames = paths[mkey]
                 post = condition_post(exp, c, seed)
                 sq = SequencePlan(f"{traj.id}-t{trial:03d}-{c.label}", traj.id, trial, c.label, post)

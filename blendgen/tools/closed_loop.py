@@ -39,7 +39,7 @@ import cv2
 import numpy as np
 
 from blendgen.config.models import ConfigError, DockingTrajectory, Experiment
-from blendgen.pipeline import compose, frameloop, groundtruth, plan
+from blendgen.pipeline import compose, frameloop, groundtruth, plan, scene_check
 from blendgen.vehicle import docking, trajectories as tj
 from blendgen.vehicle.closed_loop import Observation, TrialSetup, simulate_closed_loop
 from blendgen.vehicle.dynamics import VehicleParams
@@ -139,6 +139,7 @@ class Bench:
                               "(a dataset blurs by the planned next pose, which a closed loop does not know yet); "
                               "set it to false")
         traj = next((t for t in exp.trajectories if t.kind == "docking"), DockingTrajectory())
+        scene_check.check_scene(exp)       # the dock and the start box inside the water
         markers = plan.manifest_markers(exp)
         scene = plan.scene_description(exp, markers, write_textures(exp, assets))
         hull_r = VehicleParams().diameter / 2

@@ -215,7 +215,8 @@ def run_calibration(work: Path, data_path: Path, width: int, height: int, frames
     echo("clean surfaces-only render at the same spp ...")
     clean_exp = held_in_experiment(width, height, frames, ("clear",), fidelity="fast", samples=ref_samples)
     clean_path, _ = render(clean_exp, work / f"clean-{width}x{height}-s{ref_samples}")
-    depth = ref_exp.scene.dock.water_depth_m
+    from blendgen.vehicle.trajectories import dock_top_m
+    depth = ref_exp.scene.dock.water_depth_m + dock_top_m(ref_exp.scene.dock)    # the face centre's depth
     E = ref_exp.scene.sun_strength
     presets = calibrate(ref_path, clean_path, depth, E, ref_exp.scene.sun_elevation_deg)
     data = {"version": 1,
@@ -477,13 +478,14 @@ def glow_comparison(work: Path, waters=GLOW_WATERS, ranges=GLOW_RANGES, size: in
     single-scatter Cycles; > 0: the multiple-scatter (widening) kernel vs Cycles with that many
     volume bounces. Returns a DataFrame (green channel)."""
     import pandas as pd
-    from blendgen.config.models import Water
+    from blendgen.config.models import Water, article_grey_spec
     from blendgen.physics import optics
     fx = (size / 2) / math.tan(math.radians(hfov_deg) / 2)
     fine = np.arange(1, max(GLOW_RADII_PX) + 1)
     rows = []
-    for name in waters:
-        w = optics.water_for_mode(Water(preset=name), "physical")
+    for name in waters:                 # an article level: its grey water (article_grey_spec)
+        spec = article_grey_spec(name) if name in optics.ARTICLE_PRESETS else Water(preset=name)
+        w = optics.water_for_mode(spec, "physical")
         for r in ranges:
             img = glow_reference(w, r, work, size, hfov_deg, samples, power_w, volume_bounces)
             direct = power_w / (4 * math.pi) * np.exp(-w.c * r) / r ** 2

@@ -28,18 +28,40 @@ from blendgen.config.models import ConfigError, format_validation_error, load_ex
 
 EXPERIMENTS = ("turbidity", "depth", "current", "occlusion")
 LOCALIZERS = ("led", "qr", "hybrid")
+#: Experiments beyond the article's (not in ``all``): name -> (bundled config, localizers).
+#: ``turbidity_ladder``: the physical turbidity experiment over Jerlov I ... 9C (docs/waters.md).
+EXTRA = {"turbidity_ladder": ("turbidity_ladder.yaml", ("led", "qr", "aruco", "hybrid"))}
+NAMES = EXPERIMENTS + tuple(EXTRA)
+
+
+def config_file(name: str) -> str:
+    """The bundled config of an experiment name."""
+    return EXTRA[name][0] if name in EXTRA else f"paper_{name}.yaml"
+
+
+def localizers_of(names) -> list[str]:
+    """Every localizer the experiments ``names`` evaluate (the article's three, plus extras)."""
+    out = list(LOCALIZERS)
+    for n in names:
+        out += [loc for loc in (EXTRA[n][1] if n in EXTRA else ()) if loc not in out]
+    return out
 
 
 def experiment(name: str, trials: int | None, mode: str | None = None):
     """The paper config, optionally with fewer trials or another image formation (the
-    dataset name records both)."""
-    path = bundled_file("configs", f"paper_{name}.yaml")
+    dataset name records both). In physical mode the dock sits at the deepest condition's
+    depth, so every depth condition lowers the surface inside the pool's walls
+    (``scene_check.check_surfaces``)."""
+    path = bundled_file("configs", config_file(name))
     exp = load_experiment(path)
     raw = exp.model_dump()
     if trials is not None:         # re-validated: the trials and frame limits apply here too
         raw.update(trials=trials, name=f"{raw['name']}-{trials}trials")
     if mode is not None and mode != exp.image_formation:
         raw.update(image_formation=mode, name=f"{raw['name']}-{mode}")
+    if raw["image_formation"] == "physical":      # the dock at the deepest condition: the surface
+        depths = [c["dock_water_depth_m"] for c in raw["conditions"] if c.get("dock_water_depth_m") is not None]
+        raw["scene"]["dock"]["water_depth_m"] = max([raw["scene"]["dock"]["water_depth_m"], *depths])
     try:
         exp = type(exp).model_validate(raw)
     except ValidationError as e:
@@ -55,8 +77,9 @@ def evaluate(dataset_dir: Path, out: Path, localizers=LOCALIZERS, workers: int |
     return evaluate_dataset(req)[1]
 
 
-def report(name: str, paths: dict) -> str:
-    """Article table, per-marker usable range and where the plots are."""
+def report(name: str, paths: dict, exp=None) -> str:
+    """Article table, per-marker usable range and where the plots are; for the turbidity
+    ladder (``exp`` given) also the usable range per water beside its prediction."""
     m = pd.read_csv(paths["metrics"], keep_default_na=False, na_values=[""])
     group = ["localizer", "trajectory", "condition"]
     rt = pd.read_csv(paths["runtime"], keep_default_na=False, na_values=[""])
@@ -69,6 +92,9 @@ def report(name: str, paths: dict) -> str:
                      f"P_succ {100 * r['P_succ_mean']:5.1f}%  P_detect {100 * r['P_detect_mean']:5.1f}%  "
                      f"E_rel {100 * r['E_rel_mean']:.2f}% (range-matched {_matched(r)})  usable range {rng}  "
                      f"{r['ms_median']:.1f} ms/frame")
+    if exp is not None and exp.name.startswith("turbidity_ladder"):
+        from blendgen.tools.water_ladder import ladder_table
+        lines += ["", "usable range per water: contrast-threshold prediction / measured", "", ladder_table(exp, m)]
     lines += ["", Path(paths["range_bins_md"]).read_text().strip()]
     plots = Path(paths["article_md"]).parent.parent / "plots"
     lines += ["", f"plots: {plots / 'range_bins.png'} (success and error per range bin, conditions as lines), "
@@ -96,12 +122,12 @@ def reproduce(names: tuple[str, ...], out_root: Path, trials: int | None, worker
     for e, b in zip(exps, bases):
         check_out_dir(e, b / "dataset", overwrite=overwrite)
     t0 = time.perf_counter()
-    runs = stream_run(list(zip(exps, bases)), RunRequest(list(LOCALIZERS), images=images, workers=workers,
+    runs = stream_run(list(zip(exps, bases)), RunRequest(localizers_of(names), images=images, workers=workers,
                                                          overwrite=overwrite))
     dt = time.perf_counter() - t0
     reports = []
     for e, b, r in zip(exps, bases, runs):
-        text = report(e.name, r["paths"]) + (f"\n\ntimes: generate + evaluate (all {len(exps)} together, "
+        text = report(e.name, r["paths"], e) + (f"\n\ntimes: generate + evaluate (all {len(exps)} together, "
                                              f"evaluated while rendering) {dt:.0f} s\n")
         (b / "report.md").write_text(text)
         reports.append(text)

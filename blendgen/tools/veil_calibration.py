@@ -39,9 +39,13 @@ ALIASES = {"clear": "jerlov_I"}
 
 
 def physical_water(preset: str):
-    from blendgen.config.models import Water
+    """The water calibrated under ``preset``: a Jerlov type, or an article level's own grey
+    water (``mild``, ``moderate``: beta given; a bare level in physical mode is its Jerlov
+    type, calibrated under that type's name)."""
+    from blendgen.config.models import Water, article_grey_spec
     from blendgen.physics import optics
-    return optics.water_for_mode(Water(preset=preset), "physical")
+    spec = article_grey_spec(preset) if preset in optics.ARTICLE_PRESETS else Water(preset=preset)
+    return optics.water_for_mode(spec, "physical")
 
 
 def reference_spec(water, depth_m: float, elevation_deg: float, bounces: int = BOUNCES, spp: int = SPP,

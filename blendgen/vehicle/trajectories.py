@@ -36,14 +36,41 @@ def T_body_cam_from_spec(pose) -> np.ndarray:
     return make_T(rpy_to_R(r, p, y) @ R_BODY_CAM_FORWARD, pose.xyz)
 
 
+#: Half-side of a square marker's plate over the code's (quiet zone included): ISO/IEC 18004's
+#: 4-module quiet zone around a 21-module QR code gives 29/21 = 1.38; 1.5 bounds it.
+PLATE_HALF_FACTOR = 1.5
+
+
+def dock_corners(dock) -> np.ndarray:
+    """The 8 corners (8, 3) (dock frame, m) of a box holding the dock body and every marker."""
+    sx, sy, sz = dock.body_size_m
+    x, y = sx / 2, sy / 2
+    for m in dock.markers:
+        r = getattr(m, "led_radius_m", 0.0)
+        side = max(m.size_m, getattr(m, "height_m", None) or 0.0)
+        half = side / 2 * (PLATE_HALF_FACTOR if m.kind != "led_array" else 1.0) + r
+        x = max(x, abs(m.center_m[0]) + half)
+        y = max(y, abs(m.center_m[1]) + half)
+    return np.array([[a, b, c] for a in (-x, x) for b in (-y, y) for c in (0.01, -sz - 0.01)])
+
+
+def dock_top_m(dock) -> float:
+    """Height (m) of the dock's top above its face centre: the top of :func:`dock_corners`'s
+    box (body and markers, symmetric about the face centre)."""
+    return float(dock_corners(dock)[:, 1].max())
+
+
 def T_world_dock_from_spec(dock) -> np.ndarray:
-    """Dock pose in the world: face centre at (x, y, -water_depth), face normal at yaw ``facing_deg``."""
+    """Dock pose in the world (water surface at z = 0): face normal at yaw ``facing_deg``, the
+    face vertical, and the dock's top (:func:`dock_top_m`) ``water_depth_m`` below the surface,
+    so the face centre is at z = -(water_depth_m + dock_top_m) and 0 m is a dock just under the
+    surface."""
     yaw = math.radians(dock.facing_deg)
     z_d = np.array([math.cos(yaw), math.sin(yaw), 0.0])
     y_d = np.array([0.0, 0.0, 1.0])
     x_d = np.cross(y_d, z_d)
     x, y = dock.position_xy_m
-    return make_T(np.column_stack([x_d, y_d, z_d]), [x, y, -dock.water_depth_m])
+    return make_T(np.column_stack([x_d, y_d, z_d]), [x, y, -(dock.water_depth_m + dock_top_m(dock))])
 
 
 def _body_R_facing(forward_world: np.ndarray) -> np.ndarray:
