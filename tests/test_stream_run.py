@@ -138,12 +138,12 @@ def test_a_run_killed_after_its_first_evaluated_sequence_resumes_to_the_same_res
     out = tmp_path / "run"
     p = _start(cfg, out)
     t_end = time.monotonic() + 300
-    while not list(out.glob(".stream/*/*.pkl.gz")) and p.poll() is None and time.monotonic() < t_end:
+    while not list(out.glob(".stream/*/*.parquet")) and p.poll() is None and time.monotonic() < t_end:
         time.sleep(0.05)
     assert p.poll() is None, "the run ended before it could be interrupted"
     os.killpg(p.pid, signal.SIGKILL)                            # the parent, render and evaluation workers
     p.wait()
-    done_before = {q.name: q.stat().st_mtime_ns for q in out.glob(".stream/*/*.pkl.gz")}
+    done_before = {q.name: q.stat().st_mtime_ns for q in out.glob(".stream/*/*.parquet")}
     _ok("run", cfg, *LOCS, "-o", out, "--images", "none", "-q")
     st, first = _stream(out), _stream(d / "run")              # --images none: no image encoded
     assert set(st["files"]) | set(st["pixels"]) == set(first["files"]) | set(first["pixels"])
@@ -152,7 +152,7 @@ def test_a_run_killed_after_its_first_evaluated_sequence_resumes_to_the_same_res
     assert all(st["files"][p] == first["files"][p] for p in st["files"])
     assert check_against(st, d / "gen") == []
     assert (out / "results" / "metrics.csv").read_bytes() == (d / "ev" / "metrics.csv").read_bytes()
-    assert {q.name: q.stat().st_mtime_ns for q in out.glob(".stream/*/*.pkl.gz") if q.name in done_before} \
+    assert {q.name: q.stat().st_mtime_ns for q in out.glob(".stream/*/*.parquet") if q.name in done_before} \
         == done_before                                          # finished sequences were not evaluated again
     assert not list((out / "dataset").glob("sequences/*/rgb/*.png"))   # --images none
     assert not list((out / "dataset").rglob(".*.npy"))          # raw pixels gone once evaluated
