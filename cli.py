@@ -106,7 +106,7 @@ def _command_line(ctx: click.Context) -> list[str]:
               help="seconds per frame; slower frames fail with 'timeout'; turns on --isolate")
 @click.option("--isolate/--in-process", default=None,
               help="run each Python localizer in its own child process (memory-capped): a hang past "
-                   "--frame-timeout (default 60 s) is killed and a crash or os._exit costs one frame. "
+                   "--frame-timeout (default 30 s) is killed and a crash or os._exit costs one frame. "
                    "Default: plugins (file.py:Class, module:attr, entry points) isolated, built-ins in process. "
                    "Children get 4096 MiB of address space (env DOCKBENCH_MEMORY_LIMIT_MB, 0 = unlimited)")
 @click.option("--preprocess", default=None, metavar="STEPS",
