@@ -34,6 +34,24 @@ def _user_errors(fn):
     return wrapper
 
 
+def _writes_out(command: str):
+    """``-o`` of a command that writes into it as it goes follows :mod:`datasets_spec.outdir`'s rule
+    (new, empty or this command's own folder, never a dataset; else ``--overwrite``) and its
+    lock, checked before any work. Adds ``--overwrite``."""
+    def deco(fn):
+        @functools.wraps(fn)
+        def wrapper(*args, overwrite_out: bool = False, **kwargs):
+            from datasets_spec import outdir
+            out = kwargs.get("out")
+            if out is None:
+                return fn(*args, **kwargs)
+            with outdir.writing(out, command, overwrite_out):
+                return fn(*args, **kwargs)
+        return click.option("--overwrite", "overwrite_out", is_flag=True,
+                            help="write into a non-empty -o that this command did not write")(wrapper)
+    return deco
+
+
 class _Commands(click.Group):
     """A command group whose every subcommand gets the same user-error handling (exit 2)."""
 
@@ -232,6 +250,7 @@ def bench(ctx: click.Context):
 
 
 @bench.command("stages")
+@_writes_out("bench")
 @click.option("--frames", type=click.IntRange(5, 10000), default=40, help="frames to render per setting")
 @click.option("--samples", "samples", multiple=True, type=click.IntRange(1, 4096),
               help="Cycles samples to time (repeatable; default 1 and 4)")
@@ -266,6 +285,7 @@ def bench_io(dataset: Path | None):
 
 
 @bench.command("fidelity")
+@_writes_out("bench")
 @_size_options
 @click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
               default=Path("out/bench_fidelity"), show_default=True)
@@ -306,6 +326,7 @@ def bench_fidelity(width: int, height: int, ref_samples: int, frames: int, out: 
 
 
 @bench.command("render-settings")
+@_writes_out("bench")
 @click.argument("base", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.argument("variant", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("-l", "--localizer", "names", multiple=True, default=("led", "qr", "aruco"), show_default=True)
@@ -320,6 +341,7 @@ def bench_render_settings(base: Path, variant: Path, names: tuple[str, ...], out
 
 
 @bench.command("pnp")
+@_writes_out("bench")
 @click.option("--trials", type=click.IntRange(5, 100000), default=60, show_default=True,
               help="random poses per (target, Z, angle, noise) cell")
 @click.option("--seed", type=click.IntRange(0, 2**32 - 1), default=0, show_default=True)
@@ -374,6 +396,7 @@ def bench_particles(counts: tuple[int, ...], size: tuple[int, int], frames: int,
 
 
 @bench.command("glow")
+@_writes_out("bench")
 @click.option("--samples", type=click.IntRange(1, 65536), default=64, show_default=True)
 @click.option("--size", type=click.IntRange(16, 1024), default=96, show_default=True)
 @click.option("--volume-bounces", type=click.IntRange(0, 1024), default=0, show_default=True,
@@ -393,6 +416,7 @@ def bench_glow(samples: int, size: int, volume_bounces: int, out: Path):
 
 
 @bench.command("caustics")
+@_writes_out("bench")
 @click.option("--depth", "depths", multiple=True, type=click.FloatRange(0.1, 30.0),
               help="floor depth in m (repeatable; default 1, 2, 4)")
 @click.option("--water", "waters", multiple=True, type=click.Choice(["I", "IA", "IB", "II", "III", "1C", "3C", "5C"]),
@@ -423,6 +447,7 @@ def bench_caustics(depths: tuple[float, ...], waters: tuple[str, ...], size: int
 
 
 @bench.command("lamp")
+@_writes_out("bench")
 @click.option("--samples", type=click.IntRange(1, 65536), default=256, show_default=True,
               help="Cycles samples of the veil renders (the card renders use the same)")
 @click.option("--bounces", type=click.IntRange(1, 1024), default=32, show_default=True,
@@ -456,16 +481,19 @@ def bench_lamp(samples: int, bounces: int, out: Path):
 
 
 @main.command("calibrate-water")
+@_writes_out("bench")
 @_size_options
 @click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
               default=Path("out/bench_fidelity"), show_default=True, help="work directory for the renders")
 @click.option("--data", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="calibration file to write (default: the package's water_calibration.json)")
+              help="calibration file to write (default: OUT/water_calibration.json; never the installed "
+                   "package's unless named here)")
 def calibrate_water(width: int, height: int, ref_samples: int, frames: int, out: Path, data: Path | None):
     """Fit the fast model's B_inf and depth light to reference renders; write the calibration file."""
-    from blendgen.physics import optics
     from blendgen.tools.fidelity import run_calibration
-    data = data or optics.CALIBRATION_PATH
+    from blendgen.tools.veil_calibration import check_data_file
+    data = data or out / "water_calibration.json"
+    check_data_file(data)
     d = run_calibration(out, data, width, height, frames, ref_samples, echo=lambda m: click.echo(m, err=True))
     for name, e in d["presets"].items():
         r = e["residual"]
@@ -475,17 +503,19 @@ def calibrate_water(width: int, height: int, ref_samples: int, frames: int, out:
 
 
 @main.command("calibrate-veil")
+@_writes_out("calibrate")
 @click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
               default=Path("out/calibrate_veil"), show_default=True, help="work directory for the render specs")
 @click.option("--data", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="calibration file to update (default: the package's water_calibration.json)")
+              help="calibration file to update (default: OUT/water_calibration.json, seeded from the "
+                   "package's; the installed package's file only when named here)")
 @click.option("--preset", "presets", multiple=True, help="presets to measure (repeatable; default all)")
 def calibrate_veil(out: Path, data: Path | None, presets: tuple[str, ...]):
     """Fit the physical veil model (kappa, K_v per channel, eta) to Cycles references with 64 volume
     bounces at depths 1/3/6 m and views -30/0/+30 deg; ~6 renders of ~10 s per preset."""
-    from blendgen.physics import optics
     from blendgen.tools import veil_calibration as vc
-    data = data or optics.CALIBRATION_PATH
+    data = data or out / "water_calibration.json"
+    vc.check_data_file(data)                  # before any render
     d = vc.run(out, data, presets or vc.PRESETS, echo=lambda m: click.echo(m, err=True))
     for name, e in d["presets"].items():
         click.echo(f"{name:10s} kappa={e['kappa']} K_v={e['K_v']} eta={e['eta']} "
@@ -568,15 +598,18 @@ def run(config: Path, localizers: tuple[str, ...], params: tuple[str, ...], out:
     from blendgen.pipeline.generate import check_out_dir
     from blendgen.tools.streamrun import RunRequest, stream_run
     from evalkit import assemble, registry
+    from datasets_spec import outdir
     exp = load_experiment(config)
     out = out or Path("out") / exp.name
     kw = registry.parse_params(list(params))
     for n in localizers:                      # bad specs and params before anything renders
         assemble.build(n, registry.params_for(n, kw, list(localizers)), preprocess=preprocess)
+    outdir.check(out, "run", overwrite)       # new, empty or an earlier run's folder; never a dataset
     check_out_dir(exp, out / "dataset", overwrite)
     req = RunRequest(list(localizers), list(params), images, workers, preprocess=preprocess, progress=not quiet,
                      command=_command_line(click.get_current_context()), overwrite=overwrite)
-    r = stream_run([(exp, out)], req)[0]
+    with outdir.writing(out, "run", overwrite):
+        r = stream_run([(exp, out)], req)[0]
     if not quiet:
         click.echo("\n" + r["paths"]["article_md"].read_text())
         st = r["stream"]
@@ -585,6 +618,7 @@ def run(config: Path, localizers: tuple[str, ...], params: tuple[str, ...], out:
 
 
 @main.command("calibrate")
+@_writes_out("calibrate")
 @click.option("--config", "config", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="calibration config (YAML; default: the bundled configs/calibration.yaml)")
 @click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
@@ -611,6 +645,7 @@ def calibrate(config: Path | None, out: Path):
 
 
 @bench.command("localizers")
+@_writes_out("bench")
 @click.argument("dataset", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
               default=Path("out/bench"), show_default=True)
@@ -660,15 +695,20 @@ def leaderboard(results_dirs: tuple[Path, ...], out: Path, title: str, shot: Pat
 @click.option("--no-masks", is_flag=True, help="do not write mask_visib PNGs")
 @click.option("--undistort", is_flag=True, help="camera with lens distortion: remap images, depth and masks "
                                                 "to the pinhole camera of the same K (else refused)")
+@click.option("--overwrite", is_flag=True, help="replace a non-empty OUT")
 def export_bop(dataset: Path, out: Path, split: str, copy_images: bool, depth_scale: float,
-                   no_masks: bool, undistort: bool):
-    """Export DATASET in the BOP format (scene_camera/scene_gt/scene_gt_info, rgb, depth) to OUT."""
+                   no_masks: bool, undistort: bool, overwrite: bool):
+    """Export DATASET in the BOP format (scene_camera/scene_gt/scene_gt_info, rgb, depth) to OUT
+    (written whole or not at all, after the checks of `dockbench verify`)."""
     import json
-    from evalkit.dataset import DatasetError
+    from evalkit.dataset import DatasetError, verify_before_reading
+    from datasets_spec.outdir import results_dir
     from evalkit.reports.bop import export_bop as run
     try:
-        s = run(dataset, out, split=split, copy_images=copy_images, depth_scale=depth_scale,
-                       masks=not no_masks, undistort=undistort)
+        verify_before_reading(dataset)
+        with results_dir(out, overwrite, "export-bop") as tmp:
+            s = run(dataset, tmp, split=split, copy_images=copy_images, depth_scale=depth_scale,
+                    masks=not no_masks, undistort=undistort)
     except DatasetError as exc:
         click.echo(f"error: {exc}", err=True)
         sys.exit(2)
@@ -683,6 +723,7 @@ def export_bop(dataset: Path, out: Path, split: str, copy_images: bool, depth_sc
 
 
 @main.command("dock")
+@_writes_out("dock")
 @click.argument("experiment")
 @click.option("-l", "--localizer", "localizers", multiple=True, default=("led", "aruco", "hybrid"),
               show_default=True, help="localizer spec as for `dockbench evaluate` (repeatable)")
@@ -730,6 +771,7 @@ def dock(experiment, localizers, params, trials, conditions, size, images, no_ba
 
 
 @bench.command("closed-loop")
+@_writes_out("bench")
 @click.option("--experiment", default="turbidity", show_default=True, help="paper experiment or config file")
 @click.option("-l", "--localizer", default="led", show_default=True)
 @click.option("--trials", type=click.IntRange(1, 1000), default=2, show_default=True)
@@ -779,6 +821,7 @@ def _suite_size(ctx, param, value):
 
 
 @bench.command("suite")
+@_writes_out("bench")
 @click.option("--trials", type=click.IntRange(1, 100000), default=1, show_default=True)
 @click.option("-e", "--experiment", "names", multiple=True,
               type=click.Choice(("turbidity", "depth", "current", "occlusion")),
