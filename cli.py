@@ -26,6 +26,13 @@ def _user_errors(fn):
         except (ConfigError, DatasetError, RegistryError, FileExistsError) as e:
             click.echo(f"error: {e}", err=True)
             sys.exit(USER_ERROR)
+        except (OSError, RuntimeError) as e:   # a full disk here or in a worker: one line; else re-raised
+            from datasets_spec.outdir import disk_full_message
+            text = disk_full_message(e, kwargs.get("out"))
+            if text is None:
+                raise
+            click.echo(f"error: {text}", err=True)
+            sys.exit(USER_ERROR)
         except KeyboardInterrupt:
             hint = ("finished sequences (and their evaluations) are kept; re-run the same command to resume"
                     if fn.__name__ in ("generate", "run") else "stopped by Ctrl-C (SIGINT)")
@@ -193,9 +200,8 @@ def verify(dataset: Path, stream_json: Path | None):
     from evalkit.dataset import DatasetError, verify as check
     problems = check(dataset)
     if stream_json is not None and not problems:
-        import json
-        from evalkit.stream import check_against
-        problems = check_against(json.loads(stream_json.read_text()), dataset)
+        from evalkit.stream import check_against, load_stream_summary
+        problems = check_against(load_stream_summary(stream_json), dataset)
     if problems:
         raise DatasetError(f"{dataset}: {len(problems)} problem(s):\n  " + "\n  ".join(problems))
     click.echo(f"{dataset}: ok")

@@ -163,17 +163,67 @@ def writing(out: Path, command: str, overwrite: bool = False) -> Iterator[Path]:
     out = Path(out)
     check(out, command, overwrite)
     created = [d for d in (*reversed(out.absolute().parents), out.absolute()) if not d.exists()]
+    had_marker = (out / MARKER).exists()
+    before = set(os.listdir(out)) if out.is_dir() else set()
     try:
         with lock(out, command):
             prepare(out, command, overwrite)
             yield out
     except BaseException:
-        if created and out.is_dir() and [p.name for p in out.iterdir()] == [MARKER]:
-            (out / MARKER).unlink()
+        if not had_marker and out.is_dir() and set(os.listdir(out)) - {MARKER} == before:
+            (out / MARKER).unlink()           # nothing written: the folder is as it was
             for d in reversed(created):       # the lock file is gone by now
                 with contextlib.suppress(OSError):
                     d.rmdir()
         raise
+
+
+# -- disk full ------------------------------------------------------------------
+DISK_FULL_TEXT = ("No space left on device", "[Errno 28]", "Disk quota exceeded", "[Errno 122]")
+
+
+def _size_mb(folder: Path) -> float:
+    total = 0
+    for d, _, files in os.walk(folder):
+        for f in files:
+            with contextlib.suppress(OSError):
+                total += os.lstat(os.path.join(d, f)).st_size
+    return total / 1e6
+
+
+def disk_full_message(exc: BaseException, out: Path | None) -> str | None:
+    """One line for a write that failed because the disk (or quota) is full -- in this process
+    (``OSError`` ENOSPC/EDQUOT) or in a worker whose error text says so -- naming the path, the
+    free space there and the space still needed; None for any other error. The need is a lower
+    bound: what the command had written into ``-o`` (and its temporary sibling) when the
+    disk filled, i.e. the same again at least."""
+    import errno
+    own = isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT)
+    if not own and not any(t in str(exc) for t in DISK_FULL_TEXT):
+        return None
+    import re
+    named = re.search(r"(?:No space left on device|Disk quota exceeded): '([^']+)'", str(exc))
+    path = Path(getattr(exc, "filename", None) or (named and named.group(1)) or out or ".")
+    if out is not None:                        # the user's -o, not its temporary sibling
+        o = Path(out).absolute()
+        parts = path.absolute().parts
+        for i, part in enumerate(parts):
+            if part.startswith(f".{o.name}.tmp-") and Path(*parts[:i]) == o.parent:
+                path = o.joinpath(*parts[i + 1:])
+                break
+    probe = path.absolute()
+    while not probe.is_dir() and probe != probe.parent:
+        probe = probe.parent
+    free_mb = shutil.disk_usage(probe).free / 1e6
+    written = float(getattr(exc, "dockbench_written_mb", 0.0))
+    if out is not None:
+        o = Path(out).absolute()
+        for d in [o, *o.parent.glob(f".{o.name}.tmp-*")]:
+            written += _size_mb(d) if d.is_dir() else 0.0
+    need = max(written, 1.0)
+    return (f"{path}: disk full (no space left on device): {free_mb:.1f} MB free on that file system, "
+            f"at least {need:.1f} MB more needed (what was written before it filled); free space or "
+            "choose another -o, then re-run")
 
 
 # -- one writer ------------------------------------------------------------------
@@ -195,12 +245,12 @@ def lock(out: Path, command: str) -> Iterator[None]:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             holder = os.pread(fd, 200, 0).decode(errors="replace").strip() or "?"
-            raise OutDirError(f"{Path(out)}: being written by another dockbench ({holder}); wait for it "
+            raise OutDirError(f"{Path(out)}: being written by another dockbench {holder}; wait for it "
                               f"or choose another -o (lock {path})") from None
         if not path.exists() or os.stat(path).st_ino != os.fstat(fd).st_ino:
             raise OutDirError(f"{Path(out)}: another dockbench just finished writing it; run again")
         os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{command}, pid {os.getpid()}".encode(), 0)
+        os.pwrite(fd, f"{command} (pid {os.getpid()})".encode(), 0)
         try:
             yield
         finally:
@@ -257,7 +307,11 @@ def _renamed_onto(out: Path, overwrite: bool, command: str) -> Iterator[Path]:
     old = out.parent / f".{out.name}.old-{os.getpid()}"
     tmp.mkdir()
     try:
-        yield tmp
+        try:
+            yield tmp
+        except OSError as exc:                 # a full disk: how much was written (disk_full_message)
+            exc.dockbench_written_mb = _size_mb(tmp)    # type: ignore[attr-defined]
+            raise
         mark(tmp, command)
         check(out, command, overwrite, own_ok=False)
         if out.exists():

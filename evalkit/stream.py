@@ -34,8 +34,8 @@ import numpy as np
 import pandas as pd
 
 from evalkit.dataset import Dataset
-from datasets_spec.io import (load_raw_image, pixel_sha256, raw_image_path, save_json_atomic, sha256_file,
-                              DatasetError)
+from datasets_spec.io import (load_raw_image, path_inside, pixel_sha256, raw_image_path, save_json_atomic,
+                              sha256_file, DatasetError)
 
 
 RESULTS_SUFFIX = ".parquet"
@@ -261,8 +261,11 @@ def parse_images(images: str) -> int | None:
 
 def run_record_dataset(root: Path, manifest: dict) -> Any:
     """A :class:`Dataset` over ``manifest`` (with the full ``files`` map) for the run record:
-    its ``content_hash`` is the one ``dockbench generate`` gives the same config."""
-    return Dataset(Path(root), manifest, verify=True)
+    its ``content_hash`` is the one ``dockbench generate`` gives the same config. ``streamed``:
+    its files were hashed as the run read them (images not kept are gone from disk)."""
+    ds = Dataset(Path(root), manifest, verify=True)
+    ds.streamed = True
+    return ds
 
 
 def recorded_pixels(work: Path) -> dict[str, str]:
@@ -298,6 +301,46 @@ def _parquet(work: Path, name: str, recorded: dict[str, str]) -> pd.DataFrame:
                                "--overwrite to start over") from None
 
 
+STREAM_FORMAT = "dockbench-stream"
+STREAM_VERSION = "2"                # 2: camera images not kept are hashed by pixels ("pixels")
+SUPPORTED_STREAM_VERSIONS = ("2",)
+MAX_STREAM_JSON_BYTES = 512 << 20   # ~100 bytes per file: ~5 M files
+
+
+def load_stream_summary(path: Path) -> dict:
+    """A run's ``stream.json``, checked before anything it names is opened: a regular file of
+    at most 512 MiB, JSON (bounded nesting), ``format``/``format_version`` this version
+    reads, ``files`` and ``pixels`` maps of dataset-relative paths (no ``..``, no absolute
+    path, no backslash) to 64-hex sha256; else :class:`DatasetError` (one line)."""
+    import re
+
+    from datasets_spec.validate import RELPATH, RELPATH_RULE, ContentError, loads_bounded
+    path = Path(path)
+    if not path.is_file() or path.stat().st_size > MAX_STREAM_JSON_BYTES:
+        raise DatasetError(f"--stream {path}: not a regular file of at most 512 MiB")
+    try:
+        doc = loads_bounded(path.read_bytes().decode("utf-8"))
+    except (UnicodeDecodeError, ContentError) as exc:
+        raise DatasetError(f"--stream {path}: not a stream.json of dockbench run ({exc})") from None
+    if not isinstance(doc, dict) or doc.get("format") != STREAM_FORMAT:
+        raise DatasetError(f"--stream {path}: expected a JSON object with \"format\": \"{STREAM_FORMAT}\" "
+                           "(the stream.json a dockbench run writes)")
+    if str(doc.get("format_version")) not in SUPPORTED_STREAM_VERSIONS:
+        raise DatasetError(f"--stream {path}: format_version {doc.get('format_version')!r}; this dockbench "
+                           f"reads {', '.join(SUPPORTED_STREAM_VERSIONS)}")
+    sha = re.compile(r"^[0-9a-f]{64}$")
+    for key in ("files", "pixels"):
+        entries = doc.get(key, {} if key == "pixels" else None)
+        if not isinstance(entries, dict):
+            raise DatasetError(f"--stream {path}: \"{key}\" must be an object {{path: sha256}}")
+        for rel, h in entries.items():
+            if not RELPATH.match(rel):
+                raise DatasetError(f"--stream {path}: {key} entry {rel[:80]!r} {RELPATH_RULE}")
+            if not (isinstance(h, str) and sha.match(h)):
+                raise DatasetError(f"--stream {path}: {key}[{rel[:80]!r}] is not a sha256 (64 hex digits)")
+    return doc
+
+
 def check_against(stream_summary: dict, root: Path) -> list[str]:
     """Problems ([] = none) of the dataset at ``root`` (a later ``dockbench generate`` of the
     run's config) against a run's ``stream.json``: every path of ``files`` must have that
@@ -307,6 +350,8 @@ def check_against(stream_summary: dict, root: Path) -> list[str]:
     root = Path(root)
     files, pixels = stream_summary["files"], stream_summary.get("pixels", {})
     ds = Dataset(root, load_manifest(root), verify=False)
+    for rel in [*files, *pixels]:            # confined: symlinks out of the dataset are refused too
+        path_inside(root, rel, "stream.json path")
     problems = [f"{p}: sha256 differs" for p, h in files.items()
                 if not (root / p).is_file() or sha256_file(root / p) != h]
     for p, h in pixels.items():

@@ -41,8 +41,7 @@ from evalkit import stream
 from blendgen.pipeline import allocator
 from blendgen.pipeline.passstore import PIXELS as PASS_PIXELS
 
-STREAM_FORMAT = "dockbench-stream"
-STREAM_VERSION = "2"                # 2: camera images not kept are hashed by pixels ("pixels")
+STREAM_FORMAT, STREAM_VERSION = stream.STREAM_FORMAT, stream.STREAM_VERSION   # checked by stream.load_stream_summary
 PIXELS_PREFIX = "pixels:"           # content_hash entry of an image hashed by its pixels
 STREAM_JSON = "stream.json"
 

@@ -86,6 +86,14 @@ def dataset_info(dataset, content_hash: str | None = None) -> dict:
 
     m = dataset.manifest
     files = m.get("files") or {}
+    if content_hash is None and dataset.verify and not getattr(dataset, "streamed", False):   # every file
+        from evalkit.reports.provenance import first_changed_file
+        from datasets_spec.io import DatasetError
+        bad = first_changed_file(Path(dataset.root), files)
+        if bad is not None:
+            raise DatasetError(f"{Path(dataset.root) / bad}: missing or sha256 differs from the manifest "
+                               "(dockbench verify lists every changed file); the run's content hash would "
+                               "not describe this dataset")
     if content_hash is None:
         content_hash = hash_files(files) if dataset.verify else disk_content_hash(Path(dataset.root), files)
     return {"name": m.get("name"), "version": m.get("version"), "content_hash": content_hash,
