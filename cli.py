@@ -729,7 +729,6 @@ def export_bop(dataset: Path, out: Path, split: str, copy_images: bool, depth_sc
 
 
 @main.command("dock")
-@_writes_out("dock")
 @click.argument("experiment")
 @click.option("-l", "--localizer", "localizers", multiple=True, default=("led", "aruco", "hybrid"),
               show_default=True, help="localizer spec as for `dockbench evaluate` (repeatable)")
@@ -750,8 +749,9 @@ def export_bop(dataset: Path, out: Path, split: str, copy_images: bool, depth_sc
 @click.option("--report-only", is_flag=True, help="only summarise and plot the tables already in OUT")
 @click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="output directory (default out/dock/NAME)")
+@click.option("--overwrite", is_flag=True, help="write into a non-empty OUT that dock did not write")
 def dock(experiment, localizers, params, trials, conditions, size, images, no_baseline, threads, isolate,
-             frame_timeout, preprocess, compute_latency, report_only, out):
+             frame_timeout, preprocess, compute_latency, report_only, out, overwrite):
     """Closed-loop docking: each localizer steers the vehicle from seeded starts.
 
     EXPERIMENT is turbidity, depth, current, occlusion (the paper configs) or a config file.
@@ -767,10 +767,12 @@ def dock(experiment, localizers, params, trials, conditions, size, images, no_ba
         for s in specs:                      # user errors before the first trial
             loc = s.build()
             getattr(loc, "close", lambda: None)()
+    from datasets_spec import outdir
     out = out or Path("out/dock") / exp.name
-    paths = run_dock(exp, specs, trials, out, images, threads, not no_baseline,
-                     progress=lambda m: click.echo(m, err=True), report_only=report_only,
-                     compute_latency=compute_latency)
+    with outdir.writing(out, "dock", overwrite):      # the -o rule and lock of every writing command
+        paths = run_dock(exp, specs, trials, out, images, threads, not no_baseline,
+                         progress=lambda m: click.echo(m, err=True), report_only=report_only,
+                         compute_latency=compute_latency)
     import pandas as pd
     print_table(pd.read_csv(paths["summary"]), floatfmt=".3g")
     click.echo("\n".join(f"{k}: {v}" for k, v in paths.items()))

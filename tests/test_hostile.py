@@ -277,3 +277,25 @@ def test_a_full_disk_is_one_line_naming_the_path_and_the_space(tmp_path, monkeyp
     assert str(out) in lines[0] and "Traceback" not in res.output
     if before is not None:
         assert hc.files_under(base) == before, sorted(hc.files_under(base) ^ before)
+
+
+def test_a_temp_sibling_left_by_kill_9_is_removed_and_reported(tmp_path):
+    """`kill -9` of evaluate leaves `.OUT.tmp-PID/` (and, between its two renames, `.OUT.old-PID/`);
+    the next run on OUT removes it under the lock and says so on stderr."""
+    root = hc.write_fake_dataset(tmp_path / "ds")
+    out = tmp_path / "res"
+    (tmp_path / ".res.tmp-999999").mkdir()
+    (tmp_path / ".res.tmp-999998" / "plots").mkdir(parents=True)
+    res = CliRunner().invoke(cli.main, ["evaluate", str(root), "-l", "aruco", "-o", str(out), "-q"])
+    SUMMARY.append(("eval_stale_tmp_siblings", res.exit_code, hc.summarize(res.exit_code, res.output)))
+    assert res.exit_code == 0, res.output
+    assert res.output.count("left by an interrupted run") == 2, res.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds", "res"]
+    (tmp_path / ".res.old-999997").mkdir()           # killed between its renames: the old results
+    (tmp_path / ".res.old-999997" / "run.json").write_text("{}")
+    import shutil
+    shutil.rmtree(out)
+    from datasets_spec.outdir import clean_stale, lock
+    with lock(out, "evaluate"):
+        clean_stale(out)
+    assert (out / "run.json").read_text() == "{}"     # restored, not deleted
