@@ -194,3 +194,18 @@ def test_a_run_folder_of_other_localizers_is_refused_not_mixed(runs):
                        text=True, timeout=120)
     assert r.returncode == 2 and "other localizers" in r.stderr and len(r.stderr.strip().splitlines()) == 1
     assert (d / "run" / "stream.json").read_bytes() == before
+
+
+@pytest.mark.blender
+def test_a_truncated_cache_is_refused_on_resume_naming_the_file(runs, tmp_path):
+    """A run folder's cache cut short (or edited) is a one-line error on resume, rc 2."""
+    import shutil
+    cfg, d = runs
+    out = tmp_path / "run"
+    shutil.copytree(d / "run", out)
+    pq = sorted(out.glob(".stream/*/*.parquet"))[0]
+    pq.write_bytes(pq.read_bytes()[:100])
+    r = subprocess.run(_cmd("run", cfg, *LOCS, "-o", out, "--images", "sample:2", "-q"), cwd=ROOT,
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert str(pq) in r.stderr and "sha256 differs" in r.stderr, r.stderr
