@@ -72,10 +72,15 @@ def available() -> bool:
 _WARNED: list[bool] = []
 
 
+WARNED_ENV = "DOCKBENCH_SANDBOX_WARNED"
+
+
 def warn_once_unavailable() -> None:
-    """Say once per process (stderr) that isolated plugins run unsandboxed, and why."""
-    if not available() and not _WARNED:
+    """Say once (stderr) that isolated plugins run unsandboxed, and why: once per process and
+    its later children (evaluation workers inherit :data:`WARNED_ENV`)."""
+    if not available() and not _WARNED and not os.environ.get(WARNED_ENV):
         _WARNED.append(True)
+        os.environ[WARNED_ENV] = "1"
         print(f"warning: isolated localizers run without a sandbox: {probe()[1]}; they can write "
               "wherever this user can (only memory and time are limited)", file=sys.stderr)
 

@@ -171,11 +171,17 @@ def test_without_bubblewrap_evaluate_says_so_once_and_falls_back(monkeypatch, ca
     monkeypatch.setenv(sandbox.ENV_SWITCH, "0")
     sandbox.probe.cache_clear()
     monkeypatch.setattr(sandbox, "_WARNED", [])
+    monkeypatch.setenv(sandbox.WARNED_ENV, "")          # restored (removed) after the test
     try:
         assert not sandbox.available() and sandbox.probe()[1] == "DOCKBENCH_SANDBOX=0"
         for _ in range(2):
             assert _one_frame(plugin, {"how": "nothing"}) is None     # runs, unconfined
         err = capsys.readouterr().err
         assert err.count("run without a sandbox: DOCKBENCH_SANDBOX=0") == 1, err
+        import subprocess                     # a child process (an evaluation worker) stays quiet
+        code = "from evalkit import sandbox; sandbox.warn_once_unavailable()"
+        r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                           env={**os.environ, "PYTHONPATH": str(Path(__file__).parents[1])})
+        assert r.returncode == 0 and r.stderr == "", r.stderr
     finally:
         sandbox.probe.cache_clear()

@@ -83,7 +83,8 @@ def check_metric_row(where: str, row: dict, d_min_rel_m: float | None = None) ->
     for name in INTERVALS:
         lo, mean, hi = (vals.get(f"{name}_{s}") for s in ("lo", "mean", "hi"))
         if None not in (lo, mean, hi) and not (lo - 1e-9 <= mean <= hi + 1e-9):
-            raise NumberError(f"{where}: {name}_lo <= {name}_mean <= {name}_hi does not hold ({lo!r}, {mean!r}, {hi!r})")
+            raise NumberError(f"{where}: {name}_lo <= {name}_mean <= {name}_hi does not hold "
+                              f"({lo!r}, {mean!r}, {hi!r})")
     n = {k: _count(where, k, row[k], 1 if k == "n_trials" else 0) for k in COUNTS if k in row}
     for small, big in (("n_fp", "n_est"), ("n_est", "n_frames"), ("n_targets", "n_frames")):
         if n.get(small) is not None and n.get(big) is not None and n[small] > n[big]:
