@@ -216,7 +216,9 @@ def verify(dataset: Path, stream_json: Path | None):
 def station_keeping(flow: float, duration: float, out: Path | None):
     """The article's Table 5: steady thruster outputs while station keeping."""
     from blendgen.vehicle.docking import station_keeping_signs_ok, station_keeping_table
+    from datasets_spec.outdir import check_file_out
     from evalkit.reports.tables import print_table
+    check_file_out(out, "station-keeping")
     df = station_keeping_table(flow_speed=flow, duration_s=duration)
     print_table(df, floatfmt=".3f")
     unit = df.attrs.get("unit_N")
@@ -238,6 +240,8 @@ def docking_paths_cmd(currents: tuple[float, ...], seed: int, out: Path):
     """Plot one docking trial per lateral current (same start) and time the dynamics."""
     import numpy as np
     from blendgen.tools.dynamics_report import docking_paths, plot_docking_paths
+    from datasets_spec.outdir import check_file_out
+    check_file_out(out, "docking-paths")
     runs = docking_paths(currents or (0.0, 0.5, 1.0), seed=seed)
     for r in runs:
         click.echo(f"current {r['current_mps']:.2f} m/s: {r['stop_reason']} (stop range) after {r['t'][-1]:.1f} s, "
@@ -541,6 +545,8 @@ def calibrate_veil(out: Path, data: Path | None, presets: tuple[str, ...]):
 def preview(out: Path, width: int, height: int, samples: int, fidelity: str, mode: str):
     """Contact sheet: clear/mild/moderate x depth 0/1/5 m, camera 8/5/2 m from the dock."""
     from blendgen.tools.preview import make_preview
+    from datasets_spec.outdir import check_file_out
+    check_file_out(out, "preview")
     click.echo(f"wrote {make_preview(out, width, height, samples, fidelity, mode=mode)}")
 
 
@@ -674,8 +680,11 @@ def leaderboard(results_dirs: tuple[Path, ...], out: Path, title: str, shot: Pat
     `dockbench dock` outputs: their closed_loop.json, datasets_spec/CLOSED_LOOP.md) into one static
     HTML page."""
     import subprocess
+    from datasets_spec.outdir import check_file_out
     from evalkit.reports.leaderboard import build_leaderboard, screenshot
     from evalkit.reports.results import ResultsError
+    check_file_out(out, "leaderboard")
+    check_file_out(shot, "leaderboard")
     try:
         path = build_leaderboard(results_dirs, out, title)
     except ResultsError as exc:

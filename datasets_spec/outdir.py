@@ -145,6 +145,21 @@ def check(out: Path, command: str, overwrite: bool, own_ok: bool = True) -> None
                       "or pass --overwrite")
 
 
+def check_file_out(path: Path | None, command: str) -> None:
+    """A single output file (``leaderboard -o page.html``, ``preview -o x.png``...): its folder
+    obeys :func:`check_location` and :func:`refuse_dataset`; the path is not a folder."""
+    if path is None:
+        return
+    path = Path(path)
+    if path.is_dir():
+        raise OutDirError(f"-o {path}: is a folder; name the file to write")
+    check_location(path.parent)
+    ds = dataset_around(path.parent)
+    if ds is not None:
+        raise OutDirError(f"-o {path}: is inside the dataset {ds}; dockbench {command} never writes into a "
+                          "dataset (it would no longer verify); choose a file outside it")
+
+
 def prepare(out: Path, command: str, overwrite: bool = False) -> Path:
     """:func:`check`, then create ``out`` with ``command``'s marker (commands that write
     into ``-o`` as they go: bench, dock, calibrate); returns ``out``."""

@@ -573,6 +573,12 @@ def _results(edit: Callable[[Path], None]):
 _RESULTS: list[Path] = []
 
 
+def _evaluated_copy(base: Path) -> Path:
+    import shutil
+    shutil.copytree(_evaluated_results(), base / "res")
+    return base / "res"
+
+
 def _evaluated_results() -> Path:
     """One `dockbench evaluate` of the tiny dataset per process (its results are copied)."""
     if not _RESULTS:
@@ -632,6 +638,9 @@ SURFACE_CASES = [
          "inside the dataset"),
     Case("dock_out_inside_dataset", "outdir",
          lambda b: ["dock", "turbidity", "--report-only", "-o", str(write_fake_dataset(b / "ds") / "dock")],
+         "inside the dataset"),
+    Case("lb_page_into_dataset", "outdir",
+         lambda b: ["leaderboard", str(_evaluated_copy(b)), "-o", str(write_fake_dataset(b / "ds") / "lb.html")],
          "inside the dataset"),
     # export-bop: the same rule and the same checks as evaluate, before writing
     Case("bop_out_is_dataset", "export", _export(out="{base}/ds"), "is the dataset"),
