@@ -299,3 +299,33 @@ def test_a_temp_sibling_left_by_kill_9_is_removed_and_reported(tmp_path):
     with lock(out, "evaluate"):
         clean_stale(out)
     assert (out / "run.json").read_text() == "{}"     # restored, not deleted
+
+
+@pytest.mark.parametrize("reply, ok", [(bytes([0, 0, 0, 4, 0, 0, 0, 0, 0]), True),    # gRPC: SETTINGS
+                                       (b"HTTP/1.1 400 Bad Request\r\n\r\n", False),   # a web server
+                                       (b"", False)])                                  # silent, then closed
+def test_a_ray_address_that_is_not_ray_fails_fast(reply, ok):
+    """Ray retries an address that is not a cluster for minutes, printing warnings; dockbench asks
+    the HTTP/2 preface first (Ray's GCS answers it with a SETTINGS frame) and refuses at once."""
+    import socket
+    import threading
+    from blendgen.pipeline.executor import ExecutorError, check_ray_address
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen()
+
+    def answer():
+        conn, _ = server.accept()
+        with conn:
+            conn.recv(64)
+            conn.sendall(reply)
+    threading.Thread(target=answer, daemon=True).start()
+    address = f"127.0.0.1:{server.getsockname()[1]}"
+    try:
+        if ok:
+            check_ray_address(address, timeout_s=5)
+        else:
+            with pytest.raises(ExecutorError, match="not a Ray cluster"):
+                check_ray_address(address, timeout_s=5)
+    finally:
+        server.close()
