@@ -5,7 +5,7 @@ where Blender would start, so an accepted config shows as "accepted"); they must
 with one line naming the file and key, no traceback, and leave every folder as it was.
 Localizer cases run ``dockbench evaluate`` in a child (a plugin may call os._exit): the
 run must finish (rc 0) with the frames failed for the expected reason.
-Run-folder, output-folder, export, stream.json, calibration and results cases (issue 41) run the
+Run-folder, output-folder, export, stream.json, calibration and results cases run the
 same way; sandbox cases run ``evaluate`` in a child with plugins that attack the dataset.
 The summary table (case | rc | message) is printed at the end of the run (tests/conftest.py).
 """

@@ -26,12 +26,13 @@ MAX_DISTANCE_M = 1e4            # = evalkit.runner.MAX_DISTANCE_M (kept import-l
 MIN_D_REL_M = 1e-3              # floor of d_min_rel for the E_rel bound (a manifest may set less)
 
 FRACTIONS = ("P_succ_mean", "P_succ_lo", "P_succ_hi", "P_detect_mean", "P_detect_lo", "P_detect_hi",
-             "AR", "AR_MSSD", "AR_MSPD", "fp_rate", "fp_rate_no_view")
-LENGTHS = ("e_abs_mean", "e_trans_mean", "e_range_abs_mean", "max_range_m")
+             "AR", "AR_MSSD", "AR_MSPD", "AR_dock", "AR_dock_MSSD", "AR_dock_MSPD", "fp_rate", "fp_rate_no_view")
+LENGTHS = ("e_abs_mean", "e_trans_mean", "e_range_abs_mean", "max_range_m", "e_abs_matched", "matched_lo_m",
+           "matched_hi_m")
 SIGNED_LENGTHS = ("e_lateral_mean",)
 ANGLES = ("e_rot_deg_mean",)
 TIMES = ("ms_median", "ms_p95")
-COUNTS = ("n_trials", "n_targets", "n_frames", "n_est", "n_fp")
+COUNTS = ("n_trials", "n_targets", "n_frames", "n_est", "n_fp", "n_matched_bins")
 INTERVALS = ("P_succ", "P_detect", "E_rel")
 
 
@@ -78,7 +79,7 @@ def check_metric_row(where: str, row: dict, d_min_rel_m: float | None = None) ->
     bounds = {**{k: (0.0, 1.0) for k in FRACTIONS}, **{k: (0.0, MAX_DISTANCE_M) for k in LENGTHS},
               **{k: (-MAX_DISTANCE_M, MAX_DISTANCE_M) for k in SIGNED_LENGTHS},
               **{k: (0.0, 180.0) for k in ANGLES}, **{k: (0.0, math.inf) for k in TIMES},
-              **{f"E_rel_{s}": (0.0, e_rel_max) for s in ("mean", "lo", "hi")}}
+              **{f"E_rel_{s}": (0.0, e_rel_max) for s in ("mean", "lo", "hi", "matched")}}
     vals = {k: _check(where, k, row[k], lo, hi) for k, (lo, hi) in bounds.items() if k in row}
     for name in INTERVALS:
         lo, mean, hi = (vals.get(f"{name}_{s}") for s in ("lo", "mean", "hi"))
