@@ -12,7 +12,7 @@ BIN   := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 CONSTRAINTS := constraints/py313.txt
 
-.PHONY: setup chromium demo test test-fast test-slow lint bench clean
+.PHONY: setup chromium sandbox demo test test-fast test-slow lint bench clean
 
 $(STAMP): pyproject.toml $(CONSTRAINTS)
 	@[ -n "$(PY)" ] && "$(PY)" -c 'import sys; assert sys.version_info[:2] == (3, 13)' 2>/dev/null || { \
@@ -26,7 +26,7 @@ $(STAMP): pyproject.toml $(CONSTRAINTS)
 	  $(BIN)/python -m pip install --quiet -c $(CONSTRAINTS) -e ".[render,apriltag,ray,dev]"
 	touch $(STAMP)
 
-setup: $(STAMP)
+setup: $(STAMP) sandbox
 
 demo: setup
 	$(BIN)/dockbench generate configs/quickstart.yaml -o out/demo/dataset
@@ -37,6 +37,12 @@ chromium:
 	@command -v chromium >/dev/null 2>&1 || { command -v apt-get >/dev/null 2>&1 && [ "$$(id -u)" = 0 ] \
 	  && (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null) \
 	  || echo "chromium not installed: the leaderboard browser test will be skipped"; }
+
+# isolated localizers run inside bubblewrap (Debian package; datasets_spec/LOCALIZER_PROTOCOL.md, Sandbox)
+sandbox:
+	@command -v bwrap >/dev/null 2>&1 || { command -v apt-get >/dev/null 2>&1 && [ "$$(id -u)" = 0 ] \
+	  && (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq bubblewrap >/dev/null) \
+	  || echo "bubblewrap not installed: isolated localizers run unsandboxed and the sandbox tests are skipped"; }
 
 test: setup chromium
 	$(BIN)/python -m pytest -q

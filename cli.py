@@ -26,12 +26,37 @@ def _user_errors(fn):
         except (ConfigError, DatasetError, RegistryError, FileExistsError) as e:
             click.echo(f"error: {e}", err=True)
             sys.exit(USER_ERROR)
+        except (OSError, RuntimeError) as e:   # a full disk here or in a worker: one line; else re-raised
+            from datasets_spec.outdir import disk_full_message
+            text = disk_full_message(e, kwargs.get("out"))
+            if text is None:
+                raise
+            click.echo(f"error: {text}", err=True)
+            sys.exit(USER_ERROR)
         except KeyboardInterrupt:
             hint = ("finished sequences (and their evaluations) are kept; re-run the same command to resume"
                     if fn.__name__ in ("generate", "run") else "stopped by Ctrl-C (SIGINT)")
             click.echo(f"\ninterrupted: {hint}", err=True)
             sys.exit(130)
     return wrapper
+
+
+def _writes_out(command: str):
+    """``-o`` of a command that writes into it as it goes follows :mod:`datasets_spec.outdir`'s rule
+    (new, empty or this command's own folder, never a dataset; else ``--overwrite``) and its
+    lock, checked before any work. Adds ``--overwrite``."""
+    def deco(fn):
+        @functools.wraps(fn)
+        def wrapper(*args, overwrite_out: bool = False, **kwargs):
+            from datasets_spec import outdir
+            out = kwargs.get("out")
+            if out is None:
+                return fn(*args, **kwargs)
+            with outdir.writing(out, command, overwrite_out):
+                return fn(*args, **kwargs)
+        return click.option("--overwrite", "overwrite_out", is_flag=True,
+                            help="write into a non-empty -o that this command did not write")(wrapper)
+    return deco
 
 
 class _Commands(click.Group):
@@ -114,7 +139,7 @@ def _command_line(ctx: click.Context) -> list[str]:
               help="seconds per frame; slower frames fail with 'timeout'; turns on --isolate")
 @click.option("--isolate/--in-process", default=None,
               help="run each Python localizer in its own child process (memory-capped): a hang past "
-                   "--frame-timeout (default 60 s) is killed and a crash or os._exit costs one frame. "
+                   "--frame-timeout (default 30 s) is killed and a crash or os._exit costs one frame. "
                    "Default: plugins (file.py:Class, module:attr, entry points) isolated, built-ins in process. "
                    "Children get 4096 MiB of address space (env DOCKBENCH_MEMORY_LIMIT_MB, 0 = unlimited)")
 @click.option("--preprocess", default=None, metavar="STEPS",
@@ -194,9 +219,8 @@ def verify(dataset: Path, stream_json: Path | None):
     from evalkit.dataset import DatasetError, verify as check
     problems = check(dataset)
     if stream_json is not None and not problems:
-        import json
-        from evalkit.stream import check_against
-        problems = check_against(json.loads(stream_json.read_text()), dataset)
+        from evalkit.stream import check_against, load_stream_summary
+        problems = check_against(load_stream_summary(stream_json), dataset)
     if problems:
         raise DatasetError(f"{dataset}: {len(problems)} problem(s):\n  " + "\n  ".join(problems))
     click.echo(f"{dataset}: ok")
@@ -211,7 +235,9 @@ def verify(dataset: Path, stream_json: Path | None):
 def station_keeping(flow: float, duration: float, out: Path | None):
     """The article's Table 5: steady thruster outputs while station keeping."""
     from blendgen.vehicle.docking import station_keeping_signs_ok, station_keeping_table
+    from datasets_spec.outdir import check_file_out
     from evalkit.reports.tables import print_table
+    check_file_out(out, "station-keeping")
     df = station_keeping_table(flow_speed=flow, duration_s=duration)
     print_table(df, floatfmt=".3f")
     unit = df.attrs.get("unit_N")
@@ -281,6 +307,8 @@ def docking_paths_cmd(currents: tuple[float, ...], seed: int, out: Path):
     """Plot one docking trial per lateral current (same start), judged by `dock`'s capture geometry."""
     import numpy as np
     from blendgen.tools.dynamics_report import docking_paths, plot_docking_paths
+    from datasets_spec.outdir import check_file_out
+    check_file_out(out, "docking-paths")
     runs = docking_paths(currents or (0.0, 0.5, 1.0), seed=seed)
     for r in runs:
         hit = f", impact {r['impact_speed_mps']:.2f} m/s" if r["outcome"] == "collision" else ""
@@ -300,6 +328,7 @@ def bench(ctx: click.Context):
 
 
 @bench.command("stages")
+@_writes_out("bench")
 @click.option("--frames", type=click.IntRange(5, 10000), default=40, help="frames to render per setting")
 @click.option("--samples", "samples", multiple=True, type=click.IntRange(1, 4096),
               help="Cycles samples to time (repeatable; default 1 and 4)")
@@ -345,6 +374,7 @@ def bench_io(dataset: Path | None):
 
 
 @bench.command("fidelity")
+@_writes_out("bench")
 @_size_options
 @click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
               default=Path("out/bench_fidelity"), show_default=True)
@@ -385,6 +415,7 @@ def bench_fidelity(width: int, height: int, ref_samples: int, frames: int, out: 
 
 
 @bench.command("render-settings")
+@_writes_out("bench")
 @click.argument("base", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.argument("variant", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("-l", "--localizer", "names", multiple=True, default=("led", "qr", "aruco"), show_default=True)
@@ -399,6 +430,7 @@ def bench_render_settings(base: Path, variant: Path, names: tuple[str, ...], out
 
 
 @bench.command("pnp")
+@_writes_out("bench")
 @click.option("--trials", type=click.IntRange(5, 100000), default=60, show_default=True,
               help="random poses per (target, Z, angle, noise) cell")
 @click.option("--seed", type=click.IntRange(0, 2**32 - 1), default=0, show_default=True)
@@ -453,6 +485,7 @@ def bench_particles(counts: tuple[int, ...], size: tuple[int, int], frames: int,
 
 
 @bench.command("glow")
+@_writes_out("bench")
 @click.option("--samples", type=click.IntRange(1, 65536), default=64, show_default=True)
 @click.option("--size", type=click.IntRange(16, 1024), default=96, show_default=True)
 @click.option("--volume-bounces", type=click.IntRange(0, 1024), default=0, show_default=True,
@@ -472,6 +505,7 @@ def bench_glow(samples: int, size: int, volume_bounces: int, out: Path):
 
 
 @bench.command("caustics")
+@_writes_out("bench")
 @click.option("--depth", "depths", multiple=True, type=click.FloatRange(0.1, 30.0),
               help="floor depth in m (repeatable; default 1, 2, 4)")
 @click.option("--water", "waters", multiple=True, type=click.Choice(["I", "IA", "IB", "II", "III", "1C", "3C", "5C"]),
@@ -502,6 +536,7 @@ def bench_caustics(depths: tuple[float, ...], waters: tuple[str, ...], size: int
 
 
 @bench.command("lamp")
+@_writes_out("bench")
 @click.option("--samples", type=click.IntRange(1, 65536), default=256, show_default=True,
               help="Cycles samples of the veil renders (the card renders use the same)")
 @click.option("--bounces", type=click.IntRange(1, 1024), default=32, show_default=True,
@@ -537,16 +572,19 @@ def bench_lamp(samples: int, bounces: int, out: Path):
 
 
 @main.command("calibrate-water")
+@_writes_out("bench")
 @_size_options
 @click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
               default=Path("out/bench_fidelity"), show_default=True, help="work directory for the renders")
 @click.option("--data", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="calibration file to write (default: the package's water_calibration.json)")
+              help="calibration file to write (default: OUT/water_calibration.json; never the installed "
+                   "package's unless named here)")
 def calibrate_water(width: int, height: int, ref_samples: int, frames: int, out: Path, data: Path | None):
     """Fit the fast model's B_inf and depth light to reference renders; write the calibration file."""
-    from blendgen.physics import optics
     from blendgen.tools.fidelity import run_calibration
-    data = data or optics.CALIBRATION_PATH
+    from blendgen.tools.veil_calibration import check_data_file
+    data = data or out / "water_calibration.json"
+    check_data_file(data)
     d = run_calibration(out, data, width, height, frames, ref_samples, echo=lambda m: click.echo(m, err=True))
     for name, e in d["presets"].items():
         r = e["residual"]
@@ -556,17 +594,19 @@ def calibrate_water(width: int, height: int, ref_samples: int, frames: int, out:
 
 
 @main.command("calibrate-veil")
+@_writes_out("calibrate")
 @click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
               default=Path("out/calibrate_veil"), show_default=True, help="work directory for the render specs")
 @click.option("--data", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="calibration file to update (default: the package's water_calibration.json)")
+              help="calibration file to update (default: OUT/water_calibration.json, seeded from the "
+                   "package's; the installed package's file only when named here)")
 @click.option("--preset", "presets", multiple=True, help="presets to measure (repeatable; default all)")
 def calibrate_veil(out: Path, data: Path | None, presets: tuple[str, ...]):
     """Fit the physical veil model (kappa, K_v per channel, eta) to Cycles references with 64 volume
     bounces at depths 1/3/6 m and views -30/0/+30 deg; ~6 renders of ~10 s per preset."""
-    from blendgen.physics import optics
     from blendgen.tools import veil_calibration as vc
-    data = data or optics.CALIBRATION_PATH
+    data = data or out / "water_calibration.json"
+    vc.check_data_file(data)                  # before any render
     d = vc.run(out, data, presets or vc.PRESETS, echo=lambda m: click.echo(m, err=True))
     for name, e in d["presets"].items():
         click.echo(f"{name:10s} kappa={e['kappa']} K_v={e['K_v']} eta={e['eta']} "
@@ -585,6 +625,8 @@ def calibrate_veil(out: Path, data: Path | None, presets: tuple[str, ...]):
 def preview(out: Path, width: int, height: int, samples: int, fidelity: str, mode: str):
     """Contact sheet: clear/mild/moderate x depth 0/1/5 m, camera 8/5/2 m from the dock."""
     from blendgen.tools.preview import make_preview
+    from datasets_spec.outdir import check_file_out
+    check_file_out(out, "preview")
     click.echo(f"wrote {make_preview(out, width, height, samples, fidelity, mode=mode)}")
 
 
@@ -650,15 +692,18 @@ def run(config: Path, localizers: tuple[str, ...], params: tuple[str, ...], out:
     from blendgen.pipeline.generate import check_out_dir
     from blendgen.tools.streamrun import RunRequest, stream_run
     from evalkit import assemble, registry
+    from datasets_spec import outdir
     exp = load_experiment(config)
     out = out or Path("out") / exp.name
     kw = registry.parse_params(list(params))
     for n in localizers:                      # bad specs and params before anything renders
         assemble.build(n, registry.params_for(n, kw, list(localizers)), preprocess=preprocess)
+    outdir.check(out, "run", overwrite)       # new, empty or an earlier run's folder; never a dataset
     check_out_dir(exp, out / "dataset", overwrite)
     req = RunRequest(list(localizers), list(params), images, workers, preprocess=preprocess, progress=not quiet,
                      command=_command_line(click.get_current_context()), overwrite=overwrite)
-    r = stream_run([(exp, out)], req)[0]
+    with outdir.writing(out, "run", overwrite):
+        r = stream_run([(exp, out)], req)[0]
     if not quiet:
         click.echo("\n" + r["paths"]["article_md"].read_text())
         st = r["stream"]
@@ -667,6 +712,7 @@ def run(config: Path, localizers: tuple[str, ...], params: tuple[str, ...], out:
 
 
 @main.command("calibrate")
+@_writes_out("calibrate")
 @click.option("--config", "config", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="calibration config (YAML; default: the bundled configs/calibration.yaml)")
 @click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
@@ -696,6 +742,7 @@ def calibrate(config: Path | None, out: Path, size: tuple[int, int] | None, tria
 
 
 @bench.command("localizers")
+@_writes_out("bench")
 @click.argument("dataset", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path),
               default=Path("out/bench"), show_default=True)
@@ -718,8 +765,11 @@ def leaderboard(results_dirs: tuple[Path, ...], out: Path, title: str, shot: Pat
     `dockbench dock` outputs: their closed_loop.json, datasets_spec/CLOSED_LOOP.md) into one static
     HTML page."""
     import subprocess
+    from datasets_spec.outdir import check_file_out
     from evalkit.reports.leaderboard import build_leaderboard, screenshot
     from evalkit.reports.results import ResultsError
+    check_file_out(out, "leaderboard")
+    check_file_out(shot, "leaderboard")
     try:
         path = build_leaderboard(results_dirs, out, title)
     except ResultsError as exc:
@@ -753,17 +803,24 @@ def leaderboard(results_dirs: tuple[Path, ...], out: Path, title: str, shot: Pat
 @click.option("--results", "results_dirs", multiple=True, type=click.Path(file_okay=False, path_type=Path),
               help="a results folder of `dockbench evaluate` on DATASET (repeatable): write each pose "
                    "localizer's estimates as OUT/results/METHOD_dockbench-SPLIT.csv and print its BOP19 AR")
+@click.option("--overwrite", is_flag=True, help="replace a non-empty OUT")
 def export_bop(dataset: Path, out: Path, split: str, copy_images: bool, depth_scale: float,
-                   no_masks: bool, undistort: bool, pixels: str, results_dirs: tuple[Path, ...]):
-    """Export DATASET in the BOP format (scene_camera/scene_gt/scene_gt_info, rgb, depth) to OUT;
-    with --results also BOP results files and their scores (docs/bop.md)."""
+               no_masks: bool, undistort: bool, pixels: str, results_dirs: tuple[Path, ...], overwrite: bool):
+    """Export DATASET in the BOP format (scene_camera/scene_gt/scene_gt_info, rgb, depth) to OUT,
+    written whole or not at all, after the checks of `dockbench verify`; with --results also BOP
+    results files and their scores (docs/bop.md)."""
     import json
-    from evalkit.dataset import DatasetError
+    from evalkit.dataset import DatasetError, verify_before_reading
+    from datasets_spec.outdir import results_dir
     from evalkit.reports.bop import export_bop as run
     runs = _bop_runs(dataset, results_dirs) if results_dirs else []
     try:
-        s = run(dataset, out, split=split, copy_images=copy_images, depth_scale=depth_scale,
-                       masks=not no_masks, undistort=undistort, pixels=pixels, progress=True)
+        verify_before_reading(dataset)
+        with results_dir(out, overwrite, "export-bop") as tmp:
+            s = run(dataset, tmp, split=split, copy_images=copy_images, depth_scale=depth_scale,
+                    masks=not no_masks, undistort=undistort, pixels=pixels, progress=True)
+            if results_dirs:
+                _bop_results(dataset, tmp, runs, out)
     except DatasetError as exc:
         click.echo(f"error: {exc}", err=True)
         sys.exit(2)
@@ -801,9 +858,10 @@ def _bop_runs(dataset: Path, results_dirs: tuple[Path, ...]) -> list:
     return out
 
 
-def _bop_results(dataset: Path, out: Path, runs: list) -> None:
-    """Results CSVs of every pose localizer in ``runs`` (estimates tables) and a table: the BOP19 AR
-    (per marker, VSD + MSSD + MSPD) next to dockbench's AR_dock (the dock as one object)."""
+def _bop_results(dataset: Path, out: Path, runs: list, final_out: Path) -> None:
+    """Results CSVs of every pose localizer in ``runs`` (estimates tables) in the export being
+    written at ``out`` (renamed to ``final_out`` once whole) and a table: the BOP19 AR (per
+    marker, VSD + MSSD + MSPD) next to dockbench's AR_dock (the dock as one object)."""
     import pandas as pd
     from evalkit.dataset import Dataset
     from evalkit.reports.bop_results import pooled_dock_ar, write_results
@@ -815,7 +873,7 @@ def _bop_results(dataset: Path, out: Path, runs: list) -> None:
         dock_ar = pooled_dock_ar(est, ds.markers, ds.camera)
         for name, path in write_results(est, ds.markers, out, out / "results").items():
             rows.append({"localizer": name, **bop19_scores(out, path, progress=True), "AR_dock": dock_ar.get(name),
-                         "file": str(path)})
+                         "file": str(final_out / path.relative_to(out))})
     if rows:
         print_table(pd.DataFrame(rows), floatfmt=".3f")
     click.echo("AR_BOP19: per marker object, (AR_VSD + AR_MSSD + AR_MSPD) / 3 over test_targets_bop19 (the BOP "
@@ -843,8 +901,9 @@ def _bop_results(dataset: Path, out: Path, runs: list) -> None:
 @click.option("--report-only", is_flag=True, help="only summarise and plot the tables already in OUT")
 @click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="output directory (default out/dock/NAME)")
+@click.option("--overwrite", is_flag=True, help="write into a non-empty OUT that dock did not write")
 def dock(experiment, localizers, params, trials, conditions, size, images, no_baseline, threads, isolate,
-             frame_timeout, preprocess, compute_latency, report_only, out):
+             frame_timeout, preprocess, compute_latency, report_only, out, overwrite):
     """Closed-loop docking: each localizer steers the vehicle from seeded starts.
 
     EXPERIMENT is turbidity, depth, current, occlusion (the paper configs) or a config file.
@@ -860,16 +919,19 @@ def dock(experiment, localizers, params, trials, conditions, size, images, no_ba
         for s in specs:                      # user errors before the first trial
             loc = s.build()
             getattr(loc, "close", lambda: None)()
+    from datasets_spec import outdir
     out = out or Path("out/dock") / exp.name
-    paths = run_dock(exp, specs, trials, out, images, threads, not no_baseline,
-                     progress=lambda m: click.echo(m, err=True), report_only=report_only,
-                     compute_latency=compute_latency)
+    with outdir.writing(out, "dock", overwrite):      # the -o rule and lock of every writing command
+        paths = run_dock(exp, specs, trials, out, images, threads, not no_baseline,
+                         progress=lambda m: click.echo(m, err=True), report_only=report_only,
+                         compute_latency=compute_latency)
     import pandas as pd
     print_table(pd.read_csv(paths["summary"]), floatfmt=".3g")
     click.echo("\n".join(f"{k}: {v}" for k, v in paths.items()))
 
 
 @bench.command("closed-loop")
+@_writes_out("bench")
 @click.option("--experiment", default="turbidity", show_default=True, help="paper experiment or config file")
 @click.option("-l", "--localizer", default="led", show_default=True)
 @click.option("--trials", type=click.IntRange(1, 1000), default=2, show_default=True)
@@ -919,6 +981,7 @@ def _suite_size(ctx, param, value):
 
 
 @bench.command("suite")
+@_writes_out("bench")
 @click.option("--trials", type=click.IntRange(1, 100000), default=1, show_default=True)
 @click.option("-e", "--experiment", "names", multiple=True,
               type=click.Choice(("turbidity", "depth", "current", "occlusion")),

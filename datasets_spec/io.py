@@ -207,6 +207,9 @@ def load_manifest(root: Path) -> dict:
         if key not in manifest:
             raise DatasetError(f"{path}: missing key {key!r}")
     check_schema(manifest, "manifest.schema.json", str(path))
+    if manifest["sequences"] == []:
+        raise DatasetError(f"{path}: \"sequences\" is empty (a dataset holds at least one sequence); "
+                           "nothing to evaluate or export")
     problem = camera_problem(manifest["camera"])
     bad = non_finite_key(manifest)
     if bad and not problem:

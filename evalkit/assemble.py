@@ -21,9 +21,9 @@ def build(spec: str, params: dict | None = None, *, isolate: bool | None = None,
 
     * ``exec:COMMAND`` is always a separate process
       (:class:`~evalkit.external.ExternalLocalizer`) with the per-frame
-      ``timeout_s`` (default :data:`evalkit.process.DEFAULT_TIMEOUT_S`, 60 s);
+      ``timeout_s`` (default :data:`evalkit.process.DEFAULT_TIMEOUT_S`, 30 s);
     * Python localizers run in a child process (:class:`~evalkit.isolation.IsolatedLocalizer`,
-      killed after ``timeout_s`` (default 60 s), restarted on crashes, memory capped) when
+      killed after ``timeout_s`` (default 30 s), restarted on crashes, memory capped) when
       ``isolate`` is True or ``timeout_s`` is given; ``isolate=None`` (the default) isolates
       every plugin (file, module or entry point: code dockbench does not ship, which may
       call ``os._exit`` or exhaust memory) and runs the built-ins in this process. Measured

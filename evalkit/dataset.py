@@ -174,3 +174,16 @@ class Dataset:
 def verify(path: str | Path) -> list[str]:
     """Check a dataset against its manifest; return human-readable problems ([] = OK)."""
     return _verify(Path(path))
+
+
+def verify_before_reading(path: str | Path) -> None:
+    """:func:`verify` as a gate: the first problem as a :class:`DatasetError` (one line), so a
+    command that reads a dataset without decoding every image (``export-bop``) refuses what
+    ``evaluate`` would: changed or unlisted files, images whose PNG header does not match the
+    camera (a decompression bomb), paths leaving the dataset, no sequences."""
+    problems = verify(path)
+    if problems:
+        first = problems[0].replace("\n", " ")
+        first = first if str(path) in first else f"{path}: {first}"
+        more = f" (and {len(problems) - 1} more; dockbench verify lists them)" if len(problems) > 1 else ""
+        raise DatasetError(first + more)

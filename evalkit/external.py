@@ -97,7 +97,7 @@ class ExternalLocalizer(ProcessLocalizer):
     def __init__(self, cmd: str | list[str], timeout_s: float | None = DEFAULT_TIMEOUT_S,
                  persistent: bool = False, cwd: str | None = None, env: dict | None = None,
                  reset_timeout_s: float | None = None, start_timeout_s: float | None = None,
-                 max_restarts: int | None = None, memory_limit_mb: int | None = DEFAULT_MEMORY_LIMIT_MB,
+                 max_restarts: int | None = None, max_restarts_total: int | None = None, memory_limit_mb: int | None = DEFAULT_MEMORY_LIMIT_MB,
                  **params: Any):
         """cmd: command line (a string split like a POSIX shell, or an argv list).
         timeout_s: per-frame reply budget (s; None waits forever).
@@ -107,7 +107,8 @@ class ExternalLocalizer(ProcessLocalizer):
         set right after it starts; None = unlimited). Other keyword params are sent to
         the program in the reset request as ``"params"``."""
         kw: dict[str, Any] = {k: v for k, v in (("reset_timeout_s", reset_timeout_s), ("start_timeout_s", start_timeout_s),
-                                ("max_restarts", max_restarts)) if v is not None}
+                                ("max_restarts", max_restarts), ("max_restarts_total", max_restarts_total))
+              if v is not None}
         super().__init__(timeout_s=timeout_s, **kw)
         argv = shlex.split(cmd) if isinstance(cmd, str) else [str(c) for c in cmd]
         if not argv:
@@ -128,6 +129,7 @@ class ExternalLocalizer(ProcessLocalizer):
         self._pending_index: Any = None
         self._counter = 0
         self._tmp: Any = None   # a tempfile.TemporaryDirectory once localize() writes an image
+        self._scratch: str | None = None
 
     def __repr__(self) -> str:
         return f"ExternalLocalizer({shlex.join(self.argv)!r})"
@@ -166,6 +168,9 @@ class ExternalLocalizer(ProcessLocalizer):
         if self._tmp is not None:
             self._tmp.cleanup()
             self._tmp = None
+        from evalkit.process import remove_scratch
+        remove_scratch(self._scratch)
+        self._scratch = None
 
     # -- transport ----------------------------------------------------------
     def _new_sequence(self) -> None:
@@ -181,8 +186,11 @@ class ExternalLocalizer(ProcessLocalizer):
         return msg
 
     def _start(self) -> None:
-        proc = spawn(self.argv, self.memory_limit_mb, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                     cwd=self.cwd, env=self.env)
+        from evalkit.process import sandboxed_argv
+        argv, self._scratch = sandboxed_argv(self.argv, self._scratch, self.cwd, self.memory_limit_mb)
+        self.sandboxed = argv is not self.argv
+        limit = None if self.sandboxed else self.memory_limit_mb    # sandboxed: capped inside
+        proc = spawn(argv, limit, stdin=subprocess.PIPE, stdout=subprocess.PIPE, cwd=self.cwd, env=self.env)
         lines: queue.Queue = queue.Queue(MAX_QUEUED_LINES)
         stop = threading.Event()
         threading.Thread(target=_read_replies, args=(proc.stdout, lines, stop), daemon=True,

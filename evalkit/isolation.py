@@ -13,9 +13,15 @@ Two proxies share :class:`evalkit.process.ProcessLocalizer`:
 * :class:`IsolatedLocalizer` -- any Python localizer spec (built-in, entry point,
   ``file.py:Class``, ``module:attr``) built *inside* a child interpreter (a fresh
   ``sys.executable``, like multiprocessing's spawn but without re-importing the
-  caller's ``__main__``); images and results travel pickled over two pipes
-  (about 1 ms per 640x480 frame). The child lives across sequences (like an in-process
-  localizer) and is restarted only after a timeout or crash.
+  caller's ``__main__``); requests (images) travel pickled to the child, replies come
+  back as JSON (at most :data:`MAX_REPLY_BYTES`; the parent never unpickles anything a
+  plugin wrote, so a sandboxed plugin cannot run code in dockbench). About 1 ms per
+  640x480 frame. The child lives across sequences (like an in-process localizer) and is
+  restarted only after a timeout or crash.
+
+Both run inside the bubblewrap sandbox of :mod:`evalkit.sandbox` where the platform has
+it (read-only file system but a scratch folder, own PID namespace killed with its whole
+process tree, no network); elsewhere as plain children, said once on stderr.
 * :class:`evalkit.external.ExternalLocalizer` -- any program speaking the
   JSON-lines protocol (datasets_spec/LOCALIZER_PROTOCOL.md).
 
@@ -23,14 +29,33 @@ Only the standard library is imported here (children start fast).
 """
 from __future__ import annotations
 
+import json
 import os
 from typing import Any
 
 from evalkit.process import (  # noqa: F401  (FrameFailure, DEFAULT_TIMEOUT_S...: re-exported, old import path)
     DEFAULT_MAX_RESTARTS, DEFAULT_MEMORY_LIMIT_MB, DEFAULT_RESET_TIMEOUT_S, DEFAULT_START_TIMEOUT_S,
-    DEFAULT_TIMEOUT_S, EXIT_GRACE_S, ChildDead, ChildTimeout, FrameFailure, ProcessLocalizer, exit_reason,
-    kill_and_reap, limit_memory, spawn,
+    DEFAULT_TIMEOUT_S, EXIT_GRACE_S, ChildDead, ChildTimeout, FrameFailure, ProcessLocalizer, ProtocolError,
+    exit_reason, kill_and_reap, limit_memory, remove_scratch, sandboxed_argv, spawn,
 )
+
+
+MAX_REPLY_BYTES = 64 << 20   # one JSON reply of an isolated Python localizer (a 4x4 pose is ~0.5 kB)
+
+
+def _jsonable(obj: Any) -> Any:
+    """json.dumps ``default`` of the child: numpy arrays and scalars to lists / numbers."""
+    if hasattr(obj, "tolist"):
+        return obj.tolist()
+    raise TypeError(f"{type(obj).__name__} is not JSON serializable")
+
+
+def _reply_bytes(status: str, value: Any) -> bytes:
+    """A reply as JSON bytes; a value JSON cannot carry is the frame failure ``bad_type``."""
+    try:
+        return json.dumps([status, value], default=_jsonable, allow_nan=True).encode()
+    except (TypeError, ValueError, RecursionError):
+        return json.dumps(["fail", "bad_type"]).encode()
 
 
 # -- Python localizers in a child interpreter ----------------------------------
@@ -42,8 +67,8 @@ def _child_main(fd_in: int, fd_out: int, memory_limit_mb: int = 0) -> None:
     """Child process: cap its own memory, build the localizer, then answer ``(method, arg)``
     requests (a localizer that needs more than ``memory_limit_mb`` MiB gets MemoryError).
 
-    Messages are pickled :class:`multiprocessing.connection.Connection` frames on two
-    pipes (not stdin/stdout, so a localizer that prints cannot corrupt them)."""
+    Requests are pickled :class:`multiprocessing.connection.Connection` frames, replies JSON
+    byte frames, on two pipes (not stdin/stdout, so a localizer that prints cannot corrupt them)."""
     limit_memory(os.getpid(), memory_limit_mb)
     from multiprocessing.connection import Connection
     rx, tx = Connection(fd_in, writable=False), Connection(fd_out, readable=False)
@@ -56,10 +81,10 @@ def _child_main(fd_in: int, fd_out: int, memory_limit_mb: int = 0) -> None:
             loc = Preprocessed(loc, preprocess)
     except Exception as exc:  # noqa: BLE001 - reported to the parent
         registry_error = type(exc).__name__ == "RegistryError"
-        tx.send(("fail", str(exc) if registry_error else
-                 f"cannot build localizer {spec!r}: {type(exc).__name__}: {exc}"))
+        tx.send_bytes(_reply_bytes("fail", str(exc) if registry_error else
+                                   f"cannot build localizer {spec!r}: {type(exc).__name__}: {exc}"))
         return
-    tx.send(("ready", type(loc).__name__))
+    tx.send_bytes(_reply_bytes("ready", type(loc).__name__))
     while True:
         try:
             method, arg = rx.recv()
@@ -72,10 +97,7 @@ def _child_main(fd_in: int, fd_out: int, memory_limit_mb: int = 0) -> None:
             status = "ok"
         except (Exception, SystemExit, KeyboardInterrupt) as exc:  # noqa: BLE001 - loses one frame
             value, status = f"exception: {type(exc).__name__}: {exc}", "fail"
-        try:
-            tx.send((status, value))
-        except Exception:  # noqa: BLE001 - unpicklable result
-            tx.send(("fail", "bad_type"))  # e.g. an unpicklable result
+        tx.send_bytes(_reply_bytes(status, value))    # a value JSON cannot carry: "bad_type"
 
 
 class IsolatedLocalizer(ProcessLocalizer):
@@ -102,6 +124,7 @@ class IsolatedLocalizer(ProcessLocalizer):
         self._proc: Any = None              # subprocess.Popen once started
         self._rx: Any = None                # multiprocessing Connection ends once started
         self._tx: Any = None
+        self._scratch: Any = None
         from evalkit.registry import RegistryError
         try:
             self._start()
@@ -126,9 +149,12 @@ class IsolatedLocalizer(ProcessLocalizer):
         r2, w2 = os.pipe()  # child -> parent
         env = dict(os.environ)
         env["PYTHONPATH"] = os.pathsep.join(os.path.abspath(p or ".") for p in sys.path)
+        argv = [sys.executable, "-c", _CHILD_CODE, str(r1), str(w2), str(self.memory_limit_mb or 0)]
+        plain = argv
+        argv, self._scratch = sandboxed_argv(argv, self._scratch)
+        self.sandboxed = argv is not plain
         try:
-            proc = spawn([sys.executable, "-c", _CHILD_CODE, str(r1), str(w2), str(self.memory_limit_mb or 0)],
-                         memory_limit_mb=None,    # the child sets its own limit before any import
+            proc = spawn(argv, memory_limit_mb=None,    # the child sets its own limit before any import
                          pass_fds=(r1, w2), stdin=subprocess.DEVNULL, env=env)
         except ChildDead:
             for fd in (r1, w1, r2, w2):
@@ -161,9 +187,26 @@ class IsolatedLocalizer(ProcessLocalizer):
         try:
             if not self._rx.poll(timeout_s):
                 raise ChildTimeout()
-            return self._rx.recv()
-        except (EOFError, OSError, AttributeError):
+            data = self._rx.recv_bytes(MAX_REPLY_BYTES)
+        except (EOFError, AttributeError):
             raise ChildDead() from None
+        except OSError as exc:
+            if "too long" in str(exc):
+                raise ProtocolError(f"reply longer than {MAX_REPLY_BYTES >> 20} MiB") from None
+            raise ChildDead() from None
+        try:
+            reply = json.loads(data)
+        except (ValueError, RecursionError):
+            raise ProtocolError(f"reply is not JSON: {data[:60]!r}") from None
+        if not (isinstance(reply, list) and len(reply) == 2 and isinstance(reply[0], str)):
+            raise ProtocolError("reply is not [status, value]")
+        return reply
+
+    def close(self) -> None:
+        """Stop the child and remove its scratch folder."""
+        super().close()
+        remove_scratch(self._scratch)
+        self._scratch = None
 
     def _reset_request(self, camera):
         return ("reset", camera)

@@ -13,10 +13,17 @@ import signal
 import time
 from typing import Any
 
-DEFAULT_TIMEOUT_S = 60.0        # per frame, when isolation is on without --frame-timeout
+# Budgets of a misbehaving child, sized so that a plugin that hangs on every frame costs
+# minutes per evaluation, not hours: at most (1 + DEFAULT_MAX_RESTARTS_TOTAL) frame timeouts
+# = 11 x 30 s = 5.5 min per localizer and evaluation process (then its frames fail at once).
+# 30 s per frame is 300x the 0.1 s frame period of the benchmark's 10 fps camera (configs/
+# quickstart.yaml camera.fps), room for a first call that compiles or loads a model; a
+# localizer that needs longer says so with --frame-timeout.
+DEFAULT_TIMEOUT_S = 30.0        # per frame, when isolation is on without --frame-timeout
 DEFAULT_RESET_TIMEOUT_S = 120.0  # reset (may load models)
 DEFAULT_START_TIMEOUT_S = 120.0  # starting a child and building the localizer
-DEFAULT_MAX_RESTARTS = 10        # per sequence; afterwards frames fail fast
+DEFAULT_MAX_RESTARTS = 3         # per sequence; afterwards that sequence's frames fail fast
+DEFAULT_MAX_RESTARTS_TOTAL = 10  # per localizer and evaluation process; afterwards every frame fails fast
 
 
 EXIT_GRACE_S = 2.0  # s a child gets to exit after stdin/pipe close before it is killed
@@ -91,6 +98,37 @@ def spawn(argv: list[str], memory_limit_mb: int | None = DEFAULT_MEMORY_LIMIT_MB
     return proc
 
 
+_RLIMIT_SHIM = ("import os, resource, sys; n = int(sys.argv[1]) << 20; "
+                "n and resource.setrlimit(resource.RLIMIT_AS, (n, n)); os.execvp(sys.argv[2], sys.argv[2:])")
+
+
+def sandboxed_argv(argv: list[str], scratch: str | None, cwd: str | None = None,
+                   memory_limit_mb: int | None = None) -> tuple[list[str], str | None]:
+    """``(argv to start, scratch folder)``: ``argv`` inside the bubblewrap sandbox
+    (:mod:`evalkit.sandbox`) with a scratch folder (``scratch`` reused, else a new temporary
+    one), or ``argv`` unchanged where there is no sandbox (said once on stderr). With
+    ``memory_limit_mb`` the program's address space is capped inside the sandbox, before it
+    starts (RLIMIT_AS is inherited through ``exec``; a limit set on bwrap from outside would
+    race its fork)."""
+    import sys
+    import tempfile
+    from evalkit import sandbox
+    if not sandbox.available():
+        sandbox.warn_once_unavailable()
+        return argv, scratch
+    scratch = scratch or tempfile.mkdtemp(prefix="dockbench-plugin-")
+    if memory_limit_mb:
+        argv = [sys.executable, "-c", _RLIMIT_SHIM, str(int(memory_limit_mb)), *argv]
+    return sandbox.wrap(argv, scratch, cwd), scratch
+
+
+def remove_scratch(scratch: str | None) -> None:
+    """Delete a scratch folder of :func:`sandboxed_argv` (None: nothing)."""
+    if scratch:
+        import shutil
+        shutil.rmtree(scratch, ignore_errors=True)
+
+
 def kill_and_reap(proc: subprocess.Popen | None, wait_s: float = 5.0) -> int | None:
     """Kill ``proc`` if it still runs and wait for it (no zombie); its return code or None."""
     if proc is None:
@@ -119,18 +157,21 @@ class ProcessLocalizer:
     """
 
     enforces_timeout = True  # the runner must not re-check the wall time
+    sandboxed = False        # set by _start: the child runs inside bwrap (evalkit.sandbox)
 
     def __init__(self, timeout_s: float | None = DEFAULT_TIMEOUT_S,
                  reset_timeout_s: float | None = DEFAULT_RESET_TIMEOUT_S,
                  start_timeout_s: float | None = DEFAULT_START_TIMEOUT_S,
-                 max_restarts: int = DEFAULT_MAX_RESTARTS):
+                 max_restarts: int = DEFAULT_MAX_RESTARTS, max_restarts_total: int = DEFAULT_MAX_RESTARTS_TOTAL):
         """timeout_s: per-frame budget (s; None waits forever); reset_timeout_s: for
         reset; start_timeout_s: for starting the child; max_restarts: restarts per
-        sequence before the remaining frames fail at once."""
+        sequence before the remaining frames fail at once; max_restarts_total: the same
+        over this proxy's life (one evaluation process)."""
         self.timeout_s = None if timeout_s is None else float(timeout_s)
         self.reset_timeout_s = None if reset_timeout_s is None else float(reset_timeout_s)
         self.start_timeout_s = None if start_timeout_s is None else float(start_timeout_s)
         self.max_restarts = int(max_restarts)
+        self.max_restarts_total = int(max_restarts_total)
         self.last_call_ms: float | None = None
         self._camera: dict | None = None
         self._restarts = 0
@@ -199,9 +240,12 @@ class ProcessLocalizer:
         if self._proc is None:
             return None
         try:
-            return self._proc.wait(EXIT_GRACE_S)
+            code = self._proc.wait(EXIT_GRACE_S)
         except subprocess.TimeoutExpired:
             return None
+        if self.sandboxed and code is not None and 128 < code < 128 + 65:
+            return 128 - code           # bwrap exits 128 + N for a program killed by signal N
+        return code
 
     def _stop_gracefully(self) -> None:
         """Hook: ask the child to exit (default: nothing, _kill follows)."""
@@ -220,6 +264,8 @@ class ProcessLocalizer:
         """New child for the current sequence, with reset replayed."""
         if self._restarts >= self.max_restarts:
             raise FrameFailure(f"crash: gave up after {self.max_restarts} restarts in this sequence")
+        if self.n_restarts_total >= self.max_restarts_total:
+            raise FrameFailure(f"crash: gave up after {self.max_restarts_total} restarts in this evaluation")
         self._restarts += 1
         self.n_restarts_total += 1
         self._start_child()

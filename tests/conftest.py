@@ -24,3 +24,18 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(pytest.mark.skip(reason="slow: run with --slow"))
         if "blender" in item.keywords and not have_bpy:
             item.add_marker(pytest.mark.skip(reason="bpy not installed"))
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus, config):
+    """Print the hostile corpus table (tests/test_hostile.py: case | rc | message) at the end of
+    every run that ran hostile cases, so CI logs show it without ``-s``."""
+    import sys
+    mod = sys.modules.get("tests.test_hostile") or sys.modules.get("test_hostile")
+    rows = getattr(mod, "SUMMARY", None)
+    if not rows:
+        return
+    width = max(len(n) for n, _, _ in rows)
+    terminalreporter.section(f"hostile corpus: {len(rows)} cases")
+    terminalreporter.write_line(f"{'case':{width}s} | rc | message")
+    for name, rc, msg in rows:
+        terminalreporter.write_line(f"{name:{width}s} | {rc:2d} | {msg}")

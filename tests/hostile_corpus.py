@@ -473,7 +473,246 @@ LOCALIZER_CASES = [
     Case("loc_exec_64MiB_line", "localizer", _long_line(64), "protocol: reply line longer than", rc=0),
 ]
 
-ALL_CASES = CONFIG_CASES + DATASET_CASES + VERIFY_CASES + LOCALIZER_CASES
+# ------------------------------------------------------------------ run folders, outputs, exports, results
+def _cfg_file(base: Path) -> Path:
+    p = base / "cfg.yaml"
+    p.write_text(_good_yaml())
+    return p
+
+
+def _run_into(prepare: Callable[[Path], Path]):
+    """``dockbench run`` into the folder ``prepare(base)`` returns (stopped before rendering)."""
+    def build(base: Path) -> list[str]:
+        out = prepare(base)
+        return ["run", str(_cfg_file(base)), "-l", "aruco", "-o", str(out)]
+    return build
+
+
+def _pickle_cache(base: Path) -> Path:
+    """A run folder handed over 'to resume' whose cache is a pickle that runs code."""
+    import pickle
+    work = base / "run" / ".stream" / GOOD_CONFIG["name"]
+    work.mkdir(parents=True)
+
+    class Payload:
+        def __reduce__(self):
+            return (os.system, (f"touch {base / 'PWNED'}",))
+    (work / "lin-t000-clear.pkl.gz").write_bytes(pickle.dumps(Payload()))
+    return base / "run"
+
+
+def _generating(base: Path) -> Path:
+    """A dataset folder `generate` is writing (its config stamp, no manifest yet)."""
+    (base / "gen" / ".work").mkdir(parents=True)
+    (base / "gen" / ".work" / "config.sha256").write_text("0" * 64 + "\n")
+    return base / "gen"
+
+
+def _foreign(base: Path) -> Path:
+    (base / "mine").mkdir()
+    (base / "mine" / "thesis.tex").write_text("\\documentclass{article}\n")
+    return base / "mine"
+
+
+def _export(tamper: Callable[[Path], None] | None = None, out: str = "{base}/a/b/out", extra=()):
+    def build(base: Path) -> list[str]:
+        root = write_fake_dataset(base / "ds")
+        if tamper:
+            tamper(root)
+            rehash(root)
+        if "{base}/mine" in out:
+            _foreign(base)
+        return ["export-bop", str(root), "-o", out.format(base=base), *extra]
+    return build
+
+
+def _unlisted_image(root: Path) -> None:
+    m = json.loads((root / "manifest.json").read_text())
+    del m["files"][f"{SEQ}/rgb/000001.png"]
+    (root / "manifest.json").write_text(json.dumps(m))
+
+
+def _no_sequences(root: Path) -> None:
+    _manifest_edit(lambda m: m.update(sequences=[]))(root)
+
+
+def _stream_json(text_fn: Callable[[Path], str]):
+    def build(base: Path) -> list[str]:
+        root = write_fake_dataset(base / "ds")
+        p = base / "stream.json"
+        p.write_text(text_fn(root))
+        return ["verify", str(root), "--stream", str(p)]
+    return build
+
+
+def _good_stream(root: Path, **edit) -> str:
+    from datasets_spec.io import dataset_files
+    files = {rel: hashlib.sha256((root / rel).read_bytes()).hexdigest() for rel in dataset_files(root)}
+    return json.dumps({"format": "dockbench-stream", "format_version": "2", "files": files, "pixels": {},
+                       **edit})
+
+
+def _calibrate(text: str):
+    def build(base: Path) -> list[str]:
+        (base / "calib.json").write_text(text)
+        return ["calibrate-veil", "--data", str(base / "calib.json"), "-o", str(out_dir(base))]
+    return build
+
+
+def _results(edit: Callable[[Path], None]):
+    """A results folder of `evaluate` on the tiny dataset, hand-edited, fed to `leaderboard`."""
+    def build(base: Path) -> list[str]:
+        import shutil
+        src = _evaluated_results()
+        shutil.copytree(src, base / "res")
+        edit(base / "res")
+        return ["leaderboard", str(base / "res"), "-o", str(out_dir(base) / "lb.html")]
+    return build
+
+
+_RESULTS: list[Path] = []
+
+
+def _evaluated_copy(base: Path) -> Path:
+    import shutil
+    shutil.copytree(_evaluated_results(), base / "res")
+    return base / "res"
+
+
+def _evaluated_results() -> Path:
+    """One `dockbench evaluate` of the tiny dataset per process (its results are copied)."""
+    if not _RESULTS:
+        import tempfile
+        from click.testing import CliRunner
+        import cli
+        tmp = Path(tempfile.mkdtemp(prefix="dockbench-hostile-results-"))
+        root = write_fake_dataset(tmp / "ds")
+        res = CliRunner().invoke(cli.main, ["evaluate", str(root), "-l", "aruco", "-o", str(tmp / "res"), "-q"])
+        assert res.exit_code == 0, res.output
+        _RESULTS.append(tmp / "res")
+    return _RESULTS[0]
+
+
+def _metric(col: str, value):
+    def edit(res: Path) -> None:
+        lines = (res / "metrics.csv").read_text().splitlines()
+        head = lines[0].split(",")
+        row = lines[1].split(",")
+        row[head.index(col)] = str(value)
+        (res / "metrics.csv").write_text("\n".join([lines[0], ",".join(row), *lines[2:]]) + "\n")
+    return edit
+
+
+def _closed_loop(value: float):
+    def edit(res: Path) -> None:
+        doc = {"format": "dockbench-closed-loop", "format_version": "1",
+               "experiment": {"name": "x", "version": "1", "config_hash": "h"}, "camera": {"latency_s": 0},
+               "capture": {}, "rows": [{"localizer": "led", "condition": "clear", "n_trials": 2, "n_docked": 1,
+                                        "success_rate": 0.5, "ci_low": 0.1, "ci_high": 0.9,
+                                        "final_lateral_abs_mean_m": value}]}
+        for f in list(res.iterdir()):
+            (f.unlink() if f.is_file() else None)
+        (res / "closed_loop.json").write_text(json.dumps(doc))
+    return edit
+
+
+SURFACE_CASES = [
+    # run folders: nothing a user hands over is deserialised as code
+    Case("run_pickled_cache", "run", _run_into(_pickle_cache), "pickled cache"),
+    Case("run_out_is_dataset", "run", _run_into(lambda b: write_fake_dataset(b / "ds")), "is the dataset"),
+    Case("run_out_inside_dataset", "run", _run_into(lambda b: write_fake_dataset(b / "ds") / "sequences"),
+         "inside the dataset"),
+    Case("run_out_being_generated", "run", _run_into(_generating), "is the dataset"),
+    Case("run_out_foreign_files", "run", _run_into(_foreign), "files dockbench did not write"),
+    Case("gen_out_inside_dataset", "config",
+         lambda b: ["generate", str(_cfg_file(b)), "-o", str(write_fake_dataset(b / "ds") / "x")],
+         "inside the dataset"),
+    Case("eval_out_is_dataset_overwrite", "dataset",
+         lambda b: ["evaluate", str(write_fake_dataset(b / "ds")), "-l", "aruco", "-o", str(b / "ds"),
+                    "--overwrite"], "is the dataset"),
+    Case("eval_no_sequences", "dataset", _ds(_no_sequences), "\"sequences\" is empty"),
+    Case("bench_out_foreign_files", "outdir", lambda b: ["bench", "pnp", "--trials", "5", "-o", str(_foreign(b))],
+         "files dockbench did not write"),
+    Case("bench_out_inside_dataset", "outdir",
+         lambda b: ["bench", "pnp", "--trials", "5", "-o", str(write_fake_dataset(b / "ds") / "bench")],
+         "inside the dataset"),
+    Case("dock_out_inside_dataset", "outdir",
+         lambda b: ["dock", "turbidity", "--report-only", "-o", str(write_fake_dataset(b / "ds") / "dock")],
+         "inside the dataset"),
+    Case("lb_page_into_dataset", "outdir",
+         lambda b: ["leaderboard", str(_evaluated_copy(b)), "-o", str(write_fake_dataset(b / "ds") / "lb.html")],
+         "inside the dataset"),
+    # export-bop: the same rule and the same checks as evaluate, before writing
+    Case("bop_out_is_dataset", "export", _export(out="{base}/ds"), "is the dataset"),
+    Case("bop_out_inside_dataset", "export", _export(out="{base}/ds/sequences/x"), "inside the dataset"),
+    Case("bop_out_proc", "export", _export(out="/proc/dockbench_hostile_bop"), "pseudo file system"),
+    Case("bop_out_foreign_files", "export", _export(out="{base}/mine"), "files dockbench did not write"),
+    Case("bop_png_bomb_30000", "export", _export(_image_bytes(png_bomb)), "30000x30000"),
+    Case("bop_image_not_in_manifest", "export", _export(_unlisted_image), "000001.png"),
+    Case("bop_no_sequences", "export", _export(_no_sequences), "\"sequences\" is empty"),
+    # verify --stream: a stream.json is untrusted input
+    Case("stream_not_json", "stream", _stream_json(lambda r: "hello"), "not a stream.json"),
+    Case("stream_truncated", "stream", _stream_json(lambda r: _good_stream(r)[:100]), "not a stream.json"),
+    Case("stream_empty_list", "stream", _stream_json(lambda r: "[]"), "expected a JSON object"),
+    Case("stream_nested_100000", "stream", _stream_json(lambda r: "[" * 100000 + "]" * 100000), "nested"),
+    Case("stream_path_etc_passwd", "stream",
+         _stream_json(lambda r: _good_stream(r, files={"/etc/passwd": "0" * 64})), "relative path"),
+    Case("stream_path_dotdot", "stream",
+         _stream_json(lambda r: _good_stream(r, files={"../outside.png": "0" * 64})), "relative path"),
+    Case("stream_format_version_99", "stream", _stream_json(lambda r: _good_stream(r, format_version=99)),
+         "format_version 99"),
+    # calibration files are checked before any render
+    Case("calib_data_not_json", "calibrate", _calibrate("not json at all"), "not JSON"),
+    Case("calib_data_unknown_keys", "calibrate", _calibrate('{"secrets": 1}'), "unknown key 'secrets'"),
+    # results are numbers anyone can edit
+    Case("lb_P_succ_minus_500pct", "results", _results(_metric("P_succ_mean", -5.0)), "outside [0, 1]"),
+    Case("lb_E_rel_1e308", "results", _results(_metric("E_rel_mean", 1e308)), "E_rel_mean"),
+    Case("lb_E_rel_minus_1e308", "results", _results(_metric("E_rel_mean", -1e308)), "E_rel_mean"),
+    Case("lb_counts_disagree", "results", _results(_metric("n_fp", 999)), "exceeds n_est"),
+    Case("lb_closed_loop_lateral_1e308", "results", _results(_closed_loop(1e308)), "final_lateral_abs_mean_m"),
+]
+
+SANDBOX_PLUGIN = """
+import os, sys
+class Hostile:
+    def __init__(self, how="write", target=""):
+        self.how, self.target = how, target
+    def reset(self, camera):
+        pass
+    def localize(self, image):
+        if self.how == "write":
+            open(self.target, "wb").write(b"overwritten by a plugin")
+            return {"distance": 1.0}
+        for _ in range(3):                         # detached children that hold every pipe
+            if os.fork() == 0:
+                os.setsid()
+                if os.fork() == 0:
+                    import time
+                    time.sleep(600)
+                os._exit(0)
+        return None
+"""
+
+
+def _sandboxed(how: str):
+    def build(base: Path) -> list[str]:
+        root = write_fake_dataset(base / "ds")
+        plugin = base / "hostile_plugin.py"
+        plugin.write_text(SANDBOX_PLUGIN)
+        target = root / SEQ / "rgb" / "000003.png"
+        return ["evaluate", str(root), "-l", f"{plugin}:Hostile", "-p", f"how={how}", "-p", f"target={target}",
+                "-o", str(out_dir(base)), "--frame-timeout", "20"]
+    return build
+
+
+# rc 0 with the frames failed (write) or answered "none" while the children lived (fork); needs bubblewrap
+SANDBOX_CASES = [
+    Case("loc_plugin_overwrites_dataset_image", "sandbox", _sandboxed("write"), "Read-only file system", rc=0),
+    Case("loc_plugin_forks_setsid_children", "sandbox", _sandboxed("fork"), "none", rc=0),
+]
+
+IN_PROCESS_SURFACES = SURFACE_CASES
+ALL_CASES = CONFIG_CASES + DATASET_CASES + VERIFY_CASES + SURFACE_CASES + LOCALIZER_CASES + SANDBOX_CASES
 
 
 # ------------------------------------------------------------------ running

@@ -5,7 +5,9 @@ where Blender would start, so an accepted config shows as "accepted"); they must
 with one line naming the file and key, no traceback, and leave every folder as it was.
 Localizer cases run ``dockbench evaluate`` in a child (a plugin may call os._exit): the
 run must finish (rc 0) with the frames failed for the expected reason.
-The summary table (case | rc | message) is printed by the last test (``pytest -s``).
+Run-folder, output-folder, export, stream.json, calibration and results cases run the
+same way; sandbox cases run ``evaluate`` in a child with plugins that attack the dataset.
+The summary table (case | rc | message) is printed at the end of the run (tests/conftest.py).
 """
 from __future__ import annotations
 
@@ -21,7 +23,8 @@ from tests import hostile_corpus as hc
 pytestmark = pytest.mark.integration   # every case through the CLI in a subprocess
 
 SUMMARY: list[tuple[str, int, str]] = []
-IN_PROCESS = hc.CONFIG_CASES + hc.DATASET_CASES + hc.VERIFY_CASES
+IN_PROCESS = hc.CONFIG_CASES + hc.DATASET_CASES + hc.VERIFY_CASES + hc.SURFACE_CASES
+NO_BASE_IN_MESSAGE = ("cfg_out", "bop_out_proc")       # the message names the -o given, outside base
 
 
 @pytest.fixture
@@ -50,7 +53,9 @@ def test_hostile_input(tmp_path, case, no_render):
     assert res.exit_code == case.rc, text
     assert case.expect in text, text
     errors = [ln for ln in text.splitlines() if ln.startswith(("error:", "Error:"))]
-    assert errors and (str(base) in errors[0] or case.name.startswith("cfg_out")), text
+    assert errors and (str(base) in errors[0] or case.name.startswith(NO_BASE_IN_MESSAGE)), text
+    if case in hc.SURFACE_CASES:
+        assert len(text.strip().splitlines()) == 1, text      # one line, nothing else
     assert hc.files_under(base) == before, sorted(hc.files_under(base) ^ before)
 
 
@@ -67,6 +72,25 @@ def test_hostile_localizer(tmp_path, case):
                     else hc.summarize(rc, text)))
     assert rc == case.rc, text[-2000:]
     assert any(case.expect in r for r in reasons), (reasons, text[-2000:])
+
+
+@pytest.mark.parametrize("case", hc.SANDBOX_CASES, ids=[c.name for c in hc.SANDBOX_CASES])
+def test_hostile_plugin_in_the_sandbox(tmp_path, case):
+    """A plugin that writes into the dataset or leaves detached children: the dataset still
+    verifies, the run finishes (rc 0) with the frames failed for the expected reason."""
+    import pandas as pd
+    from evalkit import sandbox
+    if not sandbox.available():
+        pytest.skip(f"no sandbox here: {sandbox.probe()[1]}")
+    argv = case.build(tmp_path)
+    rc, text, _ = hc.run_subprocess(argv, timeout_s=240)
+    out = hc.out_dir(tmp_path)
+    reasons = sorted(set(pd.read_parquet(out / "estimates.parquet")["fail_reason"])) if rc == 0 else []
+    SUMMARY.append((case.name, rc, f"fail_reason: {', '.join(r[:60] for r in reasons)}" if reasons
+                    else hc.summarize(rc, text)))
+    assert rc == case.rc, text[-2000:]
+    assert any(case.expect in r for r in reasons), (reasons, text[-2000:])
+    assert hc.run_subprocess(["verify", str(tmp_path / "ds")])[0] == 0      # the dataset is intact
 
 
 @pytest.mark.parametrize("mode", ["--in-process", "--isolate"])
@@ -208,3 +232,102 @@ def test_yaml_limits_keep_ordinary_configs_working(tmp_path):
     p.write_text("{seed: 1, seed: 2}\n")                            # duplicates on one line too
     with pytest.raises(Exception, match="duplicate key 'seed'"):
         load_experiment(p)
+
+
+# ------------------------------------------------------------------ a full disk (ENOSPC injected)
+def _enospc(path):
+    import errno
+    import os
+    return OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+
+
+@pytest.mark.parametrize("command", ["generate", "evaluate", "run"])
+def test_a_full_disk_is_one_line_naming_the_path_and_the_space(tmp_path, monkeypatch, command):
+    """ENOSPC while writing (in this process, or in a render worker whose log says so): one
+    line with the path, the free space and the space needed; rc 2; -o as it was."""
+    import blendgen.pipeline.generate as gen
+    from blendgen.pipeline.executor import RenderError
+    from evalkit.reports import results
+    base = tmp_path / "base"
+    base.mkdir()
+    out = base / "out"
+    if command == "generate":
+        def render(*a, **k):   # a render worker's failure, as executor reports it (log tail)
+            raise RenderError(f"render worker failed (exit 1) for job.json:\nOSError: [Errno 28] No space left "
+                              f"on device: '{out}/sequences/x/rgb/000001.png'")
+        monkeypatch.setattr(gen, "_render", render)
+        argv = ["generate", str(hc._cfg_file(base)), "-o", str(out)]
+    elif command == "evaluate":
+        def save(df, tmp, record):
+            (tmp / "estimates.parquet").write_bytes(b"x" * 4096)
+            raise _enospc(tmp / "metrics.csv")
+        monkeypatch.setattr(results, "save_run", save)
+        argv = ["evaluate", str(hc.write_fake_dataset(base / "ds")), "-l", "aruco", "-o", str(out)]
+    else:
+        import blendgen.tools.streamrun as sr
+
+        def stream_run(items, req):
+            raise _enospc(out / "dataset" / "sequences" / "x" / "rgb" / "000001.png")
+        monkeypatch.setattr(sr, "stream_run", stream_run)
+        argv = ["run", str(hc._cfg_file(base)), "-l", "aruco", "-o", str(out)]
+    before = hc.files_under(base) if command != "generate" else None
+    res = CliRunner().invoke(cli.main, argv)
+    SUMMARY.append((f"disk_full_{command}", res.exit_code, hc.summarize(res.exit_code, res.output)))
+    lines = [ln for ln in res.output.splitlines() if ln.startswith("error:")]
+    assert res.exit_code == 2 and len(lines) == 1, res.output
+    assert "disk full" in lines[0] and "MB free" in lines[0] and "MB more needed" in lines[0], lines[0]
+    assert str(out) in lines[0] and "Traceback" not in res.output
+    if before is not None:
+        assert hc.files_under(base) == before, sorted(hc.files_under(base) ^ before)
+
+
+def test_a_temp_sibling_left_by_kill_9_is_removed_and_reported(tmp_path):
+    """`kill -9` of evaluate leaves `.OUT.tmp-PID/` (and, between its two renames, `.OUT.old-PID/`);
+    the next run on OUT removes it under the lock and says so on stderr."""
+    root = hc.write_fake_dataset(tmp_path / "ds")
+    out = tmp_path / "res"
+    (tmp_path / ".res.tmp-999999").mkdir()
+    (tmp_path / ".res.tmp-999998" / "plots").mkdir(parents=True)
+    res = CliRunner().invoke(cli.main, ["evaluate", str(root), "-l", "aruco", "-o", str(out), "-q"])
+    SUMMARY.append(("eval_stale_tmp_siblings", res.exit_code, hc.summarize(res.exit_code, res.output)))
+    assert res.exit_code == 0, res.output
+    assert res.output.count("left by an interrupted run") == 2, res.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds", "res"]
+    (tmp_path / ".res.old-999997").mkdir()           # killed between its renames: the old results
+    (tmp_path / ".res.old-999997" / "run.json").write_text("{}")
+    import shutil
+    shutil.rmtree(out)
+    from datasets_spec.outdir import clean_stale, lock
+    with lock(out, "evaluate"):
+        clean_stale(out)
+    assert (out / "run.json").read_text() == "{}"     # restored, not deleted
+
+
+@pytest.mark.parametrize("reply, ok", [(bytes([0, 0, 0, 4, 0, 0, 0, 0, 0]), True),    # gRPC: SETTINGS
+                                       (b"HTTP/1.1 400 Bad Request\r\n\r\n", False),   # a web server
+                                       (b"", False)])                                  # silent, then closed
+def test_a_ray_address_that_is_not_ray_fails_fast(reply, ok):
+    """Ray retries an address that is not a cluster for minutes, printing warnings; dockbench asks
+    the HTTP/2 preface first (Ray's GCS answers it with a SETTINGS frame) and refuses at once."""
+    import socket
+    import threading
+    from blendgen.pipeline.executor import ExecutorError, check_ray_address
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen()
+
+    def answer():
+        conn, _ = server.accept()
+        with conn:
+            conn.recv(64)
+            conn.sendall(reply)
+    threading.Thread(target=answer, daemon=True).start()
+    address = f"127.0.0.1:{server.getsockname()[1]}"
+    try:
+        if ok:
+            check_ray_address(address, timeout_s=5)
+        else:
+            with pytest.raises(ExecutorError, match="not a Ray cluster"):
+                check_ray_address(address, timeout_s=5)
+    finally:
+        server.close()

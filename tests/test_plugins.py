@@ -56,6 +56,7 @@ EXT_ORACLE = textwrap.dedent('''
     import json, os, sys
     import cv2
     params = None
+    process_id = os.urandom(8).hex()     # not the pid: a sandboxed program has its own PID namespace
     for line in sys.stdin:
         req = json.loads(line)
         if req["type"] == "reset":
@@ -69,7 +70,7 @@ EXT_ORACLE = textwrap.dedent('''
         d = ((r << 16) | (g << 8) | b) / 1000.0
         T = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, d], [0, 0, 0, 1]]
         print(json.dumps({"ok": True, "index": req["index"], "distance": d * params.get("scale", 1.0),
-                          "T_cam_dock": T, "marker_id": str(os.getpid()), "confidence": 0.5}), flush=True)
+                          "T_cam_dock": T, "marker_id": process_id, "confidence": 0.5}), flush=True)
 ''')
 
 
@@ -137,7 +138,7 @@ def test_exec_python_program_through_the_cli(ds_path, tmp_path):
     spec = f"exec:{sys.executable} {script}"
     df = _evaluate(ds_path, tmp_path / "out", "-l", spec, "-p", "scale=2.0")
     _assert_oracle(df, 2.0)
-    # one process per sequence: the same pid within a sequence, another in the next one
+    # one process per sequence: the same process id within a sequence, another in the next one
     pids = df.groupby("sequence")["marker_id"].nunique()
     assert (pids == 1).all() and df["marker_id"].nunique() == 2
 

@@ -19,7 +19,7 @@ ELSEWHERE = {   # command -> the test that runs it
     "generate": "test_config.py, test_stream_run.py", "evaluate": "test_evaluate_cli.py",
     "verify": "test_evaluate_cli.py", "leaderboard": "test_leaderboard.py", "export-bop": "test_bop.py",
     "bench pnp": "test_pnp_stress.py", "dock": "test_closed_loop_render.py", "run": "test_stream_run.py",
-    "configs": "test_cli_papercuts.py", "localizers": "test_localizers.py",
+    "configs": "test_cli_papercuts.py", "localizers": "test_localizers.py", "authority": "test_authority.py",
 }
 
 

@@ -140,12 +140,12 @@ def test_a_run_killed_after_its_first_evaluated_sequence_resumes_to_the_same_res
     out = tmp_path / "run"
     p = _start(cfg, out)
     t_end = time.monotonic() + 300
-    while not list(out.glob(".stream/*/*.pkl.gz")) and p.poll() is None and time.monotonic() < t_end:
+    while not list(out.glob(".stream/*/*.parquet")) and p.poll() is None and time.monotonic() < t_end:
         time.sleep(0.05)
     assert p.poll() is None, "the run ended before it could be interrupted"
     os.killpg(p.pid, signal.SIGKILL)                            # the parent, render and evaluation workers
     p.wait()
-    done_before = {q.name: q.stat().st_mtime_ns for q in out.glob(".stream/*/*.pkl.gz")}
+    done_before = {q.name: q.stat().st_mtime_ns for q in out.glob(".stream/*/*.parquet")}
     _ok("run", cfg, *LOCS, "-o", out, "--images", "none", "-q")
     st, first = _stream(out), _stream(d / "run")              # --images none: no image encoded
     assert set(st["files"]) | set(st["pixels"]) == set(first["files"]) | set(first["pixels"])
@@ -154,7 +154,7 @@ def test_a_run_killed_after_its_first_evaluated_sequence_resumes_to_the_same_res
     assert all(st["files"][p] == first["files"][p] for p in st["files"])
     assert check_against(st, d / "gen") == []
     assert (out / "results" / "metrics.csv").read_bytes() == (d / "ev" / "metrics.csv").read_bytes()
-    assert {q.name: q.stat().st_mtime_ns for q in out.glob(".stream/*/*.pkl.gz") if q.name in done_before} \
+    assert {q.name: q.stat().st_mtime_ns for q in out.glob(".stream/*/*.parquet") if q.name in done_before} \
         == done_before                                          # finished sequences were not evaluated again
     assert not list((out / "dataset").glob("sequences/*/rgb/*.png"))   # --images none
     assert not list((out / "dataset").rglob(".*.npy"))          # raw pixels gone once evaluated
@@ -196,3 +196,18 @@ def test_a_run_folder_of_other_localizers_is_refused_not_mixed(runs):
                        text=True, timeout=120)
     assert r.returncode == 2 and "other localizers" in r.stderr and len(r.stderr.strip().splitlines()) == 1
     assert (d / "run" / "stream.json").read_bytes() == before
+
+
+@pytest.mark.blender
+def test_a_truncated_cache_is_refused_on_resume_naming_the_file(runs, tmp_path):
+    """A run folder's cache cut short (or edited) is a one-line error on resume, rc 2."""
+    import shutil
+    cfg, d = runs
+    out = tmp_path / "run"
+    shutil.copytree(d / "run", out)
+    pq = sorted(out.glob(".stream/*/*.parquet"))[0]
+    pq.write_bytes(pq.read_bytes()[:100])
+    r = subprocess.run(_cmd("run", cfg, *LOCS, "-o", out, "--images", "sample:2", "-q"), cwd=ROOT,
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert str(pq) in r.stderr and "sha256 differs" in r.stderr, r.stderr

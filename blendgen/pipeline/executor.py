@@ -382,10 +382,32 @@ def check_ray_address(address: str, timeout_s: float = 5.0) -> None:
     if not sep or not port.isdigit() or not host:
         return
     try:
-        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s).close()
+        conn = socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s)
     except OSError as e:
         raise ExecutorError(f"no Ray cluster answers at {address!r} ({e}); start one with "
                             "`ray start --head` or check --address") from None
+    with conn:
+        if not os.environ.get("RAY_USE_TLS") and not _speaks_grpc(conn, timeout_s):
+            raise ExecutorError(f"{address!r} answers but is not a Ray cluster (no gRPC reply; Ray would retry "
+                                "for minutes); check --address: the head's GCS port (6379) or ray://host:10001")
+
+
+def _speaks_grpc(conn, timeout_s: float) -> bool:
+    """True when the peer answers the HTTP/2 connection preface with a SETTINGS frame, as Ray's
+    GCS and client servers (gRPC over cleartext HTTP/2, RFC 9113 section 3.4) do at once."""
+    import socket
+    try:
+        conn.sendall(b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes([0, 0, 0, 4, 0, 0, 0, 0, 0]))
+        conn.settimeout(timeout_s)
+        head = b""
+        while len(head) < 9:
+            chunk = conn.recv(9 - len(head))
+            if not chunk:
+                break
+            head += chunk
+    except (OSError, socket.timeout):
+        return False
+    return len(head) == 9 and head[3] == 4
 
 
 def run_ray(job_files: list[Path], log_dir: Path, on_done: Callable[[Path], None],

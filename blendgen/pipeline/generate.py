@@ -8,10 +8,9 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
 import platform
 import shutil
-from contextlib import ExitStack, contextmanager
+from contextlib import ExitStack
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
@@ -160,6 +159,8 @@ def generate_many(items: list[tuple[Experiment, Path]], workers: int | None = No
     else:
         ex.require_render_stack()              # the workers of this machine need bpy
     with ExitStack() as stack:
+        if executor == "ray":                  # connected before any folder is made (a bad address writes nothing)
+            stack.enter_context(ex.ray_session(ray_address))
         for _, out in items:
             check_out_location(Path(out))
             try:
@@ -270,27 +271,11 @@ def _render(targets: list[_Target], workers: int | None, progress: bool, kind: s
         run()
 
 
-@contextmanager
 def _exclusive(out: Path):
-    """One generate per output directory: a second one fails at once (user error).
-    The lock is released when the process ends, however it ends."""
-    import fcntl
-    (out / ".work").mkdir(parents=True, exist_ok=True)
-    with open(out / ".work" / "lock", "a+") as fh:
-        try:
-            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            fh.seek(0)
-            raise FileExistsError(f"{out} is being written by another dockbench generate "
-                                  f"(pid {fh.read().strip() or '?'}); wait for it or stop it") from None
-        fh.seek(0)
-        fh.truncate()
-        fh.write(f"{os.getpid()}\n")
-        fh.flush()
-        try:
-            yield
-        finally:
-            fcntl.flock(fh, fcntl.LOCK_UN)
+    """One writer per output directory, whatever the command (:func:`datasets_spec.outdir.lock`):
+    a second one fails at once (user error). Released when the process ends, however it ends."""
+    from datasets_spec.outdir import lock
+    return lock(out, "generate")
 
 
 def _lines(p: Path) -> int:
@@ -316,37 +301,17 @@ def config_digest(exp: Experiment) -> str:
     return hashlib.sha256(json.dumps(exp.model_dump(mode="json"), sort_keys=True).encode()).hexdigest()
 
 
-def _source_tree() -> list[Path]:
-    """Folders of dockbench's own source: the packages, and in a checkout (pyproject.toml
-    beside them) the project folder itself and its shipped folders (``out/`` stays allowed)."""
-    import blendgen
-    pkg = Path(blendgen.__file__).resolve().parent
-    top = pkg.parent
-    dirs = [pkg, top / "evalkit", top / "datasets_spec"]
-    if (top / "pyproject.toml").is_file():
-        dirs += [top / d for d in ("tests", "configs", "templates", "examples", "constraints", ".git")]
-    return dirs
-
-
 def check_out_location(out: Path) -> None:
-    """Refuse an output folder inside dockbench's source tree, the project folder itself,
-    a path through a file, or an unwritable place, before anything is written
-    (:class:`OutputDirError`, a user error)."""
-    target = Path(out).resolve()
-    top = Path(__file__).resolve().parents[2]
-    inside = [d for d in _source_tree() if os.path.commonpath([d, target]) == str(d)]
-    if target == top and (top / "pyproject.toml").is_file():
-        inside = [top]
-    if inside:
-        raise OutputDirError(f"-o {out}: inside dockbench's source tree ({inside[0]}); "
-                             "choose a folder outside it, e.g. out/NAME")
-    probe = target
-    while not probe.exists():
-        probe = probe.parent
-    if not probe.is_dir():
-        raise OutputDirError(f"-o {out}: {probe} is a file, not a folder")
-    if not os.access(probe, os.W_OK | os.X_OK):
-        raise OutputDirError(f"-o {out}: {probe} is not writable; choose a writable folder")
+    """Refuse an output folder inside dockbench's source tree, the project folder itself, a
+    pseudo file system, a path through a file, an unwritable place, or inside another dataset,
+    before anything is written (:class:`OutputDirError`, a user error; the rule is
+    :mod:`datasets_spec.outdir`, shared by every writing command)."""
+    from datasets_spec import outdir
+    try:
+        outdir.check_location(out)
+        outdir.refuse_dataset(out, "generate")
+    except outdir.OutDirError as exc:
+        raise OutputDirError(str(exc)) from None
 
 
 def check_out_dir(exp: Experiment, out: Path, overwrite: bool) -> None:

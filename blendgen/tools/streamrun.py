@@ -41,8 +41,7 @@ from evalkit import stream
 from blendgen.pipeline import allocator
 from blendgen.pipeline.passstore import PIXELS as PASS_PIXELS
 
-STREAM_FORMAT = "dockbench-stream"
-STREAM_VERSION = "2"                # 2: camera images not kept are hashed by pixels ("pixels")
+STREAM_FORMAT, STREAM_VERSION = stream.STREAM_FORMAT, stream.STREAM_VERSION   # checked by stream.load_stream_summary
 PIXELS_PREFIX = "pixels:"           # content_hash entry of an image hashed by its pixels
 STREAM_JSON = "stream.json"
 
@@ -95,7 +94,7 @@ class _Streamer:
         record = self.work(target) / "renders" / f"{rdir.name}.json"
         if not rdir.is_dir():
             return
-        if not record.is_file():
+        if record.relative_to(self.work(target)).as_posix() not in stream.recorded_files(self.work(target)):
             files = {p.relative_to(target.out).as_posix(): sha256_file(p)
                      for p in sorted(rdir.rglob("*.png"))}
             pixels = {}
@@ -105,6 +104,7 @@ class _Streamer:
             record.parent.mkdir(parents=True, exist_ok=True)
             save_json_atomic(record.with_name(f"{rdir.name}{stream.PIXELS_SUFFIX}"), pixels)
             save_json_atomic(record, files)
+            stream.record_files(self.work(target), [record.with_name(f"{rdir.name}{stream.PIXELS_SUFFIX}"), record])
         (rdir / PASS_PIXELS).unlink(missing_ok=True)
         if keep is not None:
             kept = set(keep)
@@ -135,9 +135,11 @@ class _Streamer:
 def _recorded_hashes(work: Path) -> dict[str, str]:
     """{path: sha256} of every image and pass hashed during the run."""
     out: dict[str, str] = {}
-    renders = [p for p in sorted((Path(work) / "renders").glob("*.json")) if not p.name.endswith(stream.PIXELS_SUFFIX)]
-    for p in sorted(Path(work).glob("*.hashes.json")) + renders:
-        out.update(json.loads(p.read_text()))
+    work = Path(work)
+    recorded = stream.recorded_files(work)
+    renders = [p for p in sorted((work / "renders").glob("*.json")) if not p.name.endswith(stream.PIXELS_SUFFIX)]
+    for p in sorted(work.glob("*.hashes.json")) + renders:
+        out.update(stream.read_json_checked(work, p.relative_to(work).as_posix(), recorded))
     return out
 
 
@@ -191,6 +193,10 @@ def _stamp_work(exp, out: Path, req: RunRequest) -> None:
                               "be gone); choose a new -o or pass --overwrite to start over")
         shutil.rmtree(work)
         shutil.rmtree(Path(out) / "dataset", ignore_errors=True)
+    if req.overwrite and any(work.glob(f"*{stream.LEGACY_SUFFIX}")):
+        shutil.rmtree(work)
+        shutil.rmtree(Path(out) / "dataset", ignore_errors=True)
+    stream.refuse_legacy(work)
     work.mkdir(parents=True, exist_ok=True)
     f.write_text(stamp)
 

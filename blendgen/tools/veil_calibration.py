@@ -147,15 +147,46 @@ def refit(name: str, entry: dict) -> dict:
     return residuals(w, entry)
 
 
+CALIBRATION_KEYS = ("version", "method", "sun_strength", "light_depth_m", "sun_elevation_deg", "presets", "veil")
+MAX_CALIBRATION_BYTES = 4 << 20
+
+
+def check_data_file(path: Path) -> dict:
+    """The calibration file ``path`` as it will be merged into, checked before any render:
+    absent (a new file, seeded from the package's), or a UTF-8 JSON object of at most 4 MiB
+    whose keys are those of blendgen/data/water_calibration.json; else
+    :class:`~blendgen.config.models.ConfigError` (one line: file, what, the allowed form)."""
+    from blendgen.config.models import ConfigError
+    from blendgen.physics import optics
+    path = Path(path)
+    if not path.exists():
+        return dict(optics.load_calibration()) or {"version": 1}
+    allowed = f"a JSON object with keys among {', '.join(CALIBRATION_KEYS)}"
+    if not path.is_file() or path.stat().st_size > MAX_CALIBRATION_BYTES:
+        raise ConfigError(f"--data {path}: not a regular file of at most 4 MiB (expected {allowed})")
+    try:
+        data = json.loads(path.read_bytes().decode("utf-8"))
+    except (UnicodeDecodeError, ValueError, RecursionError) as exc:
+        raise ConfigError(f"--data {path}: not JSON ({type(exc).__name__}); expected {allowed}") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"--data {path}: top level is {type(data).__name__}; expected {allowed}")
+    unknown = sorted(set(data) - set(CALIBRATION_KEYS))
+    if unknown:
+        raise ConfigError(f"--data {path}: unknown key {unknown[0]!r} (not a dockbench calibration file?); "
+                          f"expected {allowed}")
+    return data
+
+
 def run(work: Path, data_path: Path, presets=PRESETS, echo=print) -> dict:
-    """Measure and fit every preset; merge the ``"veil"`` section into ``data_path``."""
+    """Measure and fit every preset; merge the ``"veil"`` section into ``data_path`` (checked by
+    :func:`check_data_file` before the first render)."""
+    data = check_data_file(data_path)
     entries = {}
     for name in presets:
         entries[name] = measure_preset(name, Path(work), echo)
     for alias, src in ALIASES.items():
         if src in entries:
             entries[alias] = entries[src]
-    data = json.loads(data_path.read_text()) if data_path.exists() else {"version": 1}
     old = (data.get("veil") or {}).get("presets", {})
     data["veil"] = {
         "method": (f"kappa, K_v per preset and channel: relative least squares of reference = beam + diffuse(kappa, K_v) "
@@ -165,5 +196,7 @@ def run(work: Path, data_path: Path, presets=PRESETS, echo=print) -> dict:
                    f"coefficients: optics.water_for_mode(preset, 'physical')"),
         "date": _dt.date.today().isoformat(), "convergence_mild_2m_G": CONVERGENCE,
         "presets": {**old, **entries}}
-    data_path.write_text(json.dumps(data, indent=1) + "\n")
+    from datasets_spec.io import save_json_atomic
+    data_path.parent.mkdir(parents=True, exist_ok=True)
+    save_json_atomic(data_path, data)
     return data["veil"]

@@ -74,6 +74,11 @@ def _check_row(f: Path, i: int, r) -> None:
         raise ClosedLoopError(f"{f}: rows[{i}]: need integers 0 <= n_docked <= n_trials, n_trials >= 1")
     if not (isinstance(p, (int, float)) and abs(p - k / n) < 1e-9):
         raise ClosedLoopError(f"{f}: rows[{i}].success_rate must equal n_docked / n_trials = {k / n:.6g}")
+    from evalkit.reports.numbers import NumberError, check_closed_loop_row
+    try:
+        check_closed_loop_row(f"{f}: rows[{i}]", r)
+    except NumberError as exc:
+        raise ClosedLoopError(str(exc)) from None
 
 
 def load_closed_loop(path: str | Path) -> ClosedLoopRun:
@@ -81,8 +86,8 @@ def load_closed_loop(path: str | Path) -> ClosedLoopRun:
     f = Path(path) / RESULTS_FILE
     try:
         doc = json.loads(f.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as exc:
-        raise ClosedLoopError(f"{f}: cannot read: {exc}") from None
+    except (OSError, ValueError, RecursionError) as exc:
+        raise ClosedLoopError(f"{f}: cannot read: {type(exc).__name__}: {str(exc)[:120]}") from None
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise ClosedLoopError(f"{f}: \"format\" is not {FORMAT!r}")
     if str(doc.get("format_version")) != FORMAT_VERSION:

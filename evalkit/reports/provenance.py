@@ -117,6 +117,21 @@ def localizer_record(spec: str, params: dict, obj: Any = None) -> dict:
             "code": code_artifacts(spec)}
 
 
+def first_changed_file(root: Path, files: dict[str, str]) -> str | None:
+    """The first listed file (sorted) whose bytes on disk are missing or differ from its sha256
+    in ``files``, or None: a verified run's content hash then describes every file of the
+    dataset, not only those the localizers read (depth and index passes, assets...)."""
+    from datasets_spec.io import DatasetError, path_inside
+    for rel in sorted(files):
+        try:
+            path = path_inside(root, rel, "manifest file")
+        except DatasetError:
+            return rel
+        if not path.is_file() or sha256_file(path) != files[rel]:
+            return rel
+    return None
+
+
 def disk_content_hash(root: Path, files: dict[str, str]) -> str:
     """The dataset content hash over the sha256 of the files on disk (``missing`` for absent ones)."""
     actual = {rel: (sha256_file(root / rel) if (root / rel).is_file() else "missing") for rel in files}

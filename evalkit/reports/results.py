@@ -86,6 +86,14 @@ def dataset_info(dataset, content_hash: str | None = None) -> dict:
 
     m = dataset.manifest
     files = m.get("files") or {}
+    if content_hash is None and dataset.verify and not getattr(dataset, "streamed", False):   # every file
+        from evalkit.reports.provenance import first_changed_file
+        from datasets_spec.io import DatasetError
+        bad = first_changed_file(Path(dataset.root), files)
+        if bad is not None:
+            raise DatasetError(f"{Path(dataset.root) / bad}: missing or sha256 differs from the manifest "
+                               "(dockbench verify lists every changed file); the run's content hash would "
+                               "not describe this dataset")
     if content_hash is None:
         content_hash = hash_files(files) if dataset.verify else disk_content_hash(Path(dataset.root), files)
     return {"name": m.get("name"), "version": m.get("version"), "content_hash": content_hash,
@@ -335,7 +343,13 @@ def json_summary(run_json: Path) -> str:
 
 
 def _read_csv(path: Path) -> pd.DataFrame | None:
-    return pd.read_csv(path) if path.is_file() else None
+    """A results CSV (None: absent); an unreadable one is a :class:`ResultsError`."""
+    if not path.is_file():
+        return None
+    try:
+        return pd.read_csv(path)
+    except (ValueError, UnicodeDecodeError, pd.errors.ParserError) as exc:
+        raise ResultsError(f"{path}: unreadable CSV ({type(exc).__name__}: {str(exc)[:100]})") from None
 
 
 def load_run(path: str | Path) -> Run:
@@ -347,8 +361,8 @@ def load_run(path: str | Path) -> Run:
                            f"write one with `dockbench evaluate`)")
     try:
         run = json.loads(rj.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise ResultsError(f"{rj}: invalid JSON: {exc}") from None
+    except (ValueError, RecursionError) as exc:
+        raise ResultsError(f"{rj}: invalid JSON: {type(exc).__name__}: {str(exc)[:120]}") from None
     if not isinstance(run, dict) or run.get("format") != RUN_FORMAT:
         raise ResultsError(f"{rj}: \"format\" is not {RUN_FORMAT!r}")
     if str(run.get("format_version")) != RUN_FORMAT_VERSION:
@@ -360,8 +374,27 @@ def load_run(path: str | Path) -> Run:
         m = pd.DataFrame(run.get("metrics") or [], columns=metrics_extra.METRIC_COLUMNS)
     for col in metrics.GROUP:
         m[col] = m[col].fillna("").astype(str) if col in m.columns else ""
-    return Run(root, run, m, _read_csv(root / "runtime.csv"), _read_csv(root / "summary.csv"),
-               _read_csv(root / "bins.csv"))
+    runtime = _read_csv(root / "runtime.csv")
+    _check_numbers(root, run, m, runtime)
+    return Run(root, run, m, runtime, _read_csv(root / "summary.csv"), _read_csv(root / "bins.csv"))
+
+
+def _check_numbers(root: Path, run: dict, m: pd.DataFrame, runtime: pd.DataFrame | None) -> None:
+    """Every number the leaderboard shows or ranks within what evaluate can produce
+    (:mod:`evalkit.reports.numbers`); else :class:`ResultsError` naming file, row and column."""
+    from evalkit.reports.numbers import NumberError, check_metric_rows
+    settings = run.get("settings") if isinstance(run.get("settings"), dict) else {}
+    d_min = settings.get("d_min_rel_m")
+    d_min = d_min if isinstance(d_min, (int, float)) and not isinstance(d_min, bool) else None
+    try:
+        shown = root / "metrics.csv" if (root / "metrics.csv").is_file() else root / RUN_JSON
+        check_metric_rows(shown, m.to_dict("records"), d_min)
+        if isinstance(run.get("metrics"), list) and all(isinstance(r, dict) for r in run["metrics"]):
+            check_metric_rows(root / RUN_JSON, run["metrics"], d_min)
+        if runtime is not None:
+            check_metric_rows(root / "runtime.csv", runtime.to_dict("records"))
+    except NumberError as exc:
+        raise ResultsError(str(exc)) from None
 
 
 def _describe(run: Run) -> str:
