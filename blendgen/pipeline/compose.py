@@ -192,7 +192,7 @@ def water_image(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, 
                              model=post.image_formation, veil_depth_m=veil_depth,
                              irradiance=state.water_opts["irradiance"], blur=state.water_opts["blur"],
                              blur_px_per_tau=optics.BLUR_RAD_PER_TAU * fx, blur_max_px=optics.BLUR_MAX_RAD * fx,
-                             glow_fx=fx)
+                             glow_fx=fx if state.water_opts.get("glow", True) else None)
     lit = led_light(passes, state, K, T_world_cam, markers, T_world_dock)
     if lit is not None:
         lit *= optics.transmittance(state.water, passes["range_m"]).reshape(lit.shape)
@@ -270,16 +270,18 @@ def lamp_image(passes: dict, lamp: lamp_water.LampWater, K: np.ndarray, T_world_
 
 
 def sensor_model(post: SequencePost) -> sensor.SensorModel:
-    """The sequence's camera sensor; shot/read noise and blooming (``sensor.BLOOM_FRACTION_PHYSICAL``)
-    default on in physical mode only."""
+    """The sequence's camera sensor, the same in both image-formation modes: null switches (a
+    post built without ``plan.resolved_sensor``) read as that resolver fills them (noise on,
+    blooming ``sensor.BLOOM_FRACTION``); a null exposure as the scene-metered one."""
     s = post.sensor
-    physical = post.image_formation == "physical"
-    noise = s.noise if s.noise is not None else physical
-    bloom = s.bloom_fraction if s.bloom_fraction is not None else (sensor.BLOOM_FRACTION_PHYSICAL if physical else 0.0)
-    return sensor.SensorModel(exposure_s=s.exposure_s, responsivity_e_per_s=s.responsivity_e_per_s,
+    noise = s.noise if s.noise is not None else True
+    bloom = s.bloom_fraction if s.bloom_fraction is not None else sensor.BLOOM_FRACTION
+    exposure = s.exposure_s if s.exposure_s is not None else sensor.beacon_exposure_s(
+        0.0, s.full_well_e, s.responsivity_e_per_s)
+    return sensor.SensorModel(exposure_s=exposure, responsivity_e_per_s=s.responsivity_e_per_s,
                               full_well_e=s.full_well_e, read_noise_e=s.read_noise_e, gain=s.gain, noise=noise,
-                              response=s.response, bloom_fraction=bloom,
-                              bloom_sigma_px=s.bloom_sigma_px, noise_std=post.noise_std)
+                              response=s.response, bloom_fraction=bloom, bloom_sigma_px=s.bloom_sigma_px,
+                              noise_std=post.noise_std, dark_current_e_per_s=s.dark_current_e_per_s)
 
 
 def camera_image(passes: dict, state: SequenceState, K: np.ndarray, frame: dict, markers: list[dict],

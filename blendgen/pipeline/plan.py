@@ -295,7 +295,7 @@ def exposure_flow(exp: Experiment, T_wc: np.ndarray, T_wd: np.ndarray) -> np.nda
     (whose flow is radial)."""
     from scipy.spatial.transform import Rotation, Slerp
     K = camera_K(exp)
-    a = min(exp.camera.sensor.exposure_s * exp.camera.fps, 1.0)
+    a = min(resolved_sensor(exp).exposure_s * exp.camera.fps, 1.0)
     centre = T_wd[:, 3]
     flow = np.zeros((len(T_wc), 2))
     for i in range(len(T_wc) - 1):
@@ -412,14 +412,34 @@ def occlusion_region(exp: Experiment, occ) -> tuple[list[float], list[float]]:
 
 
 def resolved_sensor(exp: Experiment):
-    """The camera's sensor with the mode-dependent blooming default filled in (so every
-    sequence's manifest entry records the value used)."""
-    from blendgen.physics.sensor import BLOOM_FRACTION_PHYSICAL
+    """The camera's sensor with its null defaults filled in (so every sequence's manifest entry
+    records the values used). The same in both image-formation modes (one camera; the modes differ
+    only in the water formula): shot/read noise on, blooming ``sensor.BLOOM_FRACTION``, exposure for
+    the dock's beacons (:func:`beacon_peak_radiance`, ``sensor.beacon_exposure_s``).
+    [mode-independent sensor defaults: until issue 39 noise and blooming were off in article mode]"""
+    from blendgen.physics import sensor
     s = exp.camera.sensor
-    if s.bloom_fraction is not None:
-        return s
-    bloom = BLOOM_FRACTION_PHYSICAL if exp.image_formation == "physical" else 0.0
-    return s.model_copy(update={"bloom_fraction": bloom})
+    upd = {}
+    if s.noise is None:
+        upd["noise"] = True
+    if s.bloom_fraction is None:
+        upd["bloom_fraction"] = sensor.BLOOM_FRACTION
+    if s.exposure_s is None:
+        upd["exposure_s"] = sensor.beacon_exposure_s(beacon_peak_radiance(exp), s.full_well_e,
+                                                     s.responsivity_e_per_s)
+    return s.model_copy(update=upd) if upd else s
+
+
+def beacon_peak_radiance(exp: Experiment) -> float:
+    """The brightest channel of the dock's LEDs (W m^-2 sr^-1): ``I c_k / (pi r^2)`` over every LED
+    array's colour and reference colour; 0 without LEDs."""
+    from blendgen.physics.leds import led_radiance
+    peak = 0.0
+    for m in exp.scene.dock.markers:
+        if m.kind == "led_array":
+            for col in (m.color, m.reference_color):
+                peak = max(peak, *led_radiance(m.intensity_w_sr, col, m.led_radius_m))
+    return peak
 
 
 def condition_post(exp: Experiment, cond, seed: int) -> SequencePost:
