@@ -86,13 +86,15 @@ def shot_read_noise_e(mean_e: np.ndarray, rng: np.random.Generator, read_noise_e
         raise ValueError(f"read_noise_e must be >= 0 electrons, got {read_noise_e}")
     lam = np.fmax(np.asarray(mean_e, np.float32), np.float32(0))          # NaN -> 0
     e = rng.standard_normal(lam.shape, dtype=np.float32)
-    e *= np.sqrt(lam + np.float32(read_noise_e) ** 2)   # shot and read noise: one Normal draw
+    sd = lam + np.float32(read_noise_e) ** 2
+    e *= np.sqrt(sd, out=sd)                            # shot and read noise: one Normal draw
     e += lam
-    small = lam < POISSON_EXACT_BELOW
-    if small.any():
-        n = int(small.sum())
-        e[small] = rng.poisson(lam[small]) + (rng.standard_normal(n, dtype=np.float32) * np.float32(read_noise_e)
-                                              if read_noise_e > 0 else 0.0)
+    small = np.flatnonzero(lam < POISSON_EXACT_BELOW)   # flat indices: one take and one put
+    if small.size:
+        v = rng.poisson(lam.ravel()[small]).astype(np.float32)
+        if read_noise_e > 0:
+            v += rng.standard_normal(small.size, dtype=np.float32) * np.float32(read_noise_e)
+        e.ravel()[small] = v
     return e
 
 
@@ -322,7 +324,7 @@ class SensorModel:
         mu = np.asarray(linear, np.float32) * np.float32(self.responsivity_e_per_s * self.exposure_s)
         np.fmax(mu, np.float32(0), out=mu)                                   # NaN and negatives -> 0
         if self.bloom_fraction > 0:
-            mu = self._bloom(mu)
+            mu = self._bloom(mu, out=mu)                                     # mu is our own array
         if self.dark_current_e_per_s > 0:                                    # thermal charge: Poisson too
             mu += np.float32(self.dark_current_e_per_s * self.exposure_s)
         if self.noise:
@@ -332,20 +334,23 @@ class SensorModel:
         np.minimum(mu, np.float32(self.full_well_e), out=mu)
         return np.fmax(mu, np.float32(0), out=mu)
 
-    def _bloom(self, mu: np.ndarray) -> np.ndarray:
+    def _bloom(self, mu: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """Spill ``bloom_fraction`` of the charge above the full well with a Gaussian of
-        ``bloom_sigma_px``; only the box around saturated pixels (+- 4 sigma) is filtered."""
-        excess = np.maximum(mu - np.float32(self.full_well_e), 0)
-        hit = excess.max(axis=-1) > 0 if excess.ndim == 3 else excess > 0
-        if not hit.any():
-            return mu
-        rows, cols = np.flatnonzero(hit.any(axis=1)), np.flatnonzero(hit.any(axis=0))
+        ``bloom_sigma_px``; only the box around saturated pixels (+- 4 sigma) is filtered.
+        ``out``: the array to add the spill to (``mu`` itself: in place); default a copy of ``mu``."""
+        fw = np.float32(self.full_well_e)
+        h, w = mu.shape[:2]
+        over = (mu > fw).reshape(h, -1)                       # (H, W*C): rows and columns without a
+        rows = np.flatnonzero(over.any(axis=1))               # reduction over the short channel axis
+        if rows.size == 0:
+            return mu if out is mu else (mu.copy() if out is None else out)
+        cols = np.flatnonzero(over[rows[0]:rows[-1] + 1].any(axis=0).reshape(w, -1).any(axis=1))
         pad = int(np.ceil(4 * self.bloom_sigma_px))
-        y0, y1 = max(rows[0] - pad, 0), min(rows[-1] + pad + 1, mu.shape[0])
-        x0, x1 = max(cols[0] - pad, 0), min(cols[-1] + pad + 1, mu.shape[1])
-        win = excess[y0:y1, x0:x1] * np.float32(self.bloom_fraction)
+        y0, y1 = max(rows[0] - pad, 0), min(rows[-1] + pad + 1, h)
+        x0, x1 = max(cols[0] - pad, 0), min(cols[-1] + pad + 1, w)
+        win = np.maximum(mu[y0:y1, x0:x1] - fw, 0) * np.float32(self.bloom_fraction)
         spill = cv2.GaussianBlur(win, (0, 0), self.bloom_sigma_px, borderType=cv2.BORDER_CONSTANT)
-        out = mu.copy()
+        out = mu.copy() if out is None else out
         out[y0:y1, x0:x1] += spill.reshape(win.shape)
         return out
 
