@@ -156,3 +156,29 @@ def test_clear_water_never_clips_a_default_led(mode):
         assert img.max() < 255, (r, img.max())
         if mode == "article":               # the article's clear water keeps the core at 0.9 of the well
             assert img[..., 0].mean() == pytest.approx(0.9 * 255, abs=3)
+
+
+@pytest.mark.parametrize("mode", ["article", "physical"])
+def test_leds_glow_in_turbid_water_in_both_modes_unless_turned_off(mode):
+    """The water's forward scatter puts light around an LED in both modes (article: sigma_s =
+    albedo * beta); ``water.glow: false`` removes it, and clear article water (beta 0) has none."""
+    n = 96
+    idx = np.zeros((n, n), np.int32)
+    idx[46:50, 46:50] = 5
+    rgb = np.zeros((n, n, 3), np.float32)
+    rgb[idx == 5] = [0.0, 17.0, 12.0]
+    passes = {"rgb": rgb, "range_m": np.full((n, n), 6.0, np.float32), "index": idx}
+    markers = [{"kind": "led_array", "object_index": 5}]
+
+    def image(preset: str, glow: bool) -> np.ndarray:
+        exp = load_experiment(bundled_file("configs", "quickstart.yaml"))
+        exp.image_formation = mode
+        post = plan.condition_post(exp, Condition(label="c", water=Water(preset=preset, glow=glow)), 1)
+        st = compose.SequenceState.start(post)
+        return compose.water_image(passes, st, K_CAM, _horizontal_camera(post), markers)
+
+    glow = image("moderate", True) - image("moderate", False)
+    assert glow.min() >= 0 and glow[48, 53, 1] > 1e-3              # light added beside the LED, none taken
+    assert glow[48, 53, 1] > glow[48, 70, 1] > 0                    # fading with distance from it
+    if mode == "article":
+        assert np.array_equal(image("clear", True), image("clear", False))     # beta 0: no scattering
