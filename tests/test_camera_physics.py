@@ -1,4 +1,4 @@
-"""One camera in both image-formation modes (issue 39): the sensor runs after the water, its
+"""One camera in both image-formation modes: the sensor runs after the water, its
 defaults come from a real sensor's EMVA 1288 data, the exposure is set for the dock's beacons.
 
 Oracles: the EMVA 1288 photon-transfer model (signal ``mu_e``, temporal variance

@@ -1,7 +1,7 @@
-"""The reference fidelity's default volume bounces have converged (issue 39, deliverable 6).
+"""The reference fidelity's default volume bounces have converged.
 
 The veil of the physical ``mild`` water (sun overhead, horizontal view at 2 m depth, black
-target 40 m away: OPTICS.md oracle 4's geometry) rendered by the project's own scene builder and
+target 40 m away: the backscatter oracle of test_reference_optics.py) rendered by the project's own scene builder and
 water module at the ``render.volume_bounces`` default and at twice it: the mean radiance agrees
 within 1 % per channel, while single scattering (0 bounces) is far from it (the test can fail:
 the veil grows 4-5x with multiple scattering in G and B)."""

@@ -416,7 +416,7 @@ def resolved_sensor(exp: Experiment):
     records the values used). The same in both image-formation modes (one camera; the modes differ
     only in the water formula): shot/read noise on, blooming ``sensor.BLOOM_FRACTION``, exposure for
     the dock's beacons (:func:`beacon_peak_radiance`, ``sensor.beacon_exposure_s``).
-    [mode-independent sensor defaults: until issue 39 noise and blooming were off in article mode]"""
+    [mode-independent sensor defaults: noise and blooming used to be off in article mode]"""
     from blendgen.physics import sensor
     s = exp.camera.sensor
     upd = {}
