@@ -69,16 +69,18 @@ def test_auto_exposure_config_and_frame_records():
 
 
 def test_sequence_defaults_and_the_ae_loop_in_compose():
-    """Blooming defaults on in physical mode only; with auto_exposure the sequence's camera
+    """Blooming defaults on in both modes (one camera; formerly off in article mode); with
+    auto_exposure the sequence's camera
     follows the AE loop frame by frame and remembers the exposure of each image."""
     from blendgen.config.bundled import bundled_file
     from blendgen.config.models import AutoExposureConfig, load_experiment
     from blendgen.pipeline import compose, plan
     exp = load_experiment(bundled_file("configs", "quickstart.yaml"))
     post = plan.condition_post(exp, exp.conditions[0], 1)
-    assert compose.sensor_model(post).bloom_fraction == sensor.BLOOM_FRACTION_PHYSICAL
+    assert compose.sensor_model(post).bloom_fraction == sensor.BLOOM_FRACTION
     exp.image_formation = "article"
-    assert compose.sensor_model(plan.condition_post(exp, exp.conditions[0], 1)).bloom_fraction == 0.0
+    art = compose.sensor_model(plan.condition_post(exp, exp.conditions[0], 1))
+    assert art.bloom_fraction == sensor.BLOOM_FRACTION and art.noise       # the same camera as physical
     exp.image_formation = "physical"
     assert compose.SequenceState.start(post).auto_exposure is None
     exp.camera.sensor.auto_exposure = AutoExposureConfig(time_constant_s=0.0)
@@ -90,5 +92,6 @@ def test_sequence_defaults_and_the_ae_loop_in_compose():
     for _ in range(2):
         compose.camera_image(passes, st, K, {"T_world_cam": np.eye(4)}, [], "reference")
         exposures.append(st.exposure_s)
-    assert exposures[0] == exp.camera.sensor.exposure_s
-    assert exposures[1] == pytest.approx(0.9 * 1e4 / (20.0 * 1e6))
+    assert exposures[0] == plan.resolved_sensor(exp).exposure_s          # null: resolved (beacon exposure)
+    s = exp.camera.sensor
+    assert exposures[1] == pytest.approx(0.9 * s.full_well_e / (20.0 * s.responsivity_e_per_s))

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from blendgen.config.models import Water
+from blendgen.config.models import Sensor, Water
 from blendgen.pipeline import compose
 from blendgen.pipeline.frameshare import FrameShare, share_key
 from blendgen.pipeline.plan import SequencePost
@@ -13,10 +13,13 @@ W, H = 32, 24
 K = np.array([[30.0, 0, (W - 1) / 2], [0, 30.0, (H - 1) / 2], [0, 0, 1]])
 
 
-def _state(seed: int, noise_std: float = 0.0, preset: str = "mild") -> compose.SequenceState:
+def _state(seed: int, noise_std: float = 0.0, preset: str = "mild", noise: bool = False) -> compose.SequenceState:
+    """Shot/read noise off unless asked: the camera's default (noise on in both modes) draws random
+    numbers, and such sequences are composed on their own."""
     return compose.SequenceState.start(SequencePost(seed=seed, fps=10, image_formation="article",
                                                     water=Water(preset=preset), light_depth_m=1.0, surface_z_m=0.0,
-                                                    irradiance_w_m2=3.0, noise_std=noise_std))
+                                                    irradiance_w_m2=3.0, noise_std=noise_std,
+                                                    sensor=Sensor(noise=noise)))
 
 
 def _passes() -> dict:
@@ -46,6 +49,7 @@ def test_other_water_noise_or_other_frame_not_shared():
     _image(share, _state(1), passes)
     _image(share, _state(1, preset="moderate"), passes)
     assert share_key(_state(1, noise_std=2.0)) is None
+    assert share_key(_state(1, noise=True)) is None                # the default camera: shot/read noise
     _image(share, _state(1, noise_std=2.0), passes)
     _image(share, _state(1, noise_std=2.0), passes)
     _image(share, _state(2), dict(passes))          # not the frame's passes (e.g. particles composited)

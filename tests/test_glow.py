@@ -72,8 +72,13 @@ def test_apply_water_adds_the_kernel_energy_around_an_led():
     np.testing.assert_allclose((out - plain).sum(axis=(0, 1)), led * k.sum(axis=(0, 1)), rtol=0.05)
     ring = out[100, 110] - plain[100, 110]
     assert ring[2] > ring[1] > ring[0] > 0                   # the halo keeps the LED's colour
+    # the article's water scatters forward too (sigma_s = albedo * beta): the same glow, then every
+    # pixel times exp(-k d) (d = 0 here). Formerly article mode had no glow; the article's text
+    # speaks of blurrier contours with turbidity, and the glow is the same physics in both modes.
     art = o.apply_water(J, r, em, wat, 0.0, model="article", glow_fx=300.0)
-    assert art[100, 110].sum() == 0                           # the article has no glow
+    art_plain = o.apply_water(J, r, em, wat, 0.0, model="article")
+    np.testing.assert_allclose((art - art_plain).sum(axis=(0, 1)), led * k.sum(axis=(0, 1)), rtol=0.05)
+    assert o.apply_water(J, r, em, wat, 0.0, model="article", glow_fx=None)[100, 110].sum() == 0   # off: none
 
 
 @pytest.mark.blender

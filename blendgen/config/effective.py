@@ -15,7 +15,8 @@ from __future__ import annotations
 from typing import Any
 
 from blendgen.config.models import Experiment, Sensor
-from blendgen.physics.sensor import BLOOM_FRACTION_PHYSICAL     # its source: physics/sensor.py
+from blendgen.physics import sensor as sensor_model
+from blendgen.physics.sensor import BLOOM_FRACTION     # its source: physics/sensor.py
 
 #: Diffuse sky irradiance as a fraction of the direct sun's on a horizontal plane (clear sky:
 #: about 0.1-0.3); our choice for the physical mode.
@@ -29,8 +30,9 @@ MODE_DEFAULTS: dict[str, tuple[Any, Any]] = {
     "scene.world.caustics": (True, False),
     "scene.world.textures": (True, False),
     "scene.world.sun_glint": (True, False),
-    "camera.sensor.noise": (True, False),
-    "camera.sensor.bloom_fraction": (BLOOM_FRACTION_PHYSICAL, 0.0),
+    # one camera in both modes (the modes differ only in the water formula): docs/camera.md
+    "camera.sensor.noise": (True, True),
+    "camera.sensor.bloom_fraction": (BLOOM_FRACTION, BLOOM_FRACTION),
 }
 #: config setting -> (value for null with fidelity fast, with fidelity reference)
 FIDELITY_DEFAULTS: dict[str, tuple[Any, Any]] = {
@@ -38,6 +40,27 @@ FIDELITY_DEFAULTS: dict[str, tuple[Any, Any]] = {
 }
 #: config setting -> the experiment-level setting a null stands for
 SEED_DEFAULTS: dict[str, str] = {"scene.world.wave_seed": "seed", "scene.world.texture_seed": "seed"}
+#: config settings whose null is derived from the rest of the experiment (same in every mode)
+DERIVED_DEFAULTS = ("camera.sensor.exposure_s",)     # exposed for the dock's beacons: beacon_exposure_s
+
+
+def beacon_peak_radiance(exp: Experiment) -> float:
+    """The brightest channel of the dock's LEDs (W m^-2 sr^-1): ``I c_k / (pi r^2)`` over every LED
+    array's colour and reference colour; 0 without LEDs."""
+    from blendgen.physics.leds import led_radiance
+    peak = 0.0
+    for m in exp.scene.dock.markers:
+        if m.kind == "led_array":
+            for col in (m.color, m.reference_color):
+                peak = max(peak, *led_radiance(m.intensity_w_sr, col, m.led_radius_m))
+    return peak
+
+
+def beacon_exposure_s(exp: Experiment) -> float:
+    """The exposure (s) that puts the brightest LED channel at 0.9 of the full well
+    (``physics.sensor.beacon_exposure_s``; a dock without LEDs: its fixed default)."""
+    s = exp.camera.sensor
+    return sensor_model.beacon_exposure_s(beacon_peak_radiance(exp), s.full_well_e, s.responsivity_e_per_s)
 
 
 def mode_default(path: str, image_formation: str) -> Any:
@@ -65,6 +88,8 @@ def defaults_for(exp: Experiment) -> dict[str, Any]:
     out = {p: mode_default(p, exp.image_formation) for p in MODE_DEFAULTS}
     out |= {p: v[0] if exp.render.fidelity == "fast" else v[1] for p, v in FIDELITY_DEFAULTS.items()}
     out |= {p: _get(exp, src) for p, src in SEED_DEFAULTS.items()}
+    if exp.camera.sensor.exposure_s is None:
+        out["camera.sensor.exposure_s"] = beacon_exposure_s(exp)
     return out
 
 
@@ -76,8 +101,8 @@ def value(exp: Experiment, path: str) -> Any:
 
 
 def effective(exp: Experiment) -> Experiment:
-    """``exp`` with every null of :data:`MODE_DEFAULTS`, :data:`FIDELITY_DEFAULTS` and
-    :data:`SEED_DEFAULTS` replaced by its resolved value (values given in the config are kept).
+    """``exp`` with every null of :data:`MODE_DEFAULTS`, :data:`FIDELITY_DEFAULTS`,
+    :data:`SEED_DEFAULTS` and :data:`DERIVED_DEFAULTS` replaced by its resolved value (values given in the config are kept).
     Idempotent."""
     for path, value in defaults_for(exp).items():
         if _get(exp, path) is None:

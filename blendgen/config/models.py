@@ -274,29 +274,42 @@ class AutoExposureConfig(Strict):
 
 
 class Sensor(Strict):
-    """The camera's sensor (EMVA 1288 photon-transfer model, docs/sensor.md): radiance -> electrons
-    over the exposure -> saturation at the full well -> digital numbers with system gain
-    ``K = gain * 255 / full_well_e`` DN/e- -> response curve -> 8 bits."""
-    exposure_s: float = Field(
-        0.004, gt=0.0, le=1.0,
-        description="exposure time (s). Default 4 ms: average metering (18 % grey) of the `dockbench preview` "
-                    "frames picks 4.4-12 ms (the shortest at 2 m in clear water); at 4 ms an LED of 0.1 W/sr "
-                    "and colour [0.1, 0.3, 1.0] keeps its red channel below the full well (no white disc)")
+    """The camera's sensor (EMVA 1288 photon-transfer model): radiance -> electrons over the
+    exposure (plus dark current) -> blooming, shot and read noise -> saturation at the full well ->
+    digital numbers with system gain ``K = gain * 255 / full_well_e`` DN/e- -> response curve -> 8 bits.
+    The same sensor runs after the water in both image-formation modes.
+
+    Defaults: a Sony IMX264 pixel (3.45 um, Pregius 2nd generation) as the EMVA 1288 summaries of
+    IMX264 cameras give it (Basler ace acA2440-20gm; Teledyne FLIR Blackfly S BFS-U3-50S5M), rounded:
+    QE 70 % near 530 nm, temporal dark noise 2.3 e-, saturation capacity 10.5 ke-, dark current ~3 e-/s;
+    behind an f/2.8 lens that is 2.23e6 e-/s per W m^-2 sr^-1 (``physics/sensor.responsivity_e_per_s``).
+    docs/camera.md has the derivations."""
+    exposure_s: Optional[float] = Field(
+        None, gt=0.0, le=1.0,
+        description="exposure time (s); null: exposed for the dock's beacons, the brightest LED channel "
+                    "(radiance I c_k / (pi r^2), the same at every range in clear water) at 0.9 of the full "
+                    "well (physics/sensor.beacon_exposure_s; 0.2 ms for the default LEDs); without LEDs "
+                    "4000 e- per unit radiance (the former 4 ms at 1e6 e-/s)")
     responsivity_e_per_s: float = Field(
-        1e6, gt=0.0, le=1e12, description="electrons per second per unit linear radiance of the render "
-                                          "(quantum efficiency, aperture and pixel area folded in); 1e6 "
-                                          "fills a 10000 e- well at radiance 1 in 10 ms")
-    full_well_e: float = Field(10000.0, ge=100.0, le=1e7, description="saturation capacity (electrons)")
-    read_noise_e: float = Field(3.0, ge=0.0, le=1000.0, description="temporal dark noise (electrons rms)")
+        2.23e6, gt=0.0, le=1e12, description="electrons per second per unit linear radiance of the render "
+                                             "(W m^-2 sr^-1): QE x pixel area x pi/(4 N^2) / photon energy; "
+                                             "2.23e6 = IMX264 (QE .70, 3.45 um) at f/2.8, 530 nm")
+    full_well_e: float = Field(10500.0, ge=100.0, le=1e7,
+                               description="saturation capacity (electrons); IMX264: 10.5 ke-")
+    read_noise_e: float = Field(2.3, ge=0.0, le=1000.0,
+                                description="temporal dark noise (electrons rms); IMX264: 2.3 e-")
+    dark_current_e_per_s: float = Field(3.0, ge=0.0, le=1e6,
+                                        description="dark current (e-/s); IMX264 cameras: a few e-/s at room "
+                                                    "temperature (negligible at ms exposures)")
     gain: float = Field(1.0, gt=0.0, le=1000.0, description="analog gain (1: the full well is 255 DN)")
-    noise: Optional[bool] = Field(None, description="shot and read noise; null: on in physical mode, off in "
-                                                    "article mode (which uses noise_std only)")
+    noise: Optional[bool] = Field(None, description="shot, dark-current and read noise; null: on (both modes; "
+                                                    "the article's noise_std adds to it)")
     response: Literal["srgb", "linear"] = Field("srgb", description="response curve to 8 bits")
     bloom_fraction: Optional[float] = Field(
         None, ge=0.0, le=1.0,
         description="share of the charge above the full well that spills into neighbouring pixels (0: "
-                    "perfect anti-blooming drain); null: 0.05 in physical mode (saturated LEDs spread "
-                    "their own colour around the clipped core), 0 in article mode")
+                    "perfect anti-blooming drain); null: 0.05 in both modes (saturated LEDs spread "
+                    "their own colour around the clipped core)")
     bloom_sigma_px: float = Field(2.0, gt=0.0, le=50.0, description="spread of the spilled charge (px)")
     motion_blur: bool = Field(False, description="blur by the camera's motion over the exposure")
     auto_exposure: Optional[AutoExposureConfig] = Field(
@@ -326,7 +339,10 @@ class Camera(Strict):
     latency_s: float = Field(0.0, ge=0.0, le=10.0)
     T_body_cam: Pose = Pose(xyz=[0.65, 0.0, 0.0])
     distortion: Optional[Annotated[list[float], Field(min_length=5, max_length=5)]] = None
-    noise_std: float = Field(0.0, ge=0.0, le=256.0, description="Gaussian noise std in 8-bit units")
+    noise_std: float = Field(0.0, ge=0.0, le=256.0,
+                             description="the article's Gaussian noise: std in 8-bit codes, added after the "
+                                         "sensor's response curve on top of its shot and read noise (in a "
+                                         "linear response: an extra read noise of noise_std / K electrons)")
     sensor: Sensor = Sensor()
     lens: Optional[Lens] = Field(None, description="thin lens for particle defocus; null: pinhole (sharp)")
 
@@ -367,9 +383,12 @@ class Render(Strict):
     threads: int = Field(0, ge=0, le=256, description="Cycles threads per worker; 0 = cores / workers")
     diffuse_bounces: int = Field(0, ge=0, le=16,
                                  description="Cycles diffuse bounces (interreflection; noisy at few samples)")
-    volume_bounces: int = Field(0, ge=0, le=128,
+    volume_bounces: int = Field(32, ge=0, le=128,
                                 description="reference fidelity: Cycles volume bounces in the water medium "
-                                            "(0 = single scattering; 32 converge the veil to 0.1 %)")
+                                            "(0 = single scattering). Default 32: converged, the reference "
+                                            "judges the fast path with the multiply scattered veil and glow "
+                                            "(32 vs 64 bounces within 1 %: tests/test_reference_convergence.py); "
+                                            "lower it for speed")
     write_depth: bool = True
     write_index: bool = True
     roi: bool = Field(True, description="fast fidelity: full samples only in the dock's image region")
@@ -435,6 +454,9 @@ class Water(Strict):
                                       "between the Jerlov types of that clarity (physics/turbidity.py)")
     ntu: Optional[float] = Field(None, gt=0.0, le=1e4, description="a nephelometric turbidity reading (NTU): "
                                  "the water between the Jerlov types of that scattering (physics/turbidity.py)")
+    glow: bool = Field(True, description="fast fidelity: forward-scattered glow around the LEDs (small-angle "
+                                         "multiple scattering from sigma_s and g, physics/optics.py), in both "
+                                         "modes (article: sigma_s = albedo * beta); false: none")
 
     @field_validator("preset", mode="before")
     @classmethod
@@ -474,7 +496,7 @@ class Water(Strict):
     def is_bare(self) -> bool:
         """True when no coefficient is overridden (only the preset and the fast-model switches)."""
         return all(getattr(self, f) is None for f in type(self).model_fields
-                   if f not in ("preset", "calibrated", "blur"))
+                   if f not in ("preset", "calibrated", "blur", "glow"))
 
 
 class LinearTrajectory(Strict):

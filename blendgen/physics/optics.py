@@ -42,7 +42,7 @@ reference Cycles renders:
 - depth falloff with ``Kd`` is the multiply-scattered limit; the reference with
   0 bounces attenuates the sun by ``c`` along its refracted path;
 - volumetric shadows and light shafts (no 3-D light field here);
-- the glow of emitters (``physical`` mode, :func:`glow_kernel_multiple`) is the
+- the glow of emitters (both modes, :func:`glow_kernel_multiple`) is the
   small-angle approximation of multiple forward scattering (Poisson orders of the
   single-scatter point-spread, Wells 1973): it widens and grows with ``b r``; light
   scattered beyond 96 px of the emitter and large-angle (non-small-angle) paths are not
@@ -339,7 +339,7 @@ def fast_water(spec, mode: str, irradiance: float, calibration: dict | None = No
     it is the water colour ``C`` (the
     article presets' colour, or the veil above times the irradiance) and is used as is.
     Coefficients: :func:`water_for_mode`.
-    Returns ``(water, {"irradiance", "blur", "calibrated"})``."""
+    Returns ``(water, {"irradiance", "blur", "calibrated", "veil", "glow"})``."""
     water = water_for_mode(spec, mode)
     cal = calibration if calibration is not None else (load_calibration() if spec.calibrated else {})
     entry = (cal.get("presets") or {}).get(effective_preset(spec, mode))
@@ -361,7 +361,7 @@ def fast_water(spec, mode: str, irradiance: float, calibration: dict | None = No
         water = water.replace(B_inf=water.B_inf * irr)     # a colour, used as is
     on = veil is not None and mode == "physical" and spec.B_inf is None and not use
     return water, {"irradiance": 1.0 if mode == "article" else irr, "blur": bool(spec.blur), "calibrated": use,
-                   "veil": veil if on else None}
+                   "veil": veil if on else None, "glow": bool(getattr(spec, "glow", True))}
 
 
 def veil_parameters(spec, mode: str, calibration: dict | None = None) -> dict | None:
@@ -711,8 +711,10 @@ def apply_water(J: np.ndarray, range_m: np.ndarray, emissive_mask=None,
     blur: range-dependent forward-scatter Gaussian on the direct term, sigma_px =
     min(blur_max_px, blur_px_per_tau * mean(sigma_s) * r), ``blur_levels``
     precomputed cv2.GaussianBlur levels blended linearly by sigma.
-    glow_fx: camera focal length (px); in ``physical`` mode the emitters' forward-scattered
-    glow (:func:`glow_kernel` at their median range) is added around them.
+    glow_fx: camera focal length (px); the emitters' forward-scattered glow
+    (:func:`glow_kernel_multiple` at their median range) is added around them, in both modes (in
+    ``article`` mode from the article water's ``sigma_s = albedo * beta`` and ``g``, before the
+    final ``exp(-k d)``); None: no glow.
     Returns a new (H, W, 3) array of J's dtype (float32 unless J is float64).
     """
     water = water if water is not None else get_preset("clear")
@@ -749,7 +751,7 @@ def apply_water(J: np.ndarray, range_m: np.ndarray, emissive_mask=None,
         direct = _forward_scatter_blur(direct.reshape(h, w, 3), range_m, float(np.mean(water.sigma_s)),
                                        blur_px_per_tau, blur_max_px, blur_levels
                                        ).astype(dtype, copy=False).reshape(h, 3 * w)
-    if model == "physical" and glow_fx and em is not None and em.any() and np.any(water.sigma_s > 0):
+    if glow_fx and em is not None and em.any() and np.any(water.sigma_s > 0):     # both modes
         direct = add_emitter_glow(direct.reshape(h, w, 3), em, range_m, water, float(glow_fx)).reshape(h, 3 * w)
     if bool(np.any(B != 0)):
         np.subtract(dtype(1), t, out=t)                   # 1 - exp(-c r), in place

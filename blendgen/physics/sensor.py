@@ -86,13 +86,15 @@ def shot_read_noise_e(mean_e: np.ndarray, rng: np.random.Generator, read_noise_e
         raise ValueError(f"read_noise_e must be >= 0 electrons, got {read_noise_e}")
     lam = np.fmax(np.asarray(mean_e, np.float32), np.float32(0))          # NaN -> 0
     e = rng.standard_normal(lam.shape, dtype=np.float32)
-    e *= np.sqrt(lam + np.float32(read_noise_e) ** 2)   # shot and read noise: one Normal draw
+    sd = lam + np.float32(read_noise_e) ** 2
+    e *= np.sqrt(sd, out=sd)                            # shot and read noise: one Normal draw
     e += lam
-    small = lam < POISSON_EXACT_BELOW
-    if small.any():
-        n = int(small.sum())
-        e[small] = rng.poisson(lam[small]) + (rng.standard_normal(n, dtype=np.float32) * np.float32(read_noise_e)
-                                              if read_noise_e > 0 else 0.0)
+    small = np.flatnonzero(lam < POISSON_EXACT_BELOW)   # flat indices: one take and one put
+    if small.size:
+        v = rng.poisson(lam.ravel()[small]).astype(np.float32)
+        if read_noise_e > 0:
+            v += rng.standard_normal(small.size, dtype=np.float32) * np.float32(read_noise_e)
+        e.ravel()[small] = v
     return e
 
 
@@ -208,25 +210,97 @@ def pose_timestamp(t_frame, latency_s: float):
 
 DN_MAX = 255
 
-#: Default share of the charge above the full well that spills into neighbours in physical mode:
-#: a documented choice, not a measured camera (CMOS anti-blooming drains remove most of it;
+#: Default share of the charge above the full well that spills into neighbours (both image-formation
+#: modes): a documented choice, not a measured camera (CMOS anti-blooming drains remove most of it;
 #: a few % keeps a saturated LED's own colour in a halo around its clipped core, as cameras show).
-BLOOM_FRACTION_PHYSICAL = 0.05
+BLOOM_FRACTION = 0.05
+
+
+@dataclass(frozen=True)
+class EmvaSheet:
+    """The EMVA 1288 summary of a real sensor (one channel, 0 dB gain): quantum efficiency
+    ``qe`` at ``wavelength_nm``, temporal dark noise ``read_noise_e`` (e- rms), saturation
+    capacity ``full_well_e`` (e-), dark current ``dark_current_e_per_s`` (e-/s), pixel pitch
+    ``pixel_um`` (um); ``source`` names the document the numbers come from."""
+    name: str
+    qe: float
+    wavelength_nm: float
+    read_noise_e: float
+    full_well_e: float
+    dark_current_e_per_s: float
+    pixel_um: float
+    source: str
+
+
+#: The default camera: Sony IMX264 (Pregius 2nd generation, 2/3", 3.45 um global-shutter pixel, monochrome
+#: variant), a common machine-vision sensor in underwater cameras. Numbers as the camera makers' EMVA 1288
+#: data sheets of IMX264 cameras give them, rounded (Basler ace acA2440-20gm / acA2440-35um and Teledyne
+#: FLIR Blackfly S BFS-U3-50S5M EMVA 1288 summaries: QE ~70 % near 530 nm, temporal dark noise ~2.3 e-,
+#: saturation capacity ~10.5 ke-, i.e. 73 dB dynamic range and 40.2 dB maximum SNR; dark current a few
+#: e-/s at room temperature). Colour (Bayer) variants have a lower QE per channel; the model keeps one
+#: QE for all three channels.
+IMX264 = EmvaSheet(name="Sony IMX264", qe=0.70, wavelength_nm=530.0, read_noise_e=2.3, full_well_e=10500.0,
+                   dark_current_e_per_s=3.0, pixel_um=3.45,
+                   source="EMVA 1288 summaries of IMX264 cameras (Basler ace acA2440-20gm; Teledyne FLIR "
+                          "Blackfly S BFS-U3-50S5M), rounded")
+
+#: f-number of the default lens (``config.models.Lens.f_number``), used to derive the responsivity.
+DEFAULT_F_NUMBER = 2.8
+_H_PLANCK, _C_LIGHT = 6.62607015e-34, 299792458.0
+
+
+def responsivity_e_per_s(sheet: EmvaSheet = IMX264, f_number: float = DEFAULT_F_NUMBER,
+                         optics_transmission: float = 1.0) -> float:
+    """Electrons per second per pixel per unit radiance (W m^-2 sr^-1) of an on-axis scene.
+
+    A lens of f-number N puts the irradiance ``E = pi L T / (4 N^2)`` on the sensor (object far
+    beyond the focal length); a pixel of pitch p collects ``E p^2`` watts, i.e.
+    ``E p^2 lambda / (h c)`` photons per second, of which the fraction QE become electrons. IMX264 at
+    f/2.8, 530 nm, T = 1: 2.2e6 e-/s per W m^-2 sr^-1."""
+    if not (f_number > 0 and 0 < optics_transmission <= 1):
+        raise ValueError(f"f_number must be > 0 and optics_transmission in (0, 1], got {f_number}, "
+                         f"{optics_transmission}")
+    e_px = math.pi * optics_transmission / (4.0 * f_number ** 2) * (sheet.pixel_um * 1e-6) ** 2
+    photon_j = _H_PLANCK * _C_LIGHT / (sheet.wavelength_nm * 1e-9)
+    return sheet.qe * e_px / photon_j
+
+
+#: Highlight exposure: the brightest emitter (an LED core seen through clear water, at any range: radiance
+#: does not fall with distance) is put at this share of the full well, the target of the highlight metering
+#: of :class:`AutoExposure` (10 % headroom for shot noise and glow).
+BEACON_FILL = 0.9
+
+#: Electrons per unit scene radiance (W m^-2 sr^-1) of the scene-metered exposure used when the dock
+#: carries no LED: 4 ms at 1e6 e-/s, which average metering (18 % grey) of the preview frames picked
+#: (4.4-12 ms; the shortest at 2 m in clear water).
+SCENE_EXPOSURE_E_PER_RADIANCE = 4000.0
+
+
+def beacon_exposure_s(peak_radiance: float, full_well_e: float, responsivity: float,
+                      fill: float = BEACON_FILL) -> float:
+    """Exposure (s) that puts ``peak_radiance`` (W m^-2 sr^-1, the brightest LED channel) at ``fill``
+    of the full well: ``t = fill * full_well / (responsivity * peak_radiance)``. Without an emitter
+    (``peak_radiance <= 0``) the scene-metered exposure ``SCENE_EXPOSURE_E_PER_RADIANCE / responsivity``."""
+    if peak_radiance <= 0:
+        return SCENE_EXPOSURE_E_PER_RADIANCE / responsivity
+    return fill * full_well_e / (responsivity * peak_radiance)
 
 
 @dataclass(frozen=True)
 class SensorModel:
     """EMVA 1288 photon-transfer camera: linear radiance (H, W, 3) -> uint8 (H, W, 3).
 
-    Mean electrons ``mu_e = L * responsivity_e_per_s * exposure_s``; charge above the full
-    well spills into neighbours (``bloom_fraction`` of it, Gaussian ``bloom_sigma_px``);
+    Mean electrons ``mu_e = L * responsivity_e_per_s * exposure_s`` plus the dark signal
+    ``dark_current_e_per_s * exposure_s``; charge above the full well spills into neighbours (``bloom_fraction`` of it, Gaussian ``bloom_sigma_px``);
     with ``noise`` the collected charge is Poisson (shot noise) plus Normal(0,
     ``read_noise_e``) (temporal dark noise); it saturates at ``full_well_e``; digital
     numbers ``y = K e`` with the system gain ``K = gain * 255 / full_well_e`` DN/e-
     saturate at 255; the response curve ('srgb' or 'linear') maps y/255 to the 8-bit
     code; finally the article's additive Gaussian ``noise_std`` (8-bit units). A flat
     field therefore has variance ``K^2 sigma_d^2 + K mu_y`` in the linear response:
-    its photon-transfer slope is K."""
+    its photon-transfer slope is K. The article's ``noise_std`` (sigma in 8-bit codes after the
+    response curve) is thus, in the linear response, an extra read noise of ``noise_std / K``
+    electrons on top of the sensor's own."""
     exposure_s: float = 0.01
     responsivity_e_per_s: float = 1e6
     full_well_e: float = 10000.0
@@ -237,6 +311,7 @@ class SensorModel:
     bloom_fraction: float = 0.0
     bloom_sigma_px: float = 2.0
     noise_std: float = 0.0
+    dark_current_e_per_s: float = 0.0
 
     @property
     def K(self) -> float:
@@ -248,7 +323,9 @@ class SensorModel:
         mu = np.asarray(linear, np.float32) * np.float32(self.responsivity_e_per_s * self.exposure_s)
         np.fmax(mu, np.float32(0), out=mu)                                   # NaN and negatives -> 0
         if self.bloom_fraction > 0:
-            mu = self._bloom(mu)
+            mu = self._bloom(mu, out=mu)                                     # mu is our own array
+        if self.dark_current_e_per_s > 0:                                    # thermal charge: Poisson too
+            mu += np.float32(self.dark_current_e_per_s * self.exposure_s)
         if self.noise:
             if rng is None:
                 raise ValueError("shot/read noise needs a numpy Generator")
@@ -256,20 +333,23 @@ class SensorModel:
         np.minimum(mu, np.float32(self.full_well_e), out=mu)
         return np.fmax(mu, np.float32(0), out=mu)
 
-    def _bloom(self, mu: np.ndarray) -> np.ndarray:
+    def _bloom(self, mu: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """Spill ``bloom_fraction`` of the charge above the full well with a Gaussian of
-        ``bloom_sigma_px``; only the box around saturated pixels (+- 4 sigma) is filtered."""
-        excess = np.maximum(mu - np.float32(self.full_well_e), 0)
-        hit = excess.max(axis=-1) > 0 if excess.ndim == 3 else excess > 0
-        if not hit.any():
-            return mu
-        rows, cols = np.flatnonzero(hit.any(axis=1)), np.flatnonzero(hit.any(axis=0))
+        ``bloom_sigma_px``; only the box around saturated pixels (+- 4 sigma) is filtered.
+        ``out``: the array to add the spill to (``mu`` itself: in place); default a copy of ``mu``."""
+        fw = np.float32(self.full_well_e)
+        h, w = mu.shape[:2]
+        over = (mu > fw).reshape(h, -1)                       # (H, W*C): rows and columns without a
+        rows = np.flatnonzero(over.any(axis=1))               # reduction over the short channel axis
+        if rows.size == 0:
+            return mu if out is mu else (mu.copy() if out is None else out)
+        cols = np.flatnonzero(over[rows[0]:rows[-1] + 1].any(axis=0).reshape(w, -1).any(axis=1))
         pad = int(np.ceil(4 * self.bloom_sigma_px))
-        y0, y1 = max(rows[0] - pad, 0), min(rows[-1] + pad + 1, mu.shape[0])
-        x0, x1 = max(cols[0] - pad, 0), min(cols[-1] + pad + 1, mu.shape[1])
-        win = excess[y0:y1, x0:x1] * np.float32(self.bloom_fraction)
+        y0, y1 = max(rows[0] - pad, 0), min(rows[-1] + pad + 1, h)
+        x0, x1 = max(cols[0] - pad, 0), min(cols[-1] + pad + 1, w)
+        win = np.maximum(mu[y0:y1, x0:x1] - fw, 0) * np.float32(self.bloom_fraction)
         spill = cv2.GaussianBlur(win, (0, 0), self.bloom_sigma_px, borderType=cv2.BORDER_CONSTANT)
-        out = mu.copy()
+        out = mu.copy() if out is None else out
         out[y0:y1, x0:x1] += spill.reshape(win.shape)
         return out
 
@@ -285,6 +365,8 @@ class SensorModel:
         else:                  # noise-free: the same numbers in one pass (the encode clips at 0 and 1)
             y = x * np.float32(self.responsivity_e_per_s * self.exposure_s * self.K / DN_MAX)
             np.fmax(y, np.float32(0), out=y)                                 # NaN and negatives -> 0
+            if self.dark_current_e_per_s > 0:
+                y += np.float32(self.dark_current_e_per_s * self.exposure_s * self.K / DN_MAX)
             if self.gain < 1:
                 np.minimum(y, np.float32(self.gain), out=y)                  # the full well saturates first
         np.minimum(y, np.float32(1.0), out=y)

@@ -192,7 +192,7 @@ def water_image(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, 
                              model=post.image_formation, veil_depth_m=veil_depth,
                              irradiance=state.water_opts["irradiance"], blur=state.water_opts["blur"],
                              blur_px_per_tau=optics.BLUR_RAD_PER_TAU * fx, blur_max_px=optics.BLUR_MAX_RAD * fx,
-                             glow_fx=fx)
+                             glow_fx=fx if state.water_opts.get("glow", True) else None)
     lit = led_light(passes, state, K, T_world_cam, markers, T_world_dock)
     if lit is not None:
         lit *= optics.transmittance(state.water, passes["range_m"]).reshape(lit.shape)
@@ -270,13 +270,16 @@ def lamp_image(passes: dict, lamp: lamp_water.LampWater, K: np.ndarray, T_world_
 
 
 def sensor_model(post: SequencePost) -> sensor.SensorModel:
-    """The sequence's camera sensor (noise and blooming as resolved in ``post.sensor``:
-    config/effective.py)."""
+    """The sequence's camera sensor, the same in both image-formation modes (noise and blooming
+    as resolved in ``post.sensor``: config/effective.py); a null exposure (a post built without
+    ``plan.resolved_sensor``) as the exposure of a dock without LEDs."""
     s = post.sensor
-    return sensor.SensorModel(exposure_s=s.exposure_s, responsivity_e_per_s=s.responsivity_e_per_s,
+    exposure = s.exposure_s if s.exposure_s is not None else sensor.beacon_exposure_s(
+        0.0, s.full_well_e, s.responsivity_e_per_s)
+    return sensor.SensorModel(exposure_s=exposure, responsivity_e_per_s=s.responsivity_e_per_s,
                               full_well_e=s.full_well_e, read_noise_e=s.read_noise_e, gain=s.gain, noise=s.noise,
-                              response=s.response, bloom_fraction=s.bloom_fraction,
-                              bloom_sigma_px=s.bloom_sigma_px, noise_std=post.noise_std)
+                              response=s.response, bloom_fraction=s.bloom_fraction, bloom_sigma_px=s.bloom_sigma_px,
+                              noise_std=post.noise_std, dark_current_e_per_s=s.dark_current_e_per_s)
 
 
 def camera_image(passes: dict, state: SequenceState, K: np.ndarray, frame: dict, markers: list[dict],

@@ -29,6 +29,7 @@ from blendgen.physics import optics
 from blendgen.physics import particle_kernels as kern
 from blendgen.physics import particle_light_kernels as plk
 from blendgen.physics import particle_optics as popt
+from blendgen.physics import sensor as sens
 from blendgen.physics.particles import ProjectedParticles
 
 
@@ -118,7 +119,15 @@ def shaper(post, K: np.ndarray, T_world_cam, prev_pose=None, t_s: float | None =
         focus = lens.focus_m
     return Blur((T0[:3, :3].T @ T[:3, :3]).astype(np.float32),
                 (T0[:3, :3].T @ (T[:3, 3] - T0[:3, 3])).astype(np.float32),
-                np.float32(min(post.sensor.exposure_s / dt, 1.0)), np.float32(coc_k), np.float32(focus))
+                np.float32(min(_exposure_s(post) / dt, 1.0)), np.float32(coc_k), np.float32(focus))
+
+
+def _exposure_s(post) -> float:
+    """The sequence's exposure (s): the resolved one (``plan.resolved_sensor``), or the scene-metered
+    default when a post was built without it."""
+    s = post.sensor
+    return s.exposure_s if s.exposure_s is not None else sens.beacon_exposure_s(0.0, s.full_well_e,
+                                                                               s.responsivity_e_per_s)
 
 
 @dataclass(frozen=True)

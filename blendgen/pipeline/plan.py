@@ -303,7 +303,7 @@ def exposure_flow(exp: Experiment, T_wc: np.ndarray, T_wd: np.ndarray) -> np.nda
     (whose flow is radial)."""
     from scipy.spatial.transform import Rotation, Slerp
     K = camera_K(exp)
-    a = min(exp.camera.sensor.exposure_s * exp.camera.fps, 1.0)
+    a = min(resolved_sensor(exp).exposure_s * exp.camera.fps, 1.0)
     centre = T_wd[:, 3]
     flow = np.zeros((len(T_wc), 2))
     for i in range(len(T_wc) - 1):
@@ -438,9 +438,10 @@ def occlusion_region(exp: Experiment, occ) -> tuple[list[float], list[float]]:
 
 
 def resolved_sensor(exp: Experiment):
-    """The camera's sensor with the mode-dependent noise and blooming defaults filled in (so
-    every sequence's manifest entry records the values used)."""
-    return eff.effective_sensor(exp.camera.sensor, exp.image_formation)
+    """The camera's sensor with every default resolved (config/effective.py: noise and blooming,
+    the same in both image-formation modes, and the exposure for the dock's beacons), so every
+    sequence's manifest entry records the values used."""
+    return eff.effective(exp).camera.sensor
 
 
 def condition_post(exp: Experiment, cond, seed: int) -> SequencePost:

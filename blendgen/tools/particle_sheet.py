@@ -27,7 +27,8 @@ def sheet_experiment(width: int, height: int, lamp: bool, mode: str | None = Non
     # the sheet's camera jumps 3 m per frame (30 m/s): a 1/3000 s exposure (responsivity x30,
     # same brightness) gives the particle streaks of a 1 m/s approach at the default 10 ms
     speed = pre.trajectories[0].speed_mps
-    sen = exp.camera.sensor
+    from blendgen.pipeline.plan import resolved_sensor
+    sen = resolved_sensor(exp)
     exp.camera.sensor = sen.model_copy(update={"exposure_s": sen.exposure_s / speed,
                                                "responsivity_e_per_s": sen.responsivity_e_per_s * speed})
     exp.vehicle.lamps = [Lamp(power_w=20.0, offset_m=[0.0, 0.2, 0.0], half_angle_deg=35.0)] if lamp else []
