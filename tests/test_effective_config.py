@@ -18,15 +18,16 @@ from blendgen.pipeline import plan
 
 CFG = {"name": "e", "seed": 9, "scene": {"dock": {"markers": [{"kind": "led_array"}]}},
        "trajectories": [{"kind": "linear", "id": "lin", "start_range_m": 3, "end_range_m": 1, "speed_mps": 2}]}
-# The documented defaults (config field descriptions): physical mode turns the complete camera on,
-# article mode keeps the article's flat model; the light tree follows the fidelity; seeds the experiment's.
+# The documented defaults (config field descriptions): physical mode turns the complete world on,
+# article mode keeps the article's flat world; one camera (noise, blooming, the beacon exposure) in
+# both; the light tree follows the fidelity; seeds the experiment's.
+EXPOSURE_S = 0.9 * 10500.0 / (2.23e6 * 0.1 * 1.0 / (3.141592653589793 * 0.04 ** 2))  # 0.9 full well, brightest LED
 PHYSICAL = {"scene.sky_fraction": 0.25, "scene.ambient": True, "scene.world.surface": True,
             "scene.world.caustics": True, "scene.world.textures": True, "scene.world.sun_glint": True,
             "camera.sensor.noise": True, "camera.sensor.bloom_fraction": 0.05, "render.light_tree": False,
-            "scene.world.wave_seed": 9, "scene.world.texture_seed": 9}
+            "scene.world.wave_seed": 9, "scene.world.texture_seed": 9, "camera.sensor.exposure_s": EXPOSURE_S}
 ARTICLE = {**PHYSICAL, "scene.sky_fraction": 0.0, "scene.ambient": False, "scene.world.surface": False,
-           "scene.world.caustics": False, "scene.world.textures": False, "scene.world.sun_glint": False,
-           "camera.sensor.noise": False, "camera.sensor.bloom_fraction": 0.0}
+           "scene.world.caustics": False, "scene.world.textures": False, "scene.world.sun_glint": False}
 
 
 def _exp(**over) -> Experiment:
@@ -47,10 +48,11 @@ def test_nulls_resolve_to_the_documented_defaults(mode, expected):
     exp = _exp(image_formation=mode)
     assert all(_get(exp, p) is None for p in expected)                  # the config leaves them null
     e = eff.effective(exp)
-    assert {p: _get(e, p) for p in expected} == expected
-    assert set(expected) == set(eff.MODE_DEFAULTS) | set(eff.FIDELITY_DEFAULTS) | set(eff.SEED_DEFAULTS)
+    assert {p: _get(e, p) for p in expected} == pytest.approx(expected)
+    assert set(expected) == (set(eff.MODE_DEFAULTS) | set(eff.FIDELITY_DEFAULTS) | set(eff.SEED_DEFAULTS)
+                             | set(eff.DERIVED_DEFAULTS))
     assert eff.effective(e) == e                                        # idempotent
-    assert {p: eff.value(exp, p) for p in expected} == expected         # the planner's reader agrees
+    assert {p: eff.value(exp, p) for p in expected} == pytest.approx(expected)  # the planner's reader agrees
 
 
 def test_reference_fidelity_turns_the_light_tree_on_and_given_values_are_kept():
@@ -80,10 +82,10 @@ def test_the_planner_reads_the_effective_values(mode):
 def test_one_row_changes_what_a_mode_turns_on(monkeypatch):
     """What article mode turns on is one row of MODE_DEFAULTS, read everywhere."""
     exp = _exp(image_formation="article")
-    assert plan.condition_post(exp, exp.conditions[0], 1).sensor.noise is False
-    monkeypatch.setitem(eff.MODE_DEFAULTS, "camera.sensor.noise", (True, True))
-    assert eff.effective(exp).camera.sensor.noise is True
     assert plan.condition_post(exp, exp.conditions[0], 1).sensor.noise is True
+    monkeypatch.setitem(eff.MODE_DEFAULTS, "camera.sensor.noise", (True, False))
+    assert eff.effective(exp).camera.sensor.noise is False
+    assert plan.condition_post(exp, exp.conditions[0], 1).sensor.noise is False
 
 
 def test_show_config_prints_the_effective_config_and_writes_nothing(tmp_path, monkeypatch):
@@ -96,7 +98,7 @@ def test_show_config_prints_the_effective_config_and_writes_nothing(tmp_path, mo
     shown = yaml.safe_load(res.output)
     exp = Experiment.model_validate({**CFG, "image_formation": "article"})
     assert shown == eff.effective(exp).model_dump(mode="json")
-    assert shown["camera"]["sensor"]["noise"] is False and shown["scene"]["sky_fraction"] == 0.0
+    assert shown["camera"]["sensor"]["noise"] is True and shown["scene"]["sky_fraction"] == 0.0
     assert sorted(os.listdir(tmp_path)) == before
 
 
