@@ -278,7 +278,7 @@ def _experiment_authority(experiment: str) -> str:
     """The docking authority of each condition of an experiment, as text."""
     import pandas as pd
     from blendgen.config.models import ConfigError
-    from blendgen.tools.closed_loop import capture_spec, condition_authority, load_bench_experiment
+    from blendgen.tools.apps.closed_loop import capture_spec, condition_authority, load_bench_experiment
     from blendgen.vehicle.dynamics import VehicleParams
     exp = load_bench_experiment(experiment, None, ())
     traj = next((t for t in exp.trajectories if t.kind == "docking"), None)
@@ -306,7 +306,7 @@ def _experiment_authority(experiment: str) -> str:
 def docking_paths_cmd(currents: tuple[float, ...], seed: int, out: Path):
     """Plot one docking trial per lateral current (same start), judged by `dock`'s capture geometry."""
     import numpy as np
-    from blendgen.tools.dynamics_report import docking_paths, plot_docking_paths
+    from blendgen.tools.apps.dynamics_report import docking_paths, plot_docking_paths
     from datasets_spec.outdir import check_file_out
     check_file_out(out, "docking-paths")
     runs = docking_paths(currents or (0.0, 0.5, 1.0), seed=seed)
@@ -338,7 +338,7 @@ def bench(ctx: click.Context):
 def bench_stages(frames: int, samples: tuple[int, ...], out: Path):
     """Time each stage at 640x480 (scene build, render + EXR read, depth to range, post+write) and localizer
     frames/s."""
-    from blendgen.tools.bench import run_bench
+    from blendgen.tools.bench.stages import run_bench
     run_bench(out, frames, samples or (1, 4))
 
 
@@ -369,7 +369,7 @@ def _wh_size(default: str):
 def bench_io(dataset: Path | None):
     """CPU per frame of PNG vs raw camera images and passes (what `run` skips for frames not kept), and of the
     render EXR read (direct vs OpenImageIO, same bytes)."""
-    from blendgen.tools.iobench import run_io_bench
+    from blendgen.tools.bench.iobench import run_io_bench
     run_io_bench(dataset)
 
 
@@ -391,7 +391,7 @@ def bench_fidelity(width: int, height: int, ref_samples: int, frames: int, out: 
     of `calibrate-veil` per preset, depth, view elevation and channel (OUT/veil.csv). Then renders
     the held-in set (clear/mild/moderate/jerlov_1C, 10 m -> 1 m) once as a Cycles medium with
     VOLUME_BOUNCES and once per fast setting; writes OUT/fidelity.csv and OUT/fidelity_pareto.png."""
-    from blendgen.tools.fidelity import run_bench, veil_residual_table
+    from blendgen.tools.bench.fidelity import run_bench, veil_residual_table
     from evalkit.reports.tables import print_table
     out.mkdir(parents=True, exist_ok=True)
     vt = veil_residual_table()
@@ -425,7 +425,7 @@ def bench_render_settings(base: Path, variant: Path, names: tuple[str, ...], out
     """Image and localization deltas of two datasets made from one config with different
     `render` settings (same seed: same camera paths and noise), e.g. per-marker ROIs vs one
     dock box: marker-region DN/PSNR and off-marker DN by range, P_succ and E_rel per localizer."""
-    from blendgen.tools.render_settings import run
+    from blendgen.tools.bench.render_settings import run
     run(base, variant, out, echo=click.echo, names=names)
 
 
@@ -466,7 +466,7 @@ def bench_particles(counts: tuple[int, ...], size: tuple[int, int], frames: int,
     import os
     if fidelity_out is not None:
         import pandas as pd
-        from blendgen.tools.particle_fidelity import COUNTS, compare
+        from blendgen.tools.bench.particle_fidelity import COUNTS, compare
         from evalkit.reports.tables import print_table
         rows, loc = compare(fidelity_out, *size, counts=counts or COUNTS, frames=frames)
         df = pd.DataFrame(rows)
@@ -476,7 +476,7 @@ def bench_particles(counts: tuple[int, ...], size: tuple[int, int], frames: int,
         click.echo("\nlocalization, fast vs reference (P_succ, E_rel = e_rel_mean of detected frames):")
         print_table(loc, floatfmt=".3g")
         return
-    from blendgen.tools.particle_bench import format_row, run
+    from blendgen.tools.bench.particle_bench import format_row, run
     click.echo(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (wall times are upper bounds)")
     for n in counts or (600, 6000, 60000):
         for dist, lamp, formation in (("power_law", True, "physical"), ("uniform", True, "physical"),
@@ -495,7 +495,7 @@ def bench_particles(counts: tuple[int, ...], size: tuple[int, int], frames: int,
               default=Path("out/bench_glow"), show_default=True)
 def bench_glow(samples: int, size: int, volume_bounces: int, out: Path):
     """Emitter glow: fast PSF vs the Cycles medium (HG g 0.9), mild/moderate x 2/5/8 m: energy and radius."""
-    from blendgen.tools.fidelity import glow_comparison
+    from blendgen.tools.bench.fidelity import glow_comparison
     from evalkit.reports.tables import print_table
     df = glow_comparison(out, size=size, samples=samples, volume_bounces=volume_bounces)
     print_table(df, floatfmt=".4g")
@@ -525,7 +525,7 @@ def bench_caustics(depths: tuple[float, ...], waters: tuple[str, ...], size: int
     waves (2 m/s): contrast std E / mean E, mean irradiance over the sun's, pattern correlation.
     Reference maps are cached in OUT (one niced Blender job at a time)."""
     import pandas as pd
-    from blendgen.tools import caustic_bench as cb
+    from blendgen.tools.bench import caustic_bench as cb
     rows = cb.run(out, depths or (1.0, 2.0, 4.0), waters or ("IB", "1C"), size, renders,
                   echo=lambda m: click.echo(m, err=True), sun_zenith_deg=sun_zenith)
     click.echo(cb.format_rows(rows))
@@ -545,8 +545,8 @@ def bench_caustics(depths: tuple[float, ...], waters: tuple[str, ...], size: int
               default=Path("out/bench_lamp"), show_default=True)
 def bench_lamp(samples: int, bounces: int, out: Path):
     """Vehicle lamp: grey card vs inverse square x attenuation, and the backscatter veil, fast vs Cycles."""
-    from blendgen.tools import lamp_bench
-    from blendgen.tools.lamp_bench import card_table, shadow_table, veil_table
+    from blendgen.tools.bench import lamp_bench
+    from blendgen.tools.bench.lamp_bench import card_table, shadow_table, veil_table
     from evalkit.reports.tables import print_table
     out.mkdir(parents=True, exist_ok=True)
     lamp_bench.ON_RENDER = lambda m: click.echo(f"bench lamp: {m} ...", err=True)
@@ -581,8 +581,8 @@ def bench_lamp(samples: int, bounces: int, out: Path):
                    "package's unless named here)")
 def calibrate_water(width: int, height: int, ref_samples: int, frames: int, out: Path, data: Path | None):
     """Fit the fast model's B_inf and depth light to reference renders; write the calibration file."""
-    from blendgen.tools.fidelity import run_calibration
-    from blendgen.tools.veil_calibration import check_data_file
+    from blendgen.tools.bench.fidelity import run_calibration
+    from blendgen.tools.calibration.veil import check_data_file
     data = data or out / "water_calibration.json"
     check_data_file(data)
     d = run_calibration(out, data, width, height, frames, ref_samples, echo=lambda m: click.echo(m, err=True))
@@ -604,7 +604,7 @@ def calibrate_water(width: int, height: int, ref_samples: int, frames: int, out:
 def calibrate_veil(out: Path, data: Path | None, presets: tuple[str, ...]):
     """Fit the physical veil model (kappa, K_v per channel, eta) to Cycles references with 64 volume
     bounces at depths 1/3/6 m and views -30/0/+30 deg; ~6 renders of ~10 s per preset."""
-    from blendgen.tools import veil_calibration as vc
+    from blendgen.tools.calibration import veil as vc
     data = data or out / "water_calibration.json"
     vc.check_data_file(data)                  # before any render
     d = vc.run(out, data, presets or vc.PRESETS, echo=lambda m: click.echo(m, err=True))
@@ -624,7 +624,7 @@ def calibrate_veil(out: Path, data: Path | None, presets: tuple[str, ...]):
               help="image formation")
 def preview(out: Path, width: int, height: int, samples: int, fidelity: str, mode: str):
     """Contact sheet: clear/mild/moderate x depth 0/1/5 m, camera 8/5/2 m from the dock."""
-    from blendgen.tools.preview import make_preview
+    from blendgen.tools.apps.preview import make_preview
     from datasets_spec.outdir import check_file_out
     check_file_out(out, "preview")
     click.echo(f"wrote {make_preview(out, width, height, samples, fidelity, mode=mode)}")
@@ -648,7 +648,7 @@ def reproduce(name: str, trials: int | None, out: Path, workers: int | None, ove
               mode: str | None, images: str):
     """Run one of the article's experiments (or all of them), or the physical turbidity ladder over
     Jerlov I ... 9C (turbidity_ladder): generate, evaluate, report."""
-    from blendgen.tools.reproduce import EXPERIMENTS, reproduce as run
+    from blendgen.tools.apps.reproduce import EXPERIMENTS, reproduce as run
     for text in run(EXPERIMENTS if name == "all" else (name,), out, trials, workers, overwrite, mode, images):
         click.echo(text)
 
@@ -690,7 +690,7 @@ def run(config: Path, localizers: tuple[str, ...], params: tuple[str, ...], out:
     """
     from blendgen.config.models import load_experiment
     from blendgen.pipeline.generate import check_out_dir
-    from blendgen.tools.streamrun import RunRequest, stream_run
+    from blendgen.tools.apps.streamrun import RunRequest, stream_run
     from evalkit import assemble, registry
     from datasets_spec import outdir
     exp = load_experiment(config)
@@ -724,7 +724,7 @@ def run(config: Path, localizers: tuple[str, ...], params: tuple[str, ...], out:
 def calibrate(config: Path | None, out: Path, size: tuple[int, int] | None, trials: int | None):
     """Render chessboards and check Zhang's calibration against the true K."""
     import time
-    from blendgen.tools import calibration as cal
+    from blendgen.tools.calibration import camera as cal
     cfg = cal.with_overrides(cal.load_config(config or cal.DEFAULT_CONFIG), size, trials)
     t0 = time.perf_counter()
     try:
@@ -748,7 +748,7 @@ def calibrate(config: Path | None, out: Path, size: tuple[int, int] | None, tria
               default=Path("out/bench"), show_default=True)
 def bench_localizers(dataset: Path, out: Path) -> None:
     """CPU ms per 640x480 frame of each built-in localizer and QR decode rate by range, on DATASET."""
-    from blendgen.tools.bench import run_localizer_bench
+    from blendgen.tools.bench.stages import run_localizer_bench
     run_localizer_bench(dataset, out)
 
 
@@ -909,7 +909,7 @@ def dock(experiment, localizers, params, trials, conditions, size, images, no_ba
     EXPERIMENT is turbidity, depth, current, occlusion (the paper configs) or a config file.
     Writes trials.parquet, frames.parquet, summary.csv/.md and paths.png (top view)."""
     from blendgen.pipeline.executor import require_render_stack
-    from blendgen.tools.closed_loop import _specs, load_bench_experiment, parse_compute_latency, run_dock
+    from blendgen.tools.apps.closed_loop import _specs, load_bench_experiment, parse_compute_latency, run_dock
     from evalkit.reports.tables import print_table
     exp = load_bench_experiment(experiment, size, conditions)
     compute_latency = parse_compute_latency(compute_latency)
@@ -946,7 +946,7 @@ def bench_closed_loop(experiment, localizer, trials, size, open_loop_frames, thr
     import os
     import pandas as pd
     from blendgen.pipeline.executor import require_render_stack
-    from blendgen.tools.closed_loop import closed_loop_cost, cpu_seconds, load_bench_experiment
+    from blendgen.tools.apps.closed_loop import closed_loop_cost, cpu_seconds, load_bench_experiment
     from evalkit.reports.tables import print_table
     require_render_stack()
     exp = load_bench_experiment(experiment, size, ())
@@ -955,7 +955,7 @@ def bench_closed_loop(experiment, localizer, trials, size, open_loop_frames, thr
     print_table(pd.DataFrame([row]), floatfmt=".1f")
     pd.DataFrame([row]).to_csv(out / "bench_closed_loop.csv", index=False)
     if open_loop_frames:
-        from blendgen.tools.bench import render_stages
+        from blendgen.tools.bench.stages import render_stages
         c0 = cpu_seconds()
         ol = render_stages(out / "open_loop", open_loop_frames, exp.render.samples)
         ol_cpu = 1e3 * (cpu_seconds() - c0) / ol["frames"]
@@ -1007,8 +1007,8 @@ def _suite_size(ctx, param, value):
 def bench_suite(trials, names, size, particles, workers, scaling, no_evaluate, table, max_distance_m,
                 samples, images, out):
     """Generate and evaluate the article's suite at N trials; CPU/wall per stage, RSS, disk, 100-trial estimate."""
-    from blendgen.tools.reproduce import EXPERIMENTS
-    from blendgen.tools.suitebench import Overrides, bench_suite as run, print_recorded
+    from blendgen.tools.apps.reproduce import EXPERIMENTS
+    from blendgen.tools.bench.suitebench import Overrides, bench_suite as run, print_recorded
     if table:
         return print_recorded(out)
     run(trials, names or EXPERIMENTS, Overrides(size, particles, max_distance_m, samples), out,

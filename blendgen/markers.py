@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from blendgen.geometry import make_T
-from blendgen.physics.leds import led_radiance
+from blendgen.physics.light.leds import led_radiance
 
 QR_QUIET_MODULES = 4      # ISO/IEC 18004 default (config: quiet_zone_modules)
 ARUCO_QUIET_CELLS = 1     # default white margin of ArUco/AprilTag, in cells

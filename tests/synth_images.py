@@ -110,7 +110,7 @@ def _draw_leds(img, K_hi, T_cam_dock, marker, halo_scale, halo_gain):
 def box_downsample_linear(img: np.ndarray, width: int, height: int) -> np.ndarray:
     """Average ss x ss blocks in *linear* light, as a sensor integrates radiance over its
     pixel (averaging sRGB codes would darken edges and bias corners inward)."""
-    from blendgen.physics.sensor import srgb_decode, to_uint8
+    from blendgen.physics.camera.sensor import srgb_decode, to_uint8
     lin = cv2.resize(srgb_decode(img), (width, height), interpolation=cv2.INTER_AREA)
     return to_uint8(lin)
 

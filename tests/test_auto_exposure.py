@@ -1,4 +1,4 @@
-"""Auto-exposure (physics/sensor.AutoExposure) and default blooming of saturated LEDs (docs/sensor.md)."""
+"""Auto-exposure (physics/camera/sensor.AutoExposure) and default blooming of saturated LEDs (docs/sensor.md)."""
 from __future__ import annotations
 
 import math
@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from blendgen.physics import sensor
-from blendgen.physics.sensor import AutoExposure, SensorModel
+from blendgen.physics.camera import sensor
+from blendgen.physics.camera.sensor import AutoExposure, SensorModel
 
 
 def _frame(level=0.1, led=20.0):

@@ -1,4 +1,4 @@
-"""Beam spread of a lamp in forward-scattering water (physics/beam_spread.py): the Hankel
+"""Beam spread of a lamp in forward-scattering water (physics/light/beam_spread.py): the Hankel
 convolutions against a Monte Carlo of the same photons, energy conservation, limits, the table
 lookup, and zero cost when F = 0."""
 import functools
@@ -7,9 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from blendgen.physics import beam_spread as bs
-from blendgen.physics import lamp_water, optics
-from blendgen.physics.lights import PointLight
+from blendgen.physics.light import beam_spread as bs
+from blendgen.physics.light import lamp_water
+from blendgen.physics.water import optics
+from blendgen.physics.light.sources import PointLight
 
 AXIS = np.array([0.0, 0.0, 1.0])
 

@@ -6,7 +6,7 @@ import numpy as np
 from synth_images import k_from_hfov, pose_looking_at_dock, render
 from test_localizers import led_marker
 
-from blendgen.tools import bench
+from blendgen.tools.bench import stages as bench
 
 W, H = 320, 240
 

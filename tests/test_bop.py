@@ -333,7 +333,7 @@ def test_cli(tmp_path):
 def _distorted(root, dist):
     """The enriched dataset as a camera with ``dist`` would have recorded it: index and range
     passes distorted with the generator's own lens model, the camera's distortion in the manifest."""
-    from blendgen.physics.sensor import distort_image
+    from blendgen.physics.camera.sensor import distort_image
     man = json.loads((root / "manifest.json").read_text())
     man["camera"]["distortion"] = list(dist)
     (root / "manifest.json").write_text(json.dumps(man))

@@ -9,7 +9,7 @@ import yaml
 from click.testing import CliRunner
 
 import cli
-from blendgen.tools import calibration as cal
+from blendgen.tools.calibration import camera as cal
 from blendgen.geometry import intrinsics_from_hfov, project, transform_points
 
 BOARD = cal.ChessBoard(9, 6, 0.05, 1)

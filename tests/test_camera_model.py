@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from blendgen.config.models import Sensor, Water
-from blendgen.physics import sensor as s
+from blendgen.physics.camera import sensor as s
 from blendgen.pipeline import compose
 from blendgen.pipeline.plan import SequencePost
 

@@ -14,8 +14,8 @@ import pytest
 
 from blendgen.config.bundled import bundled_file
 from blendgen.config.models import Condition, Sensor, Water, load_experiment
-from blendgen.physics import sensor
-from blendgen.physics.water_presets import ARTICLE_K
+from blendgen.physics.camera import sensor
+from blendgen.physics.water.presets import ARTICLE_K
 from blendgen.pipeline import compose, plan
 
 K_CAM = np.array([[100.0, 0, 64], [0, 100.0, 64], [0, 0, 1]])

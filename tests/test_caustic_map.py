@@ -1,4 +1,4 @@
-"""The forward caustic map (``blendgen/physics/caustic_map.py``, ``caustic_mesh.py``).
+"""The forward caustic map (``blendgen/physics/surface/caustic_map.py``, ``caustic_mesh.py``).
 
 Oracles, each independent of the mesh code:
 - a single sinusoidal wave beyond its first focus, against a dense 1-D trace of the same ray
@@ -14,7 +14,7 @@ import math
 import numpy as np
 import pytest
 
-from blendgen.physics import caustic_map as cmap, caustic_mesh, surface as sf
+from blendgen.physics.surface import caustic_map as cmap, caustic_mesh, optics as sf
 
 ALPHA = 1.0 - 1.0 / sf.N_WATER
 

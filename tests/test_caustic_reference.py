@@ -3,14 +3,14 @@
 Oracles: the reference's mean irradiance is the Fresnel transmittance at normal incidence
 ``1 - ((n-1)/(n+1))^2 = 0.980`` in clear water (energy: every refracted sun ray lands);
 its contrast falls with depth beyond the focal zone in turbid water (Maritorena et al. 2000);
-the fast pattern (all sheets of the folded ray map summed, ``physics/caustic_map.py``) matches it
+the fast pattern (all sheets of the folded ray map summed, ``physics/surface/caustic_map.py``) matches it
 before and beyond the first focus (correlation) and its contrast stays within the stated error
 (README of ``bench caustics``: +-35 %)."""
 from __future__ import annotations
 
 import pytest
 
-from blendgen.tools import caustic_bench as cb
+from blendgen.tools.bench import caustic_bench as cb
 
 N = 1.333
 
@@ -68,7 +68,7 @@ def test_oblique_sun_reference_energy_and_fast_pattern(tmp_path):
     25 %, correlation > 0.9)."""
     import math
     import numpy as np
-    from blendgen.physics.surface import fresnel_reflectance
+    from blendgen.physics.surface.optics import fresnel_reflectance
     w = cb.water_of(None)
     spec = cb.reference_spec(1.0, w, 768, 2, sun_zenith_deg=20.0)
     r = cb.compare(cb.run_reference(spec, tmp_path / "oblique.npz"), spec, w)

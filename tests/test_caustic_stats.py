@@ -1,9 +1,9 @@
-"""Caustic statistics of `bench caustics` (tools/caustic_bench.py: radial_psd, spectrum_stats): a
+"""Caustic statistics of `bench caustics` (tools/bench/caustic_bench.py: radial_psd, spectrum_stats): a
 pattern of known wavelength, white noise removed, shifted patterns are equal in statistics."""
 import numpy as np
 import pytest
 
-from blendgen.tools.caustic_bench import radial_psd, spectrum_stats
+from blendgen.tools.bench.caustic_bench import radial_psd, spectrum_stats
 
 N, BIN = 96, 2.0 / 96
 

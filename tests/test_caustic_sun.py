@@ -1,5 +1,5 @@
 """Reference caustics in datasets (docs/light.md): the sun as a far spot whose light texture is the
-frame's photon map (``blender/caustic_sun.py``, ``physics/caustic_beam.py``).
+frame's photon map (``blender/caustic_sun.py``, ``physics/surface/caustic_beam.py``).
 
 Oracles: a flat surface's photons give the pattern that undoes the spot's inverse square
 (``((D + s) / D)^2 / T_Fresnel`` per bin when every photon is kept); the spot's projective
@@ -15,7 +15,7 @@ import sys
 import numpy as np
 import pytest
 
-from blendgen.physics import caustic_beam as cb, surface as sf
+from blendgen.physics.surface import caustic_beam as cb, optics as sf
 from blendgen.pipeline.plan import INDEX_POOL
 
 SURFACE = {"centre_xy": [0.0, 0.0], "half_xy": [7.5, 2.5], "z": 1.0}
@@ -139,7 +139,7 @@ def _check(tmp_path, kind: str):
     spec, K = _check_spec(tmp_path, kind)
     (tmp_path / "spec.json").write_text(json.dumps(spec))
     out = tmp_path / "check.npz"
-    subprocess.run([sys.executable, "-m", "blendgen.blender.caustic_sun_check", str(tmp_path / "spec.json"),
+    subprocess.run([sys.executable, "-m", "blendgen.blender.testing.caustic_sun_check", str(tmp_path / "spec.json"),
                     str(out)], check=True, timeout=600)
     r = np.load(out)
     names = [k for k in ("pool", "dock") if f"{k}_M" in r]

@@ -54,7 +54,7 @@ def test_demo_evaluates_the_hybrid_too():
 
 
 def test_calibrate_size_and_trials_override_the_config():
-    from blendgen.tools import calibration as cal
+    from blendgen.tools.calibration import camera as cal
     cfg = cal.load_config(cal.DEFAULT_CONFIG)
     small = cal.with_overrides(cfg, (320, 240), 2)
     assert small.resolutions == [(320, 240)] and small.trials == 2
@@ -106,7 +106,7 @@ def test_lamp_bench_announces_each_cycles_render(tmp_path, monkeypatch):
 
     import numpy as np
 
-    from blendgen.tools import lamp_bench as lb
+    from blendgen.tools.bench import lamp_bench as lb
 
     def fake_run(cmd, **kw):
         np.save(cmd[-1], np.zeros((2, 2, 3)))

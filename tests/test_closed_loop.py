@@ -50,7 +50,7 @@ def test_capture_limits_come_from_the_config_and_bad_values_are_refused():
     from pydantic import ValidationError
 
     from blendgen.config.models import DockingTrajectory
-    from blendgen.tools.closed_loop import capture_spec
+    from blendgen.tools.apps.closed_loop import capture_spec
     default = capture_spec(DockingTrajectory(), [1.0, 1.0, 0.4], 0.0955)
     assert default == CAPTURE
     t = DockingTrajectory.model_validate({"capture": {"radius_m": 0.25, "max_heading_deg": 5,
@@ -292,7 +292,7 @@ def test_latency_small_still_docks_and_one_second_degrades_lateral_error():
 
 
 def test_closed_loop_modules_never_import_bpy():
-    code = ("import sys\nimport blendgen.vehicle.closed_loop, blendgen.tools.closed_loop, blendgen.blender.serve\n"
+    code = ("import sys\nimport blendgen.vehicle.closed_loop, blendgen.tools.apps.closed_loop, blendgen.blender.serve\n"
             "sys.exit(1 if 'bpy' in sys.modules else 0)\n")
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
 
@@ -379,7 +379,7 @@ def test_before_the_first_fix_the_vehicle_creeps_on_along_its_start_heading_unti
 
 
 def test_summary_of_an_older_run_without_lost_target_and_contact_columns():
-    from blendgen.tools.closed_loop import summary_table
+    from blendgen.tools.apps.closed_loop import summary_table
     old = pd.DataFrame({"localizer": ["truth"] * 2, "condition": ["c"] * 2, "trial": [0, 1], "outcome":
                         ["docked", "collision"], "docked": [True, False], "time_to_dock_s": [20.0, math.nan],
                         "final_lateral_m": [0.1, -0.5], "final_heading_deg": [1.0, 2.0]})

@@ -32,7 +32,7 @@ conditions:
 @pytest.fixture(scope="module")
 def bench(tmp_path_factory):
     from blendgen.config.models import load_experiment
-    from blendgen.tools.closed_loop import Bench
+    from blendgen.tools.apps.closed_loop import Bench
     d = tmp_path_factory.mktemp("cl")
     (d / "dock.yaml").write_text(CONFIG)
     return Bench.prepare(load_experiment(d / "dock.yaml"), d / "assets"), d
@@ -40,7 +40,7 @@ def bench(tmp_path_factory):
 
 def test_render_server_frame_shows_the_dock_where_geometry_puts_it(bench):
     from blendgen.pipeline import plan
-    from blendgen.tools.closed_loop import RenderClient, start_client
+    from blendgen.tools.apps.closed_loop import RenderClient, start_client
     b, d = bench
     client = start_client(b, d / "server.log", threads=1)
     try:
@@ -151,7 +151,7 @@ def test_closed_loop_frame_is_the_dataset_frame_byte_for_byte(tmp_path):
     from blendgen.config.models import load_experiment
     from blendgen.pipeline import plan
     from blendgen.pipeline.generate import generate
-    from blendgen.tools.closed_loop import Bench, VisionCamera, start_client
+    from blendgen.tools.apps.closed_loop import Bench, VisionCamera, start_client
     cfg = tmp_path / "same.yaml"
     cfg.write_text(yaml.safe_dump(SAME_IMAGE_CONFIG))
     exp = load_experiment(cfg)

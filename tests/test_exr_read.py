@@ -53,7 +53,7 @@ def test_rendered_passes_are_those_openimageio_reads(tmp_path, border):
     import sys
     from pathlib import Path
     root = Path(__file__).resolve().parent.parent
-    cmd = [sys.executable, "-m", "blendgen.blender.exr_oracle", str(tmp_path / "f.exr"), json.dumps(border)]
+    cmd = [sys.executable, "-m", "blendgen.blender.testing.exr_oracle", str(tmp_path / "f.exr"), json.dumps(border)]
     r = subprocess.run(cmd, cwd=root, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
     lines = r.stdout.strip().splitlines()

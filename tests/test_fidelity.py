@@ -6,10 +6,10 @@ import click
 import numpy as np
 import pytest
 
-from blendgen.tools import fidelity
+from blendgen.tools.bench import fidelity
 
 from blendgen.config.models import Water
-from blendgen.physics import optics
+from blendgen.physics.water import optics
 
 CAL = {"method": "test", "presets": {"moderate": {"B_inf": [0.01, 0.02, 0.03], "Kd": [0.3, 0.3, 0.3],
                                                   "blur": False}}}
@@ -105,7 +105,7 @@ def test_calibration_and_preview_render_tiny(tmp_path):
     e = json.loads((tmp_path / "cal.json").read_text())["presets"]["moderate"]
     assert e == data["presets"]["moderate"] and e["n_pixels"] > 200
     assert e["residual"]["calibrated"]["mae"] < e["residual"]["uncalibrated"]["mae"]
-    from blendgen.tools import preview
+    from blendgen.tools.apps import preview
     import cv2
     p = preview.make_preview(tmp_path / "sheet.png", 48, 36, 1)
     img = cv2.imread(str(p))

@@ -1,4 +1,4 @@
-"""Box-Muller float32 normals on SplitMix64 words (physics/gauss.py): the law, independence,
+"""Box-Muller float32 normals on SplitMix64 words (physics/particles/gauss.py): the law, independence,
 reproducibility."""
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from blendgen.physics.gauss import TAIL_SIGMA, drift_normals
+from blendgen.physics.particles.gauss import TAIL_SIGMA, drift_normals
 
 
 def test_draws_follow_the_standard_normal_law():
@@ -19,7 +19,7 @@ def test_draws_follow_the_standard_normal_law():
 
 
 def test_the_tail_is_cut_at_the_float32_resolution_of_the_uniforms():
-    from blendgen.physics.particle_kernels import box_muller
+    from blendgen.physics.particles.kernels import box_muller
     z = box_muller(np.full(2, np.uint64(0xFFFFFF) << np.uint64(40), np.uint64))   # U1 = 1 - 2^-24, angle 0
     assert np.all(np.isfinite(z))
     assert z[0, 0] == pytest.approx(TAIL_SIGMA, rel=1e-5) and TAIL_SIGMA == pytest.approx(5.768, abs=1e-3)
@@ -29,7 +29,7 @@ def test_the_tail_is_cut_at_the_float32_resolution_of_the_uniforms():
 def test_compiled_transform_equals_box_muller_in_float64():
     """particle_kernels.box_muller (log and sin/cos polynomials, the angle's octant in integers)
     against the transform evaluated in float64 on the same 64-bit words, every octant included."""
-    from blendgen.physics.particle_kernels import box_muller
+    from blendgen.physics.particles.kernels import box_muller
     words = np.random.default_rng(5).integers(0, 2 ** 64, 200_000, dtype=np.uint64)
     words[:8] = (np.arange(8, dtype=np.uint64) << np.uint64(37)) | np.uint64(1 << 40)   # octant edges
     k = (words >> np.uint64(40)).astype(np.float64)
@@ -42,7 +42,7 @@ def test_compiled_transform_equals_box_muller_in_float64():
 
 
 def test_compiled_log_is_as_accurate_as_float32_allows():
-    from blendgen.physics.particle_kernels import log32
+    from blendgen.physics.particles.kernels import log32
     edges = [1.0, 2.0, 0.5, 2 ** -24, 1 - 2 ** -24]
     x = np.concatenate([np.exp(np.random.default_rng(2).uniform(-40, 40, 3000)), edges])
     x32 = x.astype(np.float32)
@@ -64,8 +64,8 @@ def test_same_seed_same_draws_any_length(n):
 def test_splitmix64_gives_the_reference_outputs():
     """The first outputs from state 1234567 of Vigna's splitmix64.c (its published test values),
     in numpy and in the compiled kernel."""
-    from blendgen.physics.gauss import splitmix64
-    from blendgen.physics.particle_kernels import splitmix64 as compiled
+    from blendgen.physics.particles.gauss import splitmix64
+    from blendgen.physics.particles.kernels import splitmix64 as compiled
     ref = [6457827717110365317, 3203168211198807973, 9817491932198370423, 4593380528125082431,
            16408922859458223821]
     assert splitmix64(1234567, 5).tolist() == ref

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy import integrate
 
-from blendgen.physics import optics as o
+from blendgen.physics.water import optics as o
 
 
 def _water(b, g=0.9, a=0.05):
@@ -86,7 +86,7 @@ def test_glow_matches_the_reference_medium(tmp_path):
     """Encircled glow energy of a point light seen through the Cycles medium (HG g = 0.9, single
     scattering) at 3..40 px, for two water types and three ranges, against the fast model's
     single-scatter PSF: absolute (Cycles' point light I = P / 4 pi), within 10 %."""
-    from blendgen.tools import fidelity
+    from blendgen.tools.bench import fidelity
     df = fidelity.glow_comparison(tmp_path, samples=64)
     assert len(df) == 2 * 3 * len(fidelity.GLOW_RADII_PX)
     assert df["ratio"].between(0.9, 1.1).all(), df.to_string()
@@ -120,7 +120,7 @@ def test_multiple_scatter_kernel_energy_and_second_moment():
 def test_multiple_scatter_glow_widens_with_b_r_and_reduces_to_single_scatter():
     """At b r -> 0 the widened kernel has the single-scatter shape (r50 equal within 1 px);
     its half-energy radius grows with b r (mild < moderate, 2 m < 8 m), the single's does not."""
-    from blendgen.tools.fidelity import glow_radius_px
+    from blendgen.tools.bench.fidelity import glow_radius_px
     fx = 131.9
 
     def r50(k):
@@ -143,7 +143,7 @@ def test_glow_radius_and_energy_match_multiple_scattering_reference(tmp_path):
     growing with b r like the reference's; encircled energy 3..40 px within -10 %/+25 % (the
     small-angle model keeps light that wide-angle paths lose: +7 % mild, +18 % moderate
     measured by `dockbench bench glow --volume-bounces 32`)."""
-    from blendgen.tools import fidelity
+    from blendgen.tools.bench import fidelity
     df = fidelity.glow_comparison(tmp_path, samples=64, volume_bounces=32)
     by = df.groupby(["water", "range_m"])[["r50_reference_px", "r50_fast_px"]].first()
     np.testing.assert_allclose(by["r50_fast_px"], by["r50_reference_px"], rtol=0.05)

@@ -264,7 +264,7 @@ def test_a_full_disk_is_one_line_naming_the_path_and_the_space(tmp_path, monkeyp
         monkeypatch.setattr(results, "save_run", save)
         argv = ["evaluate", str(hc.write_fake_dataset(base / "ds")), "-l", "aruco", "-o", str(out)]
     else:
-        import blendgen.tools.streamrun as sr
+        import blendgen.tools.apps.streamrun as sr
 
         def stream_run(items, req):
             raise _enospc(out / "dataset" / "sequences" / "x" / "rgb" / "000001.png")

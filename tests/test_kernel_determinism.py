@@ -20,7 +20,7 @@ SCRIPT = textwrap.dedent("""
     import numpy as np
     from blendgen.geometry import intrinsics_from_hfov, make_T
     from blendgen.pipeline import compose
-    from blendgen.tools import particle_bench as pb
+    from blendgen.tools.bench import particle_bench as pb
     K = intrinsics_from_hfov(160, 120, math.radians(60.0))
     R = np.column_stack([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
     h = hashlib.sha256()
@@ -35,7 +35,7 @@ SCRIPT = textwrap.dedent("""
             for a in (seen["rgb"], seen["range_m"], occ, st.field.positions):
                 h.update(np.ascontiguousarray(a).tobytes())
             st.advance()
-    from blendgen.physics import caustic_map as cmap, surface as sf   # the caustics' compiled deposit
+    from blendgen.physics.surface import caustic_map as cmap, optics as sf  # the caustics' compiled deposit
     waves, patch = sf.waves_for(7, 3.0), cmap.Patch(1.3, -0.7, 0.02, (120, 150))
     sun = sf.sun_deflection([0.4, 0.2, -0.9])
     for scattering in (0.0, 0.05):

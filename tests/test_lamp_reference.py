@@ -1,5 +1,5 @@
 """The vehicle lamp in the Cycles reference (blender/lamps.py, blender/lamp_scene.py) and
-the fast model (physics/lamp_water.py) on the same geometry (tools/lamp_bench.py).
+the fast model (physics/light/lamp_water.py) on the same geometry (tools/bench/lamp_bench.py).
 
 Renders run in subprocesses (the test process never imports bpy), 32x24 to 64x48 px."""
 import math
@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from blendgen.physics import optics
-from blendgen.tools import lamp_bench as lb
+from blendgen.physics.water import optics
+from blendgen.tools.bench import lamp_bench as lb
 
 pytestmark = pytest.mark.blender
 
@@ -73,11 +73,11 @@ def test_spot_follows_the_camera(tmp_path):
 def test_beam_spread_puts_light_outside_the_cone(tmp_path):
     """32 volume bounces, moderate water: outside the single-scatter cone (pixels whose F = 0 veil
     is below 5 % of its mean, a third of the frame) Cycles shows multiply scattered light. The
-    sharp beam (no spread) gives 0.19 of it; the spread beam (physics/beam_spread.py) 0.41 at
+    sharp beam (no spread) gives 0.19 of it; the spread beam (physics/light/beam_spread.py) 0.41 at
     96x72 / 256 spp (`bench lamp`); inside the cone both stay within 10 %."""
     import dataclasses
-    from blendgen.physics import lamp_water
-    from blendgen.physics.lights import lamp_lights
+    from blendgen.physics.light import lamp_water
+    from blendgen.physics.light.sources import lamp_lights
     w = optics.get_preset("moderate")
     spec = lb.scene_spec(w, [lb.DEMO_LAMP], None, (64, 48), 64, 32)
     ref = lb.reference(spec, tmp_path)[..., 1]

@@ -1,4 +1,4 @@
-"""Screen-space lamp shadows (physics/lamp_shadow.py) against the geometric projection of
+"""Screen-space lamp shadows (physics/light/lamp_shadow.py) against the geometric projection of
 known occluders, and their zero cost when off (no lamp, or ``lamp_shadows: false``)."""
 import math
 
@@ -7,10 +7,11 @@ import numpy as np
 import pytest
 
 from blendgen.geometry import intrinsics_from_hfov
-from blendgen.physics import lamp_shadow, lamp_water, optics
-from blendgen.physics.lights import PointLight
+from blendgen.physics.light import lamp_shadow, lamp_water
+from blendgen.physics.water import optics
+from blendgen.physics.light.sources import PointLight
 from blendgen.pipeline.compose import _unit_rays
-from blendgen.tools import lamp_bench as lb
+from blendgen.tools.bench import lamp_bench as lb
 
 K3 = np.ones((3, 3), np.uint8)
 

@@ -1,4 +1,4 @@
-"""The fast vehicle-lamp model (physics/lamp_water.py) against analytic values and an
+"""The fast vehicle-lamp model (physics/light/lamp_water.py) against analytic values and an
 independent quadrature, and the zero-cost path of the pipeline without lamps."""
 import math
 from types import SimpleNamespace
@@ -9,8 +9,9 @@ from scipy.integrate import quad
 
 from blendgen.config.models import Lamp, Sensor, Water
 from blendgen.geometry import intrinsics_from_hfov
-from blendgen.physics import lamp_water, optics
-from blendgen.physics.lights import PointLight, blender_spot_blend, lamp_lights
+from blendgen.physics.light import lamp_water
+from blendgen.physics.water import optics
+from blendgen.physics.light.sources import PointLight, blender_spot_blend, lamp_lights
 from blendgen.pipeline import compose
 from blendgen.pipeline.plan import SequencePost
 
@@ -171,7 +172,7 @@ def test_particles_and_surfaces_see_the_same_lamp_beam():
     with F = 0.85: the particle/surface ratio is the same at 1 m and 4 m (with c on the particle's
     path it would differ by exp(F b 3 m) = 2.2x in 'moderate'). Lamp at the camera centre, particles
     on the optical axis: same scattering angle at both distances."""
-    from blendgen.physics.particles import ParticleField, project_particles
+    from blendgen.physics.particles.field import ParticleField, project_particles
     from blendgen.pipeline import particle_light
     from blendgen.pipeline.plan import OcclusionPost
     from blendgen.geometry import make_T

@@ -37,7 +37,7 @@ def wilson(k: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
 def write_run(out: Path, latency_s: float = 0.0, docked=DOCKED, t_dock: float = 20.0) -> Path:
     """A closed-loop run directory made by the dock command's own summary + writer."""
     from blendgen.config.models import load_experiment
-    from blendgen.tools import closed_loop as cl
+    from blendgen.tools.apps import closed_loop as cl
     from blendgen.vehicle.visual_nav import CaptureSpec
     exp = load_experiment(REPO / "configs" / "paper_turbidity.yaml")
     exp.camera.latency_s = latency_s

@@ -9,8 +9,9 @@ import pytest
 
 from blendgen.config.models import LedArray
 from blendgen.markers import manifest_marker
-from blendgen.physics import leds, optics
-from blendgen.physics.lights import irradiance
+from blendgen.physics.light import leds
+from blendgen.physics.water import optics
+from blendgen.physics.light.sources import irradiance
 
 
 def test_radiance_is_intensity_over_disc_area():
@@ -56,7 +57,7 @@ def test_led_radiance_same_in_both_fidelities(tmp_path):
     light) and through the fast model on the clear render, the same energy within 2 %;
     (3) with HG g 0.9 scattering (moderate), within 10 % inside 3 px (direct + near glow)."""
     from blendgen.config.models import Water
-    from blendgen.tools import fidelity as F
+    from blendgen.tools.bench import fidelity as F
     size, hfov, r, a = 96, 20.0, 3.0, 0.04
     fx = (size / 2) / math.tan(math.radians(hfov) / 2)
     L = leds.led_radiance(0.1, [0.1, 0.3, 1.0], a)

@@ -10,7 +10,7 @@ import pytest
 
 from blendgen.config.models import Water
 from blendgen.geometry import planar_depth_to_range
-from blendgen.physics import optics
+from blendgen.physics.water import optics
 from blendgen.pipeline import compose
 from blendgen.pipeline.plan import SequencePost
 

@@ -1,11 +1,11 @@
-"""Oracles for artificial light sources (physics/lights.py)."""
+"""Oracles for artificial light sources (physics/light/sources.py)."""
 import math
 
 import numpy as np
 import pytest
 
 from blendgen.config.models import Lamp
-from blendgen.physics import lights
+from blendgen.physics.light import sources as lights
 
 
 def _lamp(**kw):

@@ -5,7 +5,7 @@ import sys
 PURE = ["cli", "evalkit", "evalkit.dataset", "evalkit.registry", "evalkit.metrics.core", "evalkit.runner",
         "evalkit.reports.tables", "blendgen.geometry", "blendgen.config.models", "blendgen.markers", "blendgen.vehicle.trajectories",
         "blendgen.pipeline.plan", "blendgen.pipeline.groundtruth", "blendgen.pipeline.compose", "blendgen.pipeline.writer",
-        "blendgen.pipeline.generate", "blendgen.pipeline.executor", "blendgen.physics.optics", "blendgen.tools.reproduce", "blendgen.tools.fidelity", "blendgen.tools.calibration",
+        "blendgen.pipeline.generate", "blendgen.pipeline.executor", "blendgen.physics.water.optics", "blendgen.tools.apps.reproduce", "blendgen.tools.bench.fidelity", "blendgen.tools.calibration.camera",
         "evalkit.isolation", "evalkit.external", "evalkit.preprocess", "evalkit.localizers.hybrid",
         "evalkit.reports.results", "evalkit.reports.leaderboard", "evalkit.reports.bop",
         "evalkit.metrics.recall", "evalkit.metrics.extra", "evalkit.reports.provenance", "evalkit.reports.outdir"]

@@ -11,8 +11,8 @@ from hypothesis import strategies as st
 from scipy import stats
 
 from blendgen.geometry import intrinsics_from_hfov, look_at_R, make_T, project
-from blendgen.physics.gauss import drift_normals
-from blendgen.physics.particles import (ParticleField, count_in_frustum, frustum_volume,
+from blendgen.physics.particles.gauss import drift_normals
+from blendgen.physics.particles.field import (ParticleField, count_in_frustum, frustum_volume,
                                 led_visible_fraction, render_particles,
                                 visible_fraction_from_masks)
 
@@ -153,8 +153,8 @@ def test_wrap_equals_the_modulo_formula_bit_for_bit(scale, seed):
     """The drift kernel's wrap (no flow, no noise) sends only the coordinates outside the region
     through the modulo; the result must equal lo + mod(pos - lo, ext) exactly (datasets keep
     their bytes), edges included."""
-    from blendgen.physics.particle_kernels import drift
-    from blendgen.physics.particles import _bounds32, _clamp32
+    from blendgen.physics.particles.kernels import drift
+    from blendgen.physics.particles.field import _bounds32, _clamp32
     lo, hi = np.array([0.1, -0.3, -7.9]), np.array([15.1, 4.7, 0.1])
     rng = np.random.default_rng(seed)
     pos = lo + (hi - lo) * rng.uniform(-0.2, 1.2, (200, 3)) * (1.0 + scale * rng.random((200, 1)))

@@ -10,7 +10,7 @@ from hypothesis import given, settings, strategies as st
 from pydantic import ValidationError
 
 from blendgen.config.models import Water
-from blendgen.physics import optics as o
+from blendgen.physics.water import optics as o
 
 
 def _water(c, B=(0.1, 0.3, 0.25), Kd=(0.3, 0.1, 0.05), albedo=0.5):

@@ -10,9 +10,10 @@ from scipy import stats
 
 from blendgen.config.models import Lamp, Lens, Water
 from blendgen.geometry import intrinsics_from_hfov, make_T
-from blendgen.physics import lamp_water, optics
-from blendgen.physics import particle_optics as popt
-from blendgen.physics.particles import ParticleField, project_particles, render_particles
+from blendgen.physics.light import lamp_water
+from blendgen.physics.water import optics
+from blendgen.physics.particles import optics as popt
+from blendgen.physics.particles.field import ParticleField, project_particles, render_particles
 from blendgen.pipeline import compose, particle_light
 from blendgen.pipeline.plan import OcclusionPost, SequencePost
 
@@ -73,7 +74,7 @@ def test_lit_particle_mean_radiance_in_water_matches_analytic(z, lamp_on):
     inner = np.hypot(u - K[0, 2], v - K[1, 2]) < rad - 1.5
     measured = img[inner].mean(axis=0)
     # analytic, from the laws (not the code): ambient E/(4 pi mu_d) omega dimmed by exp(-Kd depth);
-    # lamp I0 exp(-c' d)/d^2 omega p(theta) with the beam's c' = c - F b (physics/lamp_water.py: the
+    # lamp I0 exp(-c' d)/d^2 omega p(theta) with the beam's c' = c - F b (physics/light/lamp_water.py: the
     # beam keeps its forward-scattered light, for particles as for surfaces and the veil); both
     # times exp(-c R); veil B_inf E exp(-Kd d_cam)(1-exp(-c R))
     w = st.water
@@ -306,7 +307,7 @@ def test_blurred_projection_keeps_exactly_the_footprints_that_meet_the_image():
     """project_particles with a blur keeps a particle iff its blurred footprint (a speck's 2 x 2
     pixels, an ellipse's box) meets the image: the same set as projecting with a wide margin,
     blurring (particle_optics.blurred_shapes) and testing the footprint box."""
-    from blendgen.physics.particle_kernels import box
+    from blendgen.physics.particles.kernels import box
     f = ParticleField.sample(5, *BOX, n_total=40000, count_dist="fixed", size_dist="power_law",
                              r_min=0.0005, r_max=0.03)
     st = state_with(f, lens=Lens(focal_length_mm=6.0, f_number=1.4, focus_m=2.0), exposure=0.02)

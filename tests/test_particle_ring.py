@@ -12,9 +12,9 @@ import pytest
 
 from blendgen.config.models import Lens
 from blendgen.geometry import intrinsics_from_hfov, make_T
-from blendgen.physics.particles import ParticleField, project_particles
+from blendgen.physics.particles.field import ParticleField, project_particles
 from blendgen.pipeline import compose, particle_light
-from blendgen.tools import particle_bench
+from blendgen.tools.bench import particle_bench
 
 W, H = 160, 120
 R = np.column_stack([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])   # camera looks along world +x

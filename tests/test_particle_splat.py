@@ -1,4 +1,4 @@
-"""The fast splat (blendgen/physics/particle_splat.py) against a brute-force oracle: every
+"""The fast splat (blendgen/physics/particles/splat.py) against a brute-force oracle: every
 particle's coverage law evaluated on every pixel of a small image, depth-tested per pixel and
 summed with plain Python loops. Catches any grouping, clipping, compaction or sparse-product
 error (a sample dropped, doubled or given to the wrong particle)."""
@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from blendgen.physics import particle_splat as ps
+from blendgen.physics.particles import splat as ps
 
 W, H = 48, 36
 
@@ -107,7 +107,7 @@ def test_prefetch_is_a_hint_on_any_array_at_any_index():
     declaration), never faults on an index past the end, and changes no value."""
     import numba as nb
 
-    from blendgen.physics.particle_kernels import _prefetch
+    from blendgen.physics.particles.kernels import _prefetch
 
     @nb.njit
     def touched_sum(f, i, k):
@@ -129,7 +129,7 @@ def test_fused_pass_gives_the_bytes_of_splat_transfer_and_resolve(seed, mode):
     over a rough range pass (NaN, inf, a near dock) whose merged range keeps the scene's values.
     Specks, small and large ellipses over partial tiles and the image's edges; seed 7 has specks
     only (their tiles list the covered pixels instead of scanning them)."""
-    from blendgen.physics import particle_kernels as kern
+    from blendgen.physics.particles import kernels as kern
     rng = np.random.default_rng(seed)
     p = _particles(rng, 80)
     if seed == 7:
@@ -182,7 +182,7 @@ def test_binned_boxes_are_the_footprints_clipped_to_the_image(seed):
     laws particle by particle: an ellipse's box (``box``), a speck's 2 x 2 pixels at floor(u, v),
     clipped to the image, (xa, xb) = (1, 0) when nothing is left. Extremes included: semi-axes
     at the speck threshold and of zero, tiny b, boxes over every edge and far off the image."""
-    from blendgen.physics import particle_kernels as kern
+    from blendgen.physics.particles import kernels as kern
     rng = np.random.default_rng(seed)
     n = 400
     a = np.concatenate([rng.uniform(0.0, 0.49, n // 4), rng.uniform(0.5, 4.0, n // 4),
@@ -210,7 +210,7 @@ def test_binned_boxes_are_the_footprints_clipped_to_the_image(seed):
 
 @pytest.mark.parametrize("width, height", [(48, 36), (33, 31), (640, 480), (1, 1)])
 def test_tile_nearest_range_is_the_nan_ignoring_minimum(width, height):
-    from blendgen.physics.particle_kernels import TILE_PX, _tile_near
+    from blendgen.physics.particles.kernels import TILE_PX, _tile_near
     rng = np.random.default_rng(width)
     surf = rng.uniform(0.0, 20.0, (height, width)).astype(np.float32)
     surf[rng.random((height, width)) < 0.2] = np.nan
@@ -266,7 +266,7 @@ def test_footprints_across_tile_corners_are_summed_once_per_pixel():
 
 
 def test_vectorisable_exp_is_as_accurate_as_float32_allows():
-    from blendgen.physics.particle_kernels import exp32
+    from blendgen.physics.particles.kernels import exp32
     x = np.concatenate([np.random.default_rng(0).uniform(-87.0, 88.0, 2000), [-87.0, -1e-6, 0.0, 1e-6, 1.0, 88.0]])
     got = np.array([exp32(np.float32(v)) for v in x.astype(np.float32)], np.float64)
     ref = np.exp(x.astype(np.float32).astype(np.float64))
@@ -280,7 +280,7 @@ def test_background_transfer_matches_the_two_layer_formula(physical):
     """particle_kernels.transfer against its law written out in float64 numpy (the particle_light
     Transfer doc): gain = t_bg/t_p x D_bg/D_p, add = (1 - t_bg/t_p) B / D_p; open water: t_bg = 0."""
     from blendgen.geometry import intrinsics_from_hfov
-    from blendgen.physics.particle_kernels import transfer
+    from blendgen.physics.particles.kernels import transfer
     rng = np.random.default_rng(1)
     w, h, n = 64, 48, 500
     K = intrinsics_from_hfov(w, h, math.radians(70.0))

@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 from datasets_spec.io import load_index, load_range
-from blendgen.physics import particles as occlusion
+from blendgen.physics.particles import field as occlusion
 
 from blendgen.pipeline import compose as postprocess
 from blendgen.pipeline.generate import generate

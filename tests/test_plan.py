@@ -46,7 +46,7 @@ def test_docking_trials_render_once_per_trial_and_per_fluid():
 
 
 def test_reference_fidelity_renders_each_water_and_skips_clear_volume():
-    from blendgen.physics import optics
+    from blendgen.physics.water import optics
     cfg = copy.deepcopy(BASE)
     cfg["image_formation"] = "article"
     cfg["render"] = {"fidelity": "reference"}

@@ -13,9 +13,9 @@ import pytest
 from hypothesis import example, assume, given, strategies as st
 
 from blendgen import geometry as g
-from blendgen.physics import optics as o
+from blendgen.physics.water import optics as o
 from blendgen.vehicle.dynamics import DT_MAX, Plant, check_dt
-from blendgen.physics.particles import MAX_PARTICLES, ParticleField
+from blendgen.physics.particles.field import MAX_PARTICLES, ParticleField
 from evalkit.metrics import core as metrics
 
 TINY = [0.0, 5e-324, 1e-300, 1e-12, float(np.nextafter(0.2, 0.0)), 0.2, float(np.nextafter(0.2, 1.0))]

@@ -14,7 +14,7 @@ import sys
 import numpy as np
 import pytest
 
-from blendgen.physics import optics
+from blendgen.physics.water import optics
 
 pytestmark = pytest.mark.blender
 

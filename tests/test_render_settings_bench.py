@@ -5,7 +5,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from blendgen.tools import render_settings as rs
+from blendgen.tools.bench import render_settings as rs
 
 
 def test_identical_images_give_zero_deltas():

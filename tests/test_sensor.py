@@ -5,7 +5,7 @@ import cv2
 import numpy as np
 import pytest
 
-from blendgen.physics import sensor as s
+from blendgen.physics.camera import sensor as s
 
 K = np.array([[500.0, 0.0, 319.5], [0.0, 500.0, 239.5], [0.0, 0.0, 1.0]])
 DIST = [-0.25, 0.08, 0.001, -0.0005, 0.01]

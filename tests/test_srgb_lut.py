@@ -1,7 +1,7 @@
 """The sRGB lookup equals the arithmetic encoder (it replaces it in SensorModel.apply)."""
 import numpy as np
 
-from blendgen.physics import sensor, srgb_lut
+from blendgen.physics.camera import sensor, srgb_lut
 
 
 def test_one_step_per_bucket():

@@ -5,7 +5,7 @@ import sys
 
 import pytest
 
-from blendgen.tools import suitebench as sb
+from blendgen.tools.bench import suitebench as sb
 
 
 def test_disk_counts_hard_links_once_and_splits_images(tmp_path):

@@ -1,4 +1,4 @@
-"""The one Lambertian point-light function (physics/surface_light.py) used by the LEDs (range-pass
+"""The one Lambertian point-light function (physics/light/surface_light.py) used by the LEDs (range-pass
 normals, 1/4 grid) and the vehicle lamp (normal pass, every pixel, shadows)."""
 import math
 
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from blendgen.geometry import intrinsics_from_hfov
-from blendgen.physics.lights import PointLight
-from blendgen.physics.surface_light import lambert_radiance
+from blendgen.physics.light.sources import PointLight
+from blendgen.physics.light.surface_light import lambert_radiance
 from blendgen.pipeline.compose import _unit_rays
 
 
@@ -68,10 +68,10 @@ def _normals_oracle(P):
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 def test_surface_normals_are_the_cross_product_of_the_grid(dtype):
-    """The compiled normals (physics/surface_kernels) against the law written with np.cross: a
+    """The compiled normals (physics/surface/kernels) against the law written with np.cross: a
     tilted wall (its exact normal inside), nan holes (0 around them), a curved patch (every
     orientation, turned toward the camera) and the one-sided borders; 1e-6."""
-    from blendgen.physics.surface_light import surface_normals
+    from blendgen.physics.light.surface_light import surface_normals
     rays, rng, n_wall = _tilted_wall(size=(40, 30))
     P = (rays * rng[..., None]).astype(dtype)
     got = surface_normals(P)

@@ -1,4 +1,4 @@
-"""The physical veil model (blendgen.physics.veil) and its calibration against Cycles references.
+"""The physical veil model (blendgen.physics.water.veil) and its calibration against Cycles references.
 
 Oracles: the beam term equals the analytic single-scatter formula (an independent
 implementation, optics.single_scatter_backscatter) and the Cycles 0-bounce medium stored
@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from blendgen.config.models import Water
-from blendgen.physics import optics, veil
-from blendgen.tools import veil_calibration as vc
+from blendgen.physics.water import optics, veil
+from blendgen.tools.calibration import veil as vc
 
 CAL = optics.load_calibration()
 VEIL = CAL.get("veil", {}).get("presets", {})

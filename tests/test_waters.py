@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 
 from blendgen.config.models import Condition, Dock, Experiment, Water
-from blendgen.physics import optics, turbidity, visibility, water_presets as wp
+from blendgen.physics.water import optics, turbidity, visibility, presets as wp
 from blendgen.vehicle import trajectories as tj
 
 # Band-mean beam attenuation c (1/m, R/G/B) of the Jerlov types, summed by hand from the
@@ -117,7 +117,7 @@ def test_manifest_records_the_water_used():
 
 
 def test_turbidity_ladder_is_reachable_and_spans_I_to_9C():
-    from blendgen.tools import reproduce, water_ladder
+    from blendgen.tools.apps import reproduce, water_ladder
     exp = reproduce.experiment("turbidity_ladder", 2)
     assert exp.image_formation == "physical" and exp.trials == 2
     labels = [c.label for c in exp.conditions]
@@ -136,7 +136,7 @@ def test_physical_depth_experiment_puts_the_dock_at_the_deepest_condition():
     """reproduce depth --mode physical: the dock's top 5 m deep, the 0 m condition's surface at
     the dock's top, every condition's surface inside the pool's walls (z <= 0)."""
     from blendgen.pipeline.plan import condition_post
-    from blendgen.tools import reproduce
+    from blendgen.tools.apps import reproduce
     exp = reproduce.experiment("depth", 1, "physical")
     assert exp.scene.dock.water_depth_m == 5.0
     top = tj.T_world_dock_from_spec(exp.scene.dock)[2, 3] + tj.dock_top_m(exp.scene.dock)
@@ -147,7 +147,7 @@ def test_physical_depth_experiment_puts_the_dock_at_the_deepest_condition():
 
 def test_closed_loop_refuses_a_start_box_out_of_the_water(tmp_path):
     from blendgen.config.models import ConfigError
-    from blendgen.tools.closed_loop import Bench
+    from blendgen.tools.apps.closed_loop import Bench
     exp = _exp(trajectories=[{"kind": "docking", "id": "d", "start": {"vertical_m": 5}}])
     with pytest.raises(ConfigError, match=r"trajectories\[0\]\.start\.vertical_m: 5.0 puts a start 3.50 m above "
                                           r"the water surface \('d'\); allowed vertical_m <= 1.50"):

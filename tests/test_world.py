@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from blendgen.config.models import Experiment, Water
-from blendgen.physics import surface as sf
+from blendgen.physics.surface import optics as sf
 from blendgen.pipeline import compose, plan
 from blendgen.pipeline.plan import SequencePost, WorldPost
 
@@ -96,7 +96,7 @@ def test_world_off_costs_nothing_and_changes_nothing(monkeypatch):
 def _floor_map(waves, depth_m: float, scattering: float = 0.0, size: int = 300, bin_m: float = 0.02,
                origin=(37.0, -20.0)) -> np.ndarray:
     """The fast caustic map (caustic_map.light_map) of a floor ``depth_m`` below, zenith sun."""
-    from blendgen.physics import caustic_map
+    from blendgen.physics.surface import caustic_map
     patch = caustic_map.Patch(origin[0], origin[1], bin_m, (size, size))
     return caustic_map.light_map(waves, patch, depth_m, 1.7, None, scattering, 0.9)
 
@@ -219,7 +219,7 @@ def _reference_up(tmp_path, depth=3.0, size=97, samples=16) -> np.ndarray:
             "water": None}
     p, out = tmp_path / "spec.json", tmp_path / "up.npy"
     p.write_text(json.dumps(spec))
-    subprocess.run([sys.executable, "-m", "blendgen.blender.surface_oracle", str(p), str(out)], check=True,
+    subprocess.run([sys.executable, "-m", "blendgen.blender.testing.surface_oracle", str(p), str(out)], check=True,
                    capture_output=True, timeout=300)
     return np.load(out)
 
@@ -248,7 +248,7 @@ def _albedo(tmp_path, seed: int) -> np.ndarray:
     import sys
     p, out = tmp_path / f"a{seed}.json", tmp_path / f"a{seed}.npy"
     p.write_text(json.dumps({"kind": "albedo", "size": 96, "height_m": 1.5, "seed": seed}))
-    subprocess.run([sys.executable, "-m", "blendgen.blender.surface_oracle", str(p), str(out)], check=True,
+    subprocess.run([sys.executable, "-m", "blendgen.blender.testing.surface_oracle", str(p), str(out)], check=True,
                    capture_output=True, timeout=300)
     return np.load(out)
 
@@ -448,7 +448,7 @@ def test_half_resolution_slopes_change_the_image_by_few_dn(monkeypatch):
     surface (3 m/s): after the 8-bit sRGB encode the mean change is < 0.3 DN, 99 % of pixels
     move <= 4 DN and < 0.5 % more than 10 DN (pixels at the window's edge, where a slope
     difference flips refraction into total reflection)."""
-    from blendgen.physics import sensor
+    from blendgen.physics.camera import sensor
     from blendgen.pipeline import world_post
     world = _world(wind=3.0)
     half = _pool_view(world)
@@ -464,7 +464,7 @@ def test_scattered_transfer_limits():
     """Small-angle transfer function of the scattered light: long waves keep their pattern
     (-> 1), short ones lose it (-> 0); more forward scattering keeps more; isotropic scattering
     keeps none; in the single-scattering limit it is (1 - exp(-a k h)) / (a k h) (analytic, 1e-3)."""
-    from blendgen.physics.caustic_map import scattered_transfer
+    from blendgen.physics.surface.caustic_map import scattered_transfer
     k = np.array([1e-4, 1.0, 10.0, 1e4])
     m = scattered_transfer(k, 2.0, 0.3, 0.9)
     assert m[0] == pytest.approx(1.0, abs=1e-3) and m[-1] < 1e-3 and np.all(np.diff(m) < 0)
@@ -514,7 +514,7 @@ def test_sun_disc_in_snells_window_fast_vs_reference(tmp_path, zenith_deg):
             "tilt_deg": math.degrees(zw), "sun": {"to_sun": to_sun, "irradiance": 3.0}}
     p, out = tmp_path / "spec.json", tmp_path / "sun.npy"
     p.write_text(json.dumps(spec))
-    subprocess.run([sys.executable, "-m", "blendgen.blender.surface_oracle", str(p), str(out)], check=True,
+    subprocess.run([sys.executable, "-m", "blendgen.blender.testing.surface_oracle", str(p), str(out)], check=True,
                    capture_output=True, timeout=300)
     ref = np.load(out)[..., 1]
     fast = _sun_disc_fast(to_sun, math.degrees(zw), size, hfov)
@@ -545,7 +545,7 @@ def test_rough_window_edge_same_waves_fast_and_reference(tmp_path):
             "tilt_deg": tilt, "wind_mps": 2.0, "wave_seed": 7}
     p, out = tmp_path / "spec.json", tmp_path / "up.npy"
     p.write_text(json.dumps(spec))
-    subprocess.run([sys.executable, "-m", "blendgen.blender.surface_oracle", str(p), str(out)], check=True,
+    subprocess.run([sys.executable, "-m", "blendgen.blender.testing.surface_oracle", str(p), str(out)], check=True,
                    capture_output=True, timeout=300)
     ref = np.load(out)[..., 1]
     f = size / 2 / math.tan(math.radians(hfov / 2))

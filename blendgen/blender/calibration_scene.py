@@ -7,7 +7,7 @@ job with persistent data. Each frame is written as an 8-bit sRGB grey PNG (what 
 dataset image is) and one line is appended to the job's ``frames.jsonl`` (the
 parent counts them for progress). Blender's own chatter goes to the job's log.
 
-JOB keys (written by :func:`blendgen.tools.calibration.write_job`):
+JOB keys (written by :func:`blendgen.tools.calibration.camera.write_job`):
 ``board``: {texture (PNG path, one pixel per cell), plate_size_m [w, h], black, white}
 (linear radiance of the dark and light cells); ``camera``: {width, height, hfov_rad};
 ``render``: {samples, threads, seed}; ``frames``: [{index, T_world_cam, path}];
@@ -44,7 +44,7 @@ def run(job: dict) -> dict:
     import cv2
     import numpy as np
 
-    from blendgen.physics import sensor
+    from blendgen.physics.camera import sensor
     from blendgen.blender import render
 
     t0 = time.perf_counter()

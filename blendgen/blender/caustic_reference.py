@@ -39,7 +39,7 @@ import math
 import os
 import sys
 
-from blendgen.physics.caustic_beam import OFFSET      # keeps the recorded positions positive
+from blendgen.physics.surface.caustic_beam import OFFSET      # keeps the recorded positions positive
 
 
 def _floor(depth: float, half: float):
@@ -95,7 +95,7 @@ def sun_travel(spec: dict):
     """The sun's travel direction in air (3,), zenith angle ``sun_zenith_deg`` (default 0),
     heading +x, and below a flat surface (``surface.refracted_sun``)."""
     import numpy as np
-    from blendgen.physics.surface import refracted_sun
+    from blendgen.physics.surface.optics import refracted_sun
     z = math.radians(float(spec.get("sun_zenith_deg", 0.0)))
     air = np.array([math.sin(z), 0.0, -math.cos(z)])
     return air, refracted_sun(air)

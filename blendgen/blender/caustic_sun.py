@@ -17,7 +17,7 @@ line. So:
    medium then attenuates and scatters the spot's light as it did the sun's); a refracted ray
    keeps weight 1 (Fresnel chooses reflection or refraction, the reflected ray leaves to a
    black sky), which :meth:`CausticSun.photons` checks.
-2. **Binning** (``physics/caustic_beam.py``) across the in-water beam, at the projective
+2. **Binning** (``physics/surface/caustic_beam.py``) across the in-water beam, at the projective
    coordinates the spot's light texture is looked up with (which also undo the spot's inverse
    square at the photon's receiver), over a flat surface's count: the plain sun's energy.
 3. **The spots**: ``D`` upstream of the grid's centre along the beam, power ``4 pi S D^2``
@@ -49,8 +49,8 @@ import numpy as np
 from blendgen.blender import render as rnd
 from blendgen.blender.photon_scene import add_absorber, add_recorders, photon_scene, sun_camera
 from blendgen.blender.world import _math
-from blendgen.physics import caustic_beam as cb, surface as sf
-from blendgen.physics.caustic_beam import D_SPOT, OFFSET, Grid
+from blendgen.physics.surface import caustic_beam as cb, optics as sf
+from blendgen.physics.surface.caustic_beam import D_SPOT, OFFSET, Grid
 
 RECEIVERS = ("pool_floor", "pool_walls", "dock_body", "seabed")
 def gobo_spot(sc: bpy.types.Scene, grid: Grid, strength: float) -> tuple[bpy.types.Object, bpy.types.Image]:

@@ -6,7 +6,7 @@ config lamps (:mod:`blendgen.blender.lamps`) parented to it, inside a water box
 (``plan.water_volume``-style ``water`` dict, or null for no medium), optionally facing a
 Lambertian ``card`` (a large plane at ``z_cam = distance_m`` of albedo ``albedo``) and
 optional Lambertian ``occluders`` in front of it (axis-aligned boxes in the camera frame, the
-lamp's shadow test, ``blendgen.tools.lamp_bench.shadow_table``), and nothing else (the world
+lamp's shadow test, ``blendgen.tools.bench.lamp_bench.shadow_table``), and nothing else (the world
 is black). OUT.npy holds the linear RGB (H, W, 3) float32.
 SPEC keys: ``water``, ``lamps`` (list of ``Lamp`` dicts), ``card`` ({distance_m, albedo} or
 null), ``occluders`` (optional list of {min, max (3,) camera frame m, albedo}), ``hfov_deg``,

@@ -9,11 +9,11 @@ the render uses).
 Units (bpy 5.x ``SpotLight.energy``: "the energy this light would emit over its entire area
 if it wasn't limited by the spot angle", W): a spot of energy ``E`` has the on-axis radiant
 intensity of a point light of that power, ``E / (4 pi)`` W/sr (measured: see
-``blendgen.tools.lamp_bench``), so the config's cone flux ``P`` maps to
-``E = 4 pi I0`` with ``I0 = P / (2 pi (1 - cos a))`` (``physics.lights.cone_intensity``).
+``blendgen.tools.bench.lamp_bench``), so the config's cone flux ``P`` maps to
+``E = 4 pi I0`` with ``I0 = P / (2 pi (1 - cos a))`` (``physics.light.sources.cone_intensity``).
 The soft edge: Cycles' spot mask is ``smoothstep((cos t - cos a) / ((1 - cos a) blend))``
 (kernel/light/spot.h), so ``blend = (cos(a - edge) - cos a) / (1 - cos a)`` puts the
-full-intensity cone at ``a - edge`` exactly as ``physics.lights.PointLight.profile`` does.
+full-intensity cone at ``a - edge`` exactly as ``physics.light.sources.PointLight.profile`` does.
 """
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ import bpy
 import numpy as np
 from mathutils import Vector
 
-from blendgen.physics.lights import blender_spot_blend, lamp_lights
+from blendgen.physics.light.sources import blender_spot_blend, lamp_lights
 
 
 def add_lamps(cam_obj: bpy.types.Object, lamps: list[dict]) -> list[bpy.types.Object]:

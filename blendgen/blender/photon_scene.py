@@ -12,8 +12,8 @@ import numpy as np
 
 from blendgen.blender import render as rnd
 from blendgen.blender.materials import _fresh
-from blendgen.physics import surface as sf
-from blendgen.physics.caustic_beam import OFFSET
+from blendgen.physics.surface import optics as sf
+from blendgen.physics.surface.caustic_beam import OFFSET
 
 
 @dataclass

@@ -117,7 +117,7 @@ def add_led_array(m: dict, T_world_dock, lights_scene: bool = False) -> None:
     """One flat emitting disc of radius ``led_radius_m`` per LED, centred on its keypoint
     in the marker plane, facing out of the dock: its image centroid is the projected
     keypoint (a dome would shift it under oblique views). Radiance ``m["radiance"]``
-    (``physics/leds.py``: intensity / (pi r^2)). ``lights_scene`` (reference fidelity):
+    (``physics/light/leds.py``: intensity / (pi r^2)). ``lights_scene`` (reference fidelity):
     the discs are lights (sampled, seen by scatter rays: they light the water and the
     surfaces in front of them); else camera-only (fast fidelity adds their light itself)."""
     v, f = disc(m["led_radius_m"])

@@ -20,7 +20,7 @@ import bpy
 import numpy as np
 
 from blendgen.blender.materials import _fresh
-from blendgen.physics.surface import N_WATER, waves_for
+from blendgen.physics.surface.optics import N_WATER, waves_for
 from blendgen.blender.meshes import mesh_object
 
 
@@ -213,7 +213,7 @@ def _math(nt, op: str, a, b, c=None):
 
 
 def _wave_height(nt, waves) -> "bpy.types.NodeSocket":
-    """Shader nodes of ``eta(x, y, t)`` (:class:`physics.surface.WaveField`, world = object
+    """Shader nodes of ``eta(x, y, t)`` (:class:`physics.surface.optics.WaveField`, world = object
     coordinates of the unrotated surface); time is the Value node ``wave_time`` (s), set per
     frame by :func:`set_wave_time`."""
     coord = nt.nodes.new("ShaderNodeTexCoord")
@@ -267,7 +267,7 @@ def world_sky_through_surface(world: bpy.types.World, sky_radiance: float, sun: 
 
 def _sun_disc_strength(nt, sun: dict, sky_radiance: float):
     """``n^2 (L_sky + L_sun [angle(ray, to_sun) < SUN_RADIUS_RAD])`` as a world-shader value."""
-    from blendgen.physics.surface import SUN_RADIUS_RAD
+    from blendgen.physics.surface.optics import SUN_RADIUS_RAD
     coord = nt.nodes.new("ShaderNodeTexCoord")                  # world: Generated = ray direction
     to_sun = np.asarray(sun["to_sun"], float)
     dot = nt.nodes.new("ShaderNodeVectorMath")

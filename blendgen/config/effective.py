@@ -15,8 +15,8 @@ from __future__ import annotations
 from typing import Any
 
 from blendgen.config.models import Experiment, Sensor
-from blendgen.physics import sensor as sensor_model
-from blendgen.physics.sensor import BLOOM_FRACTION     # its source: physics/sensor.py
+from blendgen.physics.camera import sensor as sensor_model
+from blendgen.physics.camera.sensor import BLOOM_FRACTION     # its source: physics/camera/sensor.py
 
 #: Diffuse sky irradiance as a fraction of the direct sun's on a horizontal plane (clear sky:
 #: about 0.1-0.3); our choice for the physical mode.
@@ -47,7 +47,7 @@ DERIVED_DEFAULTS = ("camera.sensor.exposure_s",)     # exposed for the dock's be
 def beacon_peak_radiance(exp: Experiment) -> float:
     """The brightest channel of the dock's LEDs (W m^-2 sr^-1): ``I c_k / (pi r^2)`` over every LED
     array's colour and reference colour; 0 without LEDs."""
-    from blendgen.physics.leds import led_radiance
+    from blendgen.physics.light.leds import led_radiance
     peak = 0.0
     for m in exp.scene.dock.markers:
         if m.kind == "led_array":
@@ -58,7 +58,7 @@ def beacon_peak_radiance(exp: Experiment) -> float:
 
 def beacon_exposure_s(exp: Experiment) -> float:
     """The exposure (s) that puts the brightest LED channel at 0.9 of the full well
-    (``physics.sensor.beacon_exposure_s``; a dock without LEDs: its fixed default)."""
+    (``physics.camera.sensor.beacon_exposure_s``; a dock without LEDs: its fixed default)."""
     s = exp.camera.sensor
     return sensor_model.beacon_exposure_s(beacon_peak_radiance(exp), s.full_well_e, s.responsivity_e_per_s)
 

@@ -98,7 +98,7 @@ class LedArray(Strict):
         0.1, gt=0.0, le=1e3,
         description="on-axis radiant intensity of each LED per unit colour weight (W/sr; channel k emits "
                     "intensity_w_sr * color[k]); a flat Lambertian disc of radiance I/(pi r^2) in both "
-                    "fidelities (physics/leds.py). 0.1 = the former strength 20 at r = 0.04 m")
+                    "fidelities (physics/light/leds.py). 0.1 = the former strength 20 at r = 0.04 m")
     center_m: Annotated[list[float], Field(min_length=2, max_length=2)] = [0.0, 0.0]
 
     @model_validator(mode="before")
@@ -113,7 +113,7 @@ class LedArray(Strict):
             s = data.pop("strength")
             if not isinstance(s, (int, float)) or isinstance(s, bool) or not (0 < s <= 1e5):
                 raise ValueError(f"strength (old key, radiance scale) must be a number in (0, 1e5], got {s!r}")
-            from blendgen.physics.leds import intensity_from_strength
+            from blendgen.physics.light.leds import intensity_from_strength
             data["intensity_w_sr"] = intensity_from_strength(s, float(data.get("led_radius_m", 0.04)))
         return data
 
@@ -209,7 +209,7 @@ class Dock(Strict):
 class WorldLook(Strict):
     """What surrounds the dock (docs/light.md): the water surface seen from below, textured pool
     and dock, caustics. ``null`` switches: on in ``physical`` mode, off in ``article`` mode
-    (which keeps the article's flat look). Physics: ``physics/surface.py``."""
+    (which keeps the article's flat look). Physics: ``physics/surface/optics.py``."""
     surface: Optional[bool] = Field(None, description="water surface seen from below (Snell's window, "
                                                        "total internal reflection outside it)")
     caustics: Optional[bool] = Field(None, description="sunlight focused by the surface waves on floor, "
@@ -254,7 +254,7 @@ class Scene(Strict):
 
 
 class AutoExposureConfig(Strict):
-    """Auto-exposure (``physics/sensor.AutoExposure``): meter the previous frame's brightest
+    """Auto-exposure (``physics/camera/sensor.AutoExposure``): meter the previous frame's brightest
     channel per pixel (``mean`` or a ``percentile``), aim it at ``target`` x full well, follow
     with time constant ``time_constant_s``, clamp to the exposure limits."""
     metering: Literal["mean", "percentile"] = Field(
@@ -282,13 +282,13 @@ class Sensor(Strict):
     Defaults: a Sony IMX264 pixel (3.45 um, Pregius 2nd generation) as the EMVA 1288 summaries of
     IMX264 cameras give it (Basler ace acA2440-20gm; Teledyne FLIR Blackfly S BFS-U3-50S5M), rounded:
     QE 70 % near 530 nm, temporal dark noise 2.3 e-, saturation capacity 10.5 ke-, dark current ~3 e-/s;
-    behind an f/2.8 lens that is 2.23e6 e-/s per W m^-2 sr^-1 (``physics/sensor.responsivity_e_per_s``).
+    behind an f/2.8 lens that is 2.23e6 e-/s per W m^-2 sr^-1 (``physics/camera/sensor.responsivity_e_per_s``).
     docs/camera.md has the derivations."""
     exposure_s: Optional[float] = Field(
         None, gt=0.0, le=1.0,
         description="exposure time (s); null: exposed for the dock's beacons, the brightest LED channel "
                     "(radiance I c_k / (pi r^2), the same at every range in clear water) at 0.9 of the full "
-                    "well (physics/sensor.beacon_exposure_s; 0.2 ms for the default LEDs); without LEDs "
+                    "well (physics/camera/sensor.beacon_exposure_s; 0.2 ms for the default LEDs); without LEDs "
                     "4000 e- per unit radiance (the former 4 ms at 1e6 e-/s)")
     responsivity_e_per_s: float = Field(
         2.23e6, gt=0.0, le=1e12, description="electrons per second per unit linear radiance of the render "
@@ -351,7 +351,7 @@ class Lamp(Strict):
     """A lamp on the vehicle (docs/LAMP.md): a spot of radiant flux ``power_w`` spread over a cone.
 
     Mounted at ``offset_m`` in the camera frame (OpenCV: x right, y down, z forward), aimed
-    ``yaw_deg`` right and ``pitch_deg`` down of the optical axis. Physics: ``physics/lights.py``."""
+    ``yaw_deg`` right and ``pitch_deg`` down of the optical axis. Physics: ``physics/light/sources.py``."""
     id: SafeId = "lamp"
     offset_m: Vec3 = Field([0.0, 0.3, 0.0], description="position in the camera frame (m)")
     yaw_deg: float = Field(0.0, ge=-90.0, le=90.0, description="aim right of the optical axis")
@@ -369,10 +369,10 @@ class Vehicle(Strict):
         0.85, ge=0.0, le=1.0,
         description="fast lamp model: share F of scattered lamp light a smooth light field keeps "
                     "(attenuation c - F b; 0 = single scattering as the 0-bounce reference renders; "
-                    "0.85 fitted to Cycles with 32 volume bounces, physics/lamp_water.py)")
+                    "0.85 fitted to Cycles with 32 volume bounces, physics/light/lamp_water.py)")
     lamp_shadows: bool = Field(
         True, description="fast lamp model: screen-space shadows of the lamps on surfaces (a march along "
-                          "each lit point's segment to the lamp in the range pass, physics/lamp_shadow.py); "
+                          "each lit point's segment to the lamp in the range pass, physics/light/lamp_shadow.py); "
                           "false: every surface sees the lamps (the reference always has shadows)")
 
 
@@ -451,22 +451,22 @@ class Water(Strict):
                                                 "light-field estimate")
     blur: bool = Field(False, description="fast fidelity: range-dependent forward-scatter blur")
     secchi_m: Optional[float] = Field(None, gt=0.0, le=1000.0, description="a Secchi depth reading (m): the water "
-                                      "between the Jerlov types of that clarity (physics/turbidity.py)")
+                                      "between the Jerlov types of that clarity (physics/water/turbidity.py)")
     ntu: Optional[float] = Field(None, gt=0.0, le=1e4, description="a nephelometric turbidity reading (NTU): "
-                                 "the water between the Jerlov types of that scattering (physics/turbidity.py)")
+                                 "the water between the Jerlov types of that scattering (physics/water/turbidity.py)")
     glow: bool = Field(True, description="fast fidelity: forward-scattered glow around the LEDs (small-angle "
-                                         "multiple scattering from sigma_s and g, physics/optics.py), in both "
+                                         "multiple scattering from sigma_s and g, physics/water/optics.py), in both "
                                          "modes (article: sigma_s = albedo * beta); false: none")
 
     @field_validator("preset", mode="before")
     @classmethod
     def _known_preset(cls, v):
-        from blendgen.physics.water_presets import preset_key
+        from blendgen.physics.water.presets import preset_key
         return preset_key(v)
 
     @model_validator(mode="after")
     def _consistent(self):
-        from blendgen.physics.water_presets import ARTICLE_BETAS
+        from blendgen.physics.water.presets import ARTICLE_BETAS
         for a, b in (("water_color", "B_inf"), ("k", "Kd"), ("beta", "sigma_a"), ("beta", "sigma_s")):
             if getattr(self, a) is not None and getattr(self, b) is not None:
                 raise ValueError(f"give either {a!r} or {b!r}, not both")
@@ -486,7 +486,7 @@ class Water(Strict):
             return self
         if len(given) > 1 or "preset" in self.model_fields_set or self.beta is not None:
             raise ValueError("give one of preset, secchi_m or ntu (a reading names the water)")
-        from blendgen.physics import turbidity
+        from blendgen.physics.water import turbidity
         kind = given[0]
         turbidity.water_from_reading(kind, getattr(self, kind))        # ValueError: the allowed range
         self.preset = f"jerlov_{turbidity.ladder_type(kind, getattr(self, kind))}"
@@ -589,7 +589,7 @@ class Occlusion(Strict):
     """Small obstacles / marine snow (the article's section 2.2.3, made physical: docs/particles.md):
     N_total particles in a region of volume V_env (default: the pool, 600 m^3 for 15x5x8),
     radii from ``size_dist`` in [r_min, r_max], drifting with the current plus Gaussian
-    noise, lit by the light field (physics/particle_optics.py)."""
+    noise, lit by the light field (physics/particles/optics.py)."""
     n_total: float = Field(600, ge=0.0, le=2e7)
     count_dist: Literal["poisson", "uniform", "fixed"] = "poisson"
     n_max: Optional[int] = Field(None, ge=0, le=20_000_000)
@@ -855,6 +855,6 @@ def load_experiment(path: str | Path) -> Experiment:
 
 def article_grey_spec(name: str) -> Water:
     """The water section of an article level's own grey water (``beta`` given), which the
-    ``physical`` mode keeps as is, with a Jerlov Kd (``physics.optics.water_for_mode``)."""
-    from blendgen.physics import water_presets
+    ``physical`` mode keeps as is, with a Jerlov Kd (``physics.water.optics.water_for_mode``)."""
+    from blendgen.physics.water import presets as water_presets
     return Water(preset=name, beta=water_presets.ARTICLE_BETAS[name])

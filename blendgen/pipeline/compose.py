@@ -21,9 +21,11 @@ import cv2
 import numpy as np
 
 from blendgen.geometry import planar_depth_to_range, project, transform_points
-from blendgen.physics import lamp_water, leds, optics, sensor
-from blendgen.physics import particles as occlusion
-from blendgen.physics.lights import lamp_lights
+from blendgen.physics.light import lamp_water, leds
+from blendgen.physics.water import optics
+from blendgen.physics.camera import sensor
+from blendgen.physics.particles import field as occlusion
+from blendgen.physics.light.sources import lamp_lights
 from blendgen.pipeline import groundtruth, particle_light
 from blendgen.pipeline.plan import INDEX_PARTICLES, SequencePost
 from datasets_spec.io import save_image
@@ -152,7 +154,7 @@ def surface_depth(range_m: np.ndarray, K: np.ndarray, T_world_cam, surface_z_m: 
 def led_light(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, markers: list[dict],
               T_world_dock) -> np.ndarray | None:
     """Fast fidelity, physical mode: radiance (H,W,3) the dock's LEDs put on the surfaces the
-    camera sees (``physics/leds.surface_radiance``), before the view path's attenuation; None
+    camera sees (``physics/light/leds.surface_radiance``), before the view path's attenuation; None
     (no cost) without LEDs, without the albedo pass, in article mode or when it is negligible."""
     arrays = [m for m in markers if m["kind"] == "led_array" and "intensity_w_sr" in m]
     if (not arrays or T_world_dock is None or "albedo" not in passes
@@ -256,7 +258,7 @@ def mirror_fill(rgb: np.ndarray, range_m: np.ndarray, depth, w: optics.WaterOpti
 def lamp_image(passes: dict, lamp: lamp_water.LampWater, K: np.ndarray, T_world_cam) -> np.ndarray:
     """Fast fidelity: what the vehicle's lamps add to the camera image (H, W, 3): lamp-lit
     surfaces (albedo pass, normal pass rotated into the camera frame) and the backscatter
-    veil (:mod:`blendgen.physics.lamp_water`)."""
+    veil (:mod:`blendgen.physics.light.lamp_water`)."""
     rng = passes["range_m"]
     h, w = rng.shape
     rays = _unit_rays(tuple(np.asarray(K, float).ravel()), w, h)

@@ -13,7 +13,7 @@ is built once (a persistent worker keeps the built scene while jobs share it), t
    :mod:`blendgen.pipeline.frameshare`); the PNG and one ``frames.jsonl`` line are written
    (the parent counts those lines for progress).
 
-The closed loop (:mod:`blendgen.tools.closed_loop`) runs steps 2 and 4 on passes from the
+The closed loop (:mod:`blendgen.tools.apps.closed_loop`) runs steps 2 and 4 on passes from the
 warm render server. Blender's own chatter on stdout is sent to the job's log file.
 """
 from __future__ import annotations

@@ -23,14 +23,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from blendgen.physics import lamp_water
-from blendgen.physics import lights as lt
-from blendgen.physics import optics
-from blendgen.physics import particle_kernels as kern
-from blendgen.physics import particle_light_kernels as plk
-from blendgen.physics import particle_optics as popt
-from blendgen.physics import sensor as sens
-from blendgen.physics.particles import ProjectedParticles
+from blendgen.physics.light import lamp_water
+from blendgen.physics.light import sources as lt
+from blendgen.physics.water import optics
+from blendgen.physics.particles import kernels as kern
+from blendgen.physics.particles import light_kernels as plk
+from blendgen.physics.particles import optics as popt
+from blendgen.physics.camera import sensor as sens
+from blendgen.physics.particles.field import ProjectedParticles
 
 
 def material(occ) -> popt.ParticleMaterial:
@@ -53,7 +53,7 @@ def _depth_gain(post, water, T_world_cam: np.ndarray, p: ProjectedParticles) -> 
 def shader(post, water, T_world_cam, markers=None, T_cam_dock=None, lamp=None):
     """Callable(projected) -> (M, 3) clean radiance of each particle (module doc). The lamps'
     light reaches a particle as it reaches a surface or the veil: through the sequence's lamp
-    model ``lamp`` (``physics/lamp_water.LampWater.beam``: direct + forward-scattered spread;
+    model ``lamp`` (``physics/light/lamp_water.LampWater.beam``: direct + forward-scattered spread;
     built from ``post`` when not given); the LEDs' with ``c``."""
     if lamp is None and post.lamps:
         lamp = lamp_water.LampWater.build(lt.lamp_lights(post.lamps), water, post.lamp_forward_kept)

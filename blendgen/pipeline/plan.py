@@ -23,7 +23,7 @@ from pydantic import Field, model_validator
 from blendgen import markers as mk
 
 from blendgen.pipeline import groundtruth, scene_check
-from blendgen.physics import surface as sf
+from blendgen.physics.surface import optics as sf
 from blendgen.vehicle import trajectories as tj
 from blendgen.config import effective as eff
 from blendgen.config.effective import SKY_FRACTION_PHYSICAL  # noqa: F401 - re-exported
@@ -48,7 +48,7 @@ class OcclusionPost(Occlusion):
 
 class WorldPost(Strict):
     """The surface and caustics of one sequence, resolved from ``scene.world`` (fast path:
-    ``pipeline/world_post.py``; physics: ``physics/surface.py``). Radiances W/m^2/sr."""
+    ``pipeline/world_post.py``; physics: ``physics/surface/optics.py``). Radiances W/m^2/sr."""
     surface: bool
     caustics: bool
     wind_mps: float
@@ -253,7 +253,7 @@ def ambient_radiance(exp: Experiment) -> float:
     """Mean radiance of the diffuse light field just below the surface (W/m^2/sr):
     ``E_d0 / (4 pi mu_d)`` (the same light field as the fast model's veil,
     ``optics.light_field_veil``); 0 when the ambient light is off."""
-    from blendgen.physics.optics import MEAN_COSINE_DOWN
+    from blendgen.physics.water.optics import MEAN_COSINE_DOWN
     return downwelling_irradiance(exp) / (4.0 * math.pi * MEAN_COSINE_DOWN) if ambient_on(exp) else 0.0
 
 
@@ -458,7 +458,7 @@ def condition_post(exp: Experiment, cond, seed: int) -> SequencePost:
         lo, hi = occlusion_region(exp, occ)
         occ_post = OcclusionPost(**occ.model_dump(exclude={"region_min", "region_max"}), region_min=lo,
                                  region_max=hi, v_flow=list(fluid.current_mps))
-    from blendgen.physics import optics
+    from blendgen.physics.water import optics
     water = cond.water or exp.water
     return SequencePost(seed=seed, fps=exp.camera.fps, image_formation=exp.image_formation,
                         water=water, water_effective=effective_water(water, exp.image_formation), light_depth_m=depth,
@@ -478,7 +478,7 @@ def effective_water(water: Water, mode: str) -> dict:
     """The manifest's record of a condition's water in an image formation: the coefficients
     used (1/m, R/G/B; ``B_inf`` before the veil model), ``c``, the preset they come from
     (in physical mode an article level is its Jerlov type) and their provenance."""
-    from blendgen.physics import optics
+    from blendgen.physics.water import optics
     w = optics.water_for_mode(water, mode)
     return {**w.to_dict(), "c": w.c.tolist(), "preset": optics.effective_preset(water, mode)}
 
@@ -581,7 +581,7 @@ def water_volume(exp: Experiment, post: SequencePost) -> dict | None:
     A box whose top face is the water surface (a World volume would kill sunlight).
     The surface sits ``light_depth_m`` above the dock, so a depth condition moves the
     surface, not the geometry, and the clean renders stay comparable."""
-    from blendgen.physics import optics
+    from blendgen.physics.water import optics
     w = optics.water_for_mode(post.water, post.image_formation)
     if w.is_clear:
         return None

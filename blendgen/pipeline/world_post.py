@@ -1,7 +1,7 @@
 """Fast fidelity: the water surface seen from below and caustics, in image space.
 
-Runs before the water model (:func:`blendgen.physics.optics.apply_water`), on the clean
-passes of one frame; physics in :mod:`blendgen.physics.surface`. Both steps are skipped
+Runs before the water model (:func:`blendgen.physics.water.optics.apply_water`), on the clean
+passes of one frame; physics in :mod:`blendgen.physics.surface.optics`. Both steps are skipped
 entirely when the sequence has them off (``SequencePost.world`` None or False).
 
 - Surface: a pixel whose ray points up meets the surface at ``r = (z_s - z_cam) / d_z``;
@@ -25,7 +25,7 @@ import math
 
 import numpy as np
 
-from blendgen.physics import caustic_map, surface as sf
+from blendgen.physics.surface import caustic_map, optics as sf
 
 
 @functools.lru_cache(maxsize=8)
@@ -130,7 +130,7 @@ def _mirror(start, d_refl, K, T, rgb, range_m, depth, pixels=None, max_m: float 
 
 def _march(start, d_refl, K, T, range_m, max_m: float):
     """``surface_kernels.reflect`` on rays (n, 3) from ``start`` along ``d_refl``: (pixel, distance) (n,)."""
-    from blendgen.physics.surface_kernels import reflect
+    from blendgen.physics.surface.kernels import reflect
     n = len(d_refl)
     pix, dist = np.empty(n, np.int64), np.empty(n, np.float64)
     reflect(np.ascontiguousarray(start, np.float64), np.ascontiguousarray(d_refl, np.float64),
@@ -143,7 +143,7 @@ def facing_normals(rays, range_m) -> np.ndarray:
     """(h, w, 3) float32 unit normals of the surface seen at each pixel, turned towards the
     camera (``surface_light.surface_normals`` of the camera-relative hit points); 0 where a
     neighbour is missing (object edges, open water)."""
-    from blendgen.physics.surface_light import surface_normals
+    from blendgen.physics.light.surface_light import surface_normals
     return surface_normals(np.asarray(rays, np.float32)
                            * np.where(np.isfinite(range_m), range_m, np.nan).astype(np.float32)[..., None])
 

@@ -1,0 +1,1 @@
+"""Blender probes and oracles run by the tests (python -m ...); not shipped in the wheel."""

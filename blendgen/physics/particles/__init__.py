@@ -1,0 +1,1 @@
+"""Small obstacles and marine snow: the field, its optics, the compiled splat (docs/particles.md)."""

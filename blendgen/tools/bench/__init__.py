@@ -1,0 +1,1 @@
+"""The `dockbench bench` commands: cost and fidelity of each stage against its reference."""

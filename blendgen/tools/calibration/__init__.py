@@ -1,0 +1,1 @@
+"""Calibrations: the camera check (Zhang) and the physical veil fit."""
