@@ -14,6 +14,7 @@ Conventions (docs/conventions.md, *must*):
 rot_x/y/z and rpy_to_R stay closed-form (they sit in the vehicle model's RK4 inner loop, where
 scipy's per-call overhead would double its cost); every other rotation goes through scipy.
 """
+
 from __future__ import annotations
 
 import math
@@ -22,7 +23,12 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from datasets_spec.geometry import (  # noqa: F401  (the format's transforms, re-exported for blendgen)
-    axis_angle_to_R, check_K, check_T, invert_T, make_T, rotation_angle,
+    axis_angle_to_R,
+    check_K,
+    check_T,
+    invert_T,
+    make_T,
+    rotation_angle,
 )
 
 # Rotation taking Blender-camera-frame vectors to OpenCV-camera-frame vectors.
@@ -81,8 +87,9 @@ def look_at_R(forward, up_hint=(0.0, 0.0, 1.0)) -> np.ndarray:
     return np.column_stack([x, y, z])
 
 
-def intrinsics_from_hfov(width: int, height: int, hfov_rad: float,
-                         shift_x: float = 0.0, shift_y: float = 0.0) -> np.ndarray:
+def intrinsics_from_hfov(
+    width: int, height: int, hfov_rad: float, shift_x: float = 0.0, shift_y: float = 0.0
+) -> np.ndarray:
     """K (3x3) that Blender renders for a perspective camera with horizontal sensor fit.
 
     ``fx = (W/2) / tan(hfov/2)`` (equivalently lens_mm * W / sensor_width_mm),

@@ -11,6 +11,7 @@ the textured plane spans ``plane_size_m`` = size_m * cells_total / cells_code,
 so the code's corners land exactly on the keypoints when the texture is sampled
 with nearest-neighbour interpolation.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -22,13 +23,14 @@ import numpy as np
 from blendgen.geometry import make_T
 from blendgen.physics.light.leds import led_radiance
 
-QR_QUIET_MODULES = 4      # ISO/IEC 18004 default (config: quiet_zone_modules)
-ARUCO_QUIET_CELLS = 1     # default white margin of ArUco/AprilTag, in cells
+QR_QUIET_MODULES = 4  # ISO/IEC 18004 default (config: quiet_zone_modules)
+ARUCO_QUIET_CELLS = 1  # default white margin of ArUco/AprilTag, in cells
 
 
 @dataclass(frozen=True)
 class MarkerTexture:
     """Texture cells (H,W) uint8 (0 black, 255 white) and the plate's physical side (m)."""
+
     cells: np.ndarray
     plane_size_m: float
 
@@ -73,19 +75,23 @@ def led_pattern_problem(spec) -> str:
     refs = set(spec.reference_indices)
     ring = [int(i in refs) for i in order]
     if any(ring[k:] + ring[:k] == ring for k in range(1, len(ring))):
-        return (f"reference LEDs {sorted(refs)} make a rotationally symmetric colour pattern around the array; "
-                "the LED order would be ambiguous")
+        return (
+            f"reference LEDs {sorted(refs)} make a rotationally symmetric colour pattern around the array; "
+            "the LED order would be ambiguous"
+        )
     return ""
 
 
 def make_qr(payload: str, error_correction: str = "M"):
     """The segno QR code of ``payload`` (smallest version at the given level, no boost)."""
     import segno
+
     return segno.make_qr(payload, error=error_correction.lower(), boost_error=False)
 
 
-def qr_texture(payload: str, size_m: float, error_correction: str = "M",
-               quiet_modules: int = QR_QUIET_MODULES) -> MarkerTexture:
+def qr_texture(
+    payload: str, size_m: float, error_correction: str = "M", quiet_modules: int = QR_QUIET_MODULES
+) -> MarkerTexture:
     """QR code cells via segno (smallest version that fits at ``error_correction``) with a
     white quiet zone of ``quiet_modules`` modules."""
     code = np.array(make_qr(payload, error_correction).matrix, dtype=np.uint8)  # 1 = dark
@@ -99,12 +105,19 @@ def qr_description(spec) -> dict:
     module size (m) and quiet zone (modules)."""
     qr = make_qr(spec.payload, spec.error_correction)
     n = 17 + 4 * int(qr.version)
-    return {"payload": spec.payload, "qr_version": int(qr.version), "error_correction": str(qr.error),
-            "modules": n, "module_size_m": spec.size_m / n, "quiet_zone_modules": int(spec.quiet_zone_modules)}
+    return {
+        "payload": spec.payload,
+        "qr_version": int(qr.version),
+        "error_correction": str(qr.error),
+        "modules": n,
+        "module_size_m": spec.size_m / n,
+        "quiet_zone_modules": int(spec.quiet_zone_modules),
+    }
 
 
-def aruco_texture(dictionary: str, marker_id: int, size_m: float,
-                  quiet_cells: int = ARUCO_QUIET_CELLS) -> MarkerTexture:
+def aruco_texture(
+    dictionary: str, marker_id: int, size_m: float, quiet_cells: int = ARUCO_QUIET_CELLS
+) -> MarkerTexture:
     """ArUco/AprilTag cells from OpenCV's dictionary, with a white quiet zone of ``quiet_cells``."""
     d = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary))
     n = d.markerSize + 2  # black border included in size_m
@@ -125,18 +138,25 @@ def manifest_marker(spec) -> dict:
         local = led_positions(spec)
         refs = spec.reference_indices
         colors = [list(spec.reference_color if i in refs else spec.color) for i in range(len(local))]
-        extra = {"led_radius_m": spec.led_radius_m, "colors": colors, "reference_index": refs[0],
-                 "reference_indices": refs, "layout": spec.layout, "size_m": spec.size_m,
-                 "intensity_w_sr": spec.intensity_w_sr,
-                 "radiance": [led_radiance(spec.intensity_w_sr, c, spec.led_radius_m) for c in colors]}
+        extra = {
+            "led_radius_m": spec.led_radius_m,
+            "colors": colors,
+            "reference_index": refs[0],
+            "reference_indices": refs,
+            "layout": spec.layout,
+            "size_m": spec.size_m,
+            "intensity_w_sr": spec.intensity_w_sr,
+            "radiance": [led_radiance(spec.intensity_w_sr, c, spec.led_radius_m) for c in colors],
+        }
     else:
         local = square_corners(spec.size_m)
         extra = {"size_m": spec.size_m}
         if spec.kind == "qr":
             extra.update(qr_description(spec))
         else:
-            extra.update(dictionary=spec.dictionary, marker_id=spec.marker_id,
-                         quiet_zone_modules=int(spec.quiet_zone_modules))
+            extra.update(
+                dictionary=spec.dictionary, marker_id=spec.marker_id, quiet_zone_modules=int(spec.quiet_zone_modules)
+            )
     kp = local @ T[:3, :3].T + T[:3, 3]
     return {"id": spec.id, "kind": spec.kind, "T_dock_marker": T.tolist(), "keypoints": kp.tolist(), **extra}
 

@@ -14,9 +14,10 @@ the bytes it had as plain data (field order = the planner's key order).
 Units: metres, seconds, radians unless a name says otherwise; colours linear RGB; poses 4x4
 row-major lists (OpenCV camera: x right, y down, z forward).
 """
+
 from __future__ import annotations
 
-from typing import Annotated, ClassVar, Literal, Optional, Union
+from typing import Annotated, ClassVar, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_serializer
 
@@ -27,6 +28,7 @@ Matrix = list[list[float]]
 
 class Record(BaseModel):
     """Strict plain data; the fields named in ``OPTIONAL_KEYS`` are dumped only when given."""
+
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     OPTIONAL_KEYS: ClassVar[frozenset[str]] = frozenset()
 
@@ -41,6 +43,7 @@ class Record(BaseModel):
 # -- markers: the manifest entry plus what the renderer needs -----------------------------
 class _MarkerBase(Record):
     """Fields in the manifest's key order: id, kind, T_dock_marker, keypoints, then the kind's."""
+
     OPTIONAL_KEYS: ClassVar[frozenset[str]] = frozenset({"texture"})
 
 
@@ -58,7 +61,7 @@ class LedArrayMarker(_MarkerBase):
     intensity_w_sr: float
     radiance: list[list[float]] = Field(description="W/m^2/sr per LED (3 channels)")
     object_index: int
-    texture: Optional[str] = None
+    texture: str | None = None
 
 
 class QrMarker(_MarkerBase):
@@ -75,7 +78,7 @@ class QrMarker(_MarkerBase):
     quiet_zone_modules: int
     object_index: int
     plate_size_m: float
-    texture: Optional[str] = None
+    texture: str | None = None
 
 
 class SquareMarker(_MarkerBase):
@@ -89,10 +92,10 @@ class SquareMarker(_MarkerBase):
     quiet_zone_modules: int
     object_index: int
     plate_size_m: float
-    texture: Optional[str] = None
+    texture: str | None = None
 
 
-Marker = Annotated[Union[LedArrayMarker, QrMarker, SquareMarker], Field(discriminator="kind")]
+Marker = Annotated[LedArrayMarker | QrMarker | SquareMarker, Field(discriminator="kind")]
 
 
 # -- the scene -------------------------------------------------------------------------------
@@ -130,6 +133,7 @@ class WorldLookRecord(Record):
 
 class WaterVolume(Record):
     """Reference fidelity: the medium box (its top face is the water surface)."""
+
     sigma_a: Vec3
     sigma_s: Vec3
     phase: str
@@ -155,6 +159,7 @@ class CausticsRecord(Record):
 
 class WaterSurface(Record):
     """Reference fidelity: the refracting surface (``plan.water_surface``)."""
+
     OPTIONAL_KEYS: ClassVar[frozenset[str]] = frozenset({"caustics"})
     z: float
     centre_xy: list[float]
@@ -162,12 +167,13 @@ class WaterSurface(Record):
     sky_radiance: float
     wind_mps: float
     wave_seed: int
-    sun: Optional[SurfaceSun]
-    caustics: Optional[CausticsRecord] = None
+    sun: SurfaceSun | None
+    caustics: CausticsRecord | None = None
 
 
 class ParticlesRecord(Occlusion):
     """Real-geometry particles (validation mode): the sequence's occlusion and its seed."""
+
     region_min: Vec3
     region_max: Vec3
     v_flow: Vec3
@@ -178,9 +184,11 @@ class ParticlesRecord(Occlusion):
 
 class RenderScene(Record):
     """The scene the renderer builds (``plan.scene_description`` plus the per-job water)."""
+
     OPTIONAL_KEYS: ClassVar[frozenset[str]] = frozenset(
-        {"lamps", "water_volume", "led_lights", "water_surface", "particles"})
-    pool: Optional[Pool]
+        {"lamps", "water_volume", "led_lights", "water_surface", "particles"}
+    )
+    pool: Pool | None
     dock: DockBody
     markers: list[Marker]
     obstacles: list[ObstacleRecord]
@@ -188,17 +196,18 @@ class RenderScene(Record):
     sun: DirectionalLight
     fill: DirectionalLight
     world_color: Vec3
-    sky: Optional[SkyRecord]
+    sky: SkyRecord | None
     world: WorldLookRecord
-    lamps: Optional[list[Lamp]] = None
-    water_volume: Optional[WaterVolume] = None
-    led_lights: Optional[bool] = None
-    water_surface: Optional[WaterSurface] = None
-    particles: Optional[ParticlesRecord] = None
+    lamps: list[Lamp] | None = None
+    water_volume: WaterVolume | None = None
+    led_lights: bool | None = None
+    water_surface: WaterSurface | None = None
+    particles: ParticlesRecord | None = None
 
 
 class RenderSettings(Record):
     """Cycles settings of one job (``plan.render_settings``)."""
+
     OPTIONAL_KEYS: ClassVar[frozenset[str]] = frozenset({"normal_pass", "sun_pass"})
     samples: int
     threads: int
@@ -216,22 +225,23 @@ class RenderSettings(Record):
     background_samples: int
     roi_max_fraction: float
     light_tree: bool
-    normal_pass: Optional[bool] = None
-    sun_pass: Optional[bool] = None
+    normal_pass: bool | None = None
+    sun_pass: bool | None = None
 
 
 class FramePlan(Record):
     """One planned frame: sample ``index`` of the path at time ``t`` (s), the pose it is rendered
     at, and where samples go (``roi``: one box around the dock; ``rois``: per-marker boxes,
     (x0, y0, x1, y1) px, end-exclusive); ``blur_px`` the dock's image motion over the exposure."""
+
     OPTIONAL_KEYS: ClassVar[frozenset[str]] = frozenset({"blur_px", "roi", "rois"})
     index: int
     t: float
     t_pose: float
     T_world_cam: Matrix
-    blur_px: Optional[list[float]] = None
-    roi: Optional[list[int]] = None
-    rois: Optional[list[list[int]]] = None
+    blur_px: list[float] | None = None
+    roi: list[int] | None = None
+    rois: list[list[int]] | None = None
 
     def plain(self) -> dict:
         """The frame as the plain dict the image-space stages read (given keys only)."""

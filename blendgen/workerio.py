@@ -4,6 +4,7 @@ to a log file, JSON-line replies on the process's original stdout, resident memo
 Shared by the dataset worker (:mod:`blendgen.pipeline.frameloop`), the warm render server
 (:mod:`blendgen.blender.serve`) and the calibration worker.
 """
+
 from __future__ import annotations
 
 import json

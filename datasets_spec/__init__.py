@@ -6,7 +6,18 @@
 
 Never imports bpy, blendgen or evalkit.
 """
+
 from datasets_spec.io import (  # noqa: F401
-    DEFAULT_D_MIN_REL_M, FORMAT_NAME, MANIFEST, SPEC_VERSION, SUPPORTED_SPEC_VERSIONS, DatasetError,
-    content_hash, dataset_files, load_manifest, load_schema, save_json_atomic, sha256_file,
+    DEFAULT_D_MIN_REL_M,
+    FORMAT_NAME,
+    MANIFEST,
+    SPEC_VERSION,
+    SUPPORTED_SPEC_VERSIONS,
+    DatasetError,
+    content_hash,
+    dataset_files,
+    load_manifest,
+    load_schema,
+    save_json_atomic,
+    sha256_file,
 )

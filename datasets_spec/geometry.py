@@ -5,6 +5,7 @@ metres and radians; K is the 3x3 OpenCV pinhole matrix with pixel centres at int
 Rotations go through :class:`scipy.spatial.transform.Rotation` (maintained, vectorised,
 numerically careful near 0 and pi) rather than hand-written formulas.
 """
+
 from __future__ import annotations
 
 import numpy as np

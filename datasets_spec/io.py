@@ -6,31 +6,44 @@ and :func:`save_index`; readers use :func:`load_manifest`, :func:`iter_frames`,
 :func:`load_range` and :func:`load_index`; both hash with :func:`sha256_file` and
 :func:`content_hash`.
 """
+
 from __future__ import annotations
 
 import hashlib
 import json
 import os
+from collections.abc import Iterator
 from importlib import resources
 from pathlib import Path
-from typing import IO, Iterator
+from typing import IO
 
-from datasets_spec.validate import (MAX_JSON_LINE_BYTES, MAX_MANIFEST_BYTES, RELPATH, RELPATH_RULE, ContentError, camera_problem,
-                                    check_frame_record, image_problem, load_schema, loads_bounded, non_finite_key,
-                                    png_header,
-                                    schema_message)
+from datasets_spec.validate import (
+    MAX_JSON_LINE_BYTES,
+    MAX_MANIFEST_BYTES,
+    RELPATH,
+    RELPATH_RULE,
+    ContentError,
+    camera_problem,
+    check_frame_record,
+    image_problem,
+    load_schema,
+    loads_bounded,
+    non_finite_key,
+    png_header,
+    schema_message,
+)
 
 FORMAT_NAME = "dockbench-dataset"
 SPEC_VERSION = "1.1"
-SUPPORTED_SPEC_VERSIONS = ("1.0", SPEC_VERSION)   # 1.0: range as float32 NPZ, passes per sequence
+SUPPORTED_SPEC_VERSIONS = ("1.0", SPEC_VERSION)  # 1.0: range as float32 NPZ, passes per sequence
 MANIFEST = "manifest.json"
 FRAMES = "frames.jsonl"
 DEFAULT_D_MIN_REL_M = 0.2
-RENDERS = "renders"                 # 1.1: passes of one render, shared by every sequence it feeds
-RANGE_UNIT_M = 0.001                # 1.1 range PNG: one uint16 unit = 1 mm
-RANGE_MAX_UNITS = 65534             # largest stored range (65.534 m); 0 = no surface or farther
-PNG_FAST = 1                        # zlib level of written PNGs (measured: level 1 costs 5 ms, 71 kB
-                                    # per 640x480 range map; level 6 18 ms, 42 kB)
+RENDERS = "renders"  # 1.1: passes of one render, shared by every sequence it feeds
+RANGE_UNIT_M = 0.001  # 1.1 range PNG: one uint16 unit = 1 mm
+RANGE_MAX_UNITS = 65534  # largest stored range (65.534 m); 0 = no surface or farther
+PNG_FAST = 1  # zlib level of written PNGs (measured: level 1 costs 5 ms, 71 kB
+# per 640x480 range map; level 6 18 ms, 42 kB)
 # One PNG row filter (Up) instead of libpng's per-row trial of all five: the trial, not zlib,
 # costs most of an encode (level 0 takes as long as level 1). Measured with cv2.imencode at
 # level 1 on suite frames (640x480): camera image 4.97 -> 1.56 ms, 9 kB either way; range map
@@ -40,6 +53,7 @@ PNG_FAST = 1                        # zlib level of written PNGs (measured: leve
 def png_params() -> list[int]:
     """cv2.imwrite parameters of every PNG the dataset writes (zlib level, one row filter)."""
     import cv2
+
     return [cv2.IMWRITE_PNG_COMPRESSION, PNG_FAST, cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_UP]
 
 
@@ -72,6 +86,7 @@ def pixel_sha256(pixels) -> str:
     checked this way against the PNG a later ``generate`` writes, once that PNG is decoded
     (camera image: HxWx3 uint8 RGB, as :meth:`evalkit.dataset.Dataset.load_image` returns)."""
     import numpy as np
+
     a = np.ascontiguousarray(pixels)
     h = hashlib.sha256(f"{PIXELS_TAG} {a.dtype.str} {'x'.join(map(str, a.shape))}\n".encode())
     h.update(memoryview(a).cast("B"))
@@ -89,6 +104,7 @@ def save_raw_image(png: Path, rgb) -> None:
     """(H,W,3) uint8 RGB as raw ``.npy`` at :func:`raw_image_path` (no PNG encode: ~0.3 ms
     instead of ~1.6 ms at 640x480; deleted once evaluated)."""
     import numpy as np
+
     path = raw_image_path(png)
     with open(path, "wb") as fh:
         np.save(fh, np.ascontiguousarray(rgb), allow_pickle=False)
@@ -97,6 +113,7 @@ def save_raw_image(png: Path, rgb) -> None:
 def load_raw_image(path: Path, height: int, width: int):
     """The (H,W,3) uint8 RGB written by :func:`save_raw_image`; DatasetError if it is not one."""
     import numpy as np
+
     try:
         a = np.load(path, allow_pickle=False)
     except (OSError, ValueError) as exc:
@@ -132,9 +149,11 @@ def path_inside(root: Path, rel: str | Path, what: str = "path") -> Path:
         raise DatasetError(f"{root}: {what} {rel_s!r} contains a NUL byte")
     target = (base / rel_s).resolve()
     if Path(rel_s).is_absolute() or os.path.commonpath([base, target]) != str(base):
-        raise DatasetError(f"{Path(root) / rel_s}: {what} {rel_s!r} resolves to {target}, outside the "
-                           f"dataset folder {base}; allowed: a relative path inside it (no '..', "
-                           "no symlink leaving it)")
+        raise DatasetError(
+            f"{Path(root) / rel_s}: {what} {rel_s!r} resolves to {target}, outside the "
+            f"dataset folder {base}; allowed: a relative path inside it (no '..', "
+            "no symlink leaving it)"
+        )
     return target
 
 
@@ -147,6 +166,7 @@ def doc_path(name: str) -> Path:
 def check_schema(obj: dict, schema_name: str, where: str) -> None:
     """Validate ``obj`` against a bundled schema; the first problem names its key path."""
     import jsonschema
+
     validator = jsonschema.Draft202012Validator(load_schema(schema_name))
     err = jsonschema.exceptions.best_match(validator.iter_errors(obj))
     if err is not None:
@@ -170,13 +190,15 @@ def save_json_atomic(path: Path, obj) -> None:
 def _read_regular(root: Path, rel: str, what: str, max_bytes: int) -> bytes:
     """Bytes of ``root/rel``: proven inside ``root``, a regular file, at most ``max_bytes``."""
     import stat
+
     path = path_inside(root, rel, what)
     st = path.stat()
     if not stat.S_ISREG(st.st_mode):
         raise DatasetError(f"{Path(root) / rel}: {what} is not a regular file")
     if st.st_size > max_bytes:
-        raise DatasetError(f"{Path(root) / rel}: {what} is {st.st_size / 2**20:.0f} MiB; "
-                           f"allowed: up to {max_bytes >> 20} MiB")
+        raise DatasetError(
+            f"{Path(root) / rel}: {what} is {st.st_size / 2**20:.0f} MiB; allowed: up to {max_bytes >> 20} MiB"
+        )
     with open(path, "rb") as fh:
         return fh.read(max_bytes + 1)
 
@@ -189,8 +211,7 @@ def load_manifest(root: Path) -> dict:
     if not path.is_file():
         raise DatasetError(f"{path}: missing manifest (dataset incomplete or not a dockbench dataset)")
     try:
-        manifest = loads_bounded(_read_regular(Path(root), MANIFEST, "manifest", MAX_MANIFEST_BYTES)
-                                 .decode("utf-8"))
+        manifest = loads_bounded(_read_regular(Path(root), MANIFEST, "manifest", MAX_MANIFEST_BYTES).decode("utf-8"))
     except UnicodeDecodeError as exc:
         raise DatasetError(f"{path}: invalid JSON: not UTF-8 ({exc.reason} at byte {exc.start})") from None
     except ContentError as exc:
@@ -198,18 +219,20 @@ def load_manifest(root: Path) -> dict:
     if not isinstance(manifest, dict):
         raise DatasetError(f"{path}: top level must be a JSON object")
     if manifest.get("format") != FORMAT_NAME:
-        raise DatasetError(f"{path}: \"format\" is {manifest.get('format')!r}, expected {FORMAT_NAME!r}")
+        raise DatasetError(f'{path}: "format" is {manifest.get("format")!r}, expected {FORMAT_NAME!r}')
     version = manifest.get("spec_version")
     if version not in SUPPORTED_SPEC_VERSIONS:
-        raise DatasetError(f"{path}: unsupported \"spec_version\" {version!r}; "
-                           f"supported: {', '.join(SUPPORTED_SPEC_VERSIONS)}")
+        raise DatasetError(
+            f'{path}: unsupported "spec_version" {version!r}; supported: {", ".join(SUPPORTED_SPEC_VERSIONS)}'
+        )
     for key in ("camera", "sequences"):
         if key not in manifest:
             raise DatasetError(f"{path}: missing key {key!r}")
     check_schema(manifest, "manifest.schema.json", str(path))
     if manifest["sequences"] == []:
-        raise DatasetError(f"{path}: \"sequences\" is empty (a dataset holds at least one sequence); "
-                           "nothing to evaluate or export")
+        raise DatasetError(
+            f'{path}: "sequences" is empty (a dataset holds at least one sequence); nothing to evaluate or export'
+        )
     problem = camera_problem(manifest["camera"])
     bad = non_finite_key(manifest)
     if bad and not problem:
@@ -222,12 +245,14 @@ def load_manifest(root: Path) -> dict:
 # -- per-frame files -------------------------------------------------------
 def _imwrite(path: Path, img, what: str) -> None:
     import cv2
+
     if not cv2.imwrite(str(path), img, png_params()):
         raise OSError(f"{path}: could not write the {what} PNG")
 
 
 def _imread(path: Path, flags: int | None = None):
     import cv2
+
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED if flags is None else flags)
     if img is None:
         raise DatasetError(f"{path}: missing or unreadable image")
@@ -237,6 +262,7 @@ def _imread(path: Path, flags: int | None = None):
 def save_image(path: Path, rgb) -> None:
     """The camera image (H,W,3) uint8 RGB as an 8-bit sRGB PNG."""
     import cv2
+
     _imwrite(path, cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), "image")
 
 
@@ -244,6 +270,7 @@ def range_to_units(range_m):
     """Range (H,W) metres (inf/NaN = no surface) -> (H,W) uint16 millimetres of the 1.1 range PNG:
     ``round(range_m / 0.001)``; 0 for no surface, non-finite, < 0.5 mm or beyond 65.534 m."""
     import numpy as np
+
     r = np.asarray(range_m, dtype=np.float64)
     units = np.rint(np.where(np.isfinite(r), r, 0.0) / RANGE_UNIT_M)
     units[(units < 1) | (units > RANGE_MAX_UNITS)] = 0
@@ -260,6 +287,7 @@ def load_range(path: Path):
     """(H,W) float32 range in metres along each ray, inf = no surface. Reads the 1.1 uint16
     millimetre PNG and the 1.0 ``range_m`` float32 NPZ."""
     import numpy as np
+
     path = Path(path)
     if path.suffix == ".npz":
         try:
@@ -318,8 +346,10 @@ def _bounded_lines(fh: IO[bytes], path: Path) -> Iterator[tuple[int, bytes]]:
             return
         lineno += 1
         if len(line) > MAX_JSON_LINE_BYTES:
-            raise DatasetError(f"{path}:{lineno}: line longer than {MAX_JSON_LINE_BYTES >> 20} MiB "
-                               "(allowed: one frame record of a few kB per line)")
+            raise DatasetError(
+                f"{path}:{lineno}: line longer than {MAX_JSON_LINE_BYTES >> 20} MiB "
+                "(allowed: one frame record of a few kB per line)"
+            )
         yield lineno, line
 
 
@@ -328,6 +358,7 @@ def iter_frames(path: Path, root: Path | None = None) -> Iterator[dict]:
     frame.schema.json; frame indices must be unique. With ``root`` (the dataset folder)
     the file is proven to lie inside it (no symlink out, a regular file)."""
     import stat
+
     if root is not None:
         path_inside(root, os.path.relpath(path, root), "frames file")
     if not path.is_file():
@@ -349,8 +380,10 @@ def iter_frames(path: Path, root: Path | None = None) -> Iterator[dict]:
                 raise DatasetError(f"{path}:{lineno}: frame must be a JSON object")
             check_frame(frame, f"{path}:{lineno}")
             if frame["index"] in seen:
-                raise DatasetError(f"{path}:{lineno}: index: frame index {frame['index']} repeats line "
-                                   f"{seen[frame['index']]} (allowed: each index once per sequence)")
+                raise DatasetError(
+                    f"{path}:{lineno}: index: frame index {frame['index']} repeats line "
+                    f"{seen[frame['index']]} (allowed: each index once per sequence)"
+                )
             seen[frame["index"]] = lineno
             yield frame
 
@@ -388,7 +421,7 @@ def verify(root: Path) -> list[str]:
                 for key in ("image", "depth", "object_index"):
                     if key in frame:
                         path_inside(root, frame[key], key)
-                if (root / frame["image"]).is_file():       # a missing one is reported below
+                if (root / frame["image"]).is_file():  # a missing one is reported below
                     try:
                         check_image_header(root, frame, manifest["camera"])
                     except DatasetError as exc:

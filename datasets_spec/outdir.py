@@ -20,6 +20,7 @@ export-bop, dock, bench, calibrate*), its lock, and its temporary siblings.
 Errors are :class:`OutDirError` (a ``FileExistsError``: the CLI prints it on one line and
 exits 2). Only the standard library is imported here (datasets_spec: shared by generate and evaluate).
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -27,13 +28,13 @@ import json
 import os
 import shutil
 import sys
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator
 
 MARKER = ".dockbench-out.json"
 DATASET_MANIFEST = "manifest.json"
 DATASET_FORMAT = "dockbench-dataset"
-GENERATE_STAMP = (".work", "config.sha256")      # a dataset generate is writing (or was)
+GENERATE_STAMP = (".work", "config.sha256")  # a dataset generate is writing (or was)
 PSEUDO_FS = ("/proc", "/sys", "/dev")
 
 
@@ -61,8 +62,9 @@ def check_location(out: Path) -> None:
     if target == top and (top / "pyproject.toml").is_file():
         inside = [top]
     if inside:
-        raise OutDirError(f"-o {out}: inside dockbench's source tree ({inside[0]}); "
-                          "choose a folder outside it, e.g. out/NAME")
+        raise OutDirError(
+            f"-o {out}: inside dockbench's source tree ({inside[0]}); choose a folder outside it, e.g. out/NAME"
+        )
     for fs in PSEUDO_FS:
         if target == Path(fs) or Path(fs) in target.parents:
             raise OutDirError(f"-o {out}: under {fs}, a kernel pseudo file system; choose a folder on a disk")
@@ -107,8 +109,10 @@ def refuse_dataset(out: Path, command: str) -> None:
     if ds is None or (command == "generate" and ds == Path(out).resolve()):
         return
     where = "is the dataset" if ds == Path(out).resolve() else f"is inside the dataset {ds}"
-    raise OutDirError(f"-o {out}: {where}; dockbench {command} never writes into a dataset "
-                      "(it would no longer verify); choose a folder outside it")
+    raise OutDirError(
+        f"-o {out}: {where}; dockbench {command} never writes into a dataset "
+        "(it would no longer verify); choose a folder outside it"
+    )
 
 
 # -- whose ---------------------------------------------------------------------
@@ -117,7 +121,7 @@ def owner(out: Path) -> str | None:
     try:
         data = json.loads((Path(out) / MARKER).read_text(encoding="utf-8"))
     except (OSError, ValueError, RecursionError):
-        return "run" if (Path(out) / ".stream").is_dir() else None     # a run folder of an older version
+        return "run" if (Path(out) / ".stream").is_dir() else None  # a run folder of an older version
     return data.get("command") if isinstance(data, dict) and isinstance(data.get("command"), str) else None
 
 
@@ -141,8 +145,7 @@ def check(out: Path, command: str, overwrite: bool, own_ok: bool = True) -> None
     if who == command and own_ok:
         return
     held = f"the output of an earlier dockbench {who}" if who else "files dockbench did not write"
-    raise OutDirError(f"-o {out}: folder is not empty ({held}); choose a new or empty folder, "
-                      "or pass --overwrite")
+    raise OutDirError(f"-o {out}: folder is not empty ({held}); choose a new or empty folder, or pass --overwrite")
 
 
 def check_file_out(path: Path | None, command: str) -> None:
@@ -156,8 +159,10 @@ def check_file_out(path: Path | None, command: str) -> None:
     check_location(path.parent)
     ds = dataset_around(path.parent)
     if ds is not None:
-        raise OutDirError(f"-o {path}: is inside the dataset {ds}; dockbench {command} never writes into a "
-                          "dataset (it would no longer verify); choose a file outside it")
+        raise OutDirError(
+            f"-o {path}: is inside the dataset {ds}; dockbench {command} never writes into a "
+            "dataset (it would no longer verify); choose a file outside it"
+        )
 
 
 def prepare(out: Path, command: str, overwrite: bool = False) -> Path:
@@ -186,8 +191,8 @@ def writing(out: Path, command: str, overwrite: bool = False) -> Iterator[Path]:
             yield out
     except BaseException:
         if not had_marker and out.is_dir() and set(os.listdir(out)) - {MARKER} == before:
-            (out / MARKER).unlink()           # nothing written: the folder is as it was
-            for d in reversed(created):       # the lock file is gone by now
+            (out / MARKER).unlink()  # nothing written: the folder is as it was
+            for d in reversed(created):  # the lock file is gone by now
                 with contextlib.suppress(OSError):
                     d.rmdir()
         raise
@@ -213,18 +218,20 @@ def disk_full_message(exc: BaseException, out: Path | None) -> str | None:
     bound: what the command had written into ``-o`` (and its temporary sibling) when the
     disk filled, i.e. the same again at least."""
     import errno
+
     own = isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT)
     if not own and not any(t in str(exc) for t in DISK_FULL_TEXT):
         return None
     import re
+
     named = re.search(r"(?:No space left on device|Disk quota exceeded): '([^']+)'", str(exc))
     path = Path(getattr(exc, "filename", None) or (named and named.group(1)) or out or ".")
-    if out is not None:                        # the user's -o, not its temporary sibling
+    if out is not None:  # the user's -o, not its temporary sibling
         o = Path(out).absolute()
         parts = path.absolute().parts
         for i, part in enumerate(parts):
             if part.startswith(f".{o.name}.tmp-") and Path(*parts[:i]) == o.parent:
-                path = o.joinpath(*parts[i + 1:])
+                path = o.joinpath(*parts[i + 1 :])
                 break
     probe = path.absolute()
     while not probe.is_dir() and probe != probe.parent:
@@ -236,9 +243,11 @@ def disk_full_message(exc: BaseException, out: Path | None) -> str | None:
         for d in [o, *o.parent.glob(f".{o.name}.tmp-*")]:
             written += _size_mb(d) if d.is_dir() else 0.0
     need = max(written, 1.0)
-    return (f"{path}: disk full (no space left on device): {free_mb:.1f} MB free on that file system, "
-            f"at least {need:.1f} MB more needed (what was written before it filled); free space or "
-            "choose another -o, then re-run")
+    return (
+        f"{path}: disk full (no space left on device): {free_mb:.1f} MB free on that file system, "
+        f"at least {need:.1f} MB more needed (what was written before it filled); free space or "
+        "choose another -o, then re-run"
+    )
 
 
 # -- one writer ------------------------------------------------------------------
@@ -252,6 +261,7 @@ def lock(out: Path, command: str) -> Iterator[None]:
     """Hold the exclusive lock of ``out`` (every command uses this one), else
     :class:`OutDirError` naming the holder. The lock file is removed on release."""
     import fcntl
+
     path = lock_path(out)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
@@ -260,8 +270,10 @@ def lock(out: Path, command: str) -> Iterator[None]:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             holder = os.pread(fd, 200, 0).decode(errors="replace").strip() or "?"
-            raise OutDirError(f"{Path(out)}: being written by another dockbench {holder}; wait for it "
-                              f"or choose another -o (lock {path})") from None
+            raise OutDirError(
+                f"{Path(out)}: being written by another dockbench {holder}; wait for it "
+                f"or choose another -o (lock {path})"
+            ) from None
         if not path.exists() or os.stat(path).st_ino != os.fstat(fd).st_ino:
             raise OutDirError(f"{Path(out)}: another dockbench just finished writing it; run again")
         os.ftruncate(fd, 0)
@@ -324,8 +336,8 @@ def _renamed_onto(out: Path, overwrite: bool, command: str) -> Iterator[Path]:
     try:
         try:
             yield tmp
-        except OSError as exc:                 # a full disk: how much was written (disk_full_message)
-            exc.dockbench_written_mb = _size_mb(tmp)    # type: ignore[attr-defined]
+        except OSError as exc:  # a full disk: how much was written (disk_full_message)
+            exc.dockbench_written_mb = _size_mb(tmp)  # type: ignore[attr-defined]
             raise
         mark(tmp, command)
         check(out, command, overwrite, own_ok=False)

@@ -6,6 +6,7 @@ The frame check is a hand-written mirror of ``frame.schema.json`` (about 50x fas
 jsonschema, which would add minutes to a 360k-frame dataset); when it finds a problem the
 message comes from jsonschema itself, and tests/test_hostile.py checks the two agree.
 """
+
 from __future__ import annotations
 
 import json
@@ -16,15 +17,16 @@ import zlib
 from pathlib import Path
 from typing import Any
 
-MAX_JSON_LINE_BYTES = 1 << 20       # one frames.jsonl record is ~2 kB
-MAX_MANIFEST_BYTES = 256 << 20      # ~1.5 MB per 10k frames (the files map)
+MAX_JSON_LINE_BYTES = 1 << 20  # one frames.jsonl record is ~2 kB
+MAX_MANIFEST_BYTES = 256 << 20  # ~1.5 MB per 10k frames (the files map)
 MAX_FRAME_INDEX = 2**31 - 1
 MAX_IMAGE_SIDE = 65535
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 PNG_COLOR_TYPES = {0: "gray", 2: "RGB", 3: "palette", 4: "gray+alpha", 6: "RGBA"}
-RELPATH = re.compile(r"^(?!/)(?!.*\\)(?!(.*/)?\.\.(/|$))[^\u0000]+$")   # frame.schema.json $defs.relpath
-RELPATH_RULE = "is not a relative path inside the dataset (allowed: '/' separators, no '..', no leading '/', " \
-               "no backslash, no NUL)"
+RELPATH = re.compile(r"^(?!/)(?!.*\\)(?!(.*/)?\.\.(/|$))[^\u0000]+$")  # frame.schema.json $defs.relpath
+RELPATH_RULE = (
+    "is not a relative path inside the dataset (allowed: '/' separators, no '..', no leading '/', no backslash, no NUL)"
+)
 
 
 class ContentError(ValueError):
@@ -60,6 +62,7 @@ def non_finite_key(obj: Any) -> str | None:
 def load_schema(name: str) -> dict:
     """A bundled JSON Schema by file name, e.g. ``load_schema('manifest.schema.json')``."""
     from importlib import resources
+
     return json.loads(resources.files("datasets_spec").joinpath(name).read_text(encoding="utf-8"))
 
 
@@ -69,8 +72,11 @@ def _is_number(v: Any) -> bool:
 
 
 def _mat4_problem(v: Any) -> str | None:
-    if not (isinstance(v, list) and len(v) == 4
-            and all(isinstance(r, list) and len(r) == 4 and all(_is_number(x) for x in r) for r in v)):
+    if not (
+        isinstance(v, list)
+        and len(v) == 4
+        and all(isinstance(r, list) and len(r) == 4 and all(_is_number(x) for x in r) for r in v)
+    ):
         return "must be a 4x4 list of finite numbers"
     return None
 
@@ -165,8 +171,12 @@ def camera_problem(camera: dict) -> str | None:
         if not isinstance(v, int) or isinstance(v, bool) or not 1 <= v <= MAX_IMAGE_SIDE:
             return f"camera.{key}: {v!r} out of range (allowed: integer 1..{MAX_IMAGE_SIDE} px)"
     K = camera.get("K")
-    if not (isinstance(K, list) and len(K) == 3 and all(isinstance(r, list) and len(r) == 3 for r in K)
-            and all(_is_number(x) for r in K for x in r)):
+    if not (
+        isinstance(K, list)
+        and len(K) == 3
+        and all(isinstance(r, list) and len(r) == 3 for r in K)
+        and all(_is_number(x) for r in K for x in r)
+    ):
         return "camera.K: must be a 3x3 matrix of finite numbers"
     if not (K[0][0] > 0 and K[1][1] > 0 and K[1][0] == K[2][0] == K[2][1] == 0 and K[2][2] == 1):
         return f"camera.K: {K} is not an intrinsic matrix (allowed: fx, fy > 0, last row [0, 0, 1])"
@@ -208,7 +218,9 @@ def image_problem(header: tuple[int, int, int, int], width: int, height: int) ->
     if (w, h) != (width, height):
         return f"image is {w}x{h} px; the manifest camera is {width}x{height}"
     if depth != 8 or color != 2:
-        return (f"image is {depth}-bit {PNG_COLOR_TYPES.get(color, f'color type {color}')} "
-                f"with {({0: 1, 2: 3, 3: 1, 4: 2, 6: 4}).get(color, '?')} channel(s); "
-                "allowed: 8-bit RGB (3 channels, FORMAT.md)")
+        return (
+            f"image is {depth}-bit {PNG_COLOR_TYPES.get(color, f'color type {color}')} "
+            f"with {({0: 1, 2: 3, 3: 1, 4: 2, 6: 4}).get(color, '?')} channel(s); "
+            "allowed: 8-bit RGB (3 channels, FORMAT.md)"
+        )
     return None

@@ -11,18 +11,29 @@ and ``reports.bop`` (BOP export).
 This package imports nothing heavy at import time; the names below are
 loaded lazily on first access.
 """
+
 from __future__ import annotations
 
 import importlib
 
 _LAZY = {
-    "Dataset": "dataset", "DatasetError": "dataset", "verify": "dataset",
-    "resolve": "registry", "list_localizers": "registry", "RegistryError": "registry",
+    "Dataset": "dataset",
+    "DatasetError": "dataset",
+    "verify": "dataset",
+    "resolve": "registry",
+    "list_localizers": "registry",
+    "RegistryError": "registry",
     "build": "assemble",
-    "evaluate": "runner", "SuccessCriteria": "metrics.core", "compute_all": "metrics.extra",
-    "EvalSettings": "metrics.extra", "save_run": "reports.results", "load_run": "reports.results",
-    "compare_runs": "reports.results", "evaluate_dataset": "reports.results",
-    "frame_truth_table": "metrics.truth", "export_bop": "reports.bop",
+    "evaluate": "runner",
+    "SuccessCriteria": "metrics.core",
+    "compute_all": "metrics.extra",
+    "EvalSettings": "metrics.extra",
+    "save_run": "reports.results",
+    "load_run": "reports.results",
+    "compare_runs": "reports.results",
+    "evaluate_dataset": "reports.results",
+    "frame_truth_table": "metrics.truth",
+    "export_bop": "reports.bop",
     "build_leaderboard": "reports.leaderboard",
 }
 

@@ -4,6 +4,7 @@
 (:class:`evalkit.external.ExternalLocalizer`, built by the registry from ``exec:``) and
 with image preprocessing (:class:`evalkit.preprocess.Preprocessed`).
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -14,8 +15,14 @@ from evalkit.preprocess import Preprocessed, parse_steps
 from evalkit.process import DEFAULT_TIMEOUT_S
 
 
-def build(spec: str, params: dict | None = None, *, isolate: bool | None = None,
-          timeout_s: float | None = None, preprocess: str | None = None) -> Any:
+def build(
+    spec: str,
+    params: dict | None = None,
+    *,
+    isolate: bool | None = None,
+    timeout_s: float | None = None,
+    preprocess: str | None = None,
+) -> Any:
     """The localizer the CLI runs for ``-l spec``: :func:`evalkit.registry.resolve` plus
     isolation and preprocessing.
 

@@ -2,17 +2,30 @@
 
 Never needs Blender. Units follow the format: metres, seconds, radians.
 """
+
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 
 from datasets_spec.io import (  # noqa: F401  (re-exported: the reader's public names)
-    DEFAULT_D_MIN_REL_M, FORMAT_NAME, MANIFEST, SUPPORTED_SPEC_VERSIONS, DatasetError, content_hash,
-    check_image_header, dataset_files, iter_frames, load_manifest, path_inside, sha256_file,
+    DEFAULT_D_MIN_REL_M,
+    FORMAT_NAME,
+    MANIFEST,
+    SUPPORTED_SPEC_VERSIONS,
+    DatasetError,
+    check_image_header,
+    content_hash,
+    dataset_files,
+    iter_frames,
+    load_manifest,
+    path_inside,
+    sha256_file,
+)
+from datasets_spec.io import (
     verify as _verify,
 )
 
@@ -32,7 +45,7 @@ class Dataset:
         self._seq_by_id = {s["id"]: s for s in manifest["sequences"]}
 
     @classmethod
-    def open(cls, path: str | Path, verify: bool = True) -> "Dataset":
+    def open(cls, path: str | Path, verify: bool = True) -> Dataset:
         """Open the dataset directory ``path``; raises :class:`DatasetError` on problems."""
         root = Path(path)
         ds = cls(root, load_manifest(root), verify)
@@ -44,11 +57,15 @@ class Dataset:
         """The manifest's ``content_hash`` must be the hash of its ``files`` map."""
         files = self.manifest.get("files")
         if not isinstance(files, dict):
-            raise DatasetError(f"{self.root / MANIFEST}: no 'files' map, so nothing can be verified "
-                               "(evaluate --no-verify reads it unchecked)")
+            raise DatasetError(
+                f"{self.root / MANIFEST}: no 'files' map, so nothing can be verified "
+                "(evaluate --no-verify reads it unchecked)"
+            )
         if content_hash(files) != self.manifest.get("content_hash"):
-            raise DatasetError(f"{self.root / MANIFEST}: content_hash does not match the 'files' "
-                               "entries (manifest edited after generation)")
+            raise DatasetError(
+                f"{self.root / MANIFEST}: content_hash does not match the 'files' "
+                "entries (manifest edited after generation)"
+            )
 
     def check_file(self, path: Path, data: bytes | None = None) -> None:
         """With ``verify``: ``path`` (under the root; ``data`` its bytes if already read) must be
@@ -63,8 +80,10 @@ class Dataset:
             raise DatasetError(f"{path}: missing (listed in the manifest)")
         got = hashlib.sha256(data).hexdigest() if data is not None else sha256_file(Path(path))
         if got != want:
-            raise DatasetError(f"{path}: sha256 differs from the manifest: changed after generation "
-                               "(dockbench verify lists every changed file)")
+            raise DatasetError(
+                f"{path}: sha256 differs from the manifest: changed after generation "
+                "(dockbench verify lists every changed file)"
+            )
 
     # -- manifest views ---------------------------------------------------
     @property
@@ -100,8 +119,9 @@ class Dataset:
         try:
             return self._seq_by_id[seq_id]
         except KeyError:
-            raise DatasetError(f"{self.root / MANIFEST}: no sequence {seq_id!r}; "
-                               f"known: {', '.join(self._seq_by_id)}") from None
+            raise DatasetError(
+                f"{self.root / MANIFEST}: no sequence {seq_id!r}; known: {', '.join(self._seq_by_id)}"
+            ) from None
 
     # -- frames -----------------------------------------------------------
     def frames_path(self, seq_id: str) -> Path:

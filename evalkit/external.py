@@ -20,6 +20,7 @@ reset replayed (:class:`evalkit.process.ProcessLocalizer`). Reply lines longer t
 1 MiB are a protocol error (read in bounded chunks, never buffered whole); the program's
 address space is capped (``memory_limit_mb``, default 4096 MiB).
 """
+
 from __future__ import annotations
 
 import json
@@ -32,14 +33,24 @@ import threading
 from pathlib import Path
 from typing import Any
 
-from evalkit.process import (DEFAULT_MEMORY_LIMIT_MB, DEFAULT_TIMEOUT_S, EXIT_GRACE_S, ChildDead, ChildTimeout,
-                             FrameFailure, ProcessLocalizer, ProtocolError, kill_and_reap, spawn)
+from evalkit.process import (
+    DEFAULT_MEMORY_LIMIT_MB,
+    DEFAULT_TIMEOUT_S,
+    EXIT_GRACE_S,
+    ChildDead,
+    ChildTimeout,
+    FrameFailure,
+    ProcessLocalizer,
+    ProtocolError,
+    kill_and_reap,
+    spawn,
+)
 
 PROTOCOL_VERSION = 1
 SUPPORTED_PROTOCOLS = (1,)
-MAX_REPLY_BYTES = 1 << 20     # one reply line; a longer one is a protocol error (never buffered whole)
-MAX_QUEUED_LINES = 64         # replies read ahead of requests (a program may answer one per request)
-_TOO_LONG = object()          # reader -> parent: the current line exceeded MAX_REPLY_BYTES
+MAX_REPLY_BYTES = 1 << 20  # one reply line; a longer one is a protocol error (never buffered whole)
+MAX_QUEUED_LINES = 64  # replies read ahead of requests (a program may answer one per request)
+_TOO_LONG = object()  # reader -> parent: the current line exceeded MAX_REPLY_BYTES
 
 
 def _read_replies(stream, lines: queue.Queue, stop: threading.Event) -> None:
@@ -47,6 +58,7 @@ def _read_replies(stream, lines: queue.Queue, stop: threading.Event) -> None:
     MAX_REPLY_BYTES becomes ``_TOO_LONG`` and the rest of it is skipped in bounded chunks,
     so a program that writes gigabytes without a newline cannot grow this process.
     ``None`` marks the end of the stream."""
+
     def put(item) -> bool:
         while not stop.is_set():
             try:
@@ -62,7 +74,7 @@ def _read_replies(stream, lines: queue.Queue, stop: threading.Event) -> None:
             if not line:
                 break
             if len(line) > MAX_REPLY_BYTES:
-                if not put(_TOO_LONG):        # at once: the parent kills the program now
+                if not put(_TOO_LONG):  # at once: the parent kills the program now
                     return
                 while line and not line.endswith(b"\n") and not stop.is_set():
                     line = stream.readline(MAX_REPLY_BYTES)
@@ -94,11 +106,20 @@ class ExternalLocalizer(ProcessLocalizer):
 
     name = "exec"
 
-    def __init__(self, cmd: str | list[str], timeout_s: float | None = DEFAULT_TIMEOUT_S,
-                 persistent: bool = False, cwd: str | None = None, env: dict | None = None,
-                 reset_timeout_s: float | None = None, start_timeout_s: float | None = None,
-                 max_restarts: int | None = None, max_restarts_total: int | None = None, memory_limit_mb: int | None = DEFAULT_MEMORY_LIMIT_MB,
-                 **params: Any):
+    def __init__(
+        self,
+        cmd: str | list[str],
+        timeout_s: float | None = DEFAULT_TIMEOUT_S,
+        persistent: bool = False,
+        cwd: str | None = None,
+        env: dict | None = None,
+        reset_timeout_s: float | None = None,
+        start_timeout_s: float | None = None,
+        max_restarts: int | None = None,
+        max_restarts_total: int | None = None,
+        memory_limit_mb: int | None = DEFAULT_MEMORY_LIMIT_MB,
+        **params: Any,
+    ):
         """cmd: command line (a string split like a POSIX shell, or an argv list).
         timeout_s: per-frame reply budget (s; None waits forever).
         persistent: keep one process for all sequences (each gets a new reset)
@@ -106,9 +127,16 @@ class ExternalLocalizer(ProcessLocalizer):
         to os.environ). memory_limit_mb: the program's address space (RLIMIT_AS, MiB,
         set right after it starts; None = unlimited). Other keyword params are sent to
         the program in the reset request as ``"params"``."""
-        kw: dict[str, Any] = {k: v for k, v in (("reset_timeout_s", reset_timeout_s), ("start_timeout_s", start_timeout_s),
-                                ("max_restarts", max_restarts), ("max_restarts_total", max_restarts_total))
-              if v is not None}
+        kw: dict[str, Any] = {
+            k: v
+            for k, v in (
+                ("reset_timeout_s", reset_timeout_s),
+                ("start_timeout_s", start_timeout_s),
+                ("max_restarts", max_restarts),
+                ("max_restarts_total", max_restarts_total),
+            )
+            if v is not None
+        }
         super().__init__(timeout_s=timeout_s, **kw)
         argv = shlex.split(cmd) if isinstance(cmd, str) else [str(c) for c in cmd]
         if not argv:
@@ -128,7 +156,7 @@ class ExternalLocalizer(ProcessLocalizer):
         self._lines: queue.Queue | None = None
         self._pending_index: Any = None
         self._counter = 0
-        self._tmp: Any = None   # a tempfile.TemporaryDirectory once localize() writes an image
+        self._tmp: Any = None  # a tempfile.TemporaryDirectory once localize() writes an image
         self._scratch: str | None = None
 
     def __repr__(self) -> str:
@@ -140,8 +168,13 @@ class ExternalLocalizer(ProcessLocalizer):
         if index is None:
             index = self._counter
         self._counter = int(index) + 1
-        request = {"type": "frame", "protocol": PROTOCOL_VERSION, "index": index,
-                   "image": str(Path(path).resolve()), "K": (self._camera or {}).get("K")}
+        request = {
+            "type": "frame",
+            "protocol": PROTOCOL_VERSION,
+            "index": index,
+            "image": str(Path(path).resolve()),
+            "K": (self._camera or {}).get("K"),
+        }
         self._pending_index = index
         return self._request("frame", json.loads(json.dumps(request, default=_jsonable)))
 
@@ -150,6 +183,7 @@ class ExternalLocalizer(ProcessLocalizer):
         import tempfile
 
         import cv2
+
         if self._tmp is None:
             self._tmp = tempfile.TemporaryDirectory(prefix="dockbench-exec-")
         path = Path(self._tmp.name) / f"{self._counter:06d}.png"
@@ -169,6 +203,7 @@ class ExternalLocalizer(ProcessLocalizer):
             self._tmp.cleanup()
             self._tmp = None
         from evalkit.process import remove_scratch
+
         remove_scratch(self._scratch)
         self._scratch = None
 
@@ -179,22 +214,28 @@ class ExternalLocalizer(ProcessLocalizer):
             self._kill()
 
     def _reset_request(self, camera: dict) -> dict:
-        msg = {"type": "reset", "protocol": PROTOCOL_VERSION, "camera": camera_message(camera),
-               "params": json.loads(json.dumps(self.params, default=_jsonable))}
+        msg = {
+            "type": "reset",
+            "protocol": PROTOCOL_VERSION,
+            "camera": camera_message(camera),
+            "params": json.loads(json.dumps(self.params, default=_jsonable)),
+        }
         if camera.get("sequence") is not None:
             msg["sequence"] = str(camera["sequence"])
         return msg
 
     def _start(self) -> None:
         from evalkit.process import sandboxed_argv
+
         argv, self._scratch = sandboxed_argv(self.argv, self._scratch, self.cwd, self.memory_limit_mb)
         self.sandboxed = argv is not self.argv
-        limit = None if self.sandboxed else self.memory_limit_mb    # sandboxed: capped inside
+        limit = None if self.sandboxed else self.memory_limit_mb  # sandboxed: capped inside
         proc = spawn(argv, limit, stdin=subprocess.PIPE, stdout=subprocess.PIPE, cwd=self.cwd, env=self.env)
         lines: queue.Queue = queue.Queue(MAX_QUEUED_LINES)
         stop = threading.Event()
-        threading.Thread(target=_read_replies, args=(proc.stdout, lines, stop), daemon=True,
-                         name="dockbench-exec-reader").start()
+        threading.Thread(
+            target=_read_replies, args=(proc.stdout, lines, stop), daemon=True, name="dockbench-exec-reader"
+        ).start()
         self._proc, self._lines, self._stop_reader = proc, lines, stop
 
     def _alive(self) -> bool:
@@ -228,7 +269,7 @@ class ExternalLocalizer(ProcessLocalizer):
         except (json.JSONDecodeError, RecursionError):
             raise ProtocolError(f"reply is not JSON: {text[:80]!r}") from None
         if not isinstance(reply, dict) or not isinstance(reply.get("ok"), bool):
-            raise ProtocolError(f"reply is not an object with a boolean \"ok\": {text[:80]!r}")
+            raise ProtocolError(f'reply is not an object with a boolean "ok": {text[:80]!r}')
         return reply
 
     def _reply(self, kind: str, reply: dict) -> Any:
@@ -236,8 +277,10 @@ class ExternalLocalizer(ProcessLocalizer):
         if kind == "reset":
             version = reply.get("protocol", PROTOCOL_VERSION)
             if version not in SUPPORTED_PROTOCOLS:
-                raise FrameFailure(f"protocol: program speaks protocol {version!r}; dockbench speaks "
-                                   f"{', '.join(map(str, SUPPORTED_PROTOCOLS))}")
+                raise FrameFailure(
+                    f"protocol: program speaks protocol {version!r}; dockbench speaks "
+                    f"{', '.join(map(str, SUPPORTED_PROTOCOLS))}"
+                )
             if not reply["ok"]:
                 raise FrameFailure(f"exception: ExternalError: {error or 'reset refused'}")
             return None

@@ -27,6 +27,7 @@ process tree, no network); elsewhere as plain children, said once on stderr.
 
 Only the standard library is imported here (children start fast).
 """
+
 from __future__ import annotations
 
 import json
@@ -34,13 +35,26 @@ import os
 from typing import Any
 
 from evalkit.process import (  # noqa: F401  (FrameFailure, DEFAULT_TIMEOUT_S...: re-exported, old import path)
-    DEFAULT_MAX_RESTARTS, DEFAULT_MEMORY_LIMIT_MB, DEFAULT_RESET_TIMEOUT_S, DEFAULT_START_TIMEOUT_S,
-    DEFAULT_TIMEOUT_S, EXIT_GRACE_S, ChildDead, ChildTimeout, FrameFailure, ProcessLocalizer, ProtocolError,
-    exit_reason, kill_and_reap, limit_memory, remove_scratch, sandboxed_argv, spawn,
+    DEFAULT_MAX_RESTARTS,
+    DEFAULT_MEMORY_LIMIT_MB,
+    DEFAULT_RESET_TIMEOUT_S,
+    DEFAULT_START_TIMEOUT_S,
+    DEFAULT_TIMEOUT_S,
+    EXIT_GRACE_S,
+    ChildDead,
+    ChildTimeout,
+    FrameFailure,
+    ProcessLocalizer,
+    ProtocolError,
+    exit_reason,
+    kill_and_reap,
+    limit_memory,
+    remove_scratch,
+    sandboxed_argv,
+    spawn,
 )
 
-
-MAX_REPLY_BYTES = 64 << 20   # one JSON reply of an isolated Python localizer (a 4x4 pose is ~0.5 kB)
+MAX_REPLY_BYTES = 64 << 20  # one JSON reply of an isolated Python localizer (a 4x4 pose is ~0.5 kB)
 
 
 def _jsonable(obj: Any) -> Any:
@@ -59,8 +73,10 @@ def _reply_bytes(status: str, value: Any) -> bytes:
 
 
 # -- Python localizers in a child interpreter ----------------------------------
-_CHILD_CODE = ("import sys; from evalkit.isolation import _child_main; "
-               "_child_main(int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]))")
+_CHILD_CODE = (
+    "import sys; from evalkit.isolation import _child_main; "
+    "_child_main(int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]))"
+)
 
 
 def _child_main(fd_in: int, fd_out: int, memory_limit_mb: int = 0) -> None:
@@ -71,18 +87,24 @@ def _child_main(fd_in: int, fd_out: int, memory_limit_mb: int = 0) -> None:
     byte frames, on two pipes (not stdin/stdout, so a localizer that prints cannot corrupt them)."""
     limit_memory(os.getpid(), memory_limit_mb)
     from multiprocessing.connection import Connection
+
     rx, tx = Connection(fd_in, writable=False), Connection(fd_out, readable=False)
     try:
         _, spec, params, preprocess = rx.recv()
         from evalkit import registry
+
         loc = registry.resolve(spec, params)
         if preprocess:
             from evalkit.preprocess import Preprocessed
+
             loc = Preprocessed(loc, preprocess)
     except Exception as exc:  # noqa: BLE001 - reported to the parent
         registry_error = type(exc).__name__ == "RegistryError"
-        tx.send_bytes(_reply_bytes("fail", str(exc) if registry_error else
-                                   f"cannot build localizer {spec!r}: {type(exc).__name__}: {exc}"))
+        tx.send_bytes(
+            _reply_bytes(
+                "fail", str(exc) if registry_error else f"cannot build localizer {spec!r}: {type(exc).__name__}: {exc}"
+            )
+        )
         return
     tx.send_bytes(_reply_bytes("ready", type(loc).__name__))
     while True:
@@ -97,7 +119,7 @@ def _child_main(fd_in: int, fd_out: int, memory_limit_mb: int = 0) -> None:
             status = "ok"
         except (Exception, SystemExit, KeyboardInterrupt) as exc:  # noqa: BLE001 - loses one frame
             value, status = f"exception: {type(exc).__name__}: {exc}", "fail"
-        tx.send_bytes(_reply_bytes(status, value))    # a value JSON cannot carry: "bad_type"
+        tx.send_bytes(_reply_bytes(status, value))  # a value JSON cannot carry: "bad_type"
 
 
 class IsolatedLocalizer(ProcessLocalizer):
@@ -110,9 +132,15 @@ class IsolatedLocalizer(ProcessLocalizer):
     (:class:`evalkit.registry.RegistryError`).
     """
 
-    def __init__(self, spec: str, params: dict | None = None, preprocess: str | None = None,
-                 timeout_s: float | None = DEFAULT_TIMEOUT_S,
-                 memory_limit_mb: int | None = DEFAULT_MEMORY_LIMIT_MB, **kw):
+    def __init__(
+        self,
+        spec: str,
+        params: dict | None = None,
+        preprocess: str | None = None,
+        timeout_s: float | None = DEFAULT_TIMEOUT_S,
+        memory_limit_mb: int | None = DEFAULT_MEMORY_LIMIT_MB,
+        **kw,
+    ):
         """spec/params: as for registry.resolve (resolved in the child); preprocess:
         a preprocess spec applied in the child; memory_limit_mb: the child's address
         space (RLIMIT_AS, MiB; None = unlimited); timeout_s and ``**kw``: see
@@ -121,11 +149,12 @@ class IsolatedLocalizer(ProcessLocalizer):
         self.memory_limit_mb = memory_limit_mb
         self.spec, self.params, self.preprocess = spec, dict(params or {}), preprocess
         self.name = spec
-        self._proc: Any = None              # subprocess.Popen once started
-        self._rx: Any = None                # multiprocessing Connection ends once started
+        self._proc: Any = None  # subprocess.Popen once started
+        self._rx: Any = None  # multiprocessing Connection ends once started
         self._tx: Any = None
         self._scratch: Any = None
         from evalkit.registry import RegistryError
+
         try:
             self._start()
         except ChildDead as exc:
@@ -154,8 +183,13 @@ class IsolatedLocalizer(ProcessLocalizer):
         argv, self._scratch = sandboxed_argv(argv, self._scratch)
         self.sandboxed = argv is not plain
         try:
-            proc = spawn(argv, memory_limit_mb=None,    # the child sets its own limit before any import
-                         pass_fds=(r1, w2), stdin=subprocess.DEVNULL, env=env)
+            proc = spawn(
+                argv,
+                memory_limit_mb=None,  # the child sets its own limit before any import
+                pass_fds=(r1, w2),
+                stdin=subprocess.DEVNULL,
+                env=env,
+            )
         except ChildDead:
             for fd in (r1, w1, r2, w2):
                 os.close(fd)

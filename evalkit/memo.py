@@ -28,6 +28,7 @@ Frames are identified by (sequence id, frame index) within one evaluation proces
 A replayed call's wall time is credited to the caller's ``ms`` (:meth:`FrameMemo.take_credit_ms`),
 so runtime tables still read as if each localizer had run alone.
 """
+
 from __future__ import annotations
 
 import copy
@@ -63,8 +64,9 @@ class FrameMemo:
 def opted_in(obj: Any) -> bool:
     """True when ``obj``'s own class defines the memo hooks and it has a registry config."""
     cls = type(obj)
-    return ("memo_state" in cls.__dict__ and "memo_apply" in cls.__dict__
-            and getattr(obj, "memo_config", None) is not None)
+    return (
+        "memo_state" in cls.__dict__ and "memo_apply" in cls.__dict__ and getattr(obj, "memo_config", None) is not None
+    )
 
 
 class SharedLocalizer:
@@ -109,7 +111,7 @@ def share(localizers: list[tuple[str, Any]], memo: FrameMemo) -> list[tuple[str,
     """The localizer list with every opted-in localizer, and the opted-in sub-localizers
     of composite ones (``subs``: the hybrid), routed through ``memo``. Nothing changes
     unless at least two opted-in localizers share a configuration."""
-    found: list[tuple[Any, str | None, Any]] = []      # (owner, role or None, localizer)
+    found: list[tuple[Any, str | None, Any]] = []  # (owner, role or None, localizer)
     for _, loc in localizers:
         if opted_in(loc):
             found.append((None, None, loc))
@@ -136,4 +138,5 @@ def share(localizers: list[tuple[str, Any]], memo: FrameMemo) -> list[tuple[str,
 def config_key(spec: str, params: dict) -> str:
     """A localizer's configuration as a string: spec and sorted parameters."""
     import json
+
     return spec + " " + json.dumps(params, sort_keys=True, default=repr)

@@ -6,46 +6,68 @@ Sequences are independent (every localizer is ``reset`` at the start of each one
 splitting by sequence changes no estimate. Each process builds its own localizers and
 runs OpenCV on one thread (``cv2.setNumThreads(1)``) so N processes use N cores.
 """
+
 from __future__ import annotations
 
 import os
+from collections.abc import Iterable
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
 
-def build_localizers(names: list[str], params: list[str], isolate: bool | None, timeout_s: float | None,
-           preprocess: str | None) -> list[tuple[str, Any]]:
+def build_localizers(
+    names: list[str], params: list[str], isolate: bool | None, timeout_s: float | None, preprocess: str | None
+) -> list[tuple[str, Any]]:
     from evalkit import assemble, registry
+
     kw = registry.parse_params(params)
-    return [(n, assemble.build(n, registry.params_for(n, kw, names), isolate=isolate, timeout_s=timeout_s,
-                               preprocess=preprocess)) for n in names]
+    return [
+        (
+            n,
+            assemble.build(
+                n, registry.params_for(n, kw, names), isolate=isolate, timeout_s=timeout_s, preprocess=preprocess
+            ),
+        )
+        for n in names
+    ]
 
 
 def _evaluate_share(args: tuple) -> pd.DataFrame:
     """Process body: ``(dataset_dir, names, params, isolate, timeout_s, preprocess, verify, seq_ids)``."""
     import cv2
+
     from evalkit import runner
     from evalkit.dataset import Dataset
+
     root, names, params, isolate, timeout_s, preprocess, verify, seq_ids = args
     cv2.setNumThreads(1)
     specs = build_localizers(names, params, isolate, timeout_s, preprocess)
-    return runner.evaluate(Dataset.open(root, verify=verify), specs, frame_timeout_s=timeout_s, progress=False,
-                           sequences=seq_ids)
+    return runner.evaluate(
+        Dataset.open(root, verify=verify), specs, frame_timeout_s=timeout_s, progress=False, sequences=seq_ids
+    )
 
 
-def evaluate_frames(dataset_dir: str | Path, localizers: Iterable[str], params: Iterable[str] = (),
-                    workers: int | None = None, isolate: bool | None = None, frame_timeout_s: float | None = None,
-                    preprocess: str | None = None, verify: bool = True) -> pd.DataFrame:
+def evaluate_frames(
+    dataset_dir: str | Path,
+    localizers: Iterable[str],
+    params: Iterable[str] = (),
+    workers: int | None = None,
+    isolate: bool | None = None,
+    frame_timeout_s: float | None = None,
+    preprocess: str | None = None,
+    verify: bool = True,
+) -> pd.DataFrame:
     """Per-frame table of :func:`evalkit.runner.evaluate` computed by ``workers`` processes
     (default: one per core, at most one per sequence). Parameters as
     :class:`evalkit.reports.results.EvalRequest`; ``dockbench evaluate --workers`` and
     ``reproduce`` use it through :func:`evalkit.reports.results.evaluate_dataset`."""
     from evalkit.dataset import Dataset
+
     ds = Dataset.open(dataset_dir, verify=verify)
     names, params = list(localizers), list(params)
     seq_ids = [s["id"] for s in ds.sequences]

@@ -20,6 +20,7 @@ Per cell it reports
     image and its side is above the detection limit (ArUco 4x4 ~20 px; LEDs >= 6 px apart).
 Nothing is asserted: the numbers are printed and written to ``OUT/pnp.csv`` and ``OUT/pnp.png``.
 """
+
 from __future__ import annotations
 
 import math
@@ -35,8 +36,8 @@ from evalkit.localizers.pnp import solve_planar
 WIDTH, HEIGHT, HFOV_DEG = 640, 480, 60.0
 F_PX = (WIDTH / 2.0) / math.tan(math.radians(HFOV_DEG) / 2.0)
 K = np.array([[F_PX, 0.0, WIDTH / 2 - 0.5], [0.0, F_PX, HEIGHT / 2 - 0.5], [0.0, 0.0, 1.0]])
-THEORY_COEF = 0.7           # sigma_Z ~ 0.7 Z^2 sigma / (f s)
-AMBIGUOUS_DEG = 0.5         # branches closer than this are one solution
+THEORY_COEF = 0.7  # sigma_Z ~ 0.7 Z^2 sigma / (f s)
+AMBIGUOUS_DEG = 0.5  # branches closer than this are one solution
 DISTANCES_M = (0.2, 0.3, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 5.0, 7.5, 10.0, 15.0, 20.0)
 ANGLES_DEG = (0.0, 20.0, 40.0, 60.0, 80.0)
 NOISES_PX = (0.0, 0.5, 1.0, 2.0)
@@ -47,10 +48,10 @@ _FLIP = np.diag([1.0, -1.0, -1.0])
 @dataclass(frozen=True)
 class Target:
     name: str
-    obj: np.ndarray           # (4,3) target-frame points, z = 0
-    size_m: float             # s in the theory (side of the square)
-    square: bool              # IPPE_SQUARE corner order
-    min_px: float             # detection limit: smallest projected side (px)
+    obj: np.ndarray  # (4,3) target-frame points, z = 0
+    size_m: float  # s in the theory (side of the square)
+    square: bool  # IPPE_SQUARE corner order
+    min_px: float  # detection limit: smallest projected side (px)
 
 
 def _square(s: float) -> np.ndarray:
@@ -107,8 +108,9 @@ def _ippe(obj, uv, square: bool):
     """All solutions [(T_cam_target)] of solvePnPGeneric (IPPE or IPPE_SQUARE), as returned."""
     flag = cv2.SOLVEPNP_IPPE_SQUARE if square else cv2.SOLVEPNP_IPPE
     try:
-        _, rvecs, tvecs, _ = cv2.solvePnPGeneric(np.ascontiguousarray(obj), np.ascontiguousarray(uv),
-                                                 K, None, flags=flag)
+        _, rvecs, tvecs, _ = cv2.solvePnPGeneric(
+            np.ascontiguousarray(obj), np.ascontiguousarray(uv), K, None, flags=flag
+        )
     except cv2.error:
         return []
     return [_T(r, t) for r, t in zip(rvecs, tvecs)]
@@ -118,8 +120,10 @@ def _prerotated(R_guess: np.ndarray, obj: np.ndarray, uv: np.ndarray, square: bo
     """IPPE in a target frame pre-rotated by G = diag(1,-1,-1) Rz(k 90deg) chosen so that
     R_guess G ~ I: OpenCV's rot2vec then never sees a rotation near pi (see
     evalkit.localizers.pnp). Returns (finite solutions [T_cam_target], G, obj_f, uv_f)."""
-    G = max((_FLIP @ _rot([0, 0, 1], k * math.pi / 2).round(12) for k in range(4)),
-            key=lambda G: float(np.trace(R_guess @ G)))
+    G = max(
+        (_FLIP @ _rot([0, 0, 1], k * math.pi / 2).round(12) for k in range(4)),
+        key=lambda G: float(np.trace(R_guess @ G)),
+    )
     obj_f = obj @ G
     order = list(range(len(obj)))
     if square:  # canonical IPPE_SQUARE order in the rotated frame
@@ -153,7 +157,7 @@ def solve_with_prior(R_prior: np.ndarray, obj: np.ndarray, uv: np.ndarray, squar
     if not sols:
         return None
     T = min(sols, key=lambda T: _rot_deg(T[:3, :3], R_prior))
-    Rf = T[:3, :3] @ G                                     # pose of the pre-rotated frame
+    Rf = T[:3, :3] @ G  # pose of the pre-rotated frame
     rv = cv2.Rodrigues(Rf)[0]
     tv = T[:3, 3].reshape(3, 1).copy()
     try:
@@ -175,8 +179,8 @@ def _on_wrong_branch(T: np.ndarray, branches) -> bool:
 
 
 METHODS = ("naive", "ours", "prior")
-PRIOR_ERR_DEG = 10.0        # attitude prior error (random axis) for the "prior" method
-MIN_POINT_Z_M = 0.05        # true poses with a point closer to the camera plane are redrawn
+PRIOR_ERR_DEG = 10.0  # attitude prior error (random axis) for the "prior" method
+MIN_POINT_Z_M = 0.05  # true poses with a point closer to the camera plane are redrawn
 
 
 def _solve(method: str, target: Target, uv: np.ndarray, R_prior: np.ndarray):
@@ -184,7 +188,7 @@ def _solve(method: str, target: Target, uv: np.ndarray, R_prior: np.ndarray):
     if method == "ours":
         pose = solve_planar(target.obj, uv, K, None, square=target.square)
         return None if pose is None else pose.T_cam_target
-    if method == "naive":                                  # OpenCV's first solution, as is
+    if method == "naive":  # OpenCV's first solution, as is
         sols = _ippe(target.obj, uv, target.square)
         return sols[0] if sols else None
     return solve_with_prior(R_prior, target.obj, uv, target.square)
@@ -200,8 +204,9 @@ def _valid_pose(rng, target: Target, Z: float, angle_deg: float) -> np.ndarray |
     return None
 
 
-def run_cell(target: Target, Z: float, angle_deg: float, sigma_px: float, n_trials: int,
-             rng: np.random.Generator) -> dict:
+def run_cell(
+    target: Target, Z: float, angle_deg: float, sigma_px: float, n_trials: int, rng: np.random.Generator
+) -> dict:
     """One sweep cell: ``n_trials`` random poses; returns the row of the CSV.
 
     Per method m: ``ok_m`` successes (finite, in front), ``none_m`` refusals (None),
@@ -240,13 +245,21 @@ def run_cell(target: Target, Z: float, angle_deg: float, sigma_px: float, n_tria
     pxm = float(np.median(px)) if px else float("nan")
     rms = lambda a: float(np.sqrt(np.mean(np.square(a)))) if len(a) else float("nan")  # noqa: E731
     return {
-        "target": target.name, "Z_m": Z, "angle_deg": angle_deg, "sigma_px": sigma_px, "n": n,
-        "px": pxm, "in_image": in_image / max(n, 1),
+        "target": target.name,
+        "Z_m": Z,
+        "angle_deg": angle_deg,
+        "sigma_px": sigma_px,
+        "n": n,
+        "px": pxm,
+        "in_image": in_image / max(n, 1),
         "detectable": bool(n > 0 and in_image == n and pxm * math.cos(math.radians(angle_deg)) >= target.min_px),
-        "rms_ez_m": rms(ez["ours"]), "rms_ez_naive_m": rms(ez["naive"]), "rms_ez_prior_m": rms(ez["prior"]),
-        "theory_m": THEORY_COEF * Z ** 2 * sigma_px / (F_PX * target.size_m),
+        "rms_ez_m": rms(ez["ours"]),
+        "rms_ez_naive_m": rms(ez["naive"]),
+        "rms_ez_prior_m": rms(ez["prior"]),
+        "theory_m": THEORY_COEF * Z**2 * sigma_px / (F_PX * target.size_m),
         "median_rot_deg": float(np.median(rot_ours)) if rot_ours else float("nan"),
-        "n_ambiguous": n_amb, **c,
+        "n_ambiguous": n_amb,
+        **c,
     }
 
 
@@ -254,21 +267,33 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return v / max(np.linalg.norm(v), 1e-12)
 
 
-def run_sweep(targets=("led", "square"), distances=DISTANCES_M, angles=ANGLES_DEG, noises=NOISES_PX,
-              n_trials: int = 60, seed: int = 0) -> pd.DataFrame:
+def run_sweep(
+    targets=("led", "square"),
+    distances=DISTANCES_M,
+    angles=ANGLES_DEG,
+    noises=NOISES_PX,
+    n_trials: int = 60,
+    seed: int = 0,
+) -> pd.DataFrame:
     """The full sweep: one row per (target, Z, angle, sigma) cell."""
     rng = np.random.default_rng(seed)
-    rows = [run_cell(TARGETS[t], Z, a, s, n_trials, rng)
-            for t in targets for Z in distances for a in angles for s in noises]
+    rows = [
+        run_cell(TARGETS[t], Z, a, s, n_trials, rng) for t in targets for Z in distances for a in angles for s in noises
+    ]
     return pd.DataFrame(rows)
 
 
-def fit_exponent(df: pd.DataFrame, target: str, sigma_px: float = FIT_NOISE_PX,
-                 max_angle_deg: float = 60.0) -> float:
+def fit_exponent(df: pd.DataFrame, target: str, sigma_px: float = FIT_NOISE_PX, max_angle_deg: float = 60.0) -> float:
     """Slope of log(rms_ez) against log(Z) over detectable cells of ``target`` at
     ``sigma_px`` (angles up to max_angle_deg pooled by their mean per Z)."""
-    d = df[(df.target == target) & (df.sigma_px == sigma_px) & df.detectable
-           & (df.angle_deg <= max_angle_deg) & np.isfinite(df.rms_ez_m) & (df.rms_ez_m > 0)]
+    d = df[
+        (df.target == target)
+        & (df.sigma_px == sigma_px)
+        & df.detectable
+        & (df.angle_deg <= max_angle_deg)
+        & np.isfinite(df.rms_ez_m)
+        & (df.rms_ez_m > 0)
+    ]
     g = d.groupby("Z_m")["rms_ez_m"].apply(lambda x: float(np.exp(np.mean(np.log(x)))))
     if len(g) < 3:
         return float("nan")
@@ -289,17 +314,24 @@ def summary_table(df: pd.DataFrame, sigma_px: float = FIT_NOISE_PX) -> pd.DataFr
         amb = max(int(g.n_ambiguous.sum()), 1)
         if g.n.sum() == 0:
             continue
-        rows.append({"target": tgt, "Z_m": Z, "px": float(np.nanmedian(g.px)),
-                     "det": "yes" if g.detectable.all() else ("some" if g.detectable.any() else "no"),
-                     "rms_ez_mm": 1e3 * float(np.sqrt(np.nanmean(np.square(g.rms_ez_m)))),
-                     "theory_mm": 1e3 * float(g.theory_m.iloc[0]),
-                     "rot_deg": float(np.nanmedian(g.median_rot_deg)),
-                     "bad_naive_%": 100.0 * _bad(g, "naive") / amb,
-                     "bad_ours_%": 100.0 * _bad(g, "ours") / amb,
-                     "bad_prior_%": 100.0 * _bad(g, "prior") / amb,
-                     "succ_ours_%": 100.0 * g.ok_ours.sum() / g.n.sum(),
-                     "nan_naive": int(g.nan_naive.sum()), "behind_naive": int(g.behind_naive.sum()),
-                     "nan+behind_ours": int(g.nan_ours.sum() + g.behind_ours.sum())})
+        rows.append(
+            {
+                "target": tgt,
+                "Z_m": Z,
+                "px": float(np.nanmedian(g.px)),
+                "det": "yes" if g.detectable.all() else ("some" if g.detectable.any() else "no"),
+                "rms_ez_mm": 1e3 * float(np.sqrt(np.nanmean(np.square(g.rms_ez_m)))),
+                "theory_mm": 1e3 * float(g.theory_m.iloc[0]),
+                "rot_deg": float(np.nanmedian(g.median_rot_deg)),
+                "bad_naive_%": 100.0 * _bad(g, "naive") / amb,
+                "bad_ours_%": 100.0 * _bad(g, "ours") / amb,
+                "bad_prior_%": 100.0 * _bad(g, "prior") / amb,
+                "succ_ours_%": 100.0 * g.ok_ours.sum() / g.n.sum(),
+                "nan_naive": int(g.nan_naive.sum()),
+                "behind_naive": int(g.behind_naive.sum()),
+                "nan+behind_ours": int(g.nan_ours.sum() + g.behind_ours.sum()),
+            }
+        )
     return pd.DataFrame(rows)
 
 
@@ -322,6 +354,7 @@ def wrong_rates(df: pd.DataFrame, by: str = "angle_deg") -> pd.DataFrame:
 def plot(df: pd.DataFrame, path: Path) -> None:
     """Error vs Z (log-log) per target and noise, with the Z^2 theory; wrong-pick rates vs angle."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -331,9 +364,16 @@ def plot(df: pd.DataFrame, path: Path) -> None:
             if s == 0:
                 continue
             d = df[(df.target == tgt) & (df.sigma_px == s) & (df.angle_deg <= 60)]
-            g = d[d.n > 0].groupby("Z_m").agg(rms=("rms_ez_m", lambda x: float(np.sqrt(np.nanmean(np.square(x))))),
-                                     th=("theory_m", "first"), det=("detectable", "all"))
-            line, = ax.loglog(g.index, g.rms, "o-", label=f"sigma={s:g} px")
+            g = (
+                d[d.n > 0]
+                .groupby("Z_m")
+                .agg(
+                    rms=("rms_ez_m", lambda x: float(np.sqrt(np.nanmean(np.square(x))))),
+                    th=("theory_m", "first"),
+                    det=("detectable", "all"),
+                )
+            )
+            (line,) = ax.loglog(g.index, g.rms, "o-", label=f"sigma={s:g} px")
             ax.loglog(g.index, g.th, "--", color=line.get_color(), alpha=0.6)
             nd = g[~g.det]
             ax.loglog(nd.index, nd.rms, "x", color="k", ms=8)
@@ -360,23 +400,29 @@ def plot(df: pd.DataFrame, path: Path) -> None:
 
 def format_report(df: pd.DataFrame) -> str:
     """The printed report: per-Z table at 1 px, wrong-pick rates per angle, exponents, counts."""
-    lines = [f"PnP stress: {WIDTH}x{HEIGHT}, hfov {HFOV_DEG:g} deg (f = {F_PX:.1f} px); "
-             f"led = 4 LEDs on a 0.6 m square (IPPE), square = 0.15 m marker (IPPE_SQUARE); "
-             f"{int(df.n.max())} random poses per cell (fewer where a large tilted target would reach "
-             f"behind the camera; {int((df.n == 0).sum())} impossible cells skipped)",
-             f"\nper distance at sigma = {FIT_NOISE_PX:g} px, viewing angles {sorted(set(df.angle_deg))} deg pooled "
-             "(rms_ez = RMS error of the target depth; theory = 0.7 Z^2 sigma/(f s)):",
-             summary_table(df).to_string(index=False, float_format=lambda x: f"{x:.3g}"),
-             "\nplanar ambiguity, sigma > 0, Z pooled (% of ambiguous trials; wrong = pose on the flipped "
-             "IPPE branch, bad = wrong + NaN + behind camera; naive = OpenCV's first IPPE solution, "
-             f"ours = solve_planar, prior = nearest to an attitude prior off by {PRIOR_ERR_DEG:g} deg):",
-             wrong_rates(df).to_string(index=False, float_format=lambda x: f"{x:.3g}")]
+    lines = [
+        f"PnP stress: {WIDTH}x{HEIGHT}, hfov {HFOV_DEG:g} deg (f = {F_PX:.1f} px); "
+        f"led = 4 LEDs on a 0.6 m square (IPPE), square = 0.15 m marker (IPPE_SQUARE); "
+        f"{int(df.n.max())} random poses per cell (fewer where a large tilted target would reach "
+        f"behind the camera; {int((df.n == 0).sum())} impossible cells skipped)",
+        f"\nper distance at sigma = {FIT_NOISE_PX:g} px, viewing angles {sorted(set(df.angle_deg))} deg pooled "
+        "(rms_ez = RMS error of the target depth; theory = 0.7 Z^2 sigma/(f s)):",
+        summary_table(df).to_string(index=False, float_format=lambda x: f"{x:.3g}"),
+        "\nplanar ambiguity, sigma > 0, Z pooled (% of ambiguous trials; wrong = pose on the flipped "
+        "IPPE branch, bad = wrong + NaN + behind camera; naive = OpenCV's first IPPE solution, "
+        f"ours = solve_planar, prior = nearest to an attitude prior off by {PRIOR_ERR_DEG:g} deg):",
+        wrong_rates(df).to_string(index=False, float_format=lambda x: f"{x:.3g}"),
+    ]
     for tgt in sorted(df.target.unique()):
-        lines.append(f"\n{tgt}: fitted exponent of rms_ez ~ Z^k (detectable, sigma = {FIT_NOISE_PX:g} px, "
-                     f"angles <= 60 deg): k = {fit_exponent(df, tgt):.2f}")
+        lines.append(
+            f"\n{tgt}: fitted exponent of rms_ez ~ Z^k (detectable, sigma = {FIT_NOISE_PX:g} px, "
+            f"angles <= 60 deg): k = {fit_exponent(df, tgt):.2f}"
+        )
     d = df
-    lines.append(f"solve_planar: {int(d.nan_ours.sum())} NaN and {int(d.behind_ours.sum())} behind-camera "
-                 f"successes, {int(d.none_ours.sum())} refusals (None); naive first IPPE solution: "
-                 f"{int(d.nan_naive.sum())} NaN, {int(d.behind_naive.sum())} behind the camera "
-                 f"(of {int(d.n.sum())} trials per method)")
+    lines.append(
+        f"solve_planar: {int(d.nan_ours.sum())} NaN and {int(d.behind_ours.sum())} behind-camera "
+        f"successes, {int(d.none_ours.sum())} refusals (None); naive first IPPE solution: "
+        f"{int(d.nan_naive.sum())} NaN, {int(d.behind_naive.sum())} behind the camera "
+        f"(of {int(d.n.sum())} trials per method)"
+    )
     return "\n".join(lines)

@@ -27,17 +27,20 @@ Steps (RGB uint8 in, RGB uint8 out, deterministic):
 :class:`Preprocessed` wraps any localizer; :func:`parse_steps` validates a spec
 (raises ``ValueError`` with the reason).
 """
+
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 
 def _cv2():
     import cv2
+
     return cv2
 
 
@@ -109,8 +112,15 @@ def grayworld(img, max_gain=4.0):
 
 
 STEPS: dict[str, Callable[..., np.ndarray]] = {
-    "denoise": denoise, "bilateral": bilateral, "median": median, "gaussian": gaussian,
-    "clahe": clahe, "stretch": stretch, "gain": gain, "gamma": gamma, "grayworld": grayworld,
+    "denoise": denoise,
+    "bilateral": bilateral,
+    "median": median,
+    "gaussian": gaussian,
+    "clahe": clahe,
+    "stretch": stretch,
+    "gain": gain,
+    "gamma": gamma,
+    "grayworld": grayworld,
 }
 
 
@@ -166,8 +176,9 @@ def parse_steps(spec: str | list | tuple | None) -> list[Step]:
         for p in parts[1:]:
             key, sep, val = p.partition("=")
             if not sep or key.strip() not in allowed:
-                raise ValueError(f"step {name!r}: bad parameter {p!r}; expected key=value with key in "
-                                 f"{', '.join(allowed)}")
+                raise ValueError(
+                    f"step {name!r}: bad parameter {p!r}; expected key=value with key in {', '.join(allowed)}"
+                )
             params[key.strip()] = _value(val.strip())
         steps.append(Step(name, params))
     return steps
@@ -193,8 +204,7 @@ class Preprocessed:
         """localizer: any localizer object; steps: a spec string or list (:func:`parse_steps`)."""
         self.inner = localizer
         self.steps = parse_steps(steps)
-        self.name = f"{getattr(localizer, 'name', type(localizer).__name__)}+" + \
-                    "+".join(s.name for s in self.steps)
+        self.name = f"{getattr(localizer, 'name', type(localizer).__name__)}+" + "+".join(s.name for s in self.steps)
         self.preprocess_ms = 0.0
 
     @property

@@ -5,11 +5,12 @@ Used by :mod:`evalkit.isolation` (Python localizers in a child interpreter) and
 :mod:`evalkit.external` (programs speaking the JSON-lines protocol); neither copies
 the other. Only the standard library is imported here (children start fast).
 """
+
 from __future__ import annotations
 
 import os
-import subprocess
 import signal
+import subprocess
 import time
 from typing import Any
 
@@ -19,14 +20,16 @@ from typing import Any
 # 30 s per frame is 300x the 0.1 s frame period of the benchmark's 10 fps camera (configs/
 # quickstart.yaml camera.fps), room for a first call that compiles or loads a model; a
 # localizer that needs longer says so with --frame-timeout.
-DEFAULT_TIMEOUT_S = 30.0        # per frame, when isolation is on without --frame-timeout
+DEFAULT_TIMEOUT_S = 30.0  # per frame, when isolation is on without --frame-timeout
 DEFAULT_RESET_TIMEOUT_S = 120.0  # reset (may load models)
 DEFAULT_START_TIMEOUT_S = 120.0  # starting a child and building the localizer
-DEFAULT_MAX_RESTARTS = 3         # per sequence; afterwards that sequence's frames fail fast
+DEFAULT_MAX_RESTARTS = 3  # per sequence; afterwards that sequence's frames fail fast
 DEFAULT_MAX_RESTARTS_TOTAL = 10  # per localizer and evaluation process; afterwards every frame fails fast
 
 
 EXIT_GRACE_S = 2.0  # s a child gets to exit after stdin/pipe close before it is killed
+
+
 # address space of a localizer child (RLIMIT_AS, MiB); 0 = unlimited. DOCKBENCH_MEMORY_LIMIT_MB
 # overrides it (e.g. for GPU frameworks, which reserve large virtual ranges)
 def _memory_limit_from_env(default_mb: int = 4096) -> int:
@@ -76,18 +79,18 @@ def limit_memory(pid: int, memory_limit_mb: int | None) -> None:
     if not memory_limit_mb:
         return
     import resource
+
     limit = int(memory_limit_mb) << 20
     if pid == os.getpid():
         resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
     elif hasattr(resource, "prlimit"):
         try:
             resource.prlimit(pid, resource.RLIMIT_AS, (limit, limit))
-        except (OSError, ValueError):   # the child already ended: its exit status tells
+        except (OSError, ValueError):  # the child already ended: its exit status tells
             pass
 
 
-def spawn(argv: list[str], memory_limit_mb: int | None = DEFAULT_MEMORY_LIMIT_MB,
-          **popen_kw: Any) -> subprocess.Popen:
+def spawn(argv: list[str], memory_limit_mb: int | None = DEFAULT_MEMORY_LIMIT_MB, **popen_kw: Any) -> subprocess.Popen:
     """Start ``argv`` (subprocess.Popen keywords pass through) with its memory capped by
     :func:`limit_memory` right after the start; raise :class:`ChildDead` if it cannot start."""
     try:
@@ -98,12 +101,15 @@ def spawn(argv: list[str], memory_limit_mb: int | None = DEFAULT_MEMORY_LIMIT_MB
     return proc
 
 
-_RLIMIT_SHIM = ("import os, resource, sys; n = int(sys.argv[1]) << 20; "
-                "n and resource.setrlimit(resource.RLIMIT_AS, (n, n)); os.execvp(sys.argv[2], sys.argv[2:])")
+_RLIMIT_SHIM = (
+    "import os, resource, sys; n = int(sys.argv[1]) << 20; "
+    "n and resource.setrlimit(resource.RLIMIT_AS, (n, n)); os.execvp(sys.argv[2], sys.argv[2:])"
+)
 
 
-def sandboxed_argv(argv: list[str], scratch: str | None, cwd: str | None = None,
-                   memory_limit_mb: int | None = None) -> tuple[list[str], str | None]:
+def sandboxed_argv(
+    argv: list[str], scratch: str | None, cwd: str | None = None, memory_limit_mb: int | None = None
+) -> tuple[list[str], str | None]:
     """``(argv to start, scratch folder)``: ``argv`` inside the bubblewrap sandbox
     (:mod:`evalkit.sandbox`) with a scratch folder (``scratch`` reused, else a new temporary
     one), or ``argv`` unchanged where there is no sandbox (said once on stderr). With
@@ -112,7 +118,9 @@ def sandboxed_argv(argv: list[str], scratch: str | None, cwd: str | None = None,
     race its fork)."""
     import sys
     import tempfile
+
     from evalkit import sandbox
+
     if not sandbox.available():
         sandbox.warn_once_unavailable()
         return argv, scratch
@@ -126,6 +134,7 @@ def remove_scratch(scratch: str | None) -> None:
     """Delete a scratch folder of :func:`sandboxed_argv` (None: nothing)."""
     if scratch:
         import shutil
+
         shutil.rmtree(scratch, ignore_errors=True)
 
 
@@ -157,12 +166,16 @@ class ProcessLocalizer:
     """
 
     enforces_timeout = True  # the runner must not re-check the wall time
-    sandboxed = False        # set by _start: the child runs inside bwrap (evalkit.sandbox)
+    sandboxed = False  # set by _start: the child runs inside bwrap (evalkit.sandbox)
 
-    def __init__(self, timeout_s: float | None = DEFAULT_TIMEOUT_S,
-                 reset_timeout_s: float | None = DEFAULT_RESET_TIMEOUT_S,
-                 start_timeout_s: float | None = DEFAULT_START_TIMEOUT_S,
-                 max_restarts: int = DEFAULT_MAX_RESTARTS, max_restarts_total: int = DEFAULT_MAX_RESTARTS_TOTAL):
+    def __init__(
+        self,
+        timeout_s: float | None = DEFAULT_TIMEOUT_S,
+        reset_timeout_s: float | None = DEFAULT_RESET_TIMEOUT_S,
+        start_timeout_s: float | None = DEFAULT_START_TIMEOUT_S,
+        max_restarts: int = DEFAULT_MAX_RESTARTS,
+        max_restarts_total: int = DEFAULT_MAX_RESTARTS_TOTAL,
+    ):
         """timeout_s: per-frame budget (s; None waits forever); reset_timeout_s: for
         reset; start_timeout_s: for starting the child; max_restarts: restarts per
         sequence before the remaining frames fail at once; max_restarts_total: the same
@@ -237,6 +250,7 @@ class ProcessLocalizer:
     def _exit_code(self):
         """The child's exit code once it has ended (waits EXIT_GRACE_S), else None."""
         import subprocess
+
         if self._proc is None:
             return None
         try:
@@ -244,7 +258,7 @@ class ProcessLocalizer:
         except subprocess.TimeoutExpired:
             return None
         if self.sandboxed and code is not None and 128 < code < 128 + 65:
-            return 128 - code           # bwrap exits 128 + N for a program killed by signal N
+            return 128 - code  # bwrap exits 128 + N for a program killed by signal N
         return code
 
     def _stop_gracefully(self) -> None:
@@ -301,4 +315,3 @@ class ProcessLocalizer:
         except ProtocolError as exc:
             self._kill()
             raise FrameFailure(f"protocol: {exc}") from None
-

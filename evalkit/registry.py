@@ -18,6 +18,7 @@ This module only looks localizers up and builds them; wrapping them (process
 isolation, external programs' defaults, preprocessing) is :func:`evalkit.assemble.build`,
 what the CLI uses.
 """
+
 from __future__ import annotations
 
 import functools
@@ -111,14 +112,17 @@ def load_target(spec: str) -> Any:
         try:
             return eps[spec].load()
         except Exception as exc:
-            raise RegistryError(f"entry point {spec!r} ({eps[spec].value}) failed to load: "
-                                f"{type(exc).__name__}: {exc}") from exc
+            raise RegistryError(
+                f"entry point {spec!r} ({eps[spec].value}) failed to load: {type(exc).__name__}: {exc}"
+            ) from exc
     if ":" in spec and _is_file_target(spec):
         return _load_file_target(spec)
     if ":" in spec:
         return _load_module_target(spec)
-    raise RegistryError(f"unknown localizer {spec!r}; known: {', '.join(known_names())}; "
-                        f"or give 'path/to/file.py:Class', 'package.module:Class' or 'exec:COMMAND'")
+    raise RegistryError(
+        f"unknown localizer {spec!r}; known: {', '.join(known_names())}; "
+        f"or give 'path/to/file.py:Class', 'package.module:Class' or 'exec:COMMAND'"
+    )
 
 
 def resolve(spec: str, params: dict | None = None) -> Any:
@@ -136,7 +140,8 @@ def resolve(spec: str, params: dict | None = None) -> Any:
     params = dict(params or {})
     if spec.startswith(EXEC_PREFIX):
         from evalkit.external import ExternalLocalizer
-        target = functools.partial(ExternalLocalizer, spec[len(EXEC_PREFIX):])
+
+        target = functools.partial(ExternalLocalizer, spec[len(EXEC_PREFIX) :])
     else:
         target = load_target(spec)
     obj: Any
@@ -151,16 +156,18 @@ def resolve(spec: str, params: dict | None = None) -> Any:
         obj = target
     if not _is_localizer(obj):
         raise RegistryError(f"{spec!r} gave {type(obj).__name__}, which lacks reset()/localize()")
-    if spec in BUILTINS and not hasattr(obj, "memo_config"):   # what evalkit.memo shares calls by
+    if spec in BUILTINS and not hasattr(obj, "memo_config"):  # what evalkit.memo shares calls by
         from evalkit.memo import config_key
+
         obj.memo_config = config_key(spec, params)
     return obj
 
 
 def _is_localizer(obj: Any) -> bool:
     """An instance (not a class) with callable ``reset`` and ``localize``."""
-    return (not inspect.isclass(obj) and callable(getattr(obj, "reset", None))
-            and callable(getattr(obj, "localize", None)))
+    return (
+        not inspect.isclass(obj) and callable(getattr(obj, "reset", None)) and callable(getattr(obj, "localize", None))
+    )
 
 
 def _first_doc_line(obj: Any) -> str:
@@ -215,7 +222,7 @@ def params_for(name: str, params: dict[str, Any], names: list[str]) -> dict[str,
     ``name.key`` entries (``-p led.threshold=120`` reaches only ``-l led``)."""
     out = {k: v for k, v in params.items() if not any(k.startswith(f"{n}.") for n in names)}
     prefix = f"{name}."
-    out.update({k[len(prefix):]: v for k, v in params.items() if k.startswith(prefix)})
+    out.update({k[len(prefix) :]: v for k, v in params.items() if k.startswith(prefix)})
     return out
 
 

@@ -35,27 +35,44 @@ report their own ``last_call_ms`` (the exchange, not a restart) and raise
 Localizers with a ``localize_file(path, index)`` method (external programs)
 get the image's absolute path instead of the pixels.
 """
+
 from __future__ import annotations
 
 import math
 import sys
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Any, Iterable, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 import pandas as pd
 
-from evalkit.metrics import core as metrics
 from evalkit.dataset import Dataset
 from evalkit.memo import FrameMemo, share
+from evalkit.metrics import core as metrics
 from evalkit.process import FrameFailure
 
 # raw columns of a frame row; _finish appends metrics.SCORE_COLUMNS (errors, fp, success)
-RAW_COLUMNS = ["localizer", "sequence", "trajectory", "condition", "trial", "index", "t", "d_true",
-               "in_view", "markers_in_fov", "detected", "d_est", "marker_id", "ms", "fail_reason",
-               "T_cam_dock_est", "T_cam_dock"]
+RAW_COLUMNS = [
+    "localizer",
+    "sequence",
+    "trajectory",
+    "condition",
+    "trial",
+    "index",
+    "t",
+    "d_true",
+    "in_view",
+    "markers_in_fov",
+    "detected",
+    "d_est",
+    "marker_id",
+    "ms",
+    "fail_reason",
+    "T_cam_dock_est",
+    "T_cam_dock",
+]
 COLUMNS = RAW_COLUMNS + metrics.SCORE_COLUMNS
 
 
@@ -96,7 +113,7 @@ class InProcessExecutor:
         except FrameFailure as exc:
             value, error = None, exc.reason
         except KeyboardInterrupt as exc:
-            if _CTRL_C.pressed:            # a real Ctrl-C stops the run (exit 130 in the CLI)
+            if _CTRL_C.pressed:  # a real Ctrl-C stops the run (exit 130 in the CLI)
                 raise
             value, error = None, f"exception: KeyboardInterrupt: {exc}"
         except BaseException as exc:  # noqa: BLE001 - SystemExit, GeneratorExit...: one failed frame
@@ -113,11 +130,12 @@ class InProcessExecutor:
 class _CtrlC:
     """Set by the SIGINT handler :func:`evaluate` installs: tells a real Ctrl-C (stop the
     run) from a KeyboardInterrupt a localizer raised itself (one failed frame)."""
+
     pressed = False
 
 
 _CTRL_C = _CtrlC()
-MAX_DISTANCE_M = 1e4   # answers beyond 10 km are not distances to a dock: "out_of_range"
+MAX_DISTANCE_M = 1e4  # answers beyond 10 km are not distances to a dock: "out_of_range"
 
 
 def validate_estimate(value: Any) -> tuple[dict | None, str]:
@@ -140,7 +158,7 @@ def validate_estimate(value: Any) -> tuple[dict | None, str]:
         return None, "bad_type"
     try:
         distance = float(raw)
-    except OverflowError:          # an int beyond float range
+    except OverflowError:  # an int beyond float range
         return None, "out_of_range"
     if not math.isfinite(distance):
         return None, "nan"
@@ -152,8 +170,7 @@ def validate_estimate(value: Any) -> tuple[dict | None, str]:
     if reason:
         return None, reason
     marker_id = value.get("marker_id")
-    return {"distance": distance, "T_cam_dock": T,
-            "marker_id": None if marker_id is None else str(marker_id)}, ""
+    return {"distance": distance, "T_cam_dock": T, "marker_id": None if marker_id is None else str(marker_id)}, ""
 
 
 def _validate_pose(T: Any) -> tuple[np.ndarray | None, str]:
@@ -197,21 +214,36 @@ def _row(name: str, seq: dict, frame: dict, est: dict | None, reason: str, ms: f
     """One per-frame output row with the truth it is scored against (scores are filled later, in bulk)."""
     in_fov = _markers_in_fov(frame)
     return {
-        "localizer": name, "sequence": seq["id"], "trajectory": str(seq.get("trajectory", "")),
-        "condition": seq.get("condition", ""), "trial": seq.get("trial"), "index": frame.get("index"),
-        "t": frame.get("t"), "d_true": frame.get("d_true"), "in_view": bool(in_fov),
-        "markers_in_fov": ",".join(in_fov), "detected": est is not None,
+        "localizer": name,
+        "sequence": seq["id"],
+        "trajectory": str(seq.get("trajectory", "")),
+        "condition": seq.get("condition", ""),
+        "trial": seq.get("trial"),
+        "index": frame.get("index"),
+        "t": frame.get("t"),
+        "d_true": frame.get("d_true"),
+        "in_view": bool(in_fov),
+        "markers_in_fov": ",".join(in_fov),
+        "detected": est is not None,
         "d_est": est["distance"] if est else math.nan,
         "marker_id": est["marker_id"] if est else None,
-        "ms": ms, "fail_reason": reason,
-        "T_cam_dock_est": (np.asarray(est["T_cam_dock"], float).ravel().tolist()
-                           if est and est.get("T_cam_dock") is not None else None),
+        "ms": ms,
+        "fail_reason": reason,
+        "T_cam_dock_est": (
+            np.asarray(est["T_cam_dock"], float).ravel().tolist() if est and est.get("T_cam_dock") is not None else None
+        ),
         "T_cam_dock": _flat_pose(frame.get("T_cam_dock")),
     }
 
 
-def _run_sequence(dataset: Dataset, seq: dict, localizers: list[tuple[str, Any]],
-                  executor: Executor, tick, memo: FrameMemo | None = None) -> list[dict]:
+def _run_sequence(
+    dataset: Dataset,
+    seq: dict,
+    localizers: list[tuple[str, Any]],
+    executor: Executor,
+    tick,
+    memo: FrameMemo | None = None,
+) -> list[dict]:
     """Reset every localizer, then feed each frame of ``seq`` to each of them.
 
     The image is read only if some localizer takes pixels; ``localize_file``
@@ -237,7 +269,7 @@ def _run_sequence(dataset: Dataset, seq: dict, localizers: list[tuple[str, Any]]
             if by_file[name]:
                 if path is None:
                     path = dataset.checked_image_path(frame)  # DatasetError if missing/outside
-                    dataset.check_file(path)                  # the program reads it: verify it first
+                    dataset.check_file(path)  # the program reads it: verify it first
                     path = path.resolve()
                 res = executor.call(loc, "localize_file", str(path), frame.get("index"))
             else:
@@ -261,22 +293,40 @@ def progress_bar(total: int, enabled: bool, label: str = "evaluating"):
     if not enabled:
         return contextlib.nullcontext(lambda n: None)
     from rich.console import Console
-    from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
-                               TimeElapsedColumn, TimeRemainingColumn)
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
 
     @contextlib.contextmanager
     def ctx():
-        with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                      TimeElapsedColumn(), TimeRemainingColumn(), console=Console(file=sys.stderr),
-                      transient=True) as bar:
+        with Progress(
+            TextColumn("{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeElapsedColumn(),
+            TimeRemainingColumn(),
+            console=Console(file=sys.stderr),
+            transient=True,
+        ) as bar:
             task = bar.add_task(label, total=total)
             yield lambda n: bar.advance(task, n)
+
     return ctx()
 
 
-def evaluate(dataset: Dataset, localizer_specs: Iterable[tuple[str, Any]],
-             frame_timeout_s: float | None = None, progress: bool = True,
-             executor: Executor | None = None, sequences: list[str] | None = None) -> pd.DataFrame:
+def evaluate(
+    dataset: Dataset,
+    localizer_specs: Iterable[tuple[str, Any]],
+    frame_timeout_s: float | None = None,
+    progress: bool = True,
+    executor: Executor | None = None,
+    sequences: list[str] | None = None,
+) -> pd.DataFrame:
     """Run each ``(name, localizer)`` on every frame; return the per-frame table.
 
     Columns are :data:`COLUMNS`: ``detected`` (a valid answer), the truth
@@ -304,7 +354,7 @@ def evaluate(dataset: Dataset, localizer_specs: Iterable[tuple[str, Any]],
         raise ValueError(f"localizer names must be unique, got {names}")
     executor = executor or InProcessExecutor(frame_timeout_s)
     memo = FrameMemo()
-    localizers = share(localizers, memo)    # led + qr + hybrid: LED and QR run once per frame
+    localizers = share(localizers, memo)  # led + qr + hybrid: LED and QR run once per frame
     seqs = [s for s in dataset.sequences if sequences is None or s["id"] in sequences]
     total = sum(int(s.get("n_frames", 0)) for s in seqs)
     rows: list[dict] = []
@@ -340,12 +390,14 @@ def _sigint_marks_ctrl_c():
         def handler(signum, frame):
             _CTRL_C.pressed = True
             raise KeyboardInterrupt
+
         signal.signal(signal.SIGINT, handler)
         _CTRL_C.pressed = False
         try:
             yield
         finally:
             signal.signal(signal.SIGINT, previous)
+
     return ctx()
 
 
@@ -354,8 +406,7 @@ def _finish(rows: list[dict], d_min_rel: float) -> pd.DataFrame:
     :class:`~evalkit.metrics.core.SuccessCriteria` (re-scored by
     :func:`evalkit.metrics.extra.compute_all` with the run's settings)."""
     df = pd.DataFrame(rows, columns=RAW_COLUMNS)
-    df = df.astype({"d_true": float, "d_est": float, "ms": float, "t": float,
-                    "detected": bool, "in_view": bool})
+    df = df.astype({"d_true": float, "d_est": float, "ms": float, "t": float, "detected": bool, "in_view": bool})
     df["fail_reason"] = df["fail_reason"].fillna("").astype(str)
     df["markers_in_fov"] = df["markers_in_fov"].fillna("").astype(str)
     df = pd.concat([df, metrics.score_frames(df, d_min_rel=d_min_rel)], axis=1)

@@ -22,6 +22,7 @@ network); it is recorded in run.json like every other option.
 
 Only the standard library is imported here (children start fast).
 """
+
 from __future__ import annotations
 
 import functools
@@ -36,9 +37,25 @@ PROBE_TIMEOUT_S = 10.0
 
 
 def _base_argv(bwrap: str) -> list[str]:
-    return [bwrap, "--ro-bind", "/", "/", "--dev", "/dev", "--proc", "/proc", "--tmpfs", "/dev/shm",
-            "--unshare-pid", "--unshare-net", "--unshare-ipc", "--die-with-parent", "--new-session",
-            "--cap-drop", "ALL"]
+    return [
+        bwrap,
+        "--ro-bind",
+        "/",
+        "/",
+        "--dev",
+        "/dev",
+        "--proc",
+        "/proc",
+        "--tmpfs",
+        "/dev/shm",
+        "--unshare-pid",
+        "--unshare-net",
+        "--unshare-ipc",
+        "--die-with-parent",
+        "--new-session",
+        "--cap-drop",
+        "ALL",
+    ]
 
 
 @functools.lru_cache(maxsize=1)
@@ -54,8 +71,13 @@ def probe() -> tuple[str | None, str]:
         return None, "bubblewrap (bwrap) is not installed (Debian/Ubuntu: apt-get install bubblewrap)"
     true = shutil.which("true") or "/bin/true"
     try:
-        r = subprocess.run([*_base_argv(bwrap), "--", true], capture_output=True, text=True,
-                           timeout=PROBE_TIMEOUT_S, stdin=subprocess.DEVNULL)
+        r = subprocess.run(
+            [*_base_argv(bwrap), "--", true],
+            capture_output=True,
+            text=True,
+            timeout=PROBE_TIMEOUT_S,
+            stdin=subprocess.DEVNULL,
+        )
     except (OSError, subprocess.TimeoutExpired) as exc:
         return None, f"bwrap does not start ({type(exc).__name__})"
     if r.returncode != 0:
@@ -81,8 +103,11 @@ def warn_once_unavailable() -> None:
     if not available() and not _WARNED and not os.environ.get(WARNED_ENV):
         _WARNED.append(True)
         os.environ[WARNED_ENV] = "1"
-        print(f"warning: isolated localizers run without a sandbox: {probe()[1]}; they can write "
-              "wherever this user can (only memory and time are limited)", file=sys.stderr)
+        print(
+            f"warning: isolated localizers run without a sandbox: {probe()[1]}; they can write "
+            "wherever this user can (only memory and time are limited)",
+            file=sys.stderr,
+        )
 
 
 def wrap(argv: list[str], scratch: Path, cwd: str | None = None) -> list[str]:
@@ -93,5 +118,19 @@ def wrap(argv: list[str], scratch: Path, cwd: str | None = None) -> list[str]:
     if bwrap is None:
         raise RuntimeError(f"no sandbox: {why}")
     s = str(Path(scratch).resolve())
-    return [*_base_argv(bwrap), "--bind", s, s, "--setenv", "TMPDIR", s, "--setenv", "HOME", s,
-            "--chdir", str(Path(cwd or os.getcwd()).resolve()), "--", *argv]
+    return [
+        *_base_argv(bwrap),
+        "--bind",
+        s,
+        s,
+        "--setenv",
+        "TMPDIR",
+        s,
+        "--setenv",
+        "HOME",
+        s,
+        "--chdir",
+        str(Path(cwd or os.getcwd()).resolve()),
+        "--",
+        *argv,
+    ]

@@ -21,6 +21,7 @@ cannot run code. An older run folder's pickled caches (``*.pkl.gz``) are never r
 Nothing here imports blendgen: the caller passes the manifest (as ``dockbench
 generate`` will write it, without ``files``) and the frames to keep.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -33,15 +34,21 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from datasets_spec.io import (
+    DatasetError,
+    load_raw_image,
+    path_inside,
+    pixel_sha256,
+    raw_image_path,
+    save_json_atomic,
+    sha256_file,
+)
 from evalkit.dataset import Dataset
-from datasets_spec.io import (load_raw_image, path_inside, pixel_sha256, raw_image_path, save_json_atomic,
-                              sha256_file, DatasetError)
-
 
 RESULTS_SUFFIX = ".parquet"
 PIXELS_SUFFIX = ".pixels.json"
 WORK_MANIFEST = "manifest.jsonl"
-LEGACY_SUFFIX = ".pkl.gz"           # pickled caches of older versions: refused, never read
+LEGACY_SUFFIX = ".pkl.gz"  # pickled caches of older versions: refused, never read
 
 
 class StreamCacheError(DatasetError):
@@ -53,8 +60,7 @@ def record_files(work: Path, paths: list[Path]) -> None:
     """Append ``{"files": {WORK-relative name: sha256}}`` of ``paths`` to the work manifest
     (one ``write`` of one line on an ``O_APPEND`` file: concurrent workers do not interleave)."""
     work = Path(work)
-    line = json.dumps({"files": {p.relative_to(work).as_posix(): sha256_file(p) for p in paths}},
-                      sort_keys=True) + "\n"
+    line = json.dumps({"files": {p.relative_to(work).as_posix(): sha256_file(p) for p in paths}}, sort_keys=True) + "\n"
     fd = os.open(work / WORK_MANIFEST, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
     try:
         os.write(fd, line.encode())
@@ -86,16 +92,20 @@ def read_checked(work: Path, name: str, recorded: dict[str, str] | None = None) 
     recorded = recorded_files(work) if recorded is None else recorded
     path = work / name
     if name not in recorded:
-        raise StreamCacheError(f"{path}: not in the run folder's {WORK_MANIFEST}; pass --overwrite to start "
-                               "the run over")
+        raise StreamCacheError(
+            f"{path}: not in the run folder's {WORK_MANIFEST}; pass --overwrite to start the run over"
+        )
     try:
         data = path.read_bytes()
     except OSError as exc:
-        raise StreamCacheError(f"{path}: cannot read the run's work file ({exc.strerror}); pass --overwrite "
-                               "to start the run over") from None
+        raise StreamCacheError(
+            f"{path}: cannot read the run's work file ({exc.strerror}); pass --overwrite to start the run over"
+        ) from None
     if hashlib.sha256(data).hexdigest() != recorded[name]:
-        raise StreamCacheError(f"{path}: changed since the run wrote it (sha256 differs from {WORK_MANIFEST}: "
-                               "truncated or edited); pass --overwrite to start the run over")
+        raise StreamCacheError(
+            f"{path}: changed since the run wrote it (sha256 differs from {WORK_MANIFEST}: "
+            "truncated or edited); pass --overwrite to start the run over"
+        )
     return data
 
 
@@ -103,8 +113,10 @@ def refuse_legacy(work: Path) -> None:
     """:class:`StreamCacheError` when ``work`` holds pickled caches of an older version."""
     old = sorted(Path(work).glob(f"*{LEGACY_SUFFIX}"))
     if old:
-        raise StreamCacheError(f"{old[0]}: a pickled cache of an older dockbench (never read: it could run "
-                               "code); pass --overwrite to start the run over")
+        raise StreamCacheError(
+            f"{old[0]}: a pickled cache of an older dockbench (never read: it could run "
+            "code); pass --overwrite to start the run over"
+        )
 
 
 class RecordingDataset(Dataset):
@@ -143,14 +155,17 @@ class RecordingDataset(Dataset):
                 else:
                     self.image_sha256[f["image"]] = sha256_file(self.image_path(f))
         names = [f["image"] for f in frames]
-        return ({n: self.image_sha256[n] for n in names if n in self.image_sha256},
-                {n: self.pixel_sha256[n] for n in names if n in self.pixel_sha256})
+        return (
+            {n: self.image_sha256[n] for n in names if n in self.image_sha256},
+            {n: self.pixel_sha256[n] for n in names if n in self.pixel_sha256},
+        )
 
 
 @dataclass
 class SequenceTask:
     """One committed sequence to evaluate. ``keep``: frame indices whose image stays on
     disk (None: all); ``localizers``/``params``/``preprocess``: as ``dockbench evaluate``."""
+
     root: str
     manifest: dict
     seq_id: str
@@ -173,9 +188,11 @@ def evaluate_sequence(task: SequenceTask) -> int:
     import time
 
     import cv2
+
     from evalkit import parallel, runner
+
     cpu0, wall0 = time.process_time(), time.perf_counter()
-    cv2.setNumThreads(1)                    # one process per core
+    cv2.setNumThreads(1)  # one process per core
     ds = RecordingDataset(Path(task.root), task.manifest)
     specs = parallel.build_localizers(task.localizers, task.params, None, None, task.preprocess)
     df = runner.evaluate(ds, specs, progress=False, sequences=[task.seq_id])
@@ -186,13 +203,15 @@ def evaluate_sequence(task: SequenceTask) -> int:
     names = [f"{task.seq_id}{PIXELS_SUFFIX}", f"{task.seq_id}.hashes.json", f"{task.seq_id}.cost.json"]
     save_json_atomic(work / names[0], pixels)
     save_json_atomic(work / names[1], hashes)
-    save_json_atomic(work / names[2], {"cpu_s": time.process_time() - cpu0, "wall_s": time.perf_counter() - wall0,
-                                       "frames": len(frames)})
+    save_json_atomic(
+        work / names[2],
+        {"cpu_s": time.process_time() - cpu0, "wall_s": time.perf_counter() - wall0, "frames": len(frames)},
+    )
     tmp = work / f".{task.seq_id}.tmp"
     df.to_parquet(tmp, index=False)
     os.replace(tmp, work / f"{task.seq_id}{RESULTS_SUFFIX}")
-    record_files(work, [work / n for n in names] + [work / f"{task.seq_id}{RESULTS_SUFFIX}"])   # done
-    prune_images(ds, frames, task.keep)      # after the record (again on a resume)
+    record_files(work, [work / n for n in names] + [work / f"{task.seq_id}{RESULTS_SUFFIX}"])  # done
+    prune_images(ds, frames, task.keep)  # after the record (again on a resume)
     return len(frames)
 
 
@@ -221,7 +240,7 @@ def load_results(work: Path, seq_ids: list[str]) -> tuple[pd.DataFrame, dict[str
     parts = [_parquet(work, f"{s}{RESULTS_SUFFIX}", recorded) for s in seq_ids]
     hashes: dict[str, str] = {}
     for s in seq_ids:
-        hashes.update(read_json_checked(work, f"{s}.hashes.json", recorded))   # pixels: recorded_pixels
+        hashes.update(read_json_checked(work, f"{s}.hashes.json", recorded))  # pixels: recorded_pixels
     df = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
     if parts:
         df.attrs.update(parts[0].attrs)
@@ -255,8 +274,9 @@ def parse_images(images: str) -> int | None:
     head, _, n = text.partition(":")
     if head == "sample" and n.isdigit() and int(n) >= 1:
         return int(n)
-    raise ImagesPolicyError(f"--images {images!r}: expected none, all or sample:N with N >= 1 "
-                            "(N images kept per sequence, evenly spaced)")
+    raise ImagesPolicyError(
+        f"--images {images!r}: expected none, all or sample:N with N >= 1 (N images kept per sequence, evenly spaced)"
+    )
 
 
 def run_record_dataset(root: Path, manifest: dict) -> Any:
@@ -293,18 +313,20 @@ def read_json_checked(work: Path, name: str, recorded: dict[str, str]) -> dict:
 def _parquet(work: Path, name: str, recorded: dict[str, str]) -> pd.DataFrame:
     """A checked Parquet work file."""
     import io
+
     data = read_checked(work, name, recorded)
     try:
         return pd.read_parquet(io.BytesIO(data))
     except Exception as exc:  # noqa: BLE001 - any decoder failure is the same user error
-        raise StreamCacheError(f"{Path(work) / name}: unreadable Parquet ({type(exc).__name__}); pass "
-                               "--overwrite to start over") from None
+        raise StreamCacheError(
+            f"{Path(work) / name}: unreadable Parquet ({type(exc).__name__}); pass --overwrite to start over"
+        ) from None
 
 
 STREAM_FORMAT = "dockbench-stream"
-STREAM_VERSION = "2"                # 2: camera images not kept are hashed by pixels ("pixels")
+STREAM_VERSION = "2"  # 2: camera images not kept are hashed by pixels ("pixels")
 SUPPORTED_STREAM_VERSIONS = ("2",)
-MAX_STREAM_JSON_BYTES = 512 << 20   # ~100 bytes per file: ~5 M files
+MAX_STREAM_JSON_BYTES = 512 << 20  # ~100 bytes per file: ~5 M files
 
 
 def load_stream_summary(path: Path) -> dict:
@@ -315,6 +337,7 @@ def load_stream_summary(path: Path) -> dict:
     import re
 
     from datasets_spec.validate import RELPATH, RELPATH_RULE, ContentError, loads_bounded
+
     path = Path(path)
     if not path.is_file() or path.stat().st_size > MAX_STREAM_JSON_BYTES:
         raise DatasetError(f"--stream {path}: not a regular file of at most 512 MiB")
@@ -323,16 +346,20 @@ def load_stream_summary(path: Path) -> dict:
     except (UnicodeDecodeError, ContentError) as exc:
         raise DatasetError(f"--stream {path}: not a stream.json of dockbench run ({exc})") from None
     if not isinstance(doc, dict) or doc.get("format") != STREAM_FORMAT:
-        raise DatasetError(f"--stream {path}: expected a JSON object with \"format\": \"{STREAM_FORMAT}\" "
-                           "(the stream.json a dockbench run writes)")
+        raise DatasetError(
+            f'--stream {path}: expected a JSON object with "format": "{STREAM_FORMAT}" '
+            "(the stream.json a dockbench run writes)"
+        )
     if str(doc.get("format_version")) not in SUPPORTED_STREAM_VERSIONS:
-        raise DatasetError(f"--stream {path}: format_version {doc.get('format_version')!r}; this dockbench "
-                           f"reads {', '.join(SUPPORTED_STREAM_VERSIONS)}")
+        raise DatasetError(
+            f"--stream {path}: format_version {doc.get('format_version')!r}; this dockbench "
+            f"reads {', '.join(SUPPORTED_STREAM_VERSIONS)}"
+        )
     sha = re.compile(r"^[0-9a-f]{64}$")
     for key in ("files", "pixels"):
         entries = doc.get(key, {} if key == "pixels" else None)
         if not isinstance(entries, dict):
-            raise DatasetError(f"--stream {path}: \"{key}\" must be an object {{path: sha256}}")
+            raise DatasetError(f'--stream {path}: "{key}" must be an object {{path: sha256}}')
         for rel, h in entries.items():
             if not RELPATH.match(rel):
                 raise DatasetError(f"--stream {path}: {key} entry {rel[:80]!r} {RELPATH_RULE}")
@@ -347,13 +374,15 @@ def check_against(stream_summary: dict, root: Path) -> list[str]:
     sha256, every image of ``pixels`` must decode (HxWx3 uint8 RGB) to pixels of that
     :func:`pixel_sha256`, and the dataset must hold no other file."""
     from datasets_spec.io import dataset_files, load_manifest
+
     root = Path(root)
     files, pixels = stream_summary["files"], stream_summary.get("pixels", {})
     ds = Dataset(root, load_manifest(root), verify=False)
-    for rel in [*files, *pixels]:            # confined: symlinks out of the dataset are refused too
+    for rel in [*files, *pixels]:  # confined: symlinks out of the dataset are refused too
         path_inside(root, rel, "stream.json path")
-    problems = [f"{p}: sha256 differs" for p, h in files.items()
-                if not (root / p).is_file() or sha256_file(root / p) != h]
+    problems = [
+        f"{p}: sha256 differs" for p, h in files.items() if not (root / p).is_file() or sha256_file(root / p) != h
+    ]
     for p, h in pixels.items():
         try:
             img = _decoded(ds, root, p)
@@ -370,6 +399,7 @@ def _decoded(ds: Dataset, root: Path, rel: str) -> np.ndarray:
     """A PNG's pixels as hashed by a run: camera image HxWx3 uint8 RGB; range (uint16 mm) and
     index (uint8) passes HxW as stored."""
     import cv2
+
     if "/rgb/" in rel:
         return ds.decode_image((root / rel).read_bytes(), {"image": rel})
     a = cv2.imread(str(root / rel), cv2.IMREAD_UNCHANGED)

@@ -5,6 +5,7 @@ at four frames, each row labelled with its name and the LED localizer's verdict 
 
 FRAMES: comma-separated frame indices (e.g. 0,3,6,9). The datasets: the fast path and the
 reference renders of ``tools/bench/fidelity.held_in_experiment(320, 240, 12, ["clear"], ...)``."""
+
 import sys
 from pathlib import Path
 

@@ -4,6 +4,7 @@ spread beam (physics/light/beam_spread.py). No surface: the image is the lamp's 
 sRGB-like gamma, each row scaled by the reference's 99th percentile.
 
     python experiments/lamp_beam_spread.py OUT.jpg [WORK_DIR]"""
+
 import dataclasses
 import sys
 from pathlib import Path
@@ -12,8 +13,8 @@ import cv2
 import numpy as np
 
 from blendgen.physics.light import lamp_water
-from blendgen.physics.water import optics
 from blendgen.physics.light.sources import lamp_lights
+from blendgen.physics.water import optics
 from blendgen.tools.bench import lamp_bench as lb
 
 
@@ -24,11 +25,17 @@ def row(name: str, work: Path) -> np.ndarray:
     K, rays = lb.camera(spec)
     passes = lb.scene_passes(spec, rays)[:3]
     spread = lamp_water.LampWater.build(lamp_lights([lb._ns(d) for d in spec["lamps"]]), w)
-    imgs = [ref] + [lamp_water.lamp_radiance(m, K, rays, *passes)[..., 1]
-                    for m in (dataclasses.replace(spread, spread=False), spread)]
+    imgs = [ref] + [
+        lamp_water.lamp_radiance(m, K, rays, *passes)[..., 1]
+        for m in (dataclasses.replace(spread, spread=False), spread)
+    ]
     top = np.percentile(ref, 99)
-    tiles = [cv2.resize((np.clip(i / top, 0, 1) ** (1 / 2.2) * 255).astype(np.uint8), (288, 216),
-                        interpolation=cv2.INTER_NEAREST) for i in imgs]
+    tiles = [
+        cv2.resize(
+            (np.clip(i / top, 0, 1) ** (1 / 2.2) * 255).astype(np.uint8), (288, 216), interpolation=cv2.INTER_NEAREST
+        )
+        for i in imgs
+    ]
     return np.hstack([np.pad(t, 2) for t in tiles])
 
 

@@ -9,14 +9,15 @@ pixels per 8x6 block, 10^6 paths each; compared with Cycles 0-bounce (order 1) a
 
     python experiments/lamp_order2_mc.py [mild|moderate] [RENDER_CACHE]   (~1 min; renders cached)
 """
+
 import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from blendgen.physics.water import optics
 from blendgen.physics.light.sources import lamp_lights
+from blendgen.physics.water import optics
 from blendgen.tools.bench import lamp_bench as lb
 
 NAME = sys.argv[1] if len(sys.argv) > 1 else "moderate"
@@ -53,7 +54,7 @@ def lamp_irradiance(y):
     v = y - pos
     d = np.maximum(np.linalg.norm(v, axis=1), 0.05)
     v /= d[:, None]
-    return I0 * light.profile(v @ axis) * np.exp(-c * d) / d ** 2, v
+    return I0 * light.profile(v @ axis) * np.exp(-c * d) / d**2, v
 
 
 def order1(ray):
@@ -64,7 +65,7 @@ def order1(ray):
 
 def order2(ray):
     x = rng.exponential(1 / c, PATHS)[:, None] * ray
-    w_in = hg_sample(PATHS, -ray)                   # direction of travel at x, drawn from p(theta_2)
+    w_in = hg_sample(PATHS, -ray)  # direction of travel at x, drawn from p(theta_2)
     E, v = lamp_irradiance(x - rng.exponential(1 / c, PATHS)[:, None] * w_in)
     return float(np.mean((b / c) ** 2 * hg(np.sum(v * w_in, axis=1)) * E))
 
@@ -75,8 +76,9 @@ def block_mc(order):
     out = np.zeros(BLOCKS[::-1])
     for j in range(BLOCKS[1]):
         for i in range(BLOCKS[0]):
-            out[j, i] = np.mean([order(rays[j * bh + rng.integers(bh), i * bw + rng.integers(bw)])
-                                 for _ in range(PIXELS)])
+            out[j, i] = np.mean(
+                [order(rays[j * bh + rng.integers(bh), i * bw + rng.integers(bw)]) for _ in range(PIXELS)]
+            )
     return out
 
 
@@ -89,6 +91,8 @@ higher, added = blocks(ref32) - blocks(ref0), blocks(fast) - blocks(fast0)
 out = blocks(fast0) < 0.05 * blocks(fast0).mean()
 print(f"{NAME}: check, Cycles 0-bounce / MC order 1 (frame mean): {blocks(ref0).mean() / m1.mean():.3f}")
 for label, sel in (("outside the single-scatter cone", out), ("whole frame", np.ones_like(out))):
-    print(f"{label} ({int(sel.sum())} blocks): Cycles orders >= 2 {higher[sel].mean():.3g}, MC order 2 "
-          f"{m2[sel].mean():.3g} ({m2[sel].mean() / higher[sel].mean():.0%}), fast spread adds "
-          f"{added[sel].mean():.3g} ({added[sel].mean() / higher[sel].mean():.0%})")
+    print(
+        f"{label} ({int(sel.sum())} blocks): Cycles orders >= 2 {higher[sel].mean():.3g}, MC order 2 "
+        f"{m2[sel].mean():.3g} ({m2[sel].mean() / higher[sel].mean():.0%}), fast spread adds "
+        f"{added[sel].mean():.3g} ({added[sel].mean() / higher[sel].mean():.0%})"
+    )

@@ -7,14 +7,15 @@ medians over 30 frames, after one warm-up; the rest of the total is Python aroun
 
 ``paper``: the paper config's row of ``bench particles`` (uniform 5-20 mm, the article's image
 formation, no lamp)."""
+
 import collections
 import sys
 import time
 
 import numpy as np
 
-from blendgen.physics.particles import splat as ps
 from blendgen.physics.particles import field as P
+from blendgen.physics.particles import splat as ps
 from blendgen.pipeline import compose
 from blendgen.pipeline import particle_light as pl
 from blendgen.tools.bench import particle_bench as pb
@@ -28,6 +29,7 @@ def timed(fn, label):
         out = fn(*a, **k)
         TIMES[label].append(time.process_time() - t)
         return out
+
     return call
 
 
@@ -44,8 +46,13 @@ def main(config: str = "power_law", n: int = 60000) -> None:
     for name, label in (("shader", "shading"),):
         setattr(pl, name, timed_factory(getattr(pl, name), label))
     paper = config == "paper"
-    r = pb.run(n, frames=30, size_dist="uniform" if paper else config, lamp=not paper,
-               formation="article" if paper else "physical")
+    r = pb.run(
+        n,
+        frames=30,
+        size_dist="uniform" if paper else config,
+        lamp=not paper,
+        formation="article" if paper else "physical",
+    )
     print(pb.format_row(r))
     for label, t in TIMES.items():
         print(f"  {label:40s} {np.median(t[1:]) * 1e3:6.2f} ms CPU")

@@ -1,4 +1,5 @@
 """Contact sheets of the world around the dock (docs/evidence/README.md; run with PYTHONPATH=.)."""
+
 import os
 import shutil
 import sys
@@ -8,11 +9,11 @@ import cv2
 import numpy as np
 
 from blendgen.config.bundled import bundled_file
-from blendgen.config.models import Condition, Water, load_experiment, WorldLook, Pose
+from blendgen.config.models import Condition, Pose, Water, WorldLook, load_experiment
 from blendgen.pipeline.generate import generate
 from evalkit.dataset import Dataset
 
-OUT = Path(os.environ.get("EV_OUT", "out/evidence"))        # EV_OUT: where the sheets go
+OUT = Path(os.environ.get("EV_OUT", "out/evidence"))  # EV_OUT: where the sheets go
 W, H = int(sys.argv[2]) if len(sys.argv) > 2 else 320, int(sys.argv[3]) if len(sys.argv) > 3 else 240
 VIEWS = (8.0, 5.0, 2.0)
 
@@ -32,9 +33,10 @@ def exp_for(name, world_on: bool, waters, depths, fidelity="fast", pitch=0.0, vi
     exp.render.reference_samples = samples
     v = None if world_on else False
     exp.scene.world = WorldLook(surface=v, caustics=v, textures=v, wind_mps=wind)
-    exp.conditions = [Condition(label=f"{w}-d{d:g}", water=Water(preset=w), dock_water_depth_m=d)
-                      for w in waters for d in depths]
-    exp.scene.dock.water_depth_m = max(depths)      # the deepest condition's surface at the pool rim
+    exp.conditions = [
+        Condition(label=f"{w}-d{d:g}", water=Water(preset=w), dock_water_depth_m=d) for w in waters for d in depths
+    ]
+    exp.scene.dock.water_depth_m = max(depths)  # the deepest condition's surface at the pool rim
     exp.name = name
     return exp
 
@@ -46,8 +48,8 @@ def sheet(rows):
     out = np.full((len(rows) * H, n * W, 3), 255, np.uint8)
     for i, (lab, imgs) in enumerate(rows):
         for j, img in enumerate(imgs):
-            out[i * H:(i + 1) * H, j * W:(j + 1) * W] = img
-            out[i * H:(i + 1) * H, j * W:j * W + 1] = 255
+            out[i * H : (i + 1) * H, j * W : (j + 1) * W] = img
+            out[i * H : (i + 1) * H, j * W : j * W + 1] = 255
         cv2.putText(out, lab, (4, i * H + 14), font, 0.42, (255, 255, 255), 1, cv2.LINE_AA)
     return out
 
@@ -94,13 +96,16 @@ def caustics_fast_vs_reference(samples=16):
     (blendgen/blender/caustic_sun.py); same waves, times and views."""
     waters, depths = ("clear", "mild"), (1.0, 3.0, 6.0)
     fast = run(exp_for("caustics_fast", True, waters, depths, views=(6.0, 4.0, 2.0)))
-    ref = run(exp_for("caustics_ref", True, waters, depths, views=(6.0, 4.0, 2.0), fidelity="reference",
-                      samples=samples))
+    ref = run(
+        exp_for("caustics_ref", True, waters, depths, views=(6.0, 4.0, 2.0), fidelity="reference", samples=samples)
+    )
     rows = []
     for w in waters:
         for d in depths:
-            rows += [(f"{w}, dock {d:g} m deep, fast", fast[f"{w}-d{d:g}"]),
-                     (f"{w}, dock {d:g} m deep, reference", ref[f"{w}-d{d:g}"])]
+            rows += [
+                (f"{w}, dock {d:g} m deep, fast", fast[f"{w}-d{d:g}"]),
+                (f"{w}, dock {d:g} m deep, reference", ref[f"{w}-d{d:g}"]),
+            ]
     save("caustics_fast_vs_reference", sheet(rows))
 
 
@@ -140,9 +145,9 @@ if __name__ == "__main__":
         caustics()
     elif what == "causticsref":
         caustics_fast_vs_reference()
-    elif what == "causticsfast":                   # the fast half of causticsref (for an older tree's run)
+    elif what == "causticsfast":  # the fast half of causticsref (for an older tree's run)
         run(exp_for("caustics_fast", True, ("clear", "mild"), (1.0, 3.0, 6.0), views=(6.0, 4.0, 2.0)))
-    elif what == "causticsba":                     # argv[4]: the EV_OUT of a causticsref run on the older tree
+    elif what == "causticsba":  # argv[4]: the EV_OUT of a causticsref run on the older tree
         caustics_before_after(Path(sys.argv[4]))
     elif what == "up":
         save("looking_up_fast", sheet(looking_up("fast")))

@@ -6,6 +6,7 @@ occluded, one hidden) and ``dir/results/pert_dockbench-test.csv`` (the GT poses 
 different, fixed amount per image; one target without an estimate). The toolkit's numbers for
 them are pinned in tests/data/bop19_toolkit_scores.json with the command that made them.
 """
+
 from __future__ import annotations
 
 import json
@@ -32,8 +33,9 @@ def write_results(export: Path, out_csv: Path) -> None:
         s, i = tg["scene_id"], tg["im_id"]
         gt = json.loads((export / "test" / f"{s:06d}" / "scene_gt.json").read_text())[str(i)][0]
         R, t = perturbed(s, i, np.array(gt["cam_R_m2c"]).reshape(3, 3), np.array(gt["cam_t_m2c"]))
-        rows.append(f"{s},{i},{tg['obj_id']},1,{' '.join(f'{v:.9g}' for v in R.ravel())},"
-                    f"{' '.join(f'{v:.6f}' for v in t)},0.01")
+        rows.append(
+            f"{s},{i},{tg['obj_id']},1,{' '.join(f'{v:.9g}' for v in R.ravel())},{' '.join(f'{v:.6f}' for v in t)},0.01"
+        )
     out_csv.parent.mkdir(parents=True, exist_ok=True)
     out_csv.write_text("\n".join(rows) + "\n")
 
@@ -45,6 +47,7 @@ def write_fixture(root: Path) -> tuple[Path, Path]:
 
     from evalkit.dataset import Dataset
     from evalkit.reports import bop
+
     export = root / "dockbench"
     bop.export_bop(Dataset.open(_enrich(write_fake_dataset(root / "ds"))), export, depth_scale=1.0)
     csv = root / "results" / RESULTS_NAME
@@ -54,4 +57,5 @@ def write_fixture(root: Path) -> tuple[Path, Path]:
 
 if __name__ == "__main__":
     import sys
+
     print(*write_fixture(Path(sys.argv[1])))

@@ -1,4 +1,5 @@
 """Shared pytest set-up: the --slow profile and the Blender availability marker."""
+
 import importlib.util
 import os
 
@@ -30,6 +31,7 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config):
     """Print the hostile corpus table (tests/test_hostile.py: case | rc | message) at the end of
     every run that ran hostile cases, so CI logs show it without ``-s``."""
     import sys
+
     mod = sys.modules.get("tests.test_hostile") or sys.modules.get("test_hostile")
     rows = getattr(mod, "SUMMARY", None)
     if not rows:

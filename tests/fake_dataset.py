@@ -4,6 +4,7 @@ Each frame's image encodes its ``d_true`` in millimetres in every pixel:
 ``R, G, B = mm >> 16, (mm >> 8) & 255, mm & 255``, so an oracle localizer can
 recover the ground truth from the pixels (and the test checks RGB order).
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -56,19 +57,34 @@ def _write_sequence(root: Path, seq_id: str, distances: list[float], fps: float)
         cv2.imwrite(str(root / rel), cv2.cvtColor(encode_distance(d), cv2.COLOR_RGB2BGR))
         rel_paths.append(rel)
         in_fov = (seq_id, i) not in OUT_OF_VIEW
-        lines.append(json.dumps({
-            "index": i, "t": i / fps, "t_pose": i / fps, "image": rel,
-            "T_world_cam": _translation(0.0), "T_cam_dock": _translation(d), "d_true": d,
-            "markers": {"0": {"in_fov": in_fov, "visible_fraction": 1.0 if in_fov else 0.0,
-                              "T_cam_marker": _translation(d)}},
-        }))
+        lines.append(
+            json.dumps(
+                {
+                    "index": i,
+                    "t": i / fps,
+                    "t_pose": i / fps,
+                    "image": rel,
+                    "T_world_cam": _translation(0.0),
+                    "T_cam_dock": _translation(d),
+                    "d_true": d,
+                    "markers": {
+                        "0": {
+                            "in_fov": in_fov,
+                            "visible_fraction": 1.0 if in_fov else 0.0,
+                            "T_cam_marker": _translation(d),
+                        }
+                    },
+                }
+            )
+        )
     (seq_dir / "frames.jsonl").write_text("\n".join(lines) + "\n")
     rel_paths.append(f"sequences/{seq_id}/frames.jsonl")
     return rel_paths
 
 
-def write_fake_dataset(root: str | Path, sequences=SEQUENCES, d_min_rel_m: float | None = 0.2,
-                       fps: float = 10.0) -> Path:
+def write_fake_dataset(
+    root: str | Path, sequences=SEQUENCES, d_min_rel_m: float | None = 0.2, fps: float = 10.0
+) -> Path:
     """Write the dataset into ``root`` (created) and return its path."""
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
@@ -76,22 +92,50 @@ def write_fake_dataset(root: str | Path, sequences=SEQUENCES, d_min_rel_m: float
     for seq_id, condition, trial, distances in sequences:
         for rel in _write_sequence(root, seq_id, distances, fps):
             files[rel] = _sha(root / rel)
-        seq_entries.append({"id": seq_id, "path": f"sequences/{seq_id}", "condition": condition,
-                            "conditions": {"label": condition}, "trial": trial,
-                            "trajectory": "straight", "n_frames": len(distances)})
+        seq_entries.append(
+            {
+                "id": seq_id,
+                "path": f"sequences/{seq_id}",
+                "condition": condition,
+                "conditions": {"label": condition},
+                "trial": trial,
+                "trajectory": "straight",
+                "n_frames": len(distances),
+            }
+        )
     manifest = {
-        "format": "dockbench-dataset", "spec_version": "1.0", "name": "fake", "version": "0.0.1",
-        "content_hash": hashlib.sha256("".join(f"{p} {files[p]}\n" for p in sorted(files))
-                                       .encode()).hexdigest(),
-        "generator": {"dockbench": "test"}, "config": {}, "seed": 0,
-        "camera": {"width": WIDTH, "height": HEIGHT, "K": K, "fps": fps, "latency_s": 0.0,
-                   "hfov_deg": 65.2, "distortion": None},
+        "format": "dockbench-dataset",
+        "spec_version": "1.0",
+        "name": "fake",
+        "version": "0.0.1",
+        "content_hash": hashlib.sha256("".join(f"{p} {files[p]}\n" for p in sorted(files)).encode()).hexdigest(),
+        "generator": {"dockbench": "test"},
+        "config": {},
+        "seed": 0,
+        "camera": {
+            "width": WIDTH,
+            "height": HEIGHT,
+            "K": K,
+            "fps": fps,
+            "latency_s": 0.0,
+            "hfov_deg": 65.2,
+            "distortion": None,
+        },
         "dock": {"T_world_dock": _translation(0.0)},
-        "markers": [{"id": "0", "kind": "aruco", "T_dock_marker": _translation(0.0),
-                     "keypoints": [[-0.1, 0.1, 0], [0.1, 0.1, 0], [0.1, -0.1, 0], [-0.1, -0.1, 0]],
-                     "dictionary": "DICT_4X4_50", "marker_id": 0, "size_m": 0.2}],
+        "markers": [
+            {
+                "id": "0",
+                "kind": "aruco",
+                "T_dock_marker": _translation(0.0),
+                "keypoints": [[-0.1, 0.1, 0], [0.1, 0.1, 0], [0.1, -0.1, 0], [-0.1, -0.1, 0]],
+                "dictionary": "DICT_4X4_50",
+                "marker_id": 0,
+                "size_m": 0.2,
+            }
+        ],
         "object_index": {"0": "background", "1": "0"},
-        "sequences": seq_entries, "files": files,
+        "sequences": seq_entries,
+        "files": files,
     }
     if d_min_rel_m is not None:
         manifest["d_min_rel_m"] = d_min_rel_m

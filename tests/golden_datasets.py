@@ -15,6 +15,7 @@ Record (after a deliberate change of the output) with::
 which renders every config into OUT_DIR and rewrites ``tests/data/golden_hashes.json``;
 ``check OUT_DIR`` renders them again and prints the files whose content differs.
 """
+
 from __future__ import annotations
 
 import copy
@@ -27,9 +28,9 @@ import yaml
 
 ROOT = Path(__file__).resolve().parent.parent
 HASHES = ROOT / "tests" / "data" / "golden_hashes.json"
-VOLATILE_MANIFEST_KEYS = ("created_utc", "generator")   # wall clock and installed versions
+VOLATILE_MANIFEST_KEYS = ("created_utc", "generator")  # wall clock and installed versions
 WIDTH, HEIGHT, FRAMES = 80, 60, 3
-START_RANGE_M = 6.0      # the marker is seen from here (the shipped paths start up to 12 m away)
+START_RANGE_M = 6.0  # the marker is seen from here (the shipped paths start up to 12 m away)
 
 
 def _shrink_trajectory(t: dict, fps: float) -> dict:
@@ -37,10 +38,11 @@ def _shrink_trajectory(t: dict, fps: float) -> dict:
     t = dict(t)
     span = (FRAMES - 1) / fps
     if t["kind"] == "linear":
-        t["start_range_m"] = min(t["start_range_m"], START_RANGE_M)      # inside render.max_distance_m
+        t["start_range_m"] = min(t["start_range_m"], START_RANGE_M)  # inside render.max_distance_m
         t["end_range_m"] = t["start_range_m"] - span * t.get("speed_mps", 1.0)
     elif t["kind"] == "circle":
         import math
+
         step = math.degrees(span * t.get("speed_mps", 1.0) / t.get("radius_m", 1.0))
         t["end_deg"] = t.get("start_deg", 0.0) + step
     elif t["kind"] == "docking":
@@ -74,7 +76,7 @@ def configs() -> dict[str, dict]:
     out = {}
     for p in sorted((ROOT / "configs").glob("*.yaml")):
         cfg = yaml.safe_load(p.read_text())
-        if "trajectories" in cfg:                     # calibration.yaml is not a dataset config
+        if "trajectories" in cfg:  # calibration.yaml is not a dataset config
             out[p.stem] = shrink(cfg)
     for p in sorted((ROOT / "templates").glob("*.yaml")):
         out[f"template_{p.stem}"] = shrink(template_config(p.stem))
@@ -104,6 +106,7 @@ def render(name: str, cfg: dict, work: Path) -> Path:
     """Generate the tiny config ``cfg`` into ``work/name`` (one worker); returns the dataset root."""
     from blendgen.config.models import load_experiment
     from blendgen.pipeline.generate import generate
+
     work.mkdir(parents=True, exist_ok=True)
     p = work / f"{name}.yaml"
     p.write_text(yaml.safe_dump(cfg))

@@ -22,6 +22,7 @@ projected keypoints.
 LEDs: anti-aliased filled circles (sub-pixel centres via ``shift``), a coloured halo of
 radius ``halo_scale * f r / Z`` and a white core of radius ``f r / Z``.
 """
+
 from __future__ import annotations
 
 import cv2
@@ -41,6 +42,7 @@ def linear_to_srgb(c) -> np.ndarray:
 def qr_cells(payload: str, error: str = "m", quiet: int = QR_QUIET_MODULES) -> tuple[np.ndarray, int]:
     """QR cells (uint8, 0 dark / 255 light) with the quiet zone, and the code's module count."""
     import segno
+
     code = np.array(segno.make_qr(payload, error=error.lower(), boost_error=False).matrix, dtype=np.uint8)
     cells = np.where(code > 0, 0, 255).astype(np.uint8)
     return np.pad(cells, quiet, constant_values=255), code.shape[0]
@@ -73,8 +75,9 @@ def project(K, T_cam_x, pts) -> tuple[np.ndarray, np.ndarray]:
 
 def _draw_square(img, K_hi, T_cam_dock, marker, plate_grey):
     if marker["kind"] == "qr":
-        cells, n_code = qr_cells(marker["payload"], marker.get("error_correction", "m"),
-                                 marker.get("quiet_zone_modules", QR_QUIET_MODULES))
+        cells, n_code = qr_cells(
+            marker["payload"], marker.get("error_correction", "m"), marker.get("quiet_zone_modules", QR_QUIET_MODULES)
+        )
     else:
         cells, n_code = aruco_cells(marker["dictionary"], marker["marker_id"])
     M = cells.shape[0]
@@ -89,8 +92,9 @@ def _draw_square(img, K_hi, T_cam_dock, marker, plate_grey):
     lo, hi = plate_grey
     tex = (lo + (hi - lo) * (cells.astype(np.float32) / 255.0)).astype(np.uint8)
     tex = np.repeat(tex[:, :, None], 3, axis=2)
-    cv2.warpPerspective(tex, H, (img.shape[1], img.shape[0]), dst=img, flags=cv2.INTER_NEAREST,
-                        borderMode=cv2.BORDER_TRANSPARENT)
+    cv2.warpPerspective(
+        tex, H, (img.shape[1], img.shape[0]), dst=img, flags=cv2.INTER_NEAREST, borderMode=cv2.BORDER_TRANSPARENT
+    )
 
 
 def _draw_leds(img, K_hi, T_cam_dock, marker, halo_scale, halo_gain):
@@ -111,12 +115,25 @@ def box_downsample_linear(img: np.ndarray, width: int, height: int) -> np.ndarra
     """Average ss x ss blocks in *linear* light, as a sensor integrates radiance over its
     pixel (averaging sRGB codes would darken edges and bias corners inward)."""
     from blendgen.physics.camera.sensor import srgb_decode, to_uint8
+
     lin = cv2.resize(srgb_decode(img), (width, height), interpolation=cv2.INTER_AREA)
     return to_uint8(lin)
 
 
-def render(K, T_cam_dock, markers, width=640, height=480, ss=4, background=(10, 40, 70),
-           plate_grey=(25, 230), noise_std=0.0, seed=0, halo_scale=1.8, halo_gain=0.9) -> np.ndarray:
+def render(
+    K,
+    T_cam_dock,
+    markers,
+    width=640,
+    height=480,
+    ss=4,
+    background=(10, 40, 70),
+    plate_grey=(25, 230),
+    noise_std=0.0,
+    seed=0,
+    halo_scale=1.8,
+    halo_gain=0.9,
+) -> np.ndarray:
     """RGB uint8 (H,W,3) image of ``markers`` (manifest dicts) seen with intrinsics K (3,3)
     from a camera with dock pose ``T_cam_dock`` (4,4); optional Gaussian noise (8-bit std)."""
     K = np.asarray(K, float)
@@ -139,8 +156,9 @@ def render(K, T_cam_dock, markers, width=640, height=480, ss=4, background=(10, 
     return out
 
 
-def pose_looking_at_dock(distance_m: float, yaw_deg: float = 0.0, pitch_deg: float = 0.0,
-                         roll_deg: float = 0.0, offset=(0.0, 0.0)) -> np.ndarray:
+def pose_looking_at_dock(
+    distance_m: float, yaw_deg: float = 0.0, pitch_deg: float = 0.0, roll_deg: float = 0.0, offset=(0.0, 0.0)
+) -> np.ndarray:
     """T_cam_dock for a camera at ``distance_m`` from the dock plane, displaced by viewing
     angles yaw (about dock +y) and pitch (about dock +x), looking at the dock point
     ``offset`` (x, y) with the image up = dock +y, then rolled about its optical axis."""

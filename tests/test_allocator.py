@@ -1,4 +1,5 @@
 """pipeline/allocator.py: glibc accepts the heap policy, once per process."""
+
 import platform
 
 import pytest
@@ -13,7 +14,7 @@ def test_glibc_accepts_the_heap_policy_once():
 
 
 def test_policy_values_are_within_glibc_limits():
-    assert 0 < allocator.MMAP_THRESHOLD_B <= 32 * 2 ** 20      # HEAP_MAX_SIZE / 2 on 64-bit
+    assert 0 < allocator.MMAP_THRESHOLD_B <= 32 * 2**20  # HEAP_MAX_SIZE / 2 on 64-bit
     assert allocator.TRIM_THRESHOLD_B >= allocator.MMAP_THRESHOLD_B
 
 
@@ -43,8 +44,9 @@ def test_freed_image_arrays_are_reused_not_faulted_in_again():
     def faults(mode):
         r = subprocess.run([sys.executable, "-c", _PROBE, mode], capture_output=True, text=True, check=True)
         return int(r.stdout.strip())
-    assert faults("default") > 20 * 900     # freed heap above glibc's trim threshold goes back to the OS
-    assert faults("keep") < 200             # the same heap pages are reused
+
+    assert faults("default") > 20 * 900  # freed heap above glibc's trim threshold goes back to the OS
+    assert faults("keep") < 200  # the same heap pages are reused
 
 
 _THREADS_PROBE = """
@@ -72,8 +74,10 @@ def test_one_thread_per_process_stops_blas_threads_spinning():
     import os
     import subprocess
     import sys
-    run = lambda mode: subprocess.run([sys.executable, "-c", _THREADS_PROBE, mode], capture_output=True, text=True,
-                                      check=True).stdout.split()
+
+    run = lambda mode: subprocess.run(
+        [sys.executable, "-c", _THREADS_PROBE, mode], capture_output=True, text=True, check=True
+    ).stdout.split()
     cv_threads, blas_threads, idle_cpu = run("one")
     assert (cv_threads, blas_threads) == ("1", "1")
     assert float(idle_cpu) < 0.02

@@ -6,6 +6,7 @@
 - bpy/mathutils only under blendgen/blender/;
 - no function longer than 80 lines.
 """
+
 from __future__ import annotations
 
 import ast
@@ -67,8 +68,7 @@ def test_no_import_cycles():
     cols = [idx[b] for a in names for b in edges[a]]
     g = csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(len(names), len(names)))
     _, labels = connected_components(g, directed=True, connection="strong")
-    cycles = [[n for n in names if labels[idx[n]] == lab] for lab in set(labels)
-              if (labels == lab).sum() > 1]
+    cycles = [[n for n in names if labels[idx[n]] == lab] for lab in set(labels) if (labels == lab).sum() > 1]
     assert cycles == []
 
 
@@ -87,8 +87,7 @@ def test_generator_and_evaluator_meet_only_in_the_contract():
 
 def test_bpy_only_under_blendgen_blender():
     _, _, external = _graph()
-    bad = [m for m, tops in external.items()
-           if tops & {"bpy", "mathutils"} and not m.startswith("blendgen.blender")]
+    bad = [m for m, tops in external.items() if tops & {"bpy", "mathutils"} and not m.startswith("blendgen.blender")]
     assert bad == []
 
 
@@ -123,8 +122,11 @@ def test_no_package_cycles():
 
 
 def test_package_cycles_are_seen():
-    edges = {"blendgen.pipeline.frameloop": {"blendgen.blender.renderer"},
-             "blendgen.blender.renderer": {"blendgen.pipeline.plan"}, "blendgen.geometry": {"blendgen.physics.water.optics"}}
+    edges = {
+        "blendgen.pipeline.frameloop": {"blendgen.blender.renderer"},
+        "blendgen.blender.renderer": {"blendgen.pipeline.plan"},
+        "blendgen.geometry": {"blendgen.physics.water.optics"},
+    }
     assert package_cycles(edges) == ["blender<->pipeline"]
     edges["blendgen.blender.renderer"] = set()
     assert package_cycles(edges) == []

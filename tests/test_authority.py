@@ -1,4 +1,5 @@
 """Thruster authority against hand calculations of drag vs thrust (no simulation)."""
+
 import math
 
 import pytest
@@ -9,39 +10,39 @@ from blendgen.vehicle.dynamics import VehicleParams
 RHO = 1025.0
 P = VehicleParams()
 # hand numbers for the default vehicle (dynamics.VehicleParams, thrusters.default_thrusters)
-D_SWAY_LIN = (30.48 + 35.5) / 5.0           # (m + Y_vdot) / T_sway, N/(m/s)
-D_SWAY_QUAD = 131.0                          # N/(m/s)^2
-LAT_FWD = RHO * 0.0125 * 0.13 ** 4 * 100.0 ** 2   # one lateral tunnel thruster at n_max, N
+D_SWAY_LIN = (30.48 + 35.5) / 5.0  # (m + Y_vdot) / T_sway, N/(m/s)
+D_SWAY_QUAD = 131.0  # N/(m/s)^2
+LAT_FWD = RHO * 0.0125 * 0.13**4 * 100.0**2  # one lateral tunnel thruster at n_max, N
 LAT_REV = 0.7 * LAT_FWD
 
 
 def test_sway_drag_at_one_metre_per_second_against_hand_calculation():
     tau = authority.required_force_frd(P, RHO, [0.0, 1.0, 0.0])
-    assert tau[1] == pytest.approx(D_SWAY_LIN + D_SWAY_QUAD, rel=1e-9)   # 144.2 N
-    assert tau[2] == pytest.approx(-P.net_weight(RHO), rel=1e-9)          # hover: push up (FRD -z)
+    assert tau[1] == pytest.approx(D_SWAY_LIN + D_SWAY_QUAD, rel=1e-9)  # 144.2 N
+    assert tau[2] == pytest.approx(-P.net_weight(RHO), rel=1e-9)  # hover: push up (FRD -z)
 
 
 def test_lateral_flow_one_metre_per_second_is_beyond_the_lateral_pair():
     # flow pushing the vehicle to its left: the lateral pair must push right = reverse thrust
-    h = authority.hold([0.0, 1.0, 0.0], RHO)          # vehicle moves right through the water (FRD +y)
+    h = authority.hold([0.0, 1.0, 0.0], RHO)  # vehicle moves right through the water (FRD +y)
     need = D_SWAY_LIN + D_SWAY_QUAD
     assert h.thrust_N["lateral"] == pytest.approx(-need / 2, rel=1e-6)
-    assert h.utilisation == pytest.approx(need / 2 / LAT_REV, rel=1e-6)   # 2.81
+    assert h.utilisation == pytest.approx(need / 2 / LAT_REV, rel=1e-6)  # 2.81
     assert not h.holds and h.limiting_group == "lateral"
 
 
 def test_largest_holdable_lateral_speed_solves_the_drag_quadratic():
     # d v + d_q v^2 = 2 T_rev  ->  v = (-d + sqrt(d^2 + 8 d_q T_rev)) / (2 d_q)
-    v_left = (-D_SWAY_LIN + math.sqrt(D_SWAY_LIN ** 2 + 8 * D_SWAY_QUAD * LAT_REV)) / (2 * D_SWAY_QUAD)
-    v_right = (-D_SWAY_LIN + math.sqrt(D_SWAY_LIN ** 2 + 8 * D_SWAY_QUAD * LAT_FWD)) / (2 * D_SWAY_QUAD)
-    assert authority.max_holdable_speed((0, 1, 0), RHO) == pytest.approx(v_left, abs=2e-4)    # 0.577
+    v_left = (-D_SWAY_LIN + math.sqrt(D_SWAY_LIN**2 + 8 * D_SWAY_QUAD * LAT_REV)) / (2 * D_SWAY_QUAD)
+    v_right = (-D_SWAY_LIN + math.sqrt(D_SWAY_LIN**2 + 8 * D_SWAY_QUAD * LAT_FWD)) / (2 * D_SWAY_QUAD)
+    assert authority.max_holdable_speed((0, 1, 0), RHO) == pytest.approx(v_left, abs=2e-4)  # 0.577
     assert authority.max_holdable_speed((0, -1, 0), RHO) == pytest.approx(v_right, abs=2e-4)  # 0.699
 
 
 def test_station_keeping_rows_flag_exactly_the_unholdable_flows():
     rows = {(r["flow"], r["speed_mps"]): r for r in authority.station_keeping_authority((0.5, 1.0), RHO)}
     assert rows[("left", 0.5)]["holds"] and not rows[("left", 1.0)]["holds"]
-    assert rows[("forward", 1.0)]["holds"]                      # 4.8 N of surge drag vs 17.9 N reverse
+    assert rows[("forward", 1.0)]["holds"]  # 4.8 N of surge drag vs 17.9 N reverse
     for r in rows.values():
         assert r["holds"] == (r["speed_mps"] <= r["max_speed_mps"])
 
@@ -66,6 +67,7 @@ def test_authority_command_judges_the_current_ladder_and_refuses_bad_input():
     from click.testing import CliRunner
 
     from cli import main
+
     r = CliRunner().invoke(main, ["authority", "--speed", "1.0", "--experiment", "current"])
     assert r.exit_code == 0, r.output
     lines = {ln.split("|")[1].strip(): ln for ln in r.output.splitlines() if ln.startswith("| current_")}

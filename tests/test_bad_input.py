@@ -4,6 +4,7 @@
 Complements tests/test_config.py (26 bad configs there; the cases here are different keys or
 different failure kinds: NaN/inf from YAML ``.nan``/``.inf``, duplicates, cross-field rules).
 """
+
 from __future__ import annotations
 
 import json
@@ -20,7 +21,7 @@ from blendgen.config.models import ConfigError, load_experiment
 from tests.fake_dataset import write_fake_dataset
 from tests.test_config import patched
 
-pytestmark = pytest.mark.integration   # the CLI end to end on malformed datasets and configs
+pytestmark = pytest.mark.integration  # the CLI end to end on malformed datasets and configs
 
 SEQ = Path("sequences") / "clear_000"
 NAN, INF = float("nan"), float("inf")
@@ -58,14 +59,14 @@ def frame_not_object(root):
     _write_lines(root, lines)
 
 
-def corrupt_png(root):                     # bytes flipped: sha256 mismatch and an unreadable PNG
+def corrupt_png(root):  # bytes flipped: sha256 mismatch and an unreadable PNG
     p = root / SEQ / "rgb" / "000001.png"
     b = bytearray(p.read_bytes())
     b[-20] ^= 0xFF
     p.write_bytes(bytes(b))
 
 
-def swapped_png(root):                     # a valid PNG with other pixels: only the hash tells
+def swapped_png(root):  # a valid PNG with other pixels: only the hash tells
     cv2.imwrite(str(root / SEQ / "rgb" / "000001.png"), np.zeros((48, 64, 3), np.uint8))
 
 
@@ -124,6 +125,7 @@ def frame_without_d_true(root):
 
 def nonexistent(root):
     import shutil
+
     shutil.rmtree(root)
 
 
@@ -201,7 +203,7 @@ def test_existing_output_dir_is_untouched_on_failure(tmp_path):
     out.mkdir()
     (out / "keep.txt").write_text("x")
     res, text = _run(["evaluate", str(root), "-l", "aruco", "-o", str(out)])
-    _check(res, text, "folder is not empty")                # refused before anything runs
+    _check(res, text, "folder is not empty")  # refused before anything runs
     res, text = _run(["evaluate", str(root), "-l", "aruco", "-o", str(out), "--overwrite"])
     _check(res, text, "000002.png")
     assert sorted(p.name for p in out.iterdir()) == ["keep.txt"]
@@ -233,7 +235,7 @@ BAD_CONFIGS = [
     ("water", {"preset": "clear", "beta": NAN}, "beta"),
     ("camera.distortion", [0.1, 0, 0, 0], "camera.distortion"),
     ("camera.width", 640.5, "camera.width"),
-    ("seed", 2 ** 32, "seed"),
+    ("seed", 2**32, "seed"),
     ("trials", 0, "trials"),
     ("conditions", [{"label": ""}], "label"),
     ("scene.dock.markers", [{"kind": "aruco", "id": "a"}, {"kind": "aruco", "id": "a", "marker_id": 1}], "unique"),
@@ -272,6 +274,7 @@ def _cfg(tmp_path, key, value):
 
 def _needs_section(key):
     from blendgen.config.models import Experiment
+
     top = key.split(".")[0]
     if top not in Experiment.model_fields:
         pytest.skip(f"no {top!r} section in this spec")
@@ -308,37 +311,66 @@ def test_cli_generate_bad_config_exit_2_nothing_written(tmp_path, key, value, ex
 # planner before anything is written (blendgen/pipeline/scene_check.py). Pool 15 x 5 x 8 m,
 # dock face centre 1.5 m deep (its top 1 m), 7 m from the pool's centre, camera 0.65 m ahead.
 IMPOSSIBLE_SCENES = [
-    ("trajectories.0.vertical_m", 100,
-     "trajectories[0].vertical_m: 100 puts the camera 98.50 m above the water surface at t = 0.00 s "
-     "('approach'); allowed -6.50 <= vertical_m <= 1.50"),
-    ("trajectories.0.vertical_m", -100,
-     "trajectories[0].vertical_m: -100 puts the camera 93.50 m below the pool's floor at t = 0.00 s "
-     "('approach'); allowed -6.50 <= vertical_m <= 1.50"),
-    ("trajectories.0.start_range_m", 1000,
-     "trajectories[0].start_range_m: 1000 puts the camera 984.85 m outside the pool's walls at t = 0.00 s "
-     "('approach'); allowed 1.00 <= start_range_m <= 15.15"),
-    ("trajectories.1.height_m", 5,
-     "trajectories[1].height_m: 5 puts the camera 2.94 m above the water surface at t = 0.00 s ('circle'); "
-     "allowed -5.94 <= height_m <= 2.06"),
-    ("scene.dock.water_depth_m", 10,
-     "scene.dock.water_depth_m: 10 puts the dock 3.00 m below the pool's floor; allowed 0.00 <= water_depth_m "
-     "<= 7.00"),
-    ("render.max_distance_m", 0.2,
-     "render.max_distance_m: 0.2 leaves trajectories[0] ('approach') no frame (no camera pose that close to the "
-     "dock before contact); allowed: max_distance_m >= 0.35"),
-    ("trajectories", [{"kind": "docking", "id": "d", "start": {"range_m": [1000, 1000]}}],
-     "trajectories[0].start.range_m: [1000.0, 1000.0] puts a start 985.50 m outside the pool's walls ('d'); "
-     "allowed range_m <= 14.50"),
-    ("trajectories", [{"kind": "docking", "id": "d", "start": {"vertical_m": 5}}],
-     "trajectories[0].start.vertical_m: 5.0 puts a start 3.50 m above the water surface ('d'); "
-     "allowed vertical_m <= 1.50"),
-    ("trajectories", [{"kind": "docking", "id": "d", "start": {"lateral_m": 5}}],
-     "trajectories[0].start.lateral_m: 5.0 puts a start 2.50 m outside the pool's walls ('d'); "
-     "allowed lateral_m <= 2.50"),
+    (
+        "trajectories.0.vertical_m",
+        100,
+        "trajectories[0].vertical_m: 100 puts the camera 98.50 m above the water surface at t = 0.00 s "
+        "('approach'); allowed -6.50 <= vertical_m <= 1.50",
+    ),
+    (
+        "trajectories.0.vertical_m",
+        -100,
+        "trajectories[0].vertical_m: -100 puts the camera 93.50 m below the pool's floor at t = 0.00 s "
+        "('approach'); allowed -6.50 <= vertical_m <= 1.50",
+    ),
+    (
+        "trajectories.0.start_range_m",
+        1000,
+        "trajectories[0].start_range_m: 1000 puts the camera 984.85 m outside the pool's walls at t = 0.00 s "
+        "('approach'); allowed 1.00 <= start_range_m <= 15.15",
+    ),
+    (
+        "trajectories.1.height_m",
+        5,
+        "trajectories[1].height_m: 5 puts the camera 2.94 m above the water surface at t = 0.00 s ('circle'); "
+        "allowed -5.94 <= height_m <= 2.06",
+    ),
+    (
+        "scene.dock.water_depth_m",
+        10,
+        "scene.dock.water_depth_m: 10 puts the dock 3.00 m below the pool's floor; allowed 0.00 <= water_depth_m "
+        "<= 7.00",
+    ),
+    (
+        "render.max_distance_m",
+        0.2,
+        "render.max_distance_m: 0.2 leaves trajectories[0] ('approach') no frame (no camera pose that close to the "
+        "dock before contact); allowed: max_distance_m >= 0.35",
+    ),
+    (
+        "trajectories",
+        [{"kind": "docking", "id": "d", "start": {"range_m": [1000, 1000]}}],
+        "trajectories[0].start.range_m: [1000.0, 1000.0] puts a start 985.50 m outside the pool's walls ('d'); "
+        "allowed range_m <= 14.50",
+    ),
+    (
+        "trajectories",
+        [{"kind": "docking", "id": "d", "start": {"vertical_m": 5}}],
+        "trajectories[0].start.vertical_m: 5.0 puts a start 3.50 m above the water surface ('d'); "
+        "allowed vertical_m <= 1.50",
+    ),
+    (
+        "trajectories",
+        [{"kind": "docking", "id": "d", "start": {"lateral_m": 5}}],
+        "trajectories[0].start.lateral_m: 5.0 puts a start 2.50 m outside the pool's walls ('d'); "
+        "allowed lateral_m <= 2.50",
+    ),
 ]
 
 
-@pytest.mark.parametrize("key,value,message", IMPOSSIBLE_SCENES, ids=[f"{k}={v!r}"[:48] for k, v, _ in IMPOSSIBLE_SCENES])
+@pytest.mark.parametrize(
+    "key,value,message", IMPOSSIBLE_SCENES, ids=[f"{k}={v!r}"[:48] for k, v, _ in IMPOSSIBLE_SCENES]
+)
 def test_impossible_scene_refused_exit_2_nothing_written(tmp_path, key, value, message):
     p = _cfg(tmp_path, key, value)
     out = tmp_path / "out"
@@ -351,21 +383,34 @@ def test_physical_depth_condition_puts_the_surface_below_the_camera(tmp_path):
     """Physical mode: a 0 m condition lifts nothing: the surface drops to the dock's top, and a
     path 0.6 m above the face centre (0.1 m above the top) is then in the air."""
     cfg = patched("trajectories.0.vertical_m", 0.6)
-    cfg.update(image_formation="physical", conditions=[{"label": "d0", "dock_water_depth_m": 0.0},
-                                                        {"label": "d1", "dock_water_depth_m": 1.0}])
+    cfg.update(
+        image_formation="physical",
+        conditions=[{"label": "d0", "dock_water_depth_m": 0.0}, {"label": "d1", "dock_water_depth_m": 1.0}],
+    )
     p = tmp_path / "bad.yaml"
     p.write_text(yaml.safe_dump(cfg))
     res, text = _run(["generate", str(p), "-o", str(tmp_path / "out")])
-    _check(res, text, "trajectories[0].vertical_m: 0.6 puts the camera 0.10 m above the water surface at "
-                      "t = 0.00 s ('approach'); allowed -6.50 <= vertical_m <= 0.50", tmp_path / "out")
+    _check(
+        res,
+        text,
+        "trajectories[0].vertical_m: 0.6 puts the camera 0.10 m above the water surface at "
+        "t = 0.00 s ('approach'); allowed -6.50 <= vertical_m <= 0.50",
+        tmp_path / "out",
+    )
 
 
-@pytest.mark.parametrize("water,message", [
-    ({"secchi_m": 0.5}, "water: secchi_m 0.5 is outside the Jerlov ladder I..9C; allowed 2 <= secchi_m <= 79.9 m"),
-    ({"ntu": 50}, "water: ntu 50 is outside the Jerlov ladder I..9C; allowed 0.00187 <= ntu <= 3.25 NTU"),
-    ({"secchi_m": 5, "ntu": 1}, "water: give one of preset, secchi_m or ntu (a reading names the water)"),
-    ({"secchi_m": 5, "preset": "jerlov_I"}, "water: give one of preset, secchi_m or ntu (a reading names the water)"),
-])
+@pytest.mark.parametrize(
+    "water,message",
+    [
+        ({"secchi_m": 0.5}, "water: secchi_m 0.5 is outside the Jerlov ladder I..9C; allowed 2 <= secchi_m <= 79.9 m"),
+        ({"ntu": 50}, "water: ntu 50 is outside the Jerlov ladder I..9C; allowed 0.00187 <= ntu <= 3.25 NTU"),
+        ({"secchi_m": 5, "ntu": 1}, "water: give one of preset, secchi_m or ntu (a reading names the water)"),
+        (
+            {"secchi_m": 5, "preset": "jerlov_I"},
+            "water: give one of preset, secchi_m or ntu (a reading names the water)",
+        ),
+    ],
+)
 def test_bad_turbidity_reading(tmp_path, water, message):
     p = _cfg(tmp_path, "water", water)
     res, text = _run(["generate", str(p), "-o", str(tmp_path / "out")])
@@ -378,6 +423,11 @@ def test_physical_depth_condition_above_the_pool_rim_refused(tmp_path):
     p = tmp_path / "bad.yaml"
     p.write_text(yaml.safe_dump(cfg))
     res, text = _run(["generate", str(p), "-o", str(tmp_path / "out")])
-    _check(res, text, "conditions[1].dock_water_depth_m: 5 puts the water surface 4.00 m above the pool's rim "
-                      "(a depth condition moves the surface, not the dock); allowed <= scene.dock.water_depth_m "
-                      "(1): put the dock at the deepest condition", tmp_path / "out")
+    _check(
+        res,
+        text,
+        "conditions[1].dock_water_depth_m: 5 puts the water surface 4.00 m above the pool's rim "
+        "(a depth condition moves the surface, not the dock); allowed <= scene.dock.water_depth_m "
+        "(1): put the dock at the deepest condition",
+        tmp_path / "out",
+    )

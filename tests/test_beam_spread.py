@@ -1,6 +1,7 @@
 """Beam spread of a lamp in forward-scattering water (physics/light/beam_spread.py): the Hankel
 convolutions against a Monte Carlo of the same photons, energy conservation, limits, the table
 lookup, and zero cost when F = 0."""
+
 import functools
 import math
 
@@ -9,8 +10,8 @@ import pytest
 
 from blendgen.physics.light import beam_spread as bs
 from blendgen.physics.light import lamp_water
-from blendgen.physics.water import optics
 from blendgen.physics.light.sources import PointLight
+from blendgen.physics.water import optics
 
 AXIS = np.array([0.0, 0.0, 1.0])
 
@@ -54,7 +55,7 @@ def test_spread_profiles_match_a_monte_carlo_of_the_same_photons(n):
     counts, _ = np.histogram(rho, edges)
     area = math.pi * (edges[1:] ** 2 - edges[:-1] ** 2)
     total = _planar_energy(lamp.profile(np.cos(psi)), psi)
-    mc = counts / rho.size / area * total                # same normalisation: energy of P
+    mc = counts / rho.size / area * total  # same normalisation: energy of P
     mid = 0.5 * (edges[1:] + edges[:-1])
     hk = np.interp(mid, psi, prof)
     assert np.max(np.abs(mc - hk)) < 0.03, np.round(np.c_[np.degrees(mid), mc, hk], 3)
@@ -114,8 +115,9 @@ def test_no_forward_scattering_no_spread_no_tables():
         if F == 0.0:
             assert not m.spread and m.tables == ()
             cos_psi, d = np.cos(np.radians([[0.0, 29.0, 40.0]])), np.array([[1.0, 2.0, 3.0]])
-            np.testing.assert_allclose(m.beam(lamp, cos_psi, d),
-                                       lamp.profile(cos_psi)[..., None] * np.exp(-d[..., None] * water.c))
+            np.testing.assert_allclose(
+                m.beam(lamp, cos_psi, d), lamp.profile(cos_psi)[..., None] * np.exp(-d[..., None] * water.c)
+            )
 
 
 def test_beam_beyond_the_table_keeps_attenuating():

@@ -1,4 +1,5 @@
 """BOP export of the fake dataset: poses, projections, depth (range -> planar z), gt info."""
+
 from __future__ import annotations
 
 import json
@@ -23,12 +24,12 @@ def _rot(ax, ay, az):
 
 
 SQUARE = np.array([[-0.1, 0.1, 0], [0.1, 0.1, 0], [0.1, -0.1, 0], [-0.1, -0.1, 0]])
-OFFSET = np.array([0.05, -0.02, 0.0])                      # the marker in the dock frame
+OFFSET = np.array([0.05, -0.02, 0.0])  # the marker in the dock frame
 U, V = np.meshgrid(np.arange(WIDTH, dtype=float), np.arange(HEIGHT, dtype=float))
 RAY_NORM = np.sqrt(((U - KM[0, 2]) / KM[0, 0]) ** 2 + ((V - KM[1, 2]) / KM[1, 1]) ** 2 + 1)
-TRUNCATED = ("clear_001", 1)                               # hangs over the left image edge
-OCCLUDED_LEFT = ("clear_000", 2)                           # left half behind an occluder at 0.3 m
-HIDDEN = ("clear_000", 5)                                  # behind an occluder over the whole image
+TRUNCATED = ("clear_001", 1)  # hangs over the left image edge
+OCCLUDED_LEFT = ("clear_000", 2)  # left half behind an occluder at 0.3 m
+HIDDEN = ("clear_000", 5)  # behind an occluder over the whole image
 
 
 def _corners_uv(T_cam_marker) -> np.ndarray:
@@ -80,6 +81,7 @@ def _marker_pixels(T_cam_marker) -> np.ndarray:
 def _rehash(root):
     """List every file in the manifest again (the enriched dataset is a valid, verified one)."""
     from datasets_spec.io import content_hash, dataset_files, sha256_file
+
     man = json.loads((root / "manifest.json").read_text())
     man["files"] = {rel: sha256_file(root / rel) for rel in dataset_files(root)}
     man["content_hash"] = content_hash(man["files"])
@@ -106,12 +108,12 @@ def _enrich(root):
             f["T_cam_dock"] = T.tolist()
             f["markers"]["0"]["T_cam_marker"] = (T @ T_dock_marker).tolist()
             rng = (_planar_z(T @ T_dock_marker, seq["id"], i, d) * RAY_NORM).astype(np.float32)
-            rng[0, 0] = np.inf                                           # no surface
+            rng[0, 0] = np.inf  # no surface
             f["depth"] = f"{seq['path']}/depth/{i:06d}.npz"
             np.savez_compressed(root / f["depth"], range_m=rng)
             idx = np.zeros((HEIGHT, WIDTH), np.uint8)
             if (seq["id"], i) != HIDDEN:
-                idx = _marker_pixels(T @ T_dock_marker)                  # value 1 = the marker ("1" -> "0")
+                idx = _marker_pixels(T @ T_dock_marker)  # value 1 = the marker ("1" -> "0")
             if (seq["id"], i) == OCCLUDED_LEFT:
                 xs = np.nonzero(idx.any(axis=0))[0]
                 idx[:, : (xs.min() + xs.max() + 1) // 2] = 0
@@ -142,17 +144,17 @@ def test_layout_and_camera(exported):
     sc = json.loads((sdir / "scene_camera.json").read_text())
     assert sc["3"]["cam_K"] == pytest.approx(KM.ravel().tolist()) and sc["3"]["depth_scale"] == 1.0
     rgb = sdir / "rgb" / "000003.png"
-    assert not rgb.is_symlink() and cv2.imread(str(rgb)) is not None            # copies by default
+    assert not rgb.is_symlink() and cv2.imread(str(rgb)) is not None  # copies by default
     ply = (out / "models" / "obj_000001.ply").read_text()
     assert ply.startswith("ply") and "element vertex 24" in ply and "element face 12" in ply
     assert "property float nx" in ply
     ev = (out / "models_eval" / "obj_000001.ply").read_text()
     n_eval = int(ev.split("element vertex ")[1].split()[0])
-    assert n_eval > 2 * 41 * 41                                  # 200 mm faces on a <= 5 mm grid
+    assert n_eval > 2 * 41 * 41  # 200 mm faces on a <= 5 mm grid
     info = json.loads((out / "models" / "models_info.json").read_text())["1"]
-    assert info["diameter"] == pytest.approx(math.sqrt(200 ** 2 + 200 ** 2 + 5 ** 2))   # 5 mm plate
+    assert info["diameter"] == pytest.approx(math.sqrt(200**2 + 200**2 + 5**2))  # 5 mm plate
     assert info["size_z"] == pytest.approx(5.0)
-    for ax in "xyz":                                             # origin at the bounding-box centre
+    for ax in "xyz":  # origin at the bounding-box centre
         assert info[f"min_{ax}"] == pytest.approx(-info[f"size_{ax}"] / 2)
     assert json.loads((out / "models_eval" / "models_info.json").read_text())["1"] == info
 
@@ -162,8 +164,8 @@ def _ply(path):
     lines = path.read_text().splitlines()
     nv = int(next(x for x in lines if x.startswith("element vertex")).split()[-1])
     start = lines.index("end_header") + 1
-    vn = np.array([[float(c) for c in x.split()] for x in lines[start:start + nv]])
-    faces = np.array([[int(c) for c in x.split()[1:]] for x in lines[start + nv:]])
+    vn = np.array([[float(c) for c in x.split()] for x in lines[start : start + nv]])
+    faces = np.array([[int(c) for c in x.split()[1:]] for x in lines[start + nv :]])
     return vn[:, :3], vn[:, 3:], faces
 
 
@@ -172,12 +174,12 @@ def test_models_normals_point_outward_and_faces_wind_with_them(exported):
     for sub in ("models", "models_eval"):
         v, n, f = _ply(out / sub / "obj_000001.ply")
         np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-6)
-        assert (np.einsum("ij,ij->i", n, v) > 0).all()             # outward from the centre (origin)
+        assert (np.einsum("ij,ij->i", n, v) > 0).all()  # outward from the centre (origin)
         tri = v[f]
         fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-        assert (np.einsum("ij,ij->i", fn, n[f[:, 0]]) > 0).all()   # counter-clockwise seen from outside
-        area = np.linalg.norm(fn, axis=1).sum() / 2                # closed box: 2 x 200^2 + 4 x 200 x 5 mm^2
-        assert area == pytest.approx(2 * 200 ** 2 + 4 * 200 * 5, rel=1e-6)
+        assert (np.einsum("ij,ij->i", fn, n[f[:, 0]]) > 0).all()  # counter-clockwise seen from outside
+        area = np.linalg.norm(fn, axis=1).sum() / 2  # closed box: 2 x 200^2 + 4 x 200 x 5 mm^2
+        assert area == pytest.approx(2 * 200**2 + 4 * 200 * 5, rel=1e-6)
 
 
 def test_projection_matches_manifest(exported):
@@ -192,7 +194,7 @@ def test_projection_matches_manifest(exported):
             g = gt[str(f["index"])][0]
             assert g["obj_id"] == 1
             R = np.array(g["cam_R_m2c"]).reshape(3, 3)
-            t = np.array(g["cam_t_m2c"])                                  # mm
+            t = np.array(g["cam_t_m2c"])  # mm
             Kb = np.array(sc[str(f["index"])]["cam_K"]).reshape(3, 3)
             p = (kp_model_mm @ R.T + t) @ Kb.T
             uv_bop = p[:, :2] / p[:, 2:]
@@ -210,8 +212,8 @@ def test_depth_is_planar_z(exported):
     z_mm = depth.astype(float) * 1.0
     f = next(f for f in ds.iter_frames("clear_000") if f["index"] == 2)
     expected = _planar_z(np.array(f["markers"]["0"]["T_cam_marker"]), "clear_000", 2, 1.0) * 1000
-    assert depth[0, 0] == 0                                              # inf range -> no data
-    np.testing.assert_allclose(z_mm.ravel()[1:], expected.ravel()[1:], atol=0.5 + 1e-6)   # 1 mm units
+    assert depth[0, 0] == 0  # inf range -> no data
+    np.testing.assert_allclose(z_mm.ravel()[1:], expected.ravel()[1:], atol=0.5 + 1e-6)  # 1 mm units
 
 
 def _frame(ds, seq, i):
@@ -245,7 +247,7 @@ def test_gt_info_by_the_depth_test(exported):
     assert hidden["bbox_obj"] == hidden["bbox_visib"] == [-1, -1, -1, -1]
     targets = json.loads((out / "test_targets_bop19.json").read_text())
     keys = {(t["scene_id"], t["im_id"]) for t in targets}
-    assert (0, 1) in keys and (0, 2) in keys and (0, 5) not in keys    # visib_fract >= 0.1 only
+    assert (0, 1) in keys and (0, 2) in keys and (0, 5) not in keys  # visib_fract >= 0.1 only
     assert all(t["obj_id"] == 1 and t["inst_count"] == 1 for t in targets)
     scenes = json.loads((out / "dockbench_scenes.json").read_text())
     assert scenes["visib_fract"]["from_depth_test"] == 12 and scenes["visib_fract"]["delta_mm"] == 15.0
@@ -257,7 +259,7 @@ def test_truncated_silhouette_counts_outside_the_image(exported):
     ds, out, _ = exported
     T = np.array(_frame(ds, *TRUNCATED)["markers"]["0"]["T_cam_marker"])
     whole = _silhouette(T, -WIDTH, -HEIGHT, 3 * WIDTH, 3 * HEIGHT)
-    inside = whole[HEIGHT:2 * HEIGHT, WIDTH:2 * WIDTH]
+    inside = whole[HEIGHT : 2 * HEIGHT, WIDTH : 2 * WIDTH]
     assert 0 < inside.sum() < whole.sum()
     info = _info(out, "000001", TRUNCATED[1])
     assert info["px_count_all"] == int(whole.sum()) and info["px_count_visib"] == int(inside.sum())
@@ -275,8 +277,9 @@ def test_toolkit_pixel_convention(tmp_path):
     T = np.array(_frame(ds, *TRUNCATED)["markers"]["0"]["T_cam_marker"])
     info = _info(tmp_path / "b", "000001", TRUNCATED[1])
     shifted = _silhouette(T, -WIDTH, -HEIGHT, 3 * WIDTH, 3 * HEIGHT, off=0.5)
-    assert info["px_count_all"] == int(shifted.sum()) != int(_silhouette(T, -WIDTH, -HEIGHT, 3 * WIDTH,
-                                                                           3 * HEIGHT).sum())
+    assert (
+        info["px_count_all"] == int(shifted.sum()) != int(_silhouette(T, -WIDTH, -HEIGHT, 3 * WIDTH, 3 * HEIGHT).sum())
+    )
     with pytest.raises(ValueError, match="pixels"):
         bop.export_bop(ds, tmp_path / "c", pixels="gl")
 
@@ -285,7 +288,7 @@ def _decode_rle(rle):
     h, w = rle["size"]
     flat, value, pos = np.zeros(h * w, bool), False, 0
     for run in rle["counts"]:
-        flat[pos:pos + run] = value
+        flat[pos : pos + run] = value
         pos, value = pos + run, not value
     return flat.reshape(w, h).T
 
@@ -306,6 +309,7 @@ def test_scene_gt_coco(exported):
 
 def test_symlinks_are_relative(tmp_path):
     import shutil
+
     root = write_fake_dataset(tmp_path / "ds")
     bop.export_bop(root, tmp_path / "bop", copy_images=False)
     link = tmp_path / "bop" / "test" / "000000" / "rgb" / "000000.png"
@@ -334,6 +338,7 @@ def _distorted(root, dist):
     """The enriched dataset as a camera with ``dist`` would have recorded it: index and range
     passes distorted with the generator's own lens model, the camera's distortion in the manifest."""
     from blendgen.physics.camera.sensor import distort_image
+
     man = json.loads((root / "manifest.json").read_text())
     man["camera"]["distortion"] = list(dist)
     (root / "manifest.json").write_text(json.dumps(man))
@@ -341,11 +346,14 @@ def _distorted(root, dist):
         for line in (root / seq["path"] / "frames.jsonl").read_text().splitlines():
             f = json.loads(line)
             p = root / f["object_index"]
-            cv2.imwrite(str(p), distort_image(cv2.imread(str(p), cv2.IMREAD_UNCHANGED), KM, dist,
-                                              interpolation=cv2.INTER_NEAREST))
+            cv2.imwrite(
+                str(p),
+                distort_image(cv2.imread(str(p), cv2.IMREAD_UNCHANGED), KM, dist, interpolation=cv2.INTER_NEAREST),
+            )
             d = root / f["depth"]
-            np.savez_compressed(d, range_m=distort_image(np.load(d)["range_m"], KM, dist,
-                                                          interpolation=cv2.INTER_NEAREST))
+            np.savez_compressed(
+                d, range_m=distort_image(np.load(d)["range_m"], KM, dist, interpolation=cv2.INTER_NEAREST)
+            )
     _rehash(root)
     return root
 
@@ -361,19 +369,26 @@ def test_distorted_dataset_is_refused_or_undistorted(tmp_path):
     root = _distorted(_enrich(write_fake_dataset(tmp_path / "ds")), dist)
     res = CliRunner().invoke(cli.main, ["export-bop", str(root), "-o", str(tmp_path / "b")])
     assert res.exit_code == 2 and "--undistort" in res.output and "distortion" in res.output
-    res = CliRunner().invoke(cli.main, ["export-bop", str(root), "-o", str(tmp_path / "b"), "--undistort",
-                                        "--depth-scale", "0.1"])
+    res = CliRunner().invoke(
+        cli.main, ["export-bop", str(root), "-o", str(tmp_path / "b"), "--undistort", "--depth-scale", "0.1"]
+    )
     assert res.exit_code == 0, res.output
     assert ref["undistorted"] is False
-    info = {k: json.loads((tmp_path / d / "test" / "000000" / "scene_gt_info.json").read_text())
-            for k, d in (("pin", "bop_pin"), ("und", "b"))}
+    info = {
+        k: json.loads((tmp_path / d / "test" / "000000" / "scene_gt_info.json").read_text())
+        for k, d in (("pin", "bop_pin"), ("und", "b"))
+    }
     for im in ("0", "1", "3", "4"):
         assert info["und"][im][0]["visib_fract"] > 0.97 * info["pin"][im][0]["visib_fract"] > 0.5
     for im in ("0", "3"):
-        a, b = (cv2.imread(str(tmp_path / d / "test" / "000000" / "depth" / f"{int(im):06d}.png"),
-                           cv2.IMREAD_UNCHANGED).astype(float) for d in ("bop_pin", "b"))
+        a, b = (
+            cv2.imread(
+                str(tmp_path / d / "test" / "000000" / "depth" / f"{int(im):06d}.png"), cv2.IMREAD_UNCHANGED
+            ).astype(float)
+            for d in ("bop_pin", "b")
+        )
         both = (a > 0) & (b > 0)
         both[:6], both[-6:], both[:, :6], both[:, -6:] = False, False, False, False
-        assert both.sum() > 1000 and np.median(np.abs(a - b)[both]) <= 10          # 0.1 mm units
+        assert both.sum() > 1000 and np.median(np.abs(a - b)[both]) <= 10  # 0.1 mm units
     scenes = json.loads((tmp_path / "b" / "dockbench_scenes.json").read_text())
     assert scenes["undistorted_from"] == dist

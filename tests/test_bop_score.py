@@ -1,4 +1,5 @@
 """BOP19 AR as the BOP toolkit computes it (pinned toolkit outputs) and the BOP results writer."""
+
 from __future__ import annotations
 
 import json
@@ -31,7 +32,7 @@ def test_scores_equal_the_toolkits(fixture):
     assert s["AR_MSSD"] == pytest.approx(want["bop19_average_recall_mssd"], abs=1e-12)
     assert s["AR_MSPD"] == pytest.approx(want["bop19_average_recall_mspd"], abs=1e-12)
     assert s["AR_BOP19"] == pytest.approx(want["bop19_average_recall"], abs=1e-12)
-    assert 0.3 < s["AR_BOP19"] < 0.9                          # the fixture is neither all right nor all wrong
+    assert 0.3 < s["AR_BOP19"] < 0.9  # the fixture is neither all right nor all wrong
 
 
 def test_per_target_errors_equal_the_toolkits(fixture):
@@ -42,9 +43,9 @@ def test_per_target_errors_equal_the_toolkits(fixture):
     assert set(errors["mssd_mm"]) == {k for k, r in rows.items() if r["mssd"] is not None}
     for key, mssd in errors["mssd_mm"].items():
         assert rows[key]["mssd"] * diam == pytest.approx(mssd, rel=1e-6)
-        assert rows[key]["mspd"] * 64 / 640 == pytest.approx(errors["mspd_px"][key], rel=1e-6)   # 64 px wide
+        assert rows[key]["mspd"] * 64 / 640 == pytest.approx(errors["mspd_px"][key], rel=1e-6)  # 64 px wide
         np.testing.assert_allclose(rows[key]["vsd"], errors["vsd_by_tau"][key], atol=1e-9)
-    assert any(0 < e < 1 for v in errors["vsd_by_tau"].values() for e in v)        # partial overlaps too
+    assert any(0 < e < 1 for v in errors["vsd_by_tau"].values() for e in v)  # partial overlaps too
 
 
 def _run_estimates(ds: Dataset, shift_m: float) -> pd.DataFrame:
@@ -54,8 +55,17 @@ def _run_estimates(ds: Dataset, shift_m: float) -> pd.DataFrame:
         for f in ds.iter_frames(seq["id"]):
             T = np.array(f["T_cam_dock"], float)
             T[0, 3] += shift_m
-            rows.append({"localizer": "qr_track", "sequence": seq["id"], "index": f["index"], "detected": True,
-                         "d_est": 1.0, "ms": 12.5, "T_cam_dock_est": T.ravel().tolist()})
+            rows.append(
+                {
+                    "localizer": "qr_track",
+                    "sequence": seq["id"],
+                    "index": f["index"],
+                    "detected": True,
+                    "d_est": 1.0,
+                    "ms": 12.5,
+                    "T_cam_dock_est": T.ravel().tolist(),
+                }
+            )
     return pd.DataFrame(rows)
 
 
@@ -68,7 +78,7 @@ def test_results_writer_round_trip(fixture, tmp_path):
     path = paths["qr_track"]
     assert path.name == "qr-track_dockbench-test.csv" and method_name("a_b_c") == "a-b-c"
     lines = path.read_text().splitlines()
-    assert lines[0] == HEADER and len(lines) == 1 + 12                  # one object, 12 images
+    assert lines[0] == HEADER and len(lines) == 1 + 12  # one object, 12 images
     s, i, o, score, R, t, time_s = lines[1].split(",")
     gt = json.loads((export / "test" / f"{int(s):06d}" / "scene_gt.json").read_text())[i][0]
     np.testing.assert_allclose(np.array(R.split(), float), gt["cam_R_m2c"], atol=1e-8)
@@ -77,12 +87,14 @@ def test_results_writer_round_trip(fixture, tmp_path):
     assert bop19_scores(export, path)["AR_BOP19"] == pytest.approx(1.0)
     far = write_results(_run_estimates(ds, 1.0), ds.markers, export, tmp_path / "far")["qr_track"]
     miss = bop19_scores(export, far)
-    assert miss["AR_MSSD"] == 0.0 and miss["AR_MSPD"] < 0.02 and miss["AR_VSD"] < 0.01      # 1 m: far off
+    assert miss["AR_MSSD"] == 0.0 and miss["AR_MSPD"] < 0.02 and miss["AR_VSD"] < 0.01  # 1 m: far off
 
 
-_PARAMS = ('    obj_ids = {\n        "lm": list(range(1, 16)),\n    }\n    symmetric_obj_ids = {\n'
-           '        "lm": [3, 7, 10, 11],\n    }\n    if dataset_name == "lm":\n        pass\n'
-           '    else:\n        raise ValueError("Unknown BOP dataset ({}).".format(dataset_name))\n')
+_PARAMS = (
+    '    obj_ids = {\n        "lm": list(range(1, 16)),\n    }\n    symmetric_obj_ids = {\n'
+    '        "lm": [3, 7, 10, 11],\n    }\n    if dataset_name == "lm":\n        pass\n'
+    '    else:\n        raise ValueError("Unknown BOP dataset ({}).".format(dataset_name))\n'
+)
 
 
 def _toolkit_tree(root: Path) -> Path:
@@ -101,6 +113,7 @@ def test_registration_script(fixture, tmp_path):
     import subprocess
     import sys
     import textwrap
+
     tk = _toolkit_tree(tmp_path / "tk")
     script = fixture[0] / "register_bop_toolkit.py"
     for _ in range(2):
@@ -132,18 +145,23 @@ def test_export_bop_results_cli(tmp_path):
     import cli
     from evalkit.metrics.extra import EvalSettings
     from evalkit.reports import results
+
     ds = Dataset.open(write_fake_dataset(tmp_path / "ds"))
     est = run_fake(ds, [("oracle", Oracle())])
-    results.save_run(est, tmp_path / "run", results.RunRecord(ds, ["oracle"], EvalSettings(n_boot=50),
-                                                               make_plots=False))
-    res = CliRunner().invoke(cli.main, ["export-bop", str(ds.root), "-o", str(tmp_path / "b" / "dockbench"),
-                                        "--results", str(tmp_path / "run")])
+    results.save_run(
+        est, tmp_path / "run", results.RunRecord(ds, ["oracle"], EvalSettings(n_boot=50), make_plots=False)
+    )
+    res = CliRunner().invoke(
+        cli.main,
+        ["export-bop", str(ds.root), "-o", str(tmp_path / "b" / "dockbench"), "--results", str(tmp_path / "run")],
+    )
     assert res.exit_code == 0, res.output
     csv = tmp_path / "b" / "dockbench" / "results" / "oracle_dockbench-test.csv"
     assert csv.is_file() and "AR_BOP19" in res.output and "AR_dock" in res.output
     s = bop19_scores(tmp_path / "b" / "dockbench", csv)
     assert s["AR_MSSD"] == s["AR_MSPD"] == 1.0
     other = write_fake_dataset(tmp_path / "ds2", sequences=[("x", "murky", 0, [1.0, 2.0])])
-    res = CliRunner().invoke(cli.main, ["export-bop", str(other), "-o", str(tmp_path / "c"),
-                                        "--results", str(tmp_path / "run")])
+    res = CliRunner().invoke(
+        cli.main, ["export-bop", str(other), "-o", str(tmp_path / "c"), "--results", str(tmp_path / "run")]
+    )
     assert res.exit_code == 2 and "evaluated another dataset" in res.output and not (tmp_path / "c").exists()

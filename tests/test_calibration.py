@@ -1,5 +1,6 @@
 """Calibration check (the article's Table 4): pose sampler, board geometry, and one small
 rendered Zhang calibration against the ground-truth K."""
+
 import csv
 import math
 
@@ -9,8 +10,8 @@ import yaml
 from click.testing import CliRunner
 
 import cli
-from blendgen.tools.calibration import camera as cal
 from blendgen.geometry import intrinsics_from_hfov, project, transform_points
+from blendgen.tools.calibration import camera as cal
 
 BOARD = cal.ChessBoard(9, 6, 0.05, 1)
 
@@ -32,7 +33,7 @@ def test_pose_sampler_keeps_board_in_view(W, H):
             assert poses.fill_min <= cal.board_fill(K, T, BOARD, W, H) <= poses.fill_max
             assert cal.board_tilt_deg(T) <= poses.max_tilt_deg + 1e-6
             n_cam = T[:3, 2]
-            assert n_cam @ T[:3, 3] < 0   # the printed face looks at the camera
+            assert n_cam @ T[:3, 3] < 0  # the printed face looks at the camera
         # seeded: same seed, same poses; tilts actually vary
         again = cal.sample_poses(seed, 20, K, BOARD, W, H, poses)
         assert all(np.array_equal(a, b) for a, b in zip(Ts, again))
@@ -52,7 +53,7 @@ def test_board_texture_matches_corners():
         r = (h / 2 - y) / BOARD.square_m
         assert c == pytest.approx(round(c)) and r == pytest.approx(round(r))
         r, c = round(r), round(c)
-        q = cells[r - 1:r + 1, c - 1:c + 1].astype(int)
+        q = cells[r - 1 : r + 1, c - 1 : c + 1].astype(int)
         assert q[0, 0] == q[1, 1] != q[0, 1] == q[1, 0]
     # first corner is the top-left one, rows run left to right
     P = BOARD.corners()
@@ -89,5 +90,5 @@ def test_rendered_zhang_calibration(tmp_path):
     for p_ in cal.PARAMS:
         assert float(row[f"{p_}_err_pct"]) < 1.0, row
     assert float(row["rms_px"]) < 0.2, row
-    assert float(row["corner_err_px"]) < 0.2, row   # detections sit on the true projections
+    assert float(row["corner_err_px"]) < 0.2, row  # detections sit on the true projections
     assert (out / "calibration.csv").exists()

@@ -7,6 +7,7 @@ Oracles, each independent of the mesh code:
 - culling (only the light that can reach the wanted bins is traced) leaves those bins as the
   full map has them;
 - a frame's points read the map made at their footprint's bins and beam path."""
+
 from __future__ import annotations
 
 import math
@@ -14,7 +15,9 @@ import math
 import numpy as np
 import pytest
 
-from blendgen.physics.surface import caustic_map as cmap, caustic_mesh, optics as sf
+from blendgen.physics.surface import caustic_map as cmap
+from blendgen.physics.surface import caustic_mesh
+from blendgen.physics.surface import optics as sf
 
 ALPHA = 1.0 - 1.0 / sf.N_WATER
 
@@ -32,8 +35,8 @@ def _traced_profile(amp, wavelength, path, x_edges, samples=2_000_000):
     k = 2 * math.pi / wavelength
     lo, hi = x_edges[0] - 2.0, x_edges[-1] + 2.0
     xi = np.linspace(lo, hi, samples, endpoint=False) + (hi - lo) / samples / 2
-    s = ALPHA * amp * k * np.cos(k * xi)                     # alpha eta'(xi)
-    c0, c1 = path                                            # L(X) = c0 + c1 X
+    s = ALPHA * amp * k * np.cos(k * xi)  # alpha eta'(xi)
+    c0, c1 = path  # L(X) = c0 + c1 X
     X = (xi + c0 * s) / (1.0 - c1 * s)
     counts, _ = np.histogram(X, x_edges)
     return counts * ((hi - lo) / samples) / np.diff(x_edges)
@@ -54,15 +57,16 @@ def test_a_folded_wave_gets_the_light_of_every_sheet(bin_m, tilt):
     n = int(round(2.0 / bin_m))
     patch = cmap.Patch(0.013, -0.1, bin_m, (8, n))
     xc, _ = patch.centres()
-    path = (3 * f - tilt * 1.0, tilt)                              # 3 focal lengths mid-patch
+    path = (3 * f - tilt * 1.0, tilt)  # 3 focal lengths mid-patch
     L = np.broadcast_to(path[0] + path[1] * xc, patch.shape).copy()
     profile = cmap.light_map(_one_wave(amp, lam), patch, L, 0.0).mean(axis=0)
     truth = _traced_profile(amp, lam, path, patch.x0 + bin_m * np.arange(n + 1))
-    assert truth.max() > 3.0                                        # folded: bright caustic pairs
+    assert truth.max() > 3.0  # folded: bright caustic pairs
     radius = L * sf.SUN_RADIUS_RAD / sf.N_WATER / bin_m
-    seen = caustic_mesh.disc_blur(np.broadcast_to(truth, patch.shape).astype(np.float32), radius,
-                                  np.ones(patch.shape, bool)).mean(axis=0)
-    inner = slice(8, -8)                                           # the oracle's blur stops at its edge
+    seen = caustic_mesh.disc_blur(
+        np.broadcast_to(truth, patch.shape).astype(np.float32), radius, np.ones(patch.shape, bool)
+    ).mean(axis=0)
+    inner = slice(8, -8)  # the oracle's blur stops at its edge
     err = np.sqrt(np.mean((profile[inner] - seen[inner]) ** 2))
     assert err < 0.05 * seen[inner].std(), (err, seen.std())
     assert profile.mean() == pytest.approx(truth.mean(), rel=0.01)
@@ -119,7 +123,7 @@ def test_a_frames_points_read_the_map_of_their_footprint():
         cmap.frame_factor(waves, x, y, path, np.full(x.size, 0.02), 0.2)
     finally:
         cmap._light_at = real
-    assert len(calls) == 3                                 # 0.5-1, 1-2, 2-4 m
+    assert len(calls) == 3  # 0.5-1, 1-2, 2-4 m
 
 
 def test_footprint_levels_are_at_least_the_footprint():

@@ -6,6 +6,7 @@ its contrast falls with depth beyond the focal zone in turbid water (Maritorena 
 the fast pattern (all sheets of the folded ray map summed, ``physics/surface/caustic_map.py``) matches it
 before and beyond the first focus (correlation) and its contrast stays within the stated error
 (README of ``bench caustics``: +-35 %)."""
+
 from __future__ import annotations
 
 import pytest
@@ -27,7 +28,7 @@ def test_clear_water_reference_conserves_energy_and_fast_pattern_matches(tmp_pat
     transmittance (1 %), fast contrast within 25 % of it, patterns correlated > 0.9."""
     r = _row(tmp_path, None, 1.0, 768, 2)
     assert r["meanE_ref"] == pytest.approx(1 - ((N - 1) / (N + 1)) ** 2, abs=0.01)
-    assert r["contrast_ref"] > 2 * r["noise_contrast_ref"]           # the pattern is resolved
+    assert r["contrast_ref"] > 2 * r["noise_contrast_ref"]  # the pattern is resolved
     assert abs(r["contrast_fast"] / r["contrast_ref"] - 1) < 0.25, r
     assert r["corr"] > 0.9, r
 
@@ -67,8 +68,11 @@ def test_oblique_sun_reference_energy_and_fast_pattern(tmp_path):
     each point's upstream surface crossing with the slant beam path, matches it (contrast within
     25 %, correlation > 0.9)."""
     import math
+
     import numpy as np
+
     from blendgen.physics.surface.optics import fresnel_reflectance
+
     w = cb.water_of(None)
     spec = cb.reference_spec(1.0, w, 768, 2, sun_zenith_deg=20.0)
     r = cb.compare(cb.run_reference(spec, tmp_path / "oblique.npz"), spec, w)

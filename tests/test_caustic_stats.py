@@ -1,5 +1,6 @@
 """Caustic statistics of `bench caustics` (tools/bench/caustic_bench.py: radial_psd, spectrum_stats): a
 pattern of known wavelength, white noise removed, shifted patterns are equal in statistics."""
+
 import numpy as np
 import pytest
 
@@ -28,12 +29,12 @@ def test_shot_noise_is_removed_and_shifts_do_not_matter():
     rng = np.random.default_rng(0)
     clean = _waves(0.3)
     noisy = clean + rng.normal(0.0, 0.05, clean.shape)
-    s = spectrum_stats(noisy, _waves(0.3, np.pi), BIN, 0.05 ** 2)
+    s = spectrum_stats(noisy, _waves(0.3, np.pi), BIN, 0.05**2)
     assert s["cell_m_ref"] == pytest.approx(s["cell_m_fast"], rel=0.1)
     assert s["psd_log10_err"] < 0.15
-    _, p, _ = radial_psd(rng.normal(0.0, 0.05, clean.shape), BIN, 0.05 ** 2)
+    _, p, _ = radial_psd(rng.normal(0.0, 0.05, clean.shape), BIN, 0.05**2)
     _, p_sig, _ = radial_psd(clean, BIN)
-    assert np.abs(p).max() < 0.1 * p_sig.max()          # pure noise minus its level: ~0
+    assert np.abs(p).max() < 0.1 * p_sig.max()  # pure noise minus its level: ~0
 
 
 def test_a_finer_pattern_is_told_apart():

@@ -5,6 +5,7 @@ Oracles: a flat surface's photons give the pattern that undoes the spot's invers
 (``((D + s) / D)^2 / T_Fresnel`` per bin when every photon is kept); the spot's projective
 lookup is the binning's; a rendered frame is the plain-sun frame plus the sun's direct light
 times ``M(P) - 1`` at every pixel's world point, with the plain sun's mean."""
+
 from __future__ import annotations
 
 import json
@@ -15,7 +16,8 @@ import sys
 import numpy as np
 import pytest
 
-from blendgen.physics.surface import caustic_beam as cb, optics as sf
+from blendgen.physics.surface import caustic_beam as cb
+from blendgen.physics.surface import optics as sf
 from blendgen.pipeline.plan import INDEX_POOL
 
 SURFACE = {"centre_xy": [0.0, 0.0], "half_xy": [7.5, 2.5], "z": 1.0}
@@ -35,12 +37,12 @@ def _flat_photons(grid: cb.Grid, air, t, pitch: float, rng) -> np.ndarray:
     n = int(2 * half / pitch)
     u = (np.arange(n)[:, None] + rng.random((n, n))) * pitch - half
     v = (np.arange(n)[None, :] + rng.random((n, n))) * pitch - half
-    start = grid.c + u.ravel()[:, None] * e1 + v.ravel()[:, None] * e2       # rays across the air beam
-    xi = start - ((start[:, 2] - grid.c[2]) / air[2])[:, None] * air         # on the surface plane
-    return xi + (6.0 / -t[2]) * t                                              # 6 m below it
+    start = grid.c + u.ravel()[:, None] * e1 + v.ravel()[:, None] * e2  # rays across the air beam
+    xi = start - ((start[:, 2] - grid.c[2]) / air[2])[:, None] * air  # on the surface plane
+    return xi + (6.0 / -t[2]) * t  # 6 m below it
 
 
-@pytest.mark.heavy   # ~11 CPU s each: 400 photons per bin over a 6 x 6 m grid
+@pytest.mark.heavy  # ~11 CPU s each: 400 photons per bin over a 6 x 6 m grid
 @pytest.mark.parametrize("zenith_deg, azimuth_deg", [(0.0, 0.0), (41.8, 0.0), (60.0, 150.0)])
 def test_flat_surface_gives_the_flat_pattern(zenith_deg, azimuth_deg):
     air, t = _sun(zenith_deg, azimuth_deg)
@@ -49,10 +51,10 @@ def test_flat_surface_gives_the_flat_pattern(zenith_deg, azimuth_deg):
     P = _flat_photons(grid, air, t, pitch, np.random.default_rng(1))
     M = cb.pattern(grid, P, pitch, 1, air)
     inner = M[5:-5, 5:-5]
-    s_floor = 6.0 / -t[2]                                       # the floor's distance along the beam
+    s_floor = 6.0 / -t[2]  # the floor's distance along the beam
     expect = ((cb.D_SPOT + s_floor) / cb.D_SPOT) ** 2 / cb.transmittance(air)
     assert inner.mean() == pytest.approx(expect, rel=3e-3)
-    assert inner.std() / inner.mean() < 0.08                   # jitter only, no structure
+    assert inner.std() / inner.mean() < 0.08  # jitter only, no structure
 
 
 def test_projective_coordinates_are_the_spot_rays_lookup():
@@ -70,20 +72,28 @@ def test_projective_coordinates_are_the_spot_rays_lookup():
     np.testing.assert_allclose(pq, cb.D_SPOT * n[:, :2] / -n[:, 2:3], atol=1e-9)
     M = rng.random(grid.shape).astype(np.float32)
     i, j = 17, 31
-    centre = grid.lo + (np.array([j, i]) + 0.5) * grid.bin_m       # (p, q) of bin (row i, col j)
-    k = cb.D_SPOT / (cb.D_SPOT + 2.0)                             # a point 2 m beyond c along the beam
+    centre = grid.lo + (np.array([j, i]) + 0.5) * grid.bin_m  # (p, q) of bin (row i, col j)
+    k = cb.D_SPOT / (cb.D_SPOT + 2.0)  # a point 2 m beyond c along the beam
     Pc = grid.c + 2.0 * grid.t + (centre[0] / k) * grid.e1 + (centre[1] / k) * grid.e2
     assert cb.lookup(grid, M, Pc[None])[0] == pytest.approx(M[i, j], abs=1e-5)
-    assert cb.lookup(grid, M, (grid.c + 100.0 * grid.e1)[None])[0] == 1.0          # outside: plain sun
+    assert cb.lookup(grid, M, (grid.c + 100.0 * grid.e1)[None])[0] == 1.0  # outside: plain sun
 
 
 def _planned(tmp_path, **scene):
     from blendgen.config.models import Experiment
     from blendgen.pipeline.generate import _Target, manifest_base
-    exp = Experiment.model_validate({
-        "name": "caustic-plan", "image_formation": "physical", "render": {"fidelity": "reference"},
-        "scene": {"template": "pool_15x5x8", **scene},
-        "trajectories": [{"kind": "linear", "id": "a", "start_range_m": 4.0, "end_range_m": 3.0, "speed_mps": 10.0}]})
+
+    exp = Experiment.model_validate(
+        {
+            "name": "caustic-plan",
+            "image_formation": "physical",
+            "render": {"fidelity": "reference"},
+            "scene": {"template": "pool_15x5x8", **scene},
+            "trajectories": [
+                {"kind": "linear", "id": "a", "start_range_m": 4.0, "end_range_m": 3.0, "speed_mps": 10.0}
+            ],
+        }
+    )
     tg = _Target.prepare(exp, tmp_path / f"ds{len(list(tmp_path.iterdir()))}")
     return tg.jobs[0].scene, manifest_base(exp, tg.K, tg.markers, tg.scene, tg.jobs)
 
@@ -92,15 +102,18 @@ def test_reference_jobs_carry_the_photon_budget_only_when_caustics_are_drawn(tmp
     """Reference jobs with caustics carry the photon budget (the pool's spot in pools only: an
     open-water seabed is beyond a photon budget) and the manifest records it, valid under its
     schema; with caustics off or no sun, neither."""
-    from datasets_spec.validate import load_schema
     import jsonschema
+
     from blendgen.pipeline import plan
+    from datasets_spec.validate import load_schema
+
     for kind in ("pool", "open_water"):
         scene, manifest = _planned(tmp_path, kind=kind)
         assert scene["water_surface"]["caustics"] == {**plan.REFERENCE_CAUSTICS, "pool_spot": kind == "pool"}
         assert manifest["reference_caustics"]["pool_spot"] == (kind == "pool")
-        jsonschema.validate(manifest["reference_caustics"],
-                            load_schema("manifest.schema.json")["properties"]["reference_caustics"])
+        jsonschema.validate(
+            manifest["reference_caustics"], load_schema("manifest.schema.json")["properties"]["reference_caustics"]
+        )
     for other in ({"world": {"caustics": False}}, {"sun_strength": 0.0}):
         scene, manifest = _planned(tmp_path, **other)
         assert "caustics" not in (scene.get("water_surface") or {}) and "reference_caustics" not in manifest
@@ -113,24 +126,39 @@ def _check_spec(tmp_path, kind: str = "pool") -> dict:
     from blendgen.config.models import Experiment
     from blendgen.pipeline import plan
     from blendgen.pipeline.generate import _Target
-    exp = Experiment.model_validate({
-        "name": "caustic-check", "image_formation": "physical", "seed": 4,
-        "scene": {"template": "pool_15x5x8", "kind": kind, "world": {"wind_mps": 2.0, "seabed_depth_m": 3.2},
-                  "sky_fraction": 0.0},
-        "camera": {"width": 96, "height": 72, "hfov_deg": 70, "fps": 10, "T_body_cam": {"xyz": [0.65, 0, 0]}},
-        "render": {"fidelity": "reference", "reference_samples": 64},
-        "water": {"preset": "clear"},
-        "trajectories": [{"kind": "linear", "id": "a", "start_range_m": 2.2, "end_range_m": 1.7, "speed_mps": 5.0}],
-        "conditions": [{"label": "c", "dock_water_depth_m": 2.0}]})
+
+    exp = Experiment.model_validate(
+        {
+            "name": "caustic-check",
+            "image_formation": "physical",
+            "seed": 4,
+            "scene": {
+                "template": "pool_15x5x8",
+                "kind": kind,
+                "world": {"wind_mps": 2.0, "seabed_depth_m": 3.2},
+                "sky_fraction": 0.0,
+            },
+            "camera": {"width": 96, "height": 72, "hfov_deg": 70, "fps": 10, "T_body_cam": {"xyz": [0.65, 0, 0]}},
+            "render": {"fidelity": "reference", "reference_samples": 64},
+            "water": {"preset": "clear"},
+            "trajectories": [{"kind": "linear", "id": "a", "start_range_m": 2.2, "end_range_m": 1.7, "speed_mps": 5.0}],
+            "conditions": [{"label": "c", "dock_water_depth_m": 2.0}],
+        }
+    )
     tg = _Target.prepare(exp, tmp_path / "ds")
     job = tg.jobs[0]
     assert job.scene["water_surface"]["caustics"] == {**plan.REFERENCE_CAUSTICS, "pool_spot": kind == "pool"}
     c = exp.camera
-    return {"scene": job.scene, "render": plan.render_settings(exp, 2),
-            "camera": {"width": c.width, "height": c.height, "hfov_rad": math.radians(c.hfov_deg),
-                       "K": tg.K.tolist()},
-            "frame": {"T_world_cam": np.asarray(job.frames[0]["T_world_cam"]).tolist(), "t": job.frames[0]["t"],
-                      "index": 0}}, tg.K
+    return {
+        "scene": job.scene,
+        "render": plan.render_settings(exp, 2),
+        "camera": {"width": c.width, "height": c.height, "hfov_rad": math.radians(c.hfov_deg), "K": tg.K.tolist()},
+        "frame": {
+            "T_world_cam": np.asarray(job.frames[0]["T_world_cam"]).tolist(),
+            "t": job.frames[0]["t"],
+            "index": 0,
+        },
+    }, tg.K
 
 
 def _check(tmp_path, kind: str):
@@ -139,13 +167,26 @@ def _check(tmp_path, kind: str):
     spec, K = _check_spec(tmp_path, kind)
     (tmp_path / "spec.json").write_text(json.dumps(spec))
     out = tmp_path / "check.npz"
-    subprocess.run([sys.executable, "-m", "blendgen.blender.testing.caustic_sun_check", str(tmp_path / "spec.json"),
-                    str(out)], check=True, timeout=600)
+    subprocess.run(
+        [sys.executable, "-m", "blendgen.blender.testing.caustic_sun_check", str(tmp_path / "spec.json"), str(out)],
+        check=True,
+        timeout=600,
+    )
     r = np.load(out)
     names = [k for k in ("pool", "dock") if f"{k}_M" in r]
     assert names == (["pool", "dock"] if kind == "pool" else ["dock"])
-    grids = {k: cb.Grid(r[f"{k}_c"], r[f"{k}_t"], r[f"{k}_e1"], r[f"{k}_e2"], r[f"{k}_lo"], float(r[f"{k}_bin_m"]),
-                        r[f"{k}_M"].shape) for k in names}
+    grids = {
+        k: cb.Grid(
+            r[f"{k}_c"],
+            r[f"{k}_t"],
+            r[f"{k}_e1"],
+            r[f"{k}_e2"],
+            r[f"{k}_lo"],
+            float(r[f"{k}_bin_m"]),
+            r[f"{k}_M"].shape,
+        )
+        for k in names
+    }
     z = r["depth_z"]
     h, w = z.shape
     u, v = np.meshgrid(np.arange(w), np.arange(h))
@@ -155,7 +196,7 @@ def _check(tmp_path, kind: str):
     P = P_cam @ T[:3, :3].T + T[:3, 3]
     direct = (r["plain"] - r["nosun"])[hit].mean(axis=1)
     lit = direct > 0.25 * np.percentile(direct, 90)
-    pool = r["index"][hit] == INDEX_POOL                           # pool or seabed; the rest: dock, frame, markers
+    pool = r["index"][hit] == INDEX_POOL  # pool or seabed; the rest: dock, frame, markers
     m_pool = cb.lookup(grids["pool"], r["pool_M"], P) if "pool" in grids else np.ones(len(P))
     m = np.where(pool, m_pool, cb.lookup(grids["dock"], r["dock_M"], P))
     got = (r["caustic"] - r["plain"])[hit].mean(axis=1)
@@ -164,7 +205,7 @@ def _check(tmp_path, kind: str):
 
 def _agrees(sel, pred, got, plain):
     """The pattern where predicted (correlation), as strong (slope) and as bright (mean)."""
-    assert sel.mean() > 0.2                                        # the spot fills part of the frame
+    assert sel.mean() > 0.2  # the spot fills part of the frame
     assert np.corrcoef(pred[sel], got[sel])[0, 1] > 0.8
     assert 0.8 < (pred[sel] @ got[sel]) / (pred[sel] @ pred[sel]) < 1.1
     mean = plain[sel].mean()

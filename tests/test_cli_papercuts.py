@@ -1,4 +1,5 @@
 """CLI paper cuts: bundled configs by name, the quickstart's header, the demo target."""
+
 from __future__ import annotations
 
 import re
@@ -16,13 +17,14 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_bundled_configs_by_name_from_any_directory(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)                                 # no configs/ folder here
+    monkeypatch.chdir(tmp_path)  # no configs/ folder here
     for spec in ("quickstart", "quickstart.yaml", "configs/quickstart.yaml"):
         assert resolve_config(spec) == bundled_file("configs", "quickstart.yaml")
         assert load_experiment(spec).name == "quickstart"
-    (tmp_path / "quickstart.yaml").write_text((ROOT / "configs" / "quickstart.yaml").read_text()
-                                              .replace("name: quickstart", "name: mine"))
-    assert load_experiment("quickstart.yaml").name == "mine"   # a real file wins over the bundled name
+    (tmp_path / "quickstart.yaml").write_text(
+        (ROOT / "configs" / "quickstart.yaml").read_text().replace("name: quickstart", "name: mine")
+    )
+    assert load_experiment("quickstart.yaml").name == "mine"  # a real file wins over the bundled name
     with pytest.raises(ConfigError, match="bundled configs.*quickstart"):
         load_experiment("no_such_config")
 
@@ -55,15 +57,22 @@ def test_demo_evaluates_the_hybrid_too():
 
 def test_calibrate_size_and_trials_override_the_config():
     from blendgen.tools.calibration import camera as cal
+
     cfg = cal.load_config(cal.DEFAULT_CONFIG)
     small = cal.with_overrides(cfg, (320, 240), 2)
     assert small.resolutions == [(320, 240)] and small.trials == 2
     assert cal.with_overrides(cfg).resolutions == cfg.resolutions and cfg.trials == 5
 
 
-@pytest.mark.parametrize("args", [["calibrate", "--size", "320 240"], ["calibrate", "--size", "8x8"],
-                                  ["bench", "particles", "--size", "640", "480"],
-                                  ["bench", "particles", "--size", "abc"]])
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["calibrate", "--size", "320 240"],
+        ["calibrate", "--size", "8x8"],
+        ["bench", "particles", "--size", "640", "480"],
+        ["bench", "particles", "--size", "abc"],
+    ],
+)
 def test_one_size_syntax_wxh(args, tmp_path):
     """--size is WxH everywhere (16..8192 each); `W H` and out-of-range sizes are usage errors, before any work."""
     res = CliRunner().invoke(cli.main, args + ["-o", str(tmp_path / "o")] if args[0] == "calibrate" else args)
@@ -72,19 +81,32 @@ def test_one_size_syntax_wxh(args, tmp_path):
 
 
 def test_no_width_height_options_left():
-    assert not [path for path, cmd in _walk(cli.main) for p in cmd.params
-                if {"--width", "--height"} & set(getattr(p, "opts", ()))]
+    assert not [
+        path
+        for path, cmd in _walk(cli.main)
+        for p in cmd.params
+        if {"--width", "--height"} & set(getattr(p, "opts", ()))
+    ]
 
 
 def test_size_options_share_one_parser():
     import click
+
     sizes = {}
     for path, cmd in _walk(cli.main):
         for p in cmd.params:
             if "--size" in getattr(p, "opts", ()) and path not in ("bench glow", "bench caustics"):
                 sizes[path] = p
-    assert {"calibrate", "bench particles", "bench suite", "dock", "bench closed-loop", "preview",
-            "bench fidelity", "calibrate-water"} <= set(sizes)
+    assert {
+        "calibrate",
+        "bench particles",
+        "bench suite",
+        "dock",
+        "bench closed-loop",
+        "preview",
+        "bench fidelity",
+        "calibrate-water",
+    } <= set(sizes)
     for path, p in sizes.items():
         assert p.type == click.STRING or isinstance(p.type, click.types.StringParamType), path
         assert p.nargs == 1, path
@@ -92,6 +114,7 @@ def test_size_options_share_one_parser():
 
 def _walk(group, prefix=""):
     import click
+
     for name, cmd in group.commands.items():
         path = f"{prefix} {name}".strip()
         if isinstance(cmd, click.Group):
@@ -117,6 +140,6 @@ def test_lamp_bench_announces_each_cycles_render(tmp_path, monkeypatch):
     monkeypatch.setattr(lb, "ON_RENDER", seen.append)
     spec = {"width": 96, "height": 72, "samples": 64, "volume_bounces": 0, "seed": 1}
     lb.reference(spec, tmp_path)
-    lb.reference(spec, tmp_path)                              # cached: no render, no line
+    lb.reference(spec, tmp_path)  # cached: no render, no line
     lb.reference({**spec, "samples": 8}, tmp_path)
     assert len(seen) == 2 and "96x72, 64 spp, 0 volume bounces" in seen[0] and "8 spp" in seen[1]

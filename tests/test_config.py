@@ -1,5 +1,5 @@
 """Config validation: every user error names the file, the key path and the range; exit 2; nothing written."""
-import textwrap
+
 from pathlib import Path
 
 import pytest
@@ -22,6 +22,7 @@ def write(tmp_path, cfg, name="bad.yaml"):
 def patched(path, value):
     """Deep copy of the good config with ``path`` (dotted, list indices as ints) set to value."""
     import copy
+
     cfg = copy.deepcopy(GOOD)
     node = cfg
     keys = path.split(".")
@@ -49,7 +50,7 @@ BAD = [
     ("camera.height", -480, "camera.height"),
     ("camera.fps", 0, "camera.fps"),
     ("camera.noise_std", 300, "less than or equal to 256"),
-    ("camera.lens", 35, "camera.lens"),                      # unknown key
+    ("camera.lens", 35, "camera.lens"),  # unknown key
     ("render.samples", 0, "render.samples"),
     ("render.fidelity", "ultra", "render.fidelity"),
     ("water", {"preset": "mild", "beta": -0.1}, "beta"),
@@ -65,8 +66,11 @@ BAD = [
     ("scene.dock.water_depth_m", -1, "water_depth_m"),
     ("scene.pool", {"length_m": -15}, "length_m"),
     ("scene.obstacles", [{"kind": "box", "size_m": [1, -1, 1]}], "size_m"),
-    ("scene.dock.markers", [{"kind": "aruco", "id": "a", "marker_id": 99, "dictionary": "DICT_4X4_50"}],
-     "out of range"),
+    (
+        "scene.dock.markers",
+        [{"kind": "aruco", "id": "a", "marker_id": 99, "dictionary": "DICT_4X4_50"}],
+        "out of range",
+    ),
     ("scene.dock.markers", [{"kind": "qr", "id": "q"}], "payload"),
     ("scene.dock.markers", [{"kind": "led_array", "led_radius_m": 0}], "led_radius_m"),
     ("conditions", [{"label": "a"}, {"label": "a"}], "unique"),

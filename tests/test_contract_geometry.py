@@ -1,15 +1,24 @@
 """datasets_spec.geometry: the format's rigid transforms and their validators."""
+
 from __future__ import annotations
 
 import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from datasets_spec.geometry import (axis_angle_to_R, check_K, check_T, invert_T, make_T,
-                                    relative_rotation_angles, rotation_angle)
+from datasets_spec.geometry import (
+    axis_angle_to_R,
+    check_K,
+    check_T,
+    invert_T,
+    make_T,
+    relative_rotation_angles,
+    rotation_angle,
+)
 
 angles = st.floats(0.0, math.pi, allow_nan=False)
 axes = st.tuples(*[st.floats(-1, 1, allow_nan=False)] * 3).filter(lambda a: np.linalg.norm(a) > 1e-3)
@@ -31,24 +40,30 @@ def test_rotation_angle_near_pi_and_zero():
     assert np.allclose(relative_rotation_angles(R, R), 0.0, atol=1e-7)
 
 
-@pytest.mark.parametrize("bad, why", [
-    (np.eye(3), "shape"),
-    (np.full((4, 4), np.nan), "non-finite"),
-    (np.diag([1.0, 1.0, -1.0, 1.0]), "det"),
-    (np.diag([2.0, 1.0, 1.0, 1.0]), "orthonormal"),
-    (np.vstack([np.eye(4)[:3], [0, 0, 1, 1]]), "bottom row"),
-])
+@pytest.mark.parametrize(
+    "bad, why",
+    [
+        (np.eye(3), "shape"),
+        (np.full((4, 4), np.nan), "non-finite"),
+        (np.diag([1.0, 1.0, -1.0, 1.0]), "det"),
+        (np.diag([2.0, 1.0, 1.0, 1.0]), "orthonormal"),
+        (np.vstack([np.eye(4)[:3], [0, 0, 1, 1]]), "bottom row"),
+    ],
+)
 def test_check_T_names_the_fault(bad, why):
     with pytest.raises(ValueError, match=why.split()[0]):
         check_T(bad, "T_cam_dock")
 
 
-@pytest.mark.parametrize("bad, why", [
-    (np.eye(4), "shape"),
-    ([[500, 0, 320], [0, -500, 240], [0, 0, 1]], "focal"),
-    ([[500, 0, 320], [0, 500, np.inf], [0, 0, 1]], "non-finite"),
-    ([[500, 3, 320], [0, 500, 240], [0, 0, 1]], "expected"),
-])
+@pytest.mark.parametrize(
+    "bad, why",
+    [
+        (np.eye(4), "shape"),
+        ([[500, 0, 320], [0, -500, 240], [0, 0, 1]], "focal"),
+        ([[500, 0, 320], [0, 500, np.inf], [0, 0, 1]], "non-finite"),
+        ([[500, 3, 320], [0, 500, 240], [0, 0, 1]], "expected"),
+    ],
+)
 def test_check_K_names_the_fault(bad, why):
     with pytest.raises(ValueError, match=why):
         check_K(bad)

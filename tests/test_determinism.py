@@ -7,6 +7,7 @@ Tolerance: frames.jsonl must be byte-identical; images may differ by at most IMA
 bit-exact across runs (max |diff| = 0), so IMAGE_TOL = 1 leaves room for float rounding of
 threads without hiding real non-determinism (a changed noise seed moves pixels by >> 1).
 """
+
 from __future__ import annotations
 
 import json
@@ -19,9 +20,11 @@ import yaml
 
 pytestmark = pytest.mark.blender
 
-IMAGE_TOL = 1          # max |difference| in 8-bit levels between two runs of the same config
+IMAGE_TOL = 1  # max |difference| in 8-bit levels between two runs of the same config
 CONFIG = {
-    "name": "determinism", "version": "0.0.1", "seed": 11,
+    "name": "determinism",
+    "version": "0.0.1",
+    "seed": 11,
     "scene": {"template": "pool_15x5x8"},
     "camera": {"width": 64, "height": 48, "hfov_deg": 60, "fps": 10, "noise_std": 4.0},
     "render": {"fidelity": "fast", "samples": 1},
@@ -36,8 +39,9 @@ CONFIG = {
 
 
 def _generate(tmp_path: Path, name: str, seed: int) -> Path:
-    from blendgen.pipeline.generate import generate
     from blendgen.config.models import load_experiment
+    from blendgen.pipeline.generate import generate
+
     cfg = {**CONFIG, "seed": seed}
     p = tmp_path / f"{name}.yaml"
     p.write_text(yaml.safe_dump(cfg))
@@ -47,8 +51,10 @@ def _generate(tmp_path: Path, name: str, seed: int) -> Path:
 
 
 def _images(root: Path) -> dict[str, np.ndarray]:
-    return {p.relative_to(root).as_posix(): cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
-            for p in sorted(root.glob("sequences/*/rgb/*.png"))}
+    return {
+        p.relative_to(root).as_posix(): cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+        for p in sorted(root.glob("sequences/*/rgb/*.png"))
+    }
 
 
 def _frames(root: Path) -> dict[str, bytes]:
@@ -66,7 +72,7 @@ def test_same_seed_identical_ground_truth(runs):
     fa, fb = _frames(a), _frames(b)
     assert fa and fa.keys() == fb.keys()
     for k in fa:
-        assert fa[k] == fb[k], k                              # byte-equal frames.jsonl
+        assert fa[k] == fb[k], k  # byte-equal frames.jsonl
         assert len(fa[k].splitlines()) >= 2
     ma, mb = (json.loads((r / "manifest.json").read_text()) for r in (a, b))
     assert ma["config"] == mb["config"] and ma["seed"] == mb["seed"] == 11

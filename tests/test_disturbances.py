@@ -1,24 +1,30 @@
 """Disturbances in rendered datasets: particles, fixed obstacles, current."""
+
 import json
 
 import numpy as np
 import pytest
 import yaml
 
-from blendgen.pipeline.generate import generate
 from blendgen.config.models import load_experiment
+from blendgen.pipeline.generate import generate
 
 pytestmark = pytest.mark.blender
 
 CFG = {
-    "name": "dist", "seed": 4,
-    "scene": {"template": "pool_15x5x8",
-              "obstacles": [{"kind": "box", "pose": {"xyz": [6.2, 0.2, -0.8]}, "size_m": [0.1, 0.1, 0.1]}]},
+    "name": "dist",
+    "seed": 4,
+    "scene": {
+        "template": "pool_15x5x8",
+        "obstacles": [{"kind": "box", "pose": {"xyz": [6.2, 0.2, -0.8]}, "size_m": [0.1, 0.1, 0.1]}],
+    },
     "camera": {"width": 160, "height": 120, "hfov_deg": 60, "fps": 10},
     "render": {"samples": 1},
     "trajectories": [{"kind": "linear", "id": "lin", "start_range_m": 3.0, "end_range_m": 2.0, "speed_mps": 2.0}],
-    "conditions": [{"label": "clear"}, {"label": "occ", "occlusion": {"n_total": 200000, "r_min_m": 0.01,
-                                                                       "r_max_m": 0.03}}],
+    "conditions": [
+        {"label": "clear"},
+        {"label": "occ", "occlusion": {"n_total": 200000, "r_min_m": 0.01, "r_max_m": 0.03}},
+    ],
 }
 
 
@@ -52,6 +58,7 @@ def test_particles_hide_markers_only_in_the_occluded_condition(ds):
 def test_fixed_obstacle_is_rendered_with_its_index(ds):
     root, man = ds
     import cv2
+
     names = {v: int(k) for k, v in man["object_index"].items()}
     f = frames(root, "lin-t000-clear")[0]
     index = cv2.imread(str(root / f["object_index"]), cv2.IMREAD_UNCHANGED)

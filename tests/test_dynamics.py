@@ -1,19 +1,26 @@
 """AUV 6-DOF model, thrusters, autopilot, station keeping and docking trials."""
+
 from __future__ import annotations
 
 import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from blendgen.vehicle.control import Autopilot, Sensors, step_metrics, step_response
-from blendgen.vehicle.docking import (random_start, simulate_docking_trial, start_pose_world,
-                              station_keep_run, station_keeping_signs_ok,
-                              station_keeping_table, thrust_unit_N)
-from blendgen.vehicle.dynamics import (AUVModel, DT_MAX, Plant, T_world_body_to_eta,
-                               VehicleParams, eta_to_T_world_body)
 from blendgen.geometry import make_T
+from blendgen.vehicle.control import Autopilot, Sensors, step_metrics, step_response
+from blendgen.vehicle.docking import (
+    random_start,
+    simulate_docking_trial,
+    start_pose_world,
+    station_keep_run,
+    station_keeping_signs_ok,
+    station_keeping_table,
+    thrust_unit_N,
+)
+from blendgen.vehicle.dynamics import DT_MAX, AUVModel, Plant, T_world_body_to_eta, VehicleParams, eta_to_T_world_body
 from blendgen.vehicle.thrusters import ThrusterSet
 
 
@@ -70,29 +77,36 @@ def test_current_carries_unpowered_vehicle():
         s = model.rk4_step(s, [0.0] * 6, vc, 0.02)
     eta = np.array(s[:6])
     from blendgen.vehicle.dynamics import R_ned_frd
+
     v_ned = R_ned_frd(*eta[3:]) @ np.array(s[6:9])
     assert np.allclose(v_ned, vc, atol=0.01)
 
 
 # ---------------------------------------------------------------- frames --------
 @settings(max_examples=50, deadline=None)
-@given(st.floats(-50, 50), st.floats(-50, 50), st.floats(0, 40),
-       st.floats(-1.2, 1.2), st.floats(-1.2, 1.2), st.floats(-3.1, 3.1))
+@given(
+    st.floats(-50, 50),
+    st.floats(-50, 50),
+    st.floats(0, 40),
+    st.floats(-1.2, 1.2),
+    st.floats(-1.2, 1.2),
+    st.floats(-3.1, 3.1),
+)
 def test_ned_world_pose_roundtrip(x, y, z, phi, theta, psi):
     eta = np.array([x, y, z, phi, theta, psi])
     T = eta_to_T_world_body(eta)
     R = T[:3, :3]
     assert np.allclose(R.T @ R, np.eye(3), atol=1e-12) and np.linalg.det(R) > 0
-    assert T[2, 3] == pytest.approx(-z)                  # depth z -> world z = -depth
+    assert T[2, 3] == pytest.approx(-z)  # depth z -> world z = -depth
     assert np.allclose(T_world_body_to_eta(T), eta, atol=1e-9)
 
 
 def test_ned_world_axes():
     # level, heading east (psi = +90 deg): NED east = world -y; body FLU up = world +z
     T = eta_to_T_world_body([0, 0, 2.0, 0, 0, math.pi / 2])
-    assert np.allclose(T[:3, 0], [0, -1, 0], atol=1e-12)   # forward
-    assert np.allclose(T[:3, 1], [1, 0, 0], atol=1e-12)    # left (= north when facing east)
-    assert np.allclose(T[:3, 2], [0, 0, 1], atol=1e-12)    # up
+    assert np.allclose(T[:3, 0], [0, -1, 0], atol=1e-12)  # forward
+    assert np.allclose(T[:3, 1], [1, 0, 0], atol=1e-12)  # left (= north when facing east)
+    assert np.allclose(T[:3, 2], [0, 0, 1], atol=1e-12)  # up
     assert T[2, 3] == pytest.approx(-2.0)
     # nose up (theta > 0 in NED) -> forward axis has a positive world z component
     T = eta_to_T_world_body([0, 0, 2.0, 0, 0.3, 0])
@@ -116,21 +130,21 @@ def test_commanded_deeper_goes_to_more_negative_world_z():
     T = plant.T_world_body()
     assert z0 == pytest.approx(-2.0)
     assert T[2, 3] == pytest.approx(-3.5, abs=0.03)
-    assert np.allclose(T[:3, 2], [0, 0, 1], atol=0.01)     # still upright
+    assert np.allclose(T[:3, 2], [0, 0, 1], atol=0.01)  # still upright
 
 
 # ---------------------------------------------------------------- thrusters -----
 def test_thruster_allocation_and_propeller():
     th = ThrusterSet()
-    assert np.allclose(th.B[3], 0.0)                     # roll uncontrolled
+    assert np.allclose(th.B[3], 0.0)  # roll uncontrolled
     assert np.linalg.matrix_rank(th.B) == 5
     tau = np.array([5.0, -8.0, -30.0, 0.0, 2.0, -3.0])
     assert np.allclose(th.B @ th.allocate(tau), tau, atol=1e-9)
     rho = 1025.0
     n = np.array([50.0, -50.0, 100.0, -100.0, 10.0, 0.0])
     T = th.speed_to_thrust(n, rho)
-    assert T[0] > 0 > T[1] and abs(T[1]) < T[0]           # reverse weaker
-    assert T[0] == pytest.approx(rho * 0.0125 * 0.1 ** 4 * 2500)
+    assert T[0] > 0 > T[1] and abs(T[1]) < T[0]  # reverse weaker
+    assert T[0] == pytest.approx(rho * 0.0125 * 0.1**4 * 2500)
     assert np.allclose(th.thrust_to_speed(T, rho), n)
     assert np.all(np.abs(th.thrust_to_speed(np.full(6, 1e4), rho)) <= 100.0)
     # first-order lag: 63 % after one time constant (0.2 s)
@@ -144,13 +158,13 @@ def test_prioritized_allocation_keeps_moments_when_saturated():
     th = ThrusterSet()
     rho = 1025.0
     hi = th.max_thrust(rho)
-    tau = np.array([0.0, -300.0, -40.0, 0.0, 3.0, 8.0])   # sway far beyond authority
+    tau = np.array([0.0, -300.0, -40.0, 0.0, 3.0, 8.0])  # sway far beyond authority
     T = th.allocate_prioritized(tau, rho)
     assert np.all(T <= hi + 1e-9) and np.all(T >= -0.7 * hi - 1e-9)
     got = th.B @ T
     assert got[5] == pytest.approx(8.0) and got[4] == pytest.approx(3.0)  # moments kept
-    assert got[2] == pytest.approx(-40.0)                                 # heave kept
-    assert -300.0 < got[1] < -40.0                                        # sway saturated
+    assert got[2] == pytest.approx(-40.0)  # heave kept
+    assert -300.0 < got[1] < -40.0  # sway saturated
     small = np.array([1.0, -2.0, -30.0, 0.0, 1.0, 1.0])
     assert np.allclose(th.allocate_prioritized(small, rho), th.allocate(small))
 
@@ -161,7 +175,7 @@ def test_sensors_quantise_and_clip():
     assert r["depth_m"] == pytest.approx(1.23)
     assert r["pitch_deg"] == pytest.approx(-12.3)
     assert r["roll_deg"] == pytest.approx(90.0)
-    assert r["heading_deg"] == 0.0                       # 359.96 -> 360.0 -> wraps to 0
+    assert r["heading_deg"] == 0.0  # 359.96 -> 360.0 -> wraps to 0
     assert s.read([0, 0, -2.0, 0, 0, 0])["depth_m"] == 0.0
     assert s.read([0, 0, 80.0, 0, 0, 0])["depth_m"] == 50.0
     assert s.read([0, 0, 1, 0, 0, math.radians(-90)])["heading_deg"] == pytest.approx(270.0)
@@ -181,28 +195,38 @@ def sk_table():
 
 def test_station_keeping_table(sk_table):
     df = sk_table
-    assert list(df.index) == ["benchmark", "density 1075", "density 975", "flow up",
-                              "flow down", "flow forward", "flow backward", "flow left",
-                              "flow right"]
+    assert list(df.index) == [
+        "benchmark",
+        "density 1075",
+        "density 975",
+        "flow up",
+        "flow down",
+        "flow forward",
+        "flow backward",
+        "flow left",
+        "flow right",
+    ]
     assert all(station_keeping_signs_ok(df).values())
     assert df.attrs["unit_N"] == pytest.approx(thrust_unit_N())
     assert df.loc["benchmark", "vertical"] == pytest.approx(6.0, abs=0.2)
     assert df.loc["density 1075", "vertical"] == pytest.approx(4.0, abs=0.2)
     assert df.loc["density 975", "vertical"] == pytest.approx(8.0, abs=0.2)
     # compensating thrust ~ drag at the relative velocity
-    assert abs(df.loc["flow left", "lateral_N"]) * 2 == pytest.approx(
-        131 * 0.25 + 13.2 * 0.5, rel=0.05)
+    assert abs(df.loc["flow left", "lateral_N"]) * 2 == pytest.approx(131 * 0.25 + 13.2 * 0.5, rel=0.05)
     assert (df["pos_error_m"] < 0.05).all()
 
 
 # ---------------------------------------------------------------- step responses
-@pytest.mark.parametrize("axis,step,duration,max_os,max_settle,max_rise", [
-    ("depth", 1.0, 30.0, 5.0, 15.0, 8.0),
-    ("depth", -1.0, 30.0, 5.0, 15.0, 8.0),
-    ("heading", 30.0, 25.0, 5.0, 12.0, 6.0),
-    ("heading", -90.0, 30.0, 5.0, 15.0, 8.0),
-    ("speed", 0.5, 25.0, 5.0, 12.0, 6.0),
-])
+@pytest.mark.parametrize(
+    "axis,step,duration,max_os,max_settle,max_rise",
+    [
+        ("depth", 1.0, 30.0, 5.0, 15.0, 8.0),
+        ("depth", -1.0, 30.0, 5.0, 15.0, 8.0),
+        ("heading", 30.0, 25.0, 5.0, 12.0, 6.0),
+        ("heading", -90.0, 30.0, 5.0, 15.0, 8.0),
+        ("speed", 0.5, 25.0, 5.0, 12.0, 6.0),
+    ],
+)
 def test_step_responses_settle(axis, step, duration, max_os, max_settle, max_rise):
     t, y = step_response(axis, step, duration)
     m = step_metrics(t, y, y[0] + step, band=0.02)
@@ -284,7 +308,7 @@ def test_large_dt_rejected_small_dt_finite():
     with pytest.raises(ValueError, match="dt"):
         simulate_docking_trial(Td, start, dt=0.5)
     bad = Td.copy()
-    bad[:3, 0] *= -1.0                                    # left-handed dock frame
+    bad[:3, 0] *= -1.0  # left-handed dock frame
     with pytest.raises(ValueError, match="rotation"):
         simulate_docking_trial(bad, start)
     with pytest.raises(ValueError, match="dt"):

@@ -1,4 +1,5 @@
 """`dockbench evaluate` as a user runs it: integrity, provenance, reproducible summaries, safe output."""
+
 from __future__ import annotations
 
 import hashlib
@@ -10,11 +11,11 @@ from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
-
-import cli
 from fake_dataset import write_fake_dataset
 
-pytestmark = pytest.mark.integration   # the CLI end to end: subprocesses, concurrent writers
+import cli
+
+pytestmark = pytest.mark.integration  # the CLI end to end: subprocesses, concurrent writers
 
 ROOT = Path(__file__).resolve().parents[1]
 PLUGIN = '''
@@ -67,20 +68,20 @@ def test_same_inputs_give_byte_identical_summaries(setup, tmp_path):
     assert cmd[:2] == ["dockbench", "evaluate"] and cmd[-1] == str(ds)
     assert cmd[cmd.index("--param") + 1] == "scale=1.02" and "--max-rel-error" in cmd
     loc = run["localizers"][0]
-    assert loc["params"] == {"scale": 1.02}                       # as given, not post-run state
+    assert loc["params"] == {"scale": 1.02}  # as given, not post-run state
     assert loc["code"] == [{"role": "plugin file", "path": str(plugin.resolve()), "sha256": _sha(plugin)}]
     env = run["environment"]
     assert {"python", "numpy", "pandas", "scipy"} <= set(env["packages"])
     assert run["dataset"]["verified"] is True and run["options"]["verify"] is True
     m = outs[0]["metrics"][0]
-    assert m["P_detect_mean"] == 1.0 and m["n_fp"] == 1            # answers the out-of-view frame too
+    assert m["P_detect_mean"] == 1.0 and m["n_fp"] == 1  # answers the out-of-view frame too
 
 
 def test_tampered_ground_truth_refused_and_no_verify_recorded(setup, tmp_path):
     ds, spec, _ = setup
     path = ds / "sequences/clear_000/frames.jsonl"
     frames = [json.loads(x) for x in path.read_text().splitlines()]
-    frames[3]["d_true"] += 1.0                                      # GT edit, JSON still valid
+    frames[3]["d_true"] += 1.0  # GT edit, JSON still valid
     path.write_text("".join(json.dumps(f) + "\n" for f in frames))
     res = _run("evaluate", ds, "-l", spec, "-o", tmp_path / "out")
     assert res.exit_code == 2
@@ -93,7 +94,7 @@ def test_tampered_ground_truth_refused_and_no_verify_recorded(setup, tmp_path):
     assert run["options"]["verify"] is False and run["dataset"]["verified"] is False
     manifest = json.loads((ds / "manifest.json").read_text())
     assert run["dataset"]["manifest_content_hash"] == manifest["content_hash"]
-    assert run["dataset"]["content_hash"] != manifest["content_hash"]   # recomputed from the bytes
+    assert run["dataset"]["content_hash"] != manifest["content_hash"]  # recomputed from the bytes
 
 
 def test_out_folder_refused_unless_overwrite(setup, tmp_path):
@@ -105,16 +106,28 @@ def test_out_folder_refused_unless_overwrite(setup, tmp_path):
     assert res.exit_code == 2 and "not empty" in res.output and "--overwrite" in res.output
     assert (out / "run.json").read_text() == first
     res = _run("evaluate", ds, "-l", spec, "-o", out, "-q", "--overwrite")
-    assert res.exit_code == 0 and res.output == ""                  # --quiet: nothing on stdout
+    assert res.exit_code == 0 and res.output == ""  # --quiet: nothing on stdout
     assert json.loads((out / "run.json").read_text())["options"]["overwrite"] is True
-    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []   # no leftovers
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []  # no leftovers
 
 
 def test_concurrent_writers_one_wins(setup, tmp_path):
     ds, spec, _ = setup
     out = tmp_path / "out"
-    cmd = [sys.executable, "-c", "import cli; cli.main()", "evaluate", str(ds), "-l", spec,
-           "-p", "delay_s=0.25", "-o", str(out), "-q"]
+    cmd = [
+        sys.executable,
+        "-c",
+        "import cli; cli.main()",
+        "evaluate",
+        str(ds),
+        "-l",
+        spec,
+        "-p",
+        "delay_s=0.25",
+        "-o",
+        str(out),
+        "-q",
+    ]
     env = {"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"}
     first = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     lock = tmp_path / ".out.lock"

@@ -1,5 +1,6 @@
 """Executors: the local pool's stop semantics (no Blender), the orphan guard, the
 executor choice as a user error, and Ray writing the same bytes as the local pool."""
+
 import _thread
 import importlib.util
 import json
@@ -13,16 +14,18 @@ from pathlib import Path
 
 import pytest
 
-from blendgen.pipeline import executor as ex
 from blendgen.config.models import ConfigError, Experiment
+from blendgen.pipeline import executor as ex
 
-pytestmark = pytest.mark.integration   # worker processes, signals, the orphan guard
+pytestmark = pytest.mark.integration  # worker processes, signals, the orphan guard
 
 ROOT = Path(__file__).resolve().parent.parent
 
 # 64x48 at 1 spp: three short sequences (14 frames), a few seconds to render
 TINY = {
-    "name": "tiny-exec", "version": "1.0.0", "seed": 5,
+    "name": "tiny-exec",
+    "version": "1.0.0",
+    "seed": 5,
     "scene": {"template": "pool_15x5x8"},
     "camera": {"width": 64, "height": 48, "hfov_deg": 60, "fps": 5},
     "render": {"fidelity": "fast", "samples": 1},
@@ -45,7 +48,7 @@ def _live_children(marker: str) -> list[int]:
             cmd = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
         except OSError:
             continue
-        fields = stat[stat.rindex(")") + 2:].split()
+        fields = stat[stat.rindex(")") + 2 :].split()
         if fields[0] != "Z" and int(fields[1]) == os.getpid() and marker in cmd:
             out.append(int(d.name))
     return out
@@ -65,6 +68,7 @@ def test_interrupt_kills_running_workers_and_starts_no_more(tmp_path):
     # a process started with SIGINT ignored (a background job of a non-interactive shell)
     # would make interrupt_main a no-op: install Python's handler for this test
     import signal
+
     old = signal.signal(signal.SIGINT, signal.default_int_handler)
     threading.Timer(1.5, _thread.interrupt_main).start()
     t0 = time.perf_counter()
@@ -79,18 +83,22 @@ def test_interrupt_kills_running_workers_and_starts_no_more(tmp_path):
 
 def test_failure_lets_running_jobs_finish_and_starts_no_more(tmp_path):
     jobs, done = _jobs(tmp_path, 5), []
-    script = ("import sys, time\n"
-              "name = sys.argv[1]\n"
-              "if name.endswith('j0.json'): print('boom: bad scene'); sys.exit(3)\n"
-              "time.sleep(1.0)\n")
+    script = (
+        "import sys, time\n"
+        "name = sys.argv[1]\n"
+        "if name.endswith('j0.json'): print('boom: bad scene'); sys.exit(3)\n"
+        "time.sleep(1.0)\n"
+    )
     with pytest.raises(ex.RenderError, match=r"exit 3.*j0\.json[\s\S]*boom: bad scene"):
         ex.run_local(jobs, tmp_path, 2, done.append, command=_fake(script))
     assert [p.name for p in done] == ["j1.json"]  # running when j0 failed: finished and committed
 
 
 def test_orphaned_worker_exits():
-    code = ("import time\nfrom blendgen.pipeline.executor import _exit_with_parent\n"
-            "_exit_with_parent(1)\ntime.sleep(30)\n")  # pid 1 is not our parent: we are 'orphaned'
+    code = (
+        "import time\nfrom blendgen.pipeline.executor import _exit_with_parent\n"
+        "_exit_with_parent(1)\ntime.sleep(30)\n"
+    )  # pid 1 is not our parent: we are 'orphaned'
     t0 = time.perf_counter()
     r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, timeout=20)
     assert r.returncode == 137 and time.perf_counter() - t0 < 10
@@ -101,7 +109,7 @@ def test_slots():
     n, t = ex.slots("local", 10, None)
     assert n == min(10, cpus) and t == max(1, cpus // n)  # one worker per core: cores never oversubscribed
     assert n * t <= max(cpus, n)
-    assert ex.slots("local", 1, None)[0] == 1         # never more workers than jobs
+    assert ex.slots("local", 1, None)[0] == 1  # never more workers than jobs
     assert ex.slots("local", 10, 3, threads=4) == (3, 4)
     assert ex.slots("ray", 10, None) == (None, min(ex.RAY_THREADS, cpus))
 
@@ -114,11 +122,12 @@ def test_importing_generate_does_not_import_ray():
 @pytest.mark.ray
 def test_bad_executor_choice_is_a_user_error_and_writes_nothing(tmp_path, monkeypatch):
     from blendgen.pipeline.generate import generate
+
     exp = Experiment.model_validate(TINY)
     with pytest.raises(ConfigError, match="unknown executor 'dask'"):
         generate(exp, tmp_path / "a", executor="dask")
     if importlib.util.find_spec("ray") is not None:
-        with socket.socket() as s:                     # a port nobody listens on
+        with socket.socket() as s:  # a port nobody listens on
             s.bind(("127.0.0.1", 0))
             port = s.getsockname()[1]
         with pytest.raises(ConfigError, match="no Ray cluster answers"):
@@ -134,6 +143,7 @@ def test_bad_executor_choice_is_a_user_error_and_writes_nothing(tmp_path, monkey
 def test_ray_writes_the_same_dataset_as_local(tmp_path):
     ray = pytest.importorskip("ray", reason="ray not installed (optional extra: pip install 'dockbench[ray]')")
     from blendgen.pipeline.generate import generate
+
     exp = Experiment.model_validate(TINY)
     t0 = time.perf_counter()
     local = generate(exp, tmp_path / "local", workers=1, progress=False)
@@ -151,18 +161,19 @@ def test_ray_writes_the_same_dataset_as_local(tmp_path):
     # the manifest holds no paths or times: the whole file is the same bytes
     assert (tmp_path / "ray" / "manifest.json").read_bytes() == (tmp_path / "local" / "manifest.json").read_bytes()
     job = next((tmp_path / "ray" / ".work" / "jobs").glob("*--a-t000-default.json"))
-    assert json.loads(job.read_text())["render"]["threads"] \
-        == ex.slots("ray", 2, None)[1]
+    assert json.loads(job.read_text())["render"]["threads"] == ex.slots("ray", 2, None)[1]
 
 
 # -- persistent workers (executor --serve): the protocol with a fake server, no Blender --
-_FAKE_SERVER = ("import json, sys, time, os\n"
-                "for line in sys.stdin:\n"
-                "    req = json.loads(line)\n"
-                "    open(req['log'], 'a').write(f'pid {os.getpid()}\\n')\n"
-                "    if req['job'].endswith('j0.json'): print('boom: bad scene', file=open(req['log'], 'a')); sys.exit(3)\n"
-                "    time.sleep(float(os.environ.get('FAKE_SLEEP', '0.3')))\n"
-                "    print(json.dumps({'ok': True, 'rss_mb': 1.0}), flush=True)\n")
+_FAKE_SERVER = (
+    "import json, sys, time, os\n"
+    "for line in sys.stdin:\n"
+    "    req = json.loads(line)\n"
+    "    open(req['log'], 'a').write(f'pid {os.getpid()}\\n')\n"
+    "    if req['job'].endswith('j0.json'): print('boom: bad scene', file=open(req['log'], 'a')); sys.exit(3)\n"
+    "    time.sleep(float(os.environ.get('FAKE_SLEEP', '0.3')))\n"
+    "    print(json.dumps({'ok': True, 'rss_mb': 1.0}), flush=True)\n"
+)
 
 
 def test_persistent_workers_take_job_after_job(tmp_path, monkeypatch):
@@ -171,7 +182,7 @@ def test_persistent_workers_take_job_after_job(tmp_path, monkeypatch):
     ex.run_local(jobs, tmp_path, 2, done.append)
     assert sorted(done) == sorted(jobs)
     pids = {(tmp_path / f"{j.stem}.log").read_text() for j in jobs}
-    assert len(pids) == 2                              # two processes served the six jobs
+    assert len(pids) == 2  # two processes served the six jobs
     assert _live_children(_FAKE_SERVER[:20]) == []
 
 
@@ -180,27 +191,33 @@ def test_persistent_worker_crash_is_reported_and_no_new_job_starts(tmp_path, mon
     jobs, done = _jobs(tmp_path, 5), []
     with pytest.raises(ex.RenderError, match=r"worker exited \(code 3\).*j0\.json[\s\S]*boom: bad scene"):
         ex.run_local(jobs, tmp_path, 2, done.append)
-    assert [p.name for p in done] == ["j1.json"]     # running when j0 failed: finished and committed
+    assert [p.name for p in done] == ["j1.json"]  # running when j0 failed: finished and committed
 
 
 def test_persistent_worker_killed_mid_job_is_retried_once_in_a_fresh_worker(tmp_path, monkeypatch):
-    once = ("import os, signal, pathlib\n"
-            "flag = pathlib.Path(req['job']).with_suffix('.crashed')\n"
-            "if req['job'].endswith('j2.json') and not flag.exists(): flag.touch(); os.kill(os.getpid(), 9)\n")
-    server = _FAKE_SERVER.replace("j0.json", "none").replace("    time.sleep", "    " + once.replace("\n", "\n    ")
-                                                             + "time.sleep")
+    once = (
+        "import os, signal, pathlib\n"
+        "flag = pathlib.Path(req['job']).with_suffix('.crashed')\n"
+        "if req['job'].endswith('j2.json') and not flag.exists(): flag.touch(); os.kill(os.getpid(), 9)\n"
+    )
+    server = _FAKE_SERVER.replace("j0.json", "none").replace(
+        "    time.sleep", "    " + once.replace("\n", "\n    ") + "time.sleep"
+    )
     monkeypatch.setattr(ex, "serve_command", lambda d: [sys.executable, "-c", server])
     jobs, done = _jobs(tmp_path, 4), []
     ex.run_local(jobs, tmp_path, 2, done.append)
     assert sorted(done) == sorted(jobs) and (tmp_path / "j2.crashed").exists()
-    assert len((tmp_path / "j2.log").read_text().splitlines()) == 2     # two processes ran it
+    assert len((tmp_path / "j2.log").read_text().splitlines()) == 2  # two processes ran it
 
 
 def test_interrupt_kills_persistent_workers(tmp_path, monkeypatch):
-    monkeypatch.setattr(ex, "serve_command", lambda d: [sys.executable, "-c", _FAKE_SERVER + "# dockbench-test-serve-int"])
+    monkeypatch.setattr(
+        ex, "serve_command", lambda d: [sys.executable, "-c", _FAKE_SERVER + "# dockbench-test-serve-int"]
+    )
     monkeypatch.setenv("FAKE_SLEEP", "60")
     jobs, done = _jobs(tmp_path, 4), []
     import signal
+
     old = signal.signal(signal.SIGINT, signal.default_int_handler)
     threading.Timer(1.5, _thread.interrupt_main).start()
     t0 = time.perf_counter()
@@ -218,21 +235,33 @@ def test_persistent_worker_renders_two_scenes_as_fresh_workers_do(tmp_path, monk
     """One persistent worker renders A (two paths: the scene reused), then B (another scene:
     rebuilt in the same process): every file is byte-identical to one fresh process per job."""
     from blendgen.pipeline.generate import generate_many
+
     a = Experiment.model_validate(TINY)
-    b = Experiment.model_validate({**TINY, "name": "tiny-exec-b", "seed": 6,
-                                   "scene": {**TINY["scene"], "sun_elevation_deg": 50},
-                                   "camera": {**TINY["camera"], "hfov_deg": 70}})
+    b = Experiment.model_validate(
+        {
+            **TINY,
+            "name": "tiny-exec-b",
+            "seed": 6,
+            "scene": {**TINY["scene"], "sun_elevation_deg": 50},
+            "camera": {**TINY["camera"], "hfov_deg": 70},
+        }
+    )
     warm = generate_many([(a, tmp_path / "warm_a"), (b, tmp_path / "warm_b")], workers=1, progress=False)
-    jobs = {json.dumps(json.loads(p.read_text())["scene"], sort_keys=True)
-            for d in ("warm_a", "warm_b") for p in (tmp_path / d / ".work" / "jobs").glob("*.json")}
-    assert len(jobs) == 2                              # two different scenes went through one worker
+    jobs = {
+        json.dumps(json.loads(p.read_text())["scene"], sort_keys=True)
+        for d in ("warm_a", "warm_b")
+        for p in (tmp_path / d / ".work" / "jobs").glob("*.json")
+    }
+    assert len(jobs) == 2  # two different scenes went through one worker
     logs = [p for d in ("warm_a",) for p in (tmp_path / d / ".work" / "logs").glob("worker-*.log")]
     assert len(logs) == 1
     fresh_run = ex.run_local
-    monkeypatch.setattr(ex, "run_local", lambda files, logs, n, on_done: fresh_run(
-        files, logs, n, on_done, command=ex.worker_command))
+    monkeypatch.setattr(
+        ex, "run_local", lambda files, logs, n, on_done: fresh_run(files, logs, n, on_done, command=ex.worker_command)
+    )
     fresh = generate_many([(a, tmp_path / "fresh_a"), (b, tmp_path / "fresh_b")], workers=1, progress=False)
     for w, f, d in zip(warm, fresh, ("a", "b")):
         assert w["files"] == f["files"] and w["content_hash"] == f["content_hash"]
-        assert (tmp_path / f"warm_{d}" / "manifest.json").read_bytes() == \
-            (tmp_path / f"fresh_{d}" / "manifest.json").read_bytes()
+        assert (tmp_path / f"warm_{d}" / "manifest.json").read_bytes() == (
+            tmp_path / f"fresh_{d}" / "manifest.json"
+        ).read_bytes()

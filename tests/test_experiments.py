@@ -3,6 +3,7 @@
 They render or run for minutes, so they are not run here; this catches a script left behind by a
 rename or a move (module gone, name gone) without running it. Scripts with a ``__main__`` guard
 are also imported (their top level only defines functions)."""
+
 from __future__ import annotations
 
 import ast
@@ -44,14 +45,15 @@ def test_project_imports_resolve(path):
             continue
         mod = importlib.import_module(module)
         for name in names:
-            assert hasattr(mod, name) or importlib.util.find_spec(f"{module}.{name}") is not None, \
+            assert hasattr(mod, name) or importlib.util.find_spec(f"{module}.{name}") is not None, (
                 f"{path.name}: {module} has no {name}"
+            )
 
 
 @pytest.mark.parametrize("path", [p for p in SCRIPTS if _has_main_guard(p)], ids=lambda p: p.name)
 def test_guarded_scripts_import(path, monkeypatch):
     monkeypatch.syspath_prepend(str(ROOT / "tests"))
-    monkeypatch.setattr(sys, "argv", [str(path)])            # some read their arguments at import
+    monkeypatch.setattr(sys, "argv", [str(path)])  # some read their arguments at import
     spec = importlib.util.spec_from_file_location(f"experiment_{path.stem}", path)
     module = importlib.util.module_from_spec(spec)
     monkeypatch.setitem(sys.modules, spec.name, module)

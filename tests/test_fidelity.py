@@ -1,4 +1,5 @@
 """Fast-model calibration, the fidelity bench's pure parts, preview, and their commands."""
+
 import json
 import sys
 
@@ -6,13 +7,11 @@ import click
 import numpy as np
 import pytest
 
-from blendgen.tools.bench import fidelity
-
 from blendgen.config.models import Water
 from blendgen.physics.water import optics
+from blendgen.tools.bench import fidelity
 
-CAL = {"method": "test", "presets": {"moderate": {"B_inf": [0.01, 0.02, 0.03], "Kd": [0.3, 0.3, 0.3],
-                                                  "blur": False}}}
+CAL = {"method": "test", "presets": {"moderate": {"B_inf": [0.01, 0.02, 0.03], "Kd": [0.3, 0.3, 0.3], "blur": False}}}
 
 
 def test_fit_condition_recovers_direct_scale_and_veiling_light():
@@ -36,7 +35,7 @@ def test_image_errors():
     psnr, mae = fidelity.image_errors(ref + 0.01, ref, mask)
     assert mae == pytest.approx(0.01) and psnr == pytest.approx(40.0)
     assert fidelity.image_errors(ref.copy(), ref, mask) == (float("inf"), 0.0)
-    half = np.full((10, 15, 3), 0.5)          # other resolution: the reference is resized
+    half = np.full((10, 15, 3), 0.5)  # other resolution: the reference is resized
     assert fidelity.image_errors(half, ref, mask)[1] == pytest.approx(0.0)
 
 
@@ -51,21 +50,21 @@ def test_fast_water_veil_per_mode_and_calibration():
     cal = {**CAL, "presets": {"jerlov_II": CAL["presets"]["moderate"]}, "sun_elevation_deg": 30.0}
     w, fo = optics.fast_water(Water(preset="moderate", calibrated=True), "physical", 3.0, cal)
     assert fo["calibrated"] and fo["irradiance"] == 3.0
-    assert np.allclose(w.B_inf, np.array([0.01, 0.02, 0.03]) / 0.5)    # per unit sun -> per unit E_d
-    assert np.allclose(w.c, optics.get_preset("jerlov_II").c)          # c is never calibrated
-    assert np.allclose(w.Kd, optics.get_preset("jerlov_II").Kd)        # physical: moderate -> Jerlov II
-    w2, fo2 = optics.fast_water(Water(preset="moderate"), "physical", 3.0, cal)    # default: light field
+    assert np.allclose(w.B_inf, np.array([0.01, 0.02, 0.03]) / 0.5)  # per unit sun -> per unit E_d
+    assert np.allclose(w.c, optics.get_preset("jerlov_II").c)  # c is never calibrated
+    assert np.allclose(w.Kd, optics.get_preset("jerlov_II").Kd)  # physical: moderate -> Jerlov II
+    w2, fo2 = optics.fast_water(Water(preset="moderate"), "physical", 3.0, cal)  # default: light field
     assert not fo2["calibrated"]
     assert np.allclose(w2.B_inf, w2.albedo / (4 * np.pi * optics.MEAN_COSINE_DOWN))
     w3, fo3 = optics.fast_water(Water(preset="moderate", beta=0.4, calibrated=True), "physical", 3.0, cal)
-    assert not fo3["calibrated"]                                       # not a bare preset
+    assert not fo3["calibrated"]  # not a bare preset
     w4, fo4 = optics.fast_water(Water(preset="moderate"), "article", 3.0, cal)
     assert fo4["irradiance"] == 1.0 and np.allclose(w4.B_inf, optics.get_preset("moderate").B_inf)
-    w5, _ = optics.fast_water(Water(preset="jerlov_1C"), "article", 2.0)   # colour = physical veil x E_d
+    w5, _ = optics.fast_water(Water(preset="jerlov_1C"), "article", 2.0)  # colour = physical veil x E_d
     assert np.allclose(w5.B_inf, 2.0 * optics.light_field_veil(optics.get_preset("jerlov_1C")))
     assert optics.fast_water(Water(preset="moderate", blur=True), "physical", 3.0)[1]["blur"]
     assert not np.any(optics.fast_water(Water(preset="clear"), "article", 3.0)[0].c)
-    clear = optics.fast_water(Water(preset="clear"), "physical", 3.0)[0]        # physical clear: Jerlov I
+    clear = optics.fast_water(Water(preset="clear"), "physical", 3.0)[0]  # physical clear: Jerlov I
     assert np.allclose(clear.c, optics.get_preset("jerlov_I").c)
 
 
@@ -81,16 +80,22 @@ def test_shipped_calibration_file_is_consistent():
 
 def test_pareto_plot(tmp_path):
     import pandas as pd
-    df = pd.DataFrame([{"setting": "reference s64", "condition": "mild", "ms_per_frame": 900.0, "mae": 0.0},
-                       {"setting": "fast s1", "condition": "mild", "ms_per_frame": 20.0, "mae": 0.01},
-                       {"setting": "fast s4", "condition": "mild", "ms_per_frame": 40.0, "mae": 0.005},
-                       {"setting": "fast s4", "condition": "clear", "ms_per_frame": 40.0, "mae": 0.001}])
+
+    df = pd.DataFrame(
+        [
+            {"setting": "reference s64", "condition": "mild", "ms_per_frame": 900.0, "mae": 0.0},
+            {"setting": "fast s1", "condition": "mild", "ms_per_frame": 20.0, "mae": 0.01},
+            {"setting": "fast s4", "condition": "mild", "ms_per_frame": 40.0, "mae": 0.005},
+            {"setting": "fast s4", "condition": "clear", "ms_per_frame": 40.0, "mae": 0.001},
+        ]
+    )
     fidelity.pareto_plot(df, tmp_path / "p.png")
     assert (tmp_path / "p.png").stat().st_size > 1000
 
 
 def test_commands_are_click_commands_without_bpy():
     import cli
+
     assert isinstance(cli.main.commands["calibrate-water"], click.Command)
     assert isinstance(cli.main.commands["preview"], click.Command)
     assert isinstance(cli.bench.commands["fidelity"], click.Command)
@@ -100,13 +105,16 @@ def test_commands_are_click_commands_without_bpy():
 @pytest.mark.blender
 def test_calibration_and_preview_render_tiny(tmp_path):
     """End to end at 64x48: calibration improves the fast model; the preview sheet is whole."""
-    data = fidelity.run_calibration(tmp_path / "work", tmp_path / "cal.json", 64, 48, 3, 8,
-                                    conditions=("clear", "moderate"), echo=lambda m: None)
+    data = fidelity.run_calibration(
+        tmp_path / "work", tmp_path / "cal.json", 64, 48, 3, 8, conditions=("clear", "moderate"), echo=lambda m: None
+    )
     e = json.loads((tmp_path / "cal.json").read_text())["presets"]["moderate"]
     assert e == data["presets"]["moderate"] and e["n_pixels"] > 200
     assert e["residual"]["calibrated"]["mae"] < e["residual"]["uncalibrated"]["mae"]
-    from blendgen.tools.apps import preview
     import cv2
+
+    from blendgen.tools.apps import preview
+
     p = preview.make_preview(tmp_path / "sheet.png", 48, 36, 1)
     img = cv2.imread(str(p))
     assert img.shape == (22 + 3 * 36, 9 * 48, 3)

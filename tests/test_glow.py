@@ -1,4 +1,5 @@
 """Forward-scatter glow of emitters seen through water (small-angle single-scatter PSF)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -26,13 +27,13 @@ def test_encircled_energy_matches_a_direct_integration_of_single_scattering():
     theta = psi r / u, none beyond pi; sin(theta)/theta keeps the phase function normalised
     over the sphere), integrated over the solid angle within psi0, against the code's closed
     form b int_0^r P(psi r / u) du."""
-    b, r, g = 0.02, 4.0, 0.8                                   # b r small: the single-scatter regime
+    b, r, g = 0.02, 4.0, 0.8  # b r small: the single-scatter regime
     w = _water(b, g)
 
     def radiance(psi):
-        th = lambda u: psi * r / u                                          # noqa: E731
-        f = lambda u: o.hg_phase(np.cos(th(u)), g) * np.sin(th(u)) / th(u) / u ** 2   # noqa: E731
-        return b * r ** 2 * integrate.quad(f, psi * r / np.pi, r, limit=400)[0]
+        th = lambda u: psi * r / u  # noqa: E731
+        f = lambda u: o.hg_phase(np.cos(th(u)), g) * np.sin(th(u)) / th(u) / u**2  # noqa: E731
+        return b * r**2 * integrate.quad(f, psi * r / np.pi, r, limit=400)[0]
 
     for psi0 in (0.01, 0.05, 0.2):
         ee_numeric = integrate.quad(lambda p: radiance(p) * 2 * np.pi * p, 0, psi0, limit=400)[0]
@@ -52,6 +53,7 @@ def test_glow_grows_with_scattering_times_range():
     def visible_radius(kernel, level=1e-4):
         R = kernel.shape[0] // 2
         return np.nonzero(kernel[R, R:] > level)[0].max()
+
     assert visible_radius(k[(0.1, 8.0)]) > visible_radius(k[(0.1, 2.0)])
     assert visible_radius(k[(0.3, 2.0)]) > visible_radius(k[(0.1, 2.0)])
     assert o.glow_kernel(_water(0.0), 5.0, fx).sum() == 0
@@ -62,23 +64,23 @@ def test_apply_water_adds_the_kernel_energy_around_an_led():
     J = np.zeros((h, w, 3), np.float32)
     em = np.zeros((h, w), bool)
     em[98:102, 98:102] = True
-    J[em] = [2.0, 6.0, 20.0]                                   # a blue LED, far above white
+    J[em] = [2.0, 6.0, 20.0]  # a blue LED, far above white
     r = np.full((h, w), 5.0, np.float32)
     wat = _water(0.3)
     out = o.apply_water(J, r, em, wat, 0.0, model="physical", glow_fx=300.0)
     plain = o.apply_water(J, r, em, wat, 0.0, model="physical")
-    k = o.cached_glow_kernel(wat, 5.0, 300.0)                # the multiple-scatter kernel it uses
+    k = o.cached_glow_kernel(wat, 5.0, 300.0)  # the multiple-scatter kernel it uses
     led = J[em].sum(axis=0) * np.exp(-wat.c * 5.0)
     np.testing.assert_allclose((out - plain).sum(axis=(0, 1)), led * k.sum(axis=(0, 1)), rtol=0.05)
     ring = out[100, 110] - plain[100, 110]
-    assert ring[2] > ring[1] > ring[0] > 0                   # the halo keeps the LED's colour
+    assert ring[2] > ring[1] > ring[0] > 0  # the halo keeps the LED's colour
     # the article's water scatters forward too (sigma_s = albedo * beta): the same glow, then every
     # pixel times exp(-k d) (d = 0 here). Formerly article mode had no glow; the article's text
     # speaks of blurrier contours with turbidity, and the glow is the same physics in both modes.
     art = o.apply_water(J, r, em, wat, 0.0, model="article", glow_fx=300.0)
     art_plain = o.apply_water(J, r, em, wat, 0.0, model="article")
     np.testing.assert_allclose((art - art_plain).sum(axis=(0, 1)), led * k.sum(axis=(0, 1)), rtol=0.05)
-    assert o.apply_water(J, r, em, wat, 0.0, model="article", glow_fx=None)[100, 110].sum() == 0   # off: none
+    assert o.apply_water(J, r, em, wat, 0.0, model="article", glow_fx=None)[100, 110].sum() == 0  # off: none
 
 
 @pytest.mark.blender
@@ -87,6 +89,7 @@ def test_glow_matches_the_reference_medium(tmp_path):
     scattering) at 3..40 px, for two water types and three ranges, against the fast model's
     single-scatter PSF: absolute (Cycles' point light I = P / 4 pi), within 10 %."""
     from blendgen.tools.bench import fidelity
+
     df = fidelity.glow_comparison(tmp_path, samples=64)
     assert len(df) == 2 * 3 * len(fidelity.GLOW_RADII_PX)
     assert df["ratio"].between(0.9, 1.1).all(), df.to_string()
@@ -96,7 +99,7 @@ def test_glow_matches_the_reference_medium(tmp_path):
 
 def _moments(k, fx):
     R = k.shape[0] // 2
-    psi2 = (np.hypot(*np.mgrid[-R:R + 1, -R:R + 1]) / fx) ** 2
+    psi2 = (np.hypot(*np.mgrid[-R : R + 1, -R : R + 1]) / fx) ** 2
     return k.sum(axis=(0, 1)), (k * psi2[..., None]).sum(axis=(0, 1)) / k.sum(axis=(0, 1))
 
 
@@ -121,12 +124,14 @@ def test_multiple_scatter_glow_widens_with_b_r_and_reduces_to_single_scatter():
     """At b r -> 0 the widened kernel has the single-scatter shape (r50 equal within 1 px);
     its half-energy radius grows with b r (mild < moderate, 2 m < 8 m), the single's does not."""
     from blendgen.tools.bench.fidelity import glow_radius_px
+
     fx = 131.9
 
     def r50(k):
         R = k.shape[0] // 2
-        rho = np.hypot(*np.mgrid[-R:R + 1, -R:R + 1])
+        rho = np.hypot(*np.mgrid[-R : R + 1, -R : R + 1])
         return glow_radius_px(np.array([k[..., 1][rho <= q].sum() for q in range(1, 41)]))
+
     tiny = _water(1e-4)
     assert abs(r50(o.glow_kernel_multiple(tiny, 5.0, fx)) - r50(o.glow_kernel(tiny, 5.0, fx))) < 1.0
     got = {(b, r): r50(o.glow_kernel_multiple(_water(b), r, fx)) for b in (0.1, 0.4) for r in (2.0, 8.0)}
@@ -144,6 +149,7 @@ def test_glow_radius_and_energy_match_multiple_scattering_reference(tmp_path):
     small-angle model keeps light that wide-angle paths lose: +7 % mild, +18 % moderate
     measured by `dockbench bench glow --volume-bounces 32`)."""
     from blendgen.tools.bench import fidelity
+
     df = fidelity.glow_comparison(tmp_path, samples=64, volume_bounces=32)
     by = df.groupby(["water", "range_m"])[["r50_reference_px", "r50_fast_px"]].first()
     np.testing.assert_allclose(by["r50_fast_px"], by["r50_reference_px"], rtol=0.05)

@@ -7,6 +7,7 @@ passes and frame records were recorded from the code before the frame loop moved
 pipeline; the manifests were re-recorded once when they started to record the effective config
 (``effective_config`` and each sequence's resolved ``sensor.noise``). A deliberate change of the
 output re-records them (and says why in its commit)."""
+
 from __future__ import annotations
 
 import json
@@ -22,7 +23,7 @@ pytestmark = pytest.mark.blender
 def test_dataset_bytes_as_recorded(tmp_path, name):
     expected = json.loads(gd.HASHES.read_text())[name]
     got = gd.content_hashes(gd.render(name, gd.configs()[name], tmp_path))
-    assert any("/rgb/" in p for p in got)                   # images were written
+    assert any("/rgb/" in p for p in got)  # images were written
     assert gd.diff(expected, got) == []
 
 

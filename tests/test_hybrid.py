@@ -1,5 +1,6 @@
 """The hybrid localizer: by predicted range error (default) or the article's rule (QR whenever it
 decodes, LED otherwise); QR skipped beyond its px/module range."""
+
 from __future__ import annotations
 
 import sys
@@ -18,8 +19,15 @@ from evalkit.localizers.hybrid import HybridLocalizer, range_sigma_m  # noqa: E4
 W, H = 640, 480
 K = synth.k_from_hfov(W, H, 60.0)
 LED = led_marker(size=0.6)
-QR = square_marker("qr", 0.15, T=[[1, 0, 0, -0.12], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]],
-                   payload="DOCK-01", modules=21, module_size_m=0.15 / 21, quiet_zone_modules=4)
+QR = square_marker(
+    "qr",
+    0.15,
+    T=[[1, 0, 0, -0.12], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]],
+    payload="DOCK-01",
+    modules=21,
+    module_size_m=0.15 / 21,
+    quiet_zone_modules=4,
+)
 CAMERA = synth.camera_dict(K, W, H, [LED, QR])
 
 
@@ -36,7 +44,7 @@ class Script:
     def localize(self, image):
         self.calls += 1
         d = self.values.pop(0) if self.values else None
-        if isinstance(d, tuple):    # (distance, RMS reprojection residual px)
+        if isinstance(d, tuple):  # (distance, RMS reprojection residual px)
             return {"distance": d[0], "marker_id": self.marker_id, "reproj_err_px": d[1], "n_points": 4}
         return None if d is None else {"distance": d, "marker_id": self.marker_id}
 
@@ -58,7 +66,7 @@ def frame(h, near, far):
 
 def test_near_range_from_pixels_per_module():
     h = stubbed()
-    expected = K[0, 0] * (0.15 / 21) / 1.3   # f m / min px per module = 3.05 m
+    expected = K[0, 0] * (0.15 / 21) / 1.3  # f m / min px per module = 3.05 m
     assert h.near_range_m == pytest.approx(expected) and 2.9 < expected < 3.2
     assert stubbed(min_px_per_module=2.6).near_range_m == pytest.approx(expected / 2)
     assert stubbed(switch_m=5.0).near_range_m == 5.0
@@ -66,13 +74,13 @@ def test_near_range_from_pixels_per_module():
 
 def test_qr_when_it_decodes_led_otherwise_and_qr_skipped_beyond_range():
     h = stubbed()
-    assert frame(h, 7.9, 8.0) == ("led", (0, 1))     # LED says 8 m > 3.05 m: no decode attempt
-    assert frame(h, None, 2.9) == ("led", (1, 1))    # within range, QR tried, fails: LED
-    assert frame(h, 2.8, 2.8) == ("qr", (1, 0))      # previous 2.9 m: QR first, it decodes
-    assert frame(h, None, 2.7) == ("led", (1, 1))    # QR lost: the LED answers the same frame
+    assert frame(h, 7.9, 8.0) == ("led", (0, 1))  # LED says 8 m > 3.05 m: no decode attempt
+    assert frame(h, None, 2.9) == ("led", (1, 1))  # within range, QR tried, fails: LED
+    assert frame(h, 2.8, 2.8) == ("qr", (1, 0))  # previous 2.9 m: QR first, it decodes
+    assert frame(h, None, 2.7) == ("led", (1, 1))  # QR lost: the LED answers the same frame
     assert frame(h, None, 4.0) == ("led", (1, 1))
-    assert frame(h, 3.0, 3.9) == ("led", (0, 1))     # previous 4 m, LED 3.9 m: QR skipped
-    assert frame(h, 0.4, None) == ("qr", (1, 1))     # LED lost (too close for the array): QR
+    assert frame(h, 3.0, 3.9) == ("led", (0, 1))  # previous 4 m, LED 3.9 m: QR skipped
+    assert frame(h, 0.4, None) == ("qr", (1, 1))  # LED lost (too close for the array): QR
     assert frame(h, None, None) == (None, (1, 1))
 
 
@@ -84,7 +92,7 @@ def test_estimate_records_source_and_range_and_reset_clears_state():
     assert est["near_range_m"] == pytest.approx(h.near_range_m)
     h.reset(CAMERA)
     assert h._last_d is None and h.subs["near"].resets == 2 and h.subs["far"].resets == 2
-    assert frame(h, 1.0, 8.0) == ("led", (0, 1))     # no memory of the previous sequence
+    assert frame(h, 1.0, 8.0) == ("led", (0, 1))  # no memory of the previous sequence
 
 
 def test_params_and_sub_localizer_choice():
@@ -104,8 +112,10 @@ TRUTH = [6.0, 4.0, 3.0, 1.6, 1.0, 0.7]
 
 @pytest.fixture(scope="module")
 def frames():
-    return [synth.render(K, synth.pose_looking_at_dock(d, 10.0, 5.0, 15.0), [LED, QR], W, H, ss=2,
-                         noise_std=2.0, seed=i) for i, d in enumerate(TRUTH)]
+    return [
+        synth.render(K, synth.pose_looking_at_dock(d, 10.0, 5.0, 15.0), [LED, QR], W, H, ss=2, noise_std=2.0, seed=i)
+        for i, d in enumerate(TRUTH)
+    ]
 
 
 def _run_rendered(frames, prefer="near"):
@@ -133,9 +143,9 @@ def test_identical_inputs_give_identical_results(frames):
 
 def test_prefer_footprint_takes_the_marker_spanning_more_pixels():
     h = stubbed(prefer="footprint")
-    assert frame(h, 2.0, 2.0) == ("led", (1, 1))     # LED 0.85 m diagonal vs QR 0.21 m: LED
-    assert frame(h, 0.5, None) == ("qr", (1, 1))     # LED out of view: QR
-    assert frame(h, None, 8.0) == ("led", (0, 1))    # beyond the near range: QR not run
+    assert frame(h, 2.0, 2.0) == ("led", (1, 1))  # LED 0.85 m diagonal vs QR 0.21 m: LED
+    assert frame(h, 0.5, None) == ("qr", (1, 1))  # LED out of view: QR
+    assert frame(h, None, 8.0) == ("led", (0, 1))  # beyond the near range: QR not run
     with pytest.raises(ValueError):
         HybridLocalizer(prefer="bogus")
 
@@ -146,10 +156,10 @@ def test_prefer_uncertainty_takes_the_pose_with_the_smaller_predicted_range_erro
     assert frame(h, (2.0, 0.1), (2.0, 0.1)) == ("led", (1, 1))
     # an LED fit 10x worse than the QR's: 0.85 / 1.0 px < 0.21 / 0.1 px, the QR wins
     assert frame(h, (2.0, 0.1), (2.0, 1.0)) == ("qr", (1, 1))
-    assert frame(h, (0.5, 0.1), None) == ("qr", (1, 1))          # LED array out of view: QR
-    assert frame(h, None, (8.0, 0.1)) == ("led", (0, 1))         # beyond the near range: QR not run
+    assert frame(h, (0.5, 0.1), None) == ("qr", (1, 1))  # LED array out of view: QR
+    assert frame(h, None, (8.0, 0.1)) == ("led", (0, 1))  # beyond the near range: QR not run
     f, qr_span = K[0, 0], np.hypot(0.15, 0.15)
-    sigma = range_sigma_m(2.0, f, qr_span, 0.1, 4, 0.1)          # 0.1 px x sqrt(8 / 2) = 0.2 px
+    sigma = range_sigma_m(2.0, f, qr_span, 0.1, 4, 0.1)  # 0.1 px x sqrt(8 / 2) = 0.2 px
     assert sigma == pytest.approx(0.87 * 4.0 * 0.2 / (f * qr_span))
     assert range_sigma_m(2.0, f, qr_span, None, None, 0.1) == pytest.approx(sigma / 2)  # floor only
 
@@ -161,8 +171,7 @@ def _poor_qr_sequence():
     big_qr = dict(QR, size_m=0.15 * 1.06)
     truth = [2.9, 2.6, 2.3, 2.0, 1.7, 1.4, 1.1, 0.8, 0.7]
     poses = [synth.pose_looking_at_dock(d, 8.0, -4.0, 10.0) for d in truth]
-    return truth, [synth.render(K, T, [LED, big_qr], W, H, ss=2, noise_std=2.0, seed=i)
-                   for i, T in enumerate(poses)]
+    return truth, [synth.render(K, T, [LED, big_qr], W, H, ss=2, noise_std=2.0, seed=i) for i, T in enumerate(poses)]
 
 
 def _range_errors(loc, truth, images):
@@ -179,10 +188,10 @@ def test_hybrid_is_never_worse_than_its_better_part_when_the_qr_pose_is_poor():
     article = _range_errors(registry.resolve("hybrid", {"prefer": "near"}), truth, images)
     for e_led, e_qr, e_h in zip(led, qr, hyb):
         parts = [e for e in (e_led, e_qr) if e is not None]
-        assert (e_h is None) == (not parts)                       # answers whenever a part does
+        assert (e_h is None) == (not parts)  # answers whenever a part does
         if parts:
-            assert e_h <= min(parts) + 1e-3                       # and as well as the better one
-    assert sum(e is not None and e > 0.05 for e in qr) >= 4       # the fixture's QR is poor ...
+            assert e_h <= min(parts) + 1e-3  # and as well as the better one
+    assert sum(e is not None and e > 0.05 for e in qr) >= 4  # the fixture's QR is poor ...
     assert sum(e is not None and e > 0.05 for e in article) >= 3  # ... and the article's rule takes it
 
 
@@ -193,7 +202,7 @@ def test_led_prior_is_dropped_when_the_hybrid_skips_the_led():
     h = registry.resolve("hybrid", {"prefer": "near"})
     h.reset(CAMERA)
     led = h.subs["far"]
-    h.localize(images[0])                      # 2.9 m: LED first, QR fails or is beyond range
+    h.localize(images[0])  # 2.9 m: LED first, QR fails or is beyond range
     assert led._prev_T is not None
-    h.localize(images[3])                      # 2.0 m, previous within the near range: QR first, decodes
+    h.localize(images[3])  # 2.0 m, previous within the near range: QR first, decodes
     assert led._prev_T is None

@@ -4,6 +4,7 @@ Python localizers run in a child interpreter (evalkit.isolation.IsolatedLocalize
 external programs through the JSON-lines protocol (evalkit.external); both are killed
 on a timeout and restarted for the next frame with the sequence's reset replayed.
 """
+
 from __future__ import annotations
 
 import sys
@@ -17,13 +18,13 @@ import pytest
 sys.path.insert(0, str(Path(__file__).parent))
 from fake_dataset import SEQUENCES, write_fake_dataset  # noqa: E402
 
-from evalkit import assemble, registry, runner  # noqa: E402
+from evalkit import assemble, runner  # noqa: E402
 from evalkit.dataset import Dataset  # noqa: E402
 from evalkit.external import ExternalLocalizer  # noqa: E402
 from evalkit.isolation import IsolatedLocalizer  # noqa: E402
 from evalkit.registry import RegistryError  # noqa: E402
 
-pytestmark = pytest.mark.integration   # child processes killed on timeouts (wall-clock waits)
+pytestmark = pytest.mark.integration  # child processes killed on timeouts (wall-clock waits)
 
 N_FRAMES = sum(len(s[3]) for s in SEQUENCES)
 TIMEOUT = 1.0
@@ -31,7 +32,7 @@ TIMEOUT = 1.0
 # Behaviour by d_true (m): clear_000 = 0.1 0.5 1 2 5 12, clear_001 = 0.15 0.3 3 8 10 10.5.
 # Every other frame is answered exactly; localize before reset raises, so a success
 # right after a crash or hang proves that reset was replayed in the new process.
-PY_FAULTY = textwrap.dedent('''
+PY_FAULTY = textwrap.dedent("""
     import os, time
     import numpy as np
 
@@ -86,13 +87,19 @@ PY_FAULTY = textwrap.dedent('''
     class BadReset(Faulty):
         def reset(self, camera):
             raise RuntimeError("no camera for me")
-''')
+""")
 
-PY_EXPECTED = {0.5: "exception: ValueError: bad frame", 1.0: "timeout", 2.0: "crash: exit code 3",
-               5.0: "crash: signal SIGSEGV", 3.0: "nan", 8.0: "bad_shape"}
+PY_EXPECTED = {
+    0.5: "exception: ValueError: bad frame",
+    1.0: "timeout",
+    2.0: "crash: exit code 3",
+    5.0: "crash: signal SIGSEGV",
+    3.0: "nan",
+    8.0: "bad_shape",
+}
 
 # The same faults from an external program (protocol 1).
-EXT_FAULTY = textwrap.dedent('''
+EXT_FAULTY = textwrap.dedent("""
     import json, os, sys, time
     import cv2
 
@@ -128,11 +135,18 @@ EXT_FAULTY = textwrap.dedent('''
         elif d == 0.3:
             reply = {"ok": False}
         print(json.dumps(reply), flush=True)
-''')
+""")
 
-EXT_EXPECTED = {0.5: "exception: ExternalError: bad frame", 1.0: "timeout", 2.0: "crash: exit code 3",
-                5.0: "protocol: reply is not JSON: 'debug output on stdout'", 3.0: "nan", 8.0: "bad_shape",
-                10.0: "protocol: reply for frame 999 while waiting for 4", 0.3: "none"}
+EXT_EXPECTED = {
+    0.5: "exception: ExternalError: bad frame",
+    1.0: "timeout",
+    2.0: "crash: exit code 3",
+    5.0: "protocol: reply is not JSON: 'debug output on stdout'",
+    3.0: "nan",
+    8.0: "bad_shape",
+    10.0: "protocol: reply for frame 999 while waiting for 4",
+    0.3: "none",
+}
 
 
 @pytest.fixture(scope="module")
@@ -205,8 +219,10 @@ def test_external_faults_cost_one_frame_each(ds, tmp_path):
     assert loc.n_restarts_total == 4  # hang, exit, stdout garbage, wrong index
 
 
-CRASH_EVERY_FRAME = ("read -r l; echo '{\"ok\":true}'; "   # answer reset, then die on the first frame
-                     "read -r l; exit 5")
+CRASH_EVERY_FRAME = (
+    "read -r l; echo '{\"ok\":true}'; "  # answer reset, then die on the first frame
+    "read -r l; exit 5"
+)
 
 
 def test_external_restart_limit_per_sequence(ds):
@@ -220,10 +236,10 @@ def test_external_restart_limit_per_sequence(ds):
 
 
 def test_external_reset_refused_and_missing_command(ds):
-    refuse = ExternalLocalizer(["sh", "-c", "read -r l; echo '{\"ok\":false,\"error\":\"no LED\"}'"])
+    refuse = ExternalLocalizer(["sh", "-c", 'read -r l; echo \'{"ok":false,"error":"no LED"}\''])
     df = runner.evaluate(ds, [("r", refuse)], progress=False, sequences=["clear_000"])
     assert (df["fail_reason"] == "exception: ExternalError: no LED (in reset)").all()
-    newer = ExternalLocalizer(["sh", "-c", "read -r l; echo '{\"ok\":true,\"protocol\":2}'"])
+    newer = ExternalLocalizer(["sh", "-c", 'read -r l; echo \'{"ok":true,"protocol":2}\''])
     df = runner.evaluate(ds, [("n", newer)], progress=False, sequences=["clear_000"])
     assert df["fail_reason"].str.startswith("protocol: program speaks protocol 2").all()
     with pytest.raises(RegistryError, match="command not found"):

@@ -4,6 +4,7 @@ fused multiply-add, approximate sqrt/division), a kernel compiled in the same pr
 caller (and inlined into it) rounded differently from the cached one: a first run on a fresh
 machine gave other low bits than every later run (up to 3e-5 linear, enough to flip 8-bit pixels
 and break ``dockbench verify``)."""
+
 from __future__ import annotations
 
 import os
@@ -13,7 +14,7 @@ import textwrap
 
 import pytest
 
-pytestmark = pytest.mark.integration   # two fresh interpreters compile the kernels
+pytestmark = pytest.mark.integration  # two fresh interpreters compile the kernels
 
 SCRIPT = textwrap.dedent("""
     import hashlib, math
@@ -51,6 +52,6 @@ def _digest(cache_dir) -> str:
 
 
 def test_freshly_compiled_and_cached_kernels_give_the_same_bytes(tmp_path):
-    compiled = _digest(tmp_path)            # empty cache: every kernel compiled in this process
-    cached = _digest(tmp_path)              # the same kernels loaded from the cache
+    compiled = _digest(tmp_path)  # empty cache: every kernel compiled in this process
+    cached = _digest(tmp_path)  # the same kernels loaded from the cache
     assert len(compiled) == 64 and compiled == cached

@@ -2,6 +2,7 @@
 the fast model (physics/light/lamp_water.py) on the same geometry (tools/bench/lamp_bench.py).
 
 Renders run in subprocesses (the test process never imports bpy), 32x24 to 64x48 px."""
+
 import math
 
 import numpy as np
@@ -65,8 +66,9 @@ def test_spot_follows_the_camera(tmp_path):
     spec = lb.scene_spec(w, [lamp], {"distance_m": 2.0, "albedo": 0.5}, (64, 48), 4, hfov=60.0)
     ref, fast = lb.reference(spec, tmp_path)[..., 1], lb.fast(spec, w, 0.0)[..., 1]
     assert ref[:, 40:].mean() > 20 * max(ref[:, :24].mean(), 1e-6)
-    assert np.unravel_index(ref.argmax(), ref.shape)[1] == pytest.approx(np.unravel_index(fast.argmax(), fast.shape)[1],
-                                                                         abs=2)
+    assert np.unravel_index(ref.argmax(), ref.shape)[1] == pytest.approx(
+        np.unravel_index(fast.argmax(), fast.shape)[1], abs=2
+    )
     assert math.isclose(ref.sum(), fast.sum(), rel_tol=0.05)
 
 
@@ -76,8 +78,10 @@ def test_beam_spread_puts_light_outside_the_cone(tmp_path):
     sharp beam (no spread) gives 0.19 of it; the spread beam (physics/light/beam_spread.py) 0.41 at
     96x72 / 256 spp (`bench lamp`); inside the cone both stay within 10 %."""
     import dataclasses
+
     from blendgen.physics.light import lamp_water
     from blendgen.physics.light.sources import lamp_lights
+
     w = optics.get_preset("moderate")
     spec = lb.scene_spec(w, [lb.DEMO_LAMP], None, (64, 48), 64, 32)
     ref = lb.reference(spec, tmp_path)[..., 1]

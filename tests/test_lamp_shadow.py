@@ -1,5 +1,6 @@
 """Screen-space lamp shadows (physics/light/lamp_shadow.py) against the geometric projection of
 known occluders, and their zero cost when off (no lamp, or ``lamp_shadows: false``)."""
+
 import math
 
 import cv2
@@ -8,8 +9,8 @@ import pytest
 
 from blendgen.geometry import intrinsics_from_hfov
 from blendgen.physics.light import lamp_shadow, lamp_water
-from blendgen.physics.water import optics
 from blendgen.physics.light.sources import PointLight
+from blendgen.physics.water import optics
 from blendgen.pipeline.compose import _unit_rays
 from blendgen.tools.bench import lamp_bench as lb
 
@@ -29,13 +30,16 @@ def _plate_scene(size, lamp, plate_z, wall_z, rect):
     S = np.asarray(lamp, float)
     t = (X[..., 2] - plate_z) / (X[..., 2] - S[2])
     Y = X + t[..., None] * (S - X)
-    shadow = (~on_plate & (Y[..., 0] >= rect[0]) & (Y[..., 0] <= rect[1])
-              & (Y[..., 1] >= rect[2]) & (Y[..., 1] <= rect[3]))
+    shadow = (
+        ~on_plate & (Y[..., 0] >= rect[0]) & (Y[..., 0] <= rect[1]) & (Y[..., 1] >= rect[2]) & (Y[..., 1] <= rect[3])
+    )
     return K, rays.astype(np.float32), rng, shadow, on_plate
 
 
-@pytest.mark.parametrize("size,lamp,px", [((160, 120), (0.0, 0.3, 0.0), 1), ((320, 240), (0.2, 0.25, 0.05), 1),
-                                          ((640, 480), (-0.15, 0.3, -0.1), 1)])
+@pytest.mark.parametrize(
+    "size,lamp,px",
+    [((160, 120), (0.0, 0.3, 0.0), 1), ((320, 240), (0.2, 0.25, 0.05), 1), ((640, 480), (-0.15, 0.3, -0.1), 1)],
+)
 def test_plate_shadow_edges_within_one_pixel_of_the_projection(size, lamp, px):
     """A thin plate 1 m ahead of a wall at 3 m: the fast shadow lies inside the geometric shadow
     dilated by ``px`` and covers it eroded by ``px`` (every edge within px), IoU > 0.85. At 640 px
@@ -57,7 +61,7 @@ def test_moving_the_lamp_moves_the_shadow():
     dn = lamp_shadow.visibility((0.0, 0.3, 0.0), K, rays, rng) < 0.5
     up = lamp_shadow.visibility((0.0, -0.3, 0.0), K, rays, rng) < 0.5
     rows = np.arange(120)[:, None]
-    assert rows[dn.any(axis=1)].max() < 60 < rows[up.any(axis=1)].min()      # lamp below: shadow above
+    assert rows[dn.any(axis=1)].max() < 60 < rows[up.any(axis=1)].min()  # lamp below: shadow above
     assert lb._iou(dn & ~plate, geo_dn) > 0.85 and lb._iou(up & ~plate, geo_up) > 0.85
 
 
@@ -89,8 +93,10 @@ def test_box_scene_matches_geometry_except_hidden_edges():
 
 def test_coarse_grid_equals_full_resolution():
     K, rays, rng, _, _ = _plate_scene((640, 480), (0.2, 0.3, 0.0), 1.0, 3.0, (-0.15, 0.15, 0.05, 0.15))
-    assert np.array_equal(lamp_shadow.visibility((0.2, 0.3, 0.0), K, rays, rng, step=4),
-                          lamp_shadow.visibility((0.2, 0.3, 0.0), K, rays, rng, step=1))
+    assert np.array_equal(
+        lamp_shadow.visibility((0.2, 0.3, 0.0), K, rays, rng, step=4),
+        lamp_shadow.visibility((0.2, 0.3, 0.0), K, rays, rng, step=1),
+    )
 
 
 def test_shadow_darkens_lamp_light_and_switch_skips_it(monkeypatch):
@@ -104,8 +110,7 @@ def test_shadow_darkens_lamp_light_and_switch_skips_it(monkeypatch):
     on = lamp_water.surface_radiance(lamp_water.LampWater.build([light], clear), rays, rng, alb, nrm, K)
     calls = []
     monkeypatch.setattr(lamp_shadow, "visibility", lambda *a, **k: calls.append(1))
-    off = lamp_water.surface_radiance(lamp_water.LampWater.build([light], clear, shadows=False), rays, rng, alb,
-                                      nrm, K)
+    off = lamp_water.surface_radiance(lamp_water.LampWater.build([light], clear, shadows=False), rays, rng, alb, nrm, K)
     assert not calls
     shadowed = on[..., 1] < 0.5 * off[..., 1]
     assert lb._iou(shadowed, geo) > 0.85
@@ -133,9 +138,9 @@ def test_veil_in_the_shadow_volume_matches_quadrature():
     s = np.clip((x[:, 2] - 1.0) / np.maximum(x[:, 2] - lamp[2], 1e-9), 0.0, 1.0)
     y = x + s[:, None] * (np.asarray(lamp) - x)
     cut = (x[:, 2] > 1.0) & (y[:, 0] >= rect[0]) & (y[:, 0] <= rect[1]) & (y[:, 1] >= rect[2]) & (y[:, 1] <= rect[3])
-    f = b / (4 * math.pi) / d ** 2 * np.exp(-b * (d + t)) * ~cut
+    f = b / (4 * math.pi) / d**2 * np.exp(-b * (d + t)) * ~cut
     exact = float(np.sum(0.5 * (f[1:] + f[:-1]) * np.diff(t)))
     got = lamp_water.backscatter(on, K, rng)[v, u, 1]
     free = lamp_water.backscatter(off, K, rng)[v, u, 1]
-    assert free > 1.03 * exact                           # the shadow volume holds 5 % of this veil
-    assert abs(got - exact) < 0.2 * (free - exact)       # measured: 0.4 % off, 8 % of the cut
+    assert free > 1.03 * exact  # the shadow volume holds 5 % of this veil
+    assert abs(got - exact) < 0.2 * (free - exact)  # measured: 0.4 % off, 8 % of the cut

@@ -1,5 +1,6 @@
 """The fast vehicle-lamp model (physics/light/lamp_water.py) against analytic values and an
 independent quadrature, and the zero-cost path of the pipeline without lamps."""
+
 import math
 from types import SimpleNamespace
 
@@ -10,8 +11,8 @@ from scipy.integrate import quad
 from blendgen.config.models import Lamp, Sensor, Water
 from blendgen.geometry import intrinsics_from_hfov
 from blendgen.physics.light import lamp_water
-from blendgen.physics.water import optics
 from blendgen.physics.light.sources import PointLight, blender_spot_blend, lamp_lights
+from blendgen.physics.water import optics
 from blendgen.pipeline import compose
 from blendgen.pipeline.plan import SequencePost
 
@@ -34,12 +35,13 @@ def test_card_radiance_inverse_square_times_attenuation(c):
     rays = np.array([[[0.0, 0.0, 1.0]]], np.float32)
     n = np.array([[[0.0, 0.0, -1.0]]], np.float32)
     for d in (1.0, 2.0, 4.0, 8.0):
-        got = lamp_water.surface_radiance(model, rays, np.array([[d]], np.float32),
-                                          np.full((1, 1, 3), 0.5, np.float32), n)[0, 0, 1]
+        got = lamp_water.surface_radiance(
+            model, rays, np.array([[d]], np.float32), np.full((1, 1, 3), 0.5, np.float32), n
+        )[0, 0, 1]
         d_l = math.hypot(d, 0.3)
-        law = 0.5 / math.pi * i0 * (d / d_l) / d_l ** 2 * math.exp(-c * (d_l + d))
+        law = 0.5 / math.pi * i0 * (d / d_l) / d_l**2 * math.exp(-c * (d_l + d))
         assert got == pytest.approx(law, rel=0.05)
-        assert got == pytest.approx(law, rel=1e-4)      # and in fact to float precision
+        assert got == pytest.approx(law, rel=1e-4)  # and in fact to float precision
 
 
 def test_veil_matches_closed_form_isotropic():
@@ -50,7 +52,7 @@ def test_veil_matches_closed_form_isotropic():
     K = intrinsics_from_hfov(33, 33, math.radians(40.0))
     for r in (0.5, 2.0, 9.0):
         v = lamp_water.backscatter(model, K, np.full((33, 33), r, np.float32), step=16)[16, 16, 1]
-        exact = b / (4 * math.pi * h) * math.atan(r / h) * math.exp(-b * r)   # exp(-c(...)) ~ 1 at b = 1e-4
+        exact = b / (4 * math.pi * h) * math.atan(r / h) * math.exp(-b * r)  # exp(-c(...)) ~ 1 at b = 1e-4
         assert v == pytest.approx(exact, rel=0.01)
 
 
@@ -73,12 +75,21 @@ def test_veil_matches_quadrature_hg_cone():
         d = np.linalg.norm(x)
         psi = math.acos(np.clip(x @ ax / d, -1, 1))
         half, inner = math.radians(30.0), math.radians(25.0)
-        prof = 1.0 if psi <= inner else (0.0 if psi >= half else
-                                         (lambda q: q * q * (3 - 2 * q))((math.cos(psi) - math.cos(half))
-                                                                         / (math.cos(inner) - math.cos(half))))
+        prof = (
+            1.0
+            if psi <= inner
+            else (
+                0.0
+                if psi >= half
+                else (lambda q: q * q * (3 - 2 * q))(
+                    (math.cos(psi) - math.cos(half)) / (math.cos(inner) - math.cos(half))
+                )
+            )
+        )
         mu = -(x @ u) / d
         p = (1 - g * g) / (4 * math.pi * (1 + g * g - 2 * g * mu) ** 1.5)
-        return b * p * i0 * prof / d ** 2 * math.exp(-c * (d + t))
+        return b * p * i0 * prof / d**2 * math.exp(-c * (d + t))
+
     exact = quad(f, 0.0, 60.0, limit=400, points=[0.5, 1.0, 2.0])[0]
     assert v == pytest.approx(exact, rel=0.02)
 
@@ -87,8 +98,10 @@ def test_veil_grows_with_scattering_and_vanishes_in_clear_water():
     lamp = Lamp(offset_m=[0.0, 0.3, 0.0])
     K = intrinsics_from_hfov(64, 48, math.radians(60.0))
     rng = np.full((48, 64), np.inf, np.float32)
-    means = [lamp_water.backscatter(lamp_water.LampWater.build(lamp_lights([lamp]), _water(b, 0.05)), K, rng).mean()
-             for b in (0.0, 0.05, 0.2)]
+    means = [
+        lamp_water.backscatter(lamp_water.LampWater.build(lamp_lights([lamp]), _water(b, 0.05)), K, rng).mean()
+        for b in (0.0, 0.05, 0.2)
+    ]
     assert means[0] == 0.0 and 0 < means[1] < means[2]
 
 
@@ -104,16 +117,29 @@ def test_blender_blend_reproduces_profile():
 
 
 def _post(lamps):
-    return SequencePost(seed=0, fps=10, image_formation="physical", water=Water(preset="mild"), light_depth_m=2.0,
-                        surface_z_m=0.0, irradiance_w_m2=3.2, sensor=Sensor(noise=False), lamps=lamps)
+    return SequencePost(
+        seed=0,
+        fps=10,
+        image_formation="physical",
+        water=Water(preset="mild"),
+        light_depth_m=2.0,
+        surface_z_m=0.0,
+        irradiance_w_m2=3.2,
+        sensor=Sensor(noise=False),
+        lamps=lamps,
+    )
 
 
 def _passes(h=48, w=64):
     rng = np.full((h, w), 3.0, np.float32)
     rng[:, : w // 4] = np.inf
-    return {"rgb": np.full((h, w, 3), 0.2, np.float32), "range_m": rng, "index": np.zeros((h, w), np.uint8),
-            "albedo": np.full((h, w, 3), 0.5, np.float32),
-            "normal": np.broadcast_to(np.array([0, 0, 1.0], np.float32), (h, w, 3)).copy()}
+    return {
+        "rgb": np.full((h, w, 3), 0.2, np.float32),
+        "range_m": rng,
+        "index": np.zeros((h, w), np.uint8),
+        "albedo": np.full((h, w, 3), 0.5, np.float32),
+        "normal": np.broadcast_to(np.array([0, 0, 1.0], np.float32), (h, w, 3)).copy(),
+    }
 
 
 def test_no_lamp_costs_nothing_and_changes_nothing(monkeypatch):
@@ -127,10 +153,20 @@ def test_no_lamp_costs_nothing_and_changes_nothing(monkeypatch):
     p = _passes()
     got = compose.water_image(p, st, K, T, [])
     depth, vd = compose.surface_depth(p["range_m"], K, T, 0.0)
-    ref = optics.apply_water(p["rgb"], p["range_m"], np.zeros((48, 64), bool), st.water, depth, model="physical",
-                             veil_depth_m=vd, irradiance=st.water_opts["irradiance"], blur=st.water_opts["blur"],
-                             blur_px_per_tau=optics.BLUR_RAD_PER_TAU * K[0, 0],
-                             blur_max_px=optics.BLUR_MAX_RAD * K[0, 0], glow_fx=K[0, 0])
+    ref = optics.apply_water(
+        p["rgb"],
+        p["range_m"],
+        np.zeros((48, 64), bool),
+        st.water,
+        depth,
+        model="physical",
+        veil_depth_m=vd,
+        irradiance=st.water_opts["irradiance"],
+        blur=st.water_opts["blur"],
+        blur_px_per_tau=optics.BLUR_RAD_PER_TAU * K[0, 0],
+        blur_max_px=optics.BLUR_MAX_RAD * K[0, 0],
+        glow_fx=K[0, 0],
+    )
     assert np.array_equal(got, ref)
 
 
@@ -138,7 +174,7 @@ def test_lamp_brightens_the_image():
     """With a lamp: lit surfaces brighter, and open water (no surface) gains the veil."""
     K = intrinsics_from_hfov(64, 48, math.radians(60.0))
     T = np.eye(4)
-    T[:3, :3] = np.diag([1.0, -1.0, -1.0])      # world normal +z = camera -z (faces the camera)
+    T[:3, :3] = np.diag([1.0, -1.0, -1.0])  # world normal +z = camera -z (faces the camera)
     off = compose.water_image(_passes(), compose.SequenceState.start(_post([])), K, T, [])
     on = compose.water_image(_passes(), compose.SequenceState.start(_post([Lamp(power_w=50.0)])), K, T, [])
     assert (on >= off).all()
@@ -146,15 +182,18 @@ def test_lamp_brightens_the_image():
 
 
 def test_lamp_lights_from_namespace():
-    ns = SimpleNamespace(offset_m=[0, 0.3, 0], yaw_deg=0, pitch_deg=0, half_angle_deg=30, edge_deg=5, power_w=10,
-                         color=[1, 1, 1])
+    ns = SimpleNamespace(
+        offset_m=[0, 0.3, 0], yaw_deg=0, pitch_deg=0, half_angle_deg=30, edge_deg=5, power_w=10, color=[1, 1, 1]
+    )
     assert lamp_lights([ns])[0].intensity_w_sr[0] == pytest.approx(10 / (2 * math.pi * (1 - math.cos(math.pi / 6))))
 
 
 def test_lamp_config_errors_name_the_key(tmp_path):
     """An out-of-range lamp key is a one-line config error naming it (CLI exit 2)."""
     import yaml
+
     from blendgen.config.models import ConfigError, load_experiment
+
     root = __import__("pathlib").Path(__file__).resolve().parent.parent
     cfg = yaml.safe_load((root / "configs" / "lamp_night.yaml").read_text())
     assert load_experiment(root / "configs" / "lamp_night.yaml").vehicle.lamps[0].power_w == 20.0
@@ -172,16 +211,25 @@ def test_particles_and_surfaces_see_the_same_lamp_beam():
     with F = 0.85: the particle/surface ratio is the same at 1 m and 4 m (with c on the particle's
     path it would differ by exp(F b 3 m) = 2.2x in 'moderate'). Lamp at the camera centre, particles
     on the optical axis: same scattering angle at both distances."""
+    from blendgen.geometry import make_T
     from blendgen.physics.particles.field import ParticleField, project_particles
     from blendgen.pipeline import particle_light
     from blendgen.pipeline.plan import OcclusionPost
-    from blendgen.geometry import make_T
+
     box = [[-20.0] * 3, [20.0] * 3]
     lamp = Lamp(offset_m=[0.0, 0.0, 0.0], half_angle_deg=30.0, edge_deg=5.0, power_w=20.0)
-    post = SequencePost(seed=1, fps=10.0, image_formation="physical", water=Water(preset="moderate"),
-                        light_depth_m=1.0, surface_z_m=0.0, irradiance_w_m2=0.0, lamps=[lamp],
-                        occlusion=OcclusionPost(n_total=0, region_min=box[0], region_max=box[1], v_flow=[0, 0, 0]),
-                        lamp_forward_kept=0.85)
+    post = SequencePost(
+        seed=1,
+        fps=10.0,
+        image_formation="physical",
+        water=Water(preset="moderate"),
+        light_depth_m=1.0,
+        surface_z_m=0.0,
+        irradiance_w_m2=0.0,
+        lamps=[lamp],
+        occlusion=OcclusionPost(n_total=0, region_min=box[0], region_max=box[1], v_flow=[0, 0, 0]),
+        lamp_forward_kept=0.85,
+    )
     st = compose.SequenceState.start(post)
     T_WC = make_T(np.column_stack([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]]), [0.0, 0.0, -1.0])
     K = intrinsics_from_hfov(64, 48, math.radians(60.0))
@@ -192,8 +240,13 @@ def test_particles_and_surfaces_see_the_same_lamp_beam():
         field = ParticleField(np.array([[d, 0.0, -1.0]], np.float32), np.array([0.01], np.float32), *map(np.array, box))
         p = project_particles(field, K, T_WC, 64, 48)
         J = particle_light.shader(st.post, st.water, T_WC, lamp=st.lamp)(p)[0, 1]
-        surf = lamp_water.surface_radiance(model, np.array([[[0.0, 0.0, 1.0]]], np.float32), np.array([[d]], np.float32),
-                                           np.ones((1, 1, 3), np.float32), np.array([[[0, 0, -1.0]]], np.float32))
-        E = surf[0, 0, 1] * math.pi / math.exp(-st.water.c[1] * d)         # irradiance at the point
+        surf = lamp_water.surface_radiance(
+            model,
+            np.array([[[0.0, 0.0, 1.0]]], np.float32),
+            np.array([[d]], np.float32),
+            np.ones((1, 1, 3), np.float32),
+            np.array([[[0, 0, -1.0]]], np.float32),
+        )
+        E = surf[0, 0, 1] * math.pi / math.exp(-st.water.c[1] * d)  # irradiance at the point
         ratios.append(J / E)
     assert ratios[0] > 0 and ratios[1] == pytest.approx(ratios[0], rel=1e-3)

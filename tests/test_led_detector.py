@@ -1,6 +1,7 @@
 """Mechanisms of the LED detector's blob stage (evalkit.localizers.led_blobs): colour from
 background-subtracted pixels, the noise-aware absolute floor, LED-likeness ranking against
 caustics on a captured rendered frame, and the robust background and noise estimates."""
+
 from __future__ import annotations
 
 import json
@@ -19,7 +20,7 @@ from evalkit.localizers import led_blobs as lb  # noqa: E402
 from evalkit.localizers.led import LedLocalizer  # noqa: E402
 
 DATA = Path(__file__).parent / "data" / "sunlit_pool"
-VEIL = np.array([30.0, 72.0, 66.0])   # a green-blue veil (8-bit sRGB): 72 DN, as at 8 m in moderate water (article mode)
+VEIL = np.array([30.0, 72.0, 66.0])  # a green-blue veil (8-bit sRGB): 72 DN, as at 8 m in moderate water (article mode)
 
 
 def veiled(d: float, gain: float, seed: int = 1):
@@ -43,7 +44,7 @@ def test_colour_finds_the_reference_led_in_a_veil_brighter_than_half_the_thresho
     assert 0.5 * t0 < VEIL.max()
     est = make(LedLocalizer, [LED]).localize(img)
     assert est is not None and est["distance"] == pytest.approx(d, rel=0.01)
-    assert rot_err_deg(est["T_cam_dock"], T) < 2.0   # a wrong reference LED gives >= 90 deg
+    assert rot_err_deg(est["T_cam_dock"], T) < 2.0  # a wrong reference LED gives >= 90 deg
 
 
 def test_noise_floor_separates_the_leds_when_the_relative_level_is_below_the_veil():
@@ -53,9 +54,9 @@ def test_noise_floor_separates_the_leds_when_the_relative_level_is_below_the_vei
     img, T = veiled(6.0, gain=0.12)
     v = img.max(axis=2)
     t0 = 0.6 * float(v.max())
-    assert np.mean(v > t0) > 0.95                               # the relative level: everything
+    assert np.mean(v > t0) > 0.95  # the relative level: everything
     fr = lb.prepare(img)
-    assert fr.sigma == pytest.approx(2.0, rel=0.25)             # the 2 DN of noise drawn
+    assert fr.sigma == pytest.approx(2.0, rel=0.25)  # the 2 DN of noise drawn
     blobs = lb.components(fr, t0, 2000)
     assert blobs is not None and blobs.count == 4
     est = make(LedLocalizer, [LED]).localize(img)
@@ -110,7 +111,7 @@ def test_noise_sigma_is_robust_to_a_gradient_and_bright_spots():
     for x in (100, 300, 500):
         cv2.circle(v, (x, 240), 12, 255, -1)
     assert lb.noise_sigma(v) == pytest.approx(3.0, rel=0.1)
-    assert lb.noise_sigma(np.full((48, 64), 90, np.uint8)) == lb.MIN_SIGMA_DN   # noise-free: the floor
+    assert lb.noise_sigma(np.full((48, 64), 90, np.uint8)) == lb.MIN_SIGMA_DN  # noise-free: the floor
 
 
 def test_background_is_the_veil_under_a_large_led():
@@ -126,12 +127,12 @@ def test_background_is_the_veil_under_a_large_led():
 
 
 def test_compactness_of_a_disc_a_square_and_a_filament():
-    disc_area = np.pi * 10 ** 2
+    disc_area = np.pi * 10**2
     assert lb.compactness(disc_area, 20, 20) == pytest.approx(1.0, abs=0.01)
     assert lb.compactness(16, 4, 4) == pytest.approx(1.0)
-    assert lb.compactness(60, 30, 2) < 0.1                       # a straight filament
-    assert lb.compactness(120, 40, 40) < 0.1                     # a thin bent network
-    assert lb.compactness(3, 2, 2) == 1.0                        # too small to tell
+    assert lb.compactness(60, 30, 2) < 0.1  # a straight filament
+    assert lb.compactness(120, 40, 40) < 0.1  # a thin bent network
+    assert lb.compactness(3, 2, 2) == 1.0  # too small to tell
 
 
 def test_previous_pose_is_the_prior_and_shared_state():

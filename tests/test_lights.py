@@ -1,4 +1,5 @@
 """Oracles for artificial light sources (physics/light/sources.py)."""
+
 import math
 
 import numpy as np
@@ -32,7 +33,7 @@ def test_cone_holds_the_flux():
 
 def test_outside_the_cone_is_dark_and_incidence_counts():
     lamp = _lamp(offset_m=[0, 0, 0], half_angle_deg=20.0, edge_deg=5.0)
-    pts = np.array([[0.0, 0.0, 2.0], [2.0, 0.0, 2.0]])          # on axis, 45 deg off
+    pts = np.array([[0.0, 0.0, 2.0], [2.0, 0.0, 2.0]])  # on axis, 45 deg off
     E = lights.irradiance([lamp], pts, np.zeros(3))
     assert E[1].max() == 0.0 and E[0].min() > 0
     n = np.array([[0.0, 0.0, -1.0], [0.0, 0.0, -1.0]])

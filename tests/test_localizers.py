@@ -3,6 +3,7 @@
 Images are drawn by tests/synth_images.py (OpenCV only) from known T_cam_dock; the
 estimated distance / pose / reprojected keypoints are compared with the truth.
 """
+
 from __future__ import annotations
 
 import math
@@ -51,16 +52,30 @@ def led_marker(layout="rectangle", reference_index=0, size=0.6, T=I4):
         local = np.column_stack([size / 2 * np.cos(ang), size / 2 * np.sin(ang), np.zeros(4)]).tolist()
     colors = [list(BLUE_GREEN) for _ in range(4)]
     colors[reference_index] = list(ORANGE)
-    return {"id": "led", "kind": "led_array", "keypoints": dock_keypoints(local, T), "T_dock_marker": T,
-            "led_radius_m": 0.04, "colors": colors, "reference_index": reference_index,
-            "layout": layout, "size_m": size}
+    return {
+        "id": "led",
+        "kind": "led_array",
+        "keypoints": dock_keypoints(local, T),
+        "T_dock_marker": T,
+        "led_radius_m": 0.04,
+        "colors": colors,
+        "reference_index": reference_index,
+        "layout": layout,
+        "size_m": size,
+    }
 
 
 def square_marker(kind, size, T=I4, **extra):
     h = size / 2
     local = [[-h, h, 0], [h, h, 0], [h, -h, 0], [-h, -h, 0]]
-    return {"id": extra.pop("id", kind), "kind": kind, "keypoints": dock_keypoints(local, T),
-            "T_dock_marker": T, "size_m": size, **extra}
+    return {
+        "id": extra.pop("id", kind),
+        "kind": kind,
+        "keypoints": dock_keypoints(local, T),
+        "T_dock_marker": T,
+        "size_m": size,
+        **extra,
+    }
 
 
 QR = square_marker("qr", 0.15, payload="DOCK-01")
@@ -95,6 +110,7 @@ def centre_of(marker):
 
 
 # ---------------------------------------------------------------- planar PnP
+
 
 def _true_pose(d, yaw, pitch, roll):
     return synth.pose_looking_at_dock(d, yaw, pitch, roll)
@@ -132,8 +148,13 @@ def test_distance_is_camera_height_over_dock_plane():
 
 
 @settings(max_examples=60, deadline=None)
-@given(d=st.floats(0.3, 10.0), yaw=st.floats(-50, 50), pitch=st.floats(-50, 50), roll=st.floats(-180, 180),
-       size=st.floats(0.1, 0.8))
+@given(
+    d=st.floats(0.3, 10.0),
+    yaw=st.floats(-50, 50),
+    pitch=st.floats(-50, 50),
+    roll=st.floats(-180, 180),
+    size=st.floats(0.1, 0.8),
+)
 def test_pnp_property_noise_free_roundtrip(d, yaw, pitch, roll, size):
     obj = np.array(square_marker("qr", size)["keypoints"])
     T = _true_pose(d, yaw, pitch, roll)
@@ -145,8 +166,7 @@ def test_pnp_property_noise_free_roundtrip(d, yaw, pitch, roll, size):
 
 
 @settings(max_examples=60, deadline=None)
-@given(hnp.arrays(np.float64, (4, 2), elements=st.floats(allow_nan=True, allow_infinity=True, width=64)),
-       st.booleans())
+@given(hnp.arrays(np.float64, (4, 2), elements=st.floats(allow_nan=True, allow_infinity=True, width=64)), st.booleans())
 def test_pnp_property_garbage_never_raises(img_pts, square):
     obj = np.array(QR["keypoints"])
     pose = pnp.solve_planar(obj, img_pts, K, None, square=square)
@@ -157,8 +177,11 @@ def test_pnp_property_garbage_never_raises(img_pts, square):
 
 # ---------------------------------------------------------------- LED array
 
-LED_SWEEP = [(d, a) for d in (1.5, 3.0, 5.0, 7.5, 10.0)
-             for a in ((0, 0, 0), (25, 10, 30), (-40, 0, -60), (10, -35, 120), (30, 25, 180))]
+LED_SWEEP = [
+    (d, a)
+    for d in (1.5, 3.0, 5.0, 7.5, 10.0)
+    for a in ((0, 0, 0), (25, 10, 30), (-40, 0, -60), (10, -35, 120), (30, 25, 180))
+]
 
 
 @pytest.mark.parametrize("d,angles", LED_SWEEP)
@@ -339,16 +362,25 @@ _LOCS = {cls.name: make(cls, ALL) for cls in CLASSES}
 
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(hnp.arrays(np.uint8, hnp.array_shapes(min_dims=3, max_dims=3, min_side=1, max_side=48)
-                  .map(lambda s: (s[0], s[1], 3))))
+@given(
+    hnp.arrays(
+        np.uint8, hnp.array_shapes(min_dims=3, max_dims=3, min_side=1, max_side=48).map(lambda s: (s[0], s[1], 3))
+    )
+)
 def test_property_random_images_never_raise(img):
     for loc in _LOCS.values():
         _check(loc.localize(img))
 
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(d=st.floats(0.2, 14.0), yaw=st.floats(-80, 80), pitch=st.floats(-80, 80), roll=st.floats(-180, 180),
-       noise=st.floats(0, 80), seed=st.integers(0, 2 ** 16))
+@given(
+    d=st.floats(0.2, 14.0),
+    yaw=st.floats(-80, 80),
+    pitch=st.floats(-80, 80),
+    roll=st.floats(-180, 180),
+    noise=st.floats(0, 80),
+    seed=st.integers(0, 2**16),
+)
 def test_property_rendered_scenes_never_raise(d, yaw, pitch, roll, noise, seed):
     img = synth.render(K, _true_pose(d, yaw, pitch, roll), ALL, ss=1, noise_std=noise, seed=seed)
     for loc in _LOCS.values():
@@ -361,19 +393,43 @@ def test_led_array_not_confused_with_tinted_marker_plates():
     pose 78 deg off the line of sight within 0.02 px. The best-fitting subset seen within
     max_view_deg must win: the four LEDs (9.5 m), not the plates (1.9 m)."""
     from evalkit.localizers.led import LedLocalizer
+
     K = np.array([[554.2562584220408, 0.0, 319.5], [0.0, 554.2562584220408, 239.5], [0.0, 0.0, 1.0]])
-    marker = {"id": "led", "kind": "led_array", "reference_index": 0, "reference_indices": [0],
-              "keypoints": [[-0.3, 0.3, 0.0], [0.3, 0.3, 0.0], [0.3, -0.3, 0.0], [-0.3, -0.3, 0.0]],
-              "colors": [[1.0, 0.35, 0.0], [0.0, 0.85, 0.6], [0.0, 0.85, 0.6], [0.0, 0.85, 0.6]]}
+    marker = {
+        "id": "led",
+        "kind": "led_array",
+        "reference_index": 0,
+        "reference_indices": [0],
+        "keypoints": [[-0.3, 0.3, 0.0], [0.3, 0.3, 0.0], [0.3, -0.3, 0.0], [-0.3, -0.3, 0.0]],
+        "colors": [[1.0, 0.35, 0.0], [0.0, 0.85, 0.6], [0.0, 0.85, 0.6], [0.0, 0.85, 0.6]],
+    }
     loc = LedLocalizer()
     loc.reset({"width": 640, "height": 480, "K": K, "dist": None, "markers": [marker]})
-    cents = np.array([[312.43, 239.53], [327.59, 239.57], [337.0, 256.83], [336.91, 222.09],
-                      [302.0, 222.0], [302.0, 257.0], [327.25, 239.49]])
+    cents = np.array(
+        [
+            [312.43, 239.53],
+            [327.59, 239.57],
+            [337.0, 256.83],
+            [336.91, 222.09],
+            [302.0, 222.0],
+            [302.0, 257.0],
+            [327.25, 239.49],
+        ]
+    )
     masses = np.array([18199.0, 10536.0, 6708.0, 6612.0, 6482.0, 6434.0, 2215.0])
-    chroma = np.array([[-0.9799, -0.1996], [-0.9796, -0.2012], [-0.9992, -0.0404], [-0.9992, -0.0407],
-                       [0.1316, 0.9913], [-0.9990, -0.0436], [-0.9800, -0.1988]])
+    chroma = np.array(
+        [
+            [-0.9799, -0.1996],
+            [-0.9796, -0.2012],
+            [-0.9992, -0.0404],
+            [-0.9992, -0.0407],
+            [0.1316, 0.9913],
+            [-0.9990, -0.0436],
+            [-0.9800, -0.1988],
+        ]
+    )
     est = loc._best_pose(cents, masses, chroma)
     assert est is not None and est["distance"] == pytest.approx(9.5, rel=0.01)
     loose = LedLocalizer(max_view_deg=89.0)
     loose.reset({"width": 640, "height": 480, "K": K, "dist": None, "markers": [marker]})
-    assert loose._best_pose(cents, masses, chroma)["distance"] < 2.5   # the lookalike fits better
+    assert loose._best_pose(cents, masses, chroma)["distance"] < 2.5  # the lookalike fits better

@@ -1,6 +1,7 @@
 """Marker capability oracles: N-LED arrays with several reference LEDs and distractors, the QR
 marker description (version, ECC, quiet zone) and the zxing-cpp QR default, the shared
 square-marker base (ROI search, metadata)."""
+
 from __future__ import annotations
 
 import sys
@@ -13,8 +14,7 @@ from pydantic import ValidationError
 
 sys.path.insert(0, str(Path(__file__).parent))
 import synth_images as synth  # noqa: E402
-from test_localizers import (ARUCO, QR, K, W, H, keypoint_err_px, make, rot_err_deg,  # noqa: E402
-                             square_marker)
+from test_localizers import ARUCO, QR, H, K, W, keypoint_err_px, make, rot_err_deg  # noqa: E402
 
 from blendgen import markers as mk  # noqa: E402
 from blendgen.config.models import LedArray, SquareMarker  # noqa: E402
@@ -31,6 +31,7 @@ def led_manifest(**kw) -> dict:
 
 # ---------------------------------------------------------------- N-LED arrays
 
+
 def test_circle_of_n_leds_has_n_keypoints_and_colours():
     m = led_manifest(layout="circle", count=7, size_m=0.8, reference_index=[0, 1])
     kp = np.asarray(m["keypoints"])
@@ -39,14 +40,17 @@ def test_circle_of_n_leds_has_n_keypoints_and_colours():
     assert [c == list(LedArray().reference_color) for c in m["colors"]] == [True, True] + [False] * 5
 
 
-@pytest.mark.parametrize("kw", [
-    dict(layout="circle", count=6, reference_index=[0, 3]),       # 180-deg symmetric colour ring
-    dict(layout="circle", count=6, reference_index=[0, 2, 4]),    # 120-deg symmetric
-    dict(layout="rectangle", count=6),                           # a rectangle has 4 corners
-    dict(layout="custom", positions_m=[[0, 0], [1, 0], [1, 1], [0, 1], [0.5, 0.5]]),  # not convex
-    dict(layout="circle", count=5, reference_index=[0, 1, 2, 3, 4]),  # no non-reference LED
-    dict(layout="circle", count=5, reference_index=5),
-])
+@pytest.mark.parametrize(
+    "kw",
+    [
+        dict(layout="circle", count=6, reference_index=[0, 3]),  # 180-deg symmetric colour ring
+        dict(layout="circle", count=6, reference_index=[0, 2, 4]),  # 120-deg symmetric
+        dict(layout="rectangle", count=6),  # a rectangle has 4 corners
+        dict(layout="custom", positions_m=[[0, 0], [1, 0], [1, 1], [0, 1], [0.5, 0.5]]),  # not convex
+        dict(layout="circle", count=5, reference_index=[0, 1, 2, 3, 4]),  # no non-reference LED
+        dict(layout="circle", count=5, reference_index=5),
+    ],
+)
 def test_ambiguous_or_impossible_led_patterns_are_rejected(kw):
     with pytest.raises(ValidationError):
         LedArray(**kw)
@@ -85,8 +89,9 @@ def test_led_pattern_resolved_among_led_coloured_distractors(count, refs):
     T = synth.pose_looking_at_dock(4.0, 20.0, 5.0, 30.0)
     img = synth.render(K, T, [m], noise_std=2.0, ss=2)
     uv, _ = synth.project(K, T, m["keypoints"])
-    green = tuple(float(x) for x in 255 * synth.linear_to_srgb(m["colors"][[i for i in range(count)
-                                                                            if i not in refs][0]]))
+    green = tuple(
+        float(x) for x in 255 * synth.linear_to_srgb(m["colors"][[i for i in range(count) if i not in refs][0]])
+    )
     for du, dv in ((25, 3), (-30, 40), (5, -45)):  # three distractors near the array
         p = uv.mean(axis=0) + (du, dv)
         _blob(img, p, 4.0, green)
@@ -102,7 +107,7 @@ def test_core_centroid_resists_one_sided_glow():
     core's does not."""
     img = np.zeros((60, 60, 3), np.uint8)
     cv2.ellipse(img, ((36.0, 30.0), (20.0, 9.0), 0.0), (0, 130, 100), -1, cv2.LINE_AA)  # glow to the right
-    cv2.circle(img, (30 * 16, 30 * 16), 3 * 16, (255, 255, 255), -1, cv2.LINE_AA, 4)   # core at (30, 30)
+    cv2.circle(img, (30 * 16, 30 * 16), 3 * 16, (255, 255, 255), -1, cv2.LINE_AA, 4)  # core at (30, 30)
     v = img.max(axis=2)
     n, labels, stats, _ = cv2.connectedComponentsWithStats((v > 100).astype(np.uint8), connectivity=8)
     lab = int(np.argmax(stats[1:, cv2.CC_STAT_AREA])) + 1
@@ -115,6 +120,7 @@ def test_core_centroid_resists_one_sided_glow():
 
 # ---------------------------------------------------------------- QR marker description
 
+
 def test_qr_manifest_records_version_ecc_modules_and_iso_quiet_zone():
     spec = SquareMarker(kind="qr", id="qr", size_m=0.15, payload="DOCK-01")
     m = mk.manifest_marker(spec)
@@ -126,10 +132,12 @@ def test_qr_manifest_records_version_ecc_modules_and_iso_quiet_zone():
 
 
 def test_qr_error_correction_and_quiet_zone_are_configurable():
-    spec = SquareMarker(kind="qr", id="qr", size_m=0.2, payload="DOCKING-STATION-0042", error_correction="H",
-                        quiet_zone_modules=2)
+    spec = SquareMarker(
+        kind="qr", id="qr", size_m=0.2, payload="DOCKING-STATION-0042", error_correction="H", quiet_zone_modules=2
+    )
     m = mk.manifest_marker(spec)
     import segno
+
     v = segno.make_qr("DOCKING-STATION-0042", error="h", boost_error=False).version
     assert m["qr_version"] == v > 1 and m["modules"] == 17 + 4 * v and m["error_correction"] == "H"
     assert mk.texture_for(spec).cells.shape == (m["modules"] + 4,) * 2
@@ -138,6 +146,7 @@ def test_qr_error_correction_and_quiet_zone_are_configurable():
 
 
 # ---------------------------------------------------------------- QR decoders
+
 
 def _px_per_module(d):
     return K[0, 0] * 0.15 / 21 / d
@@ -170,6 +179,7 @@ def test_zxing_integer_corners_become_subpixel(d):
 
 
 # ---------------------------------------------------------------- square base class
+
 
 def test_roi_search_gives_the_full_frame_result_and_recovers_after_a_jump():
     T = synth.pose_looking_at_dock(0.8, 10.0, 0.0, 0.0)
@@ -211,29 +221,35 @@ RECEDE = [1.2, 1.8, 2.4, 2.8, 3.2, 3.6, 4.0]
 
 def _receding(payloads=None):
     payloads = payloads or ["DOCK-01"] * len(RECEDE)
-    return [synth.render(K, synth.pose_looking_at_dock(d, 10.0, 5.0, 15.0), [dict(QR, payload=p)],
-                         noise_std=2.0, seed=i, ss=3) for i, (d, p) in enumerate(zip(RECEDE, payloads))]
+    return [
+        synth.render(
+            K, synth.pose_looking_at_dock(d, 10.0, 5.0, 15.0), [dict(QR, payload=p)], noise_std=2.0, seed=i, ss=3
+        )
+        for i, (d, p) in enumerate(zip(RECEDE, payloads))
+    ]
 
 
 def test_qr_track_follows_a_decoded_code_beyond_decode_range():
     from evalkit.localizers.qr import QrTrackLocalizer
+
     imgs = _receding()
     qr, trk = make(QrLocalizer, [QR]), make(QrTrackLocalizer, [QR])
     plain = [qr.localize(im) for im in imgs]
     tracked = [trk.localize(im) for im in imgs]
-    assert plain[0] is not None and plain[-1] is None          # 4 m: 1 px/module, no decode
+    assert plain[0] is not None and plain[-1] is None  # 4 m: 1 px/module, no decode
     assert all(e is not None for e in tracked)
     for d, e, p in zip(RECEDE, tracked, plain):
         assert e["distance"] == pytest.approx(d, rel=0.01)
-        assert e.get("tracked", False) == (p is None)           # tracked exactly where qr fails
-    cold = make(QrTrackLocalizer, [QR])                         # never decoded in this sequence
+        assert e.get("tracked", False) == (p is None)  # tracked exactly where qr fails
+    cold = make(QrTrackLocalizer, [QR])  # never decoded in this sequence
     assert [cold.localize(im) for im in imgs[::-1]][:2] == [None, None]
-    trk.reset(synth.camera_dict(K, W, H, [QR]))                 # reset forgets the decode
+    trk.reset(synth.camera_dict(K, W, H, [QR]))  # reset forgets the decode
     assert trk.localize(imgs[-1]) is None
 
 
 def test_qr_track_rejects_another_code_after_a_decode():
     from evalkit.localizers.qr import QrTrackLocalizer
+
     imgs = _receding(["DOCK-01", "DOCK-01"] + ["DOCK-02"] * (len(RECEDE) - 2))
     trk = make(QrTrackLocalizer, [QR])
     out = [trk.localize(im) for im in imgs]

@@ -1,12 +1,13 @@
 """Water optics: presets, config validation, fast model, analytic oracles (docs/water.md)."""
+
 from __future__ import annotations
 
 import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
-
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from pydantic import ValidationError
 
 from blendgen.config.models import Water
@@ -34,14 +35,21 @@ def _scene(dtype=np.float32, h=24, w=32, seed=0):
 
 # --------------------------------------------------------------------------- oracles
 
+
 def test_jerlov_type_I_kd_oracle():
     w = o.get_preset("jerlov_I")
     np.testing.assert_allclose(np.exp(-10.0 * w.Kd), [0.0498, 0.589, 0.831], rtol=0.01)
 
 
 def test_jerlov_kd_table_matches_optics_md():
-    table = {"I": (.300, .053, .018), "II": (.332, .082, .065), "III": (.372, .118, .126),
-             "1C": (.373, .125, .210), "5C": (.473, .305, .495), "9C": (.670, .705, 1.415)}
+    table = {
+        "I": (0.300, 0.053, 0.018),
+        "II": (0.332, 0.082, 0.065),
+        "III": (0.372, 0.118, 0.126),
+        "1C": (0.373, 0.125, 0.210),
+        "5C": (0.473, 0.305, 0.495),
+        "9C": (0.670, 0.705, 1.415),
+    }
     for t, kd in table.items():
         np.testing.assert_allclose(o.get_preset(f"jerlov_{t}").Kd, kd, rtol=0.03, atol=0.001)
 
@@ -64,11 +72,9 @@ def test_article_presets_mapping():
     np.testing.assert_allclose(w.albedo, 0.8 * w.B_inf / w.B_inf.max())
 
 
-@pytest.mark.parametrize("g, expected", [(0.0, (0.0286, 0.0912, 0.1103)),
-                                         (0.9, (0.00223, 0.00711, 0.00860))])
+@pytest.mark.parametrize("g, expected", [(0.0, (0.0286, 0.0912, 0.1103)), (0.9, (0.00223, 0.00711, 0.00860))])
 def test_single_scatter_oracle4(g, expected):
-    L = o.single_scatter_backscatter([0.35, 0.07, 0.03], 0.2, g=g, E=3.0, depth_m=2.0,
-                                     range_m=8.0)
+    L = o.single_scatter_backscatter([0.35, 0.07, 0.03], 0.2, g=g, E=3.0, depth_m=2.0, range_m=8.0)
     np.testing.assert_allclose(L, expected, rtol=0.02)
 
 
@@ -99,6 +105,7 @@ def test_phase_functions_normalised():
 
 # --------------------------------------------------------------------------- config
 
+
 def test_config_preset_and_overrides():
     assert _cfg(preset="mild").name == "mild"
     w = _cfg(preset="mild", k=0.7)
@@ -113,26 +120,29 @@ def test_config_preset_and_overrides():
     np.testing.assert_allclose(w.c, [0.1, 0.2, 0.3])
     np.testing.assert_allclose(w.B_inf, [0.1, 0.5, 0.4])
     assert _cfg(preset="clear").is_clear
-    for name in ("jerlov_1C", "mild"):                     # to_dict round-trips
+    for name in ("jerlov_1C", "mild"):  # to_dict round-trips
         w0 = o.get_preset(name)
         assert o.WaterOptics(**w0.to_dict()).to_dict() == w0.to_dict()
 
 
-@pytest.mark.parametrize("cfg, fragment", [
-    ({"preset": "murky"}, "unknown water preset"),
-    ({"sigma_a": [6, 0, 0]}, "less than or equal to 5"),
-    ({"sigma_s": -0.1}, "greater than or equal to 0"),
-    ({"g": 1.0}, "less than 1"),
-    ({"g": -1.0}, "greater than -1"),
-    ({"beta": float("nan")}, "finite number"),
-    ({"water_color": [0, 2, 0]}, "less than or equal to 1"),
-    ({"sigma_s": [1, 2]}, "at least 3 items"),
-    ({"colour": 1}, "Extra inputs are not permitted"),
-    ({"k": 0.1, "Kd": 0.1}, "not both"),
-    ({"preset": "jerlov_II", "beta": 0.1}, "article presets"),
-    ({"model": "article"}, "Extra inputs are not permitted"),   # the mode is image_formation now
-    ({"calibrated": "maybe"}, "valid boolean"),
-])
+@pytest.mark.parametrize(
+    "cfg, fragment",
+    [
+        ({"preset": "murky"}, "unknown water preset"),
+        ({"sigma_a": [6, 0, 0]}, "less than or equal to 5"),
+        ({"sigma_s": -0.1}, "greater than or equal to 0"),
+        ({"g": 1.0}, "less than 1"),
+        ({"g": -1.0}, "greater than -1"),
+        ({"beta": float("nan")}, "finite number"),
+        ({"water_color": [0, 2, 0]}, "less than or equal to 1"),
+        ({"sigma_s": [1, 2]}, "at least 3 items"),
+        ({"colour": 1}, "Extra inputs are not permitted"),
+        ({"k": 0.1, "Kd": 0.1}, "not both"),
+        ({"preset": "jerlov_II", "beta": 0.1}, "article presets"),
+        ({"model": "article"}, "Extra inputs are not permitted"),  # the mode is image_formation now
+        ({"calibrated": "maybe"}, "valid boolean"),
+    ],
+)
 def test_config_errors(cfg, fragment):
     with pytest.raises(ValidationError) as e:
         Water(**cfg)
@@ -140,6 +150,7 @@ def test_config_errors(cfg, fragment):
 
 
 # --------------------------------------------------------------------------- fast model
+
 
 def test_beer_lambert_exact():
     J, r = _scene(np.float64)
@@ -164,11 +175,11 @@ def test_article_form_and_emissive():
     depth = 4.0
     out = o.apply_water(J, r, em, w, depth, model="article")
     wgt = 1 - np.exp(-0.5 * r[..., None])
-    expected = ((1 - wgt) * J + wgt * w.B_inf) * math.exp(-0.2 * depth)   # every pixel, LEDs too
+    expected = ((1 - wgt) * J + wgt * w.B_inf) * math.exp(-0.2 * depth)  # every pixel, LEDs too
     np.testing.assert_allclose(out, expected, rtol=1e-12, atol=1e-15)
     phys = o.apply_water(J, r, em, w, depth, model="physical")
     np.testing.assert_allclose(phys[0, :5], np.broadcast_to(w.B_inf * math.exp(-0.8), (5, 3)))
-    t = np.exp(-0.5 * r[5:8, 5:8, None])                  # emitters: only their own path
+    t = np.exp(-0.5 * r[5:8, 5:8, None])  # emitters: only their own path
     np.testing.assert_allclose(phys[5:8, 5:8], J[5:8, 5:8] * t + w.B_inf * math.exp(-0.8) * (1 - t))
 
 
@@ -179,7 +190,7 @@ def test_per_pixel_depth_and_irradiance():
     out = o.apply_water(J, r, None, w, depth, irradiance=3.0, veil_depth_m=2.0)
     D = np.exp(-w.Kd * depth[..., None])
     t = np.exp(-w.c * r[..., None])
-    veil = 3.0 * w.B_inf * np.exp(-w.Kd * 2.0)            # the veil dims with the camera's depth
+    veil = 3.0 * w.B_inf * np.exp(-w.Kd * 2.0)  # the veil dims with the camera's depth
     np.testing.assert_allclose(out, J * D * t + veil * (1 - t), rtol=1e-12, atol=1e-15)
 
 
@@ -216,8 +227,8 @@ def test_nan_and_negative_range():
     r[6, 6] = -3.0
     w = _water(0.5)
     out = o.apply_water(J, r, None, w, 0.0)
-    np.testing.assert_allclose(out[5, 5], w.B_inf, rtol=1e-6)     # NaN: no surface
-    np.testing.assert_allclose(out[6, 6], J[6, 6], rtol=1e-6)      # negative: range 0
+    np.testing.assert_allclose(out[5, 5], w.B_inf, rtol=1e-6)  # NaN: no surface
+    np.testing.assert_allclose(out[6, 6], J[6, 6], rtol=1e-6)  # negative: range 0
 
 
 def test_input_validation():
@@ -231,8 +242,14 @@ def test_input_validation():
 
 
 @settings(max_examples=40, deadline=None)
-@given(b1=st.floats(0, 5), b2=st.floats(0, 5), r1=st.floats(0, 1e4), r2=st.floats(0, 1e4),
-       j=st.floats(0, 1), bi=st.floats(0, 1))
+@given(
+    b1=st.floats(0, 5),
+    b2=st.floats(0, 5),
+    r1=st.floats(0, 1e4),
+    r2=st.floats(0, 1e4),
+    j=st.floats(0, 1),
+    bi=st.floats(0, 1),
+)
 def test_monotone_in_beta_and_range(b1, b2, r1, r2, j, bi):
     """Output moves monotonically from J toward B as beta or range grows."""
     (b_lo, b_hi), (r_lo, r_hi) = sorted((b1, b2)), sorted((r1, r2))
@@ -248,9 +265,9 @@ def test_monotone_in_beta_and_range(b1, b2, r1, r2, j, bi):
     for r_ in (r_lo, r_hi):
         lo, hi = f(b_lo, r_), f(b_hi, r_)
         assert between(j, bi, lo) and between(j, bi, hi)
-        assert abs(hi - bi) <= abs(lo - bi) + 1e-12       # closer to B with more beta
+        assert abs(hi - bi) <= abs(lo - bi) + 1e-12  # closer to B with more beta
     lo, hi = f(b_hi, r_lo), f(b_hi, r_hi)
-    assert abs(hi - bi) <= abs(lo - bi) + 1e-12           # closer to B with more range
+    assert abs(hi - bi) <= abs(lo - bi) + 1e-12  # closer to B with more range
 
 
 def test_forward_scatter_blur():
@@ -259,11 +276,11 @@ def test_forward_scatter_blur():
     J[32, 32] = 1.0
     J[10, 10] = 1.0
     r = np.full((h, w), 2.0, np.float32)
-    r[:20, :20] = 0.0                                     # near pixel: unblurred
+    r[:20, :20] = 0.0  # near pixel: unblurred
     wat = _water(0.5, B=(0, 0, 0), albedo=1.0)
     sharp = o.apply_water(J, r, None, wat, 0.0)
     soft = o.apply_water(J, r, None, wat, 0.0, blur=True, blur_px_per_tau=2.0, blur_max_px=3.0)
-    assert soft[32, 32, 0] < 0.5 * sharp[32, 32, 0]          # sigma = 2 px: spread
+    assert soft[32, 32, 0] < 0.5 * sharp[32, 32, 0]  # sigma = 2 px: spread
     assert soft[32, 30:35, 0].sum() > soft[32, 32, 0]
     assert soft[10, 10, 0] == pytest.approx(sharp[10, 10, 0], rel=1e-6)
     # energy (roughly) conserved away from the level seams

@@ -1,4 +1,5 @@
 """Evaluation split over processes by sequence gives the serial per-frame table (no Blender)."""
+
 from __future__ import annotations
 
 import sys
@@ -14,9 +15,9 @@ from fake_dataset import write_fake_dataset  # noqa: E402
 from evalkit import assemble, parallel, runner  # noqa: E402
 from evalkit.dataset import Dataset  # noqa: E402
 
-pytestmark = pytest.mark.integration   # a pool of evaluation processes
+pytestmark = pytest.mark.integration  # a pool of evaluation processes
 
-PLUGIN = '''
+PLUGIN = """
 import numpy as np
 from fake_dataset import decode_distance
 
@@ -37,7 +38,7 @@ class Faulty:
         if d == 0.5:
             raise ZeroDivisionError("boom")
         return None if d == 3.0 else {"distance": d}
-'''
+"""
 
 
 def test_parallel_equals_serial(tmp_path):
@@ -50,8 +51,10 @@ def test_parallel_equals_serial(tmp_path):
     assert len(par) == len(serial) > 0
     cols = [c for c in runner.COLUMNS if c not in ("ms", "T_cam_dock_est")]
     pd.testing.assert_frame_equal(par[cols], serial[cols])
-    same_pose = [np.array_equal(np.asarray(a, float), np.asarray(b, float)) if a is not None else b is None
-                 for a, b in zip(par["T_cam_dock_est"], serial["T_cam_dock_est"])]
+    same_pose = [
+        np.array_equal(np.asarray(a, float), np.asarray(b, float)) if a is not None else b is None
+        for a, b in zip(par["T_cam_dock_est"], serial["T_cam_dock_est"])
+    ]
     assert all(same_pose)
     assert par.attrs == serial.attrs
     assert set(par["fail_reason"]) >= {"", "none"} and par["fail_reason"].str.startswith("exception").any()
@@ -62,5 +65,6 @@ def test_parallel_run_record(tmp_path):
     plugin = tmp_path / "plug.py"
     plugin.write_text(PLUGIN)
     from evalkit.reports.results import EvalRequest, evaluate_dataset
+
     _, paths, _ = evaluate_dataset(EvalRequest(root, [f"{plugin}:Oracle"], tmp_path / "run", workers=2))
     assert paths["summary"].is_file() and (tmp_path / "run" / "run.json").is_file()

@@ -2,6 +2,7 @@
 particle's coverage law evaluated on every pixel of a small image, depth-tested per pixel and
 summed with plain Python loops. Catches any grouping, clipping, compaction or sparse-product
 error (a sample dropped, doubled or given to the wrong particle)."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -17,19 +18,30 @@ W, H = 48, 36
 
 def _particles(rng, n: int, colours: int = 3) -> ps.Particles:
     f32 = lambda x: np.asarray(x, np.float32)
-    a = f32(np.concatenate([rng.uniform(0.1, 0.49, n // 3), rng.uniform(0.5, 3.0, n // 3),
-                            rng.uniform(3.0, 12.0, n - 2 * (n // 3))]))     # specks, blocks, large
+    a = f32(
+        np.concatenate(
+            [rng.uniform(0.1, 0.49, n // 3), rng.uniform(0.5, 3.0, n // 3), rng.uniform(3.0, 12.0, n - 2 * (n // 3))]
+        )
+    )  # specks, blocks, large
     b = f32(a * rng.uniform(0.6, 1.0, n))
     phi = rng.uniform(0, math.pi, n)
-    return ps.Particles(f32(rng.uniform(-6, W + 6, n)), f32(rng.uniform(-6, H + 6, n)), a,
-                        np.minimum(a, b), f32(np.cos(phi)), f32(np.sin(phi)), f32(rng.uniform(0.5, 8.0, n)),
-                        f32(rng.uniform(0.2, 1.0, n)), f32(rng.uniform(0, 2, (n, colours))))
+    return ps.Particles(
+        f32(rng.uniform(-6, W + 6, n)),
+        f32(rng.uniform(-6, H + 6, n)),
+        a,
+        np.minimum(a, b),
+        f32(np.cos(phi)),
+        f32(np.sin(phi)),
+        f32(rng.uniform(0.5, 8.0, n)),
+        f32(rng.uniform(0.2, 1.0, n)),
+        f32(rng.uniform(0, 2, (n, colours))),
+    )
 
 
 def _alpha_full(p: ps.Particles, i: int) -> np.ndarray:
     """(H, W) coverage x opacity of particle i by the documented laws, on the whole image."""
     yy, xx = np.mgrid[0:H, 0:W].astype(np.float64)
-    if p.a[i] < ps.SPLAT_BELOW_PX:                           # bilinear speck of alpha = area
+    if p.a[i] < ps.SPLAT_BELOW_PX:  # bilinear speck of alpha = area
         out = np.zeros((H, W))
         x0, y0 = math.floor(p.u[i]), math.floor(p.v[i])
         fx, fy = p.u[i] - x0, p.v[i] - y0
@@ -43,8 +55,8 @@ def _alpha_full(p: ps.Particles, i: int) -> np.ndarray:
     alpha = np.clip(0.5 + m - m * q, 0, 1)
     x0, y0, sx, sy = (int(z[0]) for z in ps.boxes(p, np.array([i])))
     in_block = max(sx, sy) <= ps.GROUP_MAX_PX
-    if in_block and p.a[i] < ps.NORMALISE_BELOW_PX:           # renormalised over its (square) box
-        gy, gx = np.mgrid[y0:y0 + max(sx, sy), x0:x0 + max(sx, sy)].astype(np.float64)
+    if in_block and p.a[i] < ps.NORMALISE_BELOW_PX:  # renormalised over its (square) box
+        gy, gx = np.mgrid[y0 : y0 + max(sx, sy), x0 : x0 + max(sx, sy)].astype(np.float64)
         ddx, ddy = gx - p.u[i], gy - p.v[i]
         qq = np.hypot((ddx * p.c[i] + ddy * p.s[i]) / p.a[i], (ddy * p.c[i] - ddx * p.s[i]) / p.b[i])
         total = np.clip(0.5 + m - m * qq, 0, 1).sum()
@@ -71,10 +83,10 @@ def test_splat_matches_brute_force_oracle(seed):
     rng = np.random.default_rng(seed)
     p = _particles(rng, 60)
     surf = np.full((H, W), np.inf, np.float32)
-    surf[10:25, 15:35] = 3.0                                  # a near "dock": particles behind it vanish
+    surf[10:25, 15:35] = 3.0  # a near "dock": particles behind it vanish
     sums = ps.splat(p, surf.reshape(-1), W, H)
     log_t, w, wc, near = _oracle(p, surf)
-    assert np.array_equal(np.sort(sums.hit), np.flatnonzero(np.isfinite(near)))     # each pixel once
+    assert np.array_equal(np.sort(sums.hit), np.flatnonzero(np.isfinite(near)))  # each pixel once
     trans_f, wc_f = np.ones(H * W), np.zeros((H * W, sums.wc.shape[0]))
     trans_f[sums.hit], wc_f[sums.hit] = sums.trans, sums.wc.T
     assert np.allclose(trans_f.reshape(H, W), np.exp(log_t), rtol=1e-4, atol=1e-5)
@@ -130,6 +142,7 @@ def test_fused_pass_gives_the_bytes_of_splat_transfer_and_resolve(seed, mode):
     Specks, small and large ellipses over partial tiles and the image's edges; seed 7 has specks
     only (their tiles list the covered pixels instead of scanning them)."""
     from blendgen.physics.particles import kernels as kern
+
     rng = np.random.default_rng(seed)
     p = _particles(rng, 80)
     if seed == 7:
@@ -140,8 +153,14 @@ def test_fused_pass_gives_the_bytes_of_splat_transfer_and_resolve(seed, mode):
     surf = surf.reshape(-1)
     img = rng.uniform(0, 2, H * W * 3).astype(np.float32)
     K = np.array([[40.0, 0.5, 23.5], [0, 41.0, 17.5], [0, 0, 1]], np.float32)
-    args = (K, np.array([0.2, -0.9, 0.1], np.float32), np.array([0.3, 0.1, 0.05], np.float32),
-            np.array([0.2, 0.08, 0.03], np.float32), np.array([0.02, 0.05, 0.04], np.float32), np.float32(4.0))
+    args = (
+        K,
+        np.array([0.2, -0.9, 0.1], np.float32),
+        np.array([0.3, 0.1, 0.05], np.float32),
+        np.array([0.2, 0.08, 0.03], np.float32),
+        np.array([0.02, 0.05, 0.04], np.float32),
+        np.float32(4.0),
+    )
     sums = ps.splat(p, surf, W, H)
     if mode == "none":
         tp, gain_add = kern.NO_TRANSFER, np.zeros((6, 0), np.float32)
@@ -149,8 +168,7 @@ def test_fused_pass_gives_the_bytes_of_splat_transfer_and_resolve(seed, mode):
         tp = kern.transfer_params(*args, mode == "physical")
         gain_add = kern.transfer(sums.hit, sums.near, sums.far, W, *args, mode == "physical")
     out, merged, mask = np.empty_like(img), np.empty(H * W, np.float32), np.zeros(H * W, bool)
-    kern.resolve(out, img, merged, surf, mask, sums.hit, sums.acc, sums.near, np.zeros((3, 0), np.float32),
-                 gain_add, W)
+    kern.resolve(out, img, merged, surf, mask, sums.hit, sums.acc, sums.near, np.zeros((3, 0), np.float32), gain_add, W)
     got = ps.over(p, surf, surf, img, tp, W, H)
     assert np.array_equal(got[0], out) and np.array_equal(got[2], mask)
     assert np.array_equal(got[1], merged, equal_nan=True)
@@ -171,7 +189,7 @@ def test_fused_pass_refuses_negative_or_nan_ranges_and_colours():
         with pytest.raises(ValueError, match="d >= 0"):
             ps.over(dataclasses.replace(p, d=d), surf, surf, img, np.zeros(19, np.float32), W, H)
     colour = p.colour.copy()
-    colour[1, 2] = np.inf                      # the row's idle lanes add 0 x colour: refused, not NaN
+    colour[1, 2] = np.inf  # the row's idle lanes add 0 x colour: refused, not NaN
     with pytest.raises(ValueError, match="finite particle colours"):
         ps.over(dataclasses.replace(p, colour=colour), surf, surf, img, np.zeros(19, np.float32), W, H)
 
@@ -183,10 +201,17 @@ def test_binned_boxes_are_the_footprints_clipped_to_the_image(seed):
     clipped to the image, (xa, xb) = (1, 0) when nothing is left. Extremes included: semi-axes
     at the speck threshold and of zero, tiny b, boxes over every edge and far off the image."""
     from blendgen.physics.particles import kernels as kern
+
     rng = np.random.default_rng(seed)
     n = 400
-    a = np.concatenate([rng.uniform(0.0, 0.49, n // 4), rng.uniform(0.5, 4.0, n // 4),
-                        rng.uniform(4.0, 60.0, n // 4), np.full(n - 3 * (n // 4), ps.SPLAT_BELOW_PX)])
+    a = np.concatenate(
+        [
+            rng.uniform(0.0, 0.49, n // 4),
+            rng.uniform(0.5, 4.0, n // 4),
+            rng.uniform(4.0, 60.0, n // 4),
+            np.full(n - 3 * (n // 4), ps.SPLAT_BELOW_PX),
+        ]
+    )
     a[:3] = 0.0
     b = a * rng.uniform(0.0, 1.0, n)
     b[3:6] = 1e-6
@@ -211,13 +236,17 @@ def test_binned_boxes_are_the_footprints_clipped_to_the_image(seed):
 @pytest.mark.parametrize("width, height", [(48, 36), (33, 31), (640, 480), (1, 1)])
 def test_tile_nearest_range_is_the_nan_ignoring_minimum(width, height):
     from blendgen.physics.particles.kernels import TILE_PX, _tile_near
+
     rng = np.random.default_rng(width)
     surf = rng.uniform(0.0, 20.0, (height, width)).astype(np.float32)
     surf[rng.random((height, width)) < 0.2] = np.nan
     surf[: min(3, height), : min(3, width)] = np.inf
     got = _tile_near(surf.reshape(-1), width, height)
-    tiles = [surf[ty:ty + TILE_PX, tx:tx + TILE_PX] for ty in range(0, height, TILE_PX)
-             for tx in range(0, width, TILE_PX)]
+    tiles = [
+        surf[ty : ty + TILE_PX, tx : tx + TILE_PX]
+        for ty in range(0, height, TILE_PX)
+        for tx in range(0, width, TILE_PX)
+    ]
     ref = np.array([np.min(t[~np.isnan(t)]) if np.any(~np.isnan(t)) else np.nan for t in tiles], np.float32)
     assert np.array_equal(got, ref, equal_nan=True)
 
@@ -254,9 +283,17 @@ def test_footprints_across_tile_corners_are_summed_once_per_pixel():
     tile draws its part, no sample is lost or doubled (against the brute-force oracle)."""
     f32 = lambda x: np.asarray(x, np.float32)
     a = f32([0.3, 0.45, 2.0, 7.0, 0.2])
-    p = ps.Particles(f32([31.5, 31.9, 32.0, 31.2, 47.6]), f32([31.5, 32.2, 31.7, 32.4, 35.5]), a, a * f32(0.8),
-                     f32([1, 0.6, 0.8, 1, 1]), f32([0, 0.8, 0.6, 0, 0]), f32([1, 2, 3, 4, 5]),
-                     f32([1, 1, 0.5, 0.7, 1]), f32(np.arange(15).reshape(5, 3) / 15))
+    p = ps.Particles(
+        f32([31.5, 31.9, 32.0, 31.2, 47.6]),
+        f32([31.5, 32.2, 31.7, 32.4, 35.5]),
+        a,
+        a * f32(0.8),
+        f32([1, 0.6, 0.8, 1, 1]),
+        f32([0, 0.8, 0.6, 0, 0]),
+        f32([1, 2, 3, 4, 5]),
+        f32([1, 1, 0.5, 0.7, 1]),
+        f32(np.arange(15).reshape(5, 3) / 15),
+    )
     surf = np.full((H, W), np.inf, np.float32)
     sums = ps.splat(p, surf.reshape(-1), W, H)
     log_t, w, wc, near = _oracle(p, surf)
@@ -267,11 +304,12 @@ def test_footprints_across_tile_corners_are_summed_once_per_pixel():
 
 def test_vectorisable_exp_is_as_accurate_as_float32_allows():
     from blendgen.physics.particles.kernels import exp32
+
     x = np.concatenate([np.random.default_rng(0).uniform(-87.0, 88.0, 2000), [-87.0, -1e-6, 0.0, 1e-6, 1.0, 88.0]])
     got = np.array([exp32(np.float32(v)) for v in x.astype(np.float32)], np.float64)
     ref = np.exp(x.astype(np.float32).astype(np.float64))
-    assert np.max(np.abs(got - ref) / ref) < 1.5e-7                 # numpy's own float32 exp: ~2e-7
-    assert exp32(np.float32(-200.0)) == pytest.approx(1.1754944e-38, rel=1e-5)   # clamped, no garbage
+    assert np.max(np.abs(got - ref) / ref) < 1.5e-7  # numpy's own float32 exp: ~2e-7
+    assert exp32(np.float32(-200.0)) == pytest.approx(1.1754944e-38, rel=1e-5)  # clamped, no garbage
     assert exp32(np.float32(0.0)) == 1.0
 
 
@@ -281,6 +319,7 @@ def test_background_transfer_matches_the_two_layer_formula(physical):
     Transfer doc): gain = t_bg/t_p x D_bg/D_p, add = (1 - t_bg/t_p) B / D_p; open water: t_bg = 0."""
     from blendgen.geometry import intrinsics_from_hfov
     from blendgen.physics.particles.kernels import transfer
+
     rng = np.random.default_rng(1)
     w, h, n = 64, 48, 500
     K = intrinsics_from_hfov(w, h, math.radians(70.0))
@@ -290,9 +329,19 @@ def test_background_transfer_matches_the_two_layer_formula(physical):
     far = near + rng.uniform(0.0, 10.0, n)
     far[:60] = np.inf
     c, kd, B, cam = np.array([0.6, 0.25, 0.15]), np.array([0.5, 0.1, 0.05]), np.array([0.02, 0.05, 0.07]), 3.0
-    got = transfer(hit, near.astype(np.float32), far.astype(np.float32), w, K.astype(np.float32),
-                   rz.astype(np.float32), c.astype(np.float32), kd.astype(np.float32), B.astype(np.float32),
-                   np.float32(cam), physical)
+    got = transfer(
+        hit,
+        near.astype(np.float32),
+        far.astype(np.float32),
+        w,
+        K.astype(np.float32),
+        rz.astype(np.float32),
+        c.astype(np.float32),
+        kd.astype(np.float32),
+        B.astype(np.float32),
+        np.float32(cam),
+        physical,
+    )
     y = (hit // w - K[1, 2]) / K[1, 1]
     x = (hit % w - K[0, 2] - K[0, 1] * y) / K[0, 0]
     dz = (x * rz[0] + y * rz[1] + rz[2]) / np.sqrt(x * x + y * y + 1)

@@ -1,15 +1,17 @@
 """Planning: what is rendered once and shared, what gets its own render."""
+
 import copy
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from blendgen.pipeline import plan
 from blendgen.config.models import Experiment
+from blendgen.pipeline import plan
 
 BASE = {
-    "name": "p", "seed": 11, "scene": {"dock": {"markers": [{"kind": "led_array"}]}},
+    "name": "p",
+    "seed": 11,
+    "scene": {"dock": {"markers": [{"kind": "led_array"}]}},
     "trajectories": [{"kind": "linear", "id": "lin", "start_range_m": 3, "end_range_m": 1, "speed_mps": 2}],
 }
 
@@ -23,8 +25,12 @@ def jobs_for(cfg):
 def test_image_space_conditions_and_kinematic_trials_share_one_render():
     cfg = copy.deepcopy(BASE)
     cfg["trials"] = 3
-    cfg["conditions"] = [{"label": "clear"}, {"label": "mild", "water": {"preset": "mild"}},
-                         {"label": "deep", "dock_water_depth_m": 5}, {"label": "occ", "occlusion": {"n_total": 6000}}]
+    cfg["conditions"] = [
+        {"label": "clear"},
+        {"label": "mild", "water": {"preset": "mild"}},
+        {"label": "deep", "dock_water_depth_m": 5},
+        {"label": "occ", "occlusion": {"n_total": 6000}},
+    ]
     exp, jobs = jobs_for(cfg)
     assert len(jobs) == 1 and len(jobs[0].sequences) == 12
     seeds = {s.post.seed for s in jobs[0].sequences}
@@ -35,8 +41,11 @@ def test_docking_trials_render_once_per_trial_and_per_fluid():
     cfg = copy.deepcopy(BASE)
     cfg["trajectories"] = [{"kind": "docking", "id": "d", "start": {"range_m": [2.0, 2.5]}, "max_time_s": 6}]
     cfg["trials"] = 2
-    cfg["conditions"] = [{"label": "c0"}, {"label": "occ", "occlusion": {"n_total": 600}},
-                         {"label": "cur", "fluid": {"current_mps": [0, 0.5, 0]}}]
+    cfg["conditions"] = [
+        {"label": "c0"},
+        {"label": "occ", "occlusion": {"n_total": 600}},
+        {"label": "cur", "fluid": {"current_mps": [0, 0.5, 0]}},
+    ]
     exp, jobs = jobs_for(cfg)
     assert len(jobs) == 4  # (2 trials) x (still water, current)
     by_label = {tuple(sorted(s.condition for s in j.sequences)) for j in jobs}
@@ -47,12 +56,13 @@ def test_docking_trials_render_once_per_trial_and_per_fluid():
 
 def test_reference_fidelity_renders_each_water_and_skips_clear_volume():
     from blendgen.physics.water import optics
+
     cfg = copy.deepcopy(BASE)
     cfg["image_formation"] = "article"
     cfg["render"] = {"fidelity": "reference"}
     cfg["conditions"] = [{"label": "clear"}, {"label": "mild", "water": {"preset": "mild"}}]
     _, jobs = jobs_for(cfg)
-    assert {j.sequences[0].condition: j.scene["water_volume"] for j in jobs}["clear"] is None   # no water
+    assert {j.sequences[0].condition: j.scene["water_volume"] for j in jobs}["clear"] is None  # no water
     cfg = copy.deepcopy(BASE)
     cfg["render"] = {"fidelity": "reference"}
     cfg["conditions"] = [{"label": "clear"}, {"label": "mild", "water": {"preset": "mild"}}]
@@ -88,6 +98,7 @@ def test_no_frame_from_inside_the_dock():
     """A kinematic approach through the marker plane is a config error naming the fix; a docking
     trial ends at contact: every frame keeps the camera in front of the face (d_true > 0 is exact)."""
     from blendgen.config.models import ConfigError
+
     cfg = copy.deepcopy(BASE)
     cfg["trajectories"] = [{"kind": "linear", "id": "lin", "start_range_m": 3, "end_range_m": 0.5, "speed_mps": 2}]
     with pytest.raises(ConfigError, match=r"'lin'.*end_range_m must be >= 0.70"):
@@ -103,13 +114,18 @@ def test_job_record_is_typed_versioned_and_round_trips():
     """The worker's job file: written by generate, parsed once by the worker; a record of
     another version or with unknown keys is refused."""
     from pydantic import ValidationError
+
     exp, jobs = jobs_for(copy.deepcopy(BASE))
     post = jobs[0].sequences[0].post
-    rec = plan.JobRecord(scene=jobs[0].scene, fidelity="fast", render=plan.render_settings(exp, 1),
-                         frames=jobs[0].frames,
-                         camera=plan.JobCamera(width=64, height=48, hfov_rad=1.0, K=np.eye(3).tolist()),
-                         gt=plan.JobTruth(T_world_dock=np.eye(4).tolist(), markers=[]),
-                         outputs=[plan.JobOutput(seq_dir="/data/x", rel="sequences/x", post=post)])
+    rec = plan.JobRecord(
+        scene=jobs[0].scene,
+        fidelity="fast",
+        render=plan.render_settings(exp, 1),
+        frames=jobs[0].frames,
+        camera=plan.JobCamera(width=64, height=48, hfov_rad=1.0, K=np.eye(3).tolist()),
+        gt=plan.JobTruth(T_world_dock=np.eye(4).tolist(), markers=[]),
+        outputs=[plan.JobOutput(seq_dir="/data/x", rel="sequences/x", post=post)],
+    )
     back = plan.JobRecord.model_validate_json(rec.model_dump_json())
     assert back.model_dump_json() == rec.model_dump_json() and back.version == plan.JOB_RECORD_VERSION
     assert back.outputs[0].post.water.preset == post.water.preset
@@ -123,6 +139,7 @@ def test_job_record_is_typed_versioned_and_round_trips():
 def test_a_path_into_the_dock_fails_before_anything_is_written(tmp_path):
     from blendgen.config.models import ConfigError
     from blendgen.pipeline.generate import generate
+
     cfg = copy.deepcopy(BASE)
     cfg["trajectories"] = [{"kind": "linear", "id": "lin", "start_range_m": 3, "end_range_m": 0.5, "speed_mps": 2}]
     with pytest.raises(ConfigError, match="marker plane"):

@@ -5,6 +5,7 @@ directory on sys.path, nothing installed globally), ``path/file.py:Class`` and
 ``module:attr`` with ``--param``, and ``exec:COMMAND`` (JSON-lines protocol) in
 Python and POSIX sh. Also the built-ins registered here: apriltag, preprocessing.
 """
+
 from __future__ import annotations
 
 import json
@@ -22,16 +23,16 @@ from click.testing import CliRunner
 ROOT = Path(__file__).parents[1]
 sys.path.insert(0, str(Path(__file__).parent))
 sys.path.insert(0, str(ROOT))
-import cli  # noqa: E402
 import synth_images as synth  # noqa: E402
 from fake_dataset import SEQUENCES, write_fake_dataset  # noqa: E402
 
+import cli  # noqa: E402
 from evalkit import assemble, preprocess, registry, runner  # noqa: E402
 from evalkit.dataset import Dataset  # noqa: E402
 from evalkit.external import ExternalLocalizer  # noqa: E402
 from evalkit.registry import RegistryError  # noqa: E402
 
-pytestmark = pytest.mark.integration   # plugins end to end through the CLI, child processes
+pytestmark = pytest.mark.integration  # plugins end to end through the CLI, child processes
 
 N_FRAMES = sum(len(s[3]) for s in SEQUENCES)
 
@@ -52,7 +53,7 @@ PLUGIN_SRC = textwrap.dedent('''
     oracle = Oracle(2.0, "instance")
 ''')
 
-EXT_ORACLE = textwrap.dedent('''
+EXT_ORACLE = textwrap.dedent("""
     import json, os, sys
     import cv2
     params = None
@@ -71,7 +72,7 @@ EXT_ORACLE = textwrap.dedent('''
         T = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, d], [0, 0, 0, 1]]
         print(json.dumps({"ok": True, "index": req["index"], "distance": d * params.get("scale", 1.0),
                           "T_cam_dock": T, "marker_id": process_id, "confidence": 0.5}), flush=True)
-''')
+""")
 
 
 @pytest.fixture(scope="module")
@@ -100,9 +101,11 @@ def test_entry_point_from_a_dist_info_on_sys_path(ds_path, tmp_path, monkeypatch
     (site / "acme_dock_loc-1.0.dist-info").mkdir(parents=True)
     (site / "acme_dock_loc.py").write_text(PLUGIN_SRC)
     (site / "acme_dock_loc-1.0.dist-info" / "METADATA").write_text(
-        "Metadata-Version: 2.1\nName: acme-dock-loc\nVersion: 1.0\n")
+        "Metadata-Version: 2.1\nName: acme-dock-loc\nVersion: 1.0\n"
+    )
     (site / "acme_dock_loc-1.0.dist-info" / "entry_points.txt").write_text(
-        "[dockbench.localizers]\nacme = acme_dock_loc:Oracle\n")
+        "[dockbench.localizers]\nacme = acme_dock_loc:Oracle\n"
+    )
     monkeypatch.syspath_prepend(str(site))
     assert "acme" in registry.known_names()
     r = CliRunner().invoke(cli.main, ["localizers"])
@@ -151,9 +154,18 @@ def test_exec_persistent_process_and_pixels(ds_path, tmp_path):
     _assert_oracle(df)
     assert df["marker_id"].nunique() == 1  # one process for both sequences
     # localize(pixels) goes through a temporary PNG (used when a preprocess step comes first)
-    loc.reset({"width": 64, "height": 48, "K": np.eye(3), "dist": None, "sequence": "clear_x",
-               "markers": Dataset.open(ds_path).markers})
+    loc.reset(
+        {
+            "width": 64,
+            "height": 48,
+            "K": np.eye(3),
+            "dist": None,
+            "sequence": "clear_x",
+            "markers": Dataset.open(ds_path).markers,
+        }
+    )
     from fake_dataset import encode_distance
+
     est = loc.localize(encode_distance(3.25))
     assert est["distance"] == 3.25 and est["confidence"] == 0.5 and np.shape(est["T_cam_dock"]) == (4, 4)
     loc.close()
@@ -169,8 +181,15 @@ def test_python_example_program_on_a_rendered_aruco(tmp_path):
     W, H = 640, 480
     K = synth.k_from_hfov(W, H, 60.0)
     h = 0.1
-    marker = {"id": "tag", "kind": "aruco", "dictionary": "DICT_4X4_50", "marker_id": 7, "size_m": 0.2,
-              "T_dock_marker": np.eye(4).tolist(), "keypoints": [[-h, h, 0], [h, h, 0], [h, -h, 0], [-h, -h, 0]]}
+    marker = {
+        "id": "tag",
+        "kind": "aruco",
+        "dictionary": "DICT_4X4_50",
+        "marker_id": 7,
+        "size_m": 0.2,
+        "T_dock_marker": np.eye(4).tolist(),
+        "keypoints": [[-h, h, 0], [h, h, 0], [h, -h, 0], [-h, -h, 0]],
+    }
     T = synth.pose_looking_at_dock(1.5, 20.0, -10.0, 30.0)
     img = synth.render(K, T, [marker], W, H, ss=2)
     loc = ExternalLocalizer([sys.executable, str(ROOT / "examples/external_localizer.py")], timeout_s=20)
@@ -186,13 +205,20 @@ def test_builtins_registered_and_listed():
     assert names[:5] == ["led", "qr", "aruco", "apriltag", "hybrid"]
 
 
-APRILTAG = {"id": "at", "kind": "apriltag", "dictionary": "DICT_APRILTAG_36h11", "marker_id": 3, "size_m": 0.2,
-            "T_dock_marker": [[1, 0, 0, 0.1], [0, 1, 0, -0.05], [0, 0, 1, 0], [0, 0, 0, 1]]}
+APRILTAG = {
+    "id": "at",
+    "kind": "apriltag",
+    "dictionary": "DICT_APRILTAG_36h11",
+    "marker_id": 3,
+    "size_m": 0.2,
+    "T_dock_marker": [[1, 0, 0, 0.1], [0, 1, 0, -0.05], [0, 0, 1, 0], [0, 0, 0, 1]],
+}
 APRILTAG["keypoints"] = [[0.0, 0.05, 0], [0.2, 0.05, 0], [0.2, -0.15, 0], [0.0, -0.15, 0]]  # dock frame
 
 
-@pytest.mark.parametrize("d,angles", [(1.0, (0, 0, 0)), (2.0, (25, -10, 30)), (3.0, (-35, 15, 150)),
-                                      (4.0, (10, 30, -100))])
+@pytest.mark.parametrize(
+    "d,angles", [(1.0, (0, 0, 0)), (2.0, (25, -10, 30)), (3.0, (-35, 15, 150)), (4.0, (10, 30, -100))]
+)
 def test_apriltag_localizer_pose(d, angles):
     pytest.importorskip("pupil_apriltags")
     W, H = 640, 480
@@ -217,6 +243,7 @@ def test_apriltag_missing_dependency_is_a_clear_error(monkeypatch):
 
 def test_apriltag_family_mapping():
     from evalkit.localizers.apriltag import family_of
+
     assert family_of({"dictionary": "DICT_APRILTAG_36h11"}) == "tag36h11"
     assert family_of({"dictionary": "DICT_APRILTAG_16h5"}) == "tag16h5"
     assert family_of({"dictionary": "DICT_4X4_50"}) is None
@@ -228,8 +255,11 @@ def test_parse_preprocess_spec():
     steps = preprocess.parse_steps("median:k=5, clahe:clip=3:tile=4,grayworld,")
     assert [s.name for s in steps] == ["median", "clahe", "grayworld"]
     assert steps[0].params == {"k": 5} and steps[1].params == {"clip": 3, "tile": 4}
-    for bad, msg in (("sharpen", "unknown preprocessing step 'sharpen'"), ("median:q=3", "bad parameter"),
-                     ("clahe:clip", "bad parameter")):
+    for bad, msg in (
+        ("sharpen", "unknown preprocessing step 'sharpen'"),
+        ("median:q=3", "bad parameter"),
+        ("clahe:clip", "bad parameter"),
+    ):
         with pytest.raises(ValueError, match=msg):
             preprocess.parse_steps(bad)
     with pytest.raises(RegistryError, match="bad --preprocess"):
@@ -282,17 +312,22 @@ def test_preprocess_in_isolated_child(ds_path, tmp_path):
 
 def test_new_modules_import_light():
     import subprocess
-    code = ("import sys, evalkit.isolation, evalkit.external, evalkit.registry; "
-            "light = not any(m in sys.modules for m in ('cv2', 'numpy', 'pandas', 'bpy')); "
-            "import evalkit.preprocess, evalkit.localizers.hybrid, evalkit.localizers.apriltag; "
-            "print(light, 'bpy' in sys.modules, 'pupil_apriltags' in sys.modules)")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT,
-                         check=True).stdout.split()
+
+    code = (
+        "import sys, evalkit.isolation, evalkit.external, evalkit.registry; "
+        "light = not any(m in sys.modules for m in ('cv2', 'numpy', 'pandas', 'bpy')); "
+        "import evalkit.preprocess, evalkit.localizers.hybrid, evalkit.localizers.apriltag; "
+        "print(light, 'bpy' in sys.modules, 'pupil_apriltags' in sys.modules)"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, check=True
+    ).stdout.split()
     assert out == ["True", "False", "False"]
 
 
 def test_params_scoped_to_one_localizer():
     from evalkit.registry import params_for
+
     kw = {"threshold": 100, "led.min_area_px": 3, "qr.refine": "none"}
     names = ["led", "qr"]
     assert params_for("led", kw, names) == {"threshold": 100, "min_area_px": 3}

@@ -1,12 +1,14 @@
 """PnP numerical stress (evalkit.pnp_bench): no NaN / behind-camera successes, planar-ambiguity
 picks no worse than OpenCV's first IPPE solution, range error ~ Z^2. A reduced sweep (~3 s);
 the full one is ``dockbench bench pnp`` (or ``--slow``)."""
+
 import math
 
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from hypothesis import given, strategies as st
+from hypothesis import given
+from hypothesis import strategies as st
 
 import cli
 from evalkit import pnp_bench as pb
@@ -15,8 +17,13 @@ from evalkit.localizers.pnp import pose_is_plausible, solve_planar
 
 @pytest.fixture(scope="module")
 def sweep():
-    return pb.run_sweep(distances=(0.5, 1.0, 2.0, 3.0, 5.0, 7.5), angles=(0.0, 30.0, 60.0, 80.0),
-                        noises=(0.0, 1.0, 2.0), n_trials=25, seed=1)
+    return pb.run_sweep(
+        distances=(0.5, 1.0, 2.0, 3.0, 5.0, 7.5),
+        angles=(0.0, 30.0, 60.0, 80.0),
+        noises=(0.0, 1.0, 2.0),
+        n_trials=25,
+        seed=1,
+    )
 
 
 def test_no_nan_or_behind_camera_success(sweep):
@@ -58,13 +65,18 @@ def test_pose_generator_matches_its_definition():
     for angle in (0.0, 35.0, 80.0):
         T = pb.random_pose(rng, 4.0, angle)
         v = T[:3, 3] / np.linalg.norm(T[:3, 3])
-        n = T[:3, 2]                                       # target normal in the camera
+        n = T[:3, 2]  # target normal in the camera
         assert math.degrees(math.acos(np.clip(-n @ v, -1, 1))) == pytest.approx(angle, abs=1e-6)
         assert T[2, 3] == pytest.approx(4.0) and pose_is_plausible(T, pb.TARGETS["led"].obj)
 
 
-@given(Z=st.floats(0.2, 20.0), angle=st.floats(0.0, 80.0), sigma=st.floats(0.0, 2.0),
-       seed=st.integers(0, 2**32 - 1), square=st.booleans())
+@given(
+    Z=st.floats(0.2, 20.0),
+    angle=st.floats(0.0, 80.0),
+    sigma=st.floats(0.0, 2.0),
+    seed=st.integers(0, 2**32 - 1),
+    square=st.booleans(),
+)
 def test_solve_planar_property_never_nan_or_behind(Z, angle, sigma, seed, square):
     target = pb.TARGETS["square" if square else "led"]
     rng = np.random.default_rng(seed)
@@ -81,8 +93,7 @@ def test_solve_planar_property_never_nan_or_behind(Z, angle, sigma, seed, square
 def test_cli_command_writes_csv_and_png(tmp_path, monkeypatch):
     monkeypatch.setattr(pb, "DISTANCES_M", (1.0, 3.0, 10.0))
     small = pb.run_sweep.__defaults__
-    monkeypatch.setattr(pb.run_sweep, "__defaults__",
-                        (small[0], (1.0, 3.0, 10.0), (0.0, 40.0), (0.0, 1.0)) + small[4:])
+    monkeypatch.setattr(pb.run_sweep, "__defaults__", (small[0], (1.0, 3.0, 10.0), (0.0, 40.0), (0.0, 1.0)) + small[4:])
     res = CliRunner().invoke(cli.main, ["bench", "pnp", "--trials", "5", "-o", str(tmp_path / "b")])
     assert res.exit_code == 0, res.output
     assert (tmp_path / "b" / "pnp.csv").stat().st_size > 0 and (tmp_path / "b" / "pnp.png").stat().st_size > 0

@@ -2,6 +2,7 @@
 
 Commands that render are marked ``blender`` (skipped without bpy); the others run here on the fake
 dataset or on synthetic inputs. Commands already run end to end elsewhere are named in ELSEWHERE."""
+
 from __future__ import annotations
 
 import re
@@ -15,11 +16,18 @@ from fake_dataset import write_fake_dataset
 import cli
 
 ROOT = Path(__file__).resolve().parents[1]
-ELSEWHERE = {   # command -> the test that runs it
-    "generate": "test_config.py, test_stream_run.py", "evaluate": "test_evaluate_cli.py",
-    "verify": "test_evaluate_cli.py", "leaderboard": "test_leaderboard.py", "export-bop": "test_bop.py",
-    "bench pnp": "test_pnp_stress.py", "dock": "test_closed_loop_render.py", "run": "test_stream_run.py",
-    "configs": "test_cli_papercuts.py", "localizers": "test_localizers.py", "authority": "test_authority.py",
+ELSEWHERE = {  # command -> the test that runs it
+    "generate": "test_config.py, test_stream_run.py",
+    "evaluate": "test_evaluate_cli.py",
+    "verify": "test_evaluate_cli.py",
+    "leaderboard": "test_leaderboard.py",
+    "export-bop": "test_bop.py",
+    "bench pnp": "test_pnp_stress.py",
+    "dock": "test_closed_loop_render.py",
+    "run": "test_stream_run.py",
+    "configs": "test_cli_papercuts.py",
+    "localizers": "test_localizers.py",
+    "authority": "test_authority.py",
 }
 
 
@@ -101,11 +109,15 @@ def test_bench_particles_smallest():
     assert "load average" in _ok(["bench", "particles", "-n", "600", "--size", "64x48", "--frames", "1"])
 
 
-ELSEWHERE.update({   # exercised through their library functions at small sizes
-    "bench suite": "test_suitebench.py", "bench render-settings": "test_render_settings_bench.py",
-    "bench lamp": "test_lamp_reference.py, test_lamp_shadow.py", "bench caustics": "test_caustic_reference.py",
-    "reproduce": "test_suitebench.py (the same generate + evaluate path)",
-})
+ELSEWHERE.update(
+    {  # exercised through their library functions at small sizes
+        "bench suite": "test_suitebench.py",
+        "bench render-settings": "test_render_settings_bench.py",
+        "bench lamp": "test_lamp_reference.py, test_lamp_shadow.py",
+        "bench caustics": "test_caustic_reference.py",
+        "reproduce": "test_suitebench.py (the same generate + evaluate path)",
+    }
+)
 
 
 def test_bench_fidelity_veil_only(tmp_path):
@@ -127,13 +139,23 @@ def test_bench_stages_smallest(tmp_path):
 
 @pytest.mark.blender
 def test_bench_closed_loop_smallest(tmp_path):
-    _ok(["bench", "closed-loop", "--trials", "1", "--size", "64x48", "--open-loop-frames", "0",
-         "-o", tmp_path / "c"])
+    _ok(["bench", "closed-loop", "--trials", "1", "--size", "64x48", "--open-loop-frames", "0", "-o", tmp_path / "c"])
     assert (tmp_path / "c" / "bench_closed_loop.csv").is_file()
 
 
 def test_every_command_is_smoke_tested_somewhere():
-    here = {"station-keeping", "docking-paths", "bench localizers", "bench io", "bench particles", "calibrate",
-            "preview", "bench fidelity", "bench glow", "bench stages", "bench closed-loop"}
+    here = {
+        "station-keeping",
+        "docking-paths",
+        "bench localizers",
+        "bench io",
+        "bench particles",
+        "calibrate",
+        "preview",
+        "bench fidelity",
+        "bench glow",
+        "bench stages",
+        "bench closed-loop",
+    }
     # the two reference fits render Cycles references per water preset and rewrite a calibration file: not run here
     assert set(_cli_commands()) - here - set(ELSEWHERE) == {"calibrate-veil", "calibrate-water"}

@@ -4,12 +4,11 @@ Renders a tiny dataset through the real CLI once per session (640x480, 4 spp, a
 short close approach plus an oblique pass) and checks geometry against the
 manifest's ground truth, the dataset format, resume and verify.
 """
+
 import importlib.metadata
 import json
 import math
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import cv2
@@ -28,14 +27,23 @@ pytestmark = pytest.mark.blender
 ROOT = Path(__file__).resolve().parent.parent
 
 TINY = {
-    "name": "tiny", "version": "1.0.0", "seed": 3,
+    "name": "tiny",
+    "version": "1.0.0",
+    "seed": 3,
     "scene": {"template": "pool_15x5x8"},
     "camera": {"width": 640, "height": 480, "hfov_deg": 60, "fps": 10},
     "render": {"fidelity": "fast", "samples": 4},
     "water": {"preset": "clear"},
     "trajectories": [
-        {"kind": "linear", "id": "near", "start_range_m": 2.2, "end_range_m": 0.75, "speed_mps": 2.0,
-         "lateral_m": 0.1, "vertical_m": 0.05},
+        {
+            "kind": "linear",
+            "id": "near",
+            "start_range_m": 2.2,
+            "end_range_m": 0.75,
+            "speed_mps": 2.0,
+            "lateral_m": 0.1,
+            "vertical_m": 0.05,
+        },
         {"kind": "circle", "id": "arc", "radius_m": 1.5, "start_deg": -35, "end_deg": 35, "speed_mps": 2.5},
     ],
 }
@@ -84,8 +92,9 @@ def test_aruco_corners_match_projection(tiny):
     _, out = tiny
     ds = Dataset.open(out)
     m = next(m for m in ds.markers if m["kind"] == "aruco")
-    det = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50),
-                                  cv2.aruco.DetectorParameters())
+    det = cv2.aruco.ArucoDetector(
+        cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50), cv2.aruco.DetectorParameters()
+    )
     crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 100, 0.001)
     errs = []
     for f in frames(ds):
@@ -164,25 +173,37 @@ def test_roi_composite_is_pixel_aligned(tmp_path, regions):
     """ROI rendering with a full-scale background at the same samples must reproduce the
     plain full-frame render: any border misalignment (of the dock box, or of any of the
     per-marker boxes) shows up as a shifted dock or marker."""
-    from blendgen.pipeline.generate import generate
     from blendgen.config.models import load_experiment
-    cfg = dict(TINY, name="roi", trajectories=[
-        {"kind": "linear", "id": "far", "start_range_m": 6.0 if regions == "dock" else 3.0,
-         "end_range_m": 5.0 if regions == "dock" else 2.0, "speed_mps": 5.0,
-         "lateral_m": 0.7, "vertical_m": 0.3}])
+    from blendgen.pipeline.generate import generate
+
+    cfg = dict(
+        TINY,
+        name="roi",
+        trajectories=[
+            {
+                "kind": "linear",
+                "id": "far",
+                "start_range_m": 6.0 if regions == "dock" else 3.0,
+                "end_range_m": 5.0 if regions == "dock" else 2.0,
+                "speed_mps": 5.0,
+                "lateral_m": 0.7,
+                "vertical_m": 0.3,
+            }
+        ],
+    )
     cfg["camera"] = {"width": 320, "height": 240, "hfov_deg": 60, "fps": 10}
     images = {}
-    for name, render in (("roi", {"roi": True, "background_scale": 1.0, "background_samples": 4,
-                                  "roi_regions": regions}),
-                         ("full", {"roi": False})):
+    for name, render in (
+        ("roi", {"roi": True, "background_scale": 1.0, "background_samples": 4, "roi_regions": regions}),
+        ("full", {"roi": False}),
+    ):
         p = tmp_path / f"{name}.yaml"
         p.write_text(yaml.safe_dump({**cfg, "render": {"samples": 4, **render}}))
         generate(load_experiment(p), tmp_path / name, workers=1, progress=False)
         images[name] = [cv2.imread(str(f)) for f in sorted((tmp_path / name).glob("sequences/*/rgb/*.png"))]
     job = json.loads(next((tmp_path / "roi" / ".work" / "jobs").glob("*.json")).read_text())
     rois = [f["rois"] if regions != "dock" else [f["roi"]] for f in job["frames"]]
-    assert all(r and r[0] is not None and sum((b[2] - b[0]) * (b[3] - b[1]) for b in r) < 0.5 * 320 * 240
-               for r in rois)
+    assert all(r and r[0] is not None and sum((b[2] - b[0]) * (b[3] - b[1]) for b in r) < 0.5 * 320 * 240 for r in rois)
     assert regions == "dock" or max(len(r) for r in rois) >= 2
     for a, b in zip(images["roi"], images["full"]):
         diff = np.abs(a.astype(int) - b.astype(int))
@@ -192,7 +213,9 @@ def test_roi_composite_is_pixel_aligned(tmp_path, regions):
 @pytest.mark.parametrize("light_tree", [False, True])
 def test_setup_cycles_sets_light_tree(light_tree):
     """render.light_tree reaches Cycles (fast fidelity turns it off: one sun, LEDs unsampled)."""
-    from blendgen.blender import render, scene as scn
+    from blendgen.blender import render
+    from blendgen.blender import scene as scn
+
     sc = scn.reset()
     render.setup_cycles(sc, {"samples": 4, "light_tree": light_tree})
     assert sc.cycles.use_light_tree is light_tree

@@ -1,5 +1,6 @@
 """Blender renders an N-LED array (N = 6, two reference LEDs) and the LED localizer
 resolves it: the scene builds one emitter per manifest keypoint, with its colour."""
+
 import math
 
 import numpy as np
@@ -15,18 +16,32 @@ from evalkit.localizers.led import LedLocalizer
 pytestmark = pytest.mark.blender
 
 N6 = {
-    "name": "n6", "version": "1.0.0", "seed": 3,
-    "scene": {"template": "pool_15x5x8", "dock": {"markers": [
-        {"kind": "led_array", "id": "led", "layout": "circle", "count": 6, "size_m": 0.7,
-         "led_radius_m": 0.035, "reference_index": [0, 1], "strength": 20.0}]},
+    "name": "n6",
+    "version": "1.0.0",
+    "seed": 3,
+    "scene": {
+        "template": "pool_15x5x8",
+        "dock": {
+            "markers": [
+                {
+                    "kind": "led_array",
+                    "id": "led",
+                    "layout": "circle",
+                    "count": 6,
+                    "size_m": 0.7,
+                    "led_radius_m": 0.035,
+                    "reference_index": [0, 1],
+                    "strength": 20.0,
+                }
+            ]
+        },
         # the textured pool with caustics (docs/light.md) stays on: its sun-lit clutter passes the
         # first LED threshold as dozens of blobs, and the threshold ladder must find the array
-        },
+    },
     "camera": {"width": 320, "height": 240, "hfov_deg": 60, "fps": 2},
     "render": {"fidelity": "fast", "samples": 2},
     "water": {"preset": "clear"},
-    "trajectories": [{"kind": "linear", "id": "approach", "start_range_m": 4.0, "end_range_m": 1.5,
-                      "speed_mps": 2.5}],
+    "trajectories": [{"kind": "linear", "id": "approach", "start_range_m": 4.0, "end_range_m": 1.5, "speed_mps": 2.5}],
 }
 
 

@@ -1,6 +1,7 @@
 """The typed records that cross to the renderer (blendgen/render_spec.py): a job file keeps the
 bytes it had as plain data, for every kind of scene the planner makes, and a wrong key is a
 validation error when the record is made or read (before Blender starts)."""
+
 from __future__ import annotations
 
 import copy
@@ -15,20 +16,42 @@ from blendgen.pipeline import plan
 from blendgen.render_spec import FramePlan, RenderScene, RenderSettings
 
 LAMP = {"id": "lamp", "offset_m": [0.0, 0.3, 0.0], "pitch_deg": 5.0, "half_angle_deg": 30.0, "power_w": 20.0}
-MARKERS = [{"kind": "led_array", "id": "led", "size_m": 0.6, "led_radius_m": 0.04},
-           {"kind": "qr", "id": "qr", "size_m": 0.15, "payload": "DOCK-01", "center_m": [-0.12, 0.0]},
-           {"kind": "aruco", "id": "aruco", "size_m": 0.12, "dictionary": "DICT_4X4_50", "marker_id": 7,
-            "center_m": [0.14, 0.0]}]
-BASE = {"name": "r", "seed": 5, "camera": {"width": 64, "height": 48}, "scene": {"dock": {"markers": MARKERS}},
-        "trajectories": [{"kind": "linear", "id": "lin", "start_range_m": 4, "end_range_m": 2, "speed_mps": 4}]}
+MARKERS = [
+    {"kind": "led_array", "id": "led", "size_m": 0.6, "led_radius_m": 0.04},
+    {"kind": "qr", "id": "qr", "size_m": 0.15, "payload": "DOCK-01", "center_m": [-0.12, 0.0]},
+    {
+        "kind": "aruco",
+        "id": "aruco",
+        "size_m": 0.12,
+        "dictionary": "DICT_4X4_50",
+        "marker_id": 7,
+        "center_m": [0.14, 0.0],
+    },
+]
+BASE = {
+    "name": "r",
+    "seed": 5,
+    "camera": {"width": 64, "height": 48},
+    "scene": {"dock": {"markers": MARKERS}},
+    "trajectories": [{"kind": "linear", "id": "lin", "start_range_m": 4, "end_range_m": 2, "speed_mps": 4}],
+}
 CASES = {
     "fast_marker_rois": {},
-    "fast_dock_roi_motion_blur_lamps": {"render": {"roi_regions": "dock"}, "vehicle": {"lamps": [LAMP]},
-                                        "camera": {"width": 64, "height": 48, "sensor": {"motion_blur": True}}},
-    "reference_surface_caustics_water_lamps": {"render": {"fidelity": "reference"}, "water": {"preset": "mild"},
-                                               "vehicle": {"lamps": [LAMP]}},
-    "reference_open_water_article": {"render": {"fidelity": "reference"}, "image_formation": "article",
-                                     "scene": {"kind": "open_water", "dock": {"markers": MARKERS}}},
+    "fast_dock_roi_motion_blur_lamps": {
+        "render": {"roi_regions": "dock"},
+        "vehicle": {"lamps": [LAMP]},
+        "camera": {"width": 64, "height": 48, "sensor": {"motion_blur": True}},
+    },
+    "reference_surface_caustics_water_lamps": {
+        "render": {"fidelity": "reference"},
+        "water": {"preset": "mild"},
+        "vehicle": {"lamps": [LAMP]},
+    },
+    "reference_open_water_article": {
+        "render": {"fidelity": "reference"},
+        "image_formation": "article",
+        "scene": {"kind": "open_water", "dock": {"markers": MARKERS}},
+    },
     "blender_particles": {"conditions": [{"label": "occ", "occlusion": {"n_total": 60, "geometry": "blender"}}]},
 }
 
@@ -43,10 +66,15 @@ def _record(cfg: dict) -> tuple[plan.RenderJob, list[dict], dict, plan.JobRecord
     markers = plan.manifest_markers(exp)
     job = plan.plan_jobs(exp, plan.scene_description(exp, markers, {}))[-1]
     render = plan.render_settings(exp, 2)
-    rec = plan.JobRecord(scene=job.scene, fidelity=exp.render.fidelity, render=render, frames=job.frames,
-                         camera=plan.JobCamera(width=64, height=48, hfov_rad=1.0, K=np.eye(3).tolist()),
-                         gt=plan.JobTruth(T_world_dock=job.scene["dock"]["T_world_dock"], markers=markers),
-                         outputs=[plan.JobOutput(seq_dir="/x", rel="sequences/x", post=job.sequences[0].post)])
+    rec = plan.JobRecord(
+        scene=job.scene,
+        fidelity=exp.render.fidelity,
+        render=render,
+        frames=job.frames,
+        camera=plan.JobCamera(width=64, height=48, hfov_rad=1.0, K=np.eye(3).tolist()),
+        gt=plan.JobTruth(T_world_dock=job.scene["dock"]["T_world_dock"], markers=markers),
+        outputs=[plan.JobOutput(seq_dir="/x", rel="sequences/x", post=job.sequences[0].post)],
+    )
     return job, markers, render, rec
 
 
@@ -71,15 +99,18 @@ def test_the_cases_reach_every_optional_key():
     assert {"normal_pass", "sun_pass", "roi", "rois", "blur_px"} <= seen
 
 
-@pytest.mark.parametrize("where, edit", [
-    ("scene", lambda d: d["scene"].update(pool_size=1)),                       # unknown key
-    ("scene", lambda d: d["scene"]["sun"].update(strenght=3.0)),               # misspelt nested key
-    ("scene", lambda d: d["scene"]["markers"][0].pop("keypoints")),            # missing key
-    ("scene", lambda d: d["scene"]["markers"][0].update(kind="led")),           # unknown marker kind
-    ("render", lambda d: d["render"].update(samples="many")),                  # wrong type
-    ("frames", lambda d: d["frames"][0].pop("T_world_cam")),
-    ("gt", lambda d: d["gt"]["markers"][0].update(size=1)),
-])
+@pytest.mark.parametrize(
+    "where, edit",
+    [
+        ("scene", lambda d: d["scene"].update(pool_size=1)),  # unknown key
+        ("scene", lambda d: d["scene"]["sun"].update(strenght=3.0)),  # misspelt nested key
+        ("scene", lambda d: d["scene"]["markers"][0].pop("keypoints")),  # missing key
+        ("scene", lambda d: d["scene"]["markers"][0].update(kind="led")),  # unknown marker kind
+        ("render", lambda d: d["render"].update(samples="many")),  # wrong type
+        ("frames", lambda d: d["frames"][0].pop("T_world_cam")),
+        ("gt", lambda d: d["gt"]["markers"][0].update(size=1)),
+    ],
+)
 def test_a_wrong_key_is_a_validation_error(where, edit):
     _, _, _, rec = _record({})
     data = json.loads(rec.model_dump_json())

@@ -6,6 +6,7 @@ Images are compared exactly: Cycles at a fixed seed renders the same bits run
 after run (and for any Cycles thread count) on one machine, so the tolerance is
 zero and the content hashes must match.
 """
+
 import json
 import os
 import random
@@ -24,7 +25,9 @@ ROOT = Path(__file__).resolve().parent.parent
 
 # 64x48 at 1 spp, four short sequences: one render process each, ~2 s apiece
 TINY = {
-    "name": "tiny-resume", "version": "1.0.0", "seed": 11,
+    "name": "tiny-resume",
+    "version": "1.0.0",
+    "seed": 11,
     "scene": {"template": "pool_15x5x8"},
     # 20 fps: a run is still going after its first commit (persistent workers start jobs at once)
     "camera": {"width": 64, "height": 48, "hfov_deg": 60, "fps": 20},
@@ -45,15 +48,21 @@ def _cmd(*args) -> list[str]:
 
 def _start(cfg: Path, out: Path) -> subprocess.Popen:
     """`dockbench generate` in its own session (process group), SIGINT at its default."""
-    return subprocess.Popen(_cmd("generate", cfg, "-o", out, "--workers", "1"), cwd=ROOT,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                            start_new_session=True,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    return subprocess.Popen(
+        _cmd("generate", cfg, "-o", out, "--workers", "1"),
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        stdin=subprocess.DEVNULL,
+        start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
 
 
 def _run(cfg: Path, out: Path) -> dict:
-    r = subprocess.run(_cmd("generate", cfg, "-o", out, "--workers", "1"), cwd=ROOT, capture_output=True,
-                       text=True, timeout=300)
+    r = subprocess.run(
+        _cmd("generate", cfg, "-o", out, "--workers", "1"), cwd=ROOT, capture_output=True, text=True, timeout=300
+    )
     assert r.returncode == 0, r.stdout + r.stderr
     return json.loads((out / "manifest.json").read_text())
 
@@ -68,7 +77,7 @@ def _procs() -> list[tuple[int, int, int, str]]:
                 cmd = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
             except OSError:
                 continue
-            f = stat[stat.rindex(")") + 2:].split()
+            f = stat[stat.rindex(")") + 2 :].split()
             if f[0] != "Z":
                 out.append((int(d.name), int(f[1]), int(f[2]), cmd))
     return out
@@ -119,11 +128,11 @@ def _check_same_as_clean(out: Path, clean_manifest: dict, clean_dir: Path):
     for s in man["sequences"]:
         lines = (out / s["path"] / "frames.jsonl").read_bytes()
         assert lines.count(b"\n") == s["n_frames"] > 0
-        assert lines == (clean_dir / s["path"] / "frames.jsonl").read_bytes()   # ground truth byte-identical
-    assert not list((out / "sequences").glob(".*"))                             # no .tmp left
+        assert lines == (clean_dir / s["path"] / "frames.jsonl").read_bytes()  # ground truth byte-identical
+    assert not list((out / "sequences").glob(".*"))  # no .tmp left
     r = subprocess.run(_cmd("verify", out), cwd=ROOT, capture_output=True, text=True)
     assert r.returncode == 0, r.stdout + r.stderr
-    assert man["files"] == clean_manifest["files"]                              # images too: bit-identical
+    assert man["files"] == clean_manifest["files"]  # images too: bit-identical
     assert man["content_hash"] == clean_manifest["content_hash"]
 
 
@@ -153,7 +162,7 @@ def test_kill9_of_the_parent_alone_stops_its_workers(clean, tmp_path):
     out = tmp_path / "ds"
     p = _start(cfg, out)
     workers = _wait_for(lambda: _workers_of(out), 60, "a render worker")
-    os.kill(p.pid, signal.SIGKILL)       # the workers are orphaned, not killed
+    os.kill(p.pid, signal.SIGKILL)  # the workers are orphaned, not killed
     p.wait(30)
     _wait_for(lambda: not (set(workers) & set(_workers_of(out))), 10, "orphaned workers to exit")
     _run(cfg, out)
@@ -169,7 +178,7 @@ def test_ctrl_c_kills_workers_and_keeps_finished_sequences(clean, tmp_path):
     kept = _committed(out)
     second = subprocess.run(_cmd("generate", cfg, "-o", out), cwd=ROOT, capture_output=True, text=True)
     assert second.returncode == 2 and "being written by another dockbench generate" in second.stderr
-    os.kill(p.pid, signal.SIGINT)        # the parent alone: it must stop its workers itself
+    os.kill(p.pid, signal.SIGINT)  # the parent alone: it must stop its workers itself
     text = p.communicate(timeout=30)[0].decode()
     assert p.returncode == 130 and "re-run the same command to resume" in text, text
     assert not (set(workers) & set(_workers_of(out)))
@@ -182,42 +191,57 @@ def test_resume_a_shared_render_with_one_sequence_already_committed(tmp_path):
     """Two image-space conditions share one render job; if a kill lands between the
     two commits, the re-run writes only the missing sequence."""
     cfg = tmp_path / "shared.yaml"
-    cfg.write_text(yaml.safe_dump({**TINY, "trajectories": TINY["trajectories"][:1],
-                                   "conditions": [{"label": "clear"},
-                                                  {"label": "murky", "water": {"preset": "moderate"}}]}))
+    cfg.write_text(
+        yaml.safe_dump(
+            {
+                **TINY,
+                "trajectories": TINY["trajectories"][:1],
+                "conditions": [{"label": "clear"}, {"label": "murky", "water": {"preset": "moderate"}}],
+            }
+        )
+    )
     out = tmp_path / "ds"
     man0 = _run(cfg, out)
     assert len(man0["sequences"]) == 2 and len(list((out / ".work" / "jobs").glob("*.json"))) == 1
     f0, f1 = (json.loads((out / s["path"] / "frames.jsonl").read_text().splitlines()[0]) for s in man0["sequences"])
-    assert f0["depth"] == f1["depth"] and f0["depth"].startswith("renders/")    # one copy for both
+    assert f0["depth"] == f1["depth"] and f0["depth"].startswith("renders/")  # one copy for both
     assert f0["object_index"] == f1["object_index"] and f0["image"] != f1["image"]
     clean = {p: p.read_bytes() for p in out.rglob("*") if p.is_file() and ".work" not in p.parts}
     kept, lost = (out / s["path"] for s in man0["sequences"])
     kept_inode = (kept / "frames.jsonl").stat().st_ino
     (out / "manifest.json").unlink()
-    shutil.rmtree(lost)                 # as if killed after the first commit
+    shutil.rmtree(lost)  # as if killed after the first commit
     man = _run(cfg, out)
     assert man["content_hash"] == man0["content_hash"]
-    assert (kept / "frames.jsonl").stat().st_ino == kept_inode     # not rewritten
+    assert (kept / "frames.jsonl").stat().st_ino == kept_inode  # not rewritten
     assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file() and ".work" not in p.parts} == clean
 
 
 def test_datasets_generated_together_share_renders_and_equal_separate_runs(tmp_path):
     """generate_many renders a camera path once for every dataset that needs it, and each
     dataset is byte-identical to the one a separate generate writes."""
-    from blendgen.pipeline.generate import generate, generate_many
     from blendgen.config.models import Experiment
-    base = {"seed": 3, "camera": {"width": 64, "height": 48}, "render": {"samples": 1},
-            "scene": {"dock": {"markers": [{"kind": "led_array"}]}},
-            "trajectories": [{"kind": "linear", "id": "a", "start_range_m": 3, "end_range_m": 2, "speed_mps": 4}]}
+    from blendgen.pipeline.generate import generate, generate_many
+
+    base = {
+        "seed": 3,
+        "camera": {"width": 64, "height": 48},
+        "render": {"samples": 1},
+        "scene": {"dock": {"markers": [{"kind": "led_array"}]}},
+        "trajectories": [{"kind": "linear", "id": "a", "start_range_m": 3, "end_range_m": 2, "speed_mps": 4}],
+    }
     exp_a = Experiment.model_validate({**base, "name": "A", "conditions": [{"label": "clear"}]})
-    exp_b = Experiment.model_validate({**base, "name": "B", "conditions": [{"label": "mild",
-                                                                           "water": {"preset": "mild"}}]})
+    exp_b = Experiment.model_validate(
+        {**base, "name": "B", "conditions": [{"label": "mild", "water": {"preset": "mild"}}]}
+    )
     together = generate_many([(exp_a, tmp_path / "A"), (exp_b, tmp_path / "B")], workers=1, progress=False)
-    jobs = list((tmp_path / "A" / ".work" / "jobs").glob("*.json")) + list((tmp_path / "B" / ".work" / "jobs").glob("*.json"))
+    jobs = list((tmp_path / "A" / ".work" / "jobs").glob("*.json")) + list(
+        (tmp_path / "B" / ".work" / "jobs").glob("*.json")
+    )
     assert len(jobs) == 1  # one render for both datasets
     apart = generate(exp_b, tmp_path / "B2", workers=1, progress=False)
     assert together[1]["content_hash"] == apart["content_hash"]
     depth = [p for p in together[0]["files"] if p.startswith("renders/") and "/depth/" in p]
-    assert depth and all((tmp_path / "A" / p).stat().st_ino == (tmp_path / "B" / p).stat().st_ino
-                         for p in depth)           # written once, hard-linked into the other dataset
+    assert depth and all(
+        (tmp_path / "A" / p).stat().st_ino == (tmp_path / "B" / p).stat().st_ino for p in depth
+    )  # written once, hard-linked into the other dataset

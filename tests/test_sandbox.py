@@ -1,6 +1,7 @@
 """Isolated localizers in the bubblewrap sandbox (evalkit.sandbox): the dataset and everything
 outside the scratch folder read-only, the whole process tree gone at the end, no network.
 Skipped where bubblewrap is missing or cannot create namespaces (the fallback is tested)."""
+
 from __future__ import annotations
 
 import os
@@ -19,7 +20,7 @@ from tests.fake_dataset import write_fake_dataset
 
 needs_bwrap = pytest.mark.skipif(not sandbox.available(), reason=f"no sandbox here: {sandbox.probe()[1]}")
 
-HOSTILE = textwrap.dedent('''
+HOSTILE = textwrap.dedent("""
     import os, socket, sys, time
 
     class Hostile:
@@ -56,7 +57,7 @@ HOSTILE = textwrap.dedent('''
                 except OSError as e:
                     return {"distance": 1.0, "marker_id": f"no network {e.errno}"}
             return None
-''')
+""")
 
 
 @pytest.fixture
@@ -71,6 +72,7 @@ def _one_frame(spec: str, params: dict) -> dict | None:
     try:
         loc.reset({"width": 64, "height": 48, "K": [[50, 0, 32], [0, 50, 24], [0, 0, 1]], "sequence": "s"})
         import numpy as np
+
         return loc.localize(np.zeros((48, 64, 3), np.uint8))
     finally:
         loc.close()
@@ -91,12 +93,13 @@ def _processes_with(token: str) -> list[int]:
 @needs_bwrap
 def test_a_plugin_cannot_write_into_the_dataset(tmp_path, plugin):
     import hashlib
+
     root = write_fake_dataset(tmp_path / "ds")
     image = root / "sequences" / "clear_000" / "rgb" / "000001.png"
     before = hashlib.sha256(image.read_bytes()).hexdigest()
     for target in (image, image.parent / "planted.png", tmp_path / "outside.txt"):
         est = _one_frame(plugin, {"how": "write", "target": str(target)})
-        assert est["marker_id"] == "blocked 30", (target, est)          # EROFS
+        assert est["marker_id"] == "blocked 30", (target, est)  # EROFS
     assert hashlib.sha256(image.read_bytes()).hexdigest() == before
     assert not (image.parent / "planted.png").exists() and not (tmp_path / "outside.txt").exists()
 
@@ -104,6 +107,7 @@ def test_a_plugin_cannot_write_into_the_dataset(tmp_path, plugin):
 @needs_bwrap
 def test_the_scratch_folder_is_writable_and_removed_at_close(plugin):
     import numpy as np
+
     loc = IsolatedLocalizer(plugin, {"how": "scratch"}, timeout_s=20)
     loc.reset({"width": 64, "height": 48, "K": [[50, 0, 32], [0, 50, 24], [0, 0, 1]], "sequence": "s"})
     assert loc.localize(np.zeros((48, 64, 3), np.uint8))["marker_id"] == "ok"
@@ -118,16 +122,18 @@ def test_detached_children_die_with_the_plugin(plugin):
     token = f"dockbench-sandbox-test-{uuid.uuid4().hex}"
     loc = IsolatedLocalizer(plugin, {"how": "fork", "token": token}, timeout_s=20)
     import numpy as np
+
     loc.reset({"width": 64, "height": 48, "K": [[50, 0, 32], [0, 50, 24], [0, 0, 1]], "sequence": "s"})
     assert loc.localize(np.zeros((48, 64, 3), np.uint8)) == {"distance": 1.0}
     import time
-    for _ in range(100):                                # the sleepers exec asynchronously
+
+    for _ in range(100):  # the sleepers exec asynchronously
         if len(_processes_with(token)) == 3:
             break
         time.sleep(0.05)
-    assert len(_processes_with(token)) == 3             # the three double-forked, setsid sleepers
+    assert len(_processes_with(token)) == 3  # the three double-forked, setsid sleepers
     loc.close()
-    for _ in range(50):                                 # the kernel reaps the namespace asynchronously
+    for _ in range(50):  # the kernel reaps the namespace asynchronously
         if not _processes_with(token):
             break
         time.sleep(0.1)
@@ -146,24 +152,28 @@ def test_no_network_inside(plugin):
 @needs_bwrap
 def test_an_external_program_is_sandboxed_too(tmp_path):
     from evalkit.external import ExternalLocalizer
+
     root = write_fake_dataset(tmp_path / "ds")
     prog = tmp_path / "prog.py"
-    prog.write_text(textwrap.dedent(f'''
+    prog.write_text(
+        textwrap.dedent("""
         import json, sys
         for line in sys.stdin:
             req = json.loads(line)
             if req["type"] == "reset":
-                print(json.dumps({{"ok": True}}), flush=True)
+                print(json.dumps({"ok": True}), flush=True)
                 continue
             try:
                 open(req["image"], "ab").write(b"x")
-                print(json.dumps({{"ok": False, "error": "wrote the image"}}), flush=True)
+                print(json.dumps({"ok": False, "error": "wrote the image"}), flush=True)
             except OSError as e:
-                print(json.dumps({{"ok": True, "distance": 1.0, "marker_id": str(e.errno)}}), flush=True)
-    '''))
+                print(json.dumps({"ok": True, "distance": 1.0, "marker_id": str(e.errno)}), flush=True)
+    """)
+    )
     before = (root / "sequences/clear_000/rgb/000000.png").read_bytes()
-    df = runner.evaluate(Dataset.open(root), [("x", ExternalLocalizer([sys.executable, str(prog)], timeout_s=20))],
-                         progress=False)
+    df = runner.evaluate(
+        Dataset.open(root), [("x", ExternalLocalizer([sys.executable, str(prog)], timeout_s=20))], progress=False
+    )
     assert set(df["marker_id"]) == {"30"} and (root / "sequences/clear_000/rgb/000000.png").read_bytes() == before
 
 
@@ -171,17 +181,22 @@ def test_without_bubblewrap_evaluate_says_so_once_and_falls_back(monkeypatch, ca
     monkeypatch.setenv(sandbox.ENV_SWITCH, "0")
     sandbox.probe.cache_clear()
     monkeypatch.setattr(sandbox, "_WARNED", [])
-    monkeypatch.setenv(sandbox.WARNED_ENV, "")          # restored (removed) after the test
+    monkeypatch.setenv(sandbox.WARNED_ENV, "")  # restored (removed) after the test
     try:
         assert not sandbox.available() and sandbox.probe()[1] == "DOCKBENCH_SANDBOX=0"
         for _ in range(2):
-            assert _one_frame(plugin, {"how": "nothing"}) is None     # runs, unconfined
+            assert _one_frame(plugin, {"how": "nothing"}) is None  # runs, unconfined
         err = capsys.readouterr().err
         assert err.count("run without a sandbox: DOCKBENCH_SANDBOX=0") == 1, err
-        import subprocess                     # a child process (an evaluation worker) stays quiet
+        import subprocess  # a child process (an evaluation worker) stays quiet
+
         code = "from evalkit import sandbox; sandbox.warn_once_unavailable()"
-        r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                           env={**os.environ, "PYTHONPATH": str(Path(__file__).parents[1])})
+        r = subprocess.run(
+            [sys.executable, "-c", code],
+            capture_output=True,
+            text=True,
+            env={**os.environ, "PYTHONPATH": str(Path(__file__).parents[1])},
+        )
         assert r.returncode == 0 and r.stderr == "", r.stderr
     finally:
         sandbox.probe.cache_clear()

@@ -1,6 +1,7 @@
 """datasets_spec JSON Schemas (draft 2020-12) against FORMAT.md, the fake dataset, a dataset
 written by the real writer pieces (plan -> postprocess -> DatasetWriter, synthetic passes
 instead of Blender renders), and the demo dataset when it exists."""
+
 from __future__ import annotations
 
 import copy
@@ -50,7 +51,7 @@ def validate_dataset(root: Path, max_frames: int | None = None) -> int:
         assert len(lines) == seq["n_frames"]
         last = -1
         for i, line in enumerate(lines[:max_frames]):
-            frame = json.loads(line, parse_constant=_no_nan)             # strict JSON: no NaN/Infinity
+            frame = json.loads(line, parse_constant=_no_nan)  # strict JSON: no NaN/Infinity
             assert errors(FRAME_V, frame) == [], (seq["id"], i)
             # index order; plan.py skips frames beyond render.max_distance_m, keeping the numbering
             assert frame["index"] > last and (root / frame["image"]).is_file()
@@ -84,26 +85,26 @@ def test_schema_keys_match_format_md():
     # depth/object_index may be absent; exposure_s is written with auto-exposure only)
     assert set(m["properties"]) - set(m["required"]) == {"d_min_rel_m", "reference_caustics", "effective_config"}
     assert set(f["properties"]) - set(f["required"]) == {"depth", "object_index", "exposure_s"}
-    assert m["properties"]["spec_version"]["enum"] == ["1.0", "1.1"]     # 1.1 written, 1.0 still read
+    assert m["properties"]["spec_version"]["enum"] == ["1.0", "1.1"]  # 1.1 written, 1.0 still read
 
 
 # ------------------------------------------------------------------ datasets
 def test_fake_dataset_validates(tmp_path):
     root = write_fake_dataset(tmp_path / "fake")
     assert validate_dataset(root) == 12
-    root2 = write_fake_dataset(tmp_path / "fake2", d_min_rel_m=None)     # optional key absent
+    root2 = write_fake_dataset(tmp_path / "fake2", d_min_rel_m=None)  # optional key absent
     assert validate_dataset(root2) == 12
 
 
 def _writer_dataset(tmp_path: Path, n_frames: int = 3) -> Path:
     """A dataset from the real generation pieces, with synthetic passes instead of Blender
     (the same calls as blendgen/pipeline/frameloop.py and blendgen.pipeline.generate.generate)."""
+    from blendgen.config.models import load_experiment
+    from blendgen.pipeline import compose as pp
     from blendgen.pipeline import generate as gen
     from blendgen.pipeline import plan
-    from blendgen.pipeline import compose as pp
-    from blendgen.config.models import load_experiment
-    from blendgen.pipeline.writer import DatasetWriter
     from blendgen.pipeline.passstore import PassStore, job_entry
+    from blendgen.pipeline.writer import DatasetWriter
 
     cfg = yaml.safe_load((ROOT / "configs" / "quickstart.yaml").read_text())
     cfg["camera"].update(width=64, height=48, noise_std=2.0)
@@ -123,8 +124,7 @@ def _writer_dataset(tmp_path: Path, n_frames: int = 3) -> Path:
     for job in jobs:
         job.frames = job.frames[:n_frames]
         handles = []
-        store = PassStore.from_job({"passes": job_entry(job.key, [(writer.render_tmp_dir(job.key), True)],
-                                                        True, True)})
+        store = PassStore.from_job({"passes": job_entry(job.key, [(writer.render_tmp_dir(job.key), True)], True, True)})
         for s in job.sequences:
             d = writer.tmp_dir(s.id)
             (d / "rgb").mkdir(parents=True, exist_ok=True)
@@ -132,8 +132,14 @@ def _writer_dataset(tmp_path: Path, n_frames: int = 3) -> Path:
         for fr in job.frames:
             index = np.zeros((H, W), np.uint8)
             index[10:20, 20:40] = markers[0]["object_index"]
-            passes = pp.add_range({"rgb": np.full((H, W, 3), 0.3, np.float32),
-                                   "depth_z": np.full((H, W), 4.0, np.float32), "index": index}, K)
+            passes = pp.add_range(
+                {
+                    "rgb": np.full((H, W, 3), 0.3, np.float32),
+                    "depth_z": np.full((H, W), 4.0, np.float32),
+                    "index": index,
+                },
+                K,
+            )
             rec = pp.frame_record(fr, T_wd, markers, K, W, H, passes["index"])
             pass_paths = store.write(fr["index"], passes)
             for s, d, fh, st in handles:
@@ -152,7 +158,7 @@ def _writer_dataset(tmp_path: Path, n_frames: int = 3) -> Path:
 
 def test_writer_pieces_dataset_validates(tmp_path):
     root = _writer_dataset(tmp_path)
-    assert validate_dataset(root) == 3 * 2 * 2           # frames x trajectories x conditions
+    assert validate_dataset(root) == 3 * 2 * 2  # frames x trajectories x conditions
     assert verify(root) == []
     ds = Dataset.open(root)
     assert {m["kind"] for m in ds.markers} == {"led_array", "qr", "aruco"}
@@ -187,19 +193,45 @@ def _set(doc, path: str, value):
 
 _DEL = object()
 BAD_MANIFESTS = [
-    ("spec_version", "2.0"), ("spec_version", 1.0), ("format", "other"), ("files", _DEL),
-    ("content_hash", "abc"), ("seed", -1), ("camera.K", [[1, 0, 0], [0, 1, 0]]), ("camera.fps", 0),
-    ("camera.distortion", [0.1, 0.0]), ("camera.width", 64.5), ("dock.T_world_dock", [[1, 0, 0, 0]] * 3),
-    ("markers.0.kind", "barcode"), ("markers.0.dictionary", _DEL), ("markers.0.keypoints", [[0, 0]]),
-    ("object_index", {"x": "dock"}), ("sequences.0.n_frames", -1), ("sequences.0.path", "/abs/clear_000"),
-    ("sequences.0.path", "sequences/../../etc"), ("sequences.0.extra", 1), ("unknown_key", 1),
-    ("files", {"../outside.png": "0" * 64}), ("files", {"a.png": "ABC"}), ("d_min_rel_m", -0.1),
+    ("spec_version", "2.0"),
+    ("spec_version", 1.0),
+    ("format", "other"),
+    ("files", _DEL),
+    ("content_hash", "abc"),
+    ("seed", -1),
+    ("camera.K", [[1, 0, 0], [0, 1, 0]]),
+    ("camera.fps", 0),
+    ("camera.distortion", [0.1, 0.0]),
+    ("camera.width", 64.5),
+    ("dock.T_world_dock", [[1, 0, 0, 0]] * 3),
+    ("markers.0.kind", "barcode"),
+    ("markers.0.dictionary", _DEL),
+    ("markers.0.keypoints", [[0, 0]]),
+    ("object_index", {"x": "dock"}),
+    ("sequences.0.n_frames", -1),
+    ("sequences.0.path", "/abs/clear_000"),
+    ("sequences.0.path", "sequences/../../etc"),
+    ("sequences.0.extra", 1),
+    ("unknown_key", 1),
+    ("files", {"../outside.png": "0" * 64}),
+    ("files", {"a.png": "ABC"}),
+    ("d_min_rel_m", -0.1),
 ]
 BAD_FRAMES = [
-    ("d_true", _DEL), ("d_true", -1.0), ("index", -1), ("index", 1.5), ("image", "rgb/000000.jpg"),
-    ("image", "/abs/x.png"), ("depth", "a/b.exr"), ("T_cam_dock", [[1, 0, 0], [0, 1, 0], [0, 0, 1]]),
-    ("markers.0.visible_fraction", 1.5), ("markers.0.in_fov", "yes"), ("markers.0.T_cam_marker", _DEL),
-    ("markers.0.extra", 0), ("extra_key", 1), ("t", "0.1"),
+    ("d_true", _DEL),
+    ("d_true", -1.0),
+    ("index", -1),
+    ("index", 1.5),
+    ("image", "rgb/000000.jpg"),
+    ("image", "/abs/x.png"),
+    ("depth", "a/b.exr"),
+    ("T_cam_dock", [[1, 0, 0], [0, 1, 0], [0, 0, 1]]),
+    ("markers.0.visible_fraction", 1.5),
+    ("markers.0.in_fov", "yes"),
+    ("markers.0.T_cam_marker", _DEL),
+    ("markers.0.extra", 0),
+    ("extra_key", 1),
+    ("t", "0.1"),
 ]
 
 
@@ -213,7 +245,7 @@ def test_manifest_schema_rejects(good, path, value):
 def test_frame_schema_rejects(good, path, value):
     frame = good[1]
     assert errors(FRAME_V, frame) == []
-    if path.startswith("markers.0."):                       # marker ids are string keys
+    if path.startswith("markers.0."):  # marker ids are string keys
         bad = copy.deepcopy(frame)
         bad["markers"]["0"] = _set(frame["markers"]["0"], path.split(".", 2)[2], value)
     else:

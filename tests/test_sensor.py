@@ -1,4 +1,5 @@
 """Sensor model: sRGB, noise statistics and determinism, motion blur, distortion oracle."""
+
 from __future__ import annotations
 
 import cv2
@@ -56,7 +57,7 @@ def test_same_seed_same_noise():
 
 def test_shot_noise_statistics():
     rng = np.random.default_rng(3)
-    for level, fw in ((0.5, 4000.0), (0.02, 4000.0)):   # Gaussian branch and exact Poisson
+    for level, fw in ((0.5, 4000.0), (0.02, 4000.0)):  # Gaussian branch and exact Poisson
         x = np.full((300, 300), level * fw, np.float32)
         e = s.shot_read_noise_e(x, rng, read_noise_e=5.0).astype(np.float64)
         assert e.mean() == pytest.approx(level * fw, rel=0.01)
@@ -72,7 +73,7 @@ def test_motion_blur():
     cols = np.nonzero(out[20] > 1e-6)[0]
     assert cols.min() >= 14 and cols.max() <= 26 and cols.size >= 9
     xs = np.arange(41)
-    assert (out.sum(axis=0) * xs).sum() == pytest.approx(20.0, abs=1e-4)   # centred
+    assert (out.sum(axis=0) * xs).sum() == pytest.approx(20.0, abs=1e-4)  # centred
     diag = s.motion_blur(img, (6.0, 6.0))
     assert diag.sum() == pytest.approx(1.0, rel=1e-5) and diag[23, 23] > 0 and abs(diag[23, 17]) < 1e-6
     assert np.array_equal(s.motion_blur(img, (0, 0)), img)
@@ -108,16 +109,21 @@ def test_distorted_image_corners_match_project_points():
     ks = [(i, j) for i in range(2, 15, 3) for j in range(2, 11, 2)]
     ideal = np.array([[off[0] + i * square, off[1] + j * square] for i, j in ks])
     z = 2.0
-    pts3 = np.column_stack([(ideal[:, 0] - K[0, 2]) / K[0, 0] * z,
-                            (ideal[:, 1] - K[1, 2]) / K[1, 1] * z, np.full(len(ks), z)])
+    pts3 = np.column_stack(
+        [(ideal[:, 0] - K[0, 2]) / K[0, 0] * z, (ideal[:, 1] - K[1, 2]) / K[1, 1] * z, np.full(len(ks), z)]
+    )
     expect, _ = cv2.projectPoints(pts3, np.zeros(3), np.zeros(3), K, np.array(DIST))
     expect = expect.reshape(-1, 2)
-    inside = (expect[:, 0] > 15) & (expect[:, 0] < w - 15) & (expect[:, 1] > 15) & \
-        (expect[:, 1] < h - 15)
+    inside = (expect[:, 0] > 15) & (expect[:, 0] < w - 15) & (expect[:, 1] > 15) & (expect[:, 1] < h - 15)
     assert inside.sum() >= 15
     guess = (expect[inside] + 0.7).astype(np.float32).reshape(-1, 1, 2)
-    found = cv2.cornerSubPix((dimg * 255).astype(np.float32), guess, (7, 7), (-1, -1),
-                             (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 100, 1e-4))
+    found = cv2.cornerSubPix(
+        (dimg * 255).astype(np.float32),
+        guess,
+        (7, 7),
+        (-1, -1),
+        (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 100, 1e-4),
+    )
     err = np.linalg.norm(found.reshape(-1, 2) - expect[inside], axis=1)
     assert err.max() < 0.1 and err.mean() < 0.07, err
     # and the remap itself: the ideal pixel sampled at the predicted location is p
@@ -150,6 +156,6 @@ def test_sensor_model_pipeline():
     m = s.SensorModel(noise_std=0.0)
     out = m.apply(img, None, velocity_px=(3.0, 0.0))
     assert out.dtype == np.uint8 and out.shape == img.shape
-    assert np.array_equal(s.SensorModel().apply(img), s.to_uint8(img))   # noise-free: the sRGB encode
+    assert np.array_equal(s.SensorModel().apply(img), s.to_uint8(img))  # noise-free: the sRGB encode
     with pytest.raises(ValueError):
-        s.SensorModel(noise=True).apply(img)                             # noise needs a Generator
+        s.SensorModel(noise=True).apply(img)  # noise needs a Generator

@@ -1,4 +1,5 @@
 """The sRGB lookup equals the arithmetic encoder (it replaces it in SensorModel.apply)."""
+
 import numpy as np
 
 from blendgen.physics.camera import sensor, srgb_lut
@@ -11,7 +12,7 @@ def test_one_step_per_bucket():
 def test_lookup_equals_arithmetic_at_every_step_and_random_values():
     _, step = srgb_lut.tables(sensor.srgb_encode)
     s = step[np.isfinite(step)]
-    bits = s.view(np.uint32)                   # steps inside buckets, and every bucket's edges
+    bits = s.view(np.uint32)  # steps inside buckets, and every bucket's edges
     edges = np.arange(step.size, dtype=np.uint32) << np.uint32(srgb_lut.SHIFT)
     near = np.concatenate([bits - 1, bits, bits + 1, edges, edges[1:] - 1]).view(np.float32)
     near = near[near <= 1]

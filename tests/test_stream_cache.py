@@ -1,5 +1,6 @@
 """The run folder's resume caches (evalkit.stream): data formats only, each file checked
 against the work manifest's sha256 before it is read back."""
+
 from __future__ import annotations
 
 import json
@@ -24,19 +25,27 @@ def _evaluated(tmp_path: Path) -> tuple[Path, Path]:
 
 def test_a_sequence_is_cached_as_parquet_and_recorded_by_sha256(tmp_path):
     import hashlib
+
     root, work = _evaluated(tmp_path)
     assert stream.done(work, "clear_000") and not stream.done(work, "clear_001")
     recorded = stream.recorded_files(work)
-    assert set(recorded) == {"clear_000.parquet", "clear_000.hashes.json", "clear_000.cost.json",
-                             "clear_000.pixels.json"}
-    for name, h in recorded.items():          # independent oracle: hashlib over the bytes on disk
+    assert set(recorded) == {
+        "clear_000.parquet",
+        "clear_000.hashes.json",
+        "clear_000.cost.json",
+        "clear_000.pixels.json",
+    }
+    for name, h in recorded.items():  # independent oracle: hashlib over the bytes on disk
         assert hashlib.sha256((work / name).read_bytes()).hexdigest() == h
     df, hashes = stream.load_results(work, ["clear_000"])
     assert len(df) == 6 and set(df["sequence"]) == {"clear_000"}
     assert df.attrs["d_min_rel_m"] == pytest.approx(0.2)
-    assert hashes == {f"sequences/clear_000/rgb/{i:06d}.png":
-                      hashlib.sha256((root / f"sequences/clear_000/rgb/{i:06d}.png").read_bytes()).hexdigest()
-                      for i in range(6)}
+    assert hashes == {
+        f"sequences/clear_000/rgb/{i:06d}.png": hashlib.sha256(
+            (root / f"sequences/clear_000/rgb/{i:06d}.png").read_bytes()
+        ).hexdigest()
+        for i in range(6)
+    }
 
 
 @pytest.mark.parametrize("damage", ["truncate", "edit_json", "unrecorded"])
@@ -65,6 +74,7 @@ def test_a_pickled_cache_is_never_loaded(tmp_path):
     class Payload:
         def __reduce__(self):
             return (Path.touch, (marker,))
+
     (work / "clear_000.pkl.gz").write_bytes(pickle.dumps(Payload()))
     with pytest.raises(stream.StreamCacheError, match="pickled cache"):
         stream.refuse_legacy(work)
@@ -77,6 +87,6 @@ def test_a_pickled_cache_is_never_loaded(tmp_path):
 def test_a_manifest_line_cut_by_a_crash_counts_as_not_written(tmp_path):
     _, work = _evaluated(tmp_path)
     with open(work / stream.WORK_MANIFEST, "a") as fh:
-        fh.write('{"files": {"clear_001.parquet": "ab')      # kill -9 mid-line (never seen; tolerated)
+        fh.write('{"files": {"clear_001.parquet": "ab')  # kill -9 mid-line (never seen; tolerated)
     assert stream.done(work, "clear_000") and not stream.done(work, "clear_001")
     assert isinstance(stream.load_results(work, ["clear_000"])[0], pd.DataFrame)

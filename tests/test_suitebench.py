@@ -1,4 +1,5 @@
 """The measuring helpers of `dockbench bench suite` (no Blender, nothing timed)."""
+
 import os
 import subprocess
 import sys
@@ -19,7 +20,7 @@ def test_disk_counts_hard_links_once_and_splits_images(tmp_path):
     d = sb.disk_mb(tmp_path)
     blocks = lambda p: p.stat().st_blocks * 512 / 1e6  # noqa: E731
     assert d["images"] == pytest.approx(blocks(rgb / "0.png"))
-    assert d["passes"] == pytest.approx(blocks(rnd / "0.png"))            # the link is not counted twice
+    assert d["passes"] == pytest.approx(blocks(rnd / "0.png"))  # the link is not counted twice
     assert d["total"] == pytest.approx(d["images"] + d["passes"])
     assert d["without_images"] == pytest.approx(d["passes"])
 
@@ -33,16 +34,25 @@ def test_tree_rss_includes_children():
             if with_child > alone + 150:
                 break
             subprocess.run(["sleep", "0.1"])
-        assert with_child > alone + 150           # the child's 200 MB are in the tree's sum
+        assert with_child > alone + 150  # the child's 200 MB are in the tree's sum
     finally:
         child.kill()
         child.wait()
 
 
 def test_extrapolation_is_linear_in_trials():
-    run = sb.SuiteRun("x", 2, 640, 480, "-", "turbidity", cpu={"generate": 300.0, "evaluate": 60.0},
-                      wall={"generate": 500.0, "evaluate": 100.0}, peak_rss_mb=700.0,
-                      disk={"total": 100.0, "without_images": 20.0})
+    run = sb.SuiteRun(
+        "x",
+        2,
+        640,
+        480,
+        "-",
+        "turbidity",
+        cpu={"generate": 300.0, "evaluate": 60.0},
+        wall={"generate": 500.0, "evaluate": 100.0},
+        peak_rss_mb=700.0,
+        disk={"total": 100.0, "without_images": 20.0},
+    )
     x = sb.extrapolate(run, trials=100, cores=2)
     assert x["cpu_h"] == pytest.approx(360 * 50 / 3600)
     assert x["cpu_bound_wall_h"] == pytest.approx(x["cpu_h"] / 2)

@@ -1,5 +1,6 @@
 """The one Lambertian point-light function (physics/light/surface_light.py) used by the LEDs (range-pass
 normals, 1/4 grid) and the vehicle lamp (normal pass, every pixel, shadows)."""
+
 import math
 
 import numpy as np
@@ -36,7 +37,7 @@ def test_tilted_wall_matches_lambert_law(normals_from, step):
     v = x - light.position_m
     d = np.linalg.norm(v, axis=-1)
     cos_i = -(v / d[..., None]) @ n
-    want = 0.4 / math.pi * light.intensity_w_sr * (cos_i / d ** 2)[..., None] * np.exp(-c * d[..., None])
+    want = 0.4 / math.pi * light.intensity_w_sr * (cos_i / d**2)[..., None] * np.exp(-c * d[..., None])
     inner = (slice(4, -8), slice(4, -8))
     np.testing.assert_allclose(got[inner], want[inner], rtol=0.005 if step == 1 else 0.01)
 
@@ -47,8 +48,14 @@ def test_visibility_multiplies_each_light_and_nothing_is_none():
     albedo = np.full(rng.shape + (3,), 0.5, np.float32)
     both = lambert_radiance(lights, rays, rng, albedo, np.zeros(3))
     one = lambert_radiance(lights[:1], rays, rng, albedo, np.zeros(3))
-    half = lambert_radiance(lights, rays, rng, albedo, np.zeros(3),
-                            visible=lambda light, lit: np.full(lit.shape, float(light.position_m[0] < 0), np.float32))
+    half = lambert_radiance(
+        lights,
+        rays,
+        rng,
+        albedo,
+        np.zeros(3),
+        visible=lambda light, lit: np.full(lit.shape, float(light.position_m[0] < 0), np.float32),
+    )
     np.testing.assert_allclose(half, one, rtol=1e-6)
     assert (both > one).all()
     assert lambert_radiance([], rays, rng, albedo, np.zeros(3)) is None
@@ -72,16 +79,17 @@ def test_surface_normals_are_the_cross_product_of_the_grid(dtype):
     tilted wall (its exact normal inside), nan holes (0 around them), a curved patch (every
     orientation, turned toward the camera) and the one-sided borders; 1e-6."""
     from blendgen.physics.light.surface_light import surface_normals
+
     rays, rng, n_wall = _tilted_wall(size=(40, 30))
     P = (rays * rng[..., None]).astype(dtype)
     got = surface_normals(P)
     assert got.dtype == dtype
     assert np.allclose(got[3:-3, 3:-3], n_wall, atol=1e-5)
     rs = np.random.default_rng(4)
-    bumpy = (P * (1.0 + 0.2 * rs.random(P.shape[:2]))[..., None]).astype(dtype)   # every orientation
-    bumpy[rs.random(P.shape[:2]) < 0.05] = np.nan                                   # nothing hit there
+    bumpy = (P * (1.0 + 0.2 * rs.random(P.shape[:2]))[..., None]).astype(dtype)  # every orientation
+    bumpy[rs.random(P.shape[:2]) < 0.05] = np.nan  # nothing hit there
     got = surface_normals(bumpy)
     want = _normals_oracle(bumpy)
-    assert np.count_nonzero(np.all(want == 0, axis=2)) > 100          # the holes' neighbours are 0
+    assert np.count_nonzero(np.all(want == 0, axis=2)) > 100  # the holes' neighbours are 0
     assert np.max(np.abs(got - want)) < 1e-5
     assert np.all(np.sum(got * np.nan_to_num(bumpy), axis=2) <= 1e-6)  # toward the camera

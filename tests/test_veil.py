@@ -6,10 +6,8 @@ with the calibration; the stored kappa/K_v/eta reproduce the stored multiple-sca
 references within the stated residual; b -> 0 gives no veil; more scattering gives more
 veil; the fit recovers known parameters from synthetic data.
 """
-import json
+
 import math
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -47,7 +45,7 @@ def test_stored_calibration_reproduces_references(name):
     for p in e["points"]:
         ref = np.array(p["reference"])
         fast = vc.model_value(w, p["depth_m"], p["elevation_deg"], np.array(e["kappa"]), np.array(e["K_v"]), e["eta"])
-        ok = ref > 1e-4                                   # channels with a measurable veil
+        ok = ref > 1e-4  # channels with a measurable veil
         key = "up" if p["elevation_deg"] > 0 else "level_or_down"
         worst[key] = max(worst[key], float(np.max(np.abs(fast[ok] - ref[ok]) / ref[ok], initial=0.0)))
     assert max(worst.values()) <= e["max_abs_rel_residual"] + 1e-3
@@ -86,8 +84,9 @@ def test_monotone_in_scattering(elev):
     """The diffuse term grows with b at any depth; the total does near the surface
     (the beam term while b h < a / c: deeper, more b also dims the feeding beam)."""
     sa, K = np.array([0.2, 0.05, 0.08]), np.array([0.1, 0.05, 0.07])
-    diff = [veil.veil_radiance(sa, b, K, hg(0.9), 0.3, 3.0, elev, eta=0.6, parts=True)[1]
-            for b in np.linspace(0.0, 2.0, 21)]
+    diff = [
+        veil.veil_radiance(sa, b, K, hg(0.9), 0.3, 3.0, elev, eta=0.6, parts=True)[1] for b in np.linspace(0.0, 2.0, 21)
+    ]
     assert np.all(np.diff(np.array(diff), axis=0) > 0)
     total = [veil.veil_radiance(sa, b, K, hg(0.9), 0.3, 0.01, elev, eta=0.6) for b in np.linspace(0.0, 1.0, 21)]
     assert np.all(np.diff(np.array(total), axis=0) > 0)
@@ -104,9 +103,16 @@ def test_looking_up_stops_at_the_surface():
 
 def test_fit_recovers_known_parameters():
     w = vc.physical_water("moderate")
-    pts = [{"depth_m": h, "elevation_deg": el,
-            "reference": vc.model_value(w, h, el, np.array([0.02, 0.2, 0.1]), np.array([0.3, 0.05, 0.12]), 0.6).tolist()}
-           for h, el in vc.GRID]
+    pts = [
+        {
+            "depth_m": h,
+            "elevation_deg": el,
+            "reference": vc.model_value(
+                w, h, el, np.array([0.02, 0.2, 0.1]), np.array([0.3, 0.05, 0.12]), 0.6
+            ).tolist(),
+        }
+        for h, el in vc.GRID
+    ]
     kappa, K_v, eta = vc.fit_preset(w, pts)
     assert eta == pytest.approx(0.6)
     assert np.allclose(kappa, [0.02, 0.2, 0.1], rtol=2e-3)
@@ -114,7 +120,7 @@ def test_fit_recovers_known_parameters():
 
 
 def test_physical_default_uses_the_calibrated_veil_and_off_paths_skip_it():
-    v = optics.veil_parameters(Water(preset="mild"), "physical")          # physical mild = Jerlov IB
+    v = optics.veil_parameters(Water(preset="mild"), "physical")  # physical mild = Jerlov IB
     assert v is not None and v["kappa"] == VEIL["jerlov_IB"]["kappa"]
     w, opts = optics.fast_water(Water(preset="mild"), "physical", 3.0, veil=v)
     assert opts["veil"] is v and "veil model" in w.provenance
@@ -134,6 +140,7 @@ def test_one_reference_point_rerendered(tmp_path):
     the stored value is a Cycles measurement, not a number the fit produced."""
     w = vc.physical_water("mild")
     ref, _ = vc.render_reference(vc.reference_spec(w, 3.0, 0.0, spp=256, size=8, seed=7), tmp_path)
-    stored = np.array(next(p for p in VEIL["mild"]["points"] if p["depth_m"] == 3.0 and p["elevation_deg"] == 0.0)
-                      ["reference"])
+    stored = np.array(
+        next(p for p in VEIL["mild"]["points"] if p["depth_m"] == 3.0 and p["elevation_deg"] == 0.0)["reference"]
+    )
     assert np.allclose(ref[1:], stored[1:], rtol=0.12)

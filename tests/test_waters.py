@@ -1,5 +1,6 @@
 """Real waters: the article's labels as Jerlov types in physical mode, turbidity readings, the
 contrast-threshold prediction, the depth definition and the turbidity ladder's config."""
+
 from __future__ import annotations
 
 import math
@@ -8,14 +9,20 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from blendgen.config.models import Condition, Dock, Experiment, Water
-from blendgen.physics.water import optics, turbidity, visibility, presets as wp
+from blendgen.config.models import Dock, Experiment, Water
+from blendgen.physics.water import optics, turbidity, visibility
+from blendgen.physics.water import presets as wp
 from blendgen.vehicle import trajectories as tj
 
 # Band-mean beam attenuation c (1/m, R/G/B) of the Jerlov types, summed by hand from the
 # source spectra (docs/waters.md: Solonenko & Mobley 2015 a + b at the channel wavelengths).
-JERLOV_C = {"I": (0.29, 0.06, 0.02), "IB": (0.33, 0.11, 0.09), "II": (0.575, 0.427, 0.505),
-            "1C": (0.588, 0.452, 0.582), "9C": (2.94, 3.64, 5.03)}
+JERLOV_C = {
+    "I": (0.29, 0.06, 0.02),
+    "IB": (0.33, 0.11, 0.09),
+    "II": (0.575, 0.427, 0.505),
+    "1C": (0.588, 0.452, 0.582),
+    "9C": (2.94, 3.64, 5.03),
+}
 
 
 def test_article_levels_are_the_jerlov_types_of_nearest_c():
@@ -28,8 +35,9 @@ def test_article_levels_are_the_jerlov_types_of_nearest_c():
         w = optics.water_for_mode(Water(preset=label), "physical")
         np.testing.assert_allclose(w.c, JERLOV_C[t], atol=0.006)
         assert f"jerlov_{t}" in w.provenance
-        np.testing.assert_allclose(optics.water_for_mode(Water(preset=label), "article").c,
-                                   wp.ARTICLE_BETAS[label])      # article mode keeps the grey beta
+        np.testing.assert_allclose(
+            optics.water_for_mode(Water(preset=label), "article").c, wp.ARTICLE_BETAS[label]
+        )  # article mode keeps the grey beta
 
 
 def test_red_reference_led_fades_as_in_real_water():
@@ -55,18 +63,18 @@ def test_secchi_reading_follows_tyler():
     w = optics.reading_water("secchi_m", z3)
     np.testing.assert_allclose(w.sigma_s, c3["sigma_s"], rtol=1e-3)
     np.testing.assert_allclose(w.Kd, c3["Kd"], rtol=1e-3)
-    assert w.c[0] < w.c[2]                                     # coastal: blue attenuated most
+    assert w.c[0] < w.c[2]  # coastal: blue attenuated most
 
 
 def test_ntu_reading_follows_kirk_and_names_its_neighbours():
     w = optics.reading_water("ntu", 1.0)
-    assert w.sigma_s[1] == pytest.approx(1.0, rel=1e-6)       # b_G = 1.0 x NTU (Kirk 1994)
+    assert w.sigma_s[1] == pytest.approx(1.0, rel=1e-6)  # b_G = 1.0 x NTU (Kirk 1994)
     assert "between Jerlov 1C and 3C" in w.provenance
     spec = Water(ntu=1.0)
     assert spec.preset == "jerlov_1C" and not spec.is_bare
     np.testing.assert_allclose(optics.water_for_mode(spec, "physical").c, w.c)
     lo, hi = turbidity.reading_range("ntu")
-    assert hi == pytest.approx(3.25, abs=0.01)                 # Jerlov 9C's b_G
+    assert hi == pytest.approx(3.25, abs=0.01)  # Jerlov 9C's b_G
 
 
 def test_duntley_contrast_and_threshold_range():
@@ -85,10 +93,10 @@ def test_unresolved_led_dims_with_range_squared():
     """An LED smaller than a pixel: its pixel's excess radiance falls as 1/r^2 on top of
     exp(-c r), so in clear water (c -> 0) the range is where pi rho^2 f^2 / r^2 x L / L_bg = C_t."""
     rho, f, I = 0.04, 500.0, 0.1
-    L_led = I / (math.pi * rho ** 2)
+    L_led = I / (math.pi * rho**2)
     L_bg = np.array([0.1, 0.1, 0.1])
     r = visibility.led_range_m([I, I, I], rho, L_bg, L_bg, [1e-9] * 3, f)
-    expect = math.sqrt(math.pi * rho ** 2 * f ** 2 * (L_led - 0.1) / (0.02 * 0.1))
+    expect = math.sqrt(math.pi * rho**2 * f**2 * (L_led - 0.1) / (0.02 * 0.1))
     assert r == pytest.approx(min(expect, visibility.RANGE_GRID_M[-1]), abs=0.02)
 
 
@@ -98,7 +106,7 @@ def test_depth_is_the_dock_top_below_the_surface():
         T = tj.T_world_dock_from_spec(dock)
         top = (np.c_[tj.dock_corners(dock), np.ones(8)] @ T.T)[:, 2].max()
         assert top == pytest.approx(-depth)
-        assert T[2, 3] == pytest.approx(-depth - 0.5)          # 1 m face: centre 0.5 m below the top
+        assert T[2, 3] == pytest.approx(-depth - 0.5)  # 1 m face: centre 0.5 m below the top
 
 
 def _exp(**kw) -> Experiment:
@@ -107,27 +115,29 @@ def _exp(**kw) -> Experiment:
 
 def test_manifest_records_the_water_used():
     from blendgen.pipeline.plan import condition_post
+
     exp = _exp(image_formation="physical", conditions=[{"label": "m", "water": {"preset": "mild"}}])
     eff = condition_post(exp, exp.conditions[0], 0).water_effective
     assert eff["preset"] == "jerlov_IB" and eff["name"] == "mild"
     np.testing.assert_allclose(eff["c"], JERLOV_C["IB"], atol=0.006)
-    art = condition_post(_exp(image_formation="article", conditions=exp.model_dump()["conditions"]),
-                         exp.conditions[0], 0).water_effective
+    art = condition_post(
+        _exp(image_formation="article", conditions=exp.model_dump()["conditions"]), exp.conditions[0], 0
+    ).water_effective
     assert art["preset"] == "mild" and art["c"] == pytest.approx([0.2] * 3)
 
 
 def test_turbidity_ladder_is_reachable_and_spans_I_to_9C():
     from blendgen.tools.apps import reproduce, water_ladder
+
     exp = reproduce.experiment("turbidity_ladder", 2)
     assert exp.image_formation == "physical" and exp.trials == 2
     labels = [c.label for c in exp.conditions]
     assert labels[0] == "jerlov_I" and labels[-1] == "jerlov_9C"
     assert "aruco" in reproduce.localizers_of(("turbidity_ladder",))
     led = [water_ladder.predict(exp, c)["led"] for c in exp.conditions]
-    assert all(a > b for a, b in zip(led, led[1:]))             # more turbid, shorter range
-    assert led[-1] < 10.0 < led[1]                              # 9C: the array at 10 m is gone
-    m = pd.DataFrame({"localizer": ["led"] * len(labels), "condition": labels,
-                      "max_range_m": [8.0] * len(labels)})
+    assert all(a > b for a, b in zip(led, led[1:]))  # more turbid, shorter range
+    assert led[-1] < 10.0 < led[1]  # 9C: the array at 10 m is gone
+    m = pd.DataFrame({"localizer": ["led"] * len(labels), "condition": labels, "max_range_m": [8.0] * len(labels)})
     table = water_ladder.ladder_table(exp, m)
     assert "| jerlov_9C |" in table and "/ 8.0" in table
 
@@ -137,6 +147,7 @@ def test_physical_depth_experiment_puts_the_dock_at_the_deepest_condition():
     the dock's top, every condition's surface inside the pool's walls (z <= 0)."""
     from blendgen.pipeline.plan import condition_post
     from blendgen.tools.apps import reproduce
+
     exp = reproduce.experiment("depth", 1, "physical")
     assert exp.scene.dock.water_depth_m == 5.0
     top = tj.T_world_dock_from_spec(exp.scene.dock)[2, 3] + tj.dock_top_m(exp.scene.dock)
@@ -148,8 +159,12 @@ def test_physical_depth_experiment_puts_the_dock_at_the_deepest_condition():
 def test_closed_loop_refuses_a_start_box_out_of_the_water(tmp_path):
     from blendgen.config.models import ConfigError
     from blendgen.tools.apps.closed_loop import Bench
+
     exp = _exp(trajectories=[{"kind": "docking", "id": "d", "start": {"vertical_m": 5}}])
-    with pytest.raises(ConfigError, match=r"trajectories\[0\]\.start\.vertical_m: 5.0 puts a start 3.50 m above "
-                                          r"the water surface \('d'\); allowed vertical_m <= 1.50"):
+    with pytest.raises(
+        ConfigError,
+        match=r"trajectories\[0\]\.start\.vertical_m: 5.0 puts a start 3.50 m above "
+        r"the water surface \('d'\); allowed vertical_m <= 1.50",
+    ):
         Bench.prepare(exp, tmp_path / "assets")
     assert not (tmp_path / "assets").exists()

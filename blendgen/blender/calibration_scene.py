@@ -13,6 +13,7 @@ JOB keys (written by :func:`blendgen.tools.calibration.camera.write_job`):
 ``render``: {samples, threads, seed}; ``frames``: [{index, T_world_cam, path}];
 ``progress``: jsonl path; ``log``: log path. The board frame is the world frame.
 """
+
 from __future__ import annotations
 
 import json
@@ -26,7 +27,9 @@ def build(board: dict):
     """Empty scene with a black world and the board plate in the world z = 0 plane
     (facing +z, texture top row at +y); returns the scene."""
     import bpy
-    from blendgen.blender import materials, scene as scn
+
+    from blendgen.blender import materials
+    from blendgen.blender import scene as scn
 
     sc = scn.reset()
     world = bpy.data.worlds.new("black")
@@ -36,16 +39,17 @@ def build(board: dict):
     v = [(-w, h, 0), (w, h, 0), (w, -h, 0), (-w, -h, 0)]
     uvs = [(0, 1), (1, 1), (1, 0), (0, 0)]
     obj = scn.mesh_object("chessboard", v, [(0, 3, 2, 1)], uvs=[uvs[i] for i in (0, 3, 2, 1)], index=1)
-    obj.data.materials.append(materials.emissive_texture("chessboard", board["texture"], board["black"], board["white"]))
+    obj.data.materials.append(
+        materials.emissive_texture("chessboard", board["texture"], board["black"], board["white"])
+    )
     return sc
 
 
 def run(job: dict) -> dict:
     import cv2
-    import numpy as np
 
-    from blendgen.physics.camera import sensor
     from blendgen.blender import render
+    from blendgen.physics.camera import sensor
 
     t0 = time.perf_counter()
     sc = build(job["board"])

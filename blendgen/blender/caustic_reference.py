@@ -32,6 +32,7 @@ scatters in), ``size`` (pixels per render side), ``renders`` (sun directions),
 surface, normal to its rays), ``E2`` the per-bin sum of squared photon contributions (for
 the shot-noise variance), ``photons`` the number of camera rays.
 """
+
 from __future__ import annotations
 
 import json
@@ -39,13 +40,14 @@ import math
 import os
 import sys
 
-from blendgen.physics.surface.caustic_beam import OFFSET      # keeps the recorded positions positive
+from blendgen.physics.surface.caustic_beam import OFFSET  # keeps the recorded positions positive
 
 
 def _floor(depth: float, half: float):
     """Emitter at ``z = -depth`` whose colour is its own object position (+ OFFSET), B = 1."""
-    from blendgen.blender.photon_scene import recorder_material
     from blendgen.blender.meshes import mesh_object
+    from blendgen.blender.photon_scene import recorder_material
+
     v = [(-half, -half, -depth), (half, -half, -depth), (half, half, -depth), (-half, half, -depth)]
     obj = mesh_object("floor_recorder", v, [(0, 1, 2, 3)], index=1)
     obj.data.materials.append(recorder_material(0))
@@ -57,19 +59,37 @@ def build(spec: dict):
     """The scene: black sky, wavy glass surface at z = 0, optional grey medium, recorder floor,
     orthographic camera 1 m above looking down. Returns (scene, camera object)."""
     import bpy
-    from blendgen.blender import materials, render as rnd, scene as scn, water, world
+
+    from blendgen.blender import materials, water, world
+    from blendgen.blender import render as rnd
+    from blendgen.blender import scene as scn
+
     sc = scn.reset()
     wo = bpy.data.worlds.new("w")
     sc.world = wo
     materials.world_color(wo, [0.0, 0.0, 0.0])
     depth, big = float(spec["depth_m"]), float(spec["patch_m"]) / 2 + 4.0 * float(spec["depth_m"]) + 2.0
-    world.add_water_surface({"z": -1e-3, "centre_xy": [0.0, 0.0], "half_xy": [big, big],
-                             "wave_seed": int(spec["wave_seed"]), "wind_mps": float(spec["wind_mps"])})
+    world.add_water_surface(
+        {
+            "z": -1e-3,
+            "centre_xy": [0.0, 0.0],
+            "half_xy": [big, big],
+            "wave_seed": int(spec["wave_seed"]),
+            "wind_mps": float(spec["wind_mps"]),
+        }
+    )
     world.set_wave_time(float(spec.get("t", 0.0)))
     if float(spec["sigma_a"]) + float(spec["sigma_s"]) > 0:
-        water.add_water_volume({"sigma_a": [float(spec["sigma_a"])] * 3, "sigma_s": [float(spec["sigma_s"])] * 3,
-                                "phase": "hg", "g": float(spec.get("g", 0.9)),
-                                "box_min": [-big, -big, -depth], "box_max": [big, big, -2e-3]})
+        water.add_water_volume(
+            {
+                "sigma_a": [float(spec["sigma_a"])] * 3,
+                "sigma_s": [float(spec["sigma_s"])] * 3,
+                "phase": "hg",
+                "g": float(spec.get("g", 0.9)),
+                "box_min": [-big, -big, -depth],
+                "box_max": [big, big, -2e-3],
+            }
+        )
     _floor(depth, big)
     data = bpy.data.cameras.new("sun")
     data.type = "ORTHO"
@@ -82,12 +102,20 @@ def build(spec: dict):
     sc.render.resolution_x = sc.render.resolution_y = n
     sc.render.resolution_percentage = 100
     vb = int(spec.get("volume_bounces", 0))
-    rnd.setup_cycles(sc, {"samples": 1, "specular_bounces": 8, "volume_bounces": vb, "max_bounces": 8 + vb,
-                          "threads": int(spec.get("threads", 1))})
+    rnd.setup_cycles(
+        sc,
+        {
+            "samples": 1,
+            "specular_bounces": 8,
+            "volume_bounces": vb,
+            "max_bounces": 8 + vb,
+            "threads": int(spec.get("threads", 1)),
+        },
+    )
     cy = sc.cycles
     cy.caustics_reflective = cy.caustics_refractive = True
-    cy.sample_clamp_direct = cy.sample_clamp_indirect = 0.0       # photon weights are not fireflies
-    cy.blur_glossy = 0.0                                          # keep the glass sharp after a scatter
+    cy.sample_clamp_direct = cy.sample_clamp_indirect = 0.0  # photon weights are not fireflies
+    cy.blur_glossy = 0.0  # keep the glass sharp after a scatter
     return sc, cam
 
 
@@ -95,7 +123,9 @@ def sun_travel(spec: dict):
     """The sun's travel direction in air (3,), zenith angle ``sun_zenith_deg`` (default 0),
     heading +x, and below a flat surface (``surface.refracted_sun``)."""
     import numpy as np
+
     from blendgen.physics.surface.optics import refracted_sun
+
     z = math.radians(float(spec.get("sun_zenith_deg", 0.0)))
     air = np.array([math.sin(z), 0.0, -math.cos(z)])
     return air, refracted_sun(air)
@@ -105,6 +135,7 @@ def sun_camera_position(spec: dict):
     """The orthographic "sun" camera 1 m before the surface along the beam, centred on the
     surface point whose refracted ray reaches the patch centre (h tan(theta_t) upstream)."""
     import numpy as np
+
     air, water = sun_travel(spec)
     upstream = float(spec["depth_m"]) * water[0] / -water[2]
     return np.array([-upstream, 0.0, 0.0]) - air
@@ -114,6 +145,7 @@ def sun_rotation(spec: dict, rx: float, ry: float):
     """Camera rotation: its -Z along the sun's travel in air, then tilted by (rx, ry) (rad)
     within the sun's disc."""
     import mathutils
+
     air, _ = sun_travel(spec)
     base = mathutils.Vector((-air[0], -air[1], -air[2])).to_track_quat("Z", "Y").to_matrix()
     return (base @ mathutils.Euler((rx, ry, 0.0)).to_matrix()).to_euler()
@@ -133,7 +165,9 @@ def photon_map(spec: dict, out: str) -> None:
     """Render the sun's rays ``spec["renders"]`` times (one sun direction and seed each) and
     save the binned irradiance (module docstring)."""
     import numpy as np
+
     from blendgen.blender import render as rnd
+
     sc, cam = build(spec)
     n, nb = int(spec["size"]), int(spec["bins"])
     half = float(spec["patch_m"]) / 2
@@ -148,6 +182,7 @@ def photon_map(spec: dict, out: str) -> None:
             sc.cycles.seed = int(spec.get("seed", 0)) * 1000 + i
             sc.render.filepath = path
             import bpy
+
             bpy.ops.render.render(write_still=True)
             rgb = rnd.read_passes(path)["rgb"].reshape(-1, 3).astype(np.float64)
             w = rgb[:, 2]
@@ -162,9 +197,8 @@ def photon_map(spec: dict, out: str) -> None:
     photons = n * n * len(tilts)
     per_photon = (float(spec["patch_m"]) + 2 * float(spec["margin_m"])) ** 2 / (n * n) / len(tilts)
     bin_area = (2 * half / nb) ** 2
-    scale = per_photon / bin_area             # one photon of weight 1 in a bin: this E / E_sun
-    np.savez(out, E=E * scale, E2=E2 * scale * scale, photons=photons,
-             spec=json.dumps(spec))
+    scale = per_photon / bin_area  # one photon of weight 1 in a bin: this E / E_sun
+    np.savez(out, E=E * scale, E2=E2 * scale * scale, photons=photons, spec=json.dumps(spec))
 
 
 if __name__ == "__main__":

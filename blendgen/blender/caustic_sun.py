@@ -36,6 +36,7 @@ forward scattering does not blur the pattern, as it does in ``caustic_reference`
 medium), in open water the dock only (its 120 m seabed is beyond a photon budget: it keeps
 the plain sun).
 """
+
 from __future__ import annotations
 
 import math
@@ -49,10 +50,13 @@ import numpy as np
 from blendgen.blender import render as rnd
 from blendgen.blender.photon_scene import add_absorber, add_recorders, photon_scene, sun_camera
 from blendgen.blender.world import _math
-from blendgen.physics.surface import caustic_beam as cb, optics as sf
+from blendgen.physics.surface import caustic_beam as cb
+from blendgen.physics.surface import optics as sf
 from blendgen.physics.surface.caustic_beam import D_SPOT, OFFSET, Grid
 
 RECEIVERS = ("pool_floor", "pool_walls", "dock_body", "seabed")
+
+
 def gobo_spot(sc: bpy.types.Scene, grid: Grid, strength: float) -> tuple[bpy.types.Object, bpy.types.Image]:
     """The spot ``D_SPOT`` upstream of the grid centre with irradiance ``strength`` (W/m^2)
     across its beam, its light colour ``1 + (M - 1)`` looked up at the ray's projective
@@ -61,25 +65,26 @@ def gobo_spot(sc: bpy.types.Scene, grid: Grid, strength: float) -> tuple[bpy.typ
     size = grid.size()
     light = bpy.data.lights.new("caustic_sun", "SPOT")
     light.spot_size = 2.0 * math.atan(float(np.abs(np.concatenate([grid.lo, grid.lo + size])).max()) * 1.5 / D_SPOT)
-    light.spot_blend, light.shadow_soft_size, light.energy = 0.0, 0.0, 4 * math.pi * strength * D_SPOT ** 2
+    light.spot_blend, light.shadow_soft_size, light.energy = 0.0, 0.0, 4 * math.pi * strength * D_SPOT**2
     light.use_soft_falloff = False
     obj = bpy.data.objects.new("caustic_sun", light)
     sc.collection.objects.link(obj)
-    obj.matrix_world = mathutils.Matrix([[*grid.e1, 0], [*grid.e2, 0], [*(-grid.t), 0],
-                                         [*(grid.c - D_SPOT * grid.t), 1]]).transposed()
+    obj.matrix_world = mathutils.Matrix(
+        [[*grid.e1, 0], [*grid.e2, 0], [*(-grid.t), 0], [*(grid.c - D_SPOT * grid.t), 1]]
+    ).transposed()
     img = bpy.data.images.new("caustic_pattern", cols, rows, float_buffer=True, alpha=False)
-    img.colorspace_settings.name = "Non-Color"        # before the pixels: it regenerates the image
+    img.colorspace_settings.name = "Non-Color"  # before the pixels: it regenerates the image
     nt = light.node_tree
     xyz = nt.nodes.new("ShaderNodeSeparateXYZ")
     nt.links.new(nt.nodes.new("ShaderNodeTexCoord").outputs["Normal"], xyz.inputs[0])
     uv = nt.nodes.new("ShaderNodeCombineXYZ")
-    for axis, i in (("X", 0), ("Y", 1)):            # u = (D n / -n_z - lo) / size
+    for axis, i in (("X", 0), ("Y", 1)):  # u = (D n / -n_z - lo) / size
         p = _math(nt, "DIVIDE", _math(nt, "MULTIPLY", xyz.outputs[axis], -D_SPOT / size[i]), xyz.outputs["Z"])
         nt.links.new(_math(nt, "SUBTRACT", p, float(grid.lo[i] / size[i])), uv.inputs[i])
     tex = nt.nodes.new("ShaderNodeTexImage")
     tex.image, tex.extension, tex.interpolation = img, "CLIP", "Linear"
     nt.links.new(uv.outputs[0], tex.inputs["Vector"])
-    one_plus = nt.nodes.new("ShaderNodeVectorMath")          # 1 + (M - 1); 1 outside the grid
+    one_plus = nt.nodes.new("ShaderNodeVectorMath")  # 1 + (M - 1); 1 outside the grid
     one_plus.operation = "ADD"
     one_plus.inputs[1].default_value = (1.0, 1.0, 1.0)
     nt.links.new(tex.outputs["Color"], one_plus.inputs[0])
@@ -97,13 +102,14 @@ def link_only(light_obj: bpy.types.Object, receivers, state: str) -> None:
     light_obj.light_linking.receiver_collection = coll
 
 
-DOCK_PARTS = ("dock_", "marker_", "led_")     # object name prefixes: the dock's fine layer
+DOCK_PARTS = ("dock_", "marker_", "led_")  # object name prefixes: the dock's fine layer
 
 
 @dataclass
 class Layer:
     """One caustic spot: its grid, its photon camera (framing the surface above its receivers
     with a margin for rays the waves bend in) and its light texture."""
+
     name: str
     grid: Grid
     cam: bpy.types.Object
@@ -151,18 +157,17 @@ class CausticSun:
             link_only(self.layers[0].spot, dock + ([volume] if volume is not None else []), "EXCLUDE")
         region = dock_region(dock, t, float(surface["z"]), 0.05)
         if region is not None:
-            framed = {**region, "half_xy": [h + 0.3 for h in region["half_xy"]]}   # bent rays from around it
+            framed = {**region, "half_xy": [h + 0.3 for h in region["half_xy"]]}  # bent rays from around it
             self.layers.append(self._layer(sc, "dock", region, framed, t, float(cfg["dock_bin_m"]), strength))
             link_only(self.layers[-1].spot, dock, "INCLUDE")
         if not cfg.get("pool_spot", True):
-            link_only(sun, dock, "EXCLUDE")          # open water: seabed, rocks and water keep the plain sun
+            link_only(sun, dock, "EXCLUDE")  # open water: seabed, rocks and water keep the plain sun
         elif volume is not None:
             link_only(sun, [volume], "INCLUDE")
         else:
             bpy.data.objects.remove(sun)
 
-    def _layer(self, sc, name: str, region: dict, framed: dict, t: np.ndarray, bin_m: float,
-               strength: float) -> Layer:
+    def _layer(self, sc, name: str, region: dict, framed: dict, t: np.ndarray, bin_m: float, strength: float) -> Layer:
         grid = cb.grid_for(region, t, bin_m)
         cam = sun_camera(self.ps, framed, self.air, cb.photon_pitch(bin_m, self.per_bin, self.renders, self.air, t))
         return Layer(name, grid, cam, *gobo_spot(sc, grid, strength))
@@ -182,8 +187,9 @@ class CausticSun:
             rgb = rgb[rgb[:, 2] > 0]
             k = np.rint(rgb[:, 2])
             if rgb.size and float(np.abs(rgb[:, 2] - k).max()) > 1e-3:
-                raise RuntimeError("caustic photons: a refracted ray's weight is not 1 (medium or clamping in "
-                                   "the photon scene?)")
+                raise RuntimeError(
+                    "caustic photons: a refracted ray's weight is not 1 (medium or clamping in the photon scene?)"
+                )
             ids = k.astype(int) - 1
             u, v = rgb[:, 0:1] - OFFSET, rgb[:, 1:2] - OFFSET
             out.append(O[ids] + u * EU[ids] + v * EV[ids])

@@ -15,6 +15,7 @@ scanline holding each channel (in the header's alphabetical ``chlist`` order) as
 ``width`` samples. Anything else (compression, half or uint samples, tiles, subsampling,
 chunks out of order) returns None and the caller falls back to OpenImageIO.
 """
+
 from __future__ import annotations
 
 import struct
@@ -24,7 +25,7 @@ import numpy as np
 MAGIC = b"\x76\x2f\x31\x01"
 MULTIPART = 0x1000
 TILED = 0x200
-FLOAT = 2                   # chlist pixel type
+FLOAT = 2  # chlist pixel type
 NO_COMPRESSION = 0
 
 
@@ -53,7 +54,7 @@ def _headers(buf: bytes, multipart: bool) -> tuple[list[dict], int] | None:
             name, pos = _cstr(buf, pos)
             kind, pos = _cstr(buf, pos)
             (size,) = struct.unpack_from("<i", buf, pos)
-            value = buf[pos + 4:pos + 4 + size]
+            value = buf[pos + 4 : pos + 4 + size]
             pos += 4 + size
             if name == "channels":
                 attrs["channels"] = _chlist(value)
@@ -75,25 +76,33 @@ def _part_channels(buf: bytes, attrs: dict, offsets: np.ndarray, part: int, mult
     """{channel name: (H, W) float32 view into ``buf``} of one part, or None if its chunks
     are not the plain uncompressed float scanlines this reader understands."""
     chans = attrs.get("channels")
-    if (attrs.get("compression") != NO_COMPRESSION or not chans or "dataWindow" not in attrs
-            or attrs.get("type", "scanlineimage") != "scanlineimage"
-            or any(t != FLOAT or xs != 1 or ys != 1 for _, t, xs, ys in chans)):
+    if (
+        attrs.get("compression") != NO_COMPRESSION
+        or not chans
+        or "dataWindow" not in attrs
+        or attrs.get("type", "scanlineimage") != "scanlineimage"
+        or any(t != FLOAT or xs != 1 or ys != 1 for _, t, xs, ys in chans)
+    ):
         return None
     x0, y0, x1, y1 = attrs["dataWindow"]
     w, h, n = x1 - x0 + 1, y1 - y0 + 1, len(chans)
-    head = 12 if multipart else 8                  # [part] y size
+    head = 12 if multipart else 8  # [part] y size
     stride = head + 4 * w * n
-    if len(offsets) != h or h < 1 or int(offsets[0]) + stride * h > len(buf) \
-            or np.any(np.diff(offsets.astype(np.int64)) != stride):
+    if (
+        len(offsets) != h
+        or h < 1
+        or int(offsets[0]) + stride * h > len(buf)
+        or np.any(np.diff(offsets.astype(np.int64)) != stride)
+    ):
         return None
     rows = np.ndarray((h, head // 4), "<i4", buf, int(offsets[0]), (stride, 4))
     ys, sizes = rows[:, -2], rows[:, -1]
-    if np.any(ys != np.arange(y0, y1 + 1)) or np.any(sizes != 4 * w * n) \
-            or (multipart and np.any(rows[:, 0] != part)):
+    if np.any(ys != np.arange(y0, y1 + 1)) or np.any(sizes != 4 * w * n) or (multipart and np.any(rows[:, 0] != part)):
         return None
     base = int(offsets[0]) + head
-    return {name: np.ndarray((h, w), "<f4", buf, base + 4 * w * i, (stride, 4))
-            for i, (name, _, _, _) in enumerate(chans)}
+    return {
+        name: np.ndarray((h, w), "<f4", buf, base + 4 * w * i, (stride, 4)) for i, (name, _, _, _) in enumerate(chans)
+    }
 
 
 def read_channels(path: str) -> list[dict] | None:
@@ -103,7 +112,7 @@ def read_channels(path: str) -> list[dict] | None:
         buf = fh.read()
     try:
         return _parse(buf)
-    except (ValueError, IndexError, struct.error, UnicodeDecodeError):   # truncated or unexpected
+    except (ValueError, IndexError, struct.error, UnicodeDecodeError):  # truncated or unexpected
         return None
 
 

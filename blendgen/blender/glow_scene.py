@@ -11,6 +11,7 @@ OUT.npy is its linear RGB (H, W, 3) float32. SPEC keys: ``water``, ``range_m``, 
 the point light), ``water`` null (no medium) and ``volume_bounces`` (default 0: single
 scattering; > 0: multiple scattering).
 """
+
 from __future__ import annotations
 
 import math
@@ -19,7 +20,9 @@ import sys
 
 def build(spec: dict):
     import bpy
-    from blendgen.blender import materials, render, scene as scn, water
+
+    from blendgen.blender import materials, render, water
+    from blendgen.blender import scene as scn
 
     sc = scn.reset()
     world = bpy.data.worlds.new("black")
@@ -37,9 +40,16 @@ def build(spec: dict):
         obj = bpy.data.objects.new("led", light)
         sc.collection.objects.link(obj)
         obj.location = (r, 0.0, 0.0)
-    cam = render.setup_camera(sc, {"width": spec["width"], "height": spec["height"],
-                                   "hfov_rad": math.radians(spec["hfov_deg"]), "clip_start": 0.001})
-    cam.rotation_euler = (math.pi / 2, 0.0, -math.pi / 2)   # Blender -Z view axis -> world +x
+    cam = render.setup_camera(
+        sc,
+        {
+            "width": spec["width"],
+            "height": spec["height"],
+            "hfov_rad": math.radians(spec["hfov_deg"]),
+            "clip_start": 0.001,
+        },
+    )
+    cam.rotation_euler = (math.pi / 2, 0.0, -math.pi / 2)  # Blender -Z view axis -> world +x
     render.setup_cycles(sc, {"samples": spec["samples"], "seed": spec.get("seed", 0), "max_bounces": 0})
     water.reference_settings(sc, int(spec.get("volume_bounces", 0)))
     return sc
@@ -49,19 +59,23 @@ def add_disc_led(led: dict, r: float) -> None:
     """The dataset's LED (``scene.add_led_array``'s disc and material): radiance ``led["radiance"]``
     (3,), radius ``led["radius_m"]``, at x = r facing the camera; ``led["lights_scene"]`` as there."""
     import numpy as np
-    from blendgen.blender import materials, scene as scn
+
+    from blendgen.blender import materials
+    from blendgen.blender import scene as scn
+
     v, f = scn.disc(float(led["radius_m"]))
     obj = scn.mesh_object("led_disc", v, f, index=1)
     sampled = bool(led.get("lights_scene"))
     obj.data.materials.append(materials.emission("led_disc", led["radiance"], 1.0, sampled=sampled))
     if not sampled:
         scn.camera_only(obj)
-    T = np.array([[0, 0, -1, r], [0, 1, 0, 0], [1, 0, 0, 0], [0, 0, 0, 1]], float)   # disc +z -> world -x
+    T = np.array([[0, 0, -1, r], [0, 1, 0, 0], [1, 0, 0, 0], [0, 0, 0, 1]], float)  # disc +z -> world -x
     scn.set_matrix(obj, T)
 
 
 def main(argv: list[str]) -> int:
     from blendgen.blender import render
+
     return render.oracle_main(build, argv, "glow")
 
 

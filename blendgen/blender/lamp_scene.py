@@ -12,6 +12,7 @@ SPEC keys: ``water``, ``lamps`` (list of ``Lamp`` dicts), ``card`` ({distance_m,
 null), ``occluders`` (optional list of {min, max (3,) camera frame m, albedo}), ``hfov_deg``,
 ``width``, ``height``, ``samples``, ``volume_bounces``, ``seed``.
 """
+
 from __future__ import annotations
 
 import math
@@ -22,7 +23,9 @@ BOX = {"box_min": [-2.0, -30.0, -30.0], "box_max": [60.0, 30.0, 30.0]}
 
 def build(spec: dict):
     import bpy
-    from blendgen.blender import lamps, materials, render, scene as scn, water
+
+    from blendgen.blender import lamps, materials, render, water
+    from blendgen.blender import scene as scn
 
     sc = scn.reset()
     world = bpy.data.worlds.new("black")
@@ -37,13 +40,21 @@ def build(spec: dict):
         plane.data.materials.append(materials.diffuse("card", [a, a, a]))
     for i, box in enumerate(spec.get("occluders") or []):
         add_box(f"occluder_{i}", box["min"], box["max"], float(box["albedo"]))
-    cam = render.setup_camera(sc, {"width": spec["width"], "height": spec["height"],
-                                   "hfov_rad": math.radians(spec["hfov_deg"]), "clip_start": 0.001})
-    cam.rotation_euler = (math.pi / 2, 0.0, -math.pi / 2)   # Blender -Z view axis -> world +x
+    cam = render.setup_camera(
+        sc,
+        {
+            "width": spec["width"],
+            "height": spec["height"],
+            "hfov_rad": math.radians(spec["hfov_deg"]),
+            "clip_start": 0.001,
+        },
+    )
+    cam.rotation_euler = (math.pi / 2, 0.0, -math.pi / 2)  # Blender -Z view axis -> world +x
     lamps.add_lamps(cam, spec["lamps"])
     bounces = int(spec.get("volume_bounces", 0))
-    render.setup_cycles(sc, {"samples": spec["samples"], "seed": spec.get("seed", 0), "max_bounces": bounces,
-                             "volume_bounces": bounces})
+    render.setup_cycles(
+        sc, {"samples": spec["samples"], "seed": spec.get("seed", 0), "max_bounces": bounces, "volume_bounces": bounces}
+    )
     water.reference_settings(sc, bounces)
     return sc
 
@@ -55,7 +66,9 @@ def _world(p_cam) -> tuple[float, float, float]:
 
 def add_box(name: str, lo, hi, albedo: float):
     """A Lambertian axis-aligned box between camera-frame corners ``lo`` and ``hi`` (m)."""
-    from blendgen.blender import materials, scene as scn
+    from blendgen.blender import materials
+    from blendgen.blender import scene as scn
+
     verts = [_world((x, y, z)) for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
     faces = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
     obj = scn.mesh_object(name, verts, faces, index=2)
@@ -65,6 +78,7 @@ def add_box(name: str, lo, hi, albedo: float):
 
 def main(argv: list[str]) -> int:
     from blendgen.blender import render
+
     return render.oracle_main(build, argv, "lamp")
 
 

@@ -15,6 +15,7 @@ The soft edge: Cycles' spot mask is ``smoothstep((cos t - cos a) / ((1 - cos a) 
 (kernel/light/spot.h), so ``blend = (cos(a - edge) - cos a) / (1 - cos a)`` puts the
 full-intensity cone at ``a - edge`` exactly as ``physics.light.sources.PointLight.profile`` does.
 """
+
 from __future__ import annotations
 
 import math
@@ -32,6 +33,7 @@ def add_lamps(cam_obj: bpy.types.Object, lamps: list[dict]) -> list[bpy.types.Ob
     if not lamps:
         return out
     from types import SimpleNamespace
+
     for i, (_lamp, pl) in enumerate(zip(lamps, lamp_lights([SimpleNamespace(**d) for d in lamps]))):
         i0 = np.asarray(pl.intensity_w_sr, float)
         peak = float(i0.max())
@@ -40,7 +42,7 @@ def add_lamps(cam_obj: bpy.types.Object, lamps: list[dict]) -> list[bpy.types.Ob
         light.color = tuple(float(x) for x in i0 / peak) if peak > 0 else (0.0, 0.0, 0.0)
         light.spot_size = 2.0 * pl.half_angle_rad
         light.spot_blend = blender_spot_blend(pl.half_angle_rad, pl.edge_rad)
-        light.shadow_soft_size = 0.0            # a point source (config: no lamp radius)
+        light.shadow_soft_size = 0.0  # a point source (config: no lamp radius)
         if hasattr(light, "use_soft_falloff"):
             light.use_soft_falloff = False
         obj = bpy.data.objects.new(f"lamp_{i}", light)

@@ -1,10 +1,11 @@
 """Cycles materials: diffuse surfaces, printed marker textures, LED emitters, world, water volume."""
+
 from __future__ import annotations
 
 import bpy
 
-PRINT_BLACK = 0.04   # albedo of printed black
-PRINT_WHITE = 0.85   # albedo of white plastic / paper
+PRINT_BLACK = 0.04  # albedo of printed black
+PRINT_WHITE = 0.85  # albedo of white plastic / paper
 
 
 def _fresh(name: str) -> tuple[bpy.types.Material, bpy.types.NodeTree]:
@@ -55,7 +56,7 @@ def printed_texture(name: str, path: str) -> bpy.types.Material:
 def emissive_texture(name: str, path: str, black: float, white: float) -> bpy.types.Material:
     """Self-lit cell texture (radiance black .. white): needs no light, renders noise-free."""
     mat, nt = _fresh(name)
-    mat.cycles.emission_sampling = "NONE"   # lights nothing: never sampled as a light
+    mat.cycles.emission_sampling = "NONE"  # lights nothing: never sampled as a light
     out = nt.nodes.new("ShaderNodeOutputMaterial")
     em = nt.nodes.new("ShaderNodeEmission")
     em.inputs["Strength"].default_value = 1.0
@@ -107,7 +108,7 @@ def world_sky(world: bpy.types.World, upper: float, lower: float) -> None:
     above = nt.nodes.new("ShaderNodeMath")
     above.operation = "GREATER_THAN"
     above.inputs[1].default_value = 0.0
-    mix = nt.nodes.new("ShaderNodeMapRange")           # 0 -> lower, 1 -> upper
+    mix = nt.nodes.new("ShaderNodeMapRange")  # 0 -> lower, 1 -> upper
     mix.inputs["To Min"].default_value = float(lower)
     mix.inputs["To Max"].default_value = float(upper)
     bg = nt.nodes.new("ShaderNodeBackground")

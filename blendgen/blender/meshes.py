@@ -2,6 +2,7 @@
 
 The lowest layer of the Blender side: scene.py, water.py and the oracle scenes build on it.
 """
+
 from __future__ import annotations
 
 import bpy

@@ -14,6 +14,7 @@ read back from the material. SPEC keys:
 - ``sun``: ``{"direction": [..], "strength": E}`` or null;
 - ``render``: ``{"width", "height", "samples", "volume_bounces", "seed"}``.
 """
+
 from __future__ import annotations
 
 import json
@@ -24,7 +25,9 @@ import sys
 
 def build(spec: dict):
     import bpy
-    from blendgen.blender import materials, render, scene as scn, water
+
+    from blendgen.blender import materials, render, water
+    from blendgen.blender import scene as scn
 
     sc = scn.reset()
     world = bpy.data.worlds.new("black")
@@ -41,7 +44,7 @@ def build(spec: dict):
     if t["kind"] == "emitter":
         plane.data.materials.append(materials.emission("target", [1.0, 1.0, 1.0], float(t.get("radiance", 1.0))))
         scn.camera_only(plane)
-    else:   # "black" or "grey" (albedo t["albedo"])
+    else:  # "black" or "grey" (albedo t["albedo"])
         a = float(t.get("albedo", 0.0))
         plane.data.materials.append(materials.diffuse("target", [a, a, a]))
     if spec.get("sun"):
@@ -57,12 +60,20 @@ def build(spec: dict):
     sc.camera = cam
     cam.location = (0.0, 0.0, float(c.get("z", 0.0)))
     pitch = math.radians(float(c.get("pitch_deg", 0.0)))
-    cam.rotation_euler = (math.pi / 2 + pitch, 0.0, -math.pi / 2)   # -Z view axis -> (cos p, 0, sin p)
+    cam.rotation_euler = (math.pi / 2 + pitch, 0.0, -math.pi / 2)  # -Z view axis -> (cos p, 0, sin p)
     r = spec["render"]
     sc.render.resolution_x, sc.render.resolution_y = int(r["width"]), int(r["height"])
     sc.render.resolution_percentage = 100
-    render.setup_cycles(sc, {"samples": r["samples"], "seed": r.get("seed", 0), "threads": r.get("threads", 0),
-                             "max_bounces": 0, "volume_bounces": 0})
+    render.setup_cycles(
+        sc,
+        {
+            "samples": r["samples"],
+            "seed": r.get("seed", 0),
+            "threads": r.get("threads", 0),
+            "max_bounces": 0,
+            "volume_bounces": 0,
+        },
+    )
     water.reference_settings(sc, int(r.get("volume_bounces", 0)))
     return sc, mat
 
@@ -70,6 +81,7 @@ def build(spec: dict):
 def run(spec: dict) -> dict:
     import bpy
     import numpy as np
+
     from blendgen.blender import render, water
 
     sc, mat = build(spec)
@@ -82,14 +94,18 @@ def run(spec: dict) -> dict:
         if os.path.exists(path):
             os.remove(path)
     px = rgb.reshape(-1, 3)
-    return {"mean": px.mean(axis=0).tolist(), "std": px.std(axis=0).tolist(), "n_px": int(px.shape[0]),
-            "coefficients": water.coefficients_of(mat) if mat is not None else None,
-            "volume_bounces": sc.cycles.volume_bounces}
+    return {
+        "mean": px.mean(axis=0).tolist(),
+        "std": px.std(axis=0).tolist(),
+        "n_px": int(px.shape[0]),
+        "coefficients": water.coefficients_of(mat) if mat is not None else None,
+        "volume_bounces": sc.cycles.volume_bounces,
+    }
 
 
 def main(argv: list[str]) -> int:
     spec = json.loads(open(argv[1]).read())
-    fd = os.dup(1)                      # keep our stdout; Blender's render log -> /dev/null
+    fd = os.dup(1)  # keep our stdout; Blender's render log -> /dev/null
     null = os.open(os.devnull, os.O_WRONLY)
     os.dup2(null, 1)
     try:

@@ -9,6 +9,7 @@ fast path's Lambertian-sphere part; its forward lobe has no counterpart here),
 and every instance carries the object's pass index, so the object-index pass shows
 exactly which pixels real geometry hides.
 """
+
 from __future__ import annotations
 
 import bpy
@@ -16,7 +17,7 @@ import numpy as np
 
 from blendgen.blender import materials
 
-SUBDIVISIONS = 4        # facets ~4 deg: smooth silhouettes and shading, not gravel
+SUBDIVISIONS = 4  # facets ~4 deg: smooth silhouettes and shading, not gravel
 
 
 def _node_group(material: bpy.types.Material) -> bpy.types.NodeTree:
@@ -45,8 +46,7 @@ def _node_group(material: bpy.types.Material) -> bpy.types.NodeTree:
     return ng
 
 
-def add_particles(positions: np.ndarray, radii: np.ndarray, index: int,
-                  color=(0.6, 0.65, 0.6)) -> bpy.types.Object:
+def add_particles(positions: np.ndarray, radii: np.ndarray, index: int, color=(0.6, 0.65, 0.6)) -> bpy.types.Object:
     """Point-cloud object instancing spheres: positions (N,3) world m, radii (N,) m."""
     me = bpy.data.meshes.new("particles")
     me.vertices.add(len(positions))

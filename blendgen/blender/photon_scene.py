@@ -1,6 +1,7 @@
 """The photon scene of the reference's caustics (``caustic_sun``): a second Blender scene that
 shares the dataset's glass surface, an orthographic "sun" camera in the air whose depth of
 field is the sun's disc, and recorder planes that read where each refracted sun ray lands."""
+
 from __future__ import annotations
 
 import math
@@ -19,6 +20,7 @@ from blendgen.physics.surface.caustic_beam import OFFSET
 @dataclass
 class Recorder:
     """One receiver polygon in the photon scene: origin ``o`` and in-plane axes ``eu``, ``ev`` (3,)."""
+
     o: np.ndarray
     eu: np.ndarray
     ev: np.ndarray
@@ -75,6 +77,7 @@ def photon_scene(surface_obj: bpy.types.Object, threads: int) -> bpy.types.Scene
     ps = bpy.data.scenes.new("photons")
     ps.world = bpy.data.worlds.new("photons_black")
     from blendgen.blender import materials
+
     materials.world_color(ps.world, [0.0, 0.0, 0.0])
     ps.collection.objects.link(surface_obj)
     rnd.setup_cycles(ps, {"samples": 1, "specular_bounces": 8, "max_bounces": 8, "threads": threads})
@@ -108,7 +111,7 @@ def add_absorber(ps: bpy.types.Scene, surface: dict) -> bpy.types.Object:
     return obj
 
 
-SUN_APERTURE_M = 0.25       # lens radius of the sun camera (m): rays start up to this far off their pixel
+SUN_APERTURE_M = 0.25  # lens radius of the sun camera (m): rays start up to this far off their pixel
 
 
 def sun_disc_aperture(data: bpy.types.Camera) -> None:
@@ -143,7 +146,7 @@ def sun_camera(ps: bpy.types.Scene, region: dict, air: np.ndarray, pitch_m: floa
     extent = 2 * np.abs(corners @ R[:, :2]).max(axis=0) + 4 * pitch_m + 2 * SUN_APERTURE_M
     data.ortho_scale = float(extent.max())
     sin_a = math.hypot(air[0], air[1])
-    upstream = 1.0 + 0.5 * data.ortho_scale * sin_a / -air[2]      # the plane's lowest corner 1 m up
+    upstream = 1.0 + 0.5 * data.ortho_scale * sin_a / -air[2]  # the plane's lowest corner 1 m up
     cam.location = (cx - upstream * air[0], cy - upstream * air[1], z - upstream * air[2])
     data.clip_start, data.clip_end = 0.01, upstream + 1000.0
     cam["resolution"] = [int(math.ceil(e / pitch_m)) for e in extent]

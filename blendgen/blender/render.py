@@ -5,6 +5,7 @@ A frame is rendered to an uncompressed multilayer EXR in a scratch directory
 ``rgb`` (H,W,3) float32 linear, ``depth_z`` (H,W) float32 planar depth in metres
 (inf where no surface), ``index`` (H,W) uint8 object index.
 """
+
 from __future__ import annotations
 
 import ctypes
@@ -51,9 +52,9 @@ def setup_cycles(scene: bpy.types.Scene, r: dict) -> None:
     cy.samples = int(r["samples"])
     cy.use_adaptive_sampling = False
     cy.use_denoising = False
-    specular = int(r.get("specular_bounces", 0))                # the water surface (reference fidelity)
+    specular = int(r.get("specular_bounces", 0))  # the water surface (reference fidelity)
     cy.max_bounces = max(int(r.get("max_bounces", 0)), specular)
-    cy.diffuse_bounces = int(r.get("diffuse_bounces", 0))      # light that bounces off walls and floor
+    cy.diffuse_bounces = int(r.get("diffuse_bounces", 0))  # light that bounces off walls and floor
     cy.glossy_bounces = cy.transmission_bounces = specular
     cy.volume_bounces = int(r.get("volume_bounces", 0))
     cy.caustics_reflective = cy.caustics_refractive = False
@@ -75,9 +76,9 @@ def setup_cycles(scene: bpy.types.Scene, r: dict) -> None:
     vl = scene.view_layers[0]
     vl.use_pass_z = True
     vl.use_pass_object_index = True
-    vl.use_pass_diffuse_color = bool(r.get("albedo_pass"))    # the ambient and lamp terms' albedo
-    vl.use_pass_normal = bool(r.get("normal_pass"))           # the fast lamp's incidence (world frame)
-    if r.get("sun_pass") and "sun" not in vl.lightgroups:     # the sun's own light: what caustics refocus
+    vl.use_pass_diffuse_color = bool(r.get("albedo_pass"))  # the ambient and lamp terms' albedo
+    vl.use_pass_normal = bool(r.get("normal_pass"))  # the fast lamp's incidence (world frame)
+    if r.get("sun_pass") and "sun" not in vl.lightgroups:  # the sun's own light: what caustics refocus
         vl.lightgroups.add(name="sun")
     s = scene.render.image_settings
     s.media_type = "MULTI_LAYER_IMAGE"
@@ -104,8 +105,14 @@ def _openexr_function(mangled_tail: str):
     if lib is None:
         return None
     handle = ctypes.CDLL(lib)
-    return next((f for f in (getattr(handle, f"_ZN7Imf_3_{minor}{mangled_tail}", None)
-                             for minor in range(12, -1, -1)) if f is not None), None)
+    return next(
+        (
+            f
+            for f in (getattr(handle, f"_ZN7Imf_3_{minor}{mangled_tail}", None) for minor in range(12, -1, -1))
+            if f is not None
+        ),
+        None,
+    )
 
 
 def exr_io_in_calling_thread() -> bool:
@@ -141,14 +148,22 @@ def read_passes(path: str) -> dict:
     over the file's bytes (:mod:`blendgen.blender.exr`, same values, ~4x less CPU than
     OpenImageIO) when it is the uncompressed float32 EXR the worker writes, else OpenImageIO."""
     from blendgen.blender import exr
+
     parts = exr.read_channels(path)
     if parts is None:
         return read_passes_oiio(path)
     out = {}
     for chans in parts:
         names = list(chans)
-        _add_pass(out, names, lambda n, c: np.stack([chans[names[i]] for i in range(n)], axis=-1)
-                  if c is None else np.stack([chans[_ending(names, e)] for e in c], axis=-1))
+        _add_pass(
+            out,
+            names,
+            lambda n, c: (
+                np.stack([chans[names[i]] for i in range(n)], axis=-1)
+                if c is None
+                else np.stack([chans[_ending(names, e)] for e in c], axis=-1)
+            ),
+        )
     return out
 
 
@@ -167,7 +182,7 @@ def _add_pass(out: dict, names: list[str], channels) -> None:
         out["depth_z"] = np.where(z > NO_SURFACE_Z, np.inf, z).astype(np.float32)
     elif any(n.endswith("Object Index.X") for n in names):
         out["index"] = np.rint(channels(1, None)[:, :, 0]).clip(0, 255).astype(np.uint8)
-    elif any(n.endswith("Combined_sun.R") for n in names):       # the "sun" light group
+    elif any(n.endswith("Combined_sun.R") for n in names):  # the "sun" light group
         out["sun"] = np.ascontiguousarray(channels(3, (".R", ".G", ".B")), dtype=np.float32)
     elif any(n.endswith(("DiffCol.R", "Diffuse Color.R")) for n in names):
         out["albedo"] = np.ascontiguousarray(channels(3, (".R", ".G", ".B")), dtype=np.float32)
@@ -197,6 +212,7 @@ def read_passes_oiio(path: str) -> dict:
 def render_frame(scene: bpy.types.Scene, cam_obj: bpy.types.Object, T_world_cam, path: str) -> None:
     """Place the camera (OpenCV pose, 4x4) and render the passes to ``path`` (EXR)."""
     from blendgen.blender.scene import set_matrix
+
     set_matrix(cam_obj, blender_matrix_world_from_T_world_cam(np.asarray(T_world_cam, float)))
     scene.render.filepath = path
     bpy.ops.render.render(write_still=True)
@@ -225,9 +241,12 @@ def _border(scene: bpy.types.Scene, box, width: int, height: int) -> None:
 def _upsample(passes: dict, width: int, height: int) -> dict:
     """Background passes to full size: colour bilinear, depth and index nearest."""
     import cv2
+
     linear = {"rgb", "albedo", "normal", "sun"}
-    return {k: cv2.resize(v, (width, height), interpolation=cv2.INTER_LINEAR if k in linear else cv2.INTER_NEAREST)
-            for k, v in passes.items()}
+    return {
+        k: cv2.resize(v, (width, height), interpolation=cv2.INTER_LINEAR if k in linear else cv2.INTER_NEAREST)
+        for k, v in passes.items()
+    }
 
 
 def frame_boxes(frame: dict, cfg: dict) -> list | None:
@@ -241,8 +260,9 @@ def frame_boxes(frame: dict, cfg: dict) -> list | None:
     return [] if frame.get("roi") is None else [tuple(frame["roi"])]
 
 
-def render_roi_frame(scene: bpy.types.Scene, cam_obj: bpy.types.Object, frame: dict, cfg: dict,
-                     width: int, height: int, path: str) -> dict:
+def render_roi_frame(
+    scene: bpy.types.Scene, cam_obj: bpy.types.Object, frame: dict, cfg: dict, width: int, height: int, path: str
+) -> dict:
     """Render one frame, spending samples where the localizers look.
 
     Without ROIs, or when they cover more than ``roi_max_fraction`` of the image, the full
@@ -282,6 +302,7 @@ def oracle_main(build, argv: list[str], tag: str) -> int:
     float32 is saved to OUT.npy. Blender's render log goes to /dev/null; the scratch EXR
     is removed whatever happens."""
     import json
+
     spec = json.loads(open(argv[1]).read())
     null = os.open(os.devnull, os.O_WRONLY)
     os.dup2(null, 1)
@@ -289,8 +310,7 @@ def oracle_main(build, argv: list[str], tag: str) -> int:
     return 0
 
 
-def save_pass(scene: bpy.types.Scene, out: str, tag: str, key: str = "rgb", cam_obj=None,
-              T_world_cam=None) -> None:
+def save_pass(scene: bpy.types.Scene, out: str, tag: str, key: str = "rgb", cam_obj=None, T_world_cam=None) -> None:
     """Render ``scene`` once (placing ``cam_obj`` at ``T_world_cam`` (4x4, OpenCV) when given)
     to a scratch EXR and save its pass ``key`` ((H, W, 3) float32) to ``out`` (.npy); the
     scratch file is removed whatever happens."""
@@ -311,6 +331,7 @@ def scratch_exr(path: str, width: int, height: int, every_pass: bool) -> None:
     """Render a monkey (object index 3) at 1 spp to ``path`` as the worker's EXR (albedo and
     normal passes with ``every_pass``): input of ``bench io``."""
     from blendgen.blender import scene as scn
+
     sc = scn.reset()
     bpy.ops.mesh.primitive_monkey_add(location=(0, 0, 0))
     bpy.context.active_object.pass_index = 3

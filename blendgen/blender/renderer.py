@@ -8,6 +8,7 @@ frame's pose and returns its clean passes as numpy arrays (``rgb`` (H,W,3) float
 sensor, ground truth, files) is the caller's (:mod:`blendgen.pipeline.frameloop`): this module
 imports nothing from the pipeline.
 """
+
 from __future__ import annotations
 
 import json
@@ -37,6 +38,7 @@ class _Particles:
 
     def move(self, positions) -> None:
         from blendgen.blender import particles
+
         particles.move_particles(self.obj, positions)
 
 
@@ -45,15 +47,17 @@ class BlenderRenderer:
 
     def __init__(self, sc, cam, caustics, scene: RenderScene, render: RenderSettings, width: int, height: int):
         from blendgen.blender import render as rnd
+
         self.sc, self.cam, self.caustics = sc, cam, caustics
         self.scene, self.settings, self.size = scene, render, (width, height)
-        self.cycles = render.model_dump(mode="json")      # plain data for blender/render.py
+        self.cycles = render.model_dump(mode="json")  # plain data for blender/render.py
         self.exr = os.path.join(rnd.scratch_dir(), f"dockbench-{os.getpid()}.exr")
         self.particles: _Particles | None = None
 
     def add_particles(self, positions, radii, object_index: int, color) -> None:
         """Spheres at ``positions`` (N,3) m world, ``radii`` (N,) m, moved by ``render(frame, particles=...)``."""
         from blendgen.blender import particles
+
         self.particles = _Particles(particles.add_particles(positions, radii, object_index, color=color))
 
     def render(self, frame: FramePlan | dict, particles=None) -> dict:
@@ -61,11 +65,13 @@ class BlenderRenderer:
         ``roi`` only); ``particles`` (N,3) the real-geometry particles' positions at this frame
         (with :meth:`add_particles`)."""
         from blendgen.blender import render as rnd
+
         fr = frame.plain() if isinstance(frame, FramePlan) else frame
         if self.particles is not None and particles is not None:
             self.particles.move(particles)
         if self.scene.water_surface is not None:
             from blendgen.blender.world import set_wave_time
+
             set_wave_time(fr.get("t", 0.0))
         if self.caustics is not None:
             self.caustics.update(photon_seed(self.settings, fr))
@@ -82,26 +88,31 @@ def load() -> None:
     from blendgen.blender import lamps, render, scene  # noqa: F401
 
 
-def build(scene: RenderScene | dict, camera: dict, render: RenderSettings | dict,
-          cache: dict | None = None) -> BlenderRenderer:
+def build(
+    scene: RenderScene | dict, camera: dict, render: RenderSettings | dict, cache: dict | None = None
+) -> BlenderRenderer:
     """The renderer of one job: the Blender scene of ``scene`` seen by ``camera`` with the Cycles
     settings ``render`` (records or their plain data, validated here: a wrong key fails before
     anything is built), taken from ``cache`` when the last job built the same one (persistent
     worker), else built from factory settings (nothing kept from earlier jobs)."""
-    from blendgen.blender import lamps, render as rnd, scene as scn
+    from blendgen.blender import lamps
+    from blendgen.blender import render as rnd
+    from blendgen.blender import scene as scn
+
     scene, render = RenderScene.model_validate(scene), RenderSettings.model_validate(render)
-    plain, cycles = scene.model_dump(mode="json"), render.model_dump(mode="json")   # what the builders read
+    plain, cycles = scene.model_dump(mode="json"), render.model_dump(mode="json")  # what the builders read
     key = scene_key(plain, camera, cycles)
     if cache is not None and key is not None and cache.get("key") == key:
         sc, cam, caustics = cache["sc"], cache["cam"], cache["caustics"]
     else:
-        sc = scn.build(plain)                               # read_factory_settings: nothing kept
+        sc = scn.build(plain)  # read_factory_settings: nothing kept
         cam = rnd.setup_camera(sc, camera)
-        lamps.add_lamps(cam, plain.get("lamps") or [])       # reference fidelity only
+        lamps.add_lamps(cam, plain.get("lamps") or [])  # reference fidelity only
         rnd.setup_cycles(sc, cycles)
         caustics = None
-        if scene.water_surface is not None and scene.water_surface.caustics is not None:   # reference: the sun
-            from blendgen.blender.caustic_sun import CausticSun                             # as a caustic spot
+        if scene.water_surface is not None and scene.water_surface.caustics is not None:  # reference: the sun
+            from blendgen.blender.caustic_sun import CausticSun  # as a caustic spot
+
             caustics = CausticSun(sc, plain, render.threads)
         if cache is not None:
             cache.update(key=key, sc=sc, cam=cam, caustics=caustics)

@@ -4,6 +4,7 @@ The description is produced by :mod:`blendgen.pipeline.plan` (pure Python) and h
 numbers, colours and file paths; see ``plan.scene_description``. Everything here
 is in world coordinates (metres, +z up, water surface z = 0).
 """
+
 from __future__ import annotations
 
 import math
@@ -46,8 +47,16 @@ def add_pool(pool: dict, index: int, look: dict | None = None) -> None:
 def box_verts(sx: float, sy: float, sz: float, z0: float = 0.0):
     """Axis-aligned box centred in x,y, spanning z in [z0 - sz, z0]; outward faces."""
     x, y = sx / 2, sy / 2
-    v = [(-x, -y, z0 - sz), (x, -y, z0 - sz), (x, y, z0 - sz), (-x, y, z0 - sz),
-         (-x, -y, z0), (x, -y, z0), (x, y, z0), (-x, y, z0)]
+    v = [
+        (-x, -y, z0 - sz),
+        (x, -y, z0 - sz),
+        (x, y, z0 - sz),
+        (-x, y, z0 - sz),
+        (-x, -y, z0),
+        (x, -y, z0),
+        (x, y, z0),
+        (-x, y, z0),
+    ]
     f = [(0, 3, 2, 1), (4, 5, 6, 7), (0, 1, 5, 4), (1, 2, 6, 5), (2, 3, 7, 6), (3, 0, 4, 7)]
     return v, f
 
@@ -71,8 +80,9 @@ def add_square_marker(m: dict, T_world_marker) -> None:
     h = m["plate_size_m"] / 2
     v = [(-h, h, 0), (h, h, 0), (h, -h, 0), (-h, -h, 0)]
     uvs = [(0, 1), (1, 1), (1, 0), (0, 0)]
-    obj = mesh_object(f"marker_{m['id']}", v, [(0, 3, 2, 1)], uvs=[uvs[i] for i in (0, 3, 2, 1)],
-                      index=m["object_index"])
+    obj = mesh_object(
+        f"marker_{m['id']}", v, [(0, 3, 2, 1)], uvs=[uvs[i] for i in (0, 3, 2, 1)], index=m["object_index"]
+    )
     obj.data.materials.append(materials.printed_texture(f"tex_{m['id']}", m["texture"]))
     set_matrix(obj, T_world_marker)
 
@@ -84,8 +94,9 @@ def uv_sphere(radius: float, segments: int = 24, rings: int = 12):
         th = math.pi * i / rings
         for j in range(segments):
             ph = 2 * math.pi * j / segments
-            verts.append((radius * math.sin(th) * math.cos(ph), radius * math.sin(th) * math.sin(ph),
-                          radius * math.cos(th)))
+            verts.append(
+                (radius * math.sin(th) * math.cos(ph), radius * math.sin(th) * math.sin(ph), radius * math.cos(th))
+            )
     verts.append((0.0, 0.0, -radius))
     faces, last = [], len(verts) - 1
     ring = lambda i, j: 1 + (i - 1) * segments + (j % segments)  # noqa: E731
@@ -108,8 +119,10 @@ def camera_only(obj: bpy.types.Object) -> None:
 def disc(radius: float, segments: int = 48):
     """Flat disc in the local z = 0 plane facing +z, area-matched to the circle."""
     r = radius * math.sqrt(2 * math.pi / (segments * math.sin(2 * math.pi / segments)))
-    verts = [(r * math.cos(2 * math.pi * k / segments), r * math.sin(2 * math.pi * k / segments), 0.0)
-             for k in range(segments)]
+    verts = [
+        (r * math.cos(2 * math.pi * k / segments), r * math.sin(2 * math.pi * k / segments), 0.0)
+        for k in range(segments)
+    ]
     return verts, [tuple(range(segments))]
 
 
@@ -177,6 +190,7 @@ def dock_frame(dock: dict, index: int, look: dict):
         base = len(verts)
         verts.extend((x + cx, y + cy, z) for x, y, z in v)
         faces.extend(tuple(i + base for i in q) for q in f)
+
     z_face = -0.003
     for ex in (-1, 1):
         for ey in (-1, 1):
@@ -221,14 +235,14 @@ def build(desc: dict) -> bpy.types.Scene:
     env = bpy.data.worlds.new("water")
     scene.world = env
     sky = desc.get("sky")
-    if sky:       # reference fidelity: the diffuse light field as a hidden environment
+    if sky:  # reference fidelity: the diffuse light field as a hidden environment
         materials.world_sky(env, sky["upper"], sky["lower"])
     else:
         materials.world_color(env, desc["world_color"])
     look = desc.get("world")
     if desc.get("pool"):
         add_pool(desc["pool"], desc["object_index"]["pool"], look)
-    elif look and look.get("textures"):      # open water: a sand-and-rock seabed template
+    elif look and look.get("textures"):  # open water: a sand-and-rock seabed template
         add_seabed(look, np.asarray(desc["dock"]["T_world_dock"], float)[:2, 3], desc["object_index"]["pool"])
     add_dock(desc["dock"], desc["object_index"]["dock"], look)
     T_wd = np.asarray(desc["dock"]["T_world_dock"], float)
@@ -241,6 +255,7 @@ def build(desc: dict) -> bpy.types.Scene:
         add_obstacle(o)
     if desc.get("water_volume"):  # reference fidelity: the water is a participating medium
         from blendgen.blender import water
+
         water.add_water_volume(desc["water_volume"])
     if desc.get("water_surface"):  # reference fidelity: a refracting surface with the sky above
         world.add_water_surface(desc["water_surface"])

@@ -20,6 +20,7 @@ The frame is rendered exactly as a dataset job renders it (``renderer.BlenderRen
 the image-space stages (water, particles, sensor) run in the client with the dataset frame
 loop's stage functions (``blendgen.pipeline.frameloop``).
 """
+
 from __future__ import annotations
 
 import json
@@ -37,6 +38,7 @@ class _Server:
 
     def init(self, req: dict) -> dict:
         from blendgen.blender.renderer import build
+
         t0 = time.perf_counter()
         self.renderer = build(req["scene"], req["camera"], req["render"])
         return {"ok": True, "scene_build_s": time.perf_counter() - t0}
@@ -50,7 +52,7 @@ class _Server:
             frame["rois"] = req["rois"]
         passes = self.renderer.render(frame)
         with open(req["out"] + ".tmp", "wb") as fh:
-            np.savez(fh, **passes)             # rgb, depth_z, index (+ albedo, normal when asked)
+            np.savez(fh, **passes)  # rgb, depth_z, index (+ albedo, normal when asked)
         os.replace(req["out"] + ".tmp", req["out"])
         return {"ok": True, "ms": 1e3 * (time.perf_counter() - t0)}
 
@@ -84,6 +86,7 @@ def serve(requests, reply) -> int:
 
 def main(argv: list[str]) -> int:
     from blendgen.workerio import log_to, reply_channel
+
     reply = reply_channel()
     log_to(argv[1] if len(argv) > 1 else os.devnull)
     return serve(sys.stdin, reply)

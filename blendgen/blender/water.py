@@ -15,6 +15,7 @@ or ``FOURNIER_FORAND`` (``IOR = ff_ior``, ``Backscatter = ff_backscatter``).
 Constant inputs make the volume homogeneous, so Cycles integrates it analytically
 (no ray marching: the volume step rate does not apply).
 """
+
 from __future__ import annotations
 
 import bpy
@@ -61,13 +62,16 @@ def coefficients_of(mat: bpy.types.Material) -> dict:
     """Read back what the medium material holds (for tests of the mapping)."""
     vol = next(n for n in mat.node_tree.nodes if n.bl_idname == "ShaderNodeVolumeCoefficients")
     inv = {v: k for k, v in PHASES.items()}
-    return {"sigma_a": list(_inp(vol, "Absorption Coefficients").default_value),
-            "sigma_s": list(_inp(vol, "Scatter Coefficients").default_value),
-            "emission": list(_inp(vol, "Emission Coefficients").default_value),
-            "phase": inv.get(vol.phase, vol.phase), "g": _inp(vol, "Anisotropy").default_value,
-            "ff_ior": _inp(vol, "IOR").default_value,
-            "ff_backscatter": _inp(vol, "Backscatter").default_value,
-            "linked_to": [lk.to_socket.name for lk in vol.outputs["Volume"].links]}
+    return {
+        "sigma_a": list(_inp(vol, "Absorption Coefficients").default_value),
+        "sigma_s": list(_inp(vol, "Scatter Coefficients").default_value),
+        "emission": list(_inp(vol, "Emission Coefficients").default_value),
+        "phase": inv.get(vol.phase, vol.phase),
+        "g": _inp(vol, "Anisotropy").default_value,
+        "ff_ior": _inp(vol, "IOR").default_value,
+        "ff_backscatter": _inp(vol, "Backscatter").default_value,
+        "linked_to": [lk.to_socket.name for lk in vol.outputs["Volume"].links],
+    }
 
 
 def add_water_volume(desc: dict, pad: float = SIDE_PAD_M) -> bpy.types.Object:
@@ -80,8 +84,7 @@ def add_water_volume(desc: dict, pad: float = SIDE_PAD_M) -> bpy.types.Object:
 
     (x0, y0, z0), (x1, y1, z1) = desc["box_min"], desc["box_max"]
     x0, y0, z0, x1, y1 = x0 - pad, y0 - pad, z0 - pad, x1 + pad, y1 + pad
-    v = [(x0, y0, z0), (x1, y0, z0), (x1, y1, z0), (x0, y1, z0),
-         (x0, y0, z1), (x1, y0, z1), (x1, y1, z1), (x0, y1, z1)]
+    v = [(x0, y0, z0), (x1, y0, z0), (x1, y1, z0), (x0, y1, z0), (x0, y0, z1), (x1, y0, z1), (x1, y1, z1), (x0, y1, z1)]
     f = [(0, 3, 2, 1), (4, 5, 6, 7), (0, 1, 5, 4), (1, 2, 6, 5), (2, 3, 7, 6), (3, 0, 4, 7)]
     obj = mesh_object("water_volume", v, f, index=0)
     obj.data.materials.append(volume_material(desc))

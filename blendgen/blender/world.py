@@ -12,6 +12,7 @@ light-coloured), sand 0.25-0.45 (dry quartz sand ~0.4; wet darker), basalt/grani
 0.08-0.2, painted steel 0.3-0.6 by colour, aluminium diffuse part 0.24 plus a rough
 specular lobe (metals reflect ~0.6-0.9 specularly; Principled metallic).
 """
+
 from __future__ import annotations
 
 import math
@@ -20,8 +21,8 @@ import bpy
 import numpy as np
 
 from blendgen.blender.materials import _fresh
-from blendgen.physics.surface.optics import N_WATER, waves_for
 from blendgen.blender.meshes import mesh_object
+from blendgen.physics.surface.optics import N_WATER, waves_for
 
 
 def _node(nt, kind: str, **inputs):
@@ -84,10 +85,21 @@ def tiles(name: str, color, look: dict, swizzle: str) -> bpy.types.Material:
     vec = _offset_coords(nt, look["texture_seed"] + (0 if swizzle == "xy" else 1), swizzle)
     c = np.asarray(color, float)
     s = float(look["tile_size_m"])
-    brick = _node(nt, "ShaderNodeTexBrick", **{
-        "Color1": (*(c * 1.08).clip(0, 0.95), 1.0), "Color2": (*(c * 0.92), 1.0),
-        "Mortar": (*(c * 0.55), 1.0), "Scale": 1.0, "Mortar Size": 0.05 * s, "Mortar Smooth": 0.2,
-        "Bias": 0.0, "Brick Width": s, "Row Height": s})
+    brick = _node(
+        nt,
+        "ShaderNodeTexBrick",
+        **{
+            "Color1": (*(c * 1.08).clip(0, 0.95), 1.0),
+            "Color2": (*(c * 0.92), 1.0),
+            "Mortar": (*(c * 0.55), 1.0),
+            "Scale": 1.0,
+            "Mortar Size": 0.05 * s,
+            "Mortar Smooth": 0.2,
+            "Bias": 0.0,
+            "Brick Width": s,
+            "Row Height": s,
+        },
+    )
     brick.offset, brick.squash = 0.0, 1.0
     nt.links.new(vec, brick.inputs["Vector"])
     col = _grime(nt, vec, brick.outputs["Color"], look["grime"], 0.6)
@@ -142,7 +154,7 @@ def sand(name: str, look: dict) -> bpy.types.Material:
     nt.links.new(mix.outputs["Value"], ramp.inputs["Value"])
     tint = nt.nodes.new("ShaderNodeVectorMath")
     tint.operation = "SCALE"
-    tint.inputs[0].default_value = (1.0, 0.9, 0.72)          # quartz-and-shell sand is yellowish
+    tint.inputs[0].default_value = (1.0, 0.9, 0.72)  # quartz-and-shell sand is yellowish
     nt.links.new(ramp.outputs["Result"], tint.inputs["Scale"])
     bsdf = nt.nodes.new("ShaderNodeBsdfDiffuse")
     nt.links.new(tint.outputs["Vector"], bsdf.inputs["Color"])
@@ -204,7 +216,7 @@ def add_water_surface(desc: dict) -> bpy.types.Object:
 def _math(nt, op: str, a, b, c=None):
     n = nt.nodes.new("ShaderNodeMath")
     n.operation = op
-    for i, x in enumerate((a, b, c)[:3 if c is not None else 2]):
+    for i, x in enumerate((a, b, c)[: 3 if c is not None else 2]):
         if isinstance(x, (int, float)):
             n.inputs[i].default_value = float(x)
         else:
@@ -212,7 +224,7 @@ def _math(nt, op: str, a, b, c=None):
     return n.outputs["Value"]
 
 
-def _wave_height(nt, waves) -> "bpy.types.NodeSocket":
+def _wave_height(nt, waves) -> bpy.types.NodeSocket:
     """Shader nodes of ``eta(x, y, t)`` (:class:`physics.surface.optics.WaveField`, world = object
     coordinates of the unrotated surface); time is the Value node ``wave_time`` (s), set per
     frame by :func:`set_wave_time`."""
@@ -224,9 +236,19 @@ def _wave_height(nt, waves) -> "bpy.types.NodeSocket":
     time.outputs[0].default_value = 0.0
     total = None
     for a, (kx, ky), w, ph in zip(waves.amp, waves.k, waves.omega, waves.phase):
-        arg = _math(nt, "MULTIPLY_ADD", sep.outputs["X"], float(kx),
-                    _math(nt, "MULTIPLY_ADD", sep.outputs["Y"], float(ky),
-                          _math(nt, "MULTIPLY_ADD", time.outputs[0], -float(w), float(ph))))
+        arg = _math(
+            nt,
+            "MULTIPLY_ADD",
+            sep.outputs["X"],
+            float(kx),
+            _math(
+                nt,
+                "MULTIPLY_ADD",
+                sep.outputs["Y"],
+                float(ky),
+                _math(nt, "MULTIPLY_ADD", time.outputs[0], -float(w), float(ph)),
+            ),
+        )
         term = _math(nt, "MULTIPLY", _math(nt, "SINE", arg, 0.0), float(a))
         total = term if total is None else _math(nt, "ADD", total, term)
     return total
@@ -253,7 +275,7 @@ def world_sky_through_surface(world: bpy.types.World, sky_radiance: float, sun: 
     out = next(n for n in nt.nodes if n.bl_idname == "ShaderNodeOutputWorld")
     old = out.inputs["Surface"].links[0].from_socket if out.inputs["Surface"].links else None
     path = nt.nodes.new("ShaderNodeLightPath")
-    sky = _node(nt, "ShaderNodeBackground", Strength=float(sky_radiance) * N_WATER ** 2)
+    sky = _node(nt, "ShaderNodeBackground", Strength=float(sky_radiance) * N_WATER**2)
     sky.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
     if sun is not None and float(sun["irradiance"]) > 0:
         nt.links.new(_sun_disc_strength(nt, sun, float(sky_radiance)), sky.inputs["Strength"])
@@ -268,12 +290,13 @@ def world_sky_through_surface(world: bpy.types.World, sky_radiance: float, sun: 
 def _sun_disc_strength(nt, sun: dict, sky_radiance: float):
     """``n^2 (L_sky + L_sun [angle(ray, to_sun) < SUN_RADIUS_RAD])`` as a world-shader value."""
     from blendgen.physics.surface.optics import SUN_RADIUS_RAD
-    coord = nt.nodes.new("ShaderNodeTexCoord")                  # world: Generated = ray direction
+
+    coord = nt.nodes.new("ShaderNodeTexCoord")  # world: Generated = ray direction
     to_sun = np.asarray(sun["to_sun"], float)
     dot = nt.nodes.new("ShaderNodeVectorMath")
     dot.operation = "DOT_PRODUCT"
     dot.inputs[1].default_value = tuple(to_sun / np.linalg.norm(to_sun))
     nt.links.new(coord.outputs["Generated"], dot.inputs[0])
     inside = _math(nt, "GREATER_THAN", dot.outputs["Value"], math.cos(SUN_RADIUS_RAD))
-    l_sun = float(sun["irradiance"]) / (math.pi * SUN_RADIUS_RAD ** 2)
-    return _math(nt, "MULTIPLY_ADD", inside, l_sun * N_WATER ** 2, sky_radiance * N_WATER ** 2)
+    l_sun = float(sun["irradiance"]) / (math.pi * SUN_RADIUS_RAD**2)
+    return _math(nt, "MULTIPLY_ADD", inside, l_sun * N_WATER**2, sky_radiance * N_WATER**2)

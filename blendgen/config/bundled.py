@@ -4,6 +4,7 @@ The repository keeps ``templates/`` and ``configs/`` at its top level (the user'
 ``pyproject.toml`` maps them into the wheel as ``blendgen.bundled.templates`` and
 ``blendgen.bundled.configs``. Both routes give real files on disk (no zip imports).
 """
+
 from __future__ import annotations
 
 from importlib import resources

@@ -10,13 +10,14 @@ made (``SequencePost``), ``generate`` records the effective config in the manife
 
 Changing what a mode turns on is a change of one row of :data:`MODE_DEFAULTS`.
 """
+
 from __future__ import annotations
 
 from typing import Any
 
 from blendgen.config.models import Experiment, Sensor
 from blendgen.physics.camera import sensor as sensor_model
-from blendgen.physics.camera.sensor import BLOOM_FRACTION     # its source: physics/camera/sensor.py
+from blendgen.physics.camera.sensor import BLOOM_FRACTION  # its source: physics/camera/sensor.py
 
 #: Diffuse sky irradiance as a fraction of the direct sun's on a horizontal plane (clear sky:
 #: about 0.1-0.3); our choice for the physical mode.
@@ -36,18 +37,19 @@ MODE_DEFAULTS: dict[str, tuple[Any, Any]] = {
 }
 #: config setting -> (value for null with fidelity fast, with fidelity reference)
 FIDELITY_DEFAULTS: dict[str, tuple[Any, Any]] = {
-    "render.light_tree": (False, True),     # fast: one sun, LEDs not sampled; reference: many lights
+    "render.light_tree": (False, True),  # fast: one sun, LEDs not sampled; reference: many lights
 }
 #: config setting -> the experiment-level setting a null stands for
 SEED_DEFAULTS: dict[str, str] = {"scene.world.wave_seed": "seed", "scene.world.texture_seed": "seed"}
 #: config settings whose null is derived from the rest of the experiment (same in every mode)
-DERIVED_DEFAULTS = ("camera.sensor.exposure_s",)     # exposed for the dock's beacons: beacon_exposure_s
+DERIVED_DEFAULTS = ("camera.sensor.exposure_s",)  # exposed for the dock's beacons: beacon_exposure_s
 
 
 def beacon_peak_radiance(exp: Experiment) -> float:
     """The brightest channel of the dock's LEDs (W m^-2 sr^-1): ``I c_k / (pi r^2)`` over every LED
     array's colour and reference colour; 0 without LEDs."""
     from blendgen.physics.light.leds import led_radiance
+
     peak = 0.0
     for m in exp.scene.dock.markers:
         if m.kind == "led_array":
@@ -102,7 +104,8 @@ def value(exp: Experiment, path: str) -> Any:
 
 def effective(exp: Experiment) -> Experiment:
     """``exp`` with every null of :data:`MODE_DEFAULTS`, :data:`FIDELITY_DEFAULTS`,
-    :data:`SEED_DEFAULTS` and :data:`DERIVED_DEFAULTS` replaced by its resolved value (values given in the config are kept).
+    :data:`SEED_DEFAULTS` and :data:`DERIVED_DEFAULTS` replaced by its resolved value (values given in the config are
+    kept).
     Idempotent."""
     for path, value in defaults_for(exp).items():
         if _get(exp, path) is None:
@@ -123,4 +126,5 @@ def effective_sensor(sensor: Sensor, image_formation: str) -> Sensor:
 def as_yaml(exp: Experiment) -> str:
     """The effective config as YAML (the keys in the models' order)."""
     import yaml
+
     return yaml.safe_dump(effective(exp).model_dump(mode="json"), sort_keys=False)

@@ -5,10 +5,11 @@ fails with the file, the key path and the range (:class:`ConfigError`), before
 anything is written. Angles are degrees here (the config edge) and radians
 everywhere after.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any, Literal, Optional, Union
+from typing import Annotated, Any, Literal
 
 import yaml
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
@@ -18,9 +19,9 @@ from blendgen.config.bundled import bundled_dir, bundled_names, resolve_config
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 
 SAFE_ID_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"
-MAX_TRIALS = 1000                 # the writer has been run at 1000 trials (6000 frames, ulimit -n 256)
+MAX_TRIALS = 1000  # the writer has been run at 1000 trials (6000 frames, ulimit -n 256)
 MAX_FRAMES_PER_SEQUENCE = 20_000  # 33 min at 10 fps; the writer has been run at 19991 frames
-MAX_FRAMES_TOTAL = 500_000        # per dataset: manifest.json (3 files a frame) stays under 256 MiB
+MAX_FRAMES_TOTAL = 500_000  # per dataset: manifest.json (3 files a frame) stays under 256 MiB
 
 
 def _no_dotdot(value: str) -> str:
@@ -29,10 +30,11 @@ def _no_dotdot(value: str) -> str:
     return value
 
 
-SAFE_ID_RULE = ("allowed: 1-64 ASCII letters, digits, '_', '.', '-', starting with a letter or digit, "
-                "no '..' (it becomes a file or folder name)")
-SafeId = Annotated[str, Field(pattern=SAFE_ID_PATTERN, description=SAFE_ID_RULE),
-                   AfterValidator(_no_dotdot)]
+SAFE_ID_RULE = (
+    "allowed: 1-64 ASCII letters, digits, '_', '.', '-', starting with a letter or digit, "
+    "no '..' (it becomes a file or folder name)"
+)
+SafeId = Annotated[str, Field(pattern=SAFE_ID_PATTERN, description=SAFE_ID_RULE), AfterValidator(_no_dotdot)]
 Color = Annotated[list[Annotated[float, Field(ge=0.0, le=1.0)]], Field(min_length=3, max_length=3)]
 
 
@@ -50,12 +52,14 @@ class Strict(BaseModel):
 
 class Pose(Strict):
     """A rigid pose: translation (m) and roll/pitch/yaw (deg, ZYX)."""
+
     xyz: Vec3 = [0.0, 0.0, 0.0]
     rpy_deg: Vec3 = [0.0, 0.0, 0.0]
 
 
 class Pool(Strict):
     """Pool-style volume: x in [-length/2, length/2], y in [-width/2, width/2], z in [-depth, 0]."""
+
     length_m: float = Field(15.0, gt=0.5, le=1000)
     width_m: float = Field(5.0, gt=0.5, le=1000)
     depth_m: float = Field(8.0, gt=0.5, le=1000)
@@ -66,6 +70,7 @@ class Pool(Strict):
 
 class Obstacle(Strict):
     """A large fixed obstacle in world coordinates."""
+
     kind: Literal["box", "cylinder", "rock"]
     pose: Pose = Pose()
     size_m: Vec3 = Field([1.0, 1.0, 1.0], description="box: x,y,z sides; cylinder: diameter, diameter, height")
@@ -82,23 +87,30 @@ class LedArray(Strict):
     kind: Literal["led_array"] = "led_array"
     id: SafeId = "led"
     layout: Literal["rectangle", "circle", "custom"] = Field(
-        "rectangle", description="rectangle: 4 corners; circle: count LEDs evenly on a circle from the top, "
-        "clockwise; custom: positions_m")
+        "rectangle",
+        description="rectangle: 4 corners; circle: count LEDs evenly on a circle from the top, "
+        "clockwise; custom: positions_m",
+    )
     count: int = Field(4, ge=4, le=32, description="number of LEDs (rectangle: 4)")
-    positions_m: Optional[list[Annotated[list[float], Field(min_length=2, max_length=2)]]] = Field(
-        None, description="custom layout: LED centres (x, y) in the marker frame (m), in convex position")
+    positions_m: list[Annotated[list[float], Field(min_length=2, max_length=2)]] | None = Field(
+        None, description="custom layout: LED centres (x, y) in the marker frame (m), in convex position"
+    )
     size_m: float = Field(0.6, gt=0.01, le=5.0, description="overall size l (side or diameter)")
-    height_m: Optional[float] = Field(None, gt=0.01, le=5.0, description="rectangle height (default = size)")
+    height_m: float | None = Field(None, gt=0.01, le=5.0, description="rectangle height (default = size)")
     led_radius_m: float = Field(0.04, gt=0.001, le=0.5)
     color: Color = [0.0, 0.85, 0.6]
     reference_color: Color = [1.0, 0.35, 0.0]
-    reference_index: Union[int, list[int]] = Field(
-        0, description="index (or indices) of the reference LED(s), which have reference_color")
+    reference_index: int | list[int] = Field(
+        0, description="index (or indices) of the reference LED(s), which have reference_color"
+    )
     intensity_w_sr: float = Field(
-        0.1, gt=0.0, le=1e3,
+        0.1,
+        gt=0.0,
+        le=1e3,
         description="on-axis radiant intensity of each LED per unit colour weight (W/sr; channel k emits "
-                    "intensity_w_sr * color[k]); a flat Lambertian disc of radiance I/(pi r^2) in both "
-                    "fidelities (physics/light/leds.py). 0.1 = the former strength 20 at r = 0.04 m")
+        "intensity_w_sr * color[k]); a flat Lambertian disc of radiance I/(pi r^2) in both "
+        "fidelities (physics/light/leds.py). 0.1 = the former strength 20 at r = 0.04 m",
+    )
     center_m: Annotated[list[float], Field(min_length=2, max_length=2)] = [0.0, 0.0]
 
     @model_validator(mode="before")
@@ -114,6 +126,7 @@ class LedArray(Strict):
             if not isinstance(s, (int, float)) or isinstance(s, bool) or not (0 < s <= 1e5):
                 raise ValueError(f"strength (old key, radiance scale) must be a number in (0, 1e5], got {s!r}")
             from blendgen.physics.light.leds import intensity_from_strength
+
             data["intensity_w_sr"] = intensity_from_strength(s, float(data.get("led_radius_m", 0.04)))
         return data
 
@@ -137,9 +150,11 @@ class LedArray(Strict):
             raise ValueError(f"a rectangle has 4 LEDs, got count {self.count} (use circle or custom)")
         refs = self.reference_indices
         if not refs or refs[0] < 0 or refs[-1] >= self.count or len(refs) >= self.count:
-            raise ValueError(f"reference_index must name 1..{self.count - 1} LEDs in 0..{self.count - 1}, "
-                             f"got {self.reference_index}")
+            raise ValueError(
+                f"reference_index must name 1..{self.count - 1} LEDs in 0..{self.count - 1}, got {self.reference_index}"
+            )
         from blendgen.markers import led_pattern_problem
+
         problem = led_pattern_problem(self)
         if problem:
             raise ValueError(problem)
@@ -151,14 +166,19 @@ class SquareMarker(Strict):
     id: SafeId
     size_m: float = Field(0.15, gt=0.005, le=5.0, description="side of the code without its quiet zone")
     center_m: Annotated[list[float], Field(min_length=2, max_length=2)] = [0.0, 0.0]
-    payload: Optional[str] = Field(None, max_length=200, description="qr: text to encode")
-    dictionary: Optional[str] = Field(None, description="aruco/apriltag: OpenCV dictionary name")
+    payload: str | None = Field(None, max_length=200, description="qr: text to encode")
+    dictionary: str | None = Field(None, description="aruco/apriltag: OpenCV dictionary name")
     marker_id: int = Field(0, ge=0, le=4095)
     error_correction: Literal["L", "M", "Q", "H"] = Field(
-        "M", description="qr: error-correction level (the smallest version that fits the payload is used)")
-    quiet_zone_modules: Optional[int] = Field(
-        None, ge=0, le=16, description="white margin around the code, in modules/cells "
-        "(default: 4 for qr as ISO/IEC 18004 asks, 1 cell for aruco/apriltag)")
+        "M", description="qr: error-correction level (the smallest version that fits the payload is used)"
+    )
+    quiet_zone_modules: int | None = Field(
+        None,
+        ge=0,
+        le=16,
+        description="white margin around the code, in modules/cells "
+        "(default: 4 for qr as ISO/IEC 18004 asks, 1 cell for aruco/apriltag)",
+    )
 
     @model_validator(mode="after")
     def _kind_fields(self):
@@ -169,12 +189,15 @@ class SquareMarker(Strict):
         if self.kind == "qr":
             try:
                 import segno
+
                 segno.make_qr(self.payload, error=self.error_correction.lower(), boost_error=False)
             except Exception as exc:  # noqa: BLE001 - segno's DataOverflowError and friends
-                raise ValueError(f"payload cannot be encoded as a QR code at level "
-                                 f"{self.error_correction}: {exc}") from None
+                raise ValueError(
+                    f"payload cannot be encoded as a QR code at level {self.error_correction}: {exc}"
+                ) from None
         if self.kind in ("aruco", "apriltag"):
             import cv2
+
             default = "DICT_4X4_50" if self.kind == "aruco" else "DICT_APRILTAG_36h11"
             self.dictionary = self.dictionary or default
             if not self.dictionary.startswith("DICT_") or not hasattr(cv2.aruco, self.dictionary):
@@ -185,14 +208,20 @@ class SquareMarker(Strict):
         return self
 
 
-Marker = Annotated[Union[LedArray, SquareMarker], Field(discriminator="kind")]
+Marker = Annotated[LedArray | SquareMarker, Field(discriminator="kind")]
 
 
 class Dock(Strict):
     """Docking station: its top ``water_depth_m`` below the surface, face normal along ``facing_deg``."""
+
     position_xy_m: Annotated[list[float], Field(min_length=2, max_length=2)] = [7.0, 0.0]
-    water_depth_m: float = Field(1.0, ge=0.0, le=1000.0, description="depth (m) of the dock's top (the highest "
-                                 "point of body and markers) below the water surface; 0: just under it")
+    water_depth_m: float = Field(
+        1.0,
+        ge=0.0,
+        le=1000.0,
+        description="depth (m) of the dock's top (the highest "
+        "point of body and markers) below the water surface; 0: just under it",
+    )
     facing_deg: float = Field(180.0, ge=-360, le=360, description="world yaw of the face normal (180 = -x)")
     body_size_m: Vec3 = [1.0, 1.0, 0.4]
     face_color: Color = [0.25, 0.27, 0.28]
@@ -210,46 +239,68 @@ class WorldLook(Strict):
     """What surrounds the dock (docs/light.md): the water surface seen from below, textured pool
     and dock, caustics. ``null`` switches: on in ``physical`` mode, off in ``article`` mode
     (which keeps the article's flat look). Physics: ``physics/surface/optics.py``."""
-    surface: Optional[bool] = Field(None, description="water surface seen from below (Snell's window, "
-                                                       "total internal reflection outside it)")
-    caustics: Optional[bool] = Field(None, description="sunlight focused by the surface waves on floor, "
-                                                        "walls and dock")
-    textures: Optional[bool] = Field(None, description="tiled pool, painted/metal dock, sand-and-rock seabed")
-    sun_glint: Optional[bool] = Field(None, description="the sun's disc (0.265 deg radius, irradiance "
-                                                         "scene.sun_strength) seen through Snell's window; "
-                                                         "needs the surface")
-    wind_mps: float = Field(1.0, ge=0.0, le=20.0, description="wind speed setting the surface slope "
-                                                              "(Cox-Munk mean-square slope 0.003 + 5.12e-3 U)")
-    wave_seed: Optional[int] = Field(None, ge=0, description="seed of the surface waves; null: the experiment seed")
-    texture_seed: Optional[int] = Field(None, ge=0, description="seed of texture randomisation (tile colour, "
-                                                                "grime, rocks); null: the experiment seed")
+
+    surface: bool | None = Field(
+        None, description="water surface seen from below (Snell's window, total internal reflection outside it)"
+    )
+    caustics: bool | None = Field(None, description="sunlight focused by the surface waves on floor, walls and dock")
+    textures: bool | None = Field(None, description="tiled pool, painted/metal dock, sand-and-rock seabed")
+    sun_glint: bool | None = Field(
+        None,
+        description="the sun's disc (0.265 deg radius, irradiance "
+        "scene.sun_strength) seen through Snell's window; "
+        "needs the surface",
+    )
+    wind_mps: float = Field(
+        1.0,
+        ge=0.0,
+        le=20.0,
+        description="wind speed setting the surface slope (Cox-Munk mean-square slope 0.003 + 5.12e-3 U)",
+    )
+    wave_seed: int | None = Field(None, ge=0, description="seed of the surface waves; null: the experiment seed")
+    texture_seed: int | None = Field(
+        None, ge=0, description="seed of texture randomisation (tile colour, grime, rocks); null: the experiment seed"
+    )
     tile_size_m: float = Field(0.25, ge=0.02, le=2.0, description="pool tile edge (m)")
     grime: float = Field(0.35, ge=0.0, le=1.0, description="strength of the dirt on tiles and dock (0: clean)")
     seabed_depth_m: float = Field(12.0, gt=0.5, le=1000.0, description="open water: seabed depth below the surface")
 
 
 class Scene(Strict):
-    template: Optional[str] = None
+    template: str | None = None
     kind: Literal["pool", "open_water"] = "pool"
     pool: Pool = Pool()
     dock: Dock = Dock()
     obstacles: list[Obstacle] = Field(default_factory=list)
-    sun_elevation_deg: float = Field(60.0, gt=0.0, le=90.0,
-                                     description="elevation of the sunlight's direction in water, after "
-                                                 "refraction at the surface (deg; above 41.4 when the "
-                                                 "surface or caustics are on: Snell's window)")
+    sun_elevation_deg: float = Field(
+        60.0,
+        gt=0.0,
+        le=90.0,
+        description="elevation of the sunlight's direction in water, after "
+        "refraction at the surface (deg; above 41.4 when the "
+        "surface or caustics are on: Snell's window)",
+    )
     sun_azimuth_deg: float = Field(180.0, ge=-360, le=360)
     sun_strength: float = Field(3.0, ge=0.0, le=1000.0, description="sun irradiance at the surface (W/m^2)")
-    fill_strength: float = Field(0.0, ge=0.0, le=1000.0,
-                                 description="horizontal fill light (W/m^2); > 0 adds light-selection "
-                                             "noise at few samples (Cycles samples one light per path)")
-    sky_fraction: Optional[float] = Field(
-        None, ge=0.0, le=10.0,
+    fill_strength: float = Field(
+        0.0,
+        ge=0.0,
+        le=1000.0,
+        description="horizontal fill light (W/m^2); > 0 adds light-selection "
+        "noise at few samples (Cycles samples one light per path)",
+    )
+    sky_fraction: float | None = Field(
+        None,
+        ge=0.0,
+        le=10.0,
         description="diffuse sky irradiance on a horizontal surface as a fraction of the sun's; "
-                    "null: 0.25 in physical mode, 0 in article mode")
-    ambient: Optional[bool] = Field(
-        None, description="light of the water's diffuse light field on every surface (no black shadows); "
-                          "null: on in physical mode, off in article mode")
+        "null: 0.25 in physical mode, 0 in article mode",
+    )
+    ambient: bool | None = Field(
+        None,
+        description="light of the water's diffuse light field on every surface (no black shadows); "
+        "null: on in physical mode, off in article mode",
+    )
     world: WorldLook = WorldLook()
 
 
@@ -257,9 +308,12 @@ class AutoExposureConfig(Strict):
     """Auto-exposure (``physics/camera/sensor.AutoExposure``): meter the previous frame's brightest
     channel per pixel (``mean`` or a ``percentile``), aim it at ``target`` x full well, follow
     with time constant ``time_constant_s``, clamp to the exposure limits."""
+
     metering: Literal["mean", "percentile"] = Field(
-        "percentile", description="mean: average metering (target ~0.18); percentile: highlight "
-                                  "metering (99.9 and target 0.9 keep small LEDs just below saturation)")
+        "percentile",
+        description="mean: average metering (target ~0.18); percentile: highlight "
+        "metering (99.9 and target 0.9 keep small LEDs just below saturation)",
+    )
     percentile: float = Field(99.9, ge=0.0, le=100.0, description="percentile metered (percentile metering)")
     target: float = Field(0.9, gt=0.0, le=1.0, description="metered value as a share of the full well")
     min_exposure_s: float = Field(1e-5, gt=0.0, le=1.0, description="shortest exposure (s)")
@@ -284,42 +338,62 @@ class Sensor(Strict):
     QE 70 % near 530 nm, temporal dark noise 2.3 e-, saturation capacity 10.5 ke-, dark current ~3 e-/s;
     behind an f/2.8 lens that is 2.23e6 e-/s per W m^-2 sr^-1 (``physics/camera/sensor.responsivity_e_per_s``).
     docs/camera.md has the derivations."""
-    exposure_s: Optional[float] = Field(
-        None, gt=0.0, le=1.0,
+
+    exposure_s: float | None = Field(
+        None,
+        gt=0.0,
+        le=1.0,
         description="exposure time (s); null: exposed for the dock's beacons, the brightest LED channel "
-                    "(radiance I c_k / (pi r^2), the same at every range in clear water) at 0.9 of the full "
-                    "well (physics/camera/sensor.beacon_exposure_s; 0.2 ms for the default LEDs); without LEDs "
-                    "4000 e- per unit radiance (the former 4 ms at 1e6 e-/s)")
+        "(radiance I c_k / (pi r^2), the same at every range in clear water) at 0.9 of the full "
+        "well (physics/camera/sensor.beacon_exposure_s; 0.2 ms for the default LEDs); without LEDs "
+        "4000 e- per unit radiance (the former 4 ms at 1e6 e-/s)",
+    )
     responsivity_e_per_s: float = Field(
-        2.23e6, gt=0.0, le=1e12, description="electrons per second per unit linear radiance of the render "
-                                             "(W m^-2 sr^-1): QE x pixel area x pi/(4 N^2) / photon energy; "
-                                             "2.23e6 = IMX264 (QE .70, 3.45 um) at f/2.8, 530 nm")
-    full_well_e: float = Field(10500.0, ge=100.0, le=1e7,
-                               description="saturation capacity (electrons); IMX264: 10.5 ke-")
-    read_noise_e: float = Field(2.3, ge=0.0, le=1000.0,
-                                description="temporal dark noise (electrons rms); IMX264: 2.3 e-")
-    dark_current_e_per_s: float = Field(3.0, ge=0.0, le=1e6,
-                                        description="dark current (e-/s); IMX264 cameras: a few e-/s at room "
-                                                    "temperature (negligible at ms exposures)")
+        2.23e6,
+        gt=0.0,
+        le=1e12,
+        description="electrons per second per unit linear radiance of the render "
+        "(W m^-2 sr^-1): QE x pixel area x pi/(4 N^2) / photon energy; "
+        "2.23e6 = IMX264 (QE .70, 3.45 um) at f/2.8, 530 nm",
+    )
+    full_well_e: float = Field(
+        10500.0, ge=100.0, le=1e7, description="saturation capacity (electrons); IMX264: 10.5 ke-"
+    )
+    read_noise_e: float = Field(
+        2.3, ge=0.0, le=1000.0, description="temporal dark noise (electrons rms); IMX264: 2.3 e-"
+    )
+    dark_current_e_per_s: float = Field(
+        3.0,
+        ge=0.0,
+        le=1e6,
+        description="dark current (e-/s); IMX264 cameras: a few e-/s at room temperature (negligible at ms exposures)",
+    )
     gain: float = Field(1.0, gt=0.0, le=1000.0, description="analog gain (1: the full well is 255 DN)")
-    noise: Optional[bool] = Field(None, description="shot, dark-current and read noise; null: on (both modes; "
-                                                    "the article's noise_std adds to it)")
+    noise: bool | None = Field(
+        None, description="shot, dark-current and read noise; null: on (both modes; the article's noise_std adds to it)"
+    )
     response: Literal["srgb", "linear"] = Field("srgb", description="response curve to 8 bits")
-    bloom_fraction: Optional[float] = Field(
-        None, ge=0.0, le=1.0,
+    bloom_fraction: float | None = Field(
+        None,
+        ge=0.0,
+        le=1.0,
         description="share of the charge above the full well that spills into neighbouring pixels (0: "
-                    "perfect anti-blooming drain); null: 0.05 in both modes (saturated LEDs spread "
-                    "their own colour around the clipped core)")
+        "perfect anti-blooming drain); null: 0.05 in both modes (saturated LEDs spread "
+        "their own colour around the clipped core)",
+    )
     bloom_sigma_px: float = Field(2.0, gt=0.0, le=50.0, description="spread of the spilled charge (px)")
     motion_blur: bool = Field(False, description="blur by the camera's motion over the exposure")
-    auto_exposure: Optional[AutoExposureConfig] = Field(
-        None, description="exposure control between frames (null: fixed exposure_s, the first frame's "
-                          "exposure when on); each frame's exposure is recorded in its frame record")
+    auto_exposure: AutoExposureConfig | None = Field(
+        None,
+        description="exposure control between frames (null: fixed exposure_s, the first frame's "
+        "exposure when on); each frame's exposure is recorded in its frame record",
+    )
 
 
 class Lens(Strict):
     """Thin lens (docs/sensor.md: defocus of small obstacles). The pixel pitch follows from
     ``focal_length_mm`` and the focal length in pixels (hfov, width)."""
+
     focal_length_mm: float = Field(4.0, gt=0.1, le=500.0, description="focal length (mm)")
     f_number: float = Field(2.8, ge=0.5, le=64.0, description="f-number N (aperture diameter f/N)")
     focus_m: float = Field(5.0, gt=0.05, le=1000.0, description="focus distance (m), > focal length")
@@ -338,13 +412,17 @@ class Camera(Strict):
     fps: float = Field(10.0, gt=0.0, le=1000.0)
     latency_s: float = Field(0.0, ge=0.0, le=10.0)
     T_body_cam: Pose = Pose(xyz=[0.65, 0.0, 0.0])
-    distortion: Optional[Annotated[list[float], Field(min_length=5, max_length=5)]] = None
-    noise_std: float = Field(0.0, ge=0.0, le=256.0,
-                             description="the article's Gaussian noise: std in 8-bit codes, added after the "
-                                         "sensor's response curve on top of its shot and read noise (in a "
-                                         "linear response: an extra read noise of noise_std / K electrons)")
+    distortion: Annotated[list[float], Field(min_length=5, max_length=5)] | None = None
+    noise_std: float = Field(
+        0.0,
+        ge=0.0,
+        le=256.0,
+        description="the article's Gaussian noise: std in 8-bit codes, added after the "
+        "sensor's response curve on top of its shot and read noise (in a "
+        "linear response: an extra read noise of noise_std / K electrons)",
+    )
     sensor: Sensor = Sensor()
-    lens: Optional[Lens] = Field(None, description="thin lens for particle defocus; null: pinhole (sharp)")
+    lens: Lens | None = Field(None, description="thin lens for particle defocus; null: pinhole (sharp)")
 
 
 class Lamp(Strict):
@@ -352,6 +430,7 @@ class Lamp(Strict):
 
     Mounted at ``offset_m`` in the camera frame (OpenCV: x right, y down, z forward), aimed
     ``yaw_deg`` right and ``pitch_deg`` down of the optical axis. Physics: ``physics/light/sources.py``."""
+
     id: SafeId = "lamp"
     offset_m: Vec3 = Field([0.0, 0.3, 0.0], description="position in the camera frame (m)")
     yaw_deg: float = Field(0.0, ge=-90.0, le=90.0, description="aim right of the optical axis")
@@ -364,16 +443,22 @@ class Lamp(Strict):
 
 class Vehicle(Strict):
     """What the vehicle carries besides the camera."""
+
     lamps: list[Lamp] = Field(default_factory=list, max_length=8)
     lamp_forward_kept: float = Field(
-        0.85, ge=0.0, le=1.0,
+        0.85,
+        ge=0.0,
+        le=1.0,
         description="fast lamp model: share F of scattered lamp light a smooth light field keeps "
-                    "(attenuation c - F b; 0 = single scattering as the 0-bounce reference renders; "
-                    "0.85 fitted to Cycles with 32 volume bounces, physics/light/lamp_water.py)")
+        "(attenuation c - F b; 0 = single scattering as the 0-bounce reference renders; "
+        "0.85 fitted to Cycles with 32 volume bounces, physics/light/lamp_water.py)",
+    )
     lamp_shadows: bool = Field(
-        True, description="fast lamp model: screen-space shadows of the lamps on surfaces (a march along "
-                          "each lit point's segment to the lamp in the range pass, physics/light/lamp_shadow.py); "
-                          "false: every surface sees the lamps (the reference always has shadows)")
+        True,
+        description="fast lamp model: screen-space shadows of the lamps on surfaces (a march along "
+        "each lit point's segment to the lamp in the range pass, physics/light/lamp_shadow.py); "
+        "false: every surface sees the lamps (the reference always has shadows)",
+    )
 
 
 class Render(Strict):
@@ -381,34 +466,55 @@ class Render(Strict):
     samples: int = Field(4, ge=1, le=65536)
     reference_samples: int = Field(64, ge=1, le=65536)
     threads: int = Field(0, ge=0, le=256, description="Cycles threads per worker; 0 = cores / workers")
-    diffuse_bounces: int = Field(0, ge=0, le=16,
-                                 description="Cycles diffuse bounces (interreflection; noisy at few samples)")
-    volume_bounces: int = Field(32, ge=0, le=128,
-                                description="reference fidelity: Cycles volume bounces in the water medium "
-                                            "(0 = single scattering). Default 32: converged, the reference "
-                                            "judges the fast path with the multiply scattered veil and glow "
-                                            "(32 vs 64 bounces within 1 %: tests/test_reference_convergence.py); "
-                                            "lower it for speed")
+    diffuse_bounces: int = Field(
+        0, ge=0, le=16, description="Cycles diffuse bounces (interreflection; noisy at few samples)"
+    )
+    volume_bounces: int = Field(
+        32,
+        ge=0,
+        le=128,
+        description="reference fidelity: Cycles volume bounces in the water medium "
+        "(0 = single scattering). Default 32: converged, the reference "
+        "judges the fast path with the multiply scattered veil and glow "
+        "(32 vs 64 bounces within 1 %: tests/test_reference_convergence.py); "
+        "lower it for speed",
+    )
     write_depth: bool = True
     write_index: bool = True
     roi: bool = Field(True, description="fast fidelity: full samples only in the dock's image region")
     background_scale: float = Field(0.5, gt=0.05, le=1.0, description="resolution factor outside the ROI")
     background_samples: int = Field(1, ge=1, le=65536)
     roi_regions: Literal["dock", "markers", "codes"] = Field(
-        "codes", description="fast fidelity: where `samples` go: dock (one box around the dock); markers "
-                             "(a box per marker plate and per LED disc); codes (a box per code square "
-                             "without its uniform quiet zone and per LED disc; `bench render-settings`)")
-    roi_max_boxes: int = Field(6, ge=1, le=64, description="roi_regions markers: at most this many ROI "
-                                                           "render calls per frame (nearest boxes merged)")
-    roi_max_fraction: float = Field(0.9, gt=0.0, le=1.0,
-                                    description="fast fidelity: ROIs covering more than this share of the "
-                                                "image render the whole frame at `samples`")
-    light_tree: Optional[bool] = Field(
-        None, description="Cycles light tree; null: off in fast fidelity (one sun, LEDs not sampled: same "
-                          "image, fewer CPU-s), on in reference fidelity (sampled LEDs and lamps)")
-    max_distance_m: Optional[float] = Field(10.0, gt=0.0, le=1e4,
-                                            description="frames with d_true beyond this are not rendered "
-                                                        "(evaluation counts d_true <= 10 m); null renders all")
+        "codes",
+        description="fast fidelity: where `samples` go: dock (one box around the dock); markers "
+        "(a box per marker plate and per LED disc); codes (a box per code square "
+        "without its uniform quiet zone and per LED disc; `bench render-settings`)",
+    )
+    roi_max_boxes: int = Field(
+        6,
+        ge=1,
+        le=64,
+        description="roi_regions markers: at most this many ROI render calls per frame (nearest boxes merged)",
+    )
+    roi_max_fraction: float = Field(
+        0.9,
+        gt=0.0,
+        le=1.0,
+        description="fast fidelity: ROIs covering more than this share of the "
+        "image render the whole frame at `samples`",
+    )
+    light_tree: bool | None = Field(
+        None,
+        description="Cycles light tree; null: off in fast fidelity (one sun, LEDs not sampled: same "
+        "image, fewer CPU-s), on in reference fidelity (sampled LEDs and lamps)",
+    )
+    max_distance_m: float | None = Field(
+        10.0,
+        gt=0.0,
+        le=1e4,
+        description="frames with d_true beyond this are not rendered "
+        "(evaluation counts d_true <= 10 m); null renders all",
+    )
 
 
 Coef = Annotated[float, Field(ge=0.0, le=5.0)]
@@ -431,49 +537,70 @@ class Water(Strict):
     Coefficients are 1/m in [0, 5]; ``water_color`` linear RGB in [0, 1]; ``B_inf``
     veiling light per unit downwelling irradiance in [0, 10]. The article's shorthand
     ``beta`` (optional ``albedo``) applies to the article presets only."""
+
     preset: str = Field("clear", description="clear | mild | moderate | jerlov_<I..9C>")
-    name: Optional[str] = Field(None, max_length=64)
-    provenance: Optional[str] = Field(None, max_length=500)
-    beta: Optional[Coef3] = Field(None, description="article: beam attenuation c = beta (1/m)")
-    albedo: Optional[Unit3] = Field(None, description="article: single-scattering albedo b/c")
-    water_color: Optional[Unit3] = Field(None, description="veiling-light colour (linear RGB)")
-    k: Optional[Coef3] = Field(None, description="depth-light coefficient (1/m), the article's k")
-    Kd: Optional[Coef3] = Field(None, description="diffuse attenuation of downwelling light (1/m)")
-    sigma_a: Optional[Coef3] = None
-    sigma_s: Optional[Coef3] = None
-    B_inf: Optional[Veil3] = None
-    g: Optional[float] = Field(None, gt=-1.0, lt=1.0, description="Henyey-Greenstein mean cosine")
-    phase: Optional[Literal["hg", "ff"]] = None
-    ff_ior: Optional[float] = Field(None, gt=1.0, le=1.5)
-    ff_backscatter: Optional[float] = Field(None, gt=0.0, lt=0.5)
-    calibrated: bool = Field(False, description="fast fidelity: veiling light fitted to reference renders "
-                                                "(blendgen/data/water_calibration.json) instead of the "
-                                                "light-field estimate")
+    name: str | None = Field(None, max_length=64)
+    provenance: str | None = Field(None, max_length=500)
+    beta: Coef3 | None = Field(None, description="article: beam attenuation c = beta (1/m)")
+    albedo: Unit3 | None = Field(None, description="article: single-scattering albedo b/c")
+    water_color: Unit3 | None = Field(None, description="veiling-light colour (linear RGB)")
+    k: Coef3 | None = Field(None, description="depth-light coefficient (1/m), the article's k")
+    Kd: Coef3 | None = Field(None, description="diffuse attenuation of downwelling light (1/m)")
+    sigma_a: Coef3 | None = None
+    sigma_s: Coef3 | None = None
+    B_inf: Veil3 | None = None
+    g: float | None = Field(None, gt=-1.0, lt=1.0, description="Henyey-Greenstein mean cosine")
+    phase: Literal["hg", "ff"] | None = None
+    ff_ior: float | None = Field(None, gt=1.0, le=1.5)
+    ff_backscatter: float | None = Field(None, gt=0.0, lt=0.5)
+    calibrated: bool = Field(
+        False,
+        description="fast fidelity: veiling light fitted to reference renders "
+        "(blendgen/data/water_calibration.json) instead of the "
+        "light-field estimate",
+    )
     blur: bool = Field(False, description="fast fidelity: range-dependent forward-scatter blur")
-    secchi_m: Optional[float] = Field(None, gt=0.0, le=1000.0, description="a Secchi depth reading (m): the water "
-                                      "between the Jerlov types of that clarity (physics/water/turbidity.py)")
-    ntu: Optional[float] = Field(None, gt=0.0, le=1e4, description="a nephelometric turbidity reading (NTU): "
-                                 "the water between the Jerlov types of that scattering (physics/water/turbidity.py)")
-    glow: bool = Field(True, description="fast fidelity: forward-scattered glow around the LEDs (small-angle "
-                                         "multiple scattering from sigma_s and g, physics/water/optics.py), in both "
-                                         "modes (article: sigma_s = albedo * beta); false: none")
+    secchi_m: float | None = Field(
+        None,
+        gt=0.0,
+        le=1000.0,
+        description="a Secchi depth reading (m): the water "
+        "between the Jerlov types of that clarity (physics/water/turbidity.py)",
+    )
+    ntu: float | None = Field(
+        None,
+        gt=0.0,
+        le=1e4,
+        description="a nephelometric turbidity reading (NTU): "
+        "the water between the Jerlov types of that scattering (physics/water/turbidity.py)",
+    )
+    glow: bool = Field(
+        True,
+        description="fast fidelity: forward-scattered glow around the LEDs (small-angle "
+        "multiple scattering from sigma_s and g, physics/water/optics.py), in both "
+        "modes (article: sigma_s = albedo * beta); false: none",
+    )
 
     @field_validator("preset", mode="before")
     @classmethod
     def _known_preset(cls, v):
         from blendgen.physics.water.presets import preset_key
+
         return preset_key(v)
 
     @model_validator(mode="after")
     def _consistent(self):
         from blendgen.physics.water.presets import ARTICLE_BETAS
+
         for a, b in (("water_color", "B_inf"), ("k", "Kd"), ("beta", "sigma_a"), ("beta", "sigma_s")):
             if getattr(self, a) is not None and getattr(self, b) is not None:
                 raise ValueError(f"give either {a!r} or {b!r}, not both")
         article = self.preset in ARTICLE_BETAS
         if self.beta is not None and not article:
-            raise ValueError(f"'beta' applies to the article presets {tuple(ARTICLE_BETAS)}, not "
-                             f"{self.preset!r}; give sigma_a/sigma_s instead")
+            raise ValueError(
+                f"'beta' applies to the article presets {tuple(ARTICLE_BETAS)}, not "
+                f"{self.preset!r}; give sigma_a/sigma_s instead"
+            )
         if self.albedo is not None and not article:
             raise ValueError("'albedo' only applies with 'beta' or an article preset")
         return self._reading()
@@ -487,16 +614,20 @@ class Water(Strict):
         if len(given) > 1 or "preset" in self.model_fields_set or self.beta is not None:
             raise ValueError("give one of preset, secchi_m or ntu (a reading names the water)")
         from blendgen.physics.water import turbidity
+
         kind = given[0]
-        turbidity.water_from_reading(kind, getattr(self, kind))        # ValueError: the allowed range
+        turbidity.water_from_reading(kind, getattr(self, kind))  # ValueError: the allowed range
         self.preset = f"jerlov_{turbidity.ladder_type(kind, getattr(self, kind))}"
         return self
 
     @property
     def is_bare(self) -> bool:
         """True when no coefficient is overridden (only the preset and the fast-model switches)."""
-        return all(getattr(self, f) is None for f in type(self).model_fields
-                   if f not in ("preset", "calibrated", "blur", "glow"))
+        return all(
+            getattr(self, f) is None
+            for f in type(self).model_fields
+            if f not in ("preset", "calibrated", "blur", "glow")
+        )
 
 
 class LinearTrajectory(Strict):
@@ -528,6 +659,7 @@ class CircleTrajectory(Strict):
 class StartRanges(Strict):
     """Random initial positions of docking trials, relative to the dock (m, deg);
     a pair is [lo, hi], a single number a means [-a, a]."""
+
     range_m: Annotated[list[float], Field(min_length=2, max_length=2)] = [6.0, 12.0]
     lateral_m: float = Field(1.5, ge=0.0, le=100.0)
     vertical_m: float = Field(0.5, ge=0.0, le=100.0)
@@ -548,15 +680,23 @@ class CaptureLimits(Strict):
     measured by Martin et al., "Characterizing the critical parameters for docking unmanned
     underwater vehicles", OCEANS 2016; the 15 deg / 0.25 m/s defaults are round values for a
     funnel-less 1 m face, not a measured dock's: set them from your dock."""
-    radius_m: Optional[float] = Field(None, gt=0.0, le=10.0, description="capture radius (m); none: the dock "
-                                      "face's inscribed circle minus the hull radius (0.40 m for the 1 m face)")
+
+    radius_m: float | None = Field(
+        None,
+        gt=0.0,
+        le=10.0,
+        description="capture radius (m); none: the dock "
+        "face's inscribed circle minus the hull radius (0.40 m for the 1 m face)",
+    )
     max_heading_deg: float = Field(15.0, gt=0.0, le=90.0, description="largest |heading error| at entry (deg)")
-    max_lateral_speed_mps: float = Field(0.25, gt=0.0, le=3.0, description="largest |speed across the dock "
-                                         "axis| at entry (m/s)")
+    max_lateral_speed_mps: float = Field(
+        0.25, gt=0.0, le=3.0, description="largest |speed across the dock axis| at entry (m/s)"
+    )
 
 
 class DockingTrajectory(Strict):
     """Closed-loop docking trial of the 6-DOF vehicle (blendgen.vehicle.docking) from a seeded random start."""
+
     kind: Literal["docking"] = "docking"
     id: SafeId = "docking"
     start: StartRanges = StartRanges()
@@ -564,15 +704,17 @@ class DockingTrajectory(Strict):
     max_time_s: float = Field(120.0, gt=0.0, le=3600.0)
     cruise_speed_mps: float = Field(0.5, gt=0.0, le=3.0)
     final_speed_mps: float = Field(0.2, gt=0.0, le=3.0)
-    capture: CaptureLimits = Field(default_factory=CaptureLimits, description="docking success limits "
-                                   "(closed loop only)")
+    capture: CaptureLimits = Field(
+        default_factory=CaptureLimits, description="docking success limits (closed loop only)"
+    )
 
 
-Trajectory = Annotated[Union[LinearTrajectory, CircleTrajectory, DockingTrajectory], Field(discriminator="kind")]
+Trajectory = Annotated[LinearTrajectory | CircleTrajectory | DockingTrajectory, Field(discriminator="kind")]
 
 
 class Fluid(Strict):
     """Water as a fluid: it acts on the vehicle (buoyancy, drag, current)."""
+
     density_kg_m3: float = Field(1025.0, ge=900.0, le=1200.0, description="998.2 fresh, 1025 sea")
     viscosity_pa_s: float = Field(1.3e-3, gt=0.0, le=0.1, description="1.002e-3 fresh, 1.3e-3 sea (recorded)")
     current_mps: Vec3 = Field([0.0, 0.0, 0.0], description="background flow in the world frame")
@@ -590,31 +732,46 @@ class Occlusion(Strict):
     N_total particles in a region of volume V_env (default: the pool, 600 m^3 for 15x5x8),
     radii from ``size_dist`` in [r_min, r_max], drifting with the current plus Gaussian
     noise, lit by the light field (physics/particles/optics.py)."""
+
     n_total: float = Field(600, ge=0.0, le=2e7)
     count_dist: Literal["poisson", "uniform", "fixed"] = "poisson"
-    n_max: Optional[int] = Field(None, ge=0, le=20_000_000)
+    n_max: int | None = Field(None, ge=0, le=20_000_000)
     size_dist: Literal["power_law", "uniform"] = Field(
-        "power_law", description="power_law: marine-snow number spectrum dN/dr ~ r^-size_slope (Stemmann & "
-                                 "Boss 2012); uniform: the article's radius uniform in [r_min_m, r_max_m]")
+        "power_law",
+        description="power_law: marine-snow number spectrum dN/dr ~ r^-size_slope (Stemmann & "
+        "Boss 2012); uniform: the article's radius uniform in [r_min_m, r_max_m]",
+    )
     size_slope: float = Field(3.5, ge=0.0, le=6.0, description="power-law slope xi of dN/dr ~ r^-xi")
-    r_min_m: Optional[float] = Field(None, gt=0.0, le=1.0, description="smallest radius (m); default "
-                                     "0.00025 for power_law, 0.005 for uniform (the article)")
-    r_max_m: Optional[float] = Field(None, gt=0.0, le=1.0, description="largest radius (m); default "
-                                     "0.015 for power_law, 0.02 for uniform")
+    r_min_m: float | None = Field(
+        None,
+        gt=0.0,
+        le=1.0,
+        description="smallest radius (m); default 0.00025 for power_law, 0.005 for uniform (the article)",
+    )
+    r_max_m: float | None = Field(
+        None, gt=0.0, le=1.0, description="largest radius (m); default 0.015 for power_law, 0.02 for uniform"
+    )
     albedo: float = Field(0.3, ge=0.0, le=1.0, description="share of the geometric cross-section scattered")
-    forward_fraction: float = Field(0.5, ge=0.0, le=1.0,
-                                    description="share of the scattered light in the forward HG lobe "
-                                                "(the rest: Lambertian-sphere reflection)")
+    forward_fraction: float = Field(
+        0.5,
+        ge=0.0,
+        le=1.0,
+        description="share of the scattered light in the forward HG lobe (the rest: Lambertian-sphere reflection)",
+    )
     forward_g: float = Field(0.9, ge=0.0, lt=1.0, description="HG asymmetry of the forward lobe")
     drift_sigma_m: float = Field(0.002, ge=0.0, le=1.0, description="per-frame Gaussian step std")
     mode: Literal["backscatter", "silhouette", "lit"] = Field(
-        "lit", description="lit: radiance from the light field (ambient at depth, lamps, LEDs); "
-                           "backscatter / silhouette: the former constant bright / dark colour")
+        "lit",
+        description="lit: radiance from the light field (ambient at depth, lamps, LEDs); "
+        "backscatter / silhouette: the former constant bright / dark colour",
+    )
     geometry: Literal["image", "blender"] = Field(
-        "image", description="image: depth-tested blobs drawn on the clean render (fast, shared renders); "
-                             "blender: the same particles as instanced spheres in the scene (validation)")
-    region_min: Optional[Vec3] = None
-    region_max: Optional[Vec3] = None
+        "image",
+        description="image: depth-tested blobs drawn on the clean render (fast, shared renders); "
+        "blender: the same particles as instanced spheres in the scene (validation)",
+    )
+    region_min: Vec3 | None = None
+    region_max: Vec3 | None = None
 
     @model_validator(mode="after")
     def _ranges(self):
@@ -636,16 +793,22 @@ class Occlusion(Strict):
 class Condition(Strict):
     """One experimental condition: a label and what it changes. Water, light depth and
     occlusion are image-space (the clean render is shared); fluid changes the motion."""
+
     label: SafeId
-    water: Optional[Water] = None
-    dock_water_depth_m: Optional[float] = Field(None, ge=0.0, le=1000.0, description="depth (m) of the dock's "
-                                                "top below the surface in this condition (moves the surface)")
-    occlusion: Optional[Occlusion] = None
-    fluid: Optional[Fluid] = None
+    water: Water | None = None
+    dock_water_depth_m: float | None = Field(
+        None,
+        ge=0.0,
+        le=1000.0,
+        description="depth (m) of the dock's top below the surface in this condition (moves the surface)",
+    )
+    occlusion: Occlusion | None = None
+    fluid: Fluid | None = None
 
 
 class Experiment(Strict):
     """The whole config file."""
+
     name: SafeId
     image_formation: ImageFormation = Field("physical", description="physical (default) or the article's formulas")
     version: str = Field("0.1.0", pattern=r"^\d+\.\d+\.\d+$")
@@ -656,7 +819,7 @@ class Experiment(Strict):
     render: Render = Render()
     water: Water = Water()
     fluid: Fluid = Fluid()
-    occlusion: Optional[Occlusion] = None
+    occlusion: Occlusion | None = None
     trajectories: list[Trajectory] = Field(min_length=1)
     conditions: list[Condition] = Field(default_factory=lambda: [Condition(label="default")])
     trials: int = Field(1, ge=1, le=MAX_TRIALS)
@@ -664,8 +827,10 @@ class Experiment(Strict):
 
     @model_validator(mode="after")
     def _unique(self):
-        for what, ids in (("trajectory", [t.id for t in self.trajectories]),
-                          ("condition", [c.label for c in self.conditions])):
+        for what, ids in (
+            ("trajectory", [t.id for t in self.trajectories]),
+            ("condition", [c.label for c in self.conditions]),
+        ):
             if len(set(ids)) != len(ids):
                 raise ValueError(f"{what} ids must be unique, got {ids}")
         return self
@@ -678,13 +843,17 @@ class Experiment(Strict):
         for i, t in enumerate(self.trajectories):
             n = max_frames(t, self.camera.fps, self.camera.latency_s)
             if n > MAX_FRAMES_PER_SEQUENCE:
-                raise ValueError(f"trajectories.{i} ({t.id}) gives {n:.3g} frames at {self.camera.fps:g} fps; "
-                                 f"allowed: at most {MAX_FRAMES_PER_SEQUENCE} frames per sequence "
-                                 "(raise speed_mps or lower camera.fps / max_time_s)")
+                raise ValueError(
+                    f"trajectories.{i} ({t.id}) gives {n:.3g} frames at {self.camera.fps:g} fps; "
+                    f"allowed: at most {MAX_FRAMES_PER_SEQUENCE} frames per sequence "
+                    "(raise speed_mps or lower camera.fps / max_time_s)"
+                )
             total += n * self.trials * len(self.conditions)
         if total > MAX_FRAMES_TOTAL:
-            raise ValueError(f"trials x conditions x trajectories give {total:.3g} frames; allowed: at most "
-                             f"{MAX_FRAMES_TOTAL} frames per dataset")
+            raise ValueError(
+                f"trials x conditions x trajectories give {total:.3g} frames; allowed: at most "
+                f"{MAX_FRAMES_TOTAL} frames per dataset"
+            )
         return self
 
 
@@ -692,6 +861,7 @@ def max_frames(traj, fps: float, latency_s: float = 0.0) -> float:
     """Upper bound of the frames one sequence of ``traj`` has at ``fps`` (Hz), as
     blendgen.vehicle.trajectories.frame_times counts them (a docking trial at max_time_s)."""
     import math
+
     if traj.kind == "linear":
         duration = (traj.start_range_m - traj.end_range_m) / traj.speed_mps
     elif traj.kind == "circle":
@@ -712,9 +882,9 @@ def _deep_merge(base: dict, over: dict) -> dict:
     return out
 
 
-MAX_CONFIG_BYTES = 1 << 20      # a config is a few kB; 1 MiB leaves room for long lists
-MAX_YAML_DEPTH = 64             # the deepest section of a config is 6 levels
-MAX_YAML_NODES = 200_000        # nodes after expanding aliases (guards alias bombs)
+MAX_CONFIG_BYTES = 1 << 20  # a config is a few kB; 1 MiB leaves room for long lists
+MAX_YAML_DEPTH = 64  # the deepest section of a config is 6 levels
+MAX_YAML_NODES = 200_000  # nodes after expanding aliases (guards alias bombs)
 
 
 class _YamlLimit(Exception):
@@ -733,10 +903,12 @@ class _StrictLoader(yaml.SafeLoader):
             line = key_node.start_mark.line + 1
             try:
                 if key in seen:
-                    raise _YamlLimit(f"line {line}: duplicate key {key!r} (first at line {seen[key]}); "
-                                     "each key may appear once per section")
+                    raise _YamlLimit(
+                        f"line {line}: duplicate key {key!r} (first at line {seen[key]}); "
+                        "each key may appear once per section"
+                    )
                 seen[key] = line
-            except TypeError:          # unhashable key: the schema reports it
+            except TypeError:  # unhashable key: the schema reports it
                 continue
         return super().construct_mapping(node, deep)
 
@@ -745,7 +917,7 @@ def _check_yaml_structure(text: str) -> None:
     """Walk the YAML events (iteratively, no recursion): refuse nesting deeper than
     MAX_YAML_DEPTH and more than MAX_YAML_NODES nodes once aliases are expanded."""
     sizes: dict[str, int] = {}
-    stack: list[list] = [[0, None]]            # [expanded node count, anchor] per open collection
+    stack: list[list] = [[0, None]]  # [expanded node count, anchor] per open collection
     for ev in yaml.parse(text, Loader=yaml.SafeLoader):
         if isinstance(ev, (yaml.MappingStartEvent, yaml.SequenceStartEvent)):
             stack.append([0, ev.anchor])
@@ -763,8 +935,10 @@ def _check_yaml_structure(text: str) -> None:
         elif isinstance(ev, yaml.AliasEvent):
             stack[-1][0] += sizes.get(ev.anchor, 1)
         if stack[-1][0] > MAX_YAML_NODES:
-            raise _YamlLimit(f"line {ev.start_mark.line + 1}: more than {MAX_YAML_NODES} values once "
-                             "aliases are expanded (alias bomb?)")
+            raise _YamlLimit(
+                f"line {ev.start_mark.line + 1}: more than {MAX_YAML_NODES} values once "
+                "aliases are expanded (alias bomb?)"
+            )
 
 
 def _read_config_text(path: Path) -> str:
@@ -775,14 +949,17 @@ def _read_config_text(path: Path) -> str:
     except OSError as e:
         raise ConfigError(f"{path}: cannot read config ({e.strerror})") from None
     if len(data) > MAX_CONFIG_BYTES:
-        raise ConfigError(f"{path}: config larger than {MAX_CONFIG_BYTES >> 20} MiB; allowed: up to "
-                          f"{MAX_CONFIG_BYTES >> 20} MiB of YAML")
+        raise ConfigError(
+            f"{path}: config larger than {MAX_CONFIG_BYTES >> 20} MiB; allowed: up to "
+            f"{MAX_CONFIG_BYTES >> 20} MiB of YAML"
+        )
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as e:
-        line = data[:e.start].count(b"\n") + 1
-        raise ConfigError(f"{path}: line {line}: byte 0x{data[e.start]:02x} is not UTF-8; "
-                          "a config must be UTF-8 text") from None
+        line = data[: e.start].count(b"\n") + 1
+        raise ConfigError(
+            f"{path}: line {line}: byte 0x{data[e.start]:02x} is not UTF-8; a config must be UTF-8 text"
+        ) from None
 
 
 def _read_yaml(path: Path) -> Any:
@@ -821,9 +998,12 @@ def format_validation_error(path: Path, err: ValidationError) -> str:
     """One line per problem: ``file: key.path: message (got value)``."""
     lines = []
     for e in err.errors():
-        parts = [str(p) for i, p in enumerate(e["loc"])
-                 if not str(p).startswith(("function-after", "tagged-union"))
-                 and not (p in _UNION_TAGS and i > 0 and isinstance(e["loc"][i - 1], int))]
+        parts = [
+            str(p)
+            for i, p in enumerate(e["loc"])
+            if not str(p).startswith(("function-after", "tagged-union"))
+            and not (p in _UNION_TAGS and i > 0 and isinstance(e["loc"][i - 1], int))
+        ]
         loc = ".".join(parts)
         if e["type"] == "string_pattern_mismatch" and e.get("ctx", {}).get("pattern") == SAFE_ID_PATTERN:
             e = {**e, "msg": f"not a safe name; {SAFE_ID_RULE}"}
@@ -839,8 +1019,10 @@ def load_experiment(path: str | Path) -> Experiment:
     as ``quickstart``); raise ConfigError on any user error."""
     path = resolve_config(path)
     if not path.exists():
-        raise ConfigError(f"{path}: cannot read config (no such file); bundled configs (give the name): "
-                          f"{', '.join(bundled_names('configs'))} (dockbench configs)")
+        raise ConfigError(
+            f"{path}: cannot read config (no such file); bundled configs (give the name): "
+            f"{', '.join(bundled_names('configs'))} (dockbench configs)"
+        )
     raw = _read_yaml(path)
     if not isinstance(raw, dict):
         raise ConfigError(f"{path}: the config must be a YAML mapping, got {type(raw).__name__}")
@@ -852,9 +1034,9 @@ def load_experiment(path: str | Path) -> Experiment:
     return exp
 
 
-
 def article_grey_spec(name: str) -> Water:
     """The water section of an article level's own grey water (``beta`` given), which the
     ``physical`` mode keeps as is, with a Jerlov Kd (``physics.water.optics.water_for_mode``)."""
     from blendgen.physics.water import presets as water_presets
+
     return Water(preset=name, beta=water_presets.ARTICLE_BETAS[name])

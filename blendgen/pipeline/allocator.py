@@ -10,6 +10,7 @@ frame's CPU time. ``mallopt`` (glibc, ``man 3 mallopt``) with a high ``M_MMAP_TH
 ``M_TRIM_THRESHOLD`` makes the heap keep and reuse those pages: the resident set stays at its
 peak instead (a few hundred MB per render worker). No-op on other C libraries.
 """
+
 from __future__ import annotations
 
 import ctypes
@@ -17,9 +18,9 @@ import ctypes.util
 import functools
 
 M_TRIM_THRESHOLD, M_TOP_PAD, M_MMAP_THRESHOLD = -1, -2, -3
-MMAP_THRESHOLD_B = 32 * 2 ** 20      # glibc's maximum on 64-bit (HEAP_MAX_SIZE / 2)
-TRIM_THRESHOLD_B = 1 * 2 ** 30
-TOP_PAD_B = 64 * 2 ** 20
+MMAP_THRESHOLD_B = 32 * 2**20  # glibc's maximum on 64-bit (HEAP_MAX_SIZE / 2)
+TRIM_THRESHOLD_B = 1 * 2**30
+TOP_PAD_B = 64 * 2**20
 
 
 @functools.cache
@@ -33,8 +34,14 @@ def keep_heap() -> bool:
         return False
     if mallopt is None:
         return False
-    ok = [mallopt(opt, val) for opt, val in ((M_MMAP_THRESHOLD, MMAP_THRESHOLD_B),
-                                              (M_TRIM_THRESHOLD, TRIM_THRESHOLD_B), (M_TOP_PAD, TOP_PAD_B))]
+    ok = [
+        mallopt(opt, val)
+        for opt, val in (
+            (M_MMAP_THRESHOLD, MMAP_THRESHOLD_B),
+            (M_TRIM_THRESHOLD, TRIM_THRESHOLD_B),
+            (M_TOP_PAD, TOP_PAD_B),
+        )
+    ]
     return all(r == 1 for r in ok)
 
 
@@ -47,5 +54,6 @@ def one_thread_per_process() -> None:
     ``bench particles``)."""
     import cv2
     from threadpoolctl import threadpool_limits
+
     threadpool_limits(1, user_api="blas")
     cv2.setNumThreads(1)

@@ -10,10 +10,11 @@ backscatter, each skipped when off), motion blur over the exposure, lens distort
 ground truth stays aligned), then the sensor (EMVA 1288: electrons, blooming, shot and
 read noise, full well, gain, response curve, 8 bits).
 """
+
 from __future__ import annotations
 
-import functools
 import dataclasses
+import functools
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,11 +22,11 @@ import cv2
 import numpy as np
 
 from blendgen.geometry import planar_depth_to_range, project, transform_points
-from blendgen.physics.light import lamp_water, leds
-from blendgen.physics.water import optics
 from blendgen.physics.camera import sensor
-from blendgen.physics.particles import field as occlusion
+from blendgen.physics.light import lamp_water, leds
 from blendgen.physics.light.sources import lamp_lights
+from blendgen.physics.particles import field as occlusion
+from blendgen.physics.water import optics
 from blendgen.pipeline import groundtruth, particle_light
 from blendgen.pipeline.plan import INDEX_PARTICLES, SequencePost
 from datasets_spec.io import save_image
@@ -34,7 +35,7 @@ from datasets_spec.io import save_image
 def emissive_mask(index: np.ndarray, markers: list[dict]) -> np.ndarray:
     """(H,W) bool: pixels of self-lit objects (the LEDs) that depth light does not dim."""
     led = [m["object_index"] for m in markers if m["kind"] == "led_array"]
-    if len(led) == 1:                    # one array (the article's dock): a compare, ~8x cheaper than isin
+    if len(led) == 1:  # one array (the article's dock): a compare, ~8x cheaper than isin
         return index == led[0]
     return np.isin(index, led) if led else np.zeros(index.shape, bool)
 
@@ -44,6 +45,7 @@ class SequenceState:
     """What one output sequence carries from frame to frame: its typed processing, its
     random stream, its small-obstacle particles (world frame, drifting with the current)
     and its water model (built once, not per frame)."""
+
     post: SequencePost
     rng: np.random.Generator
     field: occlusion.ParticleField | None = None
@@ -51,25 +53,38 @@ class SequenceState:
     water_opts: dict = dataclasses.field(default_factory=dict)
     camera: sensor.SensorModel = dataclasses.field(default_factory=sensor.SensorModel)
     auto_exposure: sensor.AutoExposure | None = None
-    exposure_s: float | None = None          # the exposure of the last image (recorded with auto-exposure)
+    exposure_s: float | None = None  # the exposure of the last image (recorded with auto-exposure)
     lamp: lamp_water.LampWater | None = None
-    prev_pose: tuple | None = None                  # (t s, T_world_cam) of the last frame (particle streaks)
+    prev_pose: tuple | None = None  # (t s, T_world_cam) of the last frame (particle streaks)
 
     @classmethod
-    def start(cls, post: SequencePost) -> "SequenceState":
+    def start(cls, post: SequencePost) -> SequenceState:
         rng = np.random.default_rng(post.seed)
         occ = post.occlusion
         pfield = None
         if occ:
             pfield = occlusion.ParticleField.sample(
-                rng, occ.region_min, occ.region_max, n_total=occ.n_total, r_min=occ.r_min_m,
-                r_max=occ.r_max_m, count_dist=occ.count_dist, n_max=occ.n_max, size_dist=occ.size_dist,
-                size_slope=occ.size_slope)
+                rng,
+                occ.region_min,
+                occ.region_max,
+                n_total=occ.n_total,
+                r_min=occ.r_min_m,
+                r_max=occ.r_max_m,
+                count_dist=occ.count_dist,
+                n_max=occ.n_max,
+                size_dist=occ.size_dist,
+                size_slope=occ.size_slope,
+            )
         water, opts = optics.fast_water(post.water, post.image_formation, post.irradiance_w_m2, veil=post.veil)
         ae = post.sensor.auto_exposure
         auto = sensor.AutoExposure(**ae.model_dump()) if ae is not None else None
-        lamp = (lamp_water.LampWater.build(lamp_lights(post.lamps), water, post.lamp_forward_kept,
-                                           post.lamp_shadows is not False) if post.lamps else None)
+        lamp = (
+            lamp_water.LampWater.build(
+                lamp_lights(post.lamps), water, post.lamp_forward_kept, post.lamp_shadows is not False
+            )
+            if post.lamps
+            else None
+        )
         return cls(post, rng, pfield, water, opts, sensor_model(post), auto, lamp=lamp)
 
     def advance(self) -> None:
@@ -79,8 +94,16 @@ class SequenceState:
             self.field = self.field.step(1.0 / self.post.fps, occ.v_flow, [occ.drift_sigma_m] * 3, self.rng)
 
 
-def add_particles(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, markers: list[dict] | None = None,
-                  T_cam_dock=None, t_s: float | None = None, water_after: bool = True) -> tuple[dict, np.ndarray | None]:
+def add_particles(
+    passes: dict,
+    state: SequenceState,
+    K: np.ndarray,
+    T_world_cam,
+    markers: list[dict] | None = None,
+    T_cam_dock=None,
+    t_s: float | None = None,
+    water_after: bool = True,
+) -> tuple[dict, np.ndarray | None]:
     """Composite the sequence's particles over the clean passes, depth-tested against the
     range pass; returns passes with rgb/range of the nearest surface or particle, and
     the occluder mask (H,W) bool (None without particles). ``lit`` particles take their
@@ -96,12 +119,15 @@ def add_particles(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam
     T = np.asarray(T_world_cam, float)
     kw = {"mode": state.post.occlusion.mode}
     if state.post.occlusion.mode == "lit":
-        kw = {"shade": particle_light.shader(state.post, state.water, T, markers, T_cam_dock, state.lamp),
-              "blur": particle_light.shaper(state.post, K, T, state.prev_pose, t_s)}
+        kw = {
+            "shade": particle_light.shader(state.post, state.water, T, markers, T_cam_dock, state.lamp),
+            "blur": particle_light.shaper(state.post, K, T, state.prev_pose, t_s),
+        }
     if water_after:
         kw["background"] = _particle_background(state, K, T)
-    rgb, occ_mask, rng_eff = occlusion.render_particles(passes["rgb"], passes["range_m"], state.field, K, T,
-                                                        merged_range=True, **kw)
+    rgb, occ_mask, rng_eff = occlusion.render_particles(
+        passes["rgb"], passes["range_m"], state.field, K, T, merged_range=True, **kw
+    )
     state.prev_pose = (t_s, T)
     return {**passes, "rgb": rgb, "range_m": rng_eff}, occ_mask
 
@@ -144,21 +170,21 @@ def surface_depth(range_m: np.ndarray, K: np.ndarray, T_world_cam, surface_z_m: 
     T = np.asarray(T_world_cam, float)
     h, w = range_m.shape
     rays = _unit_rays(tuple(np.asarray(K, float).ravel()), w, h)
-    dir_z = rays @ T[2, :3].astype(np.float32)                 # world z of each unit ray
+    dir_z = rays @ T[2, :3].astype(np.float32)  # world z of each unit ray
     cam_depth = max(float(surface_z_m - T[2, 3]), 0.0)
     r = np.where(np.isfinite(range_m), range_m, 0.0).astype(np.float32)
     depth = np.float32(surface_z_m - T[2, 3]) - r * dir_z
     return np.maximum(depth, np.float32(0.0)), cam_depth
 
 
-def led_light(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, markers: list[dict],
-              T_world_dock) -> np.ndarray | None:
+def led_light(
+    passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, markers: list[dict], T_world_dock
+) -> np.ndarray | None:
     """Fast fidelity, physical mode: radiance (H,W,3) the dock's LEDs put on the surfaces the
     camera sees (``physics/light/leds.surface_radiance``), before the view path's attenuation; None
     (no cost) without LEDs, without the albedo pass, in article mode or when it is negligible."""
     arrays = [m for m in markers if m["kind"] == "led_array" and "intensity_w_sr" in m]
-    if (not arrays or T_world_dock is None or "albedo" not in passes
-            or state.post.image_formation != "physical"):
+    if not arrays or T_world_dock is None or "albedo" not in passes or state.post.image_formation != "physical":
         return None
     T_cd = np.linalg.inv(np.asarray(T_world_cam, float)) @ np.asarray(T_world_dock, float)
     lights = [li for m in arrays for li in leds.led_lights(m, T_cd)]
@@ -167,8 +193,16 @@ def led_light(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, ma
     return leds.surface_radiance(lights, passes["range_m"], rays, passes["albedo"], state.water.c)
 
 
-def water_image(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, markers: list[dict],
-                occluded: np.ndarray | None = None, T_world_dock=None, t: float = 0.0) -> np.ndarray:
+def water_image(
+    passes: dict,
+    state: SequenceState,
+    K: np.ndarray,
+    T_world_cam,
+    markers: list[dict],
+    occluded: np.ndarray | None = None,
+    T_world_dock=None,
+    t: float = 0.0,
+) -> np.ndarray:
     """Fast fidelity: the clean linear render (H,W,3) seen through the condition's water
     with light at depth, in the sequence's image-formation mode (optics module docstring);
     in physical mode plus the LEDs' light on nearby surfaces (:func:`led_light`), attenuated
@@ -177,29 +211,38 @@ def water_image(passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, 
     emissive = emissive_mask(passes["index"], markers)
     if occluded is not None:
         emissive &= ~occluded
-        if "sun" in passes:                 # a particle in front hides the sunlit surface behind it
+        if "sun" in passes:  # a particle in front hides the sunlit surface behind it
             passes = {**passes, "sun": np.where(occluded[..., None], np.float32(0), passes["sun"])}
     fx = float(K[0, 0])
     water = state.water
     if post.image_formation == "physical":
         depth, veil_depth = surface_depth(passes["range_m"], K, T_world_cam, post.surface_z_m)
-        if state.water_opts.get("veil"):        # calibrated veil at this camera depth and view elevation
+        if state.water_opts.get("veil"):  # calibrated veil at this camera depth and view elevation
             water, veil_depth = frame_veil(state, T_world_cam, veil_depth), 0.0
     else:
         depth, veil_depth = post.light_depth_m, None
     rgb, range_m = passes["rgb"], passes["range_m"]
     if post.world is not None and post.image_formation == "physical":
         rgb, range_m, depth = _world(passes, state, water, K, T_world_cam, depth, veil_depth, t, emissive)
-    img = optics.apply_water(rgb, range_m, emissive, water, depth,
-                             model=post.image_formation, veil_depth_m=veil_depth,
-                             irradiance=state.water_opts["irradiance"], blur=state.water_opts["blur"],
-                             blur_px_per_tau=optics.BLUR_RAD_PER_TAU * fx, blur_max_px=optics.BLUR_MAX_RAD * fx,
-                             glow_fx=fx if state.water_opts.get("glow", True) else None)
+    img = optics.apply_water(
+        rgb,
+        range_m,
+        emissive,
+        water,
+        depth,
+        model=post.image_formation,
+        veil_depth_m=veil_depth,
+        irradiance=state.water_opts["irradiance"],
+        blur=state.water_opts["blur"],
+        blur_px_per_tau=optics.BLUR_RAD_PER_TAU * fx,
+        blur_max_px=optics.BLUR_MAX_RAD * fx,
+        glow_fx=fx if state.water_opts.get("glow", True) else None,
+    )
     lit = led_light(passes, state, K, T_world_cam, markers, T_world_dock)
     if lit is not None:
         lit *= optics.transmittance(state.water, passes["range_m"]).reshape(lit.shape)
         img += lit
-    if state.lamp is not None:                     # no lamp: no call, no cost
+    if state.lamp is not None:  # no lamp: no call, no cost
         img += lamp_image(passes, state.lamp, K, T_world_cam)
     return img
 
@@ -208,33 +251,62 @@ def frame_veil(state: SequenceState, T_world_cam, cam_depth_m: float) -> optics.
     """The sequence's water with ``B_inf`` = the calibrated veil (per unit ``E_d0``) of a camera
     at ``cam_depth_m`` whose optical axis (OpenCV +z, world z up) has the frame's elevation."""
     import math
+
     axis_z = float(np.asarray(T_world_cam, float)[2, 2])
     elev = math.asin(max(-1.0, min(1.0, axis_z)))
     post = state.post
-    B = optics.veil_radiance_at(state.water, state.water_opts["veil"], cam_depth_m, elev,
-                                post.sun_elevation_deg, post.sun_share)
+    B = optics.veil_radiance_at(
+        state.water, state.water_opts["veil"], cam_depth_m, elev, post.sun_elevation_deg, post.sun_share
+    )
     return state.water.replace(B_inf=np.clip(B, *optics.B_INF_RANGE))
 
 
-def _world(passes: dict, state: SequenceState, w: optics.WaterOptics, K, T_world_cam, depth, veil_depth: float,
-           t: float, emissive=None):
+def _world(
+    passes: dict,
+    state: SequenceState,
+    w: optics.WaterOptics,
+    K,
+    T_world_cam,
+    depth,
+    veil_depth: float,
+    t: float,
+    emissive=None,
+):
     """Caustics (not on the ``emissive`` pixels: an LED's light is not sunlight), then the
     surface seen from below (``pipeline/world_post.py``) in water ``w`` (the frame's veil);
     (rgb, range, depth)."""
     from blendgen.pipeline import world_post
+
     wp = state.post.world
     rgb, range_m = passes["rgb"], passes["range_m"]
     h, wd = range_m.shape
-    rays = np.einsum("ijk,lk->ijl", _unit_rays(tuple(np.asarray(K, float).ravel()), wd, h),
-                     np.asarray(T_world_cam, float)[:3, :3].astype(np.float32))     # einsum: @ is slower here
+    rays = np.einsum(
+        "ijk,lk->ijl",
+        _unit_rays(tuple(np.asarray(K, float).ravel()), wd, h),
+        np.asarray(T_world_cam, float)[:3, :3].astype(np.float32),
+    )  # einsum: @ is slower here
     if wp.caustics:
-        rgb = world_post.add_caustics(rgb, passes.get("albedo"), range_m, depth, wp, rays, K, T_world_cam, t,
-                                      float(np.mean(w.sigma_s)), float(w.g), emissive, passes.get("sun"))
+        rgb = world_post.add_caustics(
+            rgb,
+            passes.get("albedo"),
+            range_m,
+            depth,
+            wp,
+            rays,
+            K,
+            T_world_cam,
+            t,
+            float(np.mean(w.sigma_s)),
+            float(w.g),
+            emissive,
+            passes.get("sun"),
+        )
     if wp.surface:
         veil = w.B_inf * state.water_opts["irradiance"] * optics.depth_light(w, veil_depth)
         below = mirror_fill(rgb, range_m, depth, w, veil)
-        rgb, range_m, depth = world_post.add_surface(rgb, range_m, depth, wp, rays, K, T_world_cam,
-                                                     state.post.surface_z_m, t, below)
+        rgb, range_m, depth = world_post.add_surface(
+            rgb, range_m, depth, wp, rays, K, T_world_cam, state.post.surface_z_m, t, below
+        )
     return rgb, range_m, depth
 
 
@@ -266,7 +338,7 @@ def lamp_image(passes: dict, lamp: lamp_water.LampWater, K: np.ndarray, T_world_
     if albedo is None:
         albedo = np.zeros((h, w, 3), np.float32)
     normals = passes.get("normal")
-    if normals is not None:                        # world -> camera: n_cam = R^T n_world
+    if normals is not None:  # world -> camera: n_cam = R^T n_world
         normals = normals @ np.asarray(T_world_cam, float)[:3, :3].astype(np.float32)
     return lamp_water.lamp_radiance(lamp, K, rays, rng, albedo, normals)
 
@@ -276,30 +348,51 @@ def sensor_model(post: SequencePost) -> sensor.SensorModel:
     as resolved in ``post.sensor``: config/effective.py); a null exposure (a post built without
     ``plan.resolved_sensor``) as the exposure of a dock without LEDs."""
     s = post.sensor
-    exposure = s.exposure_s if s.exposure_s is not None else sensor.beacon_exposure_s(
-        0.0, s.full_well_e, s.responsivity_e_per_s)
-    return sensor.SensorModel(exposure_s=exposure, responsivity_e_per_s=s.responsivity_e_per_s,
-                              full_well_e=s.full_well_e, read_noise_e=s.read_noise_e, gain=s.gain, noise=s.noise,
-                              response=s.response, bloom_fraction=s.bloom_fraction, bloom_sigma_px=s.bloom_sigma_px,
-                              noise_std=post.noise_std, dark_current_e_per_s=s.dark_current_e_per_s)
+    exposure = (
+        s.exposure_s
+        if s.exposure_s is not None
+        else sensor.beacon_exposure_s(0.0, s.full_well_e, s.responsivity_e_per_s)
+    )
+    return sensor.SensorModel(
+        exposure_s=exposure,
+        responsivity_e_per_s=s.responsivity_e_per_s,
+        full_well_e=s.full_well_e,
+        read_noise_e=s.read_noise_e,
+        gain=s.gain,
+        noise=s.noise,
+        response=s.response,
+        bloom_fraction=s.bloom_fraction,
+        bloom_sigma_px=s.bloom_sigma_px,
+        noise_std=post.noise_std,
+        dark_current_e_per_s=s.dark_current_e_per_s,
+    )
 
 
-def camera_image(passes: dict, state: SequenceState, K: np.ndarray, frame: dict, markers: list[dict],
-                 fidelity: str, occluded: np.ndarray | None = None, T_world_dock=None) -> np.ndarray:
+def camera_image(
+    passes: dict,
+    state: SequenceState,
+    K: np.ndarray,
+    frame: dict,
+    markers: list[dict],
+    fidelity: str,
+    occluded: np.ndarray | None = None,
+    T_world_dock=None,
+) -> np.ndarray:
     """Linear clean RGB (H,W,3) -> uint8 image (H,W,3) for one condition; ``frame`` is the
     planned frame (``T_world_cam``, optional ``blur_px`` motion over the exposure);
     ``T_world_dock`` places the LEDs that light nearby surfaces (None: they light nothing)."""
     rgb = passes["rgb"]
     if fidelity == "fast":
-        rgb = water_image(passes, state, K, frame["T_world_cam"], markers, occluded, T_world_dock,
-                          float(frame.get("t", 0.0)))
+        rgb = water_image(
+            passes, state, K, frame["T_world_cam"], markers, occluded, T_world_dock, float(frame.get("t", 0.0))
+        )
     if frame.get("blur_px") is not None:
         rgb = sensor.motion_blur(rgb, frame["blur_px"])
     if state.post.distortion:
         rgb = sensor.distort_image(rgb, K, state.post.distortion)
     img = state.camera.apply(rgb, state.rng)
     state.exposure_s = state.camera.exposure_s
-    if state.auto_exposure is not None:              # the AE loop sets the next frame's exposure
+    if state.auto_exposure is not None:  # the AE loop sets the next frame's exposure
         t = state.auto_exposure.next_exposure(rgb, state.camera.exposure_s, state.camera, 1.0 / state.post.fps)
         state.camera = dataclasses.replace(state.camera, exposure_s=t)
     return img
@@ -323,8 +416,9 @@ def _polygon_area(uv: np.ndarray) -> float:
     return 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
 
 
-def visible_fraction(marker: dict, T_cam_dock: np.ndarray, K: np.ndarray, index: np.ndarray,
-                     occluded: np.ndarray | None = None) -> float:
+def visible_fraction(
+    marker: dict, T_cam_dock: np.ndarray, K: np.ndarray, index: np.ndarray, occluded: np.ndarray | None = None
+) -> float:
     """Share of a marker the camera sees (FORMAT.md); occluded (H,W) bool hides pixels.
 
     LED arrays: share of LEDs whose centre pixel shows the array and is not occluded;
@@ -342,8 +436,15 @@ def visible_fraction(marker: dict, T_cam_dock: np.ndarray, K: np.ndarray, index:
     return occlusion.visible_fraction_from_masks(index == marker["object_index"], occluded, max(area, 0.0))
 
 
-def frame_record(frame: dict, T_world_dock: np.ndarray, markers: list[dict], K: np.ndarray,
-                 width: int, height: int, index: np.ndarray) -> dict:
+def frame_record(
+    frame: dict,
+    T_world_dock: np.ndarray,
+    markers: list[dict],
+    K: np.ndarray,
+    width: int,
+    height: int,
+    index: np.ndarray,
+) -> dict:
     """Ground truth of one frame (pose part + visible fractions from the index pass)."""
     T_wc = np.asarray(frame["T_world_cam"], float)
     gt = groundtruth.frame_truth(T_wc, T_world_dock, markers, K, width, height)
@@ -351,8 +452,9 @@ def frame_record(frame: dict, T_world_dock: np.ndarray, markers: list[dict], K: 
     return with_visibility(rec, markers, K, index, None)
 
 
-def with_visibility(rec: dict, markers: list[dict], K: np.ndarray, index: np.ndarray,
-                    occluded: np.ndarray | None) -> dict:
+def with_visibility(
+    rec: dict, markers: list[dict], K: np.ndarray, index: np.ndarray, occluded: np.ndarray | None
+) -> dict:
     """Copy of a frame record with each in-view marker's visible_fraction (occluders hide)."""
     T_cd = np.asarray(rec["T_cam_dock"], float)
     out = {**rec, "markers": {k: dict(v) for k, v in rec["markers"].items()}}

@@ -26,6 +26,7 @@ killed and no new ones start; a render failure lets the running jobs finish
 dies (kill -9, a Ray worker killed) notices within a second and exits, so
 nothing keeps writing into a dataset that a re-run is resuming.
 """
+
 from __future__ import annotations
 
 import json
@@ -36,16 +37,16 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor, wait
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Callable
 
 from blendgen.config.models import ConfigError
 
 EXECUTORS = ("local", "ray")
 PARENT_ENV = "DOCKBENCH_PARENT_PID"
-RAY_THREADS = 2          # Cycles threads (= Ray CPUs) per job on a cluster: one job per core pair
+RAY_THREADS = 2  # Cycles threads (= Ray CPUs) per job on a cluster: one job per core pair
 
 
 class RenderError(RuntimeError):
@@ -102,10 +103,13 @@ def calibration_command(job_file: Path) -> list[str]:
 def require_render_stack() -> None:
     """Raise ExecutorError (a user error) when bpy is not installed, before any worker starts."""
     import importlib.util
+
     if importlib.util.find_spec("bpy") is None:
-        raise ExecutorError("rendering needs Blender as a module: pip install 'dockbench[render]' "
-                            f"(bpy 5.2, Python 3.13; this is Python {sys.version_info.major}."
-                            f"{sys.version_info.minor}); evaluation works without it")
+        raise ExecutorError(
+            "rendering needs Blender as a module: pip install 'dockbench[render]' "
+            f"(bpy 5.2, Python 3.13; this is Python {sys.version_info.major}."
+            f"{sys.version_info.minor}); evaluation works without it"
+        )
 
 
 class Children:
@@ -152,8 +156,12 @@ def _terminate(p: subprocess.Popen, grace_s: float = 2.0) -> None:
             p.wait()
 
 
-def run_worker(job_file: Path, log_file: Path, children: Children | None = None,
-               command: Callable[[Path], list[str]] = worker_command) -> None:
+def run_worker(
+    job_file: Path,
+    log_file: Path,
+    children: Children | None = None,
+    command: Callable[[Path], list[str]] = worker_command,
+) -> None:
     """Run one render job to completion; raise RenderError with the log tail on failure.
 
     If this call is interrupted (KeyboardInterrupt, Ray cancel), the worker is killed."""
@@ -177,7 +185,7 @@ def serve_command(log_dir: Path) -> list[str]:
     return [sys.executable, "-m", "blendgen.pipeline.executor", "--serve", str(log_dir)]
 
 
-RECYCLE_MB = 2048         # a worker whose resident memory passed this after a job is replaced
+RECYCLE_MB = 2048  # a worker whose resident memory passed this after a job is replaced
 
 
 class PersistentWorker:
@@ -194,7 +202,7 @@ class PersistentWorker:
         self.proc: subprocess.Popen | None = None
 
     def _start(self) -> subprocess.Popen:
-        with open(self.log_dir / f"{self.name}.log", "ab") as log:   # startup errors (before any job)
+        with open(self.log_dir / f"{self.name}.log", "ab") as log:  # startup errors (before any job)
             p = self.children.spawn(serve_command(self.log_dir), log, stdin=subprocess.PIPE, stdout=subprocess.PIPE)
         return p
 
@@ -234,8 +242,14 @@ class PersistentWorker:
         self.children.forget(p)
 
 
-def _run_slots(job_files: list[Path], log_dir: Path, workers: int, on_done: Callable[[Path], None],
-               children: Children, errors: list) -> None:
+def _run_slots(
+    job_files: list[Path],
+    log_dir: Path,
+    workers: int,
+    on_done: Callable[[Path], None],
+    children: Children,
+    errors: list,
+) -> None:
     """``workers`` threads, each with one PersistentWorker, take jobs in order from one queue;
     after the first error no thread takes a new job (the running ones finish)."""
     queue = list(job_files)
@@ -253,9 +267,9 @@ def _run_slots(job_files: list[Path], log_dir: Path, workers: int, on_done: Call
                     try:
                         w.run(jf, log_dir / f"{jf.stem}.log")
                     except WorkerCrashed:
-                        if children.closed:            # killed because the run is stopping
+                        if children.closed:  # killed because the run is stopping
                             raise
-                        w.run(jf, log_dir / f"{jf.stem}.log")    # once more, in a fresh worker
+                        w.run(jf, log_dir / f"{jf.stem}.log")  # once more, in a fresh worker
                     on_done(jf)
                 except _Stopped:
                     return
@@ -266,8 +280,10 @@ def _run_slots(job_files: list[Path], log_dir: Path, workers: int, on_done: Call
         finally:
             w.close()
 
-    threads = [threading.Thread(target=slot, args=(i,), daemon=True, name=f"render-slot-{i}")
-               for i in range(min(workers, len(queue)))]
+    threads = [
+        threading.Thread(target=slot, args=(i,), daemon=True, name=f"render-slot-{i}")
+        for i in range(min(workers, len(queue)))
+    ]
     for t in threads:
         t.start()
     try:
@@ -284,8 +300,13 @@ def _run_slots(job_files: list[Path], log_dir: Path, workers: int, on_done: Call
 
 
 # -- local process pool ----------------------------------------------------------
-def run_local(job_files: list[Path], log_dir: Path, workers: int, on_done: Callable[[Path], None],
-              command: Callable[[Path], list[str]] | None = None) -> None:
+def run_local(
+    job_files: list[Path],
+    log_dir: Path,
+    workers: int,
+    on_done: Callable[[Path], None],
+    command: Callable[[Path], list[str]] | None = None,
+) -> None:
     """Run job files on a local process pool; ``on_done(job_file)`` after each success.
 
     Without ``command``: ``workers`` persistent render workers (PersistentWorker), each
@@ -293,7 +314,7 @@ def run_local(job_files: list[Path], log_dir: Path, workers: int, on_done: Calla
     is raised after the running jobs finish (no new ones start); an interrupt kills the
     running workers at once."""
     children = Children()
-    errors: list[BaseException] = []          # in the order they happened
+    errors: list[BaseException] = []  # in the order they happened
     if command is None:
         _run_slots(job_files, log_dir, workers, on_done, children, errors)
         return
@@ -305,7 +326,7 @@ def run_local(job_files: list[Path], log_dir: Path, workers: int, on_done: Calla
         except _Stopped:
             pass
         except BaseException as e:
-            children.close()                  # before this thread can take the next job
+            children.close()  # before this thread can take the next job
             errors.append(e)
 
     pool = ThreadPoolExecutor(max_workers=workers)
@@ -317,7 +338,7 @@ def run_local(job_files: list[Path], log_dir: Path, workers: int, on_done: Calla
         if errors:
             for f in futs:
                 f.cancel()
-            pool.shutdown(wait=True)          # the running jobs finish (and are committed)
+            pool.shutdown(wait=True)  # the running jobs finish (and are committed)
             raise errors[0]
     except BaseException:
         children.kill()
@@ -332,8 +353,9 @@ def require_ray():
     try:
         import ray
     except ImportError:
-        raise ExecutorError("executor 'ray' needs Ray: pip install 'dockbench[ray]' "
-                            "(or pip install ray), or use --executor local") from None
+        raise ExecutorError(
+            "executor 'ray' needs Ray: pip install 'dockbench[ray]' (or pip install ray), or use --executor local"
+        ) from None
     return ray
 
 
@@ -341,8 +363,11 @@ def _ray_job(job_file: str, log_file: str) -> str:
     """Ray task body: the local job function, on whichever node Ray picked."""
     if not Path(job_file).is_file():
         import socket
-        raise RenderError(f"{job_file} is not visible on Ray node {socket.gethostname()}: the output "
-                          "directory must be on a filesystem shared by every node at the same path")
+
+        raise RenderError(
+            f"{job_file} is not visible on Ray node {socket.gethostname()}: the output "
+            "directory must be on a filesystem shared by every node at the same path"
+        )
     run_worker(Path(job_file), Path(log_file))
     return job_file
 
@@ -355,15 +380,17 @@ def ray_session(address: str | None):
     started = False
     if not ray.is_initialized():
         kw = dict(log_to_driver=False, logging_level=logging.WARNING)
-        if address is None:                # a new private instance, even if `ray start` ran here
+        if address is None:  # a new private instance, even if `ray start` ran here
             kw.update(num_cpus=os.cpu_count() or 1, include_dashboard=False)
         else:
             check_ray_address(address)
         try:
             ray.init(address=address or "local", **kw)
         except (ConnectionError, ValueError, RuntimeError) as e:
-            hint = ("; a cluster with token authentication (Ray >= 2.59 default) needs "
-                    "RAY_AUTH_MODE=token and its token (RAY_AUTH_TOKEN or ~/.ray/auth_token)")
+            hint = (
+                "; a cluster with token authentication (Ray >= 2.59 default) needs "
+                "RAY_AUTH_MODE=token and its token (RAY_AUTH_TOKEN or ~/.ray/auth_token)"
+            )
             raise ExecutorError(f"cannot connect to Ray at {address!r}: {e}{hint if address else ''}") from None
         started = True
     try:
@@ -377,6 +404,7 @@ def check_ray_address(address: str, timeout_s: float = 5.0) -> None:
     """Fail fast on a ``host:port`` / ``ray://host:port`` nobody listens on (Ray itself
     retries for minutes); ``auto`` and other forms are left to Ray."""
     import socket
+
     hostport = address.removeprefix("ray://")
     host, sep, port = hostport.rpartition(":")
     if not sep or not port.isdigit() or not host:
@@ -384,18 +412,20 @@ def check_ray_address(address: str, timeout_s: float = 5.0) -> None:
     try:
         conn = socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s)
     except OSError as e:
-        raise ExecutorError(f"no Ray cluster answers at {address!r} ({e}); start one with "
-                            "`ray start --head` or check --address") from None
+        raise ExecutorError(
+            f"no Ray cluster answers at {address!r} ({e}); start one with `ray start --head` or check --address"
+        ) from None
     with conn:
         if not os.environ.get("RAY_USE_TLS") and not _speaks_grpc(conn, timeout_s):
-            raise ExecutorError(f"{address!r} answers but is not a Ray cluster (no gRPC reply; Ray would retry "
-                                "for minutes); check --address: the head's GCS port (6379) or ray://host:10001")
+            raise ExecutorError(
+                f"{address!r} answers but is not a Ray cluster (no gRPC reply; Ray would retry "
+                "for minutes); check --address: the head's GCS port (6379) or ray://host:10001"
+            )
 
 
 def _speaks_grpc(conn, timeout_s: float) -> bool:
     """True when the peer answers the HTTP/2 connection preface with a SETTINGS frame, as Ray's
     GCS and client servers (gRPC over cleartext HTTP/2, RFC 9113 section 3.4) do at once."""
-    import socket
     try:
         conn.sendall(b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes([0, 0, 0, 4, 0, 0, 0, 0, 0]))
         conn.settimeout(timeout_s)
@@ -405,13 +435,19 @@ def _speaks_grpc(conn, timeout_s: float) -> bool:
             if not chunk:
                 break
             head += chunk
-    except (OSError, socket.timeout):
+    except (TimeoutError, OSError):
         return False
     return len(head) == 9 and head[3] == 4
 
 
-def run_ray(job_files: list[Path], log_dir: Path, on_done: Callable[[Path], None],
-            address: str | None = None, threads: int = RAY_THREADS, max_in_flight: int | None = None) -> None:
+def run_ray(
+    job_files: list[Path],
+    log_dir: Path,
+    on_done: Callable[[Path], None],
+    address: str | None = None,
+    threads: int = RAY_THREADS,
+    max_in_flight: int | None = None,
+) -> None:
     """Run job files as Ray tasks (``num_cpus=threads`` each); ``on_done`` on the driver.
 
     Tasks lost with a node are retried (the job rewrites its temp dirs from scratch);
@@ -479,8 +515,10 @@ class Progress:
         rate = done / dt if dt > 0 else 0.0
         eta = (self.total - done) / rate if rate > 0 else float("nan")
         end = "\n" if final or not sys.stderr.isatty() else "\r"
-        sys.stderr.write(f"{self.label}: {done}/{self.total} frames ({100 * done / max(self.total, 1):.0f}%)"
-                         f" {rate:.1f} frames/s, eta {eta:.0f} s   {end}")
+        sys.stderr.write(
+            f"{self.label}: {done}/{self.total} frames ({100 * done / max(self.total, 1):.0f}%)"
+            f" {rate:.1f} frames/s, eta {eta:.0f} s   {end}"
+        )
         sys.stderr.flush()
 
 
@@ -511,11 +549,13 @@ def sigterm_as_interrupt():
 
 def _exit_with_parent(parent_pid: int, period_s: float = 0.5) -> None:
     """In a worker: exit as soon as the process that started it is gone (re-parented)."""
+
     def watch():
         while True:
             if os.getppid() != parent_pid:
                 os._exit(137)
             time.sleep(period_s)
+
     threading.Thread(target=watch, daemon=True, name="orphan-guard").start()
 
 
@@ -524,15 +564,19 @@ def _child_main(argv: list[str]) -> int:
     if parent:
         _exit_with_parent(int(parent))
     from blendgen.pipeline import allocator
-    allocator.keep_heap()                     # per-frame image arrays reuse heap pages
-    allocator.one_thread_per_process()        # one worker per core: no BLAS or OpenCV pools spinning
+
+    allocator.keep_heap()  # per-frame image arrays reuse heap pages
+    allocator.one_thread_per_process()  # one worker per core: no BLAS or OpenCV pools spinning
     if len(argv) > 1 and argv[1] == "--serve":
         from blendgen.pipeline import frameloop
+
         return frameloop.serve_main()
     if len(argv) > 2 and argv[1] == "--calibration":
         from blendgen.blender import calibration_scene
+
         return calibration_scene.main([argv[0], argv[2]])
     from blendgen.pipeline import frameloop
+
     return frameloop.main(argv)
 
 

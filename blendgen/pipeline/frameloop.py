@@ -16,6 +16,7 @@ is built once (a persistent worker keeps the built scene while jobs share it), t
 The closed loop (:mod:`blendgen.tools.apps.closed_loop`) runs steps 2 and 4 on passes from the
 warm render server. Blender's own chatter on stdout is sent to the job's log file.
 """
+
 from __future__ import annotations
 
 import json
@@ -27,7 +28,8 @@ from pathlib import Path
 import numpy as np
 
 from blendgen import workerio
-from blendgen.pipeline import compose as pp, plan
+from blendgen.pipeline import compose as pp
+from blendgen.pipeline import plan
 from blendgen.pipeline import renderer as rd
 from blendgen.pipeline.frameshare import FrameShare
 from blendgen.pipeline.passstore import PassStore
@@ -42,16 +44,32 @@ def clean_passes(raw: dict, K: np.ndarray, ambient_radiance: float) -> dict:
     return pp.add_ambient(pp.add_range(raw, K), ambient_radiance)
 
 
-def condition_image(passes: dict, state: pp.SequenceState, K: np.ndarray, frame: dict, markers: list[dict],
-                    fidelity: str, T_world_dock=None, T_cam_dock=None, particle_time: bool = True,
-                    share: FrameShare | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+def condition_image(
+    passes: dict,
+    state: pp.SequenceState,
+    K: np.ndarray,
+    frame: dict,
+    markers: list[dict],
+    fidelity: str,
+    T_world_dock=None,
+    T_cam_dock=None,
+    particle_time: bool = True,
+    share: FrameShare | None = None,
+) -> tuple[np.ndarray, np.ndarray | None]:
     """One sequence's camera image (H,W,3) uint8 of a frame's clean passes, and the particles'
     occluder mask (H,W) bool (None without particles). ``T_cam_dock`` lets the LEDs light the
     particles (None: unlit by them); ``particle_time``: the particles' motion blur uses the
     frame time ``t`` (else one frame period); ``share``: the frame's shared images."""
-    seen, occluded = pp.add_particles(passes, state, K, frame["T_world_cam"],
-                                      markers if T_cam_dock is not None else None, T_cam_dock,
-                                      frame["t"] if particle_time else None, water_after=fidelity == "fast")
+    seen, occluded = pp.add_particles(
+        passes,
+        state,
+        K,
+        frame["T_world_cam"],
+        markers if T_cam_dock is not None else None,
+        T_cam_dock,
+        frame["t"] if particle_time else None,
+        water_after=fidelity == "fast",
+    )
 
     def image():
         return pp.camera_image(seen, state, K, frame, markers, fidelity, occluded, T_world_dock=T_world_dock)
@@ -79,7 +97,7 @@ class _Output:
 
     def __init__(self, out: plan.JobOutput):
         self.rel, self.dir = out.rel, Path(out.seq_dir)
-        (self.dir / "rgb").mkdir(parents=True, exist_ok=True)    # range/index: the job's shared pass store
+        (self.dir / "rgb").mkdir(parents=True, exist_ok=True)  # range/index: the job's shared pass store
         self.frames = _FramesFile(self.dir / "frames.jsonl")
         self.state = pp.SequenceState.start(out.post)
 
@@ -92,8 +110,14 @@ def _geometry_particles(job: plan.JobRecord, renderer: rd.Renderer, states: list
     if p is None:
         return None
     st = next((s for s in states if s.field is not None), None) or pp.SequenceState.start(
-        states[0].post.model_copy(update={"seed": p.seed, "fps": p.fps, "occlusion": plan.OcclusionPost(
-            **p.model_dump(exclude={"seed", "fps", "object_index"}))}))
+        states[0].post.model_copy(
+            update={
+                "seed": p.seed,
+                "fps": p.fps,
+                "occlusion": plan.OcclusionPost(**p.model_dump(exclude={"seed", "fps", "object_index"})),
+            }
+        )
+    )
     renderer.add_particles(st.field.positions, st.field.radii, p.object_index, color=[p.albedo] * 3)
     return st
 
@@ -103,8 +127,10 @@ def _shared_distortion(job: plan.JobRecord):
     distorted like the images they sit beside): outputs of one render must agree."""
     dists = {json.dumps(o.post.distortion) for o in job.outputs}
     if len(dists) > 1:
-        raise RuntimeError("outputs of one render job have different lens distortion; their shared "
-                           "range/index passes cannot match every image (render them as separate jobs)")
+        raise RuntimeError(
+            "outputs of one render job have different lens distortion; their shared "
+            "range/index passes cannot match every image (render them as separate jobs)"
+        )
     return job.outputs[0].post.distortion if job.outputs else None
 
 
@@ -115,6 +141,7 @@ def _write_image(out: _Output, i: int, img: np.ndarray, raw: bool) -> dict:
     if not raw:
         return pp.write_image(out.dir, out.rel, i, img)
     from datasets_spec.io import save_raw_image
+
     name = f"{i:06d}.png"
     save_raw_image(out.dir / "rgb" / name, img)
     return {"image": f"{out.rel}/rgb/{name}"}
@@ -127,13 +154,13 @@ class _Job:
         self.job = job
         self.K = np.asarray(job.camera.K, float)
         self.T_wd = np.asarray(job.gt.T_world_dock, float)
-        self.markers = [m.model_dump(mode="json") for m in job.gt.markers]    # plain data for compose
+        self.markers = [m.model_dump(mode="json") for m in job.gt.markers]  # plain data for compose
         self.outputs = [_Output(o) for o in job.outputs]
         self.store = PassStore.from_job(job)
         self.distortion = _shared_distortion(job)
-        self.unkept = set(job.raw_images)        # dockbench run: images not kept are never PNG-encoded
+        self.unkept = set(job.raw_images)  # dockbench run: images not kept are never PNG-encoded
         self.share = FrameShare()
-        self.clock = StageTimer()        # CPU and wall per stage (render, compose, write) for `bench suite`
+        self.clock = StageTimer()  # CPU and wall per stage (render, compose, write) for `bench suite`
 
     def sequences(self, fr: dict, passes: dict, rec: dict, pass_paths: dict) -> None:
         """Step 4 of the module docstring for every output sequence of the frame."""
@@ -141,10 +168,22 @@ class _Job:
         for out in self.outputs:
             st = out.state
             with clock("compose"):
-                img, occluded = condition_image(passes, st, self.K, fr, self.markers, job.fidelity,
-                                                T_world_dock=self.T_wd, T_cam_dock=rec["T_cam_dock"], share=self.share)
-                r = rec if occluded is None else pp.with_visibility(rec, self.markers, self.K, passes["index"],
-                                                                    occluded)
+                img, occluded = condition_image(
+                    passes,
+                    st,
+                    self.K,
+                    fr,
+                    self.markers,
+                    job.fidelity,
+                    T_world_dock=self.T_wd,
+                    T_cam_dock=rec["T_cam_dock"],
+                    share=self.share,
+                )
+                r = (
+                    rec
+                    if occluded is None
+                    else pp.with_visibility(rec, self.markers, self.K, passes["index"], occluded)
+                )
                 if st.auto_exposure is not None:
                     r = {**r, "exposure_s": st.exposure_s}
             with clock("write"):
@@ -164,11 +203,12 @@ class _Job:
             passes = clean_passes(raw, K, job.render.ambient_radiance)
         t3 = time.perf_counter()
         with clock("write"):
-            pass_paths = (self.store.write(fr["index"], pp.output_passes(passes, K, self.distortion))
-                          if self.store else {})
+            pass_paths = (
+                self.store.write(fr["index"], pp.output_passes(passes, K, self.distortion)) if self.store else {}
+            )
         with clock("compose"):
             rec = pp.frame_record(fr, self.T_wd, self.markers, K, job.camera.width, job.camera.height, passes["index"])
-            self.share.begin(passes)          # sequences that are one condition under two names: one image
+            self.share.begin(passes)  # sequences that are one condition under two names: one image
         self.sequences(fr, passes, rec, pass_paths)
         if geo is not None and geo not in [o.state for o in self.outputs]:
             geo.advance()
@@ -201,7 +241,7 @@ def run(job: plan.JobRecord, cache: dict | None = None) -> dict:
 def run_file(job_file: str, cache: dict | None = None) -> None:
     """Run the job in ``job_file``; C-level stdout (Blender's render log) goes to the job's
     ``log``, its stage timings to its ``timing_out``."""
-    job = plan.JobRecord.model_validate_json(Path(job_file).read_text())   # parsed once, typed from here on
+    job = plan.JobRecord.model_validate_json(Path(job_file).read_text())  # parsed once, typed from here on
     workerio.quiet_stdout(job.log or os.devnull)
     times = run(job, cache)
     if job.timing_out:
@@ -220,6 +260,7 @@ def serve(requests, reply) -> int:
     ``{"ok": false, "error": ...}`` (traceback in its log) and ends the worker: a fresh
     process serves the next job, so nothing half-built is carried over."""
     import traceback
+
     cache: dict = {}
     for line in requests:
         if not line.strip():

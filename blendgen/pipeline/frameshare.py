@@ -8,9 +8,10 @@ state carried between frames (no auto-exposure) -- two sequences whose processin
 up to the random seed get the same uint8 image: it is made once per frame and copied.
 Anything else is composed as before.
 """
+
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -19,8 +20,13 @@ def share_key(state) -> str | None:
     """Key of a sequence whose image depends only on the frame and its processing
     (``compose.SequenceState``), or None when it draws random numbers or carries state."""
     cam = state.camera
-    if (state.field is not None or state.auto_exposure is not None or cam.noise or cam.noise_std > 0
-            or state.post.occlusion is not None):
+    if (
+        state.field is not None
+        or state.auto_exposure is not None
+        or cam.noise
+        or cam.noise_std > 0
+        or state.post.occlusion is not None
+    ):
         return None
     return state.post.model_dump_json(exclude={"seed"}) + repr(cam)
 

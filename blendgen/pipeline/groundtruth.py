@@ -4,6 +4,7 @@
 the camera centre to the dock's marker plane (dock z = 0), i.e. |z| of the camera
 centre expressed in the dock frame.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -17,18 +18,23 @@ def d_true(T_world_cam: np.ndarray, T_world_dock: np.ndarray) -> float:
     return float(abs(c_dock[2]))
 
 
-def marker_in_fov(K: np.ndarray, width: int, height: int, T_cam_dock: np.ndarray,
-                  keypoints_dock: np.ndarray) -> bool:
+def marker_in_fov(K: np.ndarray, width: int, height: int, T_cam_dock: np.ndarray, keypoints_dock: np.ndarray) -> bool:
     """True when any keypoint (N,3 dock frame) projects inside the image, in front of the camera."""
     pts = transform_points(T_cam_dock, keypoints_dock)
     uv = project(K, pts)
-    ok = (pts[:, 2] > 0) & (uv[:, 0] >= -0.5) & (uv[:, 0] <= width - 0.5) \
-        & (uv[:, 1] >= -0.5) & (uv[:, 1] <= height - 0.5)
+    ok = (
+        (pts[:, 2] > 0)
+        & (uv[:, 0] >= -0.5)
+        & (uv[:, 0] <= width - 0.5)
+        & (uv[:, 1] >= -0.5)
+        & (uv[:, 1] <= height - 0.5)
+    )
     return bool(np.any(ok))
 
 
-def frame_truth(T_world_cam: np.ndarray, T_world_dock: np.ndarray, markers: list[dict],
-                K: np.ndarray, width: int, height: int) -> dict:
+def frame_truth(
+    T_world_cam: np.ndarray, T_world_dock: np.ndarray, markers: list[dict], K: np.ndarray, width: int, height: int
+) -> dict:
     """Pose part of a frame record: T_cam_dock, d_true and per-marker in_fov / T_cam_marker.
 
     ``visible_fraction`` is filled later from the rendered object-index pass."""
@@ -41,12 +47,17 @@ def frame_truth(T_world_cam: np.ndarray, T_world_dock: np.ndarray, markers: list
             "visible_fraction": 0.0,
             "T_cam_marker": (T_cam_dock @ np.asarray(m["T_dock_marker"], float)).tolist(),
         }
-    return {"T_world_cam": T_world_cam.tolist(), "T_cam_dock": T_cam_dock.tolist(),
-            "d_true": d_true(T_world_cam, T_world_dock), "markers": per_marker}
+    return {
+        "T_world_cam": T_world_cam.tolist(),
+        "T_cam_dock": T_cam_dock.tolist(),
+        "d_true": d_true(T_world_cam, T_world_dock),
+        "markers": per_marker,
+    }
 
 
-def dock_roi(T_cam_dock: np.ndarray, K: np.ndarray, width: int, height: int, corners_dock: np.ndarray,
-             margin_px: int = 8) -> tuple[int, int, int, int] | None:
+def dock_roi(
+    T_cam_dock: np.ndarray, K: np.ndarray, width: int, height: int, corners_dock: np.ndarray, margin_px: int = 8
+) -> tuple[int, int, int, int] | None:
     """Pixel box (x0, y0, x1, y1), end-exclusive, holding the projection of the dock's
     bounding corners (N,3, dock frame) plus a margin; None when it is out of view.
     A corner behind the camera makes the whole image the box (a conservative answer)."""
@@ -108,8 +119,15 @@ def merge_boxes(boxes: list[Box], max_boxes: int) -> list[Box]:
     return sorted(out)
 
 
-def marker_rois(T_cam_dock: np.ndarray, K: np.ndarray, width: int, height: int,
-                regions_dock: list[np.ndarray], margin_px: int = 8, max_boxes: int = 6) -> list[Box]:
+def marker_rois(
+    T_cam_dock: np.ndarray,
+    K: np.ndarray,
+    width: int,
+    height: int,
+    regions_dock: list[np.ndarray],
+    margin_px: int = 8,
+    max_boxes: int = 6,
+) -> list[Box]:
     """Disjoint pixel boxes (see :func:`merge_boxes`) holding the projection of every
     region (each (N,3) corners, dock frame: a marker plate, one LED disc) plus a margin;
     regions out of view give no box, a region with a corner behind the camera gives the

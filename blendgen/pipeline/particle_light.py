@@ -17,20 +17,21 @@ relative to the camera over the exposure (its drift ``v_flow`` and the camera's 
 the previous and this frame). ``background_transfer`` gives the :class:`Transfer` that keeps a
 partly covered pixel's background at its own range once the water model runs.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
 
+from blendgen.physics.camera import sensor as sens
 from blendgen.physics.light import lamp_water
 from blendgen.physics.light import sources as lt
-from blendgen.physics.water import optics
 from blendgen.physics.particles import kernels as kern
 from blendgen.physics.particles import light_kernels as plk
 from blendgen.physics.particles import optics as popt
-from blendgen.physics.camera import sensor as sens
 from blendgen.physics.particles.field import ProjectedParticles
+from blendgen.physics.water import optics
 
 
 def material(occ) -> popt.ParticleMaterial:
@@ -46,8 +47,7 @@ def _depth_gain(post, water, T_world_cam: np.ndarray, p: ProjectedParticles) -> 
         return np.repeat(np.asarray(g, np.float32)[:, None], p.u.size, axis=1)
     T = np.asarray(T_world_cam, float)
     kd = np.asarray(water.Kd, np.float32).reshape(3)
-    return plk.depth_gain(*p.pc, p.surf_range, T[2, :3].astype(np.float32),
-                          np.float32(post.surface_z_m - T[2, 3]), kd)
+    return plk.depth_gain(*p.pc, p.surf_range, T[2, :3].astype(np.float32), np.float32(post.surface_z_m - T[2, 3]), kd)
 
 
 def shader(post, water, T_world_cam, markers=None, T_cam_dock=None, lamp=None):
@@ -63,8 +63,9 @@ def shader(post, water, T_world_cam, markers=None, T_cam_dock=None, lamp=None):
     amb = post.ambient_w_m2_sr
     R = np.asarray(T_world_cam, float)[:3, :3]
     suns = [(R.T @ np.asarray(d, float), e) for d, e in post.suns]
-    lights = [(li, lamp.c_lamp, lamp.beam if lamp.spread else None) for li in lamps] + \
-             [(li, water.c, None) for li in leds]
+    lights = [(li, lamp.c_lamp, lamp.beam if lamp.spread else None) for li in lamps] + [
+        (li, water.c, None) for li in leds
+    ]
 
     def shade(p: ProjectedParticles) -> np.ndarray:
         gain = _depth_gain(post, water, T_world_cam, p) if lights else None
@@ -72,6 +73,7 @@ def shader(post, water, T_world_cam, markers=None, T_cam_dock=None, lamp=None):
         if suns:
             out += popt.sun_planar(p.pc, mat, suns)[None, :]
         return out.T
+
     return shade
 
 
@@ -91,6 +93,7 @@ class Blur:
     frame's point of each particle is ``M pc + o`` (M (3, 3), o (3,) float32), ``scale`` =
     exposure / frame interval turns that displacement into the streak; defocus diameter
     ``coc_k |z - focus_m| / z`` px (coc_k = 0: pinhole). All float32."""
+
     M: np.ndarray
     o: np.ndarray
     scale: np.float32
@@ -112,22 +115,27 @@ def shaper(post, K: np.ndarray, T_world_cam, prev_pose=None, t_s: float | None =
     dt, T_prev = frame_interval(post, prev_pose, t_s)
     T = np.asarray(T_world_cam, float)
     T0 = np.array(T_prev if T_prev is not None else T, float)
-    T0[:3, 3] += np.asarray(post.occlusion.v_flow, float) * dt     # drifting back = camera ahead
+    T0[:3, 3] += np.asarray(post.occlusion.v_flow, float) * dt  # drifting back = camera ahead
     coc_k, focus = 0.0, 1.0
     if lens is not None:
         coc_k = popt.coc_scale(lens.focal_length_mm * 1e-3, lens.f_number, lens.focus_m, K[0, 0])
         focus = lens.focus_m
-    return Blur((T0[:3, :3].T @ T[:3, :3]).astype(np.float32),
-                (T0[:3, :3].T @ (T[:3, 3] - T0[:3, 3])).astype(np.float32),
-                np.float32(min(_exposure_s(post) / dt, 1.0)), np.float32(coc_k), np.float32(focus))
+    return Blur(
+        (T0[:3, :3].T @ T[:3, :3]).astype(np.float32),
+        (T0[:3, :3].T @ (T[:3, 3] - T0[:3, 3])).astype(np.float32),
+        np.float32(min(_exposure_s(post) / dt, 1.0)),
+        np.float32(coc_k),
+        np.float32(focus),
+    )
 
 
 def _exposure_s(post) -> float:
     """The sequence's exposure (s): the resolved one (``plan.resolved_sensor``), or the scene-metered
     default when a post was built without it."""
     s = post.sensor
-    return s.exposure_s if s.exposure_s is not None else sens.beacon_exposure_s(0.0, s.full_well_e,
-                                                                               s.responsivity_e_per_s)
+    return (
+        s.exposure_s if s.exposure_s is not None else sens.beacon_exposure_s(0.0, s.full_well_e, s.responsivity_e_per_s)
+    )
 
 
 @dataclass(frozen=True)
@@ -144,6 +152,7 @@ class Transfer:
     c, kd, veil (3,) float32: the frame's beam attenuation, diffuse attenuation and the veil B
     the water model adds; K (3, 3) and rz (3,) float32 (the camera axes' world z) give dir_z.
     Evaluated at the covered pixels by particle_kernels.transfer, applied by resolve."""
+
     c: np.ndarray
     kd: np.ndarray
     veil: np.ndarray
@@ -155,17 +164,30 @@ class Transfer:
     def gain_add(self, hit: np.ndarray, near: np.ndarray, far: np.ndarray, width: int) -> np.ndarray:
         """(6, n) float32: the gain (3 rows) and add (3 rows) at the covered pixels hit (n,), with
         the particles' and the scene's range there near, far (n,)."""
-        return kern.transfer(hit, near, far, int(width), self.K, self.rz, self.c, self.kd, self.veil,
-                             np.float32(self.cam_depth_m), self.physical)
+        return kern.transfer(
+            hit,
+            near,
+            far,
+            int(width),
+            self.K,
+            self.rz,
+            self.c,
+            self.kd,
+            self.veil,
+            np.float32(self.cam_depth_m),
+            self.physical,
+        )
 
     def packed(self) -> np.ndarray:
         """(19,) float32: the transfer packed for the fused pass (particle_kernels.transfer_params)."""
-        return kern.transfer_params(self.K, self.rz, self.c, self.kd, self.veil, np.float32(self.cam_depth_m),
-                                    self.physical)
+        return kern.transfer_params(
+            self.K, self.rz, self.c, self.kd, self.veil, np.float32(self.cam_depth_m), self.physical
+        )
 
 
-def background_transfer(water, veil_rgb, physical: bool, K=None, T_world_cam=None,
-                        cam_depth_m: float = 0.0) -> Transfer:
+def background_transfer(
+    water, veil_rgb, physical: bool, K=None, T_world_cam=None, cam_depth_m: float = 0.0
+) -> Transfer:
     """The :class:`Transfer` of a frame: ``water`` its optics (c, Kd), ``veil_rgb`` (3,) the veil
     the water model adds; physical mode: the camera's K, pose (world z up) and depth (m)."""
     f32 = lambda x: np.asarray(x, np.float32).reshape(3)

@@ -12,6 +12,7 @@ has the render (a resumed run) is referenced, not rewritten. Frames a streaming 
 not keep (``raw_images``) are not encoded at all: the sha256 of their pixels as the PNG
 would hold them (:func:`datasets_spec.io.pixel_sha256`) goes to ``.pixels.jsonl``.
 """
+
 from __future__ import annotations
 
 import json
@@ -21,7 +22,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from datasets_spec import io as dsio
-
 
 # {dataset path: pixel sha256} per line, of the passes of frames a streaming run does not keep
 # (never encoded); a dot-name, so never part of the dataset; the run records it, then deletes it
@@ -35,14 +35,15 @@ class PassStore:
     ``rel``: the dataset-relative directory (``renders/<key16>``), the same in every
     dataset; ``dirs``: absolute temp dirs still to fill (empty when every dataset has
     the render already); ``depth``/``index``: which passes are written at all."""
+
     rel: str
     dirs: list[Path]
     depth: bool
     index: bool
-    raw: frozenset = frozenset()        # frames not kept (dockbench run): hashed, never encoded
+    raw: frozenset = frozenset()  # frames not kept (dockbench run): hashed, never encoded
 
     @classmethod
-    def from_job(cls, job) -> "PassStore | None":
+    def from_job(cls, job) -> PassStore | None:
         """The job's ``passes`` entry (a ``plan.JobRecord``, or a dict with the
         :func:`job_entry` dict), or None without passes."""
         p = job.get("passes") if isinstance(job, dict) else job.passes
@@ -63,14 +64,17 @@ class PassStore:
         passes; returns the frame record's ``depth`` / ``object_index`` paths."""
         name = f"{frame_index:06d}.png"
         paths, pixels = {}, {}
-        for key, sub, on, save, arr in (("depth", "depth", self.depth, dsio.save_range, "range_m"),
-                                        ("object_index", "index", self.index, dsio.save_index, "index")):
+        for key, sub, on, save, arr in (
+            ("depth", "depth", self.depth, dsio.save_range, "range_m"),
+            ("object_index", "index", self.index, dsio.save_index, "index"),
+        ):
             if not on:
                 continue
             paths[key] = f"{self.rel}/{sub}/{name}"
             if self.dirs and frame_index in self.raw:
-                pixels[paths[key]] = dsio.pixel_sha256(dsio.range_to_units(passes[arr]) if sub == "depth"
-                                                       else passes[arr])
+                pixels[paths[key]] = dsio.pixel_sha256(
+                    dsio.range_to_units(passes[arr]) if sub == "depth" else passes[arr]
+                )
             elif self.dirs:
                 first = self.dirs[0] / sub / name
                 save(first, passes[arr])
@@ -95,5 +99,9 @@ def _link_or_copy(src: Path, dst: Path) -> None:
 def job_entry(render_key: str, targets: list[tuple[Path, bool]], write_depth: bool, write_index: bool) -> dict:
     """The job file's ``passes`` entry. ``targets``: (dataset's temp render dir, whether
     that dataset still needs the render written) for every dataset the job feeds."""
-    return {"rel": dsio.render_dir_name(render_key), "depth": write_depth, "index": write_index,
-            "dirs": [str(Path(d).resolve()) for d, needed in targets if needed]}
+    return {
+        "rel": dsio.render_dir_name(render_key),
+        "depth": write_depth,
+        "index": write_index,
+        "dirs": [str(Path(d).resolve()) for d, needed in targets if needed],
+    }

@@ -6,6 +6,7 @@ frames once and writing every sequence that only differs in image space
 (turbidity, depth light, noise) from the same clean passes. With the reference
 fidelity the water is in the render, so each condition is its own job.
 """
+
 from __future__ import annotations
 
 import functools
@@ -15,22 +16,31 @@ import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal, Optional
+from typing import Literal
 
 import numpy as np
 from pydantic import Field, model_validator
 
 from blendgen import markers as mk
-
-from blendgen.pipeline import groundtruth, scene_check
-from blendgen.physics.surface import optics as sf
-from blendgen.vehicle import trajectories as tj
 from blendgen.config import effective as eff
 from blendgen.config.effective import SKY_FRACTION_PHYSICAL  # noqa: F401 - re-exported
-from blendgen.render_spec import FramePlan, Marker, RenderScene, RenderSettings
+from blendgen.config.models import (
+    ConfigError,
+    Experiment,
+    ImageFormation,
+    Lamp,
+    Lens,
+    Occlusion,
+    Sensor,
+    Strict,
+    Vec3,
+    Water,
+)
 from blendgen.geometry import intrinsics_from_hfov, make_T, rpy_to_R
-from blendgen.config.models import (ConfigError, Experiment, ImageFormation, Lamp, Lens, Occlusion, Sensor, Strict, Vec3,
-                                    Water)
+from blendgen.physics.surface import optics as sf
+from blendgen.pipeline import groundtruth, scene_check
+from blendgen.render_spec import FramePlan, Marker, RenderScene, RenderSettings
+from blendgen.vehicle import trajectories as tj
 
 INDEX_POOL, INDEX_DOCK, INDEX_MARKER0, INDEX_OBSTACLE0, INDEX_PARTICLES = 1, 2, 10, 100, 250
 #: Version of :class:`JobRecord`, the file a render worker reads.
@@ -41,6 +51,7 @@ MIN_CLEARANCE_M = 0.05
 
 class OcclusionPost(Occlusion):
     """Small obstacles of one sequence: the config's, with the region resolved and the flow."""
+
     region_min: Vec3
     region_max: Vec3
     v_flow: Vec3
@@ -49,52 +60,73 @@ class OcclusionPost(Occlusion):
 class WorldPost(Strict):
     """The surface and caustics of one sequence, resolved from ``scene.world`` (fast path:
     ``pipeline/world_post.py``; physics: ``physics/surface/optics.py``). Radiances W/m^2/sr."""
+
     surface: bool
     caustics: bool
     wind_mps: float
     wave_seed: int
     sky_radiance: float = Field(ge=0.0, description="uniform sky radiance above the surface")
     ambient_radiance: float = Field(ge=0.0, description="the ambient term already in the clean render")
-    sun_travel_dir: Vec3 = Field(description="direction the sunlight travels in (world, unit, in air): the "
-                                             "scene's in-water sun direction unrefracted")
-    sun_irradiance: float = Field(0.0, ge=0.0, description="the sun's irradiance normal to its beam above the "
-                                                            "surface (W/m^2), seen as its disc through Snell's "
-                                                            "window; 0: no sun disc")
-    sun_lamp_w_m2: float = Field(0.0, ge=0.0, description="the clean render's sun in water (W/m^2 normal to its "
-                                                           "beam): a Lambertian pixel holds at most albedo E "
-                                                           "cos(i) / pi of its light, the part caustics refocus; "
-                                                           "0: not bounded")
+    sun_travel_dir: Vec3 = Field(
+        description="direction the sunlight travels in (world, unit, in air): the "
+        "scene's in-water sun direction unrefracted"
+    )
+    sun_irradiance: float = Field(
+        0.0,
+        ge=0.0,
+        description="the sun's irradiance normal to its beam above the "
+        "surface (W/m^2), seen as its disc through Snell's "
+        "window; 0: no sun disc",
+    )
+    sun_lamp_w_m2: float = Field(
+        0.0,
+        ge=0.0,
+        description="the clean render's sun in water (W/m^2 normal to its "
+        "beam): a Lambertian pixel holds at most albedo E "
+        "cos(i) / pi of its light, the part caustics refocus; "
+        "0: not bounded",
+    )
 
 
 class SequencePost(Strict):
     """Image-space processing of one sequence (typed; recorded in the manifest as its
     ``conditions``). Depths in metres below the surface, world z up, irradiance W/m^2."""
+
     seed: int
     fps: float
     image_formation: ImageFormation
     water: Water
-    water_effective: Optional[dict] = Field(None, description="the water's coefficients in this image formation "
-                                            "(per channel, 1/m), the preset they come from and their provenance")
+    water_effective: dict | None = Field(
+        None,
+        description="the water's coefficients in this image formation "
+        "(per channel, 1/m), the preset they come from and their provenance",
+    )
     light_depth_m: float = Field(ge=0.0, description="the dock's depth: its top below the surface (the article's d)")
     surface_z_m: float = Field(description="world z of the water surface for this condition")
     irradiance_w_m2: float = Field(ge=0.0, description="downwelling irradiance just below the surface")
     noise_std: float = 0.0
     sensor: Sensor = Sensor()
-    distortion: Optional[list[float]] = None
-    occlusion: Optional[OcclusionPost] = None
+    distortion: list[float] | None = None
+    occlusion: OcclusionPost | None = None
     lamps: list[Lamp] = Field(default_factory=list, description="the vehicle's lamps (camera frame)")
     sun_elevation_deg: float = Field(90.0, ge=0.0, le=90.0, description="the sun's elevation (physical veil)")
     sun_share: float = Field(1.0, ge=0.0, le=1.0, description="direct sun's share of the downwelling irradiance")
-    veil: Optional[dict] = Field(None, description="physical mode: the calibrated veil model's numbers "
-                                                   "(optics.veil_parameters), None: not used")
-    world: Optional[WorldPost] = Field(None, description="surface and caustics (None: both off, no cost)")
-    lamp_forward_kept: Optional[float] = Field(None, description="fast lamp model's F (set with lamps)")
-    lamp_shadows: Optional[bool] = Field(None, description="fast lamp model's shadow test (set with lamps)")
-    lens: Optional[Lens] = Field(None, description="thin lens (particle defocus); null: pinhole")
-    suns: list[tuple[Vec3, float]] = Field(default_factory=list, description="the render's directional "
-                                           "lights (world travel direction, W/m^2), lighting fast particles")
-    ambient_w_m2_sr: float = Field(0.0, ge=0.0, description="the render's ambient light field (fast "
-                                   "fidelity: plan.ambient_radiance), lighting fast particles")
+    veil: dict | None = Field(
+        None, description="physical mode: the calibrated veil model's numbers (optics.veil_parameters), None: not used"
+    )
+    world: WorldPost | None = Field(None, description="surface and caustics (None: both off, no cost)")
+    lamp_forward_kept: float | None = Field(None, description="fast lamp model's F (set with lamps)")
+    lamp_shadows: bool | None = Field(None, description="fast lamp model's shadow test (set with lamps)")
+    lens: Lens | None = Field(None, description="thin lens (particle defocus); null: pinhole")
+    suns: list[tuple[Vec3, float]] = Field(
+        default_factory=list,
+        description="the render's directional lights (world travel direction, W/m^2), lighting fast particles",
+    )
+    ambient_w_m2_sr: float = Field(
+        0.0,
+        ge=0.0,
+        description="the render's ambient light field (fast fidelity: plan.ambient_radiance), lighting fast particles",
+    )
 
     @model_validator(mode="after")
     def _effective_sensor(self):
@@ -126,6 +158,7 @@ class JobPasses(Strict):
     """Where a job writes the passes it shares with every sequence it feeds (FORMAT.md 1.1):
     ``rel`` the dataset-relative ``renders/<key16>`` folder, ``dirs`` the absolute temp
     folders still to fill, ``depth``/``index`` which passes are written at all."""
+
     rel: str
     depth: bool
     index: bool
@@ -137,6 +170,7 @@ class JobRecord(Strict):
     ``scene``, ``render`` and ``frames`` are :func:`scene_description`, :func:`render_settings`
     and the camera path, typed (:mod:`blendgen.render_spec`): the planner's plain data is
     validated when the record is made, the file again when the worker reads it."""
+
     version: Literal[1] = JOB_RECORD_VERSION
     scene: RenderScene
     fidelity: Literal["fast", "reference"]
@@ -145,16 +179,17 @@ class JobRecord(Strict):
     camera: JobCamera
     gt: JobTruth
     outputs: list[JobOutput]
-    passes: Optional[JobPasses] = None
-    log: Optional[str] = None
-    timing_out: Optional[str] = None
-    raw_images: list[int] = []      # frame indices whose camera images a streaming run does not keep:
-                                    # left as raw pixels (rgb/.<i>.npy), never PNG-encoded
+    passes: JobPasses | None = None
+    log: str | None = None
+    timing_out: str | None = None
+    raw_images: list[int] = []  # frame indices whose camera images a streaming run does not keep:
+    # left as raw pixels (rgb/.<i>.npy), never PNG-encoded
 
 
 @dataclass
 class SequencePlan:
     """One output sequence: its id, condition and the image-space processing to apply."""
+
     id: str
     trajectory: str
     trial: int
@@ -165,6 +200,7 @@ class SequencePlan:
 @dataclass
 class RenderJob:
     """One Blender process: a scene, a camera path, and the sequences it feeds."""
+
     key: str
     scene: dict
     frames: list[dict]
@@ -199,8 +235,10 @@ def _sun_dir(elev_deg: float, azim_deg: float) -> list[float]:
 def sun_lights(exp: Experiment) -> list[tuple[list[float], float]]:
     """The render's sun and fill as (world travel direction, strength W/m^2), strength > 0."""
     s = exp.scene
-    out = [(_sun_dir(s.sun_elevation_deg, s.sun_azimuth_deg), s.sun_strength),
-           (_sun_dir(0.0, s.sun_azimuth_deg), s.fill_strength)]
+    out = [
+        (_sun_dir(s.sun_elevation_deg, s.sun_azimuth_deg), s.sun_strength),
+        (_sun_dir(0.0, s.sun_azimuth_deg), s.fill_strength),
+    ]
     return [(d, float(e)) for d, e in out if e > 0]
 
 
@@ -211,8 +249,15 @@ def scene_description(exp: Experiment, markers: list[dict], textures: dict[str, 
     obstacles = []
     for i, o in enumerate(s.obstacles):
         R = rpy_to_R(*(math.radians(a) for a in o.pose.rpy_deg))
-        obstacles.append({"kind": o.kind, "T_world": make_T(R, o.pose.xyz).tolist(), "size_m": o.size_m,
-                          "color": o.color, "object_index": INDEX_OBSTACLE0 + i})
+        obstacles.append(
+            {
+                "kind": o.kind,
+                "T_world": make_T(R, o.pose.xyz).tolist(),
+                "size_m": o.size_m,
+                "color": o.color,
+                "object_index": INDEX_OBSTACLE0 + i,
+            }
+        )
     desc = {
         "pool": s.pool.model_dump() if s.kind == "pool" else None,
         "dock": {"T_world_dock": T_wd.tolist(), "body_size_m": s.dock.body_size_m, "face_color": s.dock.face_color},
@@ -225,7 +270,7 @@ def scene_description(exp: Experiment, markers: list[dict], textures: dict[str, 
         "sky": sky_radiance(exp) if exp.render.fidelity == "reference" else None,
         "world": world_look(exp),
     }
-    if exp.vehicle.lamps and exp.render.fidelity == "reference":   # Cycles spots on the camera
+    if exp.vehicle.lamps and exp.render.fidelity == "reference":  # Cycles spots on the camera
         desc["lamps"] = [lamp.model_dump(mode="json") for lamp in exp.vehicle.lamps]
     return desc
 
@@ -254,6 +299,7 @@ def ambient_radiance(exp: Experiment) -> float:
     ``E_d0 / (4 pi mu_d)`` (the same light field as the fast model's veil,
     ``optics.light_field_veil``); 0 when the ambient light is off."""
     from blendgen.physics.water.optics import MEAN_COSINE_DOWN
+
     return downwelling_irradiance(exp) / (4.0 * math.pi * MEAN_COSINE_DOWN) if ambient_on(exp) else 0.0
 
 
@@ -281,17 +327,22 @@ def until_contact(exp: Experiment, traj, T_wc: np.ndarray, T_wd: np.ndarray) -> 
     """Number of leading frames with the camera at least ``MIN_CLEARANCE_M`` in front of the
     marker plane. A docking trial ends there (contact: the camera enters the dock); a
     kinematic path that gets there is a config error naming the trajectory and the fix."""
-    z = (np.linalg.inv(T_wd) @ T_wc[:, :, 3].T)[2]            # camera centre, dock frame (+z out of the face)
+    z = (np.linalg.inv(T_wd) @ T_wc[:, :, 3].T)[2]  # camera centre, dock frame (+z out of the face)
     bad = np.flatnonzero(z < MIN_CLEARANCE_M)
     if bad.size == 0:
         return len(T_wc)
     if traj.kind == "docking":
         return int(bad[0])
     lead = exp.camera.T_body_cam.xyz[0]
-    hint = (f"; end_range_m must be >= {lead + MIN_CLEARANCE_M:.2f} (camera {lead:g} m ahead of the body)"
-            if traj.kind == "linear" else "")
-    raise ConfigError(f"trajectories: {traj.id!r}: the camera comes within {MIN_CLEARANCE_M} m of the dock's "
-                      f"marker plane (or behind it) at t = {bad[0] / exp.camera.fps:.2f} s{hint}")
+    hint = (
+        f"; end_range_m must be >= {lead + MIN_CLEARANCE_M:.2f} (camera {lead:g} m ahead of the body)"
+        if traj.kind == "linear"
+        else ""
+    )
+    raise ConfigError(
+        f"trajectories: {traj.id!r}: the camera comes within {MIN_CLEARANCE_M} m of the dock's "
+        f"marker plane (or behind it) at t = {bad[0] / exp.camera.fps:.2f} s{hint}"
+    )
 
 
 def exposure_flow(exp: Experiment, T_wc: np.ndarray, T_wd: np.ndarray) -> np.ndarray:
@@ -302,6 +353,7 @@ def exposure_flow(exp: Experiment, T_wc: np.ndarray, T_wd: np.ndarray) -> np.nda
     frame: a uniform blur, exact for rotation, approximate for motion toward the dock
     (whose flow is radial)."""
     from scipy.spatial.transform import Rotation, Slerp
+
     K = camera_K(exp)
     a = min(resolved_sensor(exp).exposure_s * exp.camera.fps, 1.0)
     centre = T_wd[:, 3]
@@ -353,10 +405,12 @@ def _frames(exp: Experiment, traj, T_wd: np.ndarray, T_body_cam: np.ndarray, see
     n = until_contact(exp, traj, T_wc, T_wd)
     d_max = exp.render.max_distance_m
     flow = exposure_flow(exp, T_wc[:n], T_wd) if exp.camera.sensor.motion_blur else None
-    frames = [{"index": i, "t": float(t), "t_pose": float(tp), "T_world_cam": T.tolist()}
-              | ({} if flow is None else {"blur_px": flow[i].tolist()})
-              for i, (t, tp, T) in enumerate(zip(smp.t[:n], smp.t_pose[:n], T_wc[:n]))
-              if d_max is None or groundtruth.d_true(T, T_wd) <= d_max]
+    frames = [
+        {"index": i, "t": float(t), "t_pose": float(tp), "T_world_cam": T.tolist()}
+        | ({} if flow is None else {"blur_px": flow[i].tolist()})
+        for i, (t, tp, T) in enumerate(zip(smp.t[:n], smp.t_pose[:n], T_wc[:n]))
+        if d_max is None or groundtruth.d_true(T, T_wd) <= d_max
+    ]
     if exp.render.roi and exp.render.fidelity == "fast":
         regions = RenderRegions.of(exp)
         for f in frames:
@@ -369,27 +423,38 @@ class RenderRegions:
     """Where a fast-fidelity frame spends its samples (``render.roi_regions``): one box around the
     dock, or a box per marker plate / code square and LED disc. Datasets and the closed loop both
     ask this for each frame, so a frame at the same pose renders the same boxes."""
+
     K: np.ndarray
     width: int
     height: int
-    box: np.ndarray                    # dock_corners (8,3), used for roi_regions "dock"
-    regions: list | None               # marker_regions, None for roi_regions "dock"
+    box: np.ndarray  # dock_corners (8,3), used for roi_regions "dock"
+    regions: list | None  # marker_regions, None for roi_regions "dock"
     max_boxes: int
 
     @classmethod
-    def of(cls, exp: Experiment) -> "RenderRegions":
-        regions = (None if exp.render.roi_regions == "dock" else
-                   marker_regions(manifest_markers(exp), quiet_zone=exp.render.roi_regions == "markers"))
-        return cls(camera_K(exp), exp.camera.width, exp.camera.height, dock_corners(exp), regions,
-                   exp.render.roi_max_boxes)
+    def of(cls, exp: Experiment) -> RenderRegions:
+        regions = (
+            None
+            if exp.render.roi_regions == "dock"
+            else marker_regions(manifest_markers(exp), quiet_zone=exp.render.roi_regions == "markers")
+        )
+        return cls(
+            camera_K(exp), exp.camera.width, exp.camera.height, dock_corners(exp), regions, exp.render.roi_max_boxes
+        )
 
     def boxes(self, T_world_cam: np.ndarray, T_world_dock: np.ndarray) -> dict:
         """``{"roi": box or None}`` or ``{"rois": [boxes]}`` (pixel boxes x0, y0, x1, y1) of one frame."""
         T_cd = np.linalg.inv(np.asarray(T_world_cam, float)) @ T_world_dock
         if self.regions is None:
             return {"roi": groundtruth.dock_roi(T_cd, self.K, self.width, self.height, self.box)}
-        return {"rois": [list(b) for b in groundtruth.marker_rois(T_cd, self.K, self.width, self.height,
-                                                                  self.regions, max_boxes=self.max_boxes)]}
+        return {
+            "rois": [
+                list(b)
+                for b in groundtruth.marker_rois(
+                    T_cd, self.K, self.width, self.height, self.regions, max_boxes=self.max_boxes
+                )
+            ]
+        }
 
 
 def marker_regions(markers: list[dict], quiet_zone: bool = True) -> list[np.ndarray]:
@@ -404,8 +469,10 @@ def marker_regions(markers: list[dict], quiet_zone: bool = True) -> list[np.ndar
         if m["kind"] == "led_array":
             r = float(m["led_radius_m"])
             centres = np.asarray(m["keypoints"], float)
-            out += [np.array([[x, y, z] for x in (cx - r, cx + r) for y in (cy - r, cy + r) for z in (-r, r)])
-                    for cx, cy, _ in centres]
+            out += [
+                np.array([[x, y, z] for x in (cx - r, cx + r) for y in (cy - r, cy + r) for z in (-r, r)])
+                for cx, cy, _ in centres
+            ]
             continue
         h = float((m.get("plate_size_m") if quiet_zone else None) or m["size_m"]) / 2
         local = np.array([[x, y, z, 1.0] for x in (-h, h) for y in (-h, h) for z in (-0.01, 0.01)])
@@ -456,22 +523,39 @@ def condition_post(exp: Experiment, cond, seed: int) -> SequencePost:
     occ_post = None
     if occ is not None and occ.n_total > 0:
         lo, hi = occlusion_region(exp, occ)
-        occ_post = OcclusionPost(**occ.model_dump(exclude={"region_min", "region_max"}), region_min=lo,
-                                 region_max=hi, v_flow=list(fluid.current_mps))
+        occ_post = OcclusionPost(
+            **occ.model_dump(exclude={"region_min", "region_max"}),
+            region_min=lo,
+            region_max=hi,
+            v_flow=list(fluid.current_mps),
+        )
     from blendgen.physics.water import optics
+
     water = cond.water or exp.water
-    return SequencePost(seed=seed, fps=exp.camera.fps, image_formation=exp.image_formation,
-                        water=water, water_effective=effective_water(water, exp.image_formation), light_depth_m=depth,
-                        surface_z_m=-exp.scene.dock.water_depth_m + depth,
-                        irradiance_w_m2=downwelling_irradiance(exp), noise_std=exp.camera.noise_std,
-                        sensor=resolved_sensor(exp),
-                        distortion=exp.camera.distortion, occlusion=occ_post, lamps=exp.vehicle.lamps,
-                        sun_elevation_deg=exp.scene.sun_elevation_deg, sun_share=1.0 / (1.0 + sky_fraction(exp)),
-                        veil=optics.veil_parameters(cond.water or exp.water, exp.image_formation),
-                        world=world_post(exp),
-                        lamp_forward_kept=exp.vehicle.lamp_forward_kept if exp.vehicle.lamps else None,
-                        lamp_shadows=exp.vehicle.lamp_shadows if exp.vehicle.lamps else None,
-                        lens=exp.camera.lens, suns=sun_lights(exp), ambient_w_m2_sr=ambient_radiance(exp))
+    return SequencePost(
+        seed=seed,
+        fps=exp.camera.fps,
+        image_formation=exp.image_formation,
+        water=water,
+        water_effective=effective_water(water, exp.image_formation),
+        light_depth_m=depth,
+        surface_z_m=-exp.scene.dock.water_depth_m + depth,
+        irradiance_w_m2=downwelling_irradiance(exp),
+        noise_std=exp.camera.noise_std,
+        sensor=resolved_sensor(exp),
+        distortion=exp.camera.distortion,
+        occlusion=occ_post,
+        lamps=exp.vehicle.lamps,
+        sun_elevation_deg=exp.scene.sun_elevation_deg,
+        sun_share=1.0 / (1.0 + sky_fraction(exp)),
+        veil=optics.veil_parameters(cond.water or exp.water, exp.image_formation),
+        world=world_post(exp),
+        lamp_forward_kept=exp.vehicle.lamp_forward_kept if exp.vehicle.lamps else None,
+        lamp_shadows=exp.vehicle.lamp_shadows if exp.vehicle.lamps else None,
+        lens=exp.camera.lens,
+        suns=sun_lights(exp),
+        ambient_w_m2_sr=ambient_radiance(exp),
+    )
 
 
 def effective_water(water: Water, mode: str) -> dict:
@@ -479,6 +563,7 @@ def effective_water(water: Water, mode: str) -> dict:
     used (1/m, R/G/B; ``B_inf`` before the veil model), ``c``, the preset they come from
     (in physical mode an article level is its Jerlov type) and their provenance."""
     from blendgen.physics.water import optics
+
     w = optics.water_for_mode(water, mode)
     return {**w.to_dict(), "c": w.c.tolist(), "preset": optics.effective_preset(water, mode)}
 
@@ -494,29 +579,42 @@ def world_post(exp: Experiment) -> WorldPost | None:
     if not (surface or caustics):
         return None
     if exp.image_formation != "physical":
-        raise ConfigError("scene.world: surface and caustics need image_formation: physical "
-                          "(the article's formulas have no surface light); set them false or null")
+        raise ConfigError(
+            "scene.world: surface and caustics need image_formation: physical "
+            "(the article's formulas have no surface light); set them false or null"
+        )
     w, s = exp.scene.world, exp.scene
-    sky = sky_fraction(exp) * sun_horizontal_irradiance(exp) / math.pi     # uniform sky: E = pi L
+    sky = sky_fraction(exp) * sun_horizontal_irradiance(exp) / math.pi  # uniform sky: E = pi L
     low = 90.0 - math.degrees(sf.critical_angle_rad())
     if s.sun_elevation_deg <= low:
-        raise ConfigError(f"scene.sun_elevation_deg: {s.sun_elevation_deg:g} is the sun's elevation in water, where "
-                          f"sunlight below a surface stays above {low:.1f} deg (Snell's window); allowed "
-                          f"{low:.1f} < elevation <= 90 while scene.world.surface or caustics is on")
-    return WorldPost(surface=surface, caustics=caustics, wind_mps=w.wind_mps,
-                     wave_seed=eff.value(exp, "scene.world.wave_seed"), sky_radiance=sky,
-                     ambient_radiance=ambient_radiance(exp) if exp.render.fidelity == "fast" else 0.0,
-                     sun_travel_dir=sf.sun_in_air(_sun_dir(s.sun_elevation_deg, s.sun_azimuth_deg)).tolist(),
-                     sun_irradiance=s.sun_strength if surface and world_on(exp, "sun_glint") else 0.0,
-                     sun_lamp_w_m2=s.sun_strength)
+        raise ConfigError(
+            f"scene.sun_elevation_deg: {s.sun_elevation_deg:g} is the sun's elevation in water, where "
+            f"sunlight below a surface stays above {low:.1f} deg (Snell's window); allowed "
+            f"{low:.1f} < elevation <= 90 while scene.world.surface or caustics is on"
+        )
+    return WorldPost(
+        surface=surface,
+        caustics=caustics,
+        wind_mps=w.wind_mps,
+        wave_seed=eff.value(exp, "scene.world.wave_seed"),
+        sky_radiance=sky,
+        ambient_radiance=ambient_radiance(exp) if exp.render.fidelity == "fast" else 0.0,
+        sun_travel_dir=sf.sun_in_air(_sun_dir(s.sun_elevation_deg, s.sun_azimuth_deg)).tolist(),
+        sun_irradiance=s.sun_strength if surface and world_on(exp, "sun_glint") else 0.0,
+        sun_lamp_w_m2=s.sun_strength,
+    )
 
 
 def world_look(exp: Experiment) -> dict:
     """Blender side of ``scene.world``: textures (both fidelities share the scene)."""
     w = exp.scene.world
-    return {"textures": world_on(exp, "textures"),
-            "texture_seed": eff.value(exp, "scene.world.texture_seed"),
-            "tile_size_m": w.tile_size_m, "grime": w.grime, "seabed_depth_m": w.seabed_depth_m}
+    return {
+        "textures": world_on(exp, "textures"),
+        "texture_seed": eff.value(exp, "scene.world.texture_seed"),
+        "tile_size_m": w.tile_size_m,
+        "grime": w.grime,
+        "seabed_depth_m": w.seabed_depth_m,
+    }
 
 
 # Reference caustics (blender/caustic_sun.py): the frame's photon map, binned across the
@@ -543,10 +641,19 @@ def water_surface(exp: Experiment, post: SequencePost) -> dict | None:
         centre = [0.0, 0.0]
     else:
         half, centre = [60.0, 60.0], list(s.dock.position_xy_m)
-    sun = {"to_sun": [-v for v in wp.sun_travel_dir], "irradiance": wp.sun_irradiance} if wp.sun_irradiance > 0 else None
-    out = {"z": post.surface_z_m, "centre_xy": centre, "half_xy": half, "sky_radiance": wp.sky_radiance,
-           "wind_mps": wp.wind_mps, "wave_seed": wp.wave_seed, "sun": sun}
-    if wp.caustics and s.sun_strength > 0:        # open water: the dock only (the seabed is beyond a photon budget)
+    sun = (
+        {"to_sun": [-v for v in wp.sun_travel_dir], "irradiance": wp.sun_irradiance} if wp.sun_irradiance > 0 else None
+    )
+    out = {
+        "z": post.surface_z_m,
+        "centre_xy": centre,
+        "half_xy": half,
+        "sky_radiance": wp.sky_radiance,
+        "wind_mps": wp.wind_mps,
+        "wave_seed": wp.wave_seed,
+        "sun": sun,
+    }
+    if wp.caustics and s.sun_strength > 0:  # open water: the dock only (the seabed is beyond a photon budget)
         out["caustics"] = {**REFERENCE_CAUSTICS, "pool_spot": s.kind == "pool"}
     return out
 
@@ -570,8 +677,16 @@ def job_key(exp: Experiment, scene: dict, frames: list[dict]) -> str:
     scene = {**scene, "markers": [{**m, "texture": _texture_sha(m.get("texture"))} for m in scene["markers"]]}
     render = {k: v for k, v in render_settings(exp, 1).items() if k != "threads"}
     c = exp.camera
-    blob = json.dumps({"scene": scene, "frames": frames, "render": render, "fidelity": exp.render.fidelity,
-                       "camera": [c.width, c.height, c.hfov_deg]}, sort_keys=True)
+    blob = json.dumps(
+        {
+            "scene": scene,
+            "frames": frames,
+            "render": render,
+            "fidelity": exp.render.fidelity,
+            "camera": [c.width, c.height, c.hfov_deg],
+        },
+        sort_keys=True,
+    )
     return hashlib.sha256(blob.encode()).hexdigest()
 
 
@@ -582,6 +697,7 @@ def water_volume(exp: Experiment, post: SequencePost) -> dict | None:
     The surface sits ``light_depth_m`` above the dock, so a depth condition moves the
     surface, not the geometry, and the clean renders stay comparable."""
     from blendgen.physics.water import optics
+
     w = optics.water_for_mode(post.water, post.image_formation)
     if w.is_clear:
         return None
@@ -594,9 +710,16 @@ def water_volume(exp: Experiment, post: SequencePost) -> dict | None:
     else:
         x, y = s.dock.position_xy_m
         lo, hi = [x - 60.0, y - 60.0, dock_z - 60.0], [x + 60.0, y + 60.0, surface_z]
-    return {"sigma_a": list(map(float, w.sigma_a)), "sigma_s": list(map(float, w.sigma_s)), "phase": w.phase,
-            "g": float(w.g), "ff_ior": float(w.ff_ior), "ff_backscatter": float(w.ff_backscatter),
-            "box_min": lo, "box_max": hi}
+    return {
+        "sigma_a": list(map(float, w.sigma_a)),
+        "sigma_s": list(map(float, w.sigma_s)),
+        "phase": w.phase,
+        "g": float(w.g),
+        "ff_ior": float(w.ff_ior),
+        "ff_backscatter": float(w.ff_backscatter),
+        "box_min": lo,
+        "box_max": hi,
+    }
 
 
 def _motion(exp: Experiment, traj, cond):
@@ -622,21 +745,38 @@ def plan_jobs(exp: Experiment, scene: dict) -> list[RenderJob]:
             seed = trial_seed(exp, trial)
             for c in exp.conditions:
                 fluid = _motion(exp, traj, c)
-                mkey = (traj.id, trial if traj.kind == "docking" else None,
-                        None if fluid is None else json.dumps(fluid.model_dump(), sort_keys=True))
+                mkey = (
+                    traj.id,
+                    trial if traj.kind == "docking" else None,
+                    None if fluid is None else json.dumps(fluid.model_dump(), sort_keys=True),
+                )
                 if mkey not in paths:
                     paths[mkey] = _frames(exp, traj, T_wd, T_bc, seed, fluid or exp.fluid)
                     scene_check.check_frames(exp, exp.trajectories.index(traj), trial, paths[mkey])
                 frames = paths[mkey]
                 post = condition_post(exp, c, seed)
                 sq = SequencePlan(f"{traj.id}-t{trial:03d}-{c.label}", traj.id, trial, c.label, post)
-                sc = scene if exp.render.fidelity == "fast" else {**scene, "water_volume": water_volume(exp, post),
-                                                                  "led_lights": True,
-                                                                  "water_surface": water_surface(exp, post)}
+                sc = (
+                    scene
+                    if exp.render.fidelity == "fast"
+                    else {
+                        **scene,
+                        "water_volume": water_volume(exp, post),
+                        "led_lights": True,
+                        "water_surface": water_surface(exp, post),
+                    }
+                )
                 if post.occlusion and post.occlusion.geometry == "blender":
                     # real geometry is part of the render: keyed by its config and seed
-                    sc = {**sc, "particles": {**post.occlusion.model_dump(), "seed": seed, "fps": exp.camera.fps,
-                                              "object_index": INDEX_PARTICLES}}
+                    sc = {
+                        **sc,
+                        "particles": {
+                            **post.occlusion.model_dump(),
+                            "seed": seed,
+                            "fps": exp.camera.fps,
+                            "object_index": INDEX_PARTICLES,
+                        },
+                    }
                 key = job_key(exp, sc, frames)
                 jobs.setdefault(key, RenderJob(key, sc, frames)).sequences.append(sq)
     return list(jobs.values())
@@ -649,18 +789,27 @@ def render_settings(exp: Experiment, threads: int) -> dict:
     vb = r.volume_bounces if r.fidelity == "reference" else 0
     # the refracting surface: camera -> surface (transmission or total reflection) -> sky or wall
     spec = 2 if r.fidelity == "reference" and world_on(exp, "surface") else 0
-    lamps = bool(exp.vehicle.lamps) and r.fidelity == "fast"    # fast lamp: albedo and normal passes
-    out = {"samples": samples, "threads": threads, "max_bounces": max(r.diffuse_bounces, vb, spec),
-           "diffuse_bounces": r.diffuse_bounces, "volume_bounces": vb, "seed": exp.seed,
-           "specular_bounces": spec,
-            "ambient_radiance": ambient_radiance(exp) if r.fidelity == "fast" else 0.0,
-            "albedo_pass": r.fidelity == "fast" and (ambient_on(exp) or lamps),
-            "write_depth": r.write_depth, "write_index": r.write_index,
-            "roi": r.roi and r.fidelity == "fast", "background_scale": r.background_scale,
-            "background_samples": r.background_samples, "roi_max_fraction": r.roi_max_fraction,
-            "light_tree": eff.value(exp, "render.light_tree")}
+    lamps = bool(exp.vehicle.lamps) and r.fidelity == "fast"  # fast lamp: albedo and normal passes
+    out = {
+        "samples": samples,
+        "threads": threads,
+        "max_bounces": max(r.diffuse_bounces, vb, spec),
+        "diffuse_bounces": r.diffuse_bounces,
+        "volume_bounces": vb,
+        "seed": exp.seed,
+        "specular_bounces": spec,
+        "ambient_radiance": ambient_radiance(exp) if r.fidelity == "fast" else 0.0,
+        "albedo_pass": r.fidelity == "fast" and (ambient_on(exp) or lamps),
+        "write_depth": r.write_depth,
+        "write_index": r.write_index,
+        "roi": r.roi and r.fidelity == "fast",
+        "background_scale": r.background_scale,
+        "background_samples": r.background_samples,
+        "roi_max_fraction": r.roi_max_fraction,
+        "light_tree": eff.value(exp, "render.light_tree"),
+    }
     if lamps:
         out["normal_pass"] = True
     if r.fidelity == "fast" and exp.image_formation == "physical" and world_on(exp, "caustics"):
-        out["sun_pass"] = True          # the sun's own light (a Cycles light group): what caustics refocus
+        out["sun_pass"] = True  # the sun's own light (a Cycles light group): what caustics refocus
     return out

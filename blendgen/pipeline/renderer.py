@@ -8,6 +8,7 @@ Everything after the render (water, particles, sensor, ground truth, writing) is
 pipeline's. The implementation is Blender's (:mod:`blendgen.blender.renderer`, imported only
 when a renderer is built, i.e. in a render worker process).
 """
+
 from __future__ import annotations
 
 from typing import Protocol
@@ -33,6 +34,7 @@ def load() -> None:
     """Import the renderer (Blender: seconds, once per process) before a job's clock starts, so
     its ``scene_build`` time is the build alone."""
     from blendgen.blender import renderer
+
     renderer.load()
 
 
@@ -40,4 +42,5 @@ def build(scene: RenderScene, camera: dict, render: RenderSettings, cache: dict 
     """The renderer of one job (Blender; ``cache``: a persistent worker's dict that keeps the
     built scene while consecutive jobs share it)."""
     from blendgen.blender import renderer
+
     return renderer.build(scene, camera, render, cache)

@@ -9,6 +9,7 @@ dims the light and the surface is the scene's, z = 0. Each check names the confi
 far out the scene is, and the key's allowed range (a rigid shift of the points along the
 key's direction, exact for linear and circle paths and for start boxes).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -25,6 +26,7 @@ OPEN_WATER_HALF_M = 60.0
 @dataclass(frozen=True)
 class WaterBox:
     """Axis-aligned water volume: ``lo``, ``hi`` (3,) world metres; ``what`` names it."""
+
     lo: np.ndarray
     hi: np.ndarray
     what: str
@@ -44,12 +46,16 @@ def water_box(exp: Experiment) -> WaterBox:
     s, top = exp.scene, surface_z(exp)
     if s.kind == "pool":
         p = s.pool
-        return WaterBox(np.array([-p.length_m / 2, -p.width_m / 2, -p.depth_m]),
-                        np.array([p.length_m / 2, p.width_m / 2, top]), "pool")
+        return WaterBox(
+            np.array([-p.length_m / 2, -p.width_m / 2, -p.depth_m]),
+            np.array([p.length_m / 2, p.width_m / 2, top]),
+            "pool",
+        )
     x, y = s.dock.position_xy_m
     h = OPEN_WATER_HALF_M
-    return WaterBox(np.array([x - h, y - h, -s.world.seabed_depth_m]), np.array([x + h, y + h, top]),
-                    "open-water domain")
+    return WaterBox(
+        np.array([x - h, y - h, -s.world.seabed_depth_m]), np.array([x + h, y + h, top]), "open-water domain"
+    )
 
 
 def shift_range(points: np.ndarray, direction, box: WaterBox) -> tuple[float, float] | None:
@@ -70,8 +76,10 @@ def shift_range(points: np.ndarray, direction, box: WaterBox) -> tuple[float, fl
 
 def where_out(p: np.ndarray, box: WaterBox) -> tuple[str, float]:
     """(what the point (3,) is beyond, by how many metres); ('', 0) inside the box."""
-    over = [(p[2] - box.hi[2], "above the water surface"), (box.lo[2] - p[2], f"below the {box.what}'s floor"
-            if box.what == "pool" else "below the seabed")]
+    over = [
+        (p[2] - box.hi[2], "above the water surface"),
+        (box.lo[2] - p[2], f"below the {box.what}'s floor" if box.what == "pool" else "below the seabed"),
+    ]
     side = float(max(np.max(box.lo[:2] - p[:2]), np.max(p[:2] - box.hi[:2])))
     over.append((side, "outside the pool's walls" if box.what == "pool" else "outside the open-water domain"))
     d, what = max(over)
@@ -107,10 +115,14 @@ def check_dock(exp: Experiment, T_wd: np.ndarray, box: WaterBox) -> None:
     dock = exp.scene.dock
     if what.startswith("below"):
         rng = shift_range(pts, [0, 0, -1.0], box)
-        raise ConfigError(f"scene.dock.water_depth_m: {dock.water_depth_m:g} puts the dock {d:.2f} m {what}; "
-                          f"{_allowed('water_depth_m', dock.water_depth_m, rng, 0.0)}")
-    raise ConfigError(f"scene.dock.position_xy_m: {list(dock.position_xy_m)} puts the dock {d:.2f} m {what} "
-                      f"(x in [{box.lo[0]:g}, {box.hi[0]:g}], y in [{box.lo[1]:g}, {box.hi[1]:g}])")
+        raise ConfigError(
+            f"scene.dock.water_depth_m: {dock.water_depth_m:g} puts the dock {d:.2f} m {what}; "
+            f"{_allowed('water_depth_m', dock.water_depth_m, rng, 0.0)}"
+        )
+    raise ConfigError(
+        f"scene.dock.position_xy_m: {list(dock.position_xy_m)} puts the dock {d:.2f} m {what} "
+        f"(x in [{box.lo[0]:g}, {box.hi[0]:g}], y in [{box.lo[1]:g}, {box.hi[1]:g}])"
+    )
 
 
 def check_surfaces(exp: Experiment) -> None:
@@ -120,10 +132,12 @@ def check_surfaces(exp: Experiment) -> None:
     base = exp.scene.dock.water_depth_m
     for i, c in enumerate(exp.conditions):
         if c.dock_water_depth_m is not None and c.dock_water_depth_m > base + 1e-9:
-            raise ConfigError(f"conditions[{i}].dock_water_depth_m: {c.dock_water_depth_m:g} puts the water "
-                              f"surface {c.dock_water_depth_m - base:.2f} m above the pool's rim (a depth "
-                              "condition moves the surface, not the dock); allowed <= scene.dock.water_depth_m "
-                              f"({base:g}): put the dock at the deepest condition")
+            raise ConfigError(
+                f"conditions[{i}].dock_water_depth_m: {c.dock_water_depth_m:g} puts the water "
+                f"surface {c.dock_water_depth_m - base:.2f} m above the pool's rim (a depth "
+                "condition moves the surface, not the dock); allowed <= scene.dock.water_depth_m "
+                f"({base:g}): put the dock at the deepest condition"
+            )
 
 
 def check_scene(exp: Experiment) -> None:
@@ -153,8 +167,11 @@ def check_camera_path(exp: Experiment, i: int, traj, cams: np.ndarray, T_wd: np.
     if what.startswith(("above", "below")):
         name = "vertical_m" if traj.kind == "linear" else "height_m"
         value, rng = getattr(traj, name), shift_range(cams, [0, 0, 1.0], box)
-    elif traj.kind == "linear" and shift_range(cams[-1:], z_d, box) is not None and \
-            shift_range(cams[:1], z_d, box) is not None:
+    elif (
+        traj.kind == "linear"
+        and shift_range(cams[-1:], z_d, box) is not None
+        and shift_range(cams[:1], z_d, box) is not None
+    ):
         name, value = "start_range_m", traj.start_range_m
         t = shift_range(cams[:1], z_d, box)
         rng = (traj.end_range_m - value, t[1])
@@ -163,8 +180,10 @@ def check_camera_path(exp: Experiment, i: int, traj, cams: np.ndarray, T_wd: np.
     else:
         name, value = "radius_m", traj.radius_m
         rng = (0.05 - value, _largest_radius(traj, cams, T_wd, box) - value)
-    raise ConfigError(f"trajectories[{i}].{name}: {value:g} puts the camera {d:.2f} m {what} at "
-                      f"t = {k / exp.camera.fps:.2f} s ({traj.id!r}); {_allowed(name, value, rng)}")
+    raise ConfigError(
+        f"trajectories[{i}].{name}: {value:g} puts the camera {d:.2f} m {what} at "
+        f"t = {k / exp.camera.fps:.2f} s ({traj.id!r}); {_allowed(name, value, rng)}"
+    )
 
 
 def _largest_radius(traj, cams: np.ndarray, T_wd: np.ndarray, box: WaterBox) -> float:
@@ -184,8 +203,12 @@ def check_start_box(i: int, traj, T_wd: np.ndarray, box: WaterBox) -> None:
     dock normal, lateral, vertical) inside the water."""
     st = traj.start
     o, x_d, y_d, z_d = T_wd[:3, 3], T_wd[:3, 0], T_wd[:3, 1], T_wd[:3, 2]
-    corners = {(r, a, v): o + r * z_d + a * x_d + v * y_d for r in st.range_m
-               for a in (-st.lateral_m, st.lateral_m) for v in (-st.vertical_m, st.vertical_m)}
+    corners = {
+        (r, a, v): o + r * z_d + a * x_d + v * y_d
+        for r in st.range_m
+        for a in (-st.lateral_m, st.lateral_m)
+        for v in (-st.vertical_m, st.vertical_m)
+    }
     pts = np.array(list(corners.values()))
     bad = _first_out(pts, box)
     if bad is None:
@@ -195,23 +218,33 @@ def check_start_box(i: int, traj, T_wd: np.ndarray, box: WaterBox) -> None:
     if what.startswith(("above", "below")):
         rng = shift_range(flat, y_d, box)
         name, value, hi = "vertical_m", st.vertical_m, None if rng is None else min(rng[1], -rng[0])
-    elif shift_range(np.array([o + r * z_d for r in st.range_m]), x_d, box) is not None and \
-            _first_out(np.array([o + r * z_d for r in st.range_m]), box) is None:
+    elif (
+        shift_range(np.array([o + r * z_d for r in st.range_m]), x_d, box) is not None
+        and _first_out(np.array([o + r * z_d for r in st.range_m]), box) is None
+    ):
         rng = shift_range(np.array([o + r * z_d for r in st.range_m]), x_d, box)
         name, value, hi = "lateral_m", st.lateral_m, min(rng[1], -rng[0])
     else:
-        near = np.array([o + st.range_m[0] * z_d + a * x_d + v * y_d for a in (-st.lateral_m, st.lateral_m)
-                         for v in (-st.vertical_m, st.vertical_m)])
+        near = np.array(
+            [
+                o + st.range_m[0] * z_d + a * x_d + v * y_d
+                for a in (-st.lateral_m, st.lateral_m)
+                for v in (-st.vertical_m, st.vertical_m)
+            ]
+        )
         rng = shift_range(near, z_d, box)
         name, value = "range_m", st.range_m[1]
         hi = None if rng is None else st.range_m[0] + rng[1]
     allowed = f"no {name} fits" if hi is None or hi < 0 else f"allowed {name} <= {hi:.2f}"
-    raise ConfigError(f"trajectories[{i}].start.{name}: {value if name != 'range_m' else list(st.range_m)} "
-                      f"puts a start {d:.2f} m {what} ({traj.id!r}); {allowed}")
+    raise ConfigError(
+        f"trajectories[{i}].start.{name}: {value if name != 'range_m' else list(st.range_m)} "
+        f"puts a start {d:.2f} m {what} ({traj.id!r}); {allowed}"
+    )
 
 
-def check_frames(exp: Experiment, traj_index: int, trial: int | None, frames: list[dict],
-                 nearest_m: float | None = None) -> None:
+def check_frames(
+    exp: Experiment, traj_index: int, trial: int | None, frames: list[dict], nearest_m: float | None = None
+) -> None:
     """A sequence must have frames, and every camera pose inside the water (``trial`` None: a
     kinematic path, the same for every trial; ``nearest_m`` the path's nearest camera distance
     to the dock before contact, for the message)."""
@@ -219,13 +252,20 @@ def check_frames(exp: Experiment, traj_index: int, trial: int | None, frames: li
     which = f"{traj.id!r}" + ("" if trial is None else f" trial {trial}")
     if not frames:
         d = exp.render.max_distance_m
-        raise ConfigError(f"render.max_distance_m: {d:g} leaves trajectories[{traj_index}] ({which}) no frame "
-                          "(no camera pose that close to the dock before contact); allowed: "
-                          + ("above the path's nearest camera distance" if nearest_m is None else
-                             f"max_distance_m >= {nearest_m:.2f}"))
+        raise ConfigError(
+            f"render.max_distance_m: {d:g} leaves trajectories[{traj_index}] ({which}) no frame "
+            "(no camera pose that close to the dock before contact); allowed: "
+            + (
+                "above the path's nearest camera distance"
+                if nearest_m is None
+                else f"max_distance_m >= {nearest_m:.2f}"
+            )
+        )
     cams = np.array([np.asarray(f["T_world_cam"])[:3, 3] for f in frames])
     bad = _first_out(cams, water_box(exp))
     if bad is not None:
         k, what, dist = bad
-        raise ConfigError(f"trajectories[{traj_index}].start: {which} brings the camera "
-                          f"{dist:.2f} m {what} at t = {frames[k]['t']:.2f} s; narrow the start ranges")
+        raise ConfigError(
+            f"trajectories[{traj_index}].start: {which} brings the camera "
+            f"{dist:.2f} m {what} at t = {frames[k]['t']:.2f} s; narrow the start ranges"
+        )

@@ -3,6 +3,7 @@
 CPU is :func:`time.process_time`: every thread of this process (Cycles' render threads
 included), so on a shared machine it is the work done, while wall also counts waiting.
 """
+
 from __future__ import annotations
 
 import time

@@ -18,6 +18,7 @@ entirely when the sequence has them off (``SequencePost.world`` None or False).
   with the water's scattering coefficient (mean over RGB) and phase mean cosine ``g`` as
   the turbidity.
 """
+
 from __future__ import annotations
 
 import functools
@@ -25,7 +26,8 @@ import math
 
 import numpy as np
 
-from blendgen.physics.surface import caustic_map, optics as sf
+from blendgen.physics.surface import caustic_map
+from blendgen.physics.surface import optics as sf
 
 
 @functools.lru_cache(maxsize=8)
@@ -52,6 +54,7 @@ def surface_slopes(waves: sf.WaveField, cam_xy, rays, r_all, t: float, stride: i
     (``r_all`` (H, W) range, inf where it does not; ``rays`` (H, W, 3) world unit vectors),
     evaluated on every ``stride``-th pixel and interpolated bilinearly (0 where no ray rises)."""
     import cv2
+
     rh, dh = r_all[::stride, ::stride], rays[::stride, ::stride]
     ok = np.isfinite(rh)
     g = np.zeros((*rh.shape, 2), np.float32)
@@ -63,8 +66,19 @@ def surface_slopes(waves: sf.WaveField, cam_xy, rays, r_all, t: float, stride: i
     return g[..., 0], g[..., 1]
 
 
-def add_surface(rgb, range_m, depth, wp, rays, K, T_world_cam, surface_z_m: float, t: float, below_radiance,
-                stride: int | None = None):
+def add_surface(
+    rgb,
+    range_m,
+    depth,
+    wp,
+    rays,
+    K,
+    T_world_cam,
+    surface_z_m: float,
+    t: float,
+    below_radiance,
+    stride: int | None = None,
+):
     """Pixels that see the surface from below: (rgb, range_m, depth) new arrays; the inputs
     when none does. ``rays`` (H, W, 3) unit world directions of the pixels; K (3, 3);
     ``below_radiance`` (3,) the veil at the camera's depth. Inside Snell's window: the window
@@ -82,24 +96,39 @@ def add_surface(rgb, range_m, depth, wp, rays, K, T_world_cam, surface_z_m: floa
     up = np.isfinite(r_all) & ~(range_m < r_all)
     if not up.any():
         return rgb, range_m, depth
-    gx, gy = surface_slopes(waves_of(wp.wave_seed, wp.wind_mps), T[:2, 3], d, np.where(up, r_all, np.inf), t,
-                            SLOPE_STRIDE if stride is None else stride)
+    gx, gy = surface_slopes(
+        waves_of(wp.wave_seed, wp.wind_mps),
+        T[:2, 3],
+        d,
+        np.where(up, r_all, np.inf),
+        t,
+        SLOPE_STRIDE if stride is None else stride,
+    )
     r, du, sx, sy = r_all[up].astype(np.float32), d[up], gx[up], gy[up]
     norm = np.sqrt(sx * sx + sy * sy + 1)
     cos_up = (du[:, 2] - sx * du[:, 0] - sy * du[:, 1]) / norm
     depth = np.array(np.broadcast_to(depth, range_m.shape), np.float32)
     R = sf.fresnel_reflectance(cos_up)
     J = sf.window_radiance(cos_up, [wp.sky_radiance] * 3, below_radiance, reflectance=R)
-    if wp.sun_irradiance > 0:                                 # the sun's disc in Snell's window
+    if wp.sun_irradiance > 0:  # the sun's disc in Snell's window
         nrm = np.stack([-sx, -sy, np.ones_like(sx)], -1) / norm[:, None]
-        J += sf.sun_disc_radiance(du, nrm, cos_up, R, -np.asarray(wp.sun_travel_dir, np.float32),
-                                  wp.sun_irradiance, 1.0 / float(K[0, 0]))[:, None]
+        J += sf.sun_disc_radiance(
+            du, nrm, cos_up, R, -np.asarray(wp.sun_travel_dir, np.float32), wp.sun_irradiance, 1.0 / float(K[0, 0])
+        )[:, None]
     rr, hh = r, np.zeros_like(r)
     tir = R >= 1.0
     if tir.any():
         n = np.stack([-sx[tir], -sy[tir], np.ones_like(sx[tir])], -1) / norm[tir, None]
-        m_rgb, m_r, m_h, ok = _mirror(T[:3, 3] + r[tir, None] * du[tir], du[tir] - 2 * cos_up[tir, None] * n, K, T,
-                                      rgb, range_m, depth, np.flatnonzero(up)[tir])
+        m_rgb, m_r, m_h, ok = _mirror(
+            T[:3, 3] + r[tir, None] * du[tir],
+            du[tir] - 2 * cos_up[tir, None] * n,
+            K,
+            T,
+            rgb,
+            range_m,
+            depth,
+            np.flatnonzero(up)[tir],
+        )
         idx = np.flatnonzero(tir)[ok]
         J[idx], rr[idx], hh[idx] = m_rgb, r[idx] + m_r, m_h
     rgb, range_m = rgb.copy(), range_m.copy()
@@ -117,7 +146,7 @@ def _mirror(start, d_refl, K, T, rgb, range_m, depth, pixels=None, max_m: float 
     and its block takes its hit (the reflection at half resolution: a quarter of the cost)."""
     w = range_m.shape[1]
     marched = which = np.arange(len(d_refl))
-    if pixels is not None:                      # each 2 x 2 block's first ray (its top-left pixel if it has it)
+    if pixels is not None:  # each 2 x 2 block's first ray (its top-left pixel if it has it)
         block = (pixels // w // 2) * (w // 2 + 1) + (pixels % w) // 2
         _, marched, which = np.unique(block, return_index=True, return_inverse=True)
     pix, dist = _march(np.asarray(start)[marched], np.asarray(d_refl)[marched], K, T, range_m, max_m)
@@ -131,11 +160,20 @@ def _mirror(start, d_refl, K, T, rgb, range_m, depth, pixels=None, max_m: float 
 def _march(start, d_refl, K, T, range_m, max_m: float):
     """``surface_kernels.reflect`` on rays (n, 3) from ``start`` along ``d_refl``: (pixel, distance) (n,)."""
     from blendgen.physics.surface.kernels import reflect
+
     n = len(d_refl)
     pix, dist = np.empty(n, np.int64), np.empty(n, np.float64)
-    reflect(np.ascontiguousarray(start, np.float64), np.ascontiguousarray(d_refl, np.float64),
-            np.ascontiguousarray(T[:3, 3], np.float64), np.ascontiguousarray(T[:3, :3].T, np.float64),
-            np.asarray(K, np.float64), np.ascontiguousarray(range_m, np.float32), float(max_m), pix, dist)
+    reflect(
+        np.ascontiguousarray(start, np.float64),
+        np.ascontiguousarray(d_refl, np.float64),
+        np.ascontiguousarray(T[:3, 3], np.float64),
+        np.ascontiguousarray(T[:3, :3].T, np.float64),
+        np.asarray(K, np.float64),
+        np.ascontiguousarray(range_m, np.float32),
+        float(max_m),
+        pix,
+        dist,
+    )
     return pix, dist
 
 
@@ -144,8 +182,10 @@ def facing_normals(rays, range_m) -> np.ndarray:
     camera (``surface_light.surface_normals`` of the camera-relative hit points); 0 where a
     neighbour is missing (object edges, open water)."""
     from blendgen.physics.light.surface_light import surface_normals
-    return surface_normals(np.asarray(rays, np.float32)
-                           * np.where(np.isfinite(range_m), range_m, np.nan).astype(np.float32)[..., None])
+
+    return surface_normals(
+        np.asarray(rays, np.float32) * np.where(np.isfinite(range_m), range_m, np.nan).astype(np.float32)[..., None]
+    )
 
 
 def footprint_m(rays, range_m, normals, px_rad: float, beam=None, beam_cos=None) -> np.ndarray:
@@ -164,8 +204,21 @@ def footprint_m(rays, range_m, normals, px_rad: float, beam=None, beam_cos=None)
     return np.where(np.isfinite(f) & (cos > 1e-3), f, np.inf).astype(np.float32)
 
 
-def add_caustics(rgb, albedo, range_m, depth, wp, rays, K, T_world_cam, t: float, scattering: float, g: float = 0.9,
-                 emissive=None, sun_pass=None):
+def add_caustics(
+    rgb,
+    albedo,
+    range_m,
+    depth,
+    wp,
+    rays,
+    K,
+    T_world_cam,
+    t: float,
+    scattering: float,
+    g: float = 0.9,
+    emissive=None,
+    sun_pass=None,
+):
     """Sun-lit surfaces times their focusing factor (module docstring); a new (H, W, 3) array.
     ``depth`` (H, W) metres below the surface of each pixel's surface point; ``rays`` (H, W, 3)
     unit world directions; ``emissive`` (H, W) bool: pixels of light sources (LEDs), whose own
@@ -189,20 +242,38 @@ def add_caustics(rgb, albedo, range_m, depth, wp, rays, K, T_world_cam, t: float
     d = rays[hit]
     r = range_m[hit].astype(np.float32)
     h = depth[hit]
-    back = (-sun[:2] / -sun[2]).astype(np.float32)            # horizontal run per metre of rise
+    back = (-sun[:2] / -sun[2]).astype(np.float32)  # horizontal run per metre of rise
     x = np.float32(T[0, 3]) + r * d[:, 0] + h * back[0]
     y = np.float32(T[1, 3]) + r * d[:, 1] + h * back[1]
-    path = h / np.float32(-sun[2])                             # slant path of the beam to the point
+    path = h / np.float32(-sun[2])  # slant path of the beam to the point
     foot = footprint_m(rays, range_m, normals, 1.0 / float(K[0, 0]), sun, cos_i)[hit]
-    gain = caustic_map.frame_factor(waves_of(wp.wave_seed, wp.wind_mps), x, y, path, foot, t,
-                                    sf.sun_deflection(wp.sun_travel_dir), scattering, g) - 1      # M - 1
+    gain = (
+        caustic_map.frame_factor(
+            waves_of(wp.wave_seed, wp.wind_mps),
+            x,
+            y,
+            path,
+            foot,
+            t,
+            sf.sun_deflection(wp.sun_travel_dir),
+            scattering,
+            g,
+        )
+        - 1
+    )  # M - 1
     out = np.array(rgb, np.float32)
-    at = np.flatnonzero(hit)                                   # flat pixel indices: take/put, not masks
-    rows = lambda img: np.take(np.broadcast_to(np.asarray(img, np.float32), out.shape).reshape(-1, 3),  # noqa: E731
-                               at, axis=0)
+    at = np.flatnonzero(hit)  # flat pixel indices: take/put, not masks
+    rows = lambda img: np.take(
+        np.broadcast_to(np.asarray(img, np.float32), out.shape).reshape(-1, 3),  # noqa: E731
+        at,
+        axis=0,
+    )
     base = rows(out)
-    lit = rows(sun_pass) if sun_pass is not None else sunlight(
-        base, None if albedo is None else rows(albedo), cos_i.ravel()[at], wp)
+    lit = (
+        rows(sun_pass)
+        if sun_pass is not None
+        else sunlight(base, None if albedo is None else rows(albedo), cos_i.ravel()[at], wp)
+    )
     out.reshape(-1, 3)[at] = base + lit * gain[:, None]
     return out
 

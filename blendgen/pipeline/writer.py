@@ -8,14 +8,25 @@
 - ``manifest.json`` is written last (temp file + rename) with the sha256 of every
   file; names starting with ``.`` (work files) are not part of the dataset.
 """
+
 from __future__ import annotations
 
 import os
 import shutil
 from pathlib import Path
 
-from datasets_spec.io import (FORMAT_NAME, DatasetError, MANIFEST, RENDERS, SPEC_VERSION, content_hash, dataset_files,
-                              path_inside, render_dir_name, save_json_atomic, sha256_file)
+from datasets_spec.io import (
+    FORMAT_NAME,
+    MANIFEST,
+    RENDERS,
+    DatasetError,
+    content_hash,
+    dataset_files,
+    path_inside,
+    render_dir_name,
+    save_json_atomic,
+    sha256_file,
+)
 
 FORMAT = FORMAT_NAME
 
@@ -38,8 +49,10 @@ class DatasetWriter:
         """``sequences/<name>`` resolved, proven to be a direct child of ``sequences/``."""
         path = path_inside(self.root, f"sequences/{name}", what)
         if "/" in name or "\\" in name or path.parent != self.seq_root.resolve():
-            raise DatasetError(f"{self.seq_root / name}: {what} {name!r} is not a folder directly in "
-                               f"{self.seq_root}, outside the dataset folder layout")
+            raise DatasetError(
+                f"{self.seq_root / name}: {what} {name!r} is not a folder directly in "
+                f"{self.seq_root}, outside the dataset folder layout"
+            )
         return path
 
     def seq_dir(self, seq_id: str) -> Path:

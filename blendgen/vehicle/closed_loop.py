@@ -28,28 +28,42 @@ the dock's estimated depth and backs off along that bearing at ``backoff_speed_m
 ``backoff_s`` (``back_off``: the dock re-enters a wider part of the field of view), then holds
 there facing the dock (``hold``). A fix accepted in any of these modes re-acquires the target
 (the filter restarts on it; counted in ``reacquisitions``); none for ``FilterParams.lost_s`` aborts
-the trial (``lost_target``, with ``lost_after_s``). Before the first fix the vehicle holds its start heading (the prior bearing to the dock that
+the trial (``lost_target``, with ``lost_after_s``). Before the first fix the vehicle holds its start heading (the
+prior bearing to the dock that
 a homing stage, e.g. acoustic, hands over; the starts face the dock within their heading range)
 and depth and creeps on at the final approach speed (``acquire``) until the camera sees the dock,
 or ``lost_s`` after the start. This is the abort-and-retry pattern of
 operational docking (the REMUS docking system backs out and re-tries a missed approach: Stokey
 et al., "Enabling technologies for REMUS docking", IEEE J. Oceanic Eng. 26(4), 2001).
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
 from blendgen.vehicle.control import Autopilot, Sensors
-from blendgen.vehicle.docking import (DockAxesNED, Gusts, LosGuidance, Turbulence, los_references,
-                                      start_pose_world)
-from blendgen.vehicle.dynamics import (F_WORLD_NED, Plant, T_world_body_to_eta, VehicleParams, check_dt,
-                                       eta_to_T_world_body, wrap_pi)
-from blendgen.vehicle.visual_nav import (CaptureSpec, FilterParams, RelativePoseFilter, crossing_outcome,
-                                         fix_from_estimate, interpolate_crossing)
+from blendgen.vehicle.docking import DockAxesNED, Gusts, LosGuidance, Turbulence, los_references, start_pose_world
+from blendgen.vehicle.dynamics import (
+    F_WORLD_NED,
+    Plant,
+    T_world_body_to_eta,
+    VehicleParams,
+    check_dt,
+    eta_to_T_world_body,
+    wrap_pi,
+)
+from blendgen.vehicle.visual_nav import (
+    CaptureSpec,
+    FilterParams,
+    RelativePoseFilter,
+    crossing_outcome,
+    fix_from_estimate,
+    interpolate_crossing,
+)
 
 
 @dataclass
@@ -57,12 +71,13 @@ class Observation:
     """What the camera + localizer gave for one frame: the estimate (``distance`` m, optional
     ``T_cam_dock`` 4x4) or None, and per-frame facts to log (``d_true``, ``in_view``, ``ms``,
     ``fail_reason``...)."""
+
     estimate: dict | None
     info: dict = field(default_factory=dict)
 
 
 Observer = Callable[[int, float, np.ndarray], Observation]
-RECOVERY_MODES = ("back_off", "hold")       # lost-target modes of :class:`_EstimateNav`
+RECOVERY_MODES = ("back_off", "hold")  # lost-target modes of :class:`_EstimateNav`
 
 
 @dataclass(frozen=True)
@@ -73,19 +88,23 @@ class Recovery:
     ``backoff_s`` (s; 12 s: ~3 s to stop from the 0.5 m/s cruise through the autopilot's speed
     reference model, then ~9 s x 0.2 m/s = 1.8 m back, about the 1.5 m half-width of the start box),
     then hold until ``FilterParams.lost_s`` after the last fix."""
+
     backoff_speed_mps: float = 0.2
     backoff_s: float = 12.0
 
     def __post_init__(self):
         if not (0.0 <= self.backoff_speed_mps <= 2.0 and 0.0 <= self.backoff_s <= 600.0):
-            raise ValueError(f"Recovery: need backoff_speed_mps in [0, 2] m/s and backoff_s in [0, 600] s, got "
-                             f"{self.backoff_speed_mps}, {self.backoff_s}")
+            raise ValueError(
+                f"Recovery: need backoff_speed_mps in [0, 2] m/s and backoff_s in [0, 600] s, got "
+                f"{self.backoff_speed_mps}, {self.backoff_s}"
+            )
 
 
 @dataclass(frozen=True)
 class TrialSetup:
     """One closed-loop trial's physical settings (SI units; ``start`` as in
     :func:`blendgen.vehicle.docking.start_pose_world`; ``T_body_cam`` 4x4)."""
+
     T_world_dock: np.ndarray
     start: dict
     T_body_cam: np.ndarray
@@ -133,12 +152,15 @@ class DelayLine:
 
     def __init__(self, latency_s: float, compute_latency: float | str):
         self.latency_s, self.compute = latency_s, compute_latency
-        self.queue: list[tuple[float, float, object]] = []    # (t_arrive, t_capture, fix)
+        self.queue: list[tuple[float, float, object]] = []  # (t_arrive, t_capture, fix)
         self.last_arrival = -math.inf
 
     def push(self, t_capture: float, fix, measured_ms: float) -> None:
-        extra = (measured_ms / 1e3 if math.isfinite(measured_ms) else 0.0) if self.compute == "measured" \
+        extra = (
+            (measured_ms / 1e3 if math.isfinite(measured_ms) else 0.0)
+            if self.compute == "measured"
             else float(self.compute)
+        )
         self.last_arrival = max(self.last_arrival, t_capture + self.latency_s + extra)
         self.queue.append((self.last_arrival, t_capture, fix))
 
@@ -170,10 +192,17 @@ class _EstimateNav:
     first fix: ``acquire``. ``mode`` is the current one (``acquire``, ``tracking``,
     ``dead_reckoning``, ``back_off``, ``hold``)."""
 
-    def __init__(self, filt: RelativePoseFilter, origin_xy: np.ndarray, guidance: LosGuidance, stop_m: float,
-                 recovery: Recovery = Recovery(), frame_s: float = 0.1):
+    def __init__(
+        self,
+        filt: RelativePoseFilter,
+        origin_xy: np.ndarray,
+        guidance: LosGuidance,
+        stop_m: float,
+        recovery: Recovery = Recovery(),
+        frame_s: float = 0.1,
+    ):
         self.filt, self.origin_xy, self.guidance, self.stop_m = filt, origin_xy, guidance, stop_m
-        self.recovery, self.frame_s = recovery, frame_s      # frame_s: camera frame period (s)
+        self.recovery, self.frame_s = recovery, frame_s  # frame_s: camera frame period (s)
         self._axes_key, self._axes, self._held, self.mode = None, None, None, "acquire"
 
     def _axes_hat(self) -> DockAxesNED:
@@ -184,14 +213,14 @@ class _EstimateNav:
 
     def _recover(self, t: float, sens: dict):
         """References while the target is lost (after the dead-reckoning window), or not yet seen."""
-        if not self.filt.initialised:            # never seen: creep on along the start (prior) bearing
+        if not self.filt.initialised:  # never seen: creep on along the start (prior) bearing
             if self._held is None:
                 self._held = (math.radians(sens["heading_deg"]), sens["depth_m"])
             self.mode = "acquire"
             return self._held[0], self._held[1], self.guidance.final_speed, None
-        if self._held is None or self.mode == "acquire":   # freeze the last dock estimate: bearing, depth
+        if self._held is None or self.mode == "acquire":  # freeze the last dock estimate: bearing, depth
             p, _ = self.filt.state(self.filt.t_fix + self.filt.p.hold_s, sens["depth_m"])
-            to_dock = -(self._axes_hat().R_dock_ned.T @ p)             # NED, vehicle -> dock origin
+            to_dock = -(self._axes_hat().R_dock_ned.T @ p)  # NED, vehicle -> dock origin
             depth = self.filt.depth_dock if math.isfinite(self.filt.depth_dock) else sens["depth_m"]
             self._held = (math.atan2(to_dock[1], to_dock[0]), depth)
         lost_for = self.filt.since_fix(t) - self.filt.p.hold_s
@@ -228,8 +257,10 @@ def _start(setup: TrialSetup):
     dt = 1.0 / (setup.fps * n_sub)
     plant = Plant(setup.params, setup.density)
     ap = Autopilot(setup.params, setup.density, plant.thrusters)
-    plant.set_pose_ned(T_world_body_to_eta(start_pose_world(setup.T_world_dock, setup.start)),
-                       [float(setup.start.get("speed_mps", 0.0)), 0, 0, 0, 0, 0])
+    plant.set_pose_ned(
+        T_world_body_to_eta(start_pose_world(setup.T_world_dock, setup.start)),
+        [float(setup.start.get("speed_mps", 0.0)), 0, 0, 0, 0, 0],
+    )
     plant.n = ap.hover_speeds()
     return plant, ap, Sensors(), n_sub, dt
 
@@ -242,8 +273,13 @@ def _crossing(setup: TrialSetup, axes: DockAxesNED, prev: np.ndarray, nose: np.n
     R = Autopilot._R(eta)
     v_lat = float((R @ np.asarray(nu[:3])) @ axes.R_dock_ned[0])
     outcome = crossing_outcome(setup.capture, pt, head, v_lat)
-    out = {"outcome": outcome, "cross_lateral_m": float(pt[0]), "cross_vertical_m": float(pt[1]),
-           "cross_heading_deg": head, "cross_lateral_speed_mps": v_lat}
+    out = {
+        "outcome": outcome,
+        "cross_lateral_m": float(pt[0]),
+        "cross_vertical_m": float(pt[1]),
+        "cross_heading_deg": head,
+        "cross_lateral_speed_mps": v_lat,
+    }
     if outcome == "collision":
         out["impact_speed_mps"] = nose_closing_speed(axes, eta, nu, setup.T_body_cam)
     return out
@@ -252,7 +288,7 @@ def _crossing(setup: TrialSetup, axes: DockAxesNED, prev: np.ndarray, nose: np.n
 def nose_closing_speed(axes: DockAxesNED, eta, nu, T_body_cam: np.ndarray) -> float:
     """Speed (m/s) of the nose (the camera centre, ``T_body_cam``) toward the dock face, along the face
     normal: the impact speed of a hit on the dock's frame. Rigid body: v_nose = v + omega x r (FRD)."""
-    r = F_WORLD_NED @ np.asarray(T_body_cam, float)[:3, 3]          # FLU -> FRD (same diag flip)
+    r = F_WORLD_NED @ np.asarray(T_body_cam, float)[:3, 3]  # FLU -> FRD (same diag flip)
     v = np.asarray(nu[:3], float) + np.cross(np.asarray(nu[3:6], float), r)
     return float(-(axes.R_dock_ned @ (Autopilot._R(eta) @ v))[2])
 
@@ -267,20 +303,24 @@ def simulate_closed_loop(setup: TrialSetup, observe: Observer | None = None) -> 
     "final_lateral_m", "final_vertical_m", "final_range_m", "final_heading_deg" (body origin
     at the last frame), "frames": list of per-frame dicts}`` with frame keys ``t``,
     ``x_world``, ``y_world``, ``z_world`` (body origin, m), ``lateral_m``, ``vertical_m``,
-    ``range_m`` (body origin, dock frame), ``x_cam_world``, ``y_cam_world`` (camera = nose), ``heading_err_deg``, ``fix`` (bool), ``est_lateral_m``,
+    ``range_m`` (body origin, dock frame), ``x_cam_world``, ``y_cam_world`` (camera = nose), ``heading_err_deg``,
+    ``fix`` (bool), ``est_lateral_m``,
     ``est_range_m`` (filtered, NaN if none), ``nav_mode`` (truth, tracking, dead_reckoning, back_off,
     hold) and the observer's ``info``."""
     plant, ap, sensors, n_sub, dt = _start(setup)
     rng = np.random.default_rng(setup.seed)
     axes = DockAxesNED(setup.T_world_dock)
     n_max = int(math.floor(setup.max_time_s * setup.fps + 1e-9)) + 1
-    gusts = Gusts(rng, F_WORLD_NED @ np.asarray(setup.current_world, float), setup.turbulence, dt,
-                  (n_max - 1) * n_sub)
+    gusts = Gusts(rng, F_WORLD_NED @ np.asarray(setup.current_world, float), setup.turbulence, dt, (n_max - 1) * n_sub)
     stop_m = float(setup.T_body_cam[0, 3]) + setup.capture.entry_plane_m
     filt = RelativePoseFilter(setup.filter)
-    nav = (_TruthNav(axes, setup.guidance, stop_m) if observe is None else
-           _EstimateNav(filt, np.asarray(setup.T_world_dock)[:2, 3], setup.guidance, stop_m, setup.recovery,
-                        1.0 / setup.fps))
+    nav = (
+        _TruthNav(axes, setup.guidance, stop_m)
+        if observe is None
+        else _EstimateNav(
+            filt, np.asarray(setup.T_world_dock)[:2, 3], setup.guidance, stop_m, setup.recovery, 1.0 / setup.fps
+        )
+    )
     reacquired = 0
     delay = DelayLine(setup.latency_s, setup.compute_latency) if setup.delayed and observe is not None else None
     frames, res, prev = [], {"outcome": "timeout"}, None
@@ -318,8 +358,17 @@ def simulate_closed_loop(setup: TrialSetup, observe: Observer | None = None) -> 
     return _summary({**res, "reacquisitions": reacquired}, frames, setup.fps, k)
 
 
-def _observe_frame(observe: Observer, setup: TrialSetup, filt: RelativePoseFilter, delay: DelayLine | None,
-                   k: int, t: float, T_wc: np.ndarray, sens: dict, row: dict) -> None:
+def _observe_frame(
+    observe: Observer,
+    setup: TrialSetup,
+    filt: RelativePoseFilter,
+    delay: DelayLine | None,
+    k: int,
+    t: float,
+    T_wc: np.ndarray,
+    sens: dict,
+    row: dict,
+) -> None:
     """Frame ``k``: capture + localize, then update the filter now (no latency) or queue the fix
     (:class:`DelayLine`); log the estimate guidance holds at ``t`` into ``row``."""
     obs = observe(k, t, T_wc)
@@ -327,7 +376,7 @@ def _observe_frame(observe: Observer, setup: TrialSetup, filt: RelativePoseFilte
     if delay is None:
         filt.update(t, fix)
     else:
-        filt.update(t, None)                 # starts the lost-target clock at the first frame
+        filt.update(t, None)  # starts the lost-target clock at the first frame
         if fix is not None:
             delay.push(t, fix, float(obs.info.get("ms", math.nan)))
         delay.deliver(filt, t)
@@ -338,21 +387,47 @@ def _observe_frame(observe: Observer, setup: TrialSetup, filt: RelativePoseFilte
 def _frame_row(t: float, eta, axes: DockAxesNED) -> dict:
     p_w = F_WORLD_NED @ np.asarray(eta[:3])
     p_d = axes.p_dock(eta[:3])
-    return {"t": t, "x_world": float(p_w[0]), "y_world": float(p_w[1]), "z_world": float(p_w[2]),
-            "lateral_m": float(p_d[0]), "vertical_m": float(p_d[1]), "range_m": float(p_d[2]),
-            "heading_err_deg": -math.degrees(wrap_pi(eta[5] - axes.approach_psi))}
+    return {
+        "t": t,
+        "x_world": float(p_w[0]),
+        "y_world": float(p_w[1]),
+        "z_world": float(p_w[2]),
+        "lateral_m": float(p_d[0]),
+        "vertical_m": float(p_d[1]),
+        "range_m": float(p_d[2]),
+        "heading_err_deg": -math.degrees(wrap_pi(eta[5] - axes.approach_psi)),
+    }
 
 
 def _summary(res: dict, frames: list[dict], fps: float, k_end: int) -> dict:
     nan = math.nan
     last = frames[-1]
-    out = {"cross_lateral_m": nan, "cross_vertical_m": nan, "cross_heading_deg": nan,
-           "cross_lateral_speed_mps": nan, "impact_speed_mps": nan, "lost_after_s": nan, **res, "t_end": k_end / fps,
-           "final_lateral_m": last["lateral_m"], "final_vertical_m": last["vertical_m"],
-           "final_range_m": last["range_m"], "final_heading_deg": last["heading_err_deg"], "frames": frames}
+    out = {
+        "cross_lateral_m": nan,
+        "cross_vertical_m": nan,
+        "cross_heading_deg": nan,
+        "cross_lateral_speed_mps": nan,
+        "impact_speed_mps": nan,
+        "lost_after_s": nan,
+        **res,
+        "t_end": k_end / fps,
+        "final_lateral_m": last["lateral_m"],
+        "final_vertical_m": last["vertical_m"],
+        "final_range_m": last["range_m"],
+        "final_heading_deg": last["heading_err_deg"],
+        "frames": frames,
+    }
     out["time_to_dock_s"] = out["t_end"] if out["outcome"] == "docked" else nan
     return out
 
 
-__all__ = ["Observation", "Observer", "TrialSetup", "Recovery", "DelayLine", "simulate_closed_loop",
-           "nose_closing_speed", "RECOVERY_MODES"]
+__all__ = [
+    "Observation",
+    "Observer",
+    "TrialSetup",
+    "Recovery",
+    "DelayLine",
+    "simulate_closed_loop",
+    "nose_closing_speed",
+    "RECOVERY_MODES",
+]

@@ -34,6 +34,7 @@ starboard-down positive (Fossen/aviation convention; note the public FLU world p
 angle of :func:`blendgen.geometry.R_to_rpy` is nose-DOWN positive). Heading is the
 compass heading: clockwise from world +x seen from above (world yaw = -heading).
 """
+
 from __future__ import annotations
 
 import math
@@ -49,6 +50,7 @@ from blendgen.vehicle.thrusters import ThrusterSet
 @dataclass
 class Sensors:
     """Depth and attitude sensors with range limits, quantisation, optional noise."""
+
     depth_range: tuple[float, float] = (0.0, 50.0)
     depth_quantum: float = 0.01
     angle_quantum_deg: float = 0.1
@@ -66,10 +68,8 @@ class Sensors:
         if rng is not None and self.depth_noise_std > 0:
             depth += rng.normal(0.0, self.depth_noise_std)
         if rng is not None and self.angle_noise_std_deg > 0:
-            roll, pitch, head = (a + rng.normal(0.0, self.angle_noise_std_deg)
-                                 for a in (roll, pitch, head))
-        depth = self._q(min(max(depth, self.depth_range[0]), self.depth_range[1]),
-                        self.depth_quantum)
+            roll, pitch, head = (a + rng.normal(0.0, self.angle_noise_std_deg) for a in (roll, pitch, head))
+        depth = self._q(min(max(depth, self.depth_range[0]), self.depth_range[1]), self.depth_quantum)
         aq = self.angle_quantum_deg
         head = self._q(head % 360.0, aq) % 360.0
         pitch = self._q(min(max(pitch, -90.0), 90.0), aq)
@@ -78,10 +78,9 @@ class Sensors:
 
 
 # ------------------------------------------------------------------ PID ----------
-def pole_placement(m: float, omega: float, zeta: float, d: float = 0.0,
-                   k: float = 0.0) -> tuple[float, float, float]:
+def pole_placement(m: float, omega: float, zeta: float, d: float = 0.0, k: float = 0.0) -> tuple[float, float, float]:
     """(Kp, Ki, Kd) = (m w^2 - k, (w/10) Kp, 2 zeta w m - d); Kd floored at 0."""
-    Kp = m * omega ** 2 - k
+    Kp = m * omega**2 - k
     Kd = max(2.0 * zeta * omega * m - d, 0.0)
     return Kp, omega / 10.0 * Kp, Kd
 
@@ -89,7 +88,7 @@ def pole_placement(m: float, omega: float, zeta: float, d: float = 0.0,
 def triple_pole(m: float, omega: float, d: float = 0.0) -> tuple[float, float, float]:
     """(Kp, Ki, Kd) placing all three closed-loop poles of m x'' + d x' = u (PID) at -omega:
     (s + w)^3 = s^3 + 3 w s^2 + 3 w^2 s + w^3 -> Kp = 3 m w^2, Ki = m w^3, Kd = 3 m w - d (>= 0)."""
-    return 3.0 * m * omega ** 2, m * omega ** 3, max(3.0 * m * omega - d, 0.0)
+    return 3.0 * m * omega**2, m * omega**3, max(3.0 * m * omega - d, 0.0)
 
 
 @dataclass
@@ -98,6 +97,7 @@ class PID:
 
     Anti-windup: |Ki I| <= i_limit, and I is frozen while |u| > out_limit with
     sign(u) == sign(e). Output clipped to +-out_limit."""
+
     Kp: float
     Ki: float
     Kd: float
@@ -124,6 +124,7 @@ class RefModel:
     """Critically damped 2nd-order reference model x_d'' = w^2 (r - x_d) - 2 w x_d'
     with |x_d'| <= v_max (Fossen's setpoint prefilter). ``angle=True`` wraps r - x_d.
     Returns (x_d, v_d, a_d) per update; initialise with :meth:`reset`."""
+
     omega: float
     v_max: float = math.inf
     angle: bool = False
@@ -149,10 +150,11 @@ class RefModel:
 @dataclass(frozen=True)
 class ControlDesign:
     """Closed-loop bandwidths (rad/s) and damping ratios of each loop."""
+
     speed: tuple[float, float] = (0.8, 1.0)
     surge_pos: tuple[float, float] = (0.6, 1.0)
     sway_pos: tuple[float, float] = (0.8, 1.0)
-    cross_track: float = 0.5    # rad/s, triple pole of the docking cross-track PID (module doc)
+    cross_track: float = 0.5  # rad/s, triple pole of the docking cross-track PID (module doc)
     depth: tuple[float, float] = (0.8, 1.0)
     heading: tuple[float, float] = (1.0, 0.9)
     pitch: tuple[float, float] = (1.2, 0.9)
@@ -172,15 +174,16 @@ class Autopilot:
     per-axis authority limits.
     """
 
-    def __init__(self, params: VehicleParams, rho: float, thrusters: ThrusterSet,
-                 design: ControlDesign = ControlDesign()):
+    def __init__(
+        self, params: VehicleParams, rho: float, thrusters: ThrusterSet, design: ControlDesign = ControlDesign()
+    ):
         self.params, self.rho, self.thr = params, float(rho), thrusters
         M = np.diag(params.M())
         dl = params.linear_damping()
         k_roll, k_pitch = params.restoring_stiffness()
         self.design = design
         self.d_surge, self.dq_surge = float(dl[0]), float(params.quad_damping[0])
-        self.net_weight = params.net_weight(self.rho)   # W - B (N), + = sinks
+        self.net_weight = params.net_weight(self.rho)  # W - B (N), + = sinks
         Tmax = thrusters.max_thrust(self.rho)
         # force/moment authority per axis (for anti-windup limits)
         X_max = float(Tmax[0] + Tmax[1])
@@ -188,8 +191,7 @@ class Autopilot:
         Z_max = float(Tmax[4] + Tmax[5])
 
         w, z = design.speed
-        self.speed_pi = PID(2 * z * w * M[0] - dl[0], M[0] * w ** 2, 0.0,
-                            out_limit=X_max, i_limit=0.5 * X_max)
+        self.speed_pi = PID(2 * z * w * M[0] - dl[0], M[0] * w**2, 0.0, out_limit=X_max, i_limit=0.5 * X_max)
         gx = pole_placement(M[0], *design.surge_pos, d=dl[0])
         gy = pole_placement(M[1], *design.sway_pos, d=dl[1])
         gz = pole_placement(M[2], *design.depth, d=dl[2])
@@ -199,8 +201,9 @@ class Autopilot:
         self.i_lim_pos = np.array([0.8 * X_max, 0.8 * Y_max, 0.5 * Z_max])
         self.auth_pos = np.array([X_max, Y_max, Z_max])
         self.depth_pid = PID(gz[0], gz[1], gz[2], out_limit=Z_max, i_limit=0.5 * Z_max)
-        self.sway_pid = PID(*triple_pole(M[1], design.cross_track, d=dl[1]), out_limit=Y_max,
-                            i_limit=0.8 * Y_max)     # the docking cross-track loop (module doc)
+        self.sway_pid = PID(
+            *triple_pole(M[1], design.cross_track, d=dl[1]), out_limit=Y_max, i_limit=0.8 * Y_max
+        )  # the docking cross-track loop (module doc)
         kp, ki, kd = pole_placement(M[5], *design.heading, d=dl[5])
         N_max = 0.45 * Y_max + 0.1 * X_max
         self.heading_pid = PID(kp, ki, kd, out_limit=N_max, i_limit=0.3 * N_max)
@@ -217,8 +220,7 @@ class Autopilot:
         self._refs_ready = False
 
     def reset(self):
-        for c in (self.speed_pi, self.depth_pid, self.sway_pid, self.heading_pid,
-                  self.pitch_pid):
+        for c in (self.speed_pi, self.depth_pid, self.sway_pid, self.heading_pid, self.pitch_pid):
             c.reset()
         self.int_pos[:] = 0.0
         self._refs_ready = False
@@ -236,8 +238,9 @@ class Autopilot:
     def _R(eta) -> np.ndarray:
         return R_ned_frd(eta[3], eta[4], eta[5])
 
-    def _attitude(self, sens: dict, nu, heading_ref: float, dt: float,
-                  r_ref: float = 0.0, ff_N: float = 0.0) -> tuple[float, float]:
+    def _attitude(
+        self, sens: dict, nu, heading_ref: float, dt: float, r_ref: float = 0.0, ff_N: float = 0.0
+    ) -> tuple[float, float]:
         """(M, N): pitch hold at 0 and heading PID; uses sensor angles, gyro rates."""
         psi = math.radians(sens["heading_deg"])
         theta = math.radians(sens["pitch_deg"])
@@ -245,42 +248,52 @@ class Autopilot:
         Mp = self.pitch_pid.update(-theta, -nu[4], dt)
         return Mp, N
 
-    def track(self, eta, nu, sens: dict, depth_ref: float, heading_ref: float,
-              speed_ref: float, dt: float, cross_force_ned=None) -> np.ndarray:
+    def track(
+        self,
+        eta,
+        nu,
+        sens: dict,
+        depth_ref: float,
+        heading_ref: float,
+        speed_ref: float,
+        dt: float,
+        cross_force_ned=None,
+    ) -> np.ndarray:
         """Depth (sensor) + heading (sensor) + surge speed hold; optional horizontal
         NED force (e.g. cross-track correction) mapped to body sway. Setpoints pass
         through the reference models (rate-limited), whose acceleration and damping
         (linear + quadratic at the reference rate) are fed forward."""
         R = self._R(eta)
-        w_down = float(R[2] @ nu[:3])               # NED vertical speed (ground truth)
+        w_down = float(R[2] @ nu[:3])  # NED vertical speed (ground truth)
         if not self._refs_ready:
             self.init_refs(sens["depth_m"], math.radians(sens["heading_deg"]), nu[0])
         zd, wd, ad = self.depth_rm.update(depth_ref, dt)
         psid, rd, rdot = self.heading_rm.update(heading_ref, dt)
         ud, _, udot = self.speed_rm.update(speed_ref, dt)
-        Zn = self.depth_pid.update(zd - sens["depth_m"], wd - w_down, dt,
-                                   ff=-self.net_weight + self.m_heave * ad
-                                   + (self.d_heave + self.dq_heave * abs(wd)) * wd)
+        Zn = self.depth_pid.update(
+            zd - sens["depth_m"],
+            wd - w_down,
+            dt,
+            ff=-self.net_weight + self.m_heave * ad + (self.d_heave + self.dq_heave * abs(wd)) * wd,
+        )
         Fn = np.array([0.0, 0.0, Zn])
         if cross_force_ned is not None:
             Fn[:2] += cross_force_ned[:2]
         Fb = R.T @ Fn
-        X = self.speed_pi.update(ud - nu[0], 0.0, dt,
-                                 ff=self.d_surge * ud + self.dq_surge * ud * abs(ud)
-                                 + self.m_surge * udot)
-        Mp, N = self._attitude(sens, nu, psid, dt, r_ref=rd,
-                               ff_N=self.m_yaw * rdot + (self.d_yaw + self.dq_yaw * abs(rd)) * rd)
+        X = self.speed_pi.update(
+            ud - nu[0], 0.0, dt, ff=self.d_surge * ud + self.dq_surge * ud * abs(ud) + self.m_surge * udot
+        )
+        Mp, N = self._attitude(
+            sens, nu, psid, dt, r_ref=rd, ff_N=self.m_yaw * rdot + (self.d_yaw + self.dq_yaw * abs(rd)) * rd
+        )
         return np.array([X, Fb[1], Fb[2], 0.0, Mp, N])
 
-    def station_keep(self, eta, nu, sens: dict, pos_ref_ned, heading_ref: float,
-                     dt: float) -> np.ndarray:
+    def station_keep(self, eta, nu, sens: dict, pos_ref_ned, heading_ref: float, dt: float) -> np.ndarray:
         """tau_lin = -R^T Kp e - Kd nu - R^T Ki int(e) + R^T[0,0,-(W-B)] (NED e = p - p_ref;
         the depth component of e uses the depth sensor)."""
         R = self._R(eta)
-        e = np.array([eta[0] - pos_ref_ned[0], eta[1] - pos_ref_ned[1],
-                      sens["depth_m"] - pos_ref_ned[2]])
-        i_new = np.clip(self.int_pos + e * dt, -self.i_lim_pos / self.Ki_pos,
-                        self.i_lim_pos / self.Ki_pos)
+        e = np.array([eta[0] - pos_ref_ned[0], eta[1] - pos_ref_ned[1], sens["depth_m"] - pos_ref_ned[2]])
+        i_new = np.clip(self.int_pos + e * dt, -self.i_lim_pos / self.Ki_pos, self.i_lim_pos / self.Ki_pos)
         Fn = -self.Kp_pos * e - self.Ki_pos * i_new
         Fn[2] -= self.net_weight
         tau_lin = R.T @ Fn - self.Kd_pos * np.asarray(nu[:3])
@@ -301,9 +314,16 @@ class Autopilot:
 
 
 # ------------------------------------------------------------------ step tests ---
-def step_response(axis: str, step: float, duration: float, dt: float = 0.02,
-                  rho: float = 1025.0, params: VehicleParams | None = None,
-                  depth0: float = 3.0, speed0: float = 0.0):
+def step_response(
+    axis: str,
+    step: float,
+    duration: float,
+    dt: float = 0.02,
+    rho: float = 1025.0,
+    params: VehicleParams | None = None,
+    depth0: float = 3.0,
+    speed0: float = 0.0,
+):
     """Closed-loop step of one autopilot loop from a trimmed hover at ``depth0``.
 
     axis: ``"depth"`` (step in m, y = true depth in m, positive down),
@@ -333,8 +353,7 @@ def step_response(axis: str, step: float, duration: float, dt: float = 0.02,
     y = np.empty(n)
     for i in range(n):
         eta, nu = plant.s[:6], plant.s[6:]
-        y[i] = (eta[2] if axis == "depth" else
-                math.degrees(wrap_pi(eta[5])) if axis == "heading" else nu[0])
+        y[i] = eta[2] if axis == "depth" else math.degrees(wrap_pi(eta[5])) if axis == "heading" else nu[0]
         sens = sensors.read(eta)
         tau = ap.track(eta, nu, sens, depth_ref, head_ref, speed_ref, dt)
         plant.step(ap.thruster_command(tau), (0.0, 0.0, 0.0), dt)
@@ -353,7 +372,7 @@ def step_metrics(t, y, y_final: float | None = None, band: float = 0.02) -> dict
     step = yf - y0
     if step == 0:
         raise ValueError("zero step")
-    z = (y - y0) / step                      # normalised response, target 1
+    z = (y - y0) / step  # normalised response, target 1
     i10 = np.argmax(z >= 0.1) if np.any(z >= 0.1) else None
     i90 = np.argmax(z >= 0.9) if np.any(z >= 0.9) else None
     rise = (t[i90] - t[i10]) if (i10 is not None and i90 is not None) else math.inf
@@ -365,9 +384,21 @@ def step_metrics(t, y, y_final: float | None = None, band: float = 0.02) -> dict
         settle = math.inf
     else:
         settle = float(t[outside[-1] + 1])
-    return {"rise_time_s": float(rise), "overshoot_pct": overshoot,
-            "settling_time_s": settle, "final_error": float(y[-1] - yf)}
+    return {
+        "rise_time_s": float(rise),
+        "overshoot_pct": overshoot,
+        "settling_time_s": settle,
+        "final_error": float(y[-1] - yf),
+    }
 
 
-__all__ = ["Sensors", "PID", "RefModel", "pole_placement", "ControlDesign", "Autopilot",
-           "step_response", "step_metrics"]
+__all__ = [
+    "Sensors",
+    "PID",
+    "RefModel",
+    "pole_placement",
+    "ControlDesign",
+    "Autopilot",
+    "step_response",
+    "step_metrics",
+]

@@ -23,6 +23,7 @@ time scale; seeded) make the heading oscillate. Thrust is
 allocated with moment priority (:meth:`ThrusterSet.allocate_prioritized`): when a
 group saturates, its force (sway/surge/heave) is given up before the yaw/pitch moment.
 """
+
 from __future__ import annotations
 
 import math
@@ -31,8 +32,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from blendgen.vehicle.control import Autopilot, Sensors
-from blendgen.vehicle.dynamics import (F_WORLD_NED, Plant, T_world_body_to_eta, VehicleParams,
-                               check_dt, eta_to_T_world_body, wrap_pi)
+from blendgen.vehicle.dynamics import (
+    F_WORLD_NED,
+    Plant,
+    T_world_body_to_eta,
+    VehicleParams,
+    check_dt,
+    eta_to_T_world_body,
+    wrap_pi,
+)
 from blendgen.vehicle.thrusters import GROUPS, THRUSTER_NAMES
 
 BENCHMARK_DENSITY = 1025.0
@@ -48,16 +56,24 @@ def thrust_unit_N(params: VehicleParams | None = None) -> float:
 
 # ------------------------------------------------------------ station keeping ----
 _FLOWS_FLU = {
-    "up": (0.0, 0.0, 1.0), "down": (0.0, 0.0, -1.0),
-    "forward": (1.0, 0.0, 0.0), "backward": (-1.0, 0.0, 0.0),
-    "left": (0.0, 1.0, 0.0), "right": (0.0, -1.0, 0.0),
+    "up": (0.0, 0.0, 1.0),
+    "down": (0.0, 0.0, -1.0),
+    "forward": (1.0, 0.0, 0.0),
+    "backward": (-1.0, 0.0, 0.0),
+    "left": (0.0, 1.0, 0.0),
+    "right": (0.0, -1.0, 0.0),
 }
 
 
-def station_keep_run(density: float = 1025.0, flow_flu=(0.0, 0.0, 0.0),
-                     duration_s: float = 60.0, dt: float = 0.02,
-                     params: VehicleParams | None = None, depth_m: float = 3.0,
-                     average_last_s: float = 10.0) -> dict:
+def station_keep_run(
+    density: float = 1025.0,
+    flow_flu=(0.0, 0.0, 0.0),
+    duration_s: float = 60.0,
+    dt: float = 0.02,
+    params: VehicleParams | None = None,
+    depth_m: float = 3.0,
+    average_last_s: float = 10.0,
+) -> dict:
     """Hold position/heading/depth for ``duration_s`` with a steady current given in the
     vehicle's initial FLU body axes (m/s; the vehicle heads along world +x). Returns
     mean per-thruster thrust (N, FLU sign) over the last ``average_last_s`` seconds,
@@ -86,14 +102,21 @@ def station_keep_run(density: float = 1025.0, flow_flu=(0.0, 0.0, 0.0),
             s = plant.s
             e_acc += math.sqrt(s[0] ** 2 + s[1] ** 2 + (s[2] - depth_m) ** 2)
             h_acc += abs(math.degrees(wrap_pi(s[5])))
-    return {"thrust_N": T_acc / n_avg, "pos_error_m": e_acc / n_avg,
-            "heading_error_deg": h_acc / n_avg,
-            "final_T_world_body": plant.T_world_body()}
+    return {
+        "thrust_N": T_acc / n_avg,
+        "pos_error_m": e_acc / n_avg,
+        "heading_error_deg": h_acc / n_avg,
+        "final_T_world_body": plant.T_world_body(),
+    }
 
 
-def station_keeping_table(densities=(1025, 1075, 975), flow_speed: float = 0.5,
-                          duration_s: float = 60, dt: float = 0.02,
-                          params: VehicleParams | None = None):
+def station_keeping_table(
+    densities=(1025, 1075, 975),
+    flow_speed: float = 0.5,
+    duration_s: float = 60,
+    dt: float = 0.02,
+    params: VehicleParams | None = None,
+):
     """The article's Table 5 as a pandas DataFrame.
 
     Rows: ``benchmark`` (densities[0], no flow), ``density <rho>`` for the others (no
@@ -111,26 +134,31 @@ def station_keeping_table(densities=(1025, 1075, 975), flow_speed: float = 0.5,
     unit = thrust_unit_N(params)
     rho0 = float(densities[0])
     cases = [("benchmark", rho0, "none", (0.0, 0.0, 0.0))]
-    cases += [(f"density {float(r):g}", float(r), "none", (0.0, 0.0, 0.0))
-              for r in densities[1:]]
-    cases += [(f"flow {name}", rho0, name, tuple(flow_speed * c for c in v))
-              for name, v in _FLOWS_FLU.items()]
+    cases += [(f"density {float(r):g}", float(r), "none", (0.0, 0.0, 0.0)) for r in densities[1:]]
+    cases += [(f"flow {name}", rho0, name, tuple(flow_speed * c for c in v)) for name, v in _FLOWS_FLU.items()]
     rows = []
     for label, rho, flow_name, flow in cases:
         res = station_keep_run(rho, flow, duration_s, dt, params)
         g = {k: float(np.mean(res["thrust_N"][list(idx)])) for k, idx in GROUPS.items()}
-        rows.append({"condition": label, "density_kg_m3": rho, "flow": flow_name,
-                     "flow_speed_mps": 0.0 if flow_name == "none" else float(flow_speed),
-                     "main_N": g["main"], "lateral_N": g["lateral"],
-                     "vertical_N": g["vertical"],
-                     "main": g["main"] / unit, "lateral": g["lateral"] / unit,
-                     "vertical": g["vertical"] / unit,
-                     "pos_error_m": res["pos_error_m"],
-                     "heading_error_deg": res["heading_error_deg"]})
+        rows.append(
+            {
+                "condition": label,
+                "density_kg_m3": rho,
+                "flow": flow_name,
+                "flow_speed_mps": 0.0 if flow_name == "none" else float(flow_speed),
+                "main_N": g["main"],
+                "lateral_N": g["lateral"],
+                "vertical_N": g["vertical"],
+                "main": g["main"] / unit,
+                "lateral": g["lateral"] / unit,
+                "vertical": g["vertical"] / unit,
+                "pos_error_m": res["pos_error_m"],
+                "heading_error_deg": res["heading_error_deg"],
+            }
+        )
     df = pd.DataFrame(rows).set_index("condition")
     df.attrs["unit_N"] = unit
-    df.attrs["unit_note"] = (f"normalised thrust: 1 unit = {unit:.3f} N "
-                             f"(benchmark vertical mean per thruster = 6 units)")
+    df.attrs["unit_note"] = f"normalised thrust: 1 unit = {unit:.3f} N (benchmark vertical mean per thruster = 6 units)"
     return df
 
 
@@ -151,7 +179,7 @@ def station_keeping_signs_ok(df) -> dict[str, bool]:
         "flow down": lambda r: r["vertical_N"] > b["vertical_N"],
         "flow forward": lambda r: r["main_N"] < -tol,
         "flow backward": lambda r: r["main_N"] > tol,
-        "flow left": lambda r: r["lateral_N"] < -tol,    # flow pushes left -> thrust right
+        "flow left": lambda r: r["lateral_N"] < -tol,  # flow pushes left -> thrust right
         "flow right": lambda r: r["lateral_N"] > tol,
     }
     for cond, fn in checks.items():
@@ -161,8 +189,12 @@ def station_keeping_signs_ok(df) -> dict[str, bool]:
 
 
 # ------------------------------------------------------------ docking trials -----
-DEFAULT_START_RANGES = {"range_m": (6.0, 12.0), "lateral_m": (-1.5, 1.5),
-                        "vertical_m": (-0.5, 0.5), "heading_error_deg": (-15.0, 15.0)}
+DEFAULT_START_RANGES = {
+    "range_m": (6.0, 12.0),
+    "lateral_m": (-1.5, 1.5),
+    "vertical_m": (-0.5, 0.5),
+    "heading_error_deg": (-15.0, 15.0),
+}
 
 
 def random_start(rng: np.random.Generator, cfg: dict | None = None) -> dict:
@@ -192,8 +224,12 @@ def _dock_axes(T_world_dock: np.ndarray):
 def start_pose_world(T_world_dock: np.ndarray, start: dict) -> np.ndarray:
     """T_world_body (4x4) of a start dict (see module doc)."""
     o, xd, yd, zd = _dock_axes(T_world_dock)
-    p = (o + float(start.get("range_m", 8.0)) * zd + float(start.get("lateral_m", 0.0)) * xd
-         + float(start.get("vertical_m", 0.0)) * yd)
+    p = (
+        o
+        + float(start.get("range_m", 8.0)) * zd
+        + float(start.get("lateral_m", 0.0)) * xd
+        + float(start.get("vertical_m", 0.0)) * yd
+    )
     f = -zd.copy()
     f[2] = 0.0
     if np.linalg.norm(f) < 1e-6:
@@ -206,6 +242,7 @@ def start_pose_world(T_world_dock: np.ndarray, start: dict) -> np.ndarray:
 @dataclass(frozen=True)
 class LosGuidance:
     """Line-of-sight guidance along the dock axis: speeds in m/s, distances in m."""
+
     cruise_speed: float = 0.5
     final_speed: float = 0.2
     slow_zone_m: float = 4.0
@@ -215,6 +252,7 @@ class LosGuidance:
 @dataclass(frozen=True)
 class Turbulence:
     """Ornstein-Uhlenbeck gusts: std = ``intensity`` x |mean current| (m/s), time scale ``time_s``."""
+
     intensity: float = 0.15
     time_s: float = 2.0
 
@@ -225,11 +263,11 @@ class DockAxesNED:
     def __init__(self, T_world_dock: np.ndarray):
         o_w, xd_w, yd_w, zd_w = _dock_axes(T_world_dock)
         F = F_WORLD_NED
-        self.origin, self.axis = F @ o_w, F @ zd_w                 # axis: +z_d, out of the face
+        self.origin, self.axis = F @ o_w, F @ zd_w  # axis: +z_d, out of the face
         self.R_dock_ned = np.vstack([F @ xd_w, F @ yd_w, self.axis])  # rows: dock axes in NED
         lat = F @ xd_w
         lat[2] = 0.0
-        self.lateral_h = lat / max(np.linalg.norm(lat), 1e-9)    # horizontal lateral unit vector
+        self.lateral_h = lat / max(np.linalg.norm(lat), 1e-9)  # horizontal lateral unit vector
         self.approach_psi = math.atan2(-self.axis[1], -self.axis[0])  # NED heading toward the face
 
     def p_dock(self, p_ned: np.ndarray) -> np.ndarray:
@@ -237,8 +275,9 @@ class DockAxesNED:
         return self.R_dock_ned @ (np.asarray(p_ned, float) - self.origin)
 
 
-def los_references(axes: DockAxesNED, guidance: LosGuidance, eta: np.ndarray,
-                   stop_distance_m: float) -> tuple[float, float, float, float]:
+def los_references(
+    axes: DockAxesNED, guidance: LosGuidance, eta: np.ndarray, stop_distance_m: float
+) -> tuple[float, float, float, float]:
     """(psi_ref rad, depth_ref m, u_ref m/s, lateral error m) for the NED pose ``eta`` (6,).
 
     Aim at the axis point ``lookahead_m`` beyond the vehicle's projection on the axis; hold the
@@ -259,13 +298,13 @@ def los_references(axes: DockAxesNED, guidance: LosGuidance, eta: np.ndarray,
 class Gusts:
     """Seeded current with OU turbulence about a mean NED current (3,) m/s, one draw per step."""
 
-    def __init__(self, rng: np.random.Generator, mean_ned: np.ndarray, turbulence: Turbulence,
-                 dt: float, n_steps: int):
+    def __init__(self, rng: np.random.Generator, mean_ned: np.ndarray, turbulence: Turbulence, dt: float, n_steps: int):
         self.mean = np.asarray(mean_ned, float)
         self.sigma = turbulence.intensity * float(np.linalg.norm(self.mean))
         self.a = math.exp(-dt / turbulence.time_s)
-        self.noise = (rng.standard_normal((n_steps + 1, 3)) * (self.sigma * math.sqrt(1 - self.a ** 2))
-                      if self.sigma > 0 else None)
+        self.noise = (
+            rng.standard_normal((n_steps + 1, 3)) * (self.sigma * math.sqrt(1 - self.a**2)) if self.sigma > 0 else None
+        )
         self.gust = rng.standard_normal(3) * self.sigma if self.sigma > 0 else np.zeros(3)
         self.k = 0
 
@@ -286,27 +325,33 @@ class _TrialLog:
 
     def add(self, t: float, plant: Plant, sens: dict, p_dock: np.ndarray, heading_err_deg: float):
         eta = plant.s[:6]
-        self.rows.append((t, eta_to_T_world_body(eta), plant.thrust(), plant.n.copy(), sens, p_dock,
-                          heading_err_deg))
+        self.rows.append((t, eta_to_T_world_body(eta), plant.thrust(), plant.n.copy(), sens, p_dock, heading_err_deg))
 
     def arrays(self) -> dict:
         t, T, thr, n, sens, pd, he = zip(*self.rows)
-        return {"t": np.array(t), "T_world_body": np.array(T), "thrust": np.array(thr), "n_rad_s": np.array(n),
-                "sensors": {k: np.array([s[k] for s in sens]) for k in sens[0]}, "p_dock": np.array(pd),
-                "heading_error_deg": np.array(he)}
+        return {
+            "t": np.array(t),
+            "T_world_body": np.array(T),
+            "thrust": np.array(thr),
+            "n_rad_s": np.array(n),
+            "sensors": {k: np.array([s[k] for s in sens]) for k in sens[0]},
+            "p_dock": np.array(pd),
+            "heading_error_deg": np.array(he),
+        }
 
 
 @dataclass
 class _ClosedLoop:
     """Plant, autopilot and guidance of one trial; ``advance`` integrates one frame period."""
+
     plant: Plant
     autopilot: Autopilot
     sensors: Sensors
     axes: DockAxesNED
     guidance: LosGuidance
     gusts: Gusts
-    n_sub: int            # integration steps per frame
-    dt: float             # s per step
+    n_sub: int  # integration steps per frame
+    dt: float  # s per step
     stop_distance_m: float
 
     def advance(self) -> None:
@@ -318,18 +363,26 @@ class _ClosedLoop:
             psi_ref, depth_ref, u_ref, e_lat = los_references(self.axes, self.guidance, eta, self.stop_distance_m)
             v_n = ap._R(eta) @ np.asarray(nu[:3])
             f_lat = ap.sway_pid.update(-e_lat, -float(v_n @ self.axes.lateral_h), self.dt)
-            tau = ap.track(eta, nu, sens, depth_ref, psi_ref, u_ref, self.dt,
-                           cross_force_ned=f_lat * self.axes.lateral_h)
+            tau = ap.track(
+                eta, nu, sens, depth_ref, psi_ref, u_ref, self.dt, cross_force_ned=f_lat * self.axes.lateral_h
+            )
             plant.step(ap.thruster_command(tau), self.gusts.next(), self.dt)
 
 
-def simulate_docking_trial(T_world_dock: np.ndarray, start: dict,
-                           current_world=(0.0, 0.0, 0.0), density: float = 1025.0,
-                           fps: float = 10.0, stop_distance_m: float = 0.5,
-                           max_time_s: float = 120, seed=None, dt: float = 0.02,
-                           params: VehicleParams | None = None,
-                           guidance: LosGuidance = LosGuidance(),
-                           turbulence: Turbulence = Turbulence()) -> dict:
+def simulate_docking_trial(
+    T_world_dock: np.ndarray,
+    start: dict,
+    current_world=(0.0, 0.0, 0.0),
+    density: float = 1025.0,
+    fps: float = 10.0,
+    stop_distance_m: float = 0.5,
+    max_time_s: float = 120,
+    seed=None,
+    dt: float = 0.02,
+    params: VehicleParams | None = None,
+    guidance: LosGuidance = LosGuidance(),
+    turbulence: Turbulence = Turbulence(),
+) -> dict:
     """Closed-loop docking approach on ground-truth navigation; frames sampled at ``fps``.
 
     Twelve keyword parameters (a reason): they are the trial's independent physical settings
@@ -360,8 +413,9 @@ def simulate_docking_trial(T_world_dock: np.ndarray, start: dict,
     axes = DockAxesNED(T_world_dock)
     plant = Plant(params, density)
     ap = Autopilot(params, density, plant.thrusters)
-    plant.set_pose_ned(T_world_body_to_eta(start_pose_world(T_world_dock, start)),
-                       [float(start.get("speed_mps", 0.0)), 0, 0, 0, 0, 0])
+    plant.set_pose_ned(
+        T_world_body_to_eta(start_pose_world(T_world_dock, start)), [float(start.get("speed_mps", 0.0)), 0, 0, 0, 0, 0]
+    )
     plant.n = ap.hover_speeds()
     sensors = Sensors()
     n_frames_max = int(math.floor(max_time_s * fps + 1e-9)) + 1
@@ -371,8 +425,7 @@ def simulate_docking_trial(T_world_dock: np.ndarray, start: dict,
     for frame in range(n_frames_max):
         eta = plant.s[:6]
         p_dock = axes.p_dock(eta[:3])
-        log.add(frame / fps, plant, sensors.read(eta), p_dock,
-                -math.degrees(wrap_pi(eta[5] - axes.approach_psi)))
+        log.add(frame / fps, plant, sensors.read(eta), p_dock, -math.degrees(wrap_pi(eta[5] - axes.approach_psi)))
         if p_dock[2] <= stop_distance_m:
             stop_reason = "reached"
             break
@@ -383,13 +436,32 @@ def simulate_docking_trial(T_world_dock: np.ndarray, start: dict,
             raise FloatingPointError("docking simulation diverged")
     out = log.arrays()
     pd_arr = out["p_dock"]
-    return {**out, "stop_reason": stop_reason,
-            "final_distance_m": float(pd_arr[-1, 2]), "final_lateral_m": float(pd_arr[-1, 0]),
-            "final_vertical_m": float(pd_arr[-1, 1]), "dt": dt, "seed": seed,
-            "start": dict(start), "current_world": tuple(float(c) for c in current_world),
-            "density": float(density), "thruster_names": THRUSTER_NAMES}
+    return {
+        **out,
+        "stop_reason": stop_reason,
+        "final_distance_m": float(pd_arr[-1, 2]),
+        "final_lateral_m": float(pd_arr[-1, 0]),
+        "final_vertical_m": float(pd_arr[-1, 1]),
+        "dt": dt,
+        "seed": seed,
+        "start": dict(start),
+        "current_world": tuple(float(c) for c in current_world),
+        "density": float(density),
+        "thruster_names": THRUSTER_NAMES,
+    }
 
 
-__all__ = ["station_keeping_table", "station_keeping_signs_ok", "station_keep_run",
-           "thrust_unit_N", "random_start", "start_pose_world", "simulate_docking_trial",
-           "DEFAULT_START_RANGES", "LosGuidance", "Turbulence", "DockAxesNED", "los_references"]
+__all__ = [
+    "station_keeping_table",
+    "station_keeping_signs_ok",
+    "station_keep_run",
+    "thrust_unit_N",
+    "random_start",
+    "start_pose_world",
+    "simulate_docking_trial",
+    "DEFAULT_START_RANGES",
+    "LosGuidance",
+    "Turbulence",
+    "DockAxesNED",
+    "los_references",
+]

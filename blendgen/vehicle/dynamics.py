@@ -40,6 +40,7 @@ and the vertical thrusters must push up with ``(m - rho V) g``:
 38.2 N at 1025, 25.4 N at 1075, 50.9 N at 975 kg/m^3 -- exactly in the ratio 6:4:8
 of the article's Table 5 (normalised units).
 """
+
 from __future__ import annotations
 
 import math
@@ -48,7 +49,6 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from blendgen.geometry import R_to_rpy, rpy_to_R
-
 from blendgen.vehicle.thrusters import ThrusterSet
 
 GRAVITY = 9.81
@@ -119,15 +119,16 @@ class VehicleParams:
     cross-current trials). Zeroing symmetric pairs keeps C_A skew-symmetric (energy
     conserving). ``munk_moments=True`` restores the full C_A.
     """
+
     mass: float = 30.48
     vehicle_density: float = 1175.0
     length: float = 1.33
     diameter: float = 0.191
-    r_g: tuple[float, float, float] = (0.0, 0.0, 0.0196)   # FRD, CG w.r.t. CB (origin)
+    r_g: tuple[float, float, float] = (0.0, 0.0, 0.0196)  # FRD, CG w.r.t. CB (origin)
     inertia: tuple[float, float, float] = (0.177, 3.45, 3.45)
     added_mass: tuple[float, ...] = (0.93, 35.5, 35.5, 0.0704, 4.88, 4.88)
-    added_mass_yr: float = -1.93    # M_A[1,5] = M_A[5,1] = -Y_rdot
-    added_mass_zq: float = 1.93     # M_A[2,4] = M_A[4,2] = -Z_qdot
+    added_mass_yr: float = -1.93  # M_A[1,5] = M_A[5,1] = -Y_rdot
+    added_mass_zq: float = 1.93  # M_A[2,4] = M_A[4,2] = -Z_qdot
     quad_damping: tuple[float, ...] = (1.62, 131.0, 131.0, 0.13, 94.0, 94.0)
     T_surge: float = 10.0
     T_sway: float = 5.0
@@ -155,7 +156,7 @@ class VehicleParams:
         """W - B (N): the upward thrust needed to hover (positive = vehicle sinks)."""
         return self.weight - self.buoyancy(rho)
 
-    def neutral(self, rho: float = 1025.0) -> "VehicleParams":
+    def neutral(self, rho: float = 1025.0) -> VehicleParams:
         """Same vehicle trimmed neutrally buoyant in water of density rho."""
         return replace(self, vehicle_density=rho)
 
@@ -192,8 +193,9 @@ class VehicleParams:
         k_roll, k_pitch = self.restoring_stiffness()
         d_roll = 2.0 * self.zeta_roll * math.sqrt(max(k_roll, 0.0) * Md[3])
         d_pitch = 2.0 * self.zeta_pitch * math.sqrt(max(k_pitch, 0.0) * Md[4])
-        return np.array([Md[0] / self.T_surge, Md[1] / self.T_sway, Md[2] / self.T_heave,
-                         d_roll, d_pitch, Md[5] / self.T_yaw])
+        return np.array(
+            [Md[0] / self.T_surge, Md[1] / self.T_sway, Md[2] / self.T_heave, d_roll, d_pitch, Md[5] / self.T_yaw]
+        )
 
 
 # ------------------------------------------------------------------ model --------
@@ -204,8 +206,7 @@ class AUVModel:
     small-array numpy for this size; M^-1 is precomputed.
     """
 
-    def __init__(self, params: VehicleParams | None = None, rho: float = 1025.0,
-                 damping: bool = True):
+    def __init__(self, params: VehicleParams | None = None, rho: float = 1025.0, damping: bool = True):
         self.params = p = params or VehicleParams()
         self.rho = float(rho)
         if not (math.isfinite(self.rho) and self.rho >= 0.0):
@@ -240,10 +241,14 @@ class AUVModel:
         WB = self.W - self.B
         xg, yg, zg = self._rg
         W = self.W
-        return (WB * sth, -WB * cth * sph, -WB * cth * cph,
-                -yg * W * cth * cph + zg * W * cth * sph,
-                zg * W * sth + xg * W * cth * cph,
-                -xg * W * cth * sph - yg * W * sth)
+        return (
+            WB * sth,
+            -WB * cth * sph,
+            -WB * cth * cph,
+            -yg * W * cth * cph + zg * W * cth * sph,
+            zg * W * sth + xg * W * cth * cph,
+            -xg * W * cth * sph - yg * W * sth,
+        )
 
     def _coriolis_damping(self, ur, vr, wr, p, q, r):
         """Rigid-body and added-mass Coriolis plus damping forces (6 floats, FRD) for the
@@ -281,7 +286,7 @@ class AUVModel:
         f3 += vr * a12 - wr * a11 + q * a22 - r * a21
         f4 += r * a20 - p * a22
         f5 += p * a21 - q * a20
-        if self.munk:   # C_A entries (0,4),(4,0),(2,4),(4,2),(0,5),(5,0),(1,5),(5,1)
+        if self.munk:  # C_A entries (0,4),(4,0),(2,4),(4,2),(0,5),(5,0),(1,5),(5,1)
             f0 += q * a12 - r * a11
             f1 += r * a10
             f2 -= q * a10
@@ -321,11 +326,16 @@ class AUVModel:
 
         f0, f1, f2, f3, f4, f5 = self._coriolis_damping(ur, vr, wr, p, q, r)
         g = self._g(cph, sph, cth, sth)
-        fv = (tau[0] - f0 - g[0], tau[1] - f1 - g[1], tau[2] - f2 - g[2],
-              tau[3] - f3 - g[3], tau[4] - f4 - g[4], tau[5] - f5 - g[5])
+        fv = (
+            tau[0] - f0 - g[0],
+            tau[1] - f1 - g[1],
+            tau[2] - f2 - g[2],
+            tau[3] - f3 - g[3],
+            tau[4] - f4 - g[4],
+            tau[5] - f5 - g[5],
+        )
         fv0, fv1, fv2, fv3, fv4, fv5 = fv
-        acc = [c0 * fv0 + c1 * fv1 + c2 * fv2 + c3 * fv3 + c4 * fv4 + c5 * fv5
-               for c0, c1, c2, c3, c4, c5 in self._Minv]
+        acc = [c0 * fv0 + c1 * fv1 + c2 * fv2 + c3 * fv3 + c4 * fv4 + c5 * fv5 for c0, c1, c2, c3, c4, c5 in self._Minv]
         # nu_dot = nu_r_dot - w x v_c(body)
         acc[0] -= q * wc - r * vcb
         acc[1] -= r * uc - p * wc
@@ -334,13 +344,20 @@ class AUVModel:
         cth_safe = cth if abs(cth) > 1e-6 else math.copysign(1e-6, cth)
         tth = sth / cth_safe
         qs_rc = q * sph + r * cph
-        return [R00 * u + R01 * v + R02 * w,
-                R10 * u + R11 * v + R12 * w,
-                R20 * u + R21 * v + R22 * w,
-                p + qs_rc * tth,
-                q * cph - r * sph,
-                qs_rc / cth_safe,
-                acc[0], acc[1], acc[2], acc[3], acc[4], acc[5]]
+        return [
+            R00 * u + R01 * v + R02 * w,
+            R10 * u + R11 * v + R12 * w,
+            R20 * u + R21 * v + R22 * w,
+            p + qs_rc * tth,
+            q * cph - r * sph,
+            qs_rc / cth_safe,
+            acc[0],
+            acc[1],
+            acc[2],
+            acc[3],
+            acc[4],
+            acc[5],
+        ]
 
     def rk4_step(self, s, tau, vc, dt):
         """One classical RK4 step (tau, vc held over the step). Returns a new list."""
@@ -351,8 +368,7 @@ class AUVModel:
         k3 = f([a + h2 * b for a, b in zip(s, k2)], tau, vc)
         k4 = f([a + dt * b for a, b in zip(s, k3)], tau, vc)
         h6 = dt / 6.0
-        return [a + h6 * (b1 + 2.0 * (b2 + b3) + b4)
-                for a, b1, b2, b3, b4 in zip(s, k1, k2, k3, k4)]
+        return [a + h6 * (b1 + 2.0 * (b2 + b3) + b4) for a, b1, b2, b3, b4 in zip(s, k1, k2, k3, k4)]
 
 
 def check_dt(dt: float) -> float:
@@ -366,8 +382,10 @@ def check_dt(dt: float) -> float:
     """
     dt = float(dt)
     if not (0.0 < dt <= DT_MAX) or not math.isfinite(dt):
-        raise ValueError(f"dt = {dt} s is outside the stable range (0, {DT_MAX}] s "
-                         "(RK4 + discrete controllers; see dynamics.check_dt)")
+        raise ValueError(
+            f"dt = {dt} s is outside the stable range (0, {DT_MAX}] s "
+            "(RK4 + discrete controllers; see dynamics.check_dt)"
+        )
     return dt
 
 
@@ -379,6 +397,7 @@ class Plant:
     ``step(n_cmd, current_ned, dt)``: thrust from the *current* shaft speeds is held
     over the RK4 step, then the shafts move toward ``n_cmd`` through the lag.
     """
+
     params: VehicleParams = field(default_factory=VehicleParams)
     rho: float = 1025.0
     thrusters: ThrusterSet = field(default_factory=ThrusterSet)
@@ -391,8 +410,7 @@ class Plant:
         self.t = 0.0
 
     def set_pose_ned(self, eta, nu=None):
-        self.s = [float(c) for c in eta] + ([float(c) for c in nu] if nu is not None
-                                            else [0.0] * 6)
+        self.s = [float(c) for c in eta] + ([float(c) for c in nu] if nu is not None else [0.0] * 6)
 
     @property
     def eta(self) -> np.ndarray:
@@ -418,6 +436,18 @@ class Plant:
         return eta_to_T_world_body(self.s[:6])
 
 
-__all__ = ["VehicleParams", "AUVModel", "Plant", "eta_to_T_world_body",
-           "T_world_body_to_eta", "ned_to_world_vec", "world_to_ned_vec", "R_ned_frd",
-           "wrap_pi", "check_dt", "GRAVITY", "DT_MAX", "F_WORLD_NED"]
+__all__ = [
+    "VehicleParams",
+    "AUVModel",
+    "Plant",
+    "eta_to_T_world_body",
+    "T_world_body_to_eta",
+    "ned_to_world_vec",
+    "world_to_ned_vec",
+    "R_ned_frd",
+    "wrap_pi",
+    "check_dt",
+    "GRAVITY",
+    "DT_MAX",
+    "F_WORLD_NED",
+]

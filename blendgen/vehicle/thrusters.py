@@ -18,6 +18,7 @@ Pure numpy. Conventions:
   :meth:`ThrusterSet.allocate_prioritized` adds saturation handling that keeps the
   moments and scales down the forces of a saturating group.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -27,8 +28,7 @@ import numpy as np
 F_FLU_FRD = np.diag([1.0, -1.0, -1.0])  # maps FLU vectors to FRD vectors (and back)
 CONTROLLED_DOFS = (0, 1, 2, 4, 5)  # X, Y, Z, M, N (roll K uncontrolled)
 
-THRUSTER_NAMES = ("main_left", "main_right", "lateral_bow", "lateral_stern",
-                  "vertical_fore", "vertical_aft")
+THRUSTER_NAMES = ("main_left", "main_right", "lateral_bow", "lateral_stern", "vertical_fore", "vertical_aft")
 GROUPS = {"main": (0, 1), "lateral": (2, 3), "vertical": (4, 5)}
 
 
@@ -36,18 +36,19 @@ GROUPS = {"main": (0, 1), "lateral": (2, 3), "vertical": (4, 5)}
 class Thruster:
     """One thruster. Geometry in the FLU body frame (metres), propeller diameter D (m),
     thrust coefficient K_T for n in rad/s (dimensionless with n in rad/s)."""
+
     name: str
     position_flu: tuple[float, float, float]
     direction_flu: tuple[float, float, float]
     diameter_m: float
-    K_T: float = 0.0125          # ~0.49 per (rev/s)^2 expressed per (rad/s)^2
-    reverse_ratio: float = 0.7   # reverse K_T = reverse_ratio * K_T
+    K_T: float = 0.0125  # ~0.49 per (rev/s)^2 expressed per (rad/s)^2
+    reverse_ratio: float = 0.7  # reverse K_T = reverse_ratio * K_T
     time_constant_s: float = 0.2
-    n_max: float = 100.0         # rad/s
+    n_max: float = 100.0  # rad/s
 
     def max_thrust(self, rho: float) -> float:
         """Forward thrust (N) at n = n_max in water of density rho."""
-        return rho * self.K_T * self.diameter_m ** 4 * self.n_max ** 2
+        return rho * self.K_T * self.diameter_m**4 * self.n_max**2
 
     def max_reverse_thrust(self, rho: float) -> float:
         """Magnitude (N) of reverse thrust at n = -n_max."""
@@ -97,26 +98,28 @@ def allocation_matrix(thrusters, frame: str = "frd") -> np.ndarray:
 @dataclass
 class ThrusterSet:
     """Vectorised thruster bank: allocation, thrust <-> shaft speed, lag, saturation."""
+
     thrusters: tuple[Thruster, ...] = field(default_factory=default_thrusters)
 
     def __post_init__(self):
         th = self.thrusters
         self.n = len(th)
-        self.B = allocation_matrix(th, "frd")             # (6, n) FRD
+        self.B = allocation_matrix(th, "frd")  # (6, n) FRD
         self.B_flu = allocation_matrix(th, "flu")
         B5 = self.B[list(CONTROLLED_DOFS), :]
         if np.linalg.matrix_rank(B5) != 5:
             raise ValueError("thruster layout does not control X Y Z M N")
-        self.B5_pinv = np.linalg.pinv(B5)                 # (n, 5)
-        self.D4 = np.array([t.diameter_m ** 4 for t in th])
+        self.B5_pinv = np.linalg.pinv(B5)  # (n, 5)
+        self.D4 = np.array([t.diameter_m**4 for t in th])
         self.K_T = np.array([t.K_T for t in th])
         self.K_T_rev = np.array([t.K_T * t.reverse_ratio for t in th])
         self.n_max = np.array([t.n_max for t in th])
         self.time_constant = np.array([t.time_constant_s for t in th])
         self._lag_cache: dict[float, np.ndarray] = {}
         names = [t.name for t in th]
-        self._group_idx = [np.array([i for i, nm in enumerate(names) if nm.startswith(g)])
-                           for g in ("main", "lateral", "vertical")]
+        self._group_idx = [
+            np.array([i for i, nm in enumerate(names) if nm.startswith(g)]) for g in ("main", "lateral", "vertical")
+        ]
         self._group_idx = [g.tolist() for g in self._group_idx if len(g)]
         self._P_rows = [tuple(float(c) for c in row) for row in self.B5_pinv]
         self._limits: dict[float, tuple[list, list]] = {}
@@ -148,8 +151,7 @@ class ThrusterSet:
             T_m.append(a3 * M + a4 * N)
         if all(l <= tm + tf <= h for tm, tf, h, l in zip(T_m, T_f, hi, lo)):
             return np.array([tm + tf for tm, tf in zip(T_m, T_f)])
-        over = max((tm / h if tm > 0 else tm / l if tm < 0 else 0.0)
-                   for tm, h, l in zip(T_m, hi, lo))
+        over = max((tm / h if tm > 0 else tm / l if tm < 0 else 0.0) for tm, h, l in zip(T_m, hi, lo))
         if over > 1.0:
             T_m = [tm / over for tm in T_m]
         s_i = []
@@ -183,7 +185,7 @@ class ThrusterSet:
 
     def max_thrust(self, rho: float) -> np.ndarray:
         """Per-thruster forward thrust limit (N)."""
-        return rho * self.K_T * self.D4 * self.n_max ** 2
+        return rho * self.K_T * self.D4 * self.n_max**2
 
     def lag_step(self, n: np.ndarray, n_cmd: np.ndarray, dt: float) -> np.ndarray:
         """Exact first-order lag update of shaft speeds over dt (n_cmd held)."""
@@ -204,5 +206,14 @@ def group_means(thrust: np.ndarray) -> dict[str, np.ndarray]:
     return {g: T[..., list(idx)].mean(axis=-1) for g, idx in GROUPS.items()}
 
 
-__all__ = ["Thruster", "ThrusterSet", "default_thrusters", "allocation_matrix",
-           "group_means", "THRUSTER_NAMES", "GROUPS", "CONTROLLED_DOFS", "F_FLU_FRD"]
+__all__ = [
+    "Thruster",
+    "ThrusterSet",
+    "default_thrusters",
+    "allocation_matrix",
+    "group_means",
+    "THRUSTER_NAMES",
+    "GROUPS",
+    "CONTROLLED_DOFS",
+    "F_FLU_FRD",
+]

@@ -8,6 +8,7 @@ Frames are sampled at the camera rate: image k is stamped ``t = k / fps`` and sh
 the pose at ``t_pose = t - latency`` (clamped at 0), so a link latency makes each
 image older than its stamp.
 """
+
 from __future__ import annotations
 
 import math
@@ -15,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from blendgen.geometry import make_T, rpy_to_R, look_at_R
+from blendgen.geometry import look_at_R, make_T, rpy_to_R
 
 # OpenCV camera axes expressed in the FLU body frame (columns x_cam, y_cam, z_cam).
 R_BODY_CAM_FORWARD = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
@@ -24,6 +25,7 @@ R_BODY_CAM_FORWARD = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.
 @dataclass(frozen=True)
 class Sampled:
     """A sampled trajectory: stamps t (N,), pose times t_pose (N,), T_world_body (N,4,4)."""
+
     t: np.ndarray
     t_pose: np.ndarray
     T_world_body: np.ndarray
@@ -117,37 +119,56 @@ def circle(spec, T_world_dock: np.ndarray, fps: float, latency_s: float = 0.0) -
     base = math.atan2(n[1], n[0])
     T = np.repeat(np.eye(4)[None], len(t), axis=0)
     for i, th in enumerate(theta):
-        p = target + np.array([spec.radius_m * math.cos(base + th), spec.radius_m * math.sin(base + th),
-                               spec.height_m])
+        p = target + np.array([spec.radius_m * math.cos(base + th), spec.radius_m * math.sin(base + th), spec.height_m])
         T[i, :3, :3] = _body_R_facing(target - p)
         T[i, :3, 3] = p
     return Sampled(t, tp, T)
 
 
-def docking_trial(spec, T_world_dock: np.ndarray, fps: float, latency_s: float, seed: int,
-                  fluid) -> tuple[Sampled, dict]:
+def docking_trial(
+    spec, T_world_dock: np.ndarray, fps: float, latency_s: float, seed: int, fluid
+) -> tuple[Sampled, dict]:
     """Closed-loop docking of the 6-DOF vehicle from a random start drawn with ``seed``.
 
     The vehicle is guided by its controllers on ground-truth navigation through the
     fluid (density, current); poses are sampled at ``fps``. Returns the sampled poses
     and the trial's summary (start, stop reason, final offsets)."""
     from blendgen.vehicle import docking
+
     rng = np.random.default_rng(seed)
     st = spec.start
-    start = docking.random_start(rng, {"range_m": tuple(st.range_m), "lateral_m": st.lateral_m,
-                                       "vertical_m": st.vertical_m, "heading_error_deg": st.heading_error_deg})
+    start = docking.random_start(
+        rng,
+        {
+            "range_m": tuple(st.range_m),
+            "lateral_m": st.lateral_m,
+            "vertical_m": st.vertical_m,
+            "heading_error_deg": st.heading_error_deg,
+        },
+    )
     run = docking.simulate_docking_trial(
-        T_world_dock, start, current_world=tuple(fluid.current_mps), density=fluid.density_kg_m3, fps=fps,
-        stop_distance_m=spec.stop_distance_m, max_time_s=spec.max_time_s, seed=seed,
-        guidance=docking.LosGuidance(cruise_speed=spec.cruise_speed_mps, final_speed=spec.final_speed_mps))
+        T_world_dock,
+        start,
+        current_world=tuple(fluid.current_mps),
+        density=fluid.density_kg_m3,
+        fps=fps,
+        stop_distance_m=spec.stop_distance_m,
+        max_time_s=spec.max_time_s,
+        seed=seed,
+        guidance=docking.LosGuidance(cruise_speed=spec.cruise_speed_mps, final_speed=spec.final_speed_mps),
+    )
     tp = np.asarray(run["t"], float)
-    info = {"start": start, "stop_reason": run["stop_reason"], "final_distance_m": run["final_distance_m"],
-            "final_lateral_m": run["final_lateral_m"], "final_vertical_m": run["final_vertical_m"]}
+    info = {
+        "start": start,
+        "stop_reason": run["stop_reason"],
+        "final_distance_m": run["final_distance_m"],
+        "final_lateral_m": run["final_lateral_m"],
+        "final_vertical_m": run["final_vertical_m"],
+    }
     return Sampled(tp + latency_s, tp, np.asarray(run["T_world_body"], float)), info
 
 
-def sample(spec, T_world_dock: np.ndarray, fps: float, latency_s: float = 0.0, seed: int = 0,
-           fluid=None) -> Sampled:
+def sample(spec, T_world_dock: np.ndarray, fps: float, latency_s: float = 0.0, seed: int = 0, fluid=None) -> Sampled:
     """Dispatch on the trajectory kind (docking trials need the trial seed and the fluid)."""
     if spec.kind == "linear":
         return linear_approach(spec, T_world_dock, fps, latency_s)

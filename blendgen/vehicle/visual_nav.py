@@ -28,6 +28,7 @@ filter restarts on it. The vehicle's own sensors are fused as follows:
   bearing, back off, hold) until a new fix re-acquires the target; a vehicle without an
   accepted fix for ``lost_s`` (including before the first one) has *lost the target*.
 """
+
 from __future__ import annotations
 
 import math
@@ -46,12 +47,14 @@ class FilterParams:
     gain of the dock heading/depth, dropout hold and lost-target times (s).
 
     Defaults: 0.3 m/s^2 is about a quarter of the horizontal acceleration the lateral
-    thrusters can give the vehicle (2 x 36.6 N / 66 kg sway mass = 1.1 m/s^2); 0.005 m^-1 is the order of the LED array's range error at 320x240 (the
+    thrusters can give the vehicle (2 x 36.6 N / 66 kg sway mass = 1.1 m/s^2); 0.005 m^-1 is the order of the LED
+    array's range error at 320x240 (the
     ``0.7 Z^2 sigma_px / (f s)`` rule with f = 277 px, s = 0.6 m, sigma_px = 1).
     ``hold_s`` = 3 s of dead reckoning: the filter's own position std grows as
     ``accel_std sqrt(t^3 / 3)`` without fixes, 0.9 m after 3 s, more than twice the 0.40 m capture
     radius: beyond that the estimate cannot steer into the mouth. ``lost_s`` = 20 s covers the dead
     reckoning, the 12 s back-off and 5 s of hold (:class:`blendgen.vehicle.closed_loop.Recovery`)."""
+
     accel_std: float = 0.3
     meas_std_per_m2: float = 0.005
     meas_std_min_m: float = 0.01
@@ -72,7 +75,7 @@ class FilterParams:
 
     def meas_std(self, range_m: float) -> float:
         """Measurement std (m) of a fix at ``range_m``."""
-        return max(self.meas_std_min_m, self.meas_std_per_m2 * range_m ** 2)
+        return max(self.meas_std_min_m, self.meas_std_per_m2 * range_m**2)
 
 
 @dataclass(frozen=True)
@@ -82,6 +85,7 @@ class DockFix:
     the body origin to the dock origin in world axes ``to_dock_world`` (3,) m (estimated
     translation turned by the attitude sensor; NaN if unknown), the dock's approach heading in
     NED ``psi_dock`` rad (NaN if unknown) and the dock depth ``depth_dock`` m (NaN if unknown)."""
+
     p_dock: np.ndarray
     psi_dock: float
     depth_dock: float
@@ -96,7 +100,7 @@ def R_world_body_from_sensors(sens: dict) -> np.ndarray:
 
 def R_world_dock_of(psi_dock: float) -> np.ndarray:
     """Rotation (3x3) of an upright dock whose approach heading (NED, toward the face) is ``psi_dock``."""
-    yaw_face = -psi_dock + math.pi          # world yaw of the face normal (+z_d)
+    yaw_face = -psi_dock + math.pi  # world yaw of the face normal (+z_d)
     z_d = np.array([math.cos(yaw_face), math.sin(yaw_face), 0.0])
     y_d = np.array([0.0, 0.0, 1.0])
     return np.column_stack([np.cross(y_d, z_d), y_d, z_d])
@@ -129,16 +133,16 @@ class RelativePoseFilter:
 
     def __init__(self, params: FilterParams = FilterParams()):
         self.p = params
-        self.xz = np.zeros(2)          # lateral, range (m)
-        self.v = np.zeros(2)           # their rates (m/s)
-        self.P = np.zeros((2, 2, 2))   # per axis covariance of [position, rate]
+        self.xz = np.zeros(2)  # lateral, range (m)
+        self.v = np.zeros(2)  # their rates (m/s)
+        self.P = np.zeros((2, 2, 2))  # per axis covariance of [position, rate]
         self.psi_dock = math.nan
-        self.psi_var = math.nan        # rad^2
+        self.psi_var = math.nan  # rad^2
         self.depth_dock = math.nan
-        self.t_fix = math.nan          # time of the last accepted fix
-        self.t_upd = math.nan          # time the state refers to
-        self.t0 = math.nan             # first call
-        self.rejected = 0              # fixes refused by the gate
+        self.t_fix = math.nan  # time of the last accepted fix
+        self.t_upd = math.nan  # time the state refers to
+        self.t0 = math.nan  # first call
+        self.rejected = 0  # fixes refused by the gate
 
     @property
     def initialised(self) -> bool:
@@ -147,8 +151,8 @@ class RelativePoseFilter:
     def _restart(self, t: float, meas: np.ndarray, fix: DockFix) -> None:
         r2 = self.p.meas_std(float(meas[1])) ** 2
         self.xz, self.v = meas.copy(), np.zeros(2)
-        self.P = np.array([np.diag([r2, 0.5 ** 2])] * 2)    # rate unknown: +-0.5 m/s
-        if math.isfinite(self.psi_dock):                     # re-acquired: the dock did not move
+        self.P = np.array([np.diag([r2, 0.5**2])] * 2)  # rate unknown: +-0.5 m/s
+        if math.isfinite(self.psi_dock):  # re-acquired: the dock did not move
             self._update_constants(fix, float(meas[1]))
         else:
             self.psi_dock, self.depth_dock = fix.psi_dock, fix.depth_dock
@@ -173,8 +177,8 @@ class RelativePoseFilter:
 
     def _predict(self, dt: float) -> None:
         F = np.array([[1.0, dt], [0.0, 1.0]])
-        q = self.p.accel_std ** 2
-        Q = q * np.array([[dt ** 4 / 4, dt ** 3 / 2], [dt ** 3 / 2, dt ** 2]])
+        q = self.p.accel_std**2
+        Q = q * np.array([[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]])
         self.xz = self.xz + self.v * dt
         self.P = np.array([F @ P @ F.T + Q for P in self.P])
         self.t_upd += dt
@@ -197,13 +201,13 @@ class RelativePoseFilter:
         meas = self._measurement(fix)
         if not self.initialised or not self.fresh(t):
             if (math.isfinite(fix.psi_dock) or self.initialised) and np.all(np.isfinite(meas)):
-                self._restart(t, meas, fix)     # a distance alone cannot (re)start it
+                self._restart(t, meas, fix)  # a distance alone cannot (re)start it
             return
         self._predict(t - self.t_upd)
         r2 = self.p.meas_std(float(meas[1])) ** 2
         innov = meas - self.xz
         S = self.P[:, 0, 0] + r2
-        ok = np.isfinite(innov)                  # a distance-only fix corrects the range alone
+        ok = np.isfinite(innov)  # a distance-only fix corrects the range alone
         if np.any(np.abs(np.where(ok, innov, 0.0)) > self.p.gate_sigma * np.sqrt(S)):
             self.rejected += 1
             return
@@ -253,6 +257,7 @@ class CaptureSpec:
     a crossing outside the capture radius but inside the dock face (grown by the hull radius)
     hits the dock frame (``collision``); beyond it the vehicle missed (``out_of_capture``).
     ``entry_plane_m``: the entry plane's distance in front of the marker face."""
+
     capture_radius_m: float
     frame_half_m: tuple[float, float]
     max_heading_deg: float = 15.0
@@ -260,7 +265,7 @@ class CaptureSpec:
     entry_plane_m: float = 0.0
 
     @classmethod
-    def from_dock(cls, body_size_m, hull_radius_m: float, **kw) -> "CaptureSpec":
+    def from_dock(cls, body_size_m, hull_radius_m: float, **kw) -> CaptureSpec:
         """Default from the dock face (width, height): the mouth is the face's inscribed circle
         and the hull must fit in it, so ``capture_radius = min(w, h) / 2 - hull_radius``
         (0.40 m for the 1 m dock and the 0.191 m REMUS hull)."""
@@ -271,8 +276,7 @@ class CaptureSpec:
         return cls(kw.pop("capture_radius_m", r), (w / 2 + hull_radius_m, h / 2 + hull_radius_m), **kw)
 
 
-def crossing_outcome(spec: CaptureSpec, nose_dock: np.ndarray, heading_err_deg: float,
-                     lateral_speed_mps: float) -> str:
+def crossing_outcome(spec: CaptureSpec, nose_dock: np.ndarray, heading_err_deg: float, lateral_speed_mps: float) -> str:
     """Outcome of a crossing of the entry plane by the nose at ``nose_dock`` (3,) (dock frame)."""
     x, y = float(nose_dock[0]), float(nose_dock[1])
     if math.hypot(x, y) <= spec.capture_radius_m:
@@ -290,5 +294,15 @@ def interpolate_crossing(a: np.ndarray, b: np.ndarray, plane_z: float) -> np.nda
     return a + min(max(s, 0.0), 1.0) * (b - a)
 
 
-__all__ = ["FilterParams", "DockFix", "R_world_dock_of", "RelativePoseFilter", "fix_from_estimate", "CaptureSpec",
-           "crossing_outcome", "interpolate_crossing", "OUTCOMES", "R_world_body_from_sensors"]
+__all__ = [
+    "FilterParams",
+    "DockFix",
+    "R_world_dock_of",
+    "RelativePoseFilter",
+    "fix_from_estimate",
+    "CaptureSpec",
+    "crossing_outcome",
+    "interpolate_crossing",
+    "OUTCOMES",
+    "R_world_body_from_sensors",
+]

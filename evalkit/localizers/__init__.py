@@ -1,7 +1,8 @@
 """Built-in marker localizers of evalkit.
 
 Each is a class with ``reset(camera: dict)`` (once per sequence) and
-``localize(image: HxWx3 uint8 RGB) -> dict | None``; see datasets_spec/LOCALIZER_PROTOCOL.md and the README's "Writing a localizer". The class
+``localize(image: HxWx3 uint8 RGB) -> dict | None``; see datasets_spec/LOCALIZER_PROTOCOL.md and the README's
+"Writing a localizer". The class
 attribute ``outputs`` lists the result fields it fills: ``distance`` (m), ``T_cam_dock``
 (full 6-DoF pose) and ``marker_id`` (the identity-checked marker that produced it).
 - ``evalkit.localizers.led:LedLocalizer``     N >= 4 LEDs, reference LED(s) by colour, IPPE PnP

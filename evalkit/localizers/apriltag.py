@@ -10,6 +10,7 @@ pupil-apriltags puts pixel centres at +0.5 and lists the corners in the order
 TR, TL, BL, BR of FORMAT.md's TL, TR, BR, BL; both are converted here. The pose comes
 from the shared square-marker code (:mod:`evalkit.localizers.square`).
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -18,12 +19,26 @@ import numpy as np
 
 from evalkit.localizers.square import SquareMarkerLocalizer, linear_gray, refine_corners, square_pose_estimate
 
-FAMILIES = {"DICT_APRILTAG_16h5": "tag16h5", "DICT_APRILTAG_16H5": "tag16h5",
-            "DICT_APRILTAG_25h9": "tag25h9", "DICT_APRILTAG_25H9": "tag25h9",
-            "DICT_APRILTAG_36h10": "tag36h10", "DICT_APRILTAG_36H10": "tag36h10",
-            "DICT_APRILTAG_36h11": "tag36h11", "DICT_APRILTAG_36H11": "tag36h11"}
-PUPIL_FAMILIES = ("tag36h11", "tag25h9", "tag16h5", "tagCircle21h7", "tagCircle49h12",
-                  "tagStandard41h12", "tagStandard52h13", "tagCustom48h12")
+FAMILIES = {
+    "DICT_APRILTAG_16h5": "tag16h5",
+    "DICT_APRILTAG_16H5": "tag16h5",
+    "DICT_APRILTAG_25h9": "tag25h9",
+    "DICT_APRILTAG_25H9": "tag25h9",
+    "DICT_APRILTAG_36h10": "tag36h10",
+    "DICT_APRILTAG_36H10": "tag36h10",
+    "DICT_APRILTAG_36h11": "tag36h11",
+    "DICT_APRILTAG_36H11": "tag36h11",
+}
+PUPIL_FAMILIES = (
+    "tag36h11",
+    "tag25h9",
+    "tag16h5",
+    "tagCircle21h7",
+    "tagCircle49h12",
+    "tagStandard41h12",
+    "tagStandard52h13",
+    "tagCustom48h12",
+)
 _TO_FORMAT_ORDER = [1, 0, 3, 2]  # pupil TR, TL, BL, BR -> TL, TR, BR, BL
 INSTALL_HINT = "the 'apriltag' localizer needs pupil-apriltags: pip install 'dockbench[apriltag]'"
 
@@ -59,9 +74,18 @@ class AprilTagLocalizer(SquareMarkerLocalizer):
     name = "apriltag"
     kinds = ("apriltag", "aruco")
 
-    def __init__(self, marker_id: str | None = None, refine: str = "linear", quad_decimate: float = 1.0,
-                 quad_sigma: float = 0.0, decode_sharpening: float = 0.25, max_hamming: int = 1,
-                 max_shift_px: float = 1.0, nthreads: int = 1, roi: bool = True):
+    def __init__(
+        self,
+        marker_id: str | None = None,
+        refine: str = "linear",
+        quad_decimate: float = 1.0,
+        quad_sigma: float = 0.0,
+        decode_sharpening: float = 0.25,
+        max_hamming: int = 1,
+        max_shift_px: float = 1.0,
+        nthreads: int = 1,
+        roi: bool = True,
+    ):
         """marker_id: manifest id (None: first apriltag marker, else an aruco marker with an
         AprilTag dictionary). refine: "linear" (cornerSubPix on sRGB-decoded intensity,
         accepted per corner within max_shift_px of the detector's corner) or "none"
@@ -79,7 +103,7 @@ class AprilTagLocalizer(SquareMarkerLocalizer):
         self.max_hamming = int(max_hamming)
         self.max_shift_px = float(max_shift_px)
         self.nthreads = int(nthreads)
-        self._detectors: dict[str, Any] = {}   # pupil_apriltags.Detector per family
+        self._detectors: dict[str, Any] = {}  # pupil_apriltags.Detector per family
         self._family: str | None = None
 
     def reset(self, camera: dict) -> None:
@@ -96,12 +120,19 @@ class AprilTagLocalizer(SquareMarkerLocalizer):
         if self._family is None:
             return None
         if self._family not in PUPIL_FAMILIES:
-            raise ValueError(f"marker {marker.get('id')!r}: AprilTag family {self._family!r} is not "
-                             f"supported by pupil-apriltags ({', '.join(PUPIL_FAMILIES)})")
+            raise ValueError(
+                f"marker {marker.get('id')!r}: AprilTag family {self._family!r} is not "
+                f"supported by pupil-apriltags ({', '.join(PUPIL_FAMILIES)})"
+            )
         if self._family not in self._detectors:
             self._detectors[self._family] = self._pa.Detector(
-                families=self._family, nthreads=self.nthreads, quad_decimate=self.quad_decimate,
-                quad_sigma=self.quad_sigma, refine_edges=1, decode_sharpening=self.decode_sharpening)
+                families=self._family,
+                nthreads=self.nthreads,
+                quad_decimate=self.quad_decimate,
+                quad_sigma=self.quad_sigma,
+                refine_edges=1,
+                decode_sharpening=self.decode_sharpening,
+            )
         return marker
 
     def detect(self, gray: np.ndarray) -> list[np.ndarray]:
@@ -109,9 +140,11 @@ class AprilTagLocalizer(SquareMarkerLocalizer):
         want = int(self._marker["marker_id"])
         if self._family is None:
             return []
-        return [np.asarray(det.corners, np.float64).reshape(4, 2)[_TO_FORMAT_ORDER] - 0.5
-                for det in self._detectors[self._family].detect(np.ascontiguousarray(gray))
-                if int(det.tag_id) == want and int(det.hamming) <= self.max_hamming]
+        return [
+            np.asarray(det.corners, np.float64).reshape(4, 2)[_TO_FORMAT_ORDER] - 0.5
+            for det in self._detectors[self._family].detect(np.ascontiguousarray(gray))
+            if int(det.tag_id) == want and int(det.hamming) <= self.max_hamming
+        ]
 
     def quad_pose(self, gray: np.ndarray, quad: np.ndarray) -> dict | None:
         """IPPE_SQUARE; with refine=linear each corner moves to its cornerSubPix position

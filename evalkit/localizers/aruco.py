@@ -1,4 +1,5 @@
 """ArUco / AprilTag localizer: cv2.aruco.ArucoDetector + IPPE_SQUARE PnP."""
+
 from __future__ import annotations
 
 from typing import Any
@@ -8,8 +9,13 @@ import numpy as np
 
 from evalkit.localizers.square import SquareMarkerLocalizer, linear_gray, refine_corners, square_pose_estimate
 
-_REFINE = {"linear": "CORNER_REFINE_NONE", "none": "CORNER_REFINE_NONE", "subpix": "CORNER_REFINE_SUBPIX",
-           "contour": "CORNER_REFINE_CONTOUR", "apriltag": "CORNER_REFINE_APRILTAG"}
+_REFINE = {
+    "linear": "CORNER_REFINE_NONE",
+    "none": "CORNER_REFINE_NONE",
+    "subpix": "CORNER_REFINE_SUBPIX",
+    "contour": "CORNER_REFINE_CONTOUR",
+    "apriltag": "CORNER_REFINE_APRILTAG",
+}
 
 
 class ArucoLocalizer(SquareMarkerLocalizer):
@@ -27,7 +33,7 @@ class ArucoLocalizer(SquareMarkerLocalizer):
             raise ValueError(f"refine must be one of {sorted(_REFINE)}, got {refine!r}")
         super().__init__(marker_id, roi)
         self.refine = str(refine)
-        self._detector: Any = None          # cv2.aruco.ArucoDetector, built by setup()
+        self._detector: Any = None  # cv2.aruco.ArucoDetector, built by setup()
 
     def setup(self, marker: dict) -> dict | None:
         """Build the detector for the marker's dictionary."""

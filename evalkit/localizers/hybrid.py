@@ -49,6 +49,7 @@ The estimate is the sub-localizer's dict (``marker_id`` is the marker actually u
 and reaches estimates.parquet) plus ``"source"`` (``"near"`` / ``"far"``),
 ``"near_range_m"`` and ``"range_sigma_m"`` (its predicted range error, m).
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -64,10 +65,19 @@ class HybridLocalizer:
     name = "hybrid"
     outputs = FULL_POSE_WITH_ID
 
-    def __init__(self, near: str = "qr", far: str = "led", near_params: dict | None = None,
-                 far_params: dict | None = None, near_marker_id: str | None = None,
-                 far_marker_id: str | None = None, min_px_per_module: float = 1.3,
-                 switch_m: float | None = None, prefer: str = "uncertainty", min_sigma_px: float = 0.1):
+    def __init__(
+        self,
+        near: str = "qr",
+        far: str = "led",
+        near_params: dict | None = None,
+        far_params: dict | None = None,
+        near_marker_id: str | None = None,
+        far_marker_id: str | None = None,
+        min_px_per_module: float = 1.3,
+        switch_m: float | None = None,
+        prefer: str = "uncertainty",
+        min_sigma_px: float = 0.1,
+    ):
         """near / far: localizer specs (registry names: qr, aruco, apriltag / led, or any
         spec) with constructor params near_params / far_params; near_marker_id /
         far_marker_id: manifest marker ids (None: each sub-localizer's default).
@@ -93,11 +103,14 @@ class HybridLocalizer:
         self.min_px_per_module = float(min_px_per_module)
         self.switch_m = None if switch_m is None or str(switch_m) in ("None", "") else float(switch_m)
         if not self.min_px_per_module > 0 or (self.switch_m is not None and not self.switch_m > 0):
-            raise ValueError(f"need min_px_per_module > 0 and switch_m > 0, "
-                             f"got {self.min_px_per_module}, {self.switch_m}")
+            raise ValueError(
+                f"need min_px_per_module > 0 and switch_m > 0, got {self.min_px_per_module}, {self.switch_m}"
+            )
         subs = {}
-        for role, spec, params, mid in (("near", near, near_params, near_marker_id),
-                                        ("far", far, far_params, far_marker_id)):
+        for role, spec, params, mid in (
+            ("near", near, near_params, near_marker_id),
+            ("far", far, far_params, far_marker_id),
+        ):
             p = dict(params or {})
             if mid is not None:
                 p["marker_id"] = mid
@@ -114,15 +127,17 @@ class HybridLocalizer:
             sub.reset(camera)
         self._last_d = None
         self._last_far_T = None
-        self._span_m = {str(m.get("id")): marker_span_m(m) for m in camera.get("markers") or []
-                        if isinstance(m, dict)}
+        self._span_m = {str(m.get("id")): marker_span_m(m) for m in camera.get("markers") or [] if isinstance(m, dict)}
         if self.switch_m is not None:
             self.near_range_m = self.switch_m
             return
         module_m = near_module_size_m(self.subs["near"], camera)
         K = camera.get("K")
-        self._f = None if K is None else float(0.5 * (np.asarray(K, float).reshape(3, 3)[0, 0]
-                                                      + np.asarray(K, float).reshape(3, 3)[1, 1]))
+        self._f = (
+            None
+            if K is None
+            else float(0.5 * (np.asarray(K, float).reshape(3, 3)[0, 0] + np.asarray(K, float).reshape(3, 3)[1, 1]))
+        )
         if module_m is None or K is None:
             self.near_range_m = float("inf")  # unknown: always worth trying
             return
@@ -139,7 +154,7 @@ class HybridLocalizer:
             est, used = self._by_uncertainty(image)
         else:
             est, used = self._near_first(image)
-        if "far" not in self._ran:   # its prior is the previous *frame's* pose: none now
+        if "far" not in self._ran:  # its prior is the previous *frame's* pose: none now
             forget = getattr(self.subs["far"], "forget_prior", None)
             if callable(forget):
                 forget()
@@ -147,8 +162,7 @@ class HybridLocalizer:
         self._last_far_T = est.get("T_cam_dock") if est is not None and used == "far" else None
         if est is None:
             return None
-        return {**est, "source": used, "near_range_m": self.near_range_m,
-                "range_sigma_m": self._sigma(est)}
+        return {**est, "source": used, "near_range_m": self.near_range_m, "range_sigma_m": self._sigma(est)}
 
     def _near_first(self, image: np.ndarray) -> tuple[dict | None, str]:
         """prefer=near: (estimate, role) with the near marker whenever it is found."""
@@ -179,8 +193,10 @@ class HybridLocalizer:
         near = self._try("near", image)
         if near is None or far is None:
             return (near, "near") if near is not None else (far, "far")
-        px = {role: self._span_m.get(str(e.get("marker_id")), 0.0) / max(float(e["distance"]), 1e-9)
-              for role, e in (("near", near), ("far", far))}
+        px = {
+            role: self._span_m.get(str(e.get("marker_id")), 0.0) / max(float(e["distance"]), 1e-9)
+            for role, e in (("near", near), ("far", far))
+        }
         return (near, "near") if px["near"] > px["far"] else (far, "far")
 
     def _by_uncertainty(self, image: np.ndarray) -> tuple[dict | None, str]:
@@ -202,8 +218,9 @@ class HybridLocalizer:
         span = self._span_m.get(str(est.get("marker_id")), 0.0)
         if not span or not self._f:
             return float("inf")
-        return range_sigma_m(float(est["distance"]), self._f, span, est.get("reproj_err_px"),
-                             est.get("n_points"), self.min_sigma_px)
+        return range_sigma_m(
+            float(est["distance"]), self._f, span, est.get("reproj_err_px"), est.get("n_points"), self.min_sigma_px
+        )
 
     def _hint(self, T_cam_dock) -> None:
         """Tell the near localizer where to look first (if it takes hints)."""
@@ -245,13 +262,14 @@ def keypoint_sigma_px(reproj_rms_px, n_points, floor_px: float) -> float:
     return max(floor_px, rms * float(np.sqrt(2.0 * n / (2.0 * n - 6.0))))
 
 
-def range_sigma_m(distance_m: float, f_px: float, span_m: float, reproj_rms_px=None, n_points=None,
-                  floor_px: float = 0.1) -> float:
+def range_sigma_m(
+    distance_m: float, f_px: float, span_m: float, reproj_rms_px=None, n_points=None, floor_px: float = 0.1
+) -> float:
     """Predicted range error (m) of a planar marker's pose: 0.87 Z^2 sigma_px / (f S) for
     range Z (m), focal length f (px), keypoint span S (m) and keypoint noise sigma_px
     (:func:`keypoint_sigma_px`); derivation in the module docstring."""
     sigma_px = keypoint_sigma_px(reproj_rms_px, n_points, floor_px)
-    return 0.87 * distance_m ** 2 * sigma_px / (f_px * span_m)
+    return 0.87 * distance_m**2 * sigma_px / (f_px * span_m)
 
 
 def marker_span_m(marker: dict) -> float:
@@ -280,6 +298,7 @@ def near_module_size_m(sub: Any, camera: dict) -> float | None:
         return float(size) / int(n) if n else None
     if marker.get("dictionary"):
         import cv2
+
         try:
             d = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, marker["dictionary"]))
         except (AttributeError, cv2.error):

@@ -55,12 +55,12 @@ brightness, separate the array from lookalikes.) Chosen over RANSAC because N is
 any PnP), where RANSAC's minimal samples would still need the same colour/order
 bookkeeping.
 """
-from __future__ import annotations
 
-from typing import Any
+from __future__ import annotations
 
 import itertools
 import math
+from typing import Any
 
 import cv2
 import numpy as np
@@ -120,14 +120,31 @@ class LedLocalizer:
     name = "led"
     outputs = ("distance", "T_cam_dock", "marker_id")
 
-    def __init__(self, marker_id: str | None = None, threshold: float = 200.0,
-                 rel_threshold: float = 0.6, min_threshold: float = 40.0,
-                 min_area_px: int = 1, max_area_frac: float = 0.05, min_circularity: float = 0.4,
-                 ref_hue: float | None = None, max_candidates: int | None = None, max_blobs: int = 2000,
-                 max_reproj_px: float = 3.0, min_saturation: float = 0.2, max_hue_err_deg: float = 60.0,
-                 centroid: str = "core", max_view_deg: float = 70.0, ladder: tuple = (0.8, 0.97),
-                 prior: bool = True, prior_gate_px: float = 8.0, measure_factor: int = 3,
-                 accept_px: float = 0.5, min_size_frac: float = 0.4, max_solves: int = 35):
+    def __init__(
+        self,
+        marker_id: str | None = None,
+        threshold: float = 200.0,
+        rel_threshold: float = 0.6,
+        min_threshold: float = 40.0,
+        min_area_px: int = 1,
+        max_area_frac: float = 0.05,
+        min_circularity: float = 0.4,
+        ref_hue: float | None = None,
+        max_candidates: int | None = None,
+        max_blobs: int = 2000,
+        max_reproj_px: float = 3.0,
+        min_saturation: float = 0.2,
+        max_hue_err_deg: float = 60.0,
+        centroid: str = "core",
+        max_view_deg: float = 70.0,
+        ladder: tuple = (0.8, 0.97),
+        prior: bool = True,
+        prior_gate_px: float = 8.0,
+        measure_factor: int = 3,
+        accept_px: float = 0.5,
+        min_size_frac: float = 0.4,
+        max_solves: int = 35,
+    ):
         """threshold: brightness (max channel, 0-255) that LED cores exceed; lowered to
         rel_threshold * image max (not below min_threshold) for dim images.
         min_area_px / max_area_frac: blob area limits (px / fraction of the image).
@@ -135,7 +152,8 @@ class LedLocalizer:
         ref_hue: reference LED hue in degrees (None: from the marker's colours).
         max_candidates: most LED-like coloured blobs considered (None: N + 3); max_blobs:
         give up above this many blobs (the sunlit demo pool holds 200-370 at 0.6 x max; blob
-        statistics are vectorised, so only the measured candidates cost). max_reproj_px: RMS reprojection error (px) above
+        statistics are vectorised, so only the measured candidates cost). max_reproj_px: RMS reprojection error (px)
+        above
         which a blob set is rejected. min_saturation: chroma / brightness of a blob's
         background-subtracted colour (0 grey, ~0.9 the LEDs' own colours) it needs to
         count as a coloured LED, so white/grey highlights are not taken for LEDs (measured
@@ -171,8 +189,9 @@ class LedLocalizer:
         self.max_area_frac = float(max_area_frac)
         self.min_circularity = float(min_circularity)
         self.ref_hue = None if ref_hue is None or str(ref_hue) in ("None", "") else float(ref_hue)
-        self.max_candidates = (None if max_candidates is None or str(max_candidates) in ("None", "")
-                               else int(max_candidates))
+        self.max_candidates = (
+            None if max_candidates is None or str(max_candidates) in ("None", "") else int(max_candidates)
+        )
         self.max_blobs = int(max_blobs)
         self.max_reproj_px = float(max_reproj_px)
         self.min_saturation = float(min_saturation)
@@ -185,12 +204,12 @@ class LedLocalizer:
         self.cos_hue = math.cos(math.radians(float(max_hue_err_deg)))
         self.centroid = centroid
         self.cos_view = math.cos(math.radians(float(max_view_deg)))
-        if isinstance(ladder, str):          # from ``-p led.ladder=0.8,0.97``
+        if isinstance(ladder, str):  # from ``-p led.ladder=0.8,0.97``
             ladder = [x for x in ladder.replace("(", "").replace(")", "").split(",") if x.strip()]
         self.ladder = tuple(sorted(float(f) for f in ladder))
         if any(not 0.0 < f <= 1.0 for f in self.ladder):
             raise ValueError(f"ladder fractions must be in (0, 1], got {self.ladder}")
-        self._marker: Any = None            # the manifest's LED marker dict, set by reset()
+        self._marker: Any = None  # the manifest's LED marker dict, set by reset()
         self._prev_T = None
 
     def reset(self, camera: dict) -> None:
@@ -316,7 +335,7 @@ class LedLocalizer:
             if m is None or m.saturation < self.min_saturation:
                 continue
             if max(float(m.chroma @ self._u_ref), float(m.chroma @ self._u_other)) < self.cos_hue:
-                continue   # neither the reference LEDs' colour nor the others'
+                continue  # neither the reference LEDs' colour nor the others'
             yield m
 
     def _ranked(self, blobs: lb.Blobs, n_px: int) -> np.ndarray:
@@ -343,8 +362,9 @@ class LedLocalizer:
         if self._prev_T is None or len(uv) == 0:
             return np.zeros(len(uv), bool)
         T = self._prev_T
-        pred = cv2.projectPoints(self._kp.reshape(-1, 1, 3), cv2.Rodrigues(T[:3, :3])[0], T[:3, 3],
-                                 self._K, self._dist)[0].reshape(-1, 2)
+        pred = cv2.projectPoints(
+            self._kp.reshape(-1, 1, 3), cv2.Rodrigues(T[:3, :3])[0], T[:3, 3], self._K, self._dist
+        )[0].reshape(-1, 2)
         gaps = np.linalg.norm(pred[:, None] - pred[None], axis=2)[np.triu_indices(len(pred), 1)]
         gate = max(self.prior_gate_px, 0.25 * float(gaps.min()))
         d = np.linalg.norm(uv[:, None, :] - pred[None, :, :], axis=2).min(axis=1)
@@ -371,7 +391,7 @@ class LedLocalizer:
                 if best["reproj_err_px"] <= self.accept_px:
                     break
         self.last_solves = solves
-        if best_c is None or best_c == list(combos[0]):   # none, or the first set (refined)
+        if best_c is None or best_c == list(combos[0]):  # none, or the first set (refined)
             return best
         return self._solve(cents[best_c], chroma[best_c], refine=True)
 
@@ -420,8 +440,12 @@ class LedLocalizer:
 
 def _columns(meas: list) -> tuple:
     """Measured blobs -> (centroids (M,2) px, masses (M,), unit chroma (M,2), diameters (M,) px)."""
-    return (np.array([m.centre for m in meas]), np.array([m.mass for m in meas]),
-            np.array([m.chroma for m in meas]), np.array([m.diameter for m in meas]))
+    return (
+        np.array([m.centre for m in meas]),
+        np.array([m.mass for m in meas]),
+        np.array([m.chroma for m in meas]),
+        np.array([m.diameter for m in meas]),
+    )
 
 
 def _unit(h_deg: float) -> np.ndarray:

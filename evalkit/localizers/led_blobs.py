@@ -17,6 +17,7 @@ This module measures exactly those properties, and nothing else of the LED array
   veil brighter than the threshold adds nothing to the colour and a white core with
   every channel clipped (colour lost) is left out.
 """
+
 from __future__ import annotations
 
 import math
@@ -52,6 +53,7 @@ class Frame:
     rgb (H,W,3) uint8; v (H,W) uint8 brightness max(R,G,B); excess (H,W) uint8
     ``v - background`` (saturating); bg_rgb (h,w,3) uint8 the coarse per-channel background;
     cell (px) its cell size; sigma (DN) the noise standard deviation of ``v``."""
+
     rgb: np.ndarray
     v: np.ndarray
     excess: np.ndarray
@@ -96,7 +98,7 @@ def noise_sigma(v: np.ndarray) -> float:
         return MIN_SIGMA_DN
     hist = np.bincount(cv2.absdiff(a, b).ravel(), minlength=256)
     cum = np.cumsum(hist)
-    k = int(np.searchsorted(cum, 0.5 * a.size))   # the median's bin, interpolated within it
+    k = int(np.searchsorted(cum, 0.5 * a.size))  # the median's bin, interpolated within it
     below = float(cum[k - 1]) if k > 0 else 0.0
     med = max(0.0, k - 0.5 + (0.5 * a.size - below) / max(float(hist[k]), 1.0))
     return max(MIN_SIGMA_DN, med / (0.6745 * math.sqrt(2.0)))
@@ -123,6 +125,7 @@ class Blobs:
     (M+1, 5) OpenCV component stats; centres (M+1, 2) px (box coordinates); mass (M+1,)
     summed excess brightness (DN px); compact (M+1,) compactness in [0, 1] (1: a filled
     disc or square; :func:`compactness`)."""
+
     labels: np.ndarray
     stats: np.ndarray
     centres: np.ndarray
@@ -160,7 +163,8 @@ def components(fr: Frame, t: float, max_blobs: int) -> Blobs | None:
     x0, y0 = max(0, x - 2), max(0, y - 2)
     x1, y1 = min(fr.v.shape[1], x + bw + 2), min(fr.v.shape[0], y + bh + 2)
     n, labels, stats, cents = cv2.connectedComponentsWithStatsWithAlgorithm(
-        np.ascontiguousarray(mask[y0:y1, x0:x1]), 8, cv2.CV_32S, cv2.CCL_BBDT)
+        np.ascontiguousarray(mask[y0:y1, x0:x1]), 8, cv2.CV_32S, cv2.CCL_BBDT
+    )
     if n - 1 > max_blobs:
         return None
     fg = labels != 0
@@ -174,6 +178,7 @@ class BlobMeasure:
     """One blob measured: centre (u, v) px (image coordinates), mass (DN px), unit chroma
     direction (2,) in the opponent plane, saturation (chroma / brightness of its
     background-subtracted colour, 0 for grey), diameter (px) of the disc of its area."""
+
     centre: tuple[float, float]
     mass: float
     chroma: np.ndarray
@@ -184,12 +189,12 @@ class BlobMeasure:
 def box(st, shape, margin: int = 2) -> tuple[int, int, int, int]:
     """(xa, ya, xb, yb) of a component's stats row ``st`` grown by ``margin`` px, clipped."""
     x0, y0, bw, bh = (int(s) for s in st[:4])
-    return (max(0, x0 - margin), max(0, y0 - margin),
-            min(shape[1], x0 + bw + margin), min(shape[0], y0 + bh + margin))
+    return (max(0, x0 - margin), max(0, y0 - margin), min(shape[1], x0 + bw + margin), min(shape[0], y0 + bh + margin))
 
 
-def centroid(v_roi: np.ndarray, lab_roi: np.ndarray, lab: int, t_low: float, mode: str,
-             xa: int, ya: int) -> tuple[float, float] | None:
+def centroid(
+    v_roi: np.ndarray, lab_roi: np.ndarray, lab: int, t_low: float, mode: str, xa: int, ya: int
+) -> tuple[float, float] | None:
     """Centroid (u, v) px of blob ``lab`` in a box at (xa, ya): ``core`` weights the
     pixels above the middle of the blob's range ((t_low + peak) / 2) within the blob,
     ``weighted`` the brightness above ``t_low`` over the box (other blobs masked out)."""
@@ -204,7 +209,7 @@ def centroid(v_roi: np.ndarray, lab_roi: np.ndarray, lab: int, t_low: float, mod
     s = float(w.sum())
     if s <= 0:
         return None
-    yy, xx = np.mgrid[ya:ya + v_roi.shape[0], xa:xa + v_roi.shape[1]]
+    yy, xx = np.mgrid[ya : ya + v_roi.shape[0], xa : xa + v_roi.shape[1]]
     return float((w * xx).sum() / s), float((w * yy).sum() / s)
 
 
@@ -218,15 +223,15 @@ def colour(fr: Frame, lab_roi: np.ndarray, lab: int, xa: int, ya: int) -> tuple[
     background colour (the coarse per-channel background at the box centre) is
     subtracted from each, so the water's veil and light add nothing."""
     h, w = lab_roi.shape
-    rgb = fr.rgb[ya:ya + h, xa:xa + w]
+    rgb = fr.rgb[ya : ya + h, xa : xa + w]
     lo = cv2.min(cv2.min(rgb[:, :, 0], rgb[:, :, 1]), rgb[:, :, 2])
-    use = ((lab_roi == lab) | (lab_roi == 0)) & (fr.excess[ya:ya + h, xa:xa + w] > fr.floor) & (lo < CLIP_DN)
+    use = ((lab_roi == lab) | (lab_roi == 0)) & (fr.excess[ya : ya + h, xa : xa + w] > fr.floor) & (lo < CLIP_DN)
     if not use.any():
         return None
     px = rgb[use].astype(np.float32) - fr.bg_at(xa + 0.5 * w, ya + 0.5 * h)
     s = px.sum(axis=0)
     ab = np.array([s[0] - 0.5 * (s[1] + s[2]), SQ3_2 * (s[1] - s[2])])
-    bright = float(fr.excess[ya:ya + h, xa:xa + w][use].sum())
+    bright = float(fr.excess[ya : ya + h, xa : xa + w][use].sum())
     if bright <= 0:
         return None
     return ab, float(np.hypot(*ab)) / bright
@@ -237,7 +242,7 @@ def measure(fr: Frame, blobs: Blobs, lab: int, t: float, mode: str) -> BlobMeasu
     ox, oy = blobs.origin
     xa, ya, xb, yb = box(blobs.stats[lab], blobs.labels.shape)
     lab_roi = blobs.labels[ya:yb, xa:xb]
-    c = centroid(fr.v[oy + ya:oy + yb, ox + xa:ox + xb], lab_roi, lab, 0.5 * t, mode, xa, ya)
+    c = centroid(fr.v[oy + ya : oy + yb, ox + xa : ox + xb], lab_roi, lab, 0.5 * t, mode, xa, ya)
     col = colour(fr, lab_roi, lab, ox + xa, oy + ya)
     if c is None or col is None:
         return None

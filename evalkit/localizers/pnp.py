@@ -9,6 +9,7 @@ that put every target point in front of the camera and whose target normal (+z o
 target frame) faces the camera, pick the one with the lower reprojection error, and
 refine it with ``solvePnPRefineLM``.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -22,6 +23,7 @@ class PlanarPose:
     """A solved pose. ``T_cam_target`` (4,4) maps target-frame points (m) into the camera
     frame; ``reproj_err_px`` is the RMS reprojection error (px) over ``n_points`` points;
     ``alt_reproj_err_px`` the RMS error of the rejected IPPE solution (inf if none)."""
+
     T_cam_target: np.ndarray
     reproj_err_px: float
     n_points: int
@@ -68,9 +70,13 @@ def distance_to_dock_plane(T_cam_dock: np.ndarray) -> float:
 
 def reprojection_rms(obj_pts, img_pts, rvec, tvec, K, dist) -> float:
     """RMS distance (px) between img_pts (N,2) and obj_pts (N,3, target frame, m) projected."""
-    proj, _ = cv2.projectPoints(np.asarray(obj_pts, np.float64).reshape(-1, 1, 3),
-                                np.asarray(rvec, np.float64).reshape(3, 1),
-                                np.asarray(tvec, np.float64).reshape(3, 1), K, dist)
+    proj, _ = cv2.projectPoints(
+        np.asarray(obj_pts, np.float64).reshape(-1, 1, 3),
+        np.asarray(rvec, np.float64).reshape(3, 1),
+        np.asarray(tvec, np.float64).reshape(3, 1),
+        K,
+        dist,
+    )
     d = proj.reshape(-1, 2) - np.asarray(img_pts, np.float64).reshape(-1, 2)
     return float(np.sqrt(np.mean(np.sum(d * d, axis=1))))
 
@@ -96,8 +102,10 @@ def pose_is_plausible(T_cam_target: np.ndarray, obj_pts: np.ndarray, min_z_m: fl
 # G = diag(1,-1,-1) Rz(k 90deg) (keeps the plane z = 0 and maps the square's corners onto
 # themselves), k chosen from a homography estimate so that R_cam_target G ~ identity.
 _FLIP = np.diag([1.0, -1.0, -1.0])
-_G_CANDIDATES = [_FLIP @ np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]]).round(12)
-                 for a in (0.0, np.pi / 2, np.pi, 3 * np.pi / 2)]
+_G_CANDIDATES = [
+    _FLIP @ np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]]).round(12)
+    for a in (0.0, np.pi / 2, np.pi, 3 * np.pi / 2)
+]
 
 
 def _homography_rotation(obj: np.ndarray, img: np.ndarray, K, dist) -> np.ndarray | None:
@@ -134,8 +142,7 @@ def _T_of(rv, tv, G: np.ndarray) -> np.ndarray:
     return T
 
 
-def solve_planar(obj_pts, img_pts, K, dist=None, square: bool = False,
-                 refine: bool = True) -> PlanarPose | None:
+def solve_planar(obj_pts, img_pts, K, dist=None, square: bool = False, refine: bool = True) -> PlanarPose | None:
     """Pose of a planar target from N >= 4 correspondences.
 
     obj_pts: (N,3) target-frame points in metres, all with z = 0 (for ``square=True``
@@ -215,5 +222,10 @@ def estimate_dict(T_cam_dock: np.ndarray, marker_id: str, pose: PlanarPose) -> d
     d = distance_to_dock_plane(T)
     if not (np.all(np.isfinite(T)) and np.isfinite(d) and d > 0.0):
         return None
-    return {"distance": d, "T_cam_dock": T, "marker_id": str(marker_id),
-            "n_points": int(pose.n_points), "reproj_err_px": float(pose.reproj_err_px)}
+    return {
+        "distance": d,
+        "T_cam_dock": T,
+        "marker_id": str(marker_id),
+        "n_points": int(pose.n_points),
+        "reproj_err_px": float(pose.reproj_err_px),
+    }

@@ -26,6 +26,7 @@ off). Sub-pixel refinement (``refine=``) before PnP:
 * ``subpix``: cornerSubPix on the 4 corners; ``none``: the detector's corners.
 Whatever fails falls back to IPPE_SQUARE on the detector's 4 corners.
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -34,8 +35,14 @@ import cv2
 import numpy as np
 
 from evalkit.localizers.pnp import estimate_dict, invert_T, solve_planar
-from evalkit.localizers.square import (SUBPIX_CRITERIA, SquareMarkerLocalizer, _as_bool, linear_gray,
-                                       refine_corners, square_pose_estimate)
+from evalkit.localizers.square import (
+    SUBPIX_CRITERIA,
+    SquareMarkerLocalizer,
+    _as_bool,
+    linear_gray,
+    refine_corners,
+    square_pose_estimate,
+)
 
 DETECTORS = ("zxing", "aruco", "classic")
 REFINES = ("ecc", "finders", "subpix", "none")
@@ -46,6 +53,7 @@ def qr_modules(payload: str) -> int | None:
     smallest version), or None if segno is unavailable."""
     try:
         import segno
+
         return 17 + 4 * int(segno.make_qr(payload, error="m", boost_error=False).version)
     except Exception:  # noqa: BLE001 - segno missing or payload not encodable
         return None
@@ -61,12 +69,12 @@ def finder_module_corners(n: int) -> np.ndarray:
 def module_to_marker(pts_mod: np.ndarray, n: int, size_m: float) -> np.ndarray:
     """Module coordinates (N,2) -> marker-frame points (N,3), metres (y up, z = 0)."""
     s = size_m / n
-    return np.column_stack([-size_m / 2 + pts_mod[:, 0] * s, size_m / 2 - pts_mod[:, 1] * s,
-                            np.zeros(len(pts_mod))])
+    return np.column_stack([-size_m / 2 + pts_mod[:, 0] * s, size_m / 2 - pts_mod[:, 1] * s, np.zeros(len(pts_mod))])
 
 
-def refine_finder_corners(gray: np.ndarray, quad: np.ndarray, n: int,
-                          min_module_px: float = 2.0) -> tuple[np.ndarray, np.ndarray] | None:
+def refine_finder_corners(
+    gray: np.ndarray, quad: np.ndarray, n: int, min_module_px: float = 2.0
+) -> tuple[np.ndarray, np.ndarray] | None:
     """Sub-pixel finder-pattern corners predicted from the detected quad (4,2) px in
     ``gray`` (H,W): uint8 sRGB codes (decoded to linear intensity in the code's window
     here, so that corners are unbiased, see square.linear_gray) or float linear intensity.
@@ -119,9 +127,17 @@ class QrLocalizer(SquareMarkerLocalizer):
     # module) on a 2x bicubic resampling; done in the ROI only (full frame: 4x the cost).
     roi_upscale = 2.0
 
-    def __init__(self, marker_id: str | None = None, detector: str = "zxing",
-                 allow_undecoded: bool = False, refine: str = "ecc", modules: int | None = None,
-                 roi: bool = True, binarizer: str = "LocalAverage", min_ecc: float = 0.6):
+    def __init__(
+        self,
+        marker_id: str | None = None,
+        detector: str = "zxing",
+        allow_undecoded: bool = False,
+        refine: str = "ecc",
+        modules: int | None = None,
+        roi: bool = True,
+        binarizer: str = "LocalAverage",
+        min_ecc: float = 0.6,
+    ):
         """marker_id: manifest id (None: first qr marker). detector: "zxing" (zxing-cpp),
         "aruco" (cv2.QRCodeDetectorAruco) or "classic" (cv2.QRCodeDetector).
         allow_undecoded: accept a located code whose payload did not decode (zxing: one
@@ -143,8 +159,8 @@ class QrLocalizer(SquareMarkerLocalizer):
         self.modules = None if modules is None or str(modules) in ("None", "") else int(modules)
         self.binarizer = str(binarizer)
         self.min_ecc = float(min_ecc)
-        self._read: Any = None              # gray image -> [(text, quad)], built by setup()
-        self._n: int | None = None          # modules per side
+        self._read: Any = None  # gray image -> [(text, quad)], built by setup()
+        self._n: int | None = None  # modules per side
         self._cells: np.ndarray | None = None
 
     def setup(self, marker: dict) -> dict | None:
@@ -163,8 +179,7 @@ class QrLocalizer(SquareMarkerLocalizer):
     def detect(self, gray: np.ndarray) -> list[np.ndarray]:
         """Quads (4,2) TL, TR, BR, BL of codes whose payload is the marker's."""
         want = self._marker.get("payload")
-        return [quad for text, quad in self._read(gray)
-                if text == want or (self.allow_undecoded and text is None)]
+        return [quad for text, quad in self._read(gray) if text == want or (self.allow_undecoded and text is None)]
 
     def quad_pose(self, gray: np.ndarray, quad: np.ndarray) -> dict | None:
         """Finder-corner PnP when possible, else IPPE_SQUARE on the 4 corners."""
@@ -193,8 +208,8 @@ def code_cells(payload: str, error_correction: str = "M") -> np.ndarray | None:
     (segno, smallest version at the level, no boost), or None if it cannot be made."""
     try:
         import segno
-        return np.array(segno.make_qr(payload, error=error_correction.lower(), boost_error=False).matrix,
-                        np.uint8)
+
+        return np.array(segno.make_qr(payload, error=error_correction.lower(), boost_error=False).matrix, np.uint8)
     except Exception:  # noqa: BLE001 - segno missing or payload not encodable
         return None
 
@@ -213,8 +228,7 @@ _ECC_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 15, 1e-2)
 _TEMPLATE_QUIET = 2  # modules of white drawn around the template
 
 
-def ecc_align_quad(gray: np.ndarray, quad: np.ndarray, cells: np.ndarray, min_ecc: float = 0.6,
-                   coarse: int = 0):
+def ecc_align_quad(gray: np.ndarray, quad: np.ndarray, cells: np.ndarray, min_ecc: float = 0.6, coarse: int = 0):
     """Code corners (4,2) TL, TR, BR, BL px aligned by cv2.findTransformECC (homography)
     of the code template ``cells`` (n,n; 1 dark) to ``gray`` (H,W uint8 sRGB), started
     from the detected ``quad`` (4,2); None if it fails, correlates below ``min_ecc`` or
@@ -258,23 +272,34 @@ def zxing_reader(binarizer: str = "LocalAverage", with_errors: bool = False):
     in-plane rotation; the dock's codes are dark on light). zxing-cpp reports corners on
     the pixel-edge grid (pixel i spans [i, i+1)): -0.5 moves them to pixel centres."""
     import zxingcpp
+
     try:
         binz = getattr(zxingcpp.Binarizer, binarizer)
     except AttributeError:
-        raise ValueError(f"unknown zxing-cpp binarizer {binarizer!r} "
-                         "(LocalAverage, GlobalHistogram, FixedThreshold)") from None
+        raise ValueError(
+            f"unknown zxing-cpp binarizer {binarizer!r} (LocalAverage, GlobalHistogram, FixedThreshold)"
+        ) from None
     fmt = zxingcpp.BarcodeFormat.QRCode
 
     def read(gray: np.ndarray):
         out = []
-        for b in zxingcpp.read_barcodes(gray, formats=fmt,  # type: ignore[arg-type]  # stub wants BarcodeFormats
-                                        try_rotate=False, try_downscale=False,
-                                        try_invert=False, binarizer=binz, return_errors=with_errors):
+        for b in zxingcpp.read_barcodes(
+            gray,
+            formats=fmt,  # type: ignore[arg-type]  # stub wants BarcodeFormats
+            try_rotate=False,
+            try_downscale=False,
+            try_invert=False,
+            binarizer=binz,
+            return_errors=with_errors,
+        ):
             p = b.position
-            quad = np.array([[c.x, c.y] for c in (p.top_left, p.top_right, p.bottom_right, p.bottom_left)],
-                            np.float64) - 0.5
+            quad = (
+                np.array([[c.x, c.y] for c in (p.top_left, p.top_right, p.bottom_right, p.bottom_left)], np.float64)
+                - 0.5
+            )
             out.append((b.text if b.valid else None, quad))
         return out
+
     return read
 
 
@@ -291,8 +316,9 @@ class QrTrackLocalizer(QrLocalizer):
 
     name = "qr_track"
 
-    def __init__(self, marker_id: str | None = None, min_ecc: float = 0.8, roi: bool = True,
-                 binarizer: str = "LocalAverage"):
+    def __init__(
+        self, marker_id: str | None = None, min_ecc: float = 0.8, roi: bool = True, binarizer: str = "LocalAverage"
+    ):
         """Pose of a QR whose payload was decoded earlier in the same sequence, from codes
         that zxing-cpp locates (its three finder patterns) but can no longer decode.
 
@@ -307,8 +333,15 @@ class QrTrackLocalizer(QrLocalizer):
         Estimates of tracked frames carry ``"tracked": True``. Reported as its own
         localizer (never mixed into ``qr``); off unless asked for (``-l qr_track``).
         roi, binarizer: as for ``qr``."""
-        super().__init__(marker_id, detector="zxing", allow_undecoded=True, refine="ecc", roi=roi,
-                         binarizer=binarizer, min_ecc=min_ecc)
+        super().__init__(
+            marker_id,
+            detector="zxing",
+            allow_undecoded=True,
+            refine="ecc",
+            roi=roi,
+            binarizer=binarizer,
+            min_ecc=min_ecc,
+        )
         self._seen = False
         self._tracking = False
         self._locator = cv2.QRCodeDetector()

@@ -5,6 +5,7 @@ in the marker's own frame (-s/2, s/2, 0), (s/2, s/2, 0), (s/2, -s/2, 0), (-s/2, 
 (FORMAT.md), which is OpenCV's ``SOLVEPNP_IPPE_SQUARE`` order. The pose is solved in
 the marker frame and moved to the dock: ``T_cam_dock = T_cam_marker @ inv(T_dock_marker)``.
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -51,8 +52,9 @@ def to_gray(image: np.ndarray) -> np.ndarray | None:
 
 
 # 8-bit sRGB code -> linear intensity (IEC 61966-2-1), for corner refinement.
-_SRGB_TO_LINEAR = np.array([c / 12.92 if c <= 0.04045 else ((c + 0.055) / 1.055) ** 2.4
-                            for c in np.arange(256) / 255.0], np.float32)
+_SRGB_TO_LINEAR = np.array(
+    [c / 12.92 if c <= 0.04045 else ((c + 0.055) / 1.055) ** 2.4 for c in np.arange(256) / 255.0], np.float32
+)
 
 
 def linear_gray(gray: np.ndarray) -> np.ndarray:
@@ -121,12 +123,12 @@ class SquareMarkerLocalizer:
     """Square-marker localizer base: marker pick, grey image, ``detect`` hook, best pose."""
 
     name = ""
-    kinds: tuple[str, ...] = ()          # manifest marker kinds it reads, preferred first
+    kinds: tuple[str, ...] = ()  # manifest marker kinds it reads, preferred first
     outputs = FULL_POSE_WITH_ID
-    roi_margin = 1.0                      # ROI = previous quad's box grown by this x its size
-    roi_upscale = 1.0                     # ROI resampled by this factor (bicubic) before detect
-    roi_keep_frames = 5                   # frames without a detection before the ROI is dropped
-    min_image_px = 8                      # smaller images give None without detection
+    roi_margin = 1.0  # ROI = previous quad's box grown by this x its size
+    roi_upscale = 1.0  # ROI resampled by this factor (bicubic) before detect
+    roi_keep_frames = 5  # frames without a detection before the ROI is dropped
+    min_image_px = 8  # smaller images give None without detection
 
     def __init__(self, marker_id: str | None = None, roi: bool = True):
         """marker_id: manifest id of the marker (None: first marker of the first kind in
@@ -136,8 +138,8 @@ class SquareMarkerLocalizer:
         the whole frame if that finds nothing."""
         self.marker_id = marker_id
         self.roi = _as_bool(roi)
-        self._marker: Any = None            # the manifest's marker dict, set by reset()
-        self._K: Any = None                 # 3x3 intrinsics and distortion, set by reset()
+        self._marker: Any = None  # the manifest's marker dict, set by reset()
+        self._K: Any = None  # 3x3 intrinsics and distortion, set by reset()
         self._dist: Any = None
         self._last_quad: np.ndarray | None = None
         self._misses = 0

@@ -31,6 +31,7 @@ Rules
   means over *detected* frames (as in the article), not over successes only,
   so a threshold never truncates the error a localizer is charged with.
 """
+
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
@@ -46,9 +47,20 @@ EST_POSE = "T_cam_dock_est"
 TRUE_POSE = "T_cam_dock"
 POSE_ERROR_COLUMNS = ["e_trans", "e_rot_deg", "e_range", "e_lateral"]
 SCORE_COLUMNS = ["e_abs", "e_rel", *POSE_ERROR_COLUMNS, "fp", "success"]
-TRIAL_COLUMNS = TRIAL_KEYS + ["trial", "n_total", "n_detect", "n_succ", "P_detect", "P_succ",
-                              "e_abs_mean", "e_rel_mean", "e_trans_mean", "e_rot_deg_mean",
-                              "e_range_abs_mean", "e_lateral_mean"]
+TRIAL_COLUMNS = TRIAL_KEYS + [
+    "trial",
+    "n_total",
+    "n_detect",
+    "n_succ",
+    "P_detect",
+    "P_succ",
+    "e_abs_mean",
+    "e_rel_mean",
+    "e_trans_mean",
+    "e_rot_deg_mean",
+    "e_range_abs_mean",
+    "e_lateral_mean",
+]
 
 
 @dataclass(frozen=True)
@@ -147,8 +159,7 @@ def pose_errors(df: pd.DataFrame) -> pd.DataFrame:
     if EST_POSE not in df.columns or TRUE_POSE not in df.columns or df.empty:
         return out
     est, true = as_matrices(df[EST_POSE]), as_matrices(df[TRUE_POSE])
-    ok = detected_mask(df).to_numpy() & np.isfinite(est).all(axis=(1, 2)) \
-        & np.isfinite(true).all(axis=(1, 2))
+    ok = detected_mask(df).to_numpy() & np.isfinite(est).all(axis=(1, 2)) & np.isfinite(true).all(axis=(1, 2))
     if not ok.any():
         return out
     e, t = est[ok], true[ok]
@@ -180,14 +191,22 @@ def false_positive_mask(df: pd.DataFrame) -> pd.Series:
     wrong = pd.Series(False, index=df.index)
     if "marker_id" in df.columns and "markers_in_fov" in df.columns:
         visible = df["markers_in_fov"].fillna("").astype(str)
-        wrong = pd.Series([m is not None and not (isinstance(m, float) and np.isnan(m)) and str(m) != ""
-                           and str(m) not in v.split(",") for m, v in zip(df["marker_id"], visible)],
-                          index=df.index)
+        wrong = pd.Series(
+            [
+                m is not None
+                and not (isinstance(m, float) and np.isnan(m))
+                and str(m) != ""
+                and str(m) not in v.split(",")
+                for m, v in zip(df["marker_id"], visible)
+            ],
+            index=df.index,
+        )
     return det & (no_view | wrong)
 
 
-def score_frames(df: pd.DataFrame, criteria: SuccessCriteria | None = None,
-                 d_min_rel: float = D_MIN_REL_M) -> pd.DataFrame:
+def score_frames(
+    df: pd.DataFrame, criteria: SuccessCriteria | None = None, d_min_rel: float = D_MIN_REL_M
+) -> pd.DataFrame:
     """Per-frame :data:`SCORE_COLUMNS`: errors, ``fp`` and the thresholded ``success`` (bool).
 
     See :class:`SuccessCriteria` for when a frame succeeds. Same index as ``df``.
@@ -231,22 +250,33 @@ def per_trial(df: pd.DataFrame, d_max: float = D_MAX_M) -> pd.DataFrame:
         x[c] = df[c]
     x["e_range_abs"] = df["e_range"].abs()
     x = x[counted_mask(df["d_true"], d_max)]
-    stats = x.groupby(TRIAL_KEYS, dropna=False, sort=False).agg(
-        n_total=("_det", "size"), n_detect=("_det", "sum"), n_succ=("_succ", "sum"),
-        e_abs_mean=("e_abs", "mean"), e_rel_mean=("e_rel", "mean"), e_trans_mean=("e_trans", "mean"),
-        e_rot_deg_mean=("e_rot_deg", "mean"), e_range_abs_mean=("e_range_abs", "mean"),
-        e_lateral_mean=("e_lateral", "mean")).reset_index()
+    stats = (
+        x.groupby(TRIAL_KEYS, dropna=False, sort=False)
+        .agg(
+            n_total=("_det", "size"),
+            n_detect=("_det", "sum"),
+            n_succ=("_succ", "sum"),
+            e_abs_mean=("e_abs", "mean"),
+            e_rel_mean=("e_rel", "mean"),
+            e_trans_mean=("e_trans", "mean"),
+            e_rot_deg_mean=("e_rot_deg", "mean"),
+            e_range_abs_mean=("e_range_abs", "mean"),
+            e_lateral_mean=("e_lateral", "mean"),
+        )
+        .reset_index()
+    )
     out = keys.merge(stats, on=TRIAL_KEYS, how="left")
     for c in ("n_total", "n_detect", "n_succ"):
         out[c] = out[c].fillna(0).astype("int64")
     total = out["n_total"].where(out["n_total"] > 0)
     out["P_detect"], out["P_succ"] = out["n_detect"] / total, out["n_succ"] / total
     out = out.sort_values(TRIAL_KEYS, kind="stable").reset_index(drop=True)
-    return out[TRIAL_COLUMNS].astype({c: float for c in TRIAL_COLUMNS[TRIAL_COLUMNS.index("P_detect"):]})
+    return out[TRIAL_COLUMNS].astype({c: float for c in TRIAL_COLUMNS[TRIAL_COLUMNS.index("P_detect") :]})
 
 
-def summarize(df: pd.DataFrame, d_max: float = D_MAX_M, d_min_rel: float = D_MIN_REL_M,
-              criteria: SuccessCriteria | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
+def summarize(
+    df: pd.DataFrame, d_max: float = D_MAX_M, d_min_rel: float = D_MIN_REL_M, criteria: SuccessCriteria | None = None
+) -> tuple[pd.DataFrame, pd.DataFrame]:
     """``(trials, conditions)`` of a runner table: per trial, and the means over each
     (localizer, trajectory, condition)'s trials (``n_trials, P_succ_mean, P_detect_mean,
     E_rel_mean``; ``E_rel_mean`` skips trials with no ``e_rel``). No CIs (see
@@ -256,7 +286,14 @@ def summarize(df: pd.DataFrame, d_max: float = D_MAX_M, d_min_rel: float = D_MIN
     scored = pd.concat([scored, score_frames(df, criteria, d_min_rel)], axis=1)
     trials = per_trial(scored, d_max)
     valid = trials[trials["n_total"] > 0]
-    conds = valid.groupby(GROUP, dropna=False, sort=True).agg(
-        n_trials=("sequence", "size"), P_succ_mean=("P_succ", "mean"),
-        P_detect_mean=("P_detect", "mean"), E_rel_mean=("e_rel_mean", "mean")).reset_index()
+    conds = (
+        valid.groupby(GROUP, dropna=False, sort=True)
+        .agg(
+            n_trials=("sequence", "size"),
+            P_succ_mean=("P_succ", "mean"),
+            P_detect_mean=("P_detect", "mean"),
+            E_rel_mean=("e_rel_mean", "mean"),
+        )
+        .reset_index()
+    )
     return trials, conds

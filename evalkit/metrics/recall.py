@@ -22,6 +22,7 @@ target without a detected pose is a miss. Marker symmetries are not modelled: th
 coded markers (ArUco, QR, LED layouts with a reference LED) have none. A localizer
 that never returns a pose has no AR_dock (NaN), not 0.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -69,8 +70,24 @@ def _box(x0: float, y0: float, x1: float, y1: float, z0: float, z1: float) -> np
     return np.vstack([np.c_[face, np.full(4, z1)], np.c_[face, np.full(4, z0)]])
 
 
-BOX_FACES = _outward(np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7], [0, 4, 5], [0, 5, 1],
-                               [1, 5, 6], [1, 6, 2], [2, 6, 7], [2, 7, 3], [3, 7, 4], [3, 4, 0]]))
+BOX_FACES = _outward(
+    np.array(
+        [
+            [0, 1, 2],
+            [0, 2, 3],
+            [4, 5, 6],
+            [4, 6, 7],
+            [0, 4, 5],
+            [0, 5, 1],
+            [1, 5, 6],
+            [1, 6, 2],
+            [2, 6, 7],
+            [2, 7, 3],
+            [3, 7, 4],
+            [3, 4, 0],
+        ]
+    )
+)
 
 
 def is_led_array(marker: dict) -> bool:
@@ -113,7 +130,7 @@ class DockModel:
     width: int
 
     @classmethod
-    def from_markers(cls, markers: list[dict], K, width: int) -> "DockModel | None":
+    def from_markers(cls, markers: list[dict], K, width: int) -> DockModel | None:
         """The model of a dataset's markers; None if there are none."""
         parts = []
         for m in markers:
@@ -150,8 +167,7 @@ def mssd_mspd(df: pd.DataFrame, model: DockModel) -> pd.DataFrame:
     if core.EST_POSE not in df.columns or core.TRUE_POSE not in df.columns or df.empty:
         return out
     est, true = core.as_matrices(df[core.EST_POSE]), core.as_matrices(df[core.TRUE_POSE])
-    ok = core.detected_mask(df).to_numpy() & np.isfinite(est).all(axis=(1, 2)) \
-        & np.isfinite(true).all(axis=(1, 2))
+    ok = core.detected_mask(df).to_numpy() & np.isfinite(est).all(axis=(1, 2)) & np.isfinite(true).all(axis=(1, 2))
     if not ok.any():
         return out
     p = model.points
@@ -179,8 +195,7 @@ def recall_table(frames: pd.DataFrame, model: DockModel | None, d_max: float = c
     ``frames`` needs ``mssd_m``/``mspd_px`` (:func:`mssd_mspd`). NaN ARs when there is
     no model or the localizer returned no pose in the group."""
     group = core.GROUP
-    targets = frames[core.counted_mask(frames["d_true"], d_max)
-                     & frames["in_view"].fillna(False).astype(bool)]
+    targets = frames[core.counted_mask(frames["d_true"], d_max) & frames["in_view"].fillna(False).astype(bool)]
     rows = []
     for key, g in frames.groupby(group, sort=True, dropna=False):
         t = targets[(targets[group] == pd.Series(key, index=group)).all(axis=1)]

@@ -4,9 +4,10 @@ Units: metres, seconds. ``T_cam_dock`` is stored flattened row-major (16 floats)
 so the table writes to parquet/CSV as is; :func:`as_matrices` turns such a
 column back into an ``(N, 4, 4)`` array (NaN where missing).
 """
+
 from __future__ import annotations
 
-from typing import Iterable
+from collections.abc import Iterable
 
 import numpy as np
 import pandas as pd
@@ -14,8 +15,7 @@ import pandas as pd
 from evalkit.dataset import Dataset
 from evalkit.metrics.core import as_matrices  # noqa: F401  (re-exported)
 
-BASE_COLUMNS = ["sequence", "condition", "trial", "index", "t", "d_true", "T_cam_dock",
-                "in_view", "markers_in_fov"]
+BASE_COLUMNS = ["sequence", "condition", "trial", "index", "t", "d_true", "T_cam_dock", "in_view", "markers_in_fov"]
 
 
 def in_fov_column(marker_id: str) -> str:
@@ -57,9 +57,15 @@ def frame_truth_table(dataset: Dataset, sequences: Iterable[str] | None = None) 
         for frame in dataset.iter_frames(seq["id"]):
             markers = frame.get("markers") or {}
             ids = list(dict.fromkeys(marker_ids + [str(k) for k in markers]))
-            row = {"sequence": seq["id"], "condition": seq.get("condition", ""),
-                   "trial": seq.get("trial"), "index": frame.get("index"), "t": frame.get("t"),
-                   "d_true": frame.get("d_true"), "T_cam_dock": _flat_pose(frame.get("T_cam_dock"))}
+            row = {
+                "sequence": seq["id"],
+                "condition": seq.get("condition", ""),
+                "trial": seq.get("trial"),
+                "index": frame.get("index"),
+                "t": frame.get("t"),
+                "d_true": frame.get("d_true"),
+                "T_cam_dock": _flat_pose(frame.get("T_cam_dock")),
+            }
             in_fov = []
             for mid in ids:
                 m = markers.get(mid) or {}

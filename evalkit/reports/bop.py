@@ -54,9 +54,8 @@ has distortion). With ``depth_scale`` 1.0 (default) a PNG unit is 1 mm, so depth
 beyond 65.535 m become 0 (no data); 0.1 gives 0.1 mm units but only 6.5 m. Image ids
 are the frame indices.
 """
-from __future__ import annotations
 
-from typing import Any
+from __future__ import annotations
 
 import json
 import os
@@ -76,8 +75,8 @@ from evalkit.reports.bop_raster import OPENCV_SAMPLE_OFFSET, TOOLKIT_SAMPLE_OFFS
 from evalkit.reports.bop_register import registration_script
 from evalkit.runner import progress_bar
 
-MIN_TARGET_VISIB = 0.1          # BOP19 targets: visib_fract >= 0.1 (BOP Challenge 2019 rules)
-VISIB_DELTA_MM = 15.0           # the visibility test's tolerance, calc_gt_info.py's delta (BOP toolkit)
+MIN_TARGET_VISIB = 0.1  # BOP19 targets: visib_fract >= 0.1 (BOP Challenge 2019 rules)
+VISIB_DELTA_MM = 15.0  # the visibility test's tolerance, calc_gt_info.py's delta (BOP toolkit)
 PIXEL_CONVENTIONS = {"opencv": OPENCV_SAMPLE_OFFSET, "toolkit": TOOLKIT_SAMPLE_OFFSET}
 BOP_DATASET_NAME = "dockbench"  # the name results files and the toolkit's registration use (docs/bop.md)
 
@@ -95,6 +94,7 @@ def ray_norms(K: np.ndarray, width: int, height: int, dist: np.ndarray | None = 
     u, v = np.meshgrid(np.arange(width, dtype=float), np.arange(height, dtype=float))
     if dist is not None and np.any(np.asarray(dist, dtype=float) != 0):
         import cv2
+
         pts = np.stack([u.ravel(), v.ravel()], axis=1).reshape(-1, 1, 2)
         xy = cv2.undistortPoints(pts, np.asarray(K, float), np.asarray(dist, float)).reshape(height, width, 2)
         x, y = xy[..., 0], xy[..., 1]
@@ -116,8 +116,6 @@ def range_to_depth_png(range_m: np.ndarray, norms: np.ndarray, depth_scale: floa
     too_far = valid & (units > 65535)
     img = np.where(valid & ~too_far, units, 0).astype(np.uint16)
     return img, int(too_far.sum())
-
-
 
 
 def _link_or_copy(src: Path, dst: Path, copy: bool) -> None:
@@ -145,17 +143,17 @@ class _Export:
     copy_images: bool
     depth_scale: float
     masks: bool
-    obj_ids: dict = field(default_factory=dict)        # marker id -> obj_id
-    models: dict = field(default_factory=dict)         # obj_id -> ObjectModel
-    meshes: dict = field(default_factory=dict)         # obj_id -> (vertices mm, faces) about the origin
-    index_values: dict = field(default_factory=dict)   # marker id -> object-index value
+    obj_ids: dict = field(default_factory=dict)  # marker id -> obj_id
+    models: dict = field(default_factory=dict)  # obj_id -> ObjectModel
+    meshes: dict = field(default_factory=dict)  # obj_id -> (vertices mm, faces) about the origin
+    index_values: dict = field(default_factory=dict)  # marker id -> object-index value
     norms: np.ndarray | None = None
-    undistort_maps: tuple | None = None                  # (map_x, map_y) when undistorting
+    undistort_maps: tuple | None = None  # (map_x, map_y) when undistorting
     clipped: int = 0
     visib_sources: dict = field(default_factory=lambda: {"depth_test": 0, "object_index": 0, "copied": 0})
     targets: list = field(default_factory=list)
-    sample_offset: float = OPENCV_SAMPLE_OFFSET          # the silhouettes' pixel convention
-    tick: object = None                                  # progress: tick(n) per n images written
+    sample_offset: float = OPENCV_SAMPLE_OFFSET  # the silhouettes' pixel convention
+    tick: object = None  # progress: tick(n) per n images written
 
     @property
     def K(self) -> np.ndarray:
@@ -171,9 +169,15 @@ class _Export:
         if self.undistort_maps is None:
             return img
         import cv2
+
         interpolation = cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR
-        return cv2.remap(img, *self.undistort_maps, interpolation,  # type: ignore[call-overload]  # OpenCV's stubs
-                         borderMode=cv2.BORDER_CONSTANT, borderValue=border)
+        return cv2.remap(
+            img,
+            *self.undistort_maps,
+            interpolation,  # type: ignore[call-overload]  # OpenCV's stubs
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=border,
+        )
 
 
 def has_distortion(dataset: Dataset) -> bool:
@@ -184,10 +188,12 @@ def has_distortion(dataset: Dataset) -> bool:
 
 def _undistort_maps(dataset: Dataset) -> tuple:
     import cv2
+
     cam = dataset.camera
     K = np.asarray(cam["K"], float)
-    return cv2.initUndistortRectifyMap(K, np.asarray(cam["dist"], float), None, K,
-                                       (int(cam["width"]), int(cam["height"])), cv2.CV_32FC1)
+    return cv2.initUndistortRectifyMap(
+        K, np.asarray(cam["dist"], float), None, K, (int(cam["width"]), int(cam["height"])), cv2.CV_32FC1
+    )
 
 
 def _index_values(dataset: Dataset) -> dict[str, int]:
@@ -217,9 +223,12 @@ def _write_models(ex: _Export) -> None:
         write_ply(ex.out / "models" / f"obj_{oid:06d}.ply", v, n, f)
         write_ply(ex.out / "models_eval" / f"obj_{oid:06d}.ply", *model.mesh(EVAL_STEP_MM))
         infos[str(oid)] = model.info()
-        objects[str(oid)] = {"marker_id": str(m["id"]), "kind": m.get("kind"),
-                             "keypoints_mm": (marker_points(m) * 1000.0 - model.centre_mm).tolist(),
-                             "model_origin_in_marker_mm": model.centre_mm.tolist()}
+        objects[str(oid)] = {
+            "marker_id": str(m["id"]),
+            "kind": m.get("kind"),
+            "keypoints_mm": (marker_points(m) * 1000.0 - model.centre_mm).tolist(),
+            "model_origin_in_marker_mm": model.centre_mm.tolist(),
+        }
     for sub in ("models", "models_eval"):
         _json(ex.out / sub / "models_info.json", infos)
     _json(ex.out / "dockbench_objects.json", objects)
@@ -228,9 +237,10 @@ def _write_models(ex: _Export) -> None:
 def _frame_depth(ex: _Export, frame: dict, path: Path):
     """Write the frame's depth PNG; return it (uint16) or None without a depth file."""
     import cv2
+
     if not frame.get("depth"):
         return None
-    rng = load_range(ex.ds.frame_file(frame, "depth"))      # 1.1 mm PNG or 1.0 float NPZ
+    rng = load_range(ex.ds.frame_file(frame, "depth"))  # 1.1 mm PNG or 1.0 float NPZ
     rng = ex.remap(np.asarray(rng, np.float32), nearest=True, border=float("inf"))
     if ex.norms is None:
         cam = ex.ds.camera
@@ -243,6 +253,7 @@ def _frame_depth(ex: _Export, frame: dict, path: Path):
 
 def _frame_rgb(ex: _Export, frame: dict, dst: Path) -> None:
     import cv2
+
     if ex.undistort_maps is None:
         _link_or_copy(ex.ds.image_path(frame), dst, ex.copy_images)
     else:
@@ -276,13 +287,21 @@ def _object_info(ex: _Export, marker: dict, R, t_mm, view: ImageView, frame: dic
         return gt_info(*ex.meshes[oid], R, t_mm, view, VISIB_DELTA_MM, ex.index_values.get(mid), ex.sample_offset)
     ex.visib_sources["copied"] += 1
     fm = (frame.get("markers") or {}).get(mid) or {}
-    return {"visib_fract": float(fm.get("visible_fraction") or 0.0), "bbox_obj": [-1, -1, -1, -1],
-            "bbox_visib": [-1, -1, -1, -1]}, None, None
+    return (
+        {
+            "visib_fract": float(fm.get("visible_fraction") or 0.0),
+            "bbox_obj": [-1, -1, -1, -1],
+            "bbox_visib": [-1, -1, -1, -1],
+        },
+        None,
+        None,
+    )
 
 
 def _export_frame(ex: _Export, sdir: Path, scene_id: int, frame: dict, coco: SceneCoco) -> tuple[dict, list, list]:
     """Write one image's files; return its ``(scene_camera, scene_gt, scene_gt_info)`` entries."""
     import cv2
+
     im = int(frame["index"])
     _frame_rgb(ex, frame, sdir / "rgb" / f"{im:06d}.png")
     depth = _frame_depth(ex, frame, sdir / "depth" / f"{im:06d}.png")
@@ -295,8 +314,7 @@ def _export_frame(ex: _Export, sdir: Path, scene_id: int, frame: dict, coco: Sce
     for m in ex.ds.markers:
         oid = ex.obj_ids[str(m["id"])]
         R, t_mm = ex.models[oid].pose_m2c(_marker_pose(frame, m))
-        gts.append({"obj_id": oid, "cam_R_m2c": [float(v) for v in R.ravel()],
-                    "cam_t_m2c": [float(v) for v in t_mm]})
+        gts.append({"obj_id": oid, "cam_R_m2c": [float(v) for v in R.ravel()], "cam_t_m2c": [float(v) for v in t_mm]})
         info, mask, visib = _object_info(ex, m, R, t_mm, view, frame)
         if ex.masks and mask is not None:
             name = f"{im:06d}_{len(infos):06d}.png"
@@ -332,10 +350,18 @@ def _export_scene(ex: _Export, scene_id: int, seq: dict) -> int:
     return len(scene_camera)
 
 
-def export_bop(dataset: Dataset | str | Path, out_dir: str | Path, split: str = "test",
-               copy_images: bool = True, depth_scale: float = 1.0, masks: bool = True,
-               sequences: list[str] | None = None, undistort: bool = False, pixels: str = "opencv",
-               progress: bool = False) -> dict:
+def export_bop(
+    dataset: Dataset | str | Path,
+    out_dir: str | Path,
+    split: str = "test",
+    copy_images: bool = True,
+    depth_scale: float = 1.0,
+    masks: bool = True,
+    sequences: list[str] | None = None,
+    undistort: bool = False,
+    pixels: str = "opencv",
+    progress: bool = False,
+) -> dict:
     """Write ``dataset`` as a BOP dataset into ``out_dir`` (see the module docstring); images are
     copied unless ``copy_images=False`` (relative symlinks). ``pixels``: the silhouettes' pixel
     convention, ``"opencv"`` (the renderer's, default) or ``"toolkit"`` (the BOP toolkit's OpenGL
@@ -351,38 +377,85 @@ def export_bop(dataset: Dataset | str | Path, out_dir: str | Path, split: str = 
         raise ValueError(f"pixels must be one of {sorted(PIXEL_CONVENTIONS)}, got {pixels!r}")
     distorted = has_distortion(ds)
     if distorted and not undistort:
-        raise DatasetError(f"{ds.root}: the camera has lens distortion {ds.camera['dist'].tolist()} but BOP "
-                           "cameras are pinhole (cam_K only); export with --undistort (undistort=True) to "
-                           "remap images, depth and masks to the pinhole camera of the same K")
-    ex = _Export(ds, Path(out_dir), split, copy_images, depth_scale, masks, index_values=_index_values(ds),
-                 undistort_maps=_undistort_maps(ds) if distorted else None, sample_offset=PIXEL_CONVENTIONS[pixels])
+        raise DatasetError(
+            f"{ds.root}: the camera has lens distortion {ds.camera['dist'].tolist()} but BOP "
+            "cameras are pinhole (cam_K only); export with --undistort (undistort=True) to "
+            "remap images, depth and masks to the pinhole camera of the same K"
+        )
+    ex = _Export(
+        ds,
+        Path(out_dir),
+        split,
+        copy_images,
+        depth_scale,
+        masks,
+        index_values=_index_values(ds),
+        undistort_maps=_undistort_maps(ds) if distorted else None,
+        sample_offset=PIXEL_CONVENTIONS[pixels],
+    )
     ex.out.mkdir(parents=True, exist_ok=True)
     cam = ds.camera
-    _json(ex.out / "camera.json", {"cx": float(ex.K[0, 2]), "cy": float(ex.K[1, 2]), "fx": float(ex.K[0, 0]),
-                                   "fy": float(ex.K[1, 1]), "width": cam["width"], "height": cam["height"],
-                                   "depth_scale": depth_scale})
+    _json(
+        ex.out / "camera.json",
+        {
+            "cx": float(ex.K[0, 2]),
+            "cy": float(ex.K[1, 2]),
+            "fx": float(ex.K[0, 0]),
+            "fy": float(ex.K[1, 1]),
+            "width": cam["width"],
+            "height": cam["height"],
+            "depth_scale": depth_scale,
+        },
+    )
     _write_models(ex)
     scenes, n_images = {}, 0
     chosen = [(i, q) for i, q in enumerate(ds.sequences) if sequences is None or q["id"] in sequences]
     with progress_bar(sum(int(q.get("n_frames") or 0) for _, q in chosen), progress, "export-bop: images") as tick:
         ex.tick = tick
         for scene_id, seq in chosen:
-            scenes[f"{scene_id:06d}"] = {"sequence": seq["id"], "condition": seq.get("condition"),
-                                         "trajectory": seq.get("trajectory"), "trial": seq.get("trial")}
+            scenes[f"{scene_id:06d}"] = {
+                "sequence": seq["id"],
+                "condition": seq.get("condition"),
+                "trajectory": seq.get("trajectory"),
+                "trial": seq.get("trial"),
+            }
             n_images += _export_scene(ex, scene_id, seq)
     _json(ex.out / "test_targets_bop19.json", ex.targets)
     m = ds.manifest
-    _json(ex.out / "dockbench_scenes.json", {
-        "dataset": {"name": m.get("name"), "version": m.get("version"), "content_hash": m.get("content_hash")},
-        "bop_name": BOP_DATASET_NAME, "split": split, "depth_scale": depth_scale, "scenes": scenes,
-        "width": int(cam["width"]), "height": int(cam["height"]),
-        "undistorted_from": ds.camera["dist"].tolist() if distorted else None,
-        "visib_fract": {"from_depth_test": ex.visib_sources["depth_test"],
-                        "from_object_index": ex.visib_sources["object_index"],
-                        "copied_from_dataset": ex.visib_sources["copied"], "delta_mm": VISIB_DELTA_MM,
-                        "pixel_convention": pixels}})
-    (ex.out / "register_bop_toolkit.py").write_text(registration_script(
-        BOP_DATASET_NAME, sorted(ex.obj_ids.values()), [int(k) for k in scenes], cam["width"], cam["height"],
-        VISIB_DELTA_MM))
-    return {"scenes": len(scenes), "images": n_images, "objects": len(ds.markers),
-            "depth_clipped_px": ex.clipped, "undistorted": distorted}
+    _json(
+        ex.out / "dockbench_scenes.json",
+        {
+            "dataset": {"name": m.get("name"), "version": m.get("version"), "content_hash": m.get("content_hash")},
+            "bop_name": BOP_DATASET_NAME,
+            "split": split,
+            "depth_scale": depth_scale,
+            "scenes": scenes,
+            "width": int(cam["width"]),
+            "height": int(cam["height"]),
+            "undistorted_from": ds.camera["dist"].tolist() if distorted else None,
+            "visib_fract": {
+                "from_depth_test": ex.visib_sources["depth_test"],
+                "from_object_index": ex.visib_sources["object_index"],
+                "copied_from_dataset": ex.visib_sources["copied"],
+                "delta_mm": VISIB_DELTA_MM,
+                "pixel_convention": pixels,
+            },
+        },
+    )
+    (ex.out / "register_bop_toolkit.py").write_text(
+        registration_script(
+            BOP_DATASET_NAME,
+            sorted(ex.obj_ids.values()),
+            [int(k) for k in scenes],
+            cam["width"],
+            cam["height"],
+            VISIB_DELTA_MM,
+        )
+    )
+    return {
+        "scenes": len(scenes),
+        "images": n_images,
+        "objects": len(ds.markers),
+        "depth_clipped_px": ex.clipped,
+        "undistorted": distorted,
+    }

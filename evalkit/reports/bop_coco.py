@@ -7,11 +7,12 @@ background run, ``size = [H, W]``), ``bbox`` the amodal box of ``mask`` inside t
 (``[x, y, w, h]`` with ``w = x_max - x_min + 1``), ``area`` the visible pixel count and
 ``ignore`` when ``visib_fract < 0.1``. Category ids are the BOP obj_ids.
 """
+
 from __future__ import annotations
 
 import numpy as np
 
-IGNORE_BELOW_VISIB = 0.1     # calc_gt_coco.py: annotations of objects < 10 % visible are "ignore"
+IGNORE_BELOW_VISIB = 0.1  # calc_gt_coco.py: annotations of objects < 10 % visible are "ignore"
 
 
 def rle(mask: np.ndarray) -> dict:
@@ -34,19 +35,38 @@ class SceneCoco:
     """Collects one scene's COCO images and annotations."""
 
     def __init__(self, obj_ids: list[int], dataset_name: str, split: str):
-        self.doc = {"info": {"description": f"{dataset_name}_{split}"}, "licenses": [],
-                    "categories": [{"id": i, "name": str(i), "supercategory": dataset_name} for i in obj_ids],
-                    "images": [], "annotations": []}
+        self.doc = {
+            "info": {"description": f"{dataset_name}_{split}"},
+            "licenses": [],
+            "categories": [{"id": i, "name": str(i), "supercategory": dataset_name} for i in obj_ids],
+            "images": [],
+            "annotations": [],
+        }
 
-    def add_image(self, im_id: int, rgb_rel: str, width: int, height: int,
-                  objects: list[tuple[int, float, np.ndarray, np.ndarray]]) -> None:
+    def add_image(
+        self,
+        im_id: int,
+        rgb_rel: str,
+        width: int,
+        height: int,
+        objects: list[tuple[int, float, np.ndarray, np.ndarray]],
+    ) -> None:
         """One target image; ``objects``: ``(obj_id, visib_fract, mask, mask_visib)`` per GT instance."""
         self.doc["images"].append({"id": im_id, "file_name": rgb_rel, "width": width, "height": height})
         for obj_id, visib_fract, mask, visib in objects:
             if not visib.any() or not mask.any():
                 continue
-            self.doc["annotations"].append({
-                "id": len(self.doc["annotations"]) + 1, "image_id": im_id, "category_id": int(obj_id),
-                "iscrowd": 0, "area": int(visib.sum()), "bbox": amodal_box(mask), "segmentation": rle(visib),
-                "width": int(mask.shape[1]), "height": int(mask.shape[0]),
-                "ignore": bool(visib_fract < IGNORE_BELOW_VISIB)})
+            self.doc["annotations"].append(
+                {
+                    "id": len(self.doc["annotations"]) + 1,
+                    "image_id": im_id,
+                    "category_id": int(obj_id),
+                    "iscrowd": 0,
+                    "area": int(visib.sum()),
+                    "bbox": amodal_box(mask),
+                    "segmentation": rle(visib),
+                    "width": int(mask.shape[1]),
+                    "height": int(mask.shape[0]),
+                    "ignore": bool(visib_fract < IGNORE_BELOW_VISIB),
+                }
+            )

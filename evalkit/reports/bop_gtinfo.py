@@ -8,6 +8,7 @@ pixel is visible when ``dist_model - dist_test <= delta`` or the test depth is m
 y_max - y]`` (the toolkit's ``calc_2d_bbox``); both are ``[-1, -1, -1, -1]`` when no pixel is
 visible.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -39,17 +40,33 @@ class ImageView:
     index: np.ndarray | None = None
 
     @classmethod
-    def from_depth_png(cls, K, width: int, height: int, depth_png: np.ndarray | None, depth_scale: float,
-                       index: np.ndarray | None = None) -> ImageView:
+    def from_depth_png(
+        cls,
+        K,
+        width: int,
+        height: int,
+        depth_png: np.ndarray | None,
+        depth_scale: float,
+        index: np.ndarray | None = None,
+    ) -> ImageView:
         """The view of an exported uint16 depth image (``z_mm = value * depth_scale``)."""
-        dist = None if depth_png is None else depth_to_dist(depth_png.astype(np.float64) * depth_scale,
-                                                            np.asarray(K, float))
+        dist = (
+            None
+            if depth_png is None
+            else depth_to_dist(depth_png.astype(np.float64) * depth_scale, np.asarray(K, float))
+        )
         return cls(np.asarray(K, float), int(width), int(height), dist, index)
 
 
-def render_model_dist(vertices_mm: np.ndarray, faces: np.ndarray, R: np.ndarray, t_mm: np.ndarray,
-                      view: ImageView, enlarged: bool = True,
-                      sample_offset: float = OPENCV_SAMPLE_OFFSET) -> tuple[np.ndarray, Window]:
+def render_model_dist(
+    vertices_mm: np.ndarray,
+    faces: np.ndarray,
+    R: np.ndarray,
+    t_mm: np.ndarray,
+    view: ImageView,
+    enlarged: bool = True,
+    sample_offset: float = OPENCV_SAMPLE_OFFSET,
+) -> tuple[np.ndarray, Window]:
     """Distance image (mm, 0 = no surface) of the posed model over the pixels it covers, on the
     enlarged canvas (or the image), and the window those pixels are (``sample_offset``: see
     :func:`evalkit.reports.bop_raster.render_depth`; distances use the pixel's own ray)."""
@@ -66,7 +83,7 @@ def crop_to_image(patch: np.ndarray, win: Window, width: int, height: int) -> np
     out = np.zeros((height, width), patch.dtype)
     x0, y0, x1, y1 = max(win.x0, 0), max(win.y0, 0), min(win.x1, width), min(win.y1, height)
     if x1 > x0 and y1 > y0:
-        out[y0:y1, x0:x1] = patch[y0 - win.y0:y1 - win.y0, x0 - win.x0:x1 - win.x0]
+        out[y0:y1, x0:x1] = patch[y0 - win.y0 : y1 - win.y0, x0 - win.x0 : x1 - win.x0]
     return out
 
 
@@ -82,9 +99,16 @@ def calc_2d_bbox(xs: np.ndarray, ys: np.ndarray) -> list[int]:
     return [int(xs.min()), int(ys.min()), int(xs.max() - xs.min()), int(ys.max() - ys.min())]
 
 
-def gt_info(vertices_mm: np.ndarray, faces: np.ndarray, R: np.ndarray, t_mm: np.ndarray, view: ImageView,
-            delta_mm: float, index_value: int | None = None,
-            sample_offset: float = OPENCV_SAMPLE_OFFSET) -> tuple[dict, np.ndarray, np.ndarray]:
+def gt_info(
+    vertices_mm: np.ndarray,
+    faces: np.ndarray,
+    R: np.ndarray,
+    t_mm: np.ndarray,
+    view: ImageView,
+    delta_mm: float,
+    index_value: int | None = None,
+    sample_offset: float = OPENCV_SAMPLE_OFFSET,
+) -> tuple[dict, np.ndarray, np.ndarray]:
     """``(scene_gt_info entry, mask, mask_visib)`` of one posed model; masks are ``(H, W)`` bool.
 
     Visibility from ``view.dist_mm`` (the depth test); without it from ``view.index ==
@@ -102,8 +126,14 @@ def gt_info(vertices_mm: np.ndarray, faces: np.ndarray, R: np.ndarray, t_mm: np.
     else:
         raise ValueError("no depth and no object index to test visibility with")
     n_all, n_visib = int((patch > 0).sum()), int(visib.sum())
-    info = {"px_count_all": n_all, "px_count_valid": n_valid, "px_count_visib": n_visib,
-            "visib_fract": n_visib / n_all if n_all else 0.0, "bbox_obj": NO_BOX, "bbox_visib": NO_BOX}
+    info = {
+        "px_count_all": n_all,
+        "px_count_valid": n_valid,
+        "px_count_visib": n_visib,
+        "visib_fract": n_visib / n_all if n_all else 0.0,
+        "bbox_obj": NO_BOX,
+        "bbox_visib": NO_BOX,
+    }
     if n_visib:
         ys, xs = np.nonzero(patch > 0)
         info["bbox_obj"] = calc_2d_bbox(xs + win.x0, ys + win.y0)

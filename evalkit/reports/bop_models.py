@@ -15,6 +15,7 @@ at most :data:`EVAL_STEP_MM` spacing. A rigid motion's largest displacement over
 is reached at a corner, so MSSD is the same on either mesh; the grid samples the surface as
 the toolkit's resampled models do.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -58,9 +59,9 @@ class ObjectModel:
             for quad in _BOX_QUADS:
                 v, f = _grid(box[quad], step_mm)
                 n = np.cross(box[quad[1]] - box[quad[0]], box[quad[3]] - box[quad[0]])
-                n = n / np.linalg.norm(n)                                  # the grid's triangles turn this way
+                n = n / np.linalg.norm(n)  # the grid's triangles turn this way
                 if n @ (box[quad].mean(axis=0) - middle) < 0:
-                    n, f = -n, f[:, ::-1]                                  # outward, counter-clockwise
+                    n, f = -n, f[:, ::-1]  # outward, counter-clockwise
                 faces.append(f + sum(len(x) for x in verts))
                 verts.append(v)
                 norms.append(np.tile(n, (len(v), 1)))
@@ -71,8 +72,15 @@ class ObjectModel:
         v = (self.boxes - self.centre_mm).reshape(-1, 3)
         lo, hi = v.min(axis=0), v.max(axis=0)
         diam = float(np.max(np.linalg.norm(v[:, None] - v[None], axis=2)))
-        return {"diameter": diam, "min_x": float(lo[0]), "min_y": float(lo[1]), "min_z": float(lo[2]),
-                "size_x": float(hi[0] - lo[0]), "size_y": float(hi[1] - lo[1]), "size_z": float(hi[2] - lo[2])}
+        return {
+            "diameter": diam,
+            "min_x": float(lo[0]),
+            "min_y": float(lo[1]),
+            "min_z": float(lo[2]),
+            "size_x": float(hi[0] - lo[0]),
+            "size_y": float(hi[1] - lo[1]),
+            "size_z": float(hi[2] - lo[2]),
+        }
 
 
 def _grid(quad: np.ndarray, step_mm: float | None) -> tuple[np.ndarray, np.ndarray]:
@@ -89,10 +97,22 @@ def _grid(quad: np.ndarray, step_mm: float | None) -> tuple[np.ndarray, np.ndarr
 
 def write_ply(path: Path, vertices_mm: np.ndarray, normals: np.ndarray, faces: np.ndarray) -> None:
     """ASCII PLY of a triangle mesh with vertex normals (mm)."""
-    head = ["ply", "format ascii 1.0", f"element vertex {len(vertices_mm)}", "property float x",
-            "property float y", "property float z", "property float nx", "property float ny", "property float nz",
-            f"element face {len(faces)}", "property list uchar int vertex_indices", "end_header"]
-    rows = [" ".join(f"{c:.6f}" for c in p) + " " + " ".join(f"{c:.6f}" for c in n)
-            for p, n in zip(vertices_mm, normals)]
+    head = [
+        "ply",
+        "format ascii 1.0",
+        f"element vertex {len(vertices_mm)}",
+        "property float x",
+        "property float y",
+        "property float z",
+        "property float nx",
+        "property float ny",
+        "property float nz",
+        f"element face {len(faces)}",
+        "property list uchar int vertex_indices",
+        "end_header",
+    ]
+    rows = [
+        " ".join(f"{c:.6f}" for c in p) + " " + " ".join(f"{c:.6f}" for c in n) for p, n in zip(vertices_mm, normals)
+    ]
     rows += ["3 " + " ".join(str(int(i)) for i in f) for f in faces]
     path.write_text("\n".join(head + rows) + "\n")

@@ -8,6 +8,7 @@ inserting entries at anchors of the toolkit's source (checked with thodan/bop_to
 June 2026); it stops with a message when an anchor is missing (another toolkit version) and
 does nothing twice. See docs/bop.md.
 """
+
 from __future__ import annotations
 
 TEMPLATE = '''"""Register this dockbench BOP export as dataset {name!r} in a BOP toolkit clone.
@@ -56,9 +57,14 @@ if __name__ == "__main__":
 '''
 
 
-def registration_script(name: str, obj_ids: list[int], scene_ids: list[int], width: int, height: int,
-                        delta_mm: float) -> str:
+def registration_script(
+    name: str, obj_ids: list[int], scene_ids: list[int], width: int, height: int, delta_mm: float
+) -> str:
     """The text of ``register_bop_toolkit.py`` for one export."""
-    return TEMPLATE.format(name=name, obj_ids=list(obj_ids), scene_ids=list(scene_ids),
-                           im_size=(int(width), int(height)),
-                           delta=int(delta_mm) if float(delta_mm).is_integer() else float(delta_mm))
+    return TEMPLATE.format(
+        name=name,
+        obj_ids=list(obj_ids),
+        scene_ids=list(scene_ids),
+        im_size=(int(width), int(height)),
+        delta=int(delta_mm) if float(delta_mm).is_integer() else float(delta_mm),
+    )

@@ -13,6 +13,7 @@ A localizer answers with the dock's pose ``T_cam_dock``; every marker's estimate
 frame with a pose gives one row per object. Frames without a pose give none (a missed target).
 dockbench localizers report no confidence: ``score`` is 1.
 """
+
 from __future__ import annotations
 
 import json
@@ -51,8 +52,10 @@ def _rows(frames: pd.DataFrame, scene_of: dict, models: dict) -> list[str]:
         t_s = ms[i] / 1000.0 if np.isfinite(ms[i]) else -1.0
         for oid, (model, T_dock_marker) in sorted(models.items()):
             R, t = model.pose_m2c(est[i] @ T_dock_marker)
-            rows.append(f"{scene},{int(frames['index'].iloc[i])},{oid},1,{' '.join(f'{v:.9g}' for v in R.ravel())},"
-                        f"{' '.join(f'{v:.6f}' for v in t)},{t_s:.6f}")
+            rows.append(
+                f"{scene},{int(frames['index'].iloc[i])},{oid},1,{' '.join(f'{v:.9g}' for v in R.ravel())},"
+                f"{' '.join(f'{v:.6f}' for v in t)},{t_s:.6f}"
+            )
     return rows
 
 
@@ -63,9 +66,13 @@ def write_results(estimates: pd.DataFrame, markers: list[dict], export_dir: Path
     scene_of = {s["sequence"]: int(k) for k, s in info["scenes"].items()}
     objects = json.loads((Path(export_dir) / "dockbench_objects.json").read_text())
     by_marker = {str(m["id"]): m for m in markers}
-    models = {int(oid): (ObjectModel.from_marker(by_marker[o["marker_id"]]),
-                         np.asarray(by_marker[o["marker_id"]].get("T_dock_marker", np.eye(4)), float))
-              for oid, o in objects.items()}
+    models = {
+        int(oid): (
+            ObjectModel.from_marker(by_marker[o["marker_id"]]),
+            np.asarray(by_marker[o["marker_id"]].get("T_dock_marker", np.eye(4)), float),
+        )
+        for oid, o in objects.items()
+    }
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     written = {}
@@ -82,14 +89,19 @@ def pooled_dock_ar(estimates: pd.DataFrame, markers: list[dict], camera: dict) -
     """dockbench's ``AR_dock`` per localizer pooled over all counted in-view frames of the run
     (``evaluate``'s tables give it per trajectory), for a side-by-side with the BOP19 AR."""
     from evalkit.metrics import recall
+
     model = recall.DockModel.from_markers(markers, camera["K"], int(camera["width"]))
     out = {}
     if model is None:
         return out
     for name, frames in estimates.groupby("localizer", sort=True):
         e = recall.mssd_mspd(frames, model)
-        t = (core.counted_mask(frames["d_true"], core.D_MAX_M) & frames["in_view"].fillna(False).astype(bool)).to_numpy()
+        t = (
+            core.counted_mask(frames["d_true"], core.D_MAX_M) & frames["in_view"].fillna(False).astype(bool)
+        ).to_numpy()
         if e["mssd_m"].notna().any():
-            out[str(name)] = (recall.average_recall(e["mssd_m"].to_numpy()[t], model.mssd_thresholds())
-                              + recall.average_recall(e["mspd_px"].to_numpy()[t], model.mspd_thresholds())) / 2
+            out[str(name)] = (
+                recall.average_recall(e["mssd_m"].to_numpy()[t], model.mssd_thresholds())
+                + recall.average_recall(e["mspd_px"].to_numpy()[t], model.mspd_thresholds())
+            ) / 2
     return out

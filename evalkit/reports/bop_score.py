@@ -9,7 +9,8 @@ re-derived here, the BOP toolkit's ``eval_bop19_pose.py`` computes the same):
 * **VSD** (delta 15 mm, step cost, taus 0.05..0.5 x the diameter): the model's depth is
   rendered in the GT and the estimated pose over the image (the toolkit renders ``models_eval``;
   its surface is that of ``models``, which renders the same depth from far fewer triangles), in
-  the toolkit's pixel convention (:data:`evalkit.reports.bop_raster.TOOLKIT_SAMPLE_OFFSET`); visible masks by the BOP19 depth
+  the toolkit's pixel convention (:data:`evalkit.reports.bop_raster.TOOLKIT_SAMPLE_OFFSET`); visible masks by the
+  BOP19 depth
   test against the test depth (the estimate's mask also takes the GT-visible pixels it
   covers); ``e = (#{inter: |d_gt - d_est| >= tau} + #(union - inter)) / #union`` (1 for an
   empty union);
@@ -22,6 +23,7 @@ re-derived here, the BOP toolkit's ``eval_bop19_pose.py`` computes the same):
 This is not dockbench's ``AR_dock`` (:mod:`evalkit.metrics.recall`: the whole dock as one object,
 MSSD and MSPD only, per trajectory).
 """
+
 from __future__ import annotations
 
 import json
@@ -38,11 +40,11 @@ from evalkit.reports.bop_gtinfo import (
 )
 from evalkit.reports.bop_raster import TOOLKIT_SAMPLE_OFFSET
 
-VSD_DELTA_MM = 15.0                                   # eval_bop19_pose.py: vsd_deltas (15 mm but ITODD)
-VSD_TAUS = np.arange(0.05, 0.51, 0.05)               # x diameter (eval_bop19_pose.py: vsd_taus)
-VSD_THS = np.arange(0.05, 0.51, 0.05)                # correct_th of vsd
-MSSD_THS = np.arange(0.05, 0.51, 0.05)               # x diameter
-MSPD_THS = np.arange(5, 51, 5)                       # px at 640 px image width
+VSD_DELTA_MM = 15.0  # eval_bop19_pose.py: vsd_deltas (15 mm but ITODD)
+VSD_TAUS = np.arange(0.05, 0.51, 0.05)  # x diameter (eval_bop19_pose.py: vsd_taus)
+VSD_THS = np.arange(0.05, 0.51, 0.05)  # correct_th of vsd
+MSSD_THS = np.arange(0.05, 0.51, 0.05)  # x diameter
+MSPD_THS = np.arange(5, 51, 5)  # px at 640 px image width
 
 
 def read_ply(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -50,8 +52,8 @@ def read_ply(path: Path) -> tuple[np.ndarray, np.ndarray]:
     lines = Path(path).read_text().splitlines()
     nv = int(next(x for x in lines if x.startswith("element vertex")).split()[-1])
     start = lines.index("end_header") + 1
-    v = np.array([[float(c) for c in x.split()[:3]] for x in lines[start:start + nv]])
-    f = np.array([[int(c) for c in x.split()[1:4]] for x in lines[start + nv:] if x.strip()])
+    v = np.array([[float(c) for c in x.split()[:3]] for x in lines[start : start + nv]])
+    f = np.array([[int(c) for c in x.split()[1:4]] for x in lines[start + nv :] if x.strip()])
     return v, f
 
 
@@ -63,15 +65,18 @@ def read_results(path: Path) -> dict[tuple[int, int, int], list[tuple[float, np.
             continue
         s, i, o, score, R, t, _ = line.split(",")
         out.setdefault((int(s), int(i), int(o)), []).append(
-            (float(score), np.array(R.split(), float).reshape(3, 3), np.array(t.split(), float)))
+            (float(score), np.array(R.split(), float).reshape(3, 3), np.array(t.split(), float))
+        )
     return out
 
 
 def vsd(mesh, R_est, t_est, R_gt, t_gt, view: ImageView, diameter: float) -> np.ndarray:
     """VSD errors for :data:`VSD_TAUS` (step cost, distances normalised by ``diameter``)."""
+
     def dist(R, t):
         patch, win = render_model_dist(*mesh, R, t, view, enlarged=False, sample_offset=TOOLKIT_SAMPLE_OFFSET)
         return crop_to_image(patch, win, view.width, view.height)
+
     d_gt, d_est = dist(R_gt, t_gt), dist(R_est, t_est)
     test = view.dist_mm if view.dist_mm is not None else np.zeros_like(d_gt)
     v_gt = visible_mask(test, d_gt, VSD_DELTA_MM)
@@ -100,8 +105,8 @@ class _Export:
     split: str
     width: int
     height: int
-    meshes: dict          # obj_id -> (vertices, faces) of models/ (the surface VSD renders)
-    points: dict          # obj_id -> vertices of models_eval/ (MSSD, MSPD)
+    meshes: dict  # obj_id -> (vertices, faces) of models/ (the surface VSD renders)
+    points: dict  # obj_id -> vertices of models_eval/ (MSSD, MSPD)
     diameters: dict
 
     @classmethod
@@ -112,8 +117,15 @@ class _Export:
         models = json.loads((root / "models_eval" / "models_info.json").read_text())
         meshes = {int(o): read_ply(root / "models" / f"obj_{int(o):06d}.ply") for o in models}
         points = {int(o): read_ply(root / "models_eval" / f"obj_{int(o):06d}.ply")[0] for o in models}
-        return cls(root, info["split"], int(cam["width"]), int(cam["height"]), meshes, points,
-                   {int(o): float(m["diameter"]) for o, m in models.items()})
+        return cls(
+            root,
+            info["split"],
+            int(cam["width"]),
+            int(cam["height"]),
+            meshes,
+            points,
+            {int(o): float(m["diameter"]) for o, m in models.items()},
+        )
 
     def scene(self, scene_id: int) -> tuple[dict, dict]:
         d = self.root / self.split / f"{scene_id:06d}"
@@ -121,6 +133,7 @@ class _Export:
 
     def view(self, scene_id: int, im_id: int, cam: dict) -> ImageView:
         import cv2
+
         p = self.root / self.split / f"{scene_id:06d}" / "depth" / f"{im_id:06d}.png"
         depth = cv2.imread(str(p), cv2.IMREAD_UNCHANGED) if p.is_file() else None
         K = np.array(cam["cam_K"], float).reshape(3, 3)
@@ -160,6 +173,7 @@ def bop19_scores(export_dir: Path, results_csv: Path, progress: bool = False) ->
     """``{AR_BOP19, AR_VSD, AR_MSSD, AR_MSPD, n_targets}`` of one results file (NaN ARs without targets);
     ``progress``: a progress bar over the targets on stderr."""
     from evalkit.runner import progress_bar
+
     n = len(json.loads((Path(export_dir) / "test_targets_bop19.json").read_text()))
     with progress_bar(n, progress, f"BOP19 scores of {Path(results_csv).name}: targets") as tick:
         rows = target_errors(export_dir, results_csv, tick)
@@ -174,5 +188,10 @@ def bop19_scores(export_dir: Path, results_csv: Path, progress: bool = False) ->
     ar_vsd = float(np.mean([(vsd_e[:, k] < th).mean() for k in range(len(VSD_TAUS)) for th in VSD_THS]))
     ar_mssd = float(np.mean([(mssd < th).mean() for th in MSSD_THS]))
     ar_mspd = float(np.mean([(mspd < th).mean() for th in MSPD_THS]))
-    return {"AR_BOP19": (ar_vsd + ar_mssd + ar_mspd) / 3.0, "AR_VSD": ar_vsd, "AR_MSSD": ar_mssd,
-            "AR_MSPD": ar_mspd, "n_targets": n}
+    return {
+        "AR_BOP19": (ar_vsd + ar_mssd + ar_mspd) / 3.0,
+        "AR_VSD": ar_vsd,
+        "AR_MSSD": ar_mssd,
+        "AR_MSPD": ar_mspd,
+        "n_targets": n,
+    }

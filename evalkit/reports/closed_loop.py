@@ -11,13 +11,14 @@ first and not ranked: it is what perfect localization would give, not a competit
 Runs are ranked together only when their experiment config hash, capture geometry and
 latency agree (different resolutions or latencies are different benchmarks).
 """
+
 from __future__ import annotations
 
 import json
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
 
 RESULTS_FILE = "closed_loop.json"
 FORMAT, FORMAT_VERSION = "dockbench-closed-loop", "1"
@@ -27,8 +28,12 @@ ROW_KEYS = ("localizer", "condition", "n_trials", "n_docked", "success_rate", "c
 CL_COLUMNS: list[tuple[str, str, str, str]] = [
     ("rank", "#", "int", "rank in this condition (the ground-truth baseline is not ranked)"),
     ("label", "localizer", "text", "localizer steering the vehicle (truth = ground-truth guidance)"),
-    ("success_rate", "docked %", "pct_ci", "trials docked (entry plane inside the capture radius, heading "
-                                           "and lateral speed within limits); Wilson 95% CI"),
+    (
+        "success_rate",
+        "docked %",
+        "pct_ci",
+        "trials docked (entry plane inside the capture radius, heading and lateral speed within limits); Wilson 95% CI",
+    ),
     ("n_docked", "docked", "int", "docked trials"),
     ("n_trials", "M", "int", "trials (seeded random starts)"),
     ("time_to_dock_median_s", "t dock s", "num", "median time to dock over docked trials (s)"),
@@ -37,8 +42,13 @@ CL_COLUMNS: list[tuple[str, str, str, str]] = [
     ("P_detect_mean", "P_detect %", "pct", "per-frame answers of the same run"),
     ("P_succ_mean", "P_succ %", "pct", "per-frame right answers of the same run"),
     ("outcomes", "outcomes", "text", "outcome counts"),
-    ("authority", "authority", "text", "can the thrusters hold the condition's mean current while docking at all "
-                                      "(`dockbench authority`); 'beyond': failures there are not the localizer's"),
+    (
+        "authority",
+        "authority",
+        "text",
+        "can the thrusters hold the condition's mean current while docking at all "
+        "(`dockbench authority`); 'beyond': failures there are not the localizer's",
+    ),
 ]
 
 
@@ -49,14 +59,22 @@ class ClosedLoopError(ValueError):
 @dataclass
 class ClosedLoopRun:
     """One ``closed_loop.json``: its directory and parsed document."""
+
     path: Path
     doc: dict
 
     @property
     def group_key(self) -> str:
         d = self.doc
-        return json.dumps([d["experiment"].get("config_hash"), d.get("capture"), d["camera"].get("latency_s"),
-                           d.get("compute_latency")], sort_keys=True)
+        return json.dumps(
+            [
+                d["experiment"].get("config_hash"),
+                d.get("capture"),
+                d["camera"].get("latency_s"),
+                d.get("compute_latency"),
+            ],
+            sort_keys=True,
+        )
 
 
 def is_closed_loop_dir(path: str | Path) -> bool:
@@ -75,6 +93,7 @@ def _check_row(f: Path, i: int, r) -> None:
     if not (isinstance(p, (int, float)) and abs(p - k / n) < 1e-9):
         raise ClosedLoopError(f"{f}: rows[{i}].success_rate must equal n_docked / n_trials = {k / n:.6g}")
     from evalkit.reports.numbers import NumberError, check_closed_loop_row
+
     try:
         check_closed_loop_row(f"{f}: rows[{i}]", r)
     except NumberError as exc:
@@ -89,15 +108,16 @@ def load_closed_loop(path: str | Path) -> ClosedLoopRun:
     except (OSError, ValueError, RecursionError) as exc:
         raise ClosedLoopError(f"{f}: cannot read: {type(exc).__name__}: {str(exc)[:120]}") from None
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
-        raise ClosedLoopError(f"{f}: \"format\" is not {FORMAT!r}")
+        raise ClosedLoopError(f'{f}: "format" is not {FORMAT!r}')
     if str(doc.get("format_version")) != FORMAT_VERSION:
-        raise ClosedLoopError(f"{f}: format_version {doc.get('format_version')!r}, this dockbench reads "
-                              f"{FORMAT_VERSION!r}")
+        raise ClosedLoopError(
+            f"{f}: format_version {doc.get('format_version')!r}, this dockbench reads {FORMAT_VERSION!r}"
+        )
     for key in ("experiment", "camera", "capture", "rows"):
         if key not in doc:
             raise ClosedLoopError(f"{f}: missing key {key!r}")
     if not isinstance(doc["rows"], list) or not doc["rows"]:
-        raise ClosedLoopError(f"{f}: \"rows\" must be a non-empty list")
+        raise ClosedLoopError(f'{f}: "rows" must be a non-empty list')
     for i, r in enumerate(doc["rows"]):
         _check_row(f, i, r)
     return ClosedLoopRun(Path(path), doc)
@@ -114,10 +134,16 @@ def _num(v, default: float) -> float:
 def rank_rows(rows: Sequence[dict]) -> list[dict]:
     """Rows of one condition: the baseline first (rank None), then the others ranked (module doc)."""
     base = [dict(r, rank=None) for r in rows if r.get("baseline")]
-    rest = sorted((r for r in rows if not r.get("baseline")),
-                  key=lambda r: (-_num(r["success_rate"], -1.0), -_num(r.get("ci_low"), -1.0),
-                                 _num(r.get("time_to_dock_median_s"), math.inf),
-                                 _num(r.get("final_lateral_abs_mean_m"), math.inf), str(r["label"])))
+    rest = sorted(
+        (r for r in rows if not r.get("baseline")),
+        key=lambda r: (
+            -_num(r["success_rate"], -1.0),
+            -_num(r.get("ci_low"), -1.0),
+            _num(r.get("time_to_dock_median_s"), math.inf),
+            _num(r.get("final_lateral_abs_mean_m"), math.inf),
+            str(r["label"]),
+        ),
+    )
     return base + [dict(r, rank=i) for i, r in enumerate(rest, start=1)]
 
 
@@ -141,5 +167,15 @@ def group_closed_loop(runs: Sequence[ClosedLoopRun]) -> list[list[ClosedLoopRun]
     return list(groups.values())
 
 
-__all__ = ["RESULTS_FILE", "FORMAT", "FORMAT_VERSION", "CL_COLUMNS", "ClosedLoopError", "ClosedLoopRun",
-           "is_closed_loop_dir", "load_closed_loop", "rank_rows", "group_closed_loop"]
+__all__ = [
+    "RESULTS_FILE",
+    "FORMAT",
+    "FORMAT_VERSION",
+    "CL_COLUMNS",
+    "ClosedLoopError",
+    "ClosedLoopRun",
+    "is_closed_loop_dir",
+    "load_closed_loop",
+    "rank_rows",
+    "group_closed_loop",
+]

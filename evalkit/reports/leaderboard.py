@@ -12,6 +12,7 @@ Rendered by jinja2 (autoescape on) from ``templates/leaderboard.html.j2``; inlin
 and a little inline JS (click a header to sort; ``#sort=<column>&dir=asc|desc`` sorts
 every table on load). Laid out to fit a 1280 px wide window.
 """
+
 from __future__ import annotations
 
 import datetime as _dt
@@ -20,9 +21,9 @@ import math
 import shutil
 import subprocess
 import tempfile
+from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Iterable, Sequence
-
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -39,8 +40,13 @@ COLUMNS: list[tuple[str, str, str, str]] = [
     ("P_succ_mean", "P_succ %", "pct_ci", "frames localized within the success thresholds"),
     ("P_detect_mean", "P_detect %", "pct", "frames with any answer (the article's success rate)"),
     ("E_rel_mean", "E_rel %", "pct_ci", "mean relative distance error over answered frames"),
-    ("AR_dock", "AR_dock", "num", "dockbench's dock-as-one-object recall: mean of MSSD and MSPD recalls (no VSD; "
-     "not the BOP19 AR, see export-bop --results)"),
+    (
+        "AR_dock",
+        "AR_dock",
+        "num",
+        "dockbench's dock-as-one-object recall: mean of MSSD and MSPD recalls (no VSD; "
+        "not the BOP19 AR, see export-bop --results)",
+    ),
     ("e_rot_deg_mean", "rot deg", "num", "mean rotation error (deg)"),
     ("n_fp", "FP", "int", "false positives: answers with no marker in view or a wrong id"),
     ("max_range_m", "range m", "num", "usable range: farthest 1 m bin with P_succ >= 90%"),
@@ -121,7 +127,7 @@ def short_name(spec: str, limit: int = 24) -> str:
         text = f"{Path(file_part).name}:{attr}"
     else:
         text = spec
-    return text if len(text) <= limit else text[:limit - 1] + "\u2026"
+    return text if len(text) <= limit else text[: limit - 1] + "\u2026"
 
 
 def _pct_text(v) -> str:
@@ -194,9 +200,8 @@ def _matrix(table: pd.DataFrame) -> dict:
             p = None if r is None else r["P_succ_mean"]
             star = "*" if r is not None and bool(r.get("few_trials")) else ""
             cells.append({"text": _pct_text(p) + star if r is not None else "", "shade": _shade(p)})
-        worst = g["P_succ_mean"].astype(float).min()   # never a mean: trajectories are not averaged
-        rows.append({"label": label, "full": g["full"].iloc[0], "cells": cells, "_m": worst,
-                     "worst": _pct_text(worst)})
+        worst = g["P_succ_mean"].astype(float).min()  # never a mean: trajectories are not averaged
+        rows.append({"label": label, "full": g["full"].iloc[0], "cells": cells, "_m": worst, "worst": _pct_text(worst)})
     rows.sort(key=lambda r: (-(r["_m"] if _finite(r["_m"]) else -1.0), r["label"]))
     for i, r in enumerate(rows, start=1):
         r["rank"] = i
@@ -207,7 +212,7 @@ def _bins(bins: pd.DataFrame | None) -> dict | None:
     """P_succ per range bin of one group: rows per label, columns per bin."""
     if bins is None or bins.empty:
         return None
-    used = bins[bins["n_total"] > 0]          # bins no frame of this group reaches are left out
+    used = bins[bins["n_total"] > 0]  # bins no frame of this group reaches are left out
     edges = sorted(set(zip(used["bin_lo"], used["bin_hi"])))
     if not edges:
         return None
@@ -219,10 +224,18 @@ def _bins(bins: pd.DataFrame | None) -> dict | None:
             r = by.get(e)
             n = int(r["n_total"]) if r is not None else 0
             p = r["P_succ"] if r is not None and n else None
-            cells.append({"text": f"{100 * float(p):.0f}" if p is not None and _finite(p) else "", "shade": _shade(p),
-                          "title": f"{n} frames", "n": n})
+            cells.append(
+                {
+                    "text": f"{100 * float(p):.0f}" if p is not None and _finite(p) else "",
+                    "shade": _shade(p),
+                    "title": f"{n} frames",
+                    "n": n,
+                }
+            )
         rows.append({"label": label, "cells": cells})
     return {"edges": [f"{lo:g}-{hi:g}" for lo, hi in edges], "rows": rows}
+
+
 def _criteria(run: Run) -> dict:
     """The success thresholds a run was scored with (``{}`` for runs that predate them)."""
     return (run.run.get("settings") or {}).get("success") or {}
@@ -231,6 +244,7 @@ def _criteria(run: Run) -> dict:
 def group_runs(runs: Sequence[Run]) -> list[list[Run]]:
     """Runs grouped by dataset ``content_hash`` and success thresholds (order of first appearance)."""
     from evalkit.reports.results import ResultsError
+
     groups: dict[tuple[str, str], list[Run]] = {}
     for r in runs:
         if not r.content_hash:
@@ -242,6 +256,7 @@ def group_runs(runs: Sequence[Run]) -> list[list[Run]]:
 def _labelled_bins(group: Sequence[Run], table: pd.DataFrame) -> pd.DataFrame | None:
     """bins.csv of every run with the board's labels."""
     import pandas as pd
+
     names = dict(zip(zip(table["run"], table["localizer"]), table["label"]))
     parts = []
     for r, run_label in zip(group, dict.fromkeys(table["run"])):
@@ -256,31 +271,55 @@ def _section(group: Sequence[Run], index: int) -> dict:
     """View model of one dataset (and thresholds) for the template."""
     from evalkit.metrics.extra import MIN_TRIALS_FOR_CI
     from evalkit.reports.results import compare_runs
+
     table = compare_runs(group)
     table["full"] = table["localizer"] + " (" + table["run"] + ")"
-    table["label"] = [short_name(loc) + (lbl[len(loc):] if lbl.startswith(loc) else "")
-                      for loc, lbl in zip(table["localizer"], table["label"])]
+    table["label"] = [
+        short_name(loc) + (lbl[len(loc) :] if lbl.startswith(loc) else "")
+        for loc, lbl in zip(table["localizer"], table["label"])
+    ]
     bins = _labelled_bins(group, table)
     groups = []
     for gi, ((traj, cond), g) in enumerate(table.groupby(["trajectory", "condition"], sort=True)):
         ranked = rank(g)
-        rows = [{"label": r["label"], "cells": [_cell({**r, "full": r["full"]}, k, kind) for k, _, kind, _ in COLUMNS]}
-                for r in ranked.to_dict("records")]
+        rows = [
+            {"label": r["label"], "cells": [_cell({**r, "full": r["full"]}, k, kind) for k, _, kind, _ in COLUMNS]}
+            for r in ranked.to_dict("records")
+        ]
         gb = None if bins is None else bins[(bins["trajectory"] == traj) & (bins["condition"] == cond)]
-        groups.append({"title": f"trajectory {traj or '-'} / condition {cond or '-'}", "id": f"t{index}-{gi}",
-                       "rows": rows, "bins": _bins(gb)})
+        groups.append(
+            {
+                "title": f"trajectory {traj or '-'} / condition {cond or '-'}",
+                "id": f"t{index}-{gi}",
+                "rows": rows,
+                "bins": _bins(gb),
+            }
+        )
     crit = _criteria(group[0])
     ds = group[0].dataset
-    return {"name": ds.get("name"), "version": ds.get("version"), "content_hash": group[0].content_hash,
-            "criteria": {"max_rel_dist_pct": f"{100 * crit.get('max_rel_dist', math.nan):g}",
-                         "max_rel_trans_pct": f"{100 * crit.get('max_rel_trans', math.nan):g}",
-                         "min_tol_cm": f"{100 * crit.get('min_tol_m', math.nan):g}",
-                         "max_rot_deg": f"{crit.get('max_rot_deg', math.nan):g}"},
-            "runs": [{"label": lbl, "path": str(r.path), "timestamp": r.run.get("timestamp", ""),
-                      "verified": (r.dataset.get("verified") is not False)}
-                     for r, lbl in zip(group, dict.fromkeys(table["run"]))],
-            "few_trials": bool((table["n_trials"] < MIN_TRIALS_FOR_CI).any()),
-            "matrix": _matrix(table), "groups": groups}
+    return {
+        "name": ds.get("name"),
+        "version": ds.get("version"),
+        "content_hash": group[0].content_hash,
+        "criteria": {
+            "max_rel_dist_pct": f"{100 * crit.get('max_rel_dist', math.nan):g}",
+            "max_rel_trans_pct": f"{100 * crit.get('max_rel_trans', math.nan):g}",
+            "min_tol_cm": f"{100 * crit.get('min_tol_m', math.nan):g}",
+            "max_rot_deg": f"{crit.get('max_rot_deg', math.nan):g}",
+        },
+        "runs": [
+            {
+                "label": lbl,
+                "path": str(r.path),
+                "timestamp": r.run.get("timestamp", ""),
+                "verified": (r.dataset.get("verified") is not False),
+            }
+            for r, lbl in zip(group, dict.fromkeys(table["run"]))
+        ],
+        "few_trials": bool((table["n_trials"] < MIN_TRIALS_FOR_CI).any()),
+        "matrix": _matrix(table),
+        "groups": groups,
+    }
 
 
 def _cl_matrix(rows: list[dict], conds: list[str]) -> dict:
@@ -291,12 +330,23 @@ def _cl_matrix(rows: list[dict], conds: list[str]) -> dict:
     out: list[dict[str, Any]] = []
     for label, cells in by.items():
         mean = sum(float(c["success_rate"]) for c in cells.values()) / len(cells)
-        out.append({"label": label, "baseline": any(c.get("baseline") for c in cells.values()), "_m": mean,
-                    "mean": _pct_text(mean),
-                    "cells": [{"text": f"{_pct_text(cells[c]['success_rate'])} ({cells[c]['n_docked']}/"
-                                       f"{cells[c]['n_trials']})" if c in cells else "",
-                               "shade": _shade(cells[c]["success_rate"]) if c in cells else "#fff"}
-                              for c in conds]})
+        out.append(
+            {
+                "label": label,
+                "baseline": any(c.get("baseline") for c in cells.values()),
+                "_m": mean,
+                "mean": _pct_text(mean),
+                "cells": [
+                    {
+                        "text": f"{_pct_text(cells[c]['success_rate'])} ({cells[c]['n_docked']}/{cells[c]['n_trials']})"
+                        if c in cells
+                        else "",
+                        "shade": _shade(cells[c]["success_rate"]) if c in cells else "#fff",
+                    }
+                    for c in conds
+                ],
+            }
+        )
     out.sort(key=lambda r: (not r["baseline"], -r["_m"], r["label"]))
     return {"columns": conds, "rows": out}
 
@@ -304,23 +354,43 @@ def _cl_matrix(rows: list[dict], conds: list[str]) -> dict:
 def _cl_section(group, index: int) -> dict:
     """View model of one closed-loop benchmark (runs with the same config, capture and latency)."""
     from evalkit.reports.closed_loop import CL_COLUMNS, _labelled_rows, rank_rows
-    rows = [dict(r, success_lo=r.get("ci_low"), success_hi=r.get("ci_high"),
-                 full=f"{r['localizer']} ({r['run']})") for r in _labelled_rows(group)]
+
+    rows = [
+        dict(r, success_lo=r.get("ci_low"), success_hi=r.get("ci_high"), full=f"{r['localizer']} ({r['run']})")
+        for r in _labelled_rows(group)
+    ]
     conds = list(dict.fromkeys(r["condition"] for r in rows))
     groups = []
     for ci, cond in enumerate(conds):
         ranked = rank_rows([r for r in rows if r["condition"] == cond])
-        groups.append({"title": f"condition {cond}", "id": f"cl{index}-{ci}",
-                       "rows": [{"label": r["label"], "baseline": bool(r.get("baseline")),
-                                 "cells": [_cell(r, k, kind) for k, _, kind, _ in CL_COLUMNS]} for r in ranked]})
+        groups.append(
+            {
+                "title": f"condition {cond}",
+                "id": f"cl{index}-{ci}",
+                "rows": [
+                    {
+                        "label": r["label"],
+                        "baseline": bool(r.get("baseline")),
+                        "cells": [_cell(r, k, kind) for k, _, kind, _ in CL_COLUMNS],
+                    }
+                    for r in ranked
+                ],
+            }
+        )
     d = group[0].doc
     cam, cap = d["camera"], d["capture"]
-    return {"name": d["experiment"].get("name"), "version": d["experiment"].get("version"),
-            "config_hash": str(d["experiment"].get("config_hash") or ""), "camera": cam,
-            "compute_latency": d.get("compute_latency", 0), "fidelity": d.get("fidelity", "?"), "capture": cap,
-            "runs": [{"label": r.path.name, "path": str(r.path), "timestamp": r.doc.get("timestamp", "")}
-                     for r in group],
-            "matrix": _cl_matrix(rows, conds), "groups": groups}
+    return {
+        "name": d["experiment"].get("name"),
+        "version": d["experiment"].get("version"),
+        "config_hash": str(d["experiment"].get("config_hash") or ""),
+        "camera": cam,
+        "compute_latency": d.get("compute_latency", 0),
+        "fidelity": d.get("fidelity", "?"),
+        "capture": cap,
+        "runs": [{"label": r.path.name, "path": str(r.path), "timestamp": r.doc.get("timestamp", "")} for r in group],
+        "matrix": _cl_matrix(rows, conds),
+        "groups": groups,
+    }
 
 
 def build_html(runs: Sequence[Run], title: str = "dockbench leaderboard", closed_loop: Sequence = ()) -> str:
@@ -330,28 +400,45 @@ def build_html(runs: Sequence[Run], title: str = "dockbench leaderboard", closed
 
     from evalkit.metrics.extra import MIN_TRIALS_FOR_CI
     from evalkit.reports.results import dockbench_version
-    env = jinja2.Environment(loader=jinja2.FileSystemLoader(Path(__file__).parent / "templates"),
-                             autoescape=True, undefined=jinja2.StrictUndefined)
-    columns = [{"key": k, "header": h, "kind": "text" if kind == "text" else "num", "help": hp}
-               for k, h, kind, hp in COLUMNS]
+
+    env = jinja2.Environment(
+        loader=jinja2.FileSystemLoader(Path(__file__).parent / "templates"),
+        autoescape=True,
+        undefined=jinja2.StrictUndefined,
+    )
+    columns = [
+        {"key": k, "header": h, "kind": "text" if kind == "text" else "num", "help": hp} for k, h, kind, hp in COLUMNS
+    ]
     from evalkit.reports.closed_loop import CL_COLUMNS, group_closed_loop
+
     sections = [_section(g, i) for i, g in enumerate(group_runs(runs))] if runs else []
     cl_sections = [_cl_section(g, i) for i, g in enumerate(group_closed_loop(closed_loop))]
-    cl_columns = [{"key": k, "header": h, "kind": "text" if kind == "text" else "num", "help": hp}
-                  for k, h, kind, hp in CL_COLUMNS]
-    now = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+    cl_columns = [
+        {"key": k, "header": h, "kind": "text" if kind == "text" else "num", "help": hp}
+        for k, h, kind, hp in CL_COLUMNS
+    ]
+    now = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
     return env.get_template(TEMPLATE).render(
-        title=title, css=CSS, js=JS, now=now, version=dockbench_version(), n_runs=len(runs) + len(closed_loop),
-        sections=sections, columns=columns, min_trials=MIN_TRIALS_FOR_CI, cl_sections=cl_sections,
-        cl_columns=cl_columns)
+        title=title,
+        css=CSS,
+        js=JS,
+        now=now,
+        version=dockbench_version(),
+        n_runs=len(runs) + len(closed_loop),
+        sections=sections,
+        columns=columns,
+        min_trials=MIN_TRIALS_FOR_CI,
+        cl_sections=cl_sections,
+        cl_columns=cl_columns,
+    )
 
 
-def build_leaderboard(result_dirs: Iterable[str | Path], out: str | Path,
-                      title: str = "dockbench leaderboard") -> Path:
+def build_leaderboard(result_dirs: Iterable[str | Path], out: str | Path, title: str = "dockbench leaderboard") -> Path:
     """Load the run directories (``dockbench evaluate`` results, or ``dockbench dock`` outputs
     holding a ``closed_loop.json``) and write the HTML page to ``out``."""
     from evalkit.reports.closed_loop import ClosedLoopError, is_closed_loop_dir, load_closed_loop
     from evalkit.reports.results import ResultsError, load_run
+
     dirs = list(result_dirs)
     if not dirs:
         raise ResultsError("no result directories given")
@@ -384,9 +471,21 @@ def chromium(html_path: str | Path, *args: str, timeout: float = 60.0, fragment:
         raise RuntimeError("chromium not found (Debian: apt-get install -y chromium)")
     url = Path(html_path).resolve().as_uri() + (f"#{fragment}" if fragment else "")
     with tempfile.TemporaryDirectory(prefix="dockbench-chromium-") as profile:
-        cmd = [exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-               "--disable-background-networking", "--disable-component-update", "--disable-sync",
-               "--disable-dev-shm-usage", f"--user-data-dir={profile}", *args, url]
+        cmd = [
+            exe,
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--disable-dev-shm-usage",
+            f"--user-data-dir={profile}",
+            *args,
+            url,
+        ]
         res = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, check=False)
     if res.returncode != 0:
         raise RuntimeError(f"chromium failed ({res.returncode}): {res.stderr.strip()[-500:]}")
@@ -397,6 +496,5 @@ def screenshot(html_path: str | Path, png: str | Path, size: tuple[int, int] = (
     """Render ``html_path`` to ``png`` with headless Chromium."""
     png = Path(png).resolve()
     png.parent.mkdir(parents=True, exist_ok=True)
-    chromium(html_path, f"--screenshot={png}", f"--window-size={size[0]},{size[1]}",
-             "--hide-scrollbars")
+    chromium(html_path, f"--screenshot={png}", f"--window-size={size[0]},{size[1]}", "--hide-scrollbars")
     return png

@@ -16,19 +16,42 @@ Bounds, from the metric definitions (evalkit.metrics.core):
 
 NaN (an empty cell) means "not available" and is allowed everywhere but in counts.
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
 
-MAX_DISTANCE_M = 1e4            # = evalkit.runner.MAX_DISTANCE_M (kept import-light here)
-MIN_D_REL_M = 1e-3              # floor of d_min_rel for the E_rel bound (a manifest may set less)
+MAX_DISTANCE_M = 1e4  # = evalkit.runner.MAX_DISTANCE_M (kept import-light here)
+MIN_D_REL_M = 1e-3  # floor of d_min_rel for the E_rel bound (a manifest may set less)
 
-FRACTIONS = ("P_succ_mean", "P_succ_lo", "P_succ_hi", "P_detect_mean", "P_detect_lo", "P_detect_hi",
-             "AR", "AR_MSSD", "AR_MSPD", "AR_dock", "AR_dock_MSSD", "AR_dock_MSPD", "fp_rate", "fp_rate_no_view")
-LENGTHS = ("e_abs_mean", "e_trans_mean", "e_range_abs_mean", "max_range_m", "e_abs_matched", "matched_lo_m",
-           "matched_hi_m")
+FRACTIONS = (
+    "P_succ_mean",
+    "P_succ_lo",
+    "P_succ_hi",
+    "P_detect_mean",
+    "P_detect_lo",
+    "P_detect_hi",
+    "AR",
+    "AR_MSSD",
+    "AR_MSPD",
+    "AR_dock",
+    "AR_dock_MSSD",
+    "AR_dock_MSPD",
+    "fp_rate",
+    "fp_rate_no_view",
+)
+LENGTHS = (
+    "e_abs_mean",
+    "e_trans_mean",
+    "e_range_abs_mean",
+    "max_range_m",
+    "e_abs_matched",
+    "matched_lo_m",
+    "matched_hi_m",
+)
 SIGNED_LENGTHS = ("e_lateral_mean",)
 ANGLES = ("e_rot_deg_mean",)
 TIMES = ("ms_median", "ms_p95")
@@ -56,8 +79,9 @@ def _check(where: str, key: str, v: Any, lo: float, hi: float) -> float | None:
     except (TypeError, ValueError):
         raise NumberError(f"{where}: {key} = {v!r} is not a number (allowed: {lo:g}..{hi:g} or empty)") from None
     if f is not None and not (math.isfinite(f) and lo <= f <= hi):
-        raise NumberError(f"{where}: {key} = {f!r} is outside [{lo:g}, {hi:g}] (hand-edited? re-run "
-                          "dockbench to rewrite it)")
+        raise NumberError(
+            f"{where}: {key} = {f!r} is outside [{lo:g}, {hi:g}] (hand-edited? re-run dockbench to rewrite it)"
+        )
     return f
 
 
@@ -76,16 +100,21 @@ def _count(where: str, key: str, v: Any, lo: int) -> int | None:
 def check_metric_row(where: str, row: dict, d_min_rel_m: float | None = None) -> None:
     """One metrics.csv / run.json metrics row (with runtime columns if merged)."""
     e_rel_max = MAX_DISTANCE_M / max(d_min_rel_m or MIN_D_REL_M, MIN_D_REL_M)
-    bounds = {**{k: (0.0, 1.0) for k in FRACTIONS}, **{k: (0.0, MAX_DISTANCE_M) for k in LENGTHS},
-              **{k: (-MAX_DISTANCE_M, MAX_DISTANCE_M) for k in SIGNED_LENGTHS},
-              **{k: (0.0, 180.0) for k in ANGLES}, **{k: (0.0, math.inf) for k in TIMES},
-              **{f"E_rel_{s}": (0.0, e_rel_max) for s in ("mean", "lo", "hi", "matched")}}
+    bounds = {
+        **{k: (0.0, 1.0) for k in FRACTIONS},
+        **{k: (0.0, MAX_DISTANCE_M) for k in LENGTHS},
+        **{k: (-MAX_DISTANCE_M, MAX_DISTANCE_M) for k in SIGNED_LENGTHS},
+        **{k: (0.0, 180.0) for k in ANGLES},
+        **{k: (0.0, math.inf) for k in TIMES},
+        **{f"E_rel_{s}": (0.0, e_rel_max) for s in ("mean", "lo", "hi", "matched")},
+    }
     vals = {k: _check(where, k, row[k], lo, hi) for k, (lo, hi) in bounds.items() if k in row}
     for name in INTERVALS:
         lo, mean, hi = (vals.get(f"{name}_{s}") for s in ("lo", "mean", "hi"))
         if None not in (lo, mean, hi) and not (lo - 1e-9 <= mean <= hi + 1e-9):
-            raise NumberError(f"{where}: {name}_lo <= {name}_mean <= {name}_hi does not hold "
-                              f"({lo!r}, {mean!r}, {hi!r})")
+            raise NumberError(
+                f"{where}: {name}_lo <= {name}_mean <= {name}_hi does not hold ({lo!r}, {mean!r}, {hi!r})"
+            )
     n = {k: _count(where, k, row[k], 1 if k == "n_trials" else 0) for k in COUNTS if k in row}
     for small, big in (("n_fp", "n_est"), ("n_est", "n_frames"), ("n_targets", "n_frames")):
         if n.get(small) is not None and n.get(big) is not None and n[small] > n[big]:
@@ -100,8 +129,11 @@ def check_metric_rows(path: Path, rows: Iterable[dict], d_min_rel_m: float | Non
 
 
 CL_FRACTIONS = ("success_rate", "ci_low", "ci_high", "P_detect_mean", "P_succ_mean")
-CL_BOUNDS = {"final_lateral_abs_mean_m": (0.0, MAX_DISTANCE_M), "final_heading_abs_mean_deg": (0.0, 180.0),
-             "time_to_dock_median_s": (0.0, math.inf)}
+CL_BOUNDS = {
+    "final_lateral_abs_mean_m": (0.0, MAX_DISTANCE_M),
+    "final_heading_abs_mean_deg": (0.0, 180.0),
+    "time_to_dock_median_s": (0.0, math.inf),
+}
 
 
 def check_closed_loop_row(where: str, row: dict) -> None:

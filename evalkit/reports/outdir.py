@@ -1,5 +1,6 @@
 """Results folders: the rule, lock and all-or-nothing rename live in :mod:`datasets_spec.outdir`
 (one module for every writing command); re-exported here under their older import path."""
+
 from __future__ import annotations
 
 from datasets_spec.outdir import OutDirError, check, lock, results_dir  # noqa: F401

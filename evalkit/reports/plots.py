@@ -9,6 +9,7 @@
 * :func:`plot_range_bins` -- the experiment's figure: success and error per 1 m range
   bin, one column per localizer, conditions as lines (physics at equal range).
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -18,15 +19,16 @@ import pandas as pd
 
 from evalkit.metrics import core as metrics
 
-ERROR_LABELS = {"e_abs": "positioning error |d_true - d_est| (m)",
-                "e_rel": "relative positioning error e_rel (%)"}
+ERROR_LABELS = {"e_abs": "positioning error |d_true - d_est| (m)", "e_rel": "relative positioning error e_rel (%)"}
 
 
 def _pyplot():
     """matplotlib.pyplot on the Agg backend."""
     import matplotlib
+
     matplotlib.use("Agg", force=True)
     import matplotlib.pyplot as plt
+
     return plt
 
 
@@ -34,12 +36,11 @@ def _panels(plt, n: int):
     """Figure and a flat list of ``n`` axes on a grid of at most 3 columns (extra axes hidden)."""
     ncols = max(1, min(3, n))
     nrows = -(-max(n, 1) // ncols)
-    fig, axes = plt.subplots(nrows, ncols, figsize=(5.2 * ncols, 3.8 * nrows), squeeze=False,
-                             sharey=False)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(5.2 * ncols, 3.8 * nrows), squeeze=False, sharey=False)
     flat = list(axes.ravel())
     for ax in flat[n:]:
         ax.set_visible(False)
-    return fig, flat[:max(n, 1)]
+    return fig, flat[: max(n, 1)]
 
 
 def _save(plt, fig, axes, ylabel: str, title: str | None, path: Path) -> Path:
@@ -72,9 +73,14 @@ def representative_trials(trials: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["trajectory", "condition", "sequence"])
 
 
-def plot_error_vs_distance(frames: pd.DataFrame, path: str | Path, trials: pd.DataFrame,
-                           error: str = "e_abs", d_max: float = metrics.D_MAX_M,
-                           title: str | None = None) -> Path:
+def plot_error_vs_distance(
+    frames: pd.DataFrame,
+    path: str | Path,
+    trials: pd.DataFrame,
+    error: str = "e_abs",
+    d_max: float = metrics.D_MAX_M,
+    title: str | None = None,
+) -> Path:
     """Error (``e_abs`` m or ``e_rel`` %) vs ``d_true`` of the representative trial of each
     (trajectory, condition) (:func:`representative_trials`), one line each; one panel per
     localizer. ``frames`` is the scored per-frame table. Writes ``path`` (PNG)."""
@@ -89,8 +95,14 @@ def plot_error_vs_distance(frames: pd.DataFrame, path: str | Path, trials: pd.Da
         for _, r in reps.iterrows():
             s = df[(df["localizer"] == loc) & (df["sequence"] == r["sequence"])].sort_values("d_true")
             ok = s["_err"].notna()
-            ax.plot(s.loc[ok, "d_true"], s.loc[ok, "_err"], marker=".", ms=3, lw=0.8,
-                    label=f"{r['trajectory']}/{r['condition']} ({r['sequence']})")
+            ax.plot(
+                s.loc[ok, "d_true"],
+                s.loc[ok, "_err"],
+                marker=".",
+                ms=3,
+                lw=0.8,
+                label=f"{r['trajectory']}/{r['condition']} ({r['sequence']})",
+            )
         ax.set_title(str(loc))
         ax.set_xlabel("d_true (m)")
         ax.set_xlim(0, d_max)
@@ -100,8 +112,9 @@ def plot_error_vs_distance(frames: pd.DataFrame, path: str | Path, trials: pd.Da
     return _save(plt, fig, axes, ERROR_LABELS.get(error, error), title, path)
 
 
-def plot_success_vs_distance(bins: pd.DataFrame, path: str | Path, threshold: float | None = 0.9,
-                             title: str | None = None) -> Path:
+def plot_success_vs_distance(
+    bins: pd.DataFrame, path: str | Path, threshold: float | None = 0.9, title: str | None = None
+) -> Path:
     """``P_succ`` per distance bin (from :func:`evalkit.metrics.extra.distance_bins`),
     one line per (trajectory, condition), one panel per localizer; ``threshold`` drawn dashed."""
     plt = _pyplot()
@@ -126,8 +139,9 @@ def plot_success_vs_distance(bins: pd.DataFrame, path: str | Path, threshold: fl
     return _save(plt, fig, axes, "P_succ (%)", title, path)
 
 
-def plot_range_bins(bins: pd.DataFrame, path: str | Path, threshold: float | None = 0.9,
-                    title: str | None = None) -> Path:
+def plot_range_bins(
+    bins: pd.DataFrame, path: str | Path, threshold: float | None = 0.9, title: str | None = None
+) -> Path:
     """One figure of an experiment: success (top row, ``P_succ`` %) and error (bottom row,
     ``e_rel_mean`` % over the frames with an estimate) against the 1 m range bin, one
     column per localizer, one line per condition (``trajectory/condition`` when the run
@@ -138,8 +152,9 @@ def plot_range_bins(bins: pd.DataFrame, path: str | Path, threshold: float | Non
     path = Path(path)
     locs = sorted(bins["localizer"].unique()) or ["(none)"]
     several = bins["trajectory"].nunique() > 1
-    fig, axes = plt.subplots(2, len(locs), figsize=(4.6 * len(locs), 6.4), squeeze=False, sharex=True,
-                             sharey="row")   # one error scale: localizers compare at a glance
+    fig, axes = plt.subplots(
+        2, len(locs), figsize=(4.6 * len(locs), 6.4), squeeze=False, sharex=True, sharey="row"
+    )  # one error scale: localizers compare at a glance
     for col, loc in enumerate(locs):
         b = bins[(bins["localizer"] == loc) & (bins["n_total"] > 0)]
         for (traj, cond), g in b.groupby(["trajectory", "condition"], sort=True, dropna=False):
@@ -147,8 +162,7 @@ def plot_range_bins(bins: pd.DataFrame, path: str | Path, threshold: float | Non
             centre = (g["bin_lo"] + g["bin_hi"]) / 2.0
             label = f"{traj}/{cond}" if several else str(cond)
             line = axes[0, col].plot(centre, 100.0 * g["P_succ"], marker="o", ms=3, label=label)[0]
-            axes[1, col].plot(centre, 100.0 * g["e_rel_mean"], marker="o", ms=3, color=line.get_color(),
-                              label=label)
+            axes[1, col].plot(centre, 100.0 * g["e_rel_mean"], marker="o", ms=3, color=line.get_color(), label=label)
         _range_bin_axes(axes[:, col], str(loc), threshold, b)
     axes[0, 0].set_ylabel("P_succ (%)", fontsize=8)
     axes[1, 0].set_ylabel("relative error e_rel (%)", fontsize=8)

@@ -11,6 +11,7 @@
   disk (used with ``--no-verify``, so an unverified run never borrows the
   manifest's hash).
 """
+
 from __future__ import annotations
 
 import importlib.util
@@ -25,8 +26,19 @@ from typing import Any
 
 from datasets_spec.io import content_hash, sha256_file
 
-PACKAGES = ["dockbench", "numpy", "opencv-python", "opencv-python-headless", "opencv-contrib-python",
-            "pandas", "pyarrow", "scipy", "zxing-cpp", "pupil-apriltags", "bpy"]
+PACKAGES = [
+    "dockbench",
+    "numpy",
+    "opencv-python",
+    "opencv-python-headless",
+    "opencv-contrib-python",
+    "pandas",
+    "pyarrow",
+    "scipy",
+    "zxing-cpp",
+    "pupil-apriltags",
+    "bpy",
+]
 SOURCE_ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -51,10 +63,16 @@ def git_state(root: Path = SOURCE_ROOT) -> dict | None:
     if not (root / ".git").exists() or shutil.which("git") is None:
         return None
     try:
-        commit = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True,
-                                text=True, timeout=10, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
-                               capture_output=True, text=True, timeout=10, check=True).stdout.strip()
+        commit = subprocess.run(
+            ["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10, check=True
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True,
+            text=True,
+            timeout=10,
+            check=True,
+        ).stdout.strip()
     except (OSError, subprocess.SubprocessError):
         return None
     return {"commit": commit, "dirty": bool(dirty)}
@@ -62,8 +80,13 @@ def git_state(root: Path = SOURCE_ROOT) -> dict | None:
 
 def environment() -> dict:
     """Python, platform, package versions and git state."""
-    return {"python": sys.version.split()[0], "implementation": platform.python_implementation(),
-            "platform": platform.platform(), "packages": package_versions(), "git": git_state()}
+    return {
+        "python": sys.version.split()[0],
+        "implementation": platform.python_implementation(),
+        "platform": platform.platform(),
+        "packages": package_versions(),
+        "git": git_state(),
+    }
 
 
 def _file_entry(path: Path, role: str) -> dict:
@@ -88,7 +111,7 @@ def code_artifacts(spec: str) -> list[dict]:
     from evalkit import registry
 
     if spec.startswith(registry.EXEC_PREFIX):
-        words = shlex.split(spec[len(registry.EXEC_PREFIX):])
+        words = shlex.split(spec[len(registry.EXEC_PREFIX) :])
         out = []
         program = shutil.which(words[0]) if words else None
         if program:
@@ -111,10 +134,13 @@ def localizer_record(spec: str, params: dict, obj: Any = None) -> dict:
     """A localizer for run.json: ``{name, params (as given), class, code}``."""
     cls = type(obj) if obj is not None else None
     inner = getattr(obj, "spec", None)
-    return {"name": spec, "params": dict(params),
-            "class": f"{cls.__module__}:{cls.__qualname__}" if cls is not None else None,
-            "wrapped": inner if isinstance(inner, str) else None,
-            "code": code_artifacts(spec)}
+    return {
+        "name": spec,
+        "params": dict(params),
+        "class": f"{cls.__module__}:{cls.__qualname__}" if cls is not None else None,
+        "wrapped": inner if isinstance(inner, str) else None,
+        "code": code_artifacts(spec),
+    }
 
 
 def first_changed_file(root: Path, files: dict[str, str]) -> str | None:
@@ -122,6 +148,7 @@ def first_changed_file(root: Path, files: dict[str, str]) -> str | None:
     in ``files``, or None: a verified run's content hash then describes every file of the
     dataset, not only those the localizers read (depth and index passes, assets...)."""
     from datasets_spec.io import DatasetError, path_inside
+
     for rel in sorted(files):
         try:
             path = path_inside(root, rel, "manifest file")

@@ -17,15 +17,17 @@ summary.csv and metrics.csv hold no timings, so the same inputs give byte-identi
 files; runtimes are in runtime.csv. Runs are comparable only when computed on the
 same dataset content: :func:`compare_runs` refuses runs whose ``content_hash`` differ.
 """
+
 from __future__ import annotations
 
 import datetime as _dt
 import json
 import math
 import sys
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
 
 import pandas as pd
 
@@ -47,6 +49,7 @@ def dockbench_version() -> str:
     """Installed dockbench version, or ``"unknown"``."""
     try:
         from importlib.metadata import version
+
         return version("dockbench")
     except Exception:  # noqa: BLE001 - not installed as a distribution
         return "unknown"
@@ -86,19 +89,28 @@ def dataset_info(dataset, content_hash: str | None = None) -> dict:
 
     m = dataset.manifest
     files = m.get("files") or {}
-    if content_hash is None and dataset.verify and not getattr(dataset, "streamed", False):   # every file
-        from evalkit.reports.provenance import first_changed_file
+    if content_hash is None and dataset.verify and not getattr(dataset, "streamed", False):  # every file
         from datasets_spec.io import DatasetError
+        from evalkit.reports.provenance import first_changed_file
+
         bad = first_changed_file(Path(dataset.root), files)
         if bad is not None:
-            raise DatasetError(f"{Path(dataset.root) / bad}: missing or sha256 differs from the manifest "
-                               "(dockbench verify lists every changed file); the run's content hash would "
-                               "not describe this dataset")
+            raise DatasetError(
+                f"{Path(dataset.root) / bad}: missing or sha256 differs from the manifest "
+                "(dockbench verify lists every changed file); the run's content hash would "
+                "not describe this dataset"
+            )
     if content_hash is None:
         content_hash = hash_files(files) if dataset.verify else disk_content_hash(Path(dataset.root), files)
-    return {"name": m.get("name"), "version": m.get("version"), "content_hash": content_hash,
-            "manifest_content_hash": m.get("content_hash"), "verified": bool(dataset.verify),
-            "spec_version": m.get("spec_version"), "path": str(Path(dataset.root).resolve())}
+    return {
+        "name": m.get("name"),
+        "version": m.get("version"),
+        "content_hash": content_hash,
+        "manifest_content_hash": m.get("content_hash"),
+        "verified": bool(dataset.verify),
+        "spec_version": m.get("spec_version"),
+        "path": str(Path(dataset.root).resolve()),
+    }
 
 
 @dataclass
@@ -133,19 +145,34 @@ def _localizer_entry(item: Any) -> dict:
 
 def _write_tables(res: dict, out: Path, label: str) -> dict[str, Path]:
     """CSV and Markdown/LaTeX tables of ``res`` (from :func:`compute_all`) into ``out``."""
-    paths = {"summary": out / "summary.csv", "metrics": out / "metrics.csv", "bins": out / "bins.csv",
-             "fp": out / "false_positives.csv", "recall": out / "recall.csv", "runtime": out / "runtime.csv"}
-    for key, df in (("summary", res["trials"]), ("metrics", res["metrics"]), ("bins", res["bins"]),
-                    ("fp", res["fp"]), ("recall", res["recall"]), ("runtime", res["runtime"])):
+    paths = {
+        "summary": out / "summary.csv",
+        "metrics": out / "metrics.csv",
+        "bins": out / "bins.csv",
+        "fp": out / "false_positives.csv",
+        "recall": out / "recall.csv",
+        "runtime": out / "runtime.csv",
+    }
+    for key, df in (
+        ("summary", res["trials"]),
+        ("metrics", res["metrics"]),
+        ("bins", res["bins"]),
+        ("fp", res["fp"]),
+        ("recall", res["recall"]),
+        ("runtime", res["runtime"]),
+    ):
         tables.write_csv(df, paths[key])
     tdir = out / "tables"
     tdir.mkdir(exist_ok=True)
-    caption = (f"Successful localization rate (P_succ, error within the success thresholds), "
-               f"answer rate (P_detect) and average relative distance error (E_rel) per trajectory "
-               f"and condition, {label}; 95% bootstrap CI over the M trials in brackets.")
+    caption = (
+        f"Successful localization rate (P_succ, error within the success thresholds), "
+        f"answer rate (P_detect) and average relative distance error (E_rel) per trajectory "
+        f"and condition, {label}; 95% bootstrap CI over the M trials in brackets."
+    )
     paths["article_md"] = _write(tdir / "article.md", tables.article_markdown(res["metrics"]))
-    paths["article_tex"] = _write(tdir / "article.tex", tables.article_latex(
-        res["metrics"], caption=caption, label="tab:dockbench-article"))
+    paths["article_tex"] = _write(
+        tdir / "article.tex", tables.article_latex(res["metrics"], caption=caption, label="tab:dockbench-article")
+    )
     paths["metrics_md"] = _write(tdir / "metrics.md", tables.to_markdown(res["metrics"]))
     paths["range_bins_md"] = _write(tdir / "range_bins.md", tables.range_bins_markdown(res["bins"]))
     paths["metrics_tex"] = _write(tdir / "metrics.tex", tables.to_latex(res["metrics"]))
@@ -155,16 +182,29 @@ def _write_tables(res: dict, out: Path, label: str) -> dict[str, Path]:
 def _write_plots(res: dict, out: Path, settings: EvalSettings, label: str) -> dict[str, Path]:
     """The PNGs of a run."""
     from evalkit.reports import plots
+
     pdir = out / "plots"
-    return {"plot_error": plots.plot_error_vs_distance(
-                res["frames"], pdir / "error_vs_distance.png", trials=res["trials"],
-                d_max=settings.d_max_m, title=f"error vs distance, one representative trial ({label})"),
-            "plot_success": plots.plot_success_vs_distance(
-                res["bins"], pdir / "success_vs_distance.png", threshold=settings.usable_threshold,
-                title=f"P_succ per {settings.bin_m:g} m bin ({label})"),
-            "plot_range_bins": plots.plot_range_bins(
-                res["bins"], pdir / "range_bins.png", threshold=settings.usable_threshold,
-                title=f"success and error per {settings.bin_m:g} m range bin ({label})")}
+    return {
+        "plot_error": plots.plot_error_vs_distance(
+            res["frames"],
+            pdir / "error_vs_distance.png",
+            trials=res["trials"],
+            d_max=settings.d_max_m,
+            title=f"error vs distance, one representative trial ({label})",
+        ),
+        "plot_success": plots.plot_success_vs_distance(
+            res["bins"],
+            pdir / "success_vs_distance.png",
+            threshold=settings.usable_threshold,
+            title=f"P_succ per {settings.bin_m:g} m bin ({label})",
+        ),
+        "plot_range_bins": plots.plot_range_bins(
+            res["bins"],
+            pdir / "range_bins.png",
+            threshold=settings.usable_threshold,
+            title=f"success and error per {settings.bin_m:g} m range bin ({label})",
+        ),
+    }
 
 
 def save_run(estimates_df: pd.DataFrame, out_dir: str | Path, record: RunRecord) -> tuple[dict[str, Path], dict]:
@@ -188,17 +228,24 @@ def save_run(estimates_df: pd.DataFrame, out_dir: str | Path, record: RunRecord)
     if record.make_plots:
         paths.update(_write_plots(res, out, settings, label))
     run = {
-        "format": RUN_FORMAT, "format_version": RUN_FORMAT_VERSION,
-        "command": record.command, "dataset": dataset_info(ds),
+        "format": RUN_FORMAT,
+        "format_version": RUN_FORMAT_VERSION,
+        "command": record.command,
+        "dataset": dataset_info(ds),
         "localizers": [_localizer_entry(s) for s in record.localizers],
-        "options": record.options, "settings": settings.as_dict(),
-        "dock_model": None if model is None else {
-            "n_vertices": int(len(model.points)), "diameter_m": model.diameter_m,
+        "options": record.options,
+        "settings": settings.as_dict(),
+        "dock_model": None
+        if model is None
+        else {
+            "n_vertices": int(len(model.points)),
+            "diameter_m": model.diameter_m,
             "mssd_thresholds_m": model.mssd_thresholds().tolist(),
-            "mspd_thresholds_px": model.mspd_thresholds().tolist()},
+            "mspd_thresholds_px": model.mspd_thresholds().tolist(),
+        },
         "dockbench_version": dockbench_version(),
         "environment": record.environment or provenance.environment(),
-        "timestamp": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "timestamp": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
         "n_frames": int(len(estimates_df)),
         "metrics": _records(res["metrics"]),
         "files": {k: p.relative_to(out).as_posix() for k, p in paths.items()},
@@ -223,8 +270,10 @@ def _write_estimates(df: pd.DataFrame, path: Path) -> Path:
         return path
     except ImportError as exc:
         csv_path = path.with_suffix(".csv")
-        print(f"warning: cannot write {path.name} ({_parquet_problem(exc)}); "
-              f"wrote {csv_path.name} instead", file=sys.stderr)
+        print(
+            f"warning: cannot write {path.name} ({_parquet_problem(exc)}); wrote {csv_path.name} instead",
+            file=sys.stderr,
+        )
         df.to_csv(csv_path, index=False, lineterminator="\n")
         return csv_path
 
@@ -285,7 +334,7 @@ class EvalRequest:
     localizers: list[str]
     out_dir: Path
     params: list[str] = field(default_factory=list)
-    isolate: bool | None = None     # None: plugins isolated, built-ins in process
+    isolate: bool | None = None  # None: plugins isolated, built-ins in process
     frame_timeout_s: float | None = None
     preprocess: str | None = None
     verify: bool = True
@@ -293,7 +342,7 @@ class EvalRequest:
     progress: bool = True
     settings: EvalSettings = field(default_factory=EvalSettings)
     command: list[str] | None = None
-    workers: int | None = 1          # evaluation processes (split by sequence); None: one per core
+    workers: int | None = 1  # evaluation processes (split by sequence); None: one per core
 
 
 def evaluate_dataset(req: EvalRequest) -> tuple[Any, dict[str, Path], dict]:
@@ -308,25 +357,47 @@ def evaluate_dataset(req: EvalRequest) -> tuple[Any, dict[str, Path], dict]:
     from evalkit.reports.provenance import localizer_record
 
     out = Path(req.out_dir)
-    ds = Dataset.open(req.dataset_dir, verify=req.verify)   # dataset errors before anything is written
-    for seq in ds.sequences:   # ground truth checked before any localizer runs (images: as read)
+    ds = Dataset.open(req.dataset_dir, verify=req.verify)  # dataset errors before anything is written
+    for seq in ds.sequences:  # ground truth checked before any localizer runs (images: as read)
         ds.check_file(ds.frames_path(seq["id"]))
     with results_dir(out, req.overwrite) as tmp:
         names = list(req.localizers)
         kw = registry.parse_params(list(req.params))
         given = {n: registry.params_for(n, kw, names) for n in names}
-        specs = [(n, assemble.build(n, given[n], isolate=req.isolate, timeout_s=req.frame_timeout_s,
-                                    preprocess=req.preprocess)) for n in names]
+        specs = [
+            (
+                n,
+                assemble.build(
+                    n, given[n], isolate=req.isolate, timeout_s=req.frame_timeout_s, preprocess=req.preprocess
+                ),
+            )
+            for n in names
+        ]
         records = [localizer_record(n, given[n], obj) for n, obj in specs]
         if req.workers == 1:
             df = runner.evaluate(ds, specs, frame_timeout_s=req.frame_timeout_s, progress=req.progress)
-        else:   # the same per-frame table from one process per core (evalkit.parallel)
+        else:  # the same per-frame table from one process per core (evalkit.parallel)
             from evalkit.parallel import evaluate_frames
-            df = evaluate_frames(req.dataset_dir, names, list(req.params), req.workers, req.isolate,
-                                 req.frame_timeout_s, req.preprocess, verify=req.verify)
+
+            df = evaluate_frames(
+                req.dataset_dir,
+                names,
+                list(req.params),
+                req.workers,
+                req.isolate,
+                req.frame_timeout_s,
+                req.preprocess,
+                verify=req.verify,
+            )
         settings = replace(req.settings, d_min_rel_m=ds.d_min_rel_m)
-        options = {"params": list(req.params), "isolate": req.isolate, "frame_timeout_s": req.frame_timeout_s,
-                   "preprocess": req.preprocess, "verify": req.verify, "overwrite": req.overwrite}
+        options = {
+            "params": list(req.params),
+            "isolate": req.isolate,
+            "frame_timeout_s": req.frame_timeout_s,
+            "preprocess": req.preprocess,
+            "verify": req.verify,
+            "overwrite": req.overwrite,
+        }
         record = RunRecord(ds, records, settings, req.command, options)
         paths, res = save_run(df, tmp, record)
     return ds, {k: out / p.relative_to(tmp) for k, p in paths.items()}, res
@@ -336,9 +407,13 @@ def json_summary(run_json: Path) -> str:
     """The machine-readable summary ``evaluate --json`` prints: results folder, dataset,
     settings and the per-group metrics from run.json (no timings, no timestamp)."""
     run = json.loads(Path(run_json).read_text(encoding="utf-8"))
-    keep = {"results": str(Path(run_json).parent), "dataset": run["dataset"], "settings": run["settings"],
-            "localizers": [{"name": loc["name"], "params": loc.get("params")} for loc in run["localizers"]],
-            "metrics": run["metrics"]}
+    keep = {
+        "results": str(Path(run_json).parent),
+        "dataset": run["dataset"],
+        "settings": run["settings"],
+        "localizers": [{"name": loc["name"], "params": loc.get("params")} for loc in run["localizers"]],
+        "metrics": run["metrics"],
+    }
     return json.dumps(keep, indent=1, sort_keys=True)
 
 
@@ -357,18 +432,21 @@ def load_run(path: str | Path) -> Run:
     root = Path(path)
     rj = root / RUN_JSON
     if not rj.is_file():
-        raise ResultsError(f"{root}: not a dockbench results directory (no {RUN_JSON}; "
-                           f"write one with `dockbench evaluate`)")
+        raise ResultsError(
+            f"{root}: not a dockbench results directory (no {RUN_JSON}; write one with `dockbench evaluate`)"
+        )
     try:
         run = json.loads(rj.read_text(encoding="utf-8"))
     except (ValueError, RecursionError) as exc:
         raise ResultsError(f"{rj}: invalid JSON: {type(exc).__name__}: {str(exc)[:120]}") from None
     if not isinstance(run, dict) or run.get("format") != RUN_FORMAT:
-        raise ResultsError(f"{rj}: \"format\" is not {RUN_FORMAT!r}")
+        raise ResultsError(f'{rj}: "format" is not {RUN_FORMAT!r}')
     if str(run.get("format_version")) != RUN_FORMAT_VERSION:
-        raise ResultsError(f"{rj}: results format {run.get('format_version')!r}, this dockbench reads "
-                           f"{RUN_FORMAT_VERSION!r} (format 1 counted any answer as a success); "
-                           "re-run dockbench evaluate")
+        raise ResultsError(
+            f"{rj}: results format {run.get('format_version')!r}, this dockbench reads "
+            f"{RUN_FORMAT_VERSION!r} (format 1 counted any answer as a success); "
+            "re-run dockbench evaluate"
+        )
     m = _read_csv(root / "metrics.csv")
     if m is None:
         m = pd.DataFrame(run.get("metrics") or [], columns=metrics_extra.METRIC_COLUMNS)
@@ -383,6 +461,7 @@ def _check_numbers(root: Path, run: dict, m: pd.DataFrame, runtime: pd.DataFrame
     """Every number the leaderboard shows or ranks within what evaluate can produce
     (:mod:`evalkit.reports.numbers`); else :class:`ResultsError` naming file, row and column."""
     from evalkit.reports.numbers import NumberError, check_metric_rows
+
     settings = run.get("settings") if isinstance(run.get("settings"), dict) else {}
     d_min = settings.get("d_min_rel_m")
     d_min = d_min if isinstance(d_min, (int, float)) and not isinstance(d_min, bool) else None
@@ -417,13 +496,16 @@ def compare_runs(runs: Iterable[Run | str | Path]) -> pd.DataFrame:
         raise ResultsError("no runs to compare")
     missing = [r for r in loaded if not r.content_hash]
     if missing:
-        raise ResultsError("cannot compare: run(s) without a dataset content_hash: "
-                           + ", ".join(str(r.path) for r in missing))
+        raise ResultsError(
+            "cannot compare: run(s) without a dataset content_hash: " + ", ".join(str(r.path) for r in missing)
+        )
     hashes = {r.content_hash for r in loaded}
     if len(hashes) > 1:
-        raise ResultsError("cannot compare runs computed on different datasets "
-                           "(content_hash differs; results are comparable only on the same data):\n  "
-                           + "\n  ".join(_describe(r) for r in loaded))
+        raise ResultsError(
+            "cannot compare runs computed on different datasets "
+            "(content_hash differs; results are comparable only on the same data):\n  "
+            + "\n  ".join(_describe(r) for r in loaded)
+        )
     labels = [r.label for r in loaded]
     if len(set(labels)) < len(labels):
         labels = [f"{r.path.parent.name}/{r.path.name}" for r in loaded]

@@ -6,15 +6,17 @@ LaTeX goes through pandas' ``Styler.to_latex`` (jinja2); ``tabulate`` (needed by
 pandas' ``to_markdown``) is not a dependency, so the small Markdown/text formatters
 are written here.
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import pandas as pd
 
 from evalkit.metrics.extra import MIN_TRIALS_FOR_CI
+
 
 def write_csv(df: pd.DataFrame, path: str | Path) -> Path:
     """Write ``df`` as CSV without the index; floats at full precision, NaN as empty."""
@@ -48,8 +50,7 @@ def _cells(df: pd.DataFrame, floatfmt: str) -> tuple[list[str], list[list[str]]]
 
 def _numeric_columns(df: pd.DataFrame) -> list[bool]:
     """Per column: right-align (numeric, not bool)?"""
-    return [pd.api.types.is_numeric_dtype(df[c]) and not pd.api.types.is_bool_dtype(df[c])
-            for c in df.columns]
+    return [pd.api.types.is_numeric_dtype(df[c]) and not pd.api.types.is_bool_dtype(df[c]) for c in df.columns]
 
 
 def _widths(header: Sequence[str], body: Sequence[Sequence[str]]) -> list[int]:
@@ -69,10 +70,9 @@ def to_markdown(df: pd.DataFrame, floatfmt: str = ".4g") -> str:
     right = _numeric_columns(df)
 
     def line(cells):
-        return "| " + " | ".join(_pad(c.replace("|", "\\|"), w, r)
-                                 for c, w, r in zip(cells, widths, right)) + " |"
-    rule = "|" + "|".join(("-" * (w + 1) + ":") if r else (":" + "-" * (w + 1))
-                          for w, r in zip(widths, right)) + "|"
+        return "| " + " | ".join(_pad(c.replace("|", "\\|"), w, r) for c, w, r in zip(cells, widths, right)) + " |"
+
+    rule = "|" + "|".join(("-" * (w + 1) + ":") if r else (":" + "-" * (w + 1)) for w, r in zip(widths, right)) + "|"
     return "\n".join([line(header), rule] + [line(r) for r in body]) + "\n"
 
 
@@ -84,6 +84,7 @@ def to_text(df: pd.DataFrame, floatfmt: str = ".4g") -> str:
 
     def line(cells):
         return "  ".join(_pad(c, w, r) for c, w, r in zip(cells, widths, right)).rstrip()
+
     rule = "  ".join("-" * w for w in widths)
     return "\n".join([line(header), rule] + [line(r) for r in body]) + "\n"
 
@@ -93,9 +94,18 @@ def print_table(df: pd.DataFrame, floatfmt: str = ".4g", file=None) -> None:
     print(to_text(df, floatfmt), end="", file=file)
 
 
-_LATEX_SPECIAL = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#",
-                  "_": r"\_", "{": r"\{", "}": r"\}", "~": r"\textasciitilde{}",
-                  "^": r"\textasciicircum{}"}
+_LATEX_SPECIAL = {
+    "\\": r"\textbackslash{}",
+    "&": r"\&",
+    "%": r"\%",
+    "$": r"\$",
+    "#": r"\#",
+    "_": r"\_",
+    "{": r"\{",
+    "}": r"\}",
+    "~": r"\textasciitilde{}",
+    "^": r"\textasciicircum{}",
+}
 
 
 def latex_escape(text: str) -> str:
@@ -103,8 +113,13 @@ def latex_escape(text: str) -> str:
     return "".join(_LATEX_SPECIAL.get(ch, ch) for ch in text)
 
 
-def to_latex(df: pd.DataFrame, floatfmt: str = ".4g", caption: str | None = None,
-             label: str | None = None, column_format: str | None = None) -> str:
+def to_latex(
+    df: pd.DataFrame,
+    floatfmt: str = ".4g",
+    caption: str | None = None,
+    label: str | None = None,
+    column_format: str | None = None,
+) -> str:
     """A ``booktabs`` tabular by pandas' ``Styler.to_latex`` (cells and headers LaTeX-escaped;
     numbers right-aligned unless ``column_format``), in a ``table`` float when
     ``caption``/``label`` is given."""
@@ -113,8 +128,9 @@ def to_latex(df: pd.DataFrame, floatfmt: str = ".4g", caption: str | None = None
     styler = text.style.hide(axis="index").format(escape="latex").format_index(escape="latex", axis=1)
     kw = {"hrules": True, "column_format": spec}
     if caption is not None or label is not None:
-        kw.update(position="t", position_float="centering", label=label,
-                  caption=latex_escape(caption) if caption else None)
+        kw.update(
+            position="t", position_float="centering", label=label, caption=latex_escape(caption) if caption else None
+        )
     return styler.to_latex(**kw)
 
 
@@ -124,11 +140,15 @@ ARTICLE_DETECT = "P_detect (%)"
 ARTICLE_ERROR = "E_rel (%)"
 ARTICLE_MATCHED = "E_rel matched (%)"
 ARTICLE_MATCHED_RANGE = "matched bins"
-MATCHED_NOTE = ("E_rel pools every frame a condition answers; E_rel matched averages the 1 m bins that "
-                "every condition of the trajectory answers in (each bin weighted equally), so conditions "
-                "are compared at the same ranges.")
-FEW_TRIALS_NOTE = (f"* M < {MIN_TRIALS_FOR_CI} trials: the bootstrap CI is unreliable "
-                   "(M = 1: no CI at all); generate more trials (config `trials:`).")
+MATCHED_NOTE = (
+    "E_rel pools every frame a condition answers; E_rel matched averages the 1 m bins that "
+    "every condition of the trajectory answers in (each bin weighted equally), so conditions "
+    "are compared at the same ranges."
+)
+FEW_TRIALS_NOTE = (
+    f"* M < {MIN_TRIALS_FOR_CI} trials: the bootstrap CI is unreliable "
+    "(M = 1: no CI at all); generate more trials (config `trials:`)."
+)
 
 
 def _pct(value, lo=None, hi=None, digits: int = 1) -> str:
@@ -152,23 +172,46 @@ def article_table(metrics: pd.DataFrame, with_ci: bool = True, digits: int = 1) 
     beside the pooled error the range-matched one (:data:`ARTICLE_MATCHED`) with its bins.
     ``metrics`` is :func:`evalkit.metrics.extra.compute_all`'s ``metrics`` table."""
     rows = []
-    err_digits = max(digits, 2)    # relative errors of a few tenths of a percent need two decimals
+    err_digits = max(digits, 2)  # relative errors of a few tenths of a percent need two decimals
     order = metrics.sort_values(["trajectory", "condition", "localizer"], kind="stable")
     for _, r in order.iterrows():
+
         def cell(mean_col, prefix):
             lo, hi = (r.get(f"{prefix}_lo"), r.get(f"{prefix}_hi")) if with_ci else (None, None)
             return _pct(r.get(mean_col), lo, hi, digits)
+
         m = int(r["n_trials"])
-        rows.append({"trajectory": r["trajectory"], "condition": r["condition"], "localizer": r["localizer"],
-                     "M": f"{m}*" if m < MIN_TRIALS_FOR_CI else str(m),
-                     ARTICLE_SUCCESS: cell("P_succ_mean", "P_succ"),
-                     ARTICLE_DETECT: cell("P_detect_mean", "P_detect"),
-                     ARTICLE_ERROR: _pct(r.get("E_rel_mean"), *((r.get("E_rel_lo"), r.get("E_rel_hi"))
-                                                               if with_ci else (None, None)), digits=err_digits),
-                     ARTICLE_MATCHED: _pct(r.get("E_rel_matched"), digits=err_digits),
-                     ARTICLE_MATCHED_RANGE: _bins_text(r)})
-    return pd.DataFrame(rows, columns=["trajectory", "condition", "localizer", "M", ARTICLE_SUCCESS,
-                                       ARTICLE_DETECT, ARTICLE_ERROR, ARTICLE_MATCHED, ARTICLE_MATCHED_RANGE])
+        rows.append(
+            {
+                "trajectory": r["trajectory"],
+                "condition": r["condition"],
+                "localizer": r["localizer"],
+                "M": f"{m}*" if m < MIN_TRIALS_FOR_CI else str(m),
+                ARTICLE_SUCCESS: cell("P_succ_mean", "P_succ"),
+                ARTICLE_DETECT: cell("P_detect_mean", "P_detect"),
+                ARTICLE_ERROR: _pct(
+                    r.get("E_rel_mean"),
+                    *((r.get("E_rel_lo"), r.get("E_rel_hi")) if with_ci else (None, None)),
+                    digits=err_digits,
+                ),
+                ARTICLE_MATCHED: _pct(r.get("E_rel_matched"), digits=err_digits),
+                ARTICLE_MATCHED_RANGE: _bins_text(r),
+            }
+        )
+    return pd.DataFrame(
+        rows,
+        columns=[
+            "trajectory",
+            "condition",
+            "localizer",
+            "M",
+            ARTICLE_SUCCESS,
+            ARTICLE_DETECT,
+            ARTICLE_ERROR,
+            ARTICLE_MATCHED,
+            ARTICLE_MATCHED_RANGE,
+        ],
+    )
 
 
 def _bins_text(r) -> str:
@@ -195,15 +238,18 @@ def article_markdown(metrics: pd.DataFrame, with_ci: bool = True) -> str:
     return "\n".join(parts)
 
 
-def article_latex(metrics: pd.DataFrame, with_ci: bool = True, caption: str | None = None,
-                  label: str | None = None) -> str:
+def article_latex(
+    metrics: pd.DataFrame, with_ci: bool = True, caption: str | None = None, label: str | None = None
+) -> str:
     """:func:`article_table` as a LaTeX ``booktabs`` tabular (``%`` escaped); a footnote
     row when some group has fewer than :data:`MIN_TRIALS_FOR_CI` trials."""
     df = article_table(metrics, with_ci)
     out = to_latex(df, caption=caption, label=label, column_format="lllrrrrrl")
     if _few(metrics):
         note = latex_escape(FEW_TRIALS_NOTE)
-        out = out.replace(r"\bottomrule", r"\bottomrule" + "\n" + rf"\multicolumn{{9}}{{l}}{{\footnotesize {note}}} \\", 1)
+        out = out.replace(
+            r"\bottomrule", r"\bottomrule" + "\n" + rf"\multicolumn{{9}}{{l}}{{\footnotesize {note}}} \\", 1
+        )
     return out
 
 
@@ -232,8 +278,10 @@ def range_bins_markdown(bins: pd.DataFrame) -> str:
     """Per (trajectory, localizer) a :func:`range_bin_table` as Markdown: success and error
     against range for every condition, which separates what water does at a given range
     from which ranges a condition keeps."""
-    parts = ["P_succ (%) / E_rel (%) per 1 m bin of d_true (frames of all trials pooled; "
-             "E_rel over the frames with an estimate)\n"]
+    parts = [
+        "P_succ (%) / E_rel (%) per 1 m bin of d_true (frames of all trials pooled; "
+        "E_rel over the frames with an estimate)\n"
+    ]
     for (traj, loc), _ in bins.groupby(["trajectory", "localizer"], sort=True, dropna=False):
         table = range_bin_table(bins, loc, traj)
         if len(table):

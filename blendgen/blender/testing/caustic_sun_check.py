@@ -13,6 +13,7 @@ cols) and grid ``c``, ``t``, ``e1``, ``e2``, ``lo``, ``bin_m``.
 The test (``tests/test_caustic_sun.py``) predicts ``caustic = plain + (plain - nosun) (M(P) - 1)``
 at every pixel's world point ``P``.
 """
+
 import json
 import os
 import sys
@@ -22,13 +23,16 @@ import numpy as np
 
 def _render(sc, cam, T, path: str) -> dict:
     from blendgen.blender import render
+
     render.render_frame(sc, cam, T, path)
     return render.read_passes(path)
 
 
 def main(spec_path: str, out: str) -> None:
-    from blendgen.blender import render, scene as scn, world
+    from blendgen.blender import render, world
+    from blendgen.blender import scene as scn
     from blendgen.blender.caustic_sun import CausticSun
+
     spec = json.loads(open(spec_path).read())
     sc = scn.build(spec["scene"])
     cam = render.setup_camera(sc, spec["camera"])
@@ -51,10 +55,23 @@ def main(spec_path: str, out: str) -> None:
     layers = {}
     for layer, M in zip(cs.layers, Ms):
         g, name = layer.grid, layer.name
-        layers.update({f"{name}_{k}": v for k, v in (("M", M), ("c", g.c), ("t", g.t), ("e1", g.e1), ("e2", g.e2),
-                                                      ("lo", g.lo), ("bin_m", g.bin_m))})
-    np.savez(out, plain=plain["rgb"], nosun=nosun, caustic=caustic, depth_z=plain["depth_z"], index=plain["index"],
-             **layers)
+        layers.update(
+            {
+                f"{name}_{k}": v
+                for k, v in (
+                    ("M", M),
+                    ("c", g.c),
+                    ("t", g.t),
+                    ("e1", g.e1),
+                    ("e2", g.e2),
+                    ("lo", g.lo),
+                    ("bin_m", g.bin_m),
+                )
+            }
+        )
+    np.savez(
+        out, plain=plain["rgb"], nosun=nosun, caustic=caustic, depth_z=plain["depth_z"], index=plain["index"], **layers
+    )
 
 
 if __name__ == "__main__":

@@ -9,13 +9,15 @@ OpenImageIO's read bit for bit, and that the sun's pass holds its light alone (l
 sun reaches, below the combined light by the fill's share). Prints OpenEXR's thread count
 (``exr_threads N``), then ``same H W``; exits non-zero (AssertionError) otherwise.
 Run by ``tests/test_exr_read.py`` in a subprocess, so bpy stays out of the test process."""
+
 import json
 import sys
 
-import numpy as np
 import bpy
+import numpy as np
 
-from blendgen.blender import exr, render, scene as scn
+from blendgen.blender import exr, render
+from blendgen.blender import scene as scn
 
 
 def main(argv: list[str]) -> int:
@@ -23,7 +25,7 @@ def main(argv: list[str]) -> int:
     sc = scn.reset()
     bpy.ops.mesh.primitive_monkey_add(location=(0, 0, 0))
     bpy.context.active_object.pass_index = 3
-    scn.add_sun("sun", (0.0, 0.0, 1.0), 3.0, lightgroup="sun")     # toward the camera's side of the monkey
+    scn.add_sun("sun", (0.0, 0.0, 1.0), 3.0, lightgroup="sun")  # toward the camera's side of the monkey
     scn.add_sun("fill", (1.0, 0.0, 0.0), 1.0, shadows=False)
     cam = render.setup_camera(sc, {"width": 64, "height": 48, "hfov_rad": 1.0})
     render.setup_cycles(sc, {"samples": 1, "albedo_pass": True, "normal_pass": True, "sun_pass": True})
@@ -44,7 +46,7 @@ def main(argv: list[str]) -> int:
     assert np.all(sun <= rgb + 1e-6), "the sun's light group holds more than the combined light"
     assert (sun[hit] > 0).any() and (rgb[hit] - sun[hit] > 1e-3).any(), "no sun alone / no fill in the pass"
     h, w = a["rgb"].shape[:2]
-    print("exr_threads", render.exr_thread_count())   # setup_cycles: written in the calling thread
+    print("exr_threads", render.exr_thread_count())  # setup_cycles: written in the calling thread
     print("same", h, w)
     return 0
 

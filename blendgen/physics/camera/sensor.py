@@ -11,6 +11,7 @@ scene point whose ideal (pinhole) image is pixel ``p`` appears at
 ``distort(p)``, exactly where ``cv2.projectPoints`` with those coefficients
 puts it. Images are treated as undistorted unless distortion is configured.
 """
+
 from __future__ import annotations
 
 import functools
@@ -36,7 +37,7 @@ def srgb_encode(linear: np.ndarray) -> np.ndarray:
     the piecewise definition (the curve is concave) and ~4x faster than np.where."""
     x = np.asarray(linear)
     dt = np.float64 if x.dtype == np.float64 else np.float32
-    x = np.fmax(x.astype(dt, copy=False), dt(0))   # NaN -> 0
+    x = np.fmax(x.astype(dt, copy=False), dt(0))  # NaN -> 0
     np.fmin(x, dt(1), out=x)
     hi = np.maximum(x, dt(_LIN_KNEE))
     np.power(hi, dt(1.0 / 2.4), out=hi)
@@ -56,8 +57,7 @@ def srgb_decode(encoded: np.ndarray) -> np.ndarray:
     return np.where(e <= _ENC_KNEE, e / 12.92, hi).astype(e.dtype, copy=False)
 
 
-def to_uint8(linear: np.ndarray, noise_std: float = 0.0,
-             rng: np.random.Generator | None = None) -> np.ndarray:
+def to_uint8(linear: np.ndarray, noise_std: float = 0.0, rng: np.random.Generator | None = None) -> np.ndarray:
     """Linear radiance -> 8-bit sRGB, with additive Gaussian noise of ``noise_std``
     (8-bit units, 0-256) drawn after encoding, then rounded and clipped to 0..255."""
     if not (0.0 <= noise_std <= 256.0):
@@ -84,12 +84,12 @@ def shot_read_noise_e(mean_e: np.ndarray, rng: np.random.Generator, read_noise_e
     < 0.23). Float32, same shape, not clipped."""
     if read_noise_e < 0:
         raise ValueError(f"read_noise_e must be >= 0 electrons, got {read_noise_e}")
-    lam = np.fmax(np.asarray(mean_e, np.float32), np.float32(0))          # NaN -> 0
+    lam = np.fmax(np.asarray(mean_e, np.float32), np.float32(0))  # NaN -> 0
     e = rng.standard_normal(lam.shape, dtype=np.float32)
     sd = lam + np.float32(read_noise_e) ** 2
-    e *= np.sqrt(sd, out=sd)                            # shot and read noise: one Normal draw
+    e *= np.sqrt(sd, out=sd)  # shot and read noise: one Normal draw
     e += lam
-    small = np.flatnonzero(lam < POISSON_EXACT_BELOW)   # flat indices: one take and one put
+    small = np.flatnonzero(lam < POISSON_EXACT_BELOW)  # flat indices: one take and one put
     if small.size:
         v = rng.poisson(lam.ravel()[small]).astype(np.float32)
         if read_noise_e > 0:
@@ -99,6 +99,7 @@ def shot_read_noise_e(mean_e: np.ndarray, rng: np.random.Generator, read_noise_e
 
 
 # --------------------------------------------------------------------------- motion blur
+
 
 def motion_blur_kernel(velocity_px) -> np.ndarray:
     """Normalised line kernel for a displacement ``velocity_px`` = (dx, dy) pixels
@@ -127,14 +128,19 @@ def motion_blur(img: np.ndarray, velocity_px) -> np.ndarray:
     if np.hypot(*v) < 1e-3:
         return np.array(img, copy=True)
     src = np.asarray(img)
-    out = cv2.filter2D(src.astype(np.float32) if src.dtype == np.uint8 else src, -1,
-                       motion_blur_kernel(v), borderType=cv2.BORDER_REFLECT)
+    out = cv2.filter2D(
+        src.astype(np.float32) if src.dtype == np.uint8 else src,
+        -1,
+        motion_blur_kernel(v),
+        borderType=cv2.BORDER_REFLECT,
+    )
     if src.dtype == np.uint8:
         out = np.clip(np.rint(out), 0, 255).astype(np.uint8)
     return out
 
 
 # --------------------------------------------------------------------------- distortion
+
 
 def _dist5(dist) -> np.ndarray:
     d = np.asarray(dist, float).reshape(-1)
@@ -181,12 +187,12 @@ def _maps_cached(K_t: tuple, dist_t: tuple, width: int, height: int):
 def distortion_maps(K, dist, width: int, height: int):
     """(map_x, map_y) float32 (H, W) for cv2.remap: the ideal pixel seen at each
     distorted output pixel. Cached per (K, dist, size)."""
-    return _maps_cached(tuple(np.asarray(K, float).ravel()), tuple(_dist5(dist)),
-                        int(width), int(height))
+    return _maps_cached(tuple(np.asarray(K, float).ravel()), tuple(_dist5(dist)), int(width), int(height))
 
 
-def distort_image(img: np.ndarray, K, dist, interpolation: int = cv2.INTER_LINEAR,
-                  border: int = cv2.BORDER_REPLICATE) -> np.ndarray:
+def distort_image(
+    img: np.ndarray, K, dist, interpolation: int = cv2.INTER_LINEAR, border: int = cv2.BORDER_REPLICATE
+) -> np.ndarray:
     """Apply lens distortion to an ideal pinhole render (same size, same K)."""
     h, w = img.shape[:2]
     mx, my = distortion_maps(K, dist, w, h)
@@ -195,6 +201,7 @@ def distort_image(img: np.ndarray, K, dist, interpolation: int = cv2.INTER_LINEA
 
 # --------------------------------------------------------------------------- timing
 
+
 def pose_timestamp(t_frame, latency_s: float):
     """Time of the pose an image shows: ``t_pose = t_frame - latency_s``.
 
@@ -202,8 +209,7 @@ def pose_timestamp(t_frame, latency_s: float):
     it shows was captured ``latency_s`` earlier. Scalars or arrays."""
     if latency_s < 0:
         raise ValueError(f"latency_s must be >= 0, got {latency_s}")
-    return np.asarray(t_frame, float) - float(latency_s) if np.ndim(t_frame) else \
-        float(t_frame) - float(latency_s)
+    return np.asarray(t_frame, float) - float(latency_s) if np.ndim(t_frame) else float(t_frame) - float(latency_s)
 
 
 # --------------------------------------------------------------------------- pipeline
@@ -222,6 +228,7 @@ class EmvaSheet:
     ``qe`` at ``wavelength_nm``, temporal dark noise ``read_noise_e`` (e- rms), saturation
     capacity ``full_well_e`` (e-), dark current ``dark_current_e_per_s`` (e-/s), pixel pitch
     ``pixel_um`` (um); ``source`` names the document the numbers come from."""
+
     name: str
     qe: float
     wavelength_nm: float
@@ -239,18 +246,26 @@ class EmvaSheet:
 #: saturation capacity ~10.5 ke-, i.e. 73 dB dynamic range and 40.2 dB maximum SNR; dark current a few
 #: e-/s at room temperature). Colour (Bayer) variants have a lower QE per channel; the model keeps one
 #: QE for all three channels.
-IMX264 = EmvaSheet(name="Sony IMX264", qe=0.70, wavelength_nm=530.0, read_noise_e=2.3, full_well_e=10500.0,
-                   dark_current_e_per_s=3.0, pixel_um=3.45,
-                   source="EMVA 1288 summaries of IMX264 cameras (Basler ace acA2440-20gm; Teledyne FLIR "
-                          "Blackfly S BFS-U3-50S5M), rounded")
+IMX264 = EmvaSheet(
+    name="Sony IMX264",
+    qe=0.70,
+    wavelength_nm=530.0,
+    read_noise_e=2.3,
+    full_well_e=10500.0,
+    dark_current_e_per_s=3.0,
+    pixel_um=3.45,
+    source="EMVA 1288 summaries of IMX264 cameras (Basler ace acA2440-20gm; Teledyne FLIR "
+    "Blackfly S BFS-U3-50S5M), rounded",
+)
 
 #: f-number of the default lens (``config.models.Lens.f_number``), used to derive the responsivity.
 DEFAULT_F_NUMBER = 2.8
 _H_PLANCK, _C_LIGHT = 6.62607015e-34, 299792458.0
 
 
-def responsivity_e_per_s(sheet: EmvaSheet = IMX264, f_number: float = DEFAULT_F_NUMBER,
-                         optics_transmission: float = 1.0) -> float:
+def responsivity_e_per_s(
+    sheet: EmvaSheet = IMX264, f_number: float = DEFAULT_F_NUMBER, optics_transmission: float = 1.0
+) -> float:
     """Electrons per second per pixel per unit radiance (W m^-2 sr^-1) of an on-axis scene.
 
     A lens of f-number N puts the irradiance ``E = pi L T / (4 N^2)`` on the sensor (object far
@@ -258,9 +273,10 @@ def responsivity_e_per_s(sheet: EmvaSheet = IMX264, f_number: float = DEFAULT_F_
     ``E p^2 lambda / (h c)`` photons per second, of which the fraction QE become electrons. IMX264 at
     f/2.8, 530 nm, T = 1: 2.2e6 e-/s per W m^-2 sr^-1."""
     if not (f_number > 0 and 0 < optics_transmission <= 1):
-        raise ValueError(f"f_number must be > 0 and optics_transmission in (0, 1], got {f_number}, "
-                         f"{optics_transmission}")
-    e_px = math.pi * optics_transmission / (4.0 * f_number ** 2) * (sheet.pixel_um * 1e-6) ** 2
+        raise ValueError(
+            f"f_number must be > 0 and optics_transmission in (0, 1], got {f_number}, {optics_transmission}"
+        )
+    e_px = math.pi * optics_transmission / (4.0 * f_number**2) * (sheet.pixel_um * 1e-6) ** 2
     photon_j = _H_PLANCK * _C_LIGHT / (sheet.wavelength_nm * 1e-9)
     return sheet.qe * e_px / photon_j
 
@@ -276,8 +292,9 @@ BEACON_FILL = 0.9
 SCENE_EXPOSURE_E_PER_RADIANCE = 4000.0
 
 
-def beacon_exposure_s(peak_radiance: float, full_well_e: float, responsivity: float,
-                      fill: float = BEACON_FILL) -> float:
+def beacon_exposure_s(
+    peak_radiance: float, full_well_e: float, responsivity: float, fill: float = BEACON_FILL
+) -> float:
     """Exposure (s) that puts ``peak_radiance`` (W m^-2 sr^-1, the brightest LED channel) at ``fill``
     of the full well: ``t = fill * full_well / (responsivity * peak_radiance)``. Without an emitter
     (``peak_radiance <= 0``) the scene-metered exposure ``SCENE_EXPOSURE_E_PER_RADIANCE / responsivity``."""
@@ -291,7 +308,8 @@ class SensorModel:
     """EMVA 1288 photon-transfer camera: linear radiance (H, W, 3) -> uint8 (H, W, 3).
 
     Mean electrons ``mu_e = L * responsivity_e_per_s * exposure_s`` plus the dark signal
-    ``dark_current_e_per_s * exposure_s``; charge above the full well spills into neighbours (``bloom_fraction`` of it, Gaussian ``bloom_sigma_px``);
+    ``dark_current_e_per_s * exposure_s``; charge above the full well spills into neighbours (``bloom_fraction`` of
+    it, Gaussian ``bloom_sigma_px``);
     with ``noise`` the collected charge is Poisson (shot noise) plus Normal(0,
     ``read_noise_e``) (temporal dark noise); it saturates at ``full_well_e``; digital
     numbers ``y = K e`` with the system gain ``K = gain * 255 / full_well_e`` DN/e-
@@ -301,6 +319,7 @@ class SensorModel:
     its photon-transfer slope is K. The article's ``noise_std`` (sigma in 8-bit codes after the
     response curve) is thus, in the linear response, an extra read noise of ``noise_std / K``
     electrons on top of the sensor's own."""
+
     exposure_s: float = 0.01
     responsivity_e_per_s: float = 1e6
     full_well_e: float = 10000.0
@@ -321,10 +340,10 @@ class SensorModel:
     def electrons(self, linear: np.ndarray, rng: np.random.Generator | None = None) -> np.ndarray:
         """Collected charge (H, W, 3) float32 electrons, saturated at the full well."""
         mu = np.asarray(linear, np.float32) * np.float32(self.responsivity_e_per_s * self.exposure_s)
-        np.fmax(mu, np.float32(0), out=mu)                                   # NaN and negatives -> 0
+        np.fmax(mu, np.float32(0), out=mu)  # NaN and negatives -> 0
         if self.bloom_fraction > 0:
-            mu = self._bloom(mu, out=mu)                                     # mu is our own array
-        if self.dark_current_e_per_s > 0:                                    # thermal charge: Poisson too
+            mu = self._bloom(mu, out=mu)  # mu is our own array
+        if self.dark_current_e_per_s > 0:  # thermal charge: Poisson too
             mu += np.float32(self.dark_current_e_per_s * self.exposure_s)
         if self.noise:
             if rng is None:
@@ -339,11 +358,11 @@ class SensorModel:
         ``out``: the array to add the spill to (``mu`` itself: in place); default a copy of ``mu``."""
         fw = np.float32(self.full_well_e)
         h, w = mu.shape[:2]
-        over = (mu > fw).reshape(h, -1)                       # (H, W*C): rows and columns without a
-        rows = np.flatnonzero(over.any(axis=1))               # reduction over the short channel axis
+        over = (mu > fw).reshape(h, -1)  # (H, W*C): rows and columns without a
+        rows = np.flatnonzero(over.any(axis=1))  # reduction over the short channel axis
         if rows.size == 0:
             return mu if out is mu else (mu.copy() if out is None else out)
-        cols = np.flatnonzero(over[rows[0]:rows[-1] + 1].any(axis=0).reshape(w, -1).any(axis=1))
+        cols = np.flatnonzero(over[rows[0] : rows[-1] + 1].any(axis=0).reshape(w, -1).any(axis=1))
         pad = int(np.ceil(4 * self.bloom_sigma_px))
         y0, y1 = max(rows[0] - pad, 0), min(rows[-1] + pad + 1, h)
         x0, x1 = max(cols[0] - pad, 0), min(cols[-1] + pad + 1, w)
@@ -353,34 +372,34 @@ class SensorModel:
         out[y0:y1, x0:x1] += spill.reshape(win.shape)
         return out
 
-    def apply(self, linear: np.ndarray, rng: np.random.Generator | None = None,
-              velocity_px=None) -> np.ndarray:
+    def apply(self, linear: np.ndarray, rng: np.random.Generator | None = None, velocity_px=None) -> np.ndarray:
         """Linear radiance -> 8-bit image; ``velocity_px`` (dx, dy) blurs over the exposure."""
         x = np.asarray(linear, np.float32)
         if velocity_px is not None:
             x = motion_blur(x, velocity_px)
         if self.noise or self.bloom_fraction > 0:
             y = self.electrons(x, rng)
-            y *= np.float32(self.K / DN_MAX)                                 # y / 255 in [0, gain]
-        else:                  # noise-free: the same numbers in one pass (the encode clips at 0 and 1)
+            y *= np.float32(self.K / DN_MAX)  # y / 255 in [0, gain]
+        else:  # noise-free: the same numbers in one pass (the encode clips at 0 and 1)
             y = x * np.float32(self.responsivity_e_per_s * self.exposure_s * self.K / DN_MAX)
-            np.fmax(y, np.float32(0), out=y)                                 # NaN and negatives -> 0
+            np.fmax(y, np.float32(0), out=y)  # NaN and negatives -> 0
             if self.dark_current_e_per_s > 0:
                 y += np.float32(self.dark_current_e_per_s * self.exposure_s * self.K / DN_MAX)
             if self.gain < 1:
-                np.minimum(y, np.float32(self.gain), out=y)                  # the full well saturates first
+                np.minimum(y, np.float32(self.gain), out=y)  # the full well saturates first
         np.minimum(y, np.float32(1.0), out=y)
         if self.response == "linear":
             v = y * np.float32(DN_MAX)
             if self.noise_std > 0:
                 v += rng.standard_normal(v.shape, dtype=np.float32) * np.float32(self.noise_std)
             return np.clip(np.rint(v), 0, DN_MAX).astype(np.uint8)
-        if self.noise_std == 0:        # the same codes by table lookup (srgb_lut: exact for every float32)
+        if self.noise_std == 0:  # the same codes by table lookup (srgb_lut: exact for every float32)
             return srgb_lut.encode_uint8(y, srgb_encode)
         return to_uint8(y, self.noise_std, rng)
 
 
 # --------------------------------------------------------------------------- auto-exposure
+
 
 @dataclass(frozen=True)
 class AutoExposure:
@@ -397,6 +416,7 @@ class AutoExposure:
     ``t* = target * full_well / (m * responsivity)``; the next frame's exposure moves toward
     it in log space with ``alpha = 1 - exp(-dt / time_constant_s)`` (0: at once), clamped to
     ``[min_exposure_s, max_exposure_s]``."""
+
     metering: str = "percentile"
     percentile: float = 99.9
     target: float = 0.9
@@ -414,7 +434,7 @@ class AutoExposure:
         k = int(round(self.percentile / 100.0 * (v.size - 1)))
         return float(np.partition(v, k)[k])
 
-    def next_exposure(self, linear: np.ndarray, exposure_s: float, camera: "SensorModel", dt_s: float) -> float:
+    def next_exposure(self, linear: np.ndarray, exposure_s: float, camera: SensorModel, dt_s: float) -> float:
         """The exposure (s) of the next frame, after a frame of ``linear`` radiance taken at ``exposure_s``."""
         m = self.metered(linear)
         if not (m > 0 and math.isfinite(m)):

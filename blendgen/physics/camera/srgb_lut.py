@@ -14,6 +14,7 @@ edges and bisecting (over float32 bit patterns) the buckets whose edge codes dif
 lookup reproduces that encoder wherever the encoder is non-decreasing; ``_check`` (tests)
 asserts one step per bucket at most.
 """
+
 from __future__ import annotations
 
 import functools
@@ -44,7 +45,7 @@ def tables(srgb_encode) -> tuple[np.ndarray, np.ndarray]:
     code, code_last = _codes(srgb_encode, first), _codes(srgb_encode, last)
     step = np.full(n, np.inf, np.float32)
     b = np.flatnonzero(code_last != code)
-    lo, hi = first[b].astype(np.int64), last[b].astype(np.int64)   # code(lo) = code[b], code(hi) > it
+    lo, hi = first[b].astype(np.int64), last[b].astype(np.int64)  # code(lo) = code[b], code(hi) > it
     while np.any(hi - lo > 1):
         mid = (lo + hi) // 2
         up = _codes(srgb_encode, mid) > code[b]

@@ -29,6 +29,7 @@ left the cone, and the veil outside the cone's edge was 71-76 % below a 32-bounc
 render (docs/LAMP.md). Angles are treated as a plane (``psi`` as a radius): exact for small
 angles, approximate for spreads beyond ~1 rad.
 """
+
 from __future__ import annotations
 
 import functools
@@ -66,16 +67,17 @@ def _lobe(phase, forward_kept: float) -> tuple[np.ndarray, np.ndarray]:
     seg = 0.5 * (w[1:] + w[:-1]) * np.diff(theta)
     cum = np.cumsum(seg) / seg.sum()
     k = max(int(np.searchsorted(cum, forward_kept)), 1) + 1
-    mid = 0.5 * (theta[1:k] + theta[:k - 1])
-    return mid, seg[:k - 1] / seg[:k - 1].sum()
+    mid = 0.5 * (theta[1:k] + theta[: k - 1])
+    return mid, seg[: k - 1] / seg[: k - 1].sum()
 
 
 def kernel_transform(phase, forward_kept: float, k: np.ndarray) -> np.ndarray:
     """Hankel transform (order 0, unit integral) of the one-event kernel at frequencies
     ``k`` (1/rad): ``E_theta[Si0(k theta) / (k theta)]`` over the forward lobe (module doc)."""
     from scipy.special import itj0y0
+
     theta, w = _lobe(phase, forward_kept)
-    idx = np.arange(0, w.size, 40)                  # ~500 nodes: K^ is smooth in theta
+    idx = np.arange(0, w.size, 40)  # ~500 nodes: K^ is smooth in theta
     w_node = np.add.reduceat(w, idx)
     theta, w = np.add.reduceat(w * theta, idx) / np.maximum(w_node, 1e-300), w_node
     x = np.outer(k, theta)
@@ -95,18 +97,20 @@ def profile_transform(light) -> np.ndarray:
     """``F(k) = 2 pi int P(r) J0(k r) r dr`` (N_K,) of a light's profile on the r grid
     (trapezoid; in blocks of frequencies, no N_K x N_R matrix is kept)."""
     from scipy.special import j0
+
     r = np.linspace(0.0, PSI_MAX, N_R)
     wr = np.full(N_R, r[1] - r[0])
     wr[[0, -1]] *= 0.5
     f = 2.0 * math.pi * light.profile(np.cos(r)) * r * wr
     k = _frequencies()[0]
-    return np.concatenate([j0(np.outer(k[i:i + 256], r)) @ f for i in range(0, N_K, 256)])
+    return np.concatenate([j0(np.outer(k[i : i + 256], r)) @ f for i in range(0, N_K, 256)])
 
 
 @functools.lru_cache(maxsize=1)
 def _inverse_matrix() -> np.ndarray:
     """(N_PSI, N_K): ``f(psi) = 1/(2 pi) int F(k) J0(k psi) k dk`` with the Gaussian taper."""
     from scipy.special import j0
+
     k, wk = _frequencies()
     taper = np.exp(-0.5 * (k * TAPER_RAD) ** 2)
     return j0(np.outer(psis(), k)) * (k * wk * taper)[None, :] / (2.0 * math.pi)
@@ -118,6 +122,7 @@ def spread_profiles(light_key: tuple, phase_key: tuple, forward_kept: float, n_m
     (half_angle_rad, edge_rad, cosine_power)) and a phase function (``phase_key`` = ("hg", g)
     or ("ff", ior, backscatter))."""
     from blendgen.physics.light.sources import PointLight
+
     light = PointLight(np.zeros(3), np.array([0.0, 0.0, 1.0]), np.ones(3), *light_key)
     k = _frequencies()[0]
     K_hat = kernel_transform(phase_of(phase_key), forward_kept, k)
@@ -129,6 +134,7 @@ def phase_of(phase_key: tuple):
     """Callable cos(theta) (N,) -> 1/sr (N,) for ("hg", g) or ("ff", ior, backscatter) (the
     water's phase function, ``optics.hg_phase`` / ``optics.ff_phase``)."""
     from blendgen.physics.water import optics
+
     if phase_key[0] == "hg":
         return functools.partial(optics.hg_phase, g=float(phase_key[1]))
     return lambda mu: optics.ff_phase(np.arccos(np.clip(mu, -1.0, 1.0)), float(phase_key[1]), float(phase_key[2]))
@@ -145,11 +151,12 @@ def beam_table(light, c: np.ndarray, sigma_s: np.ndarray, forward_kept: float, p
     = b: (3,) 1/m; ``forward_kept`` F in (0, 1); ``phase_key`` as in :func:`spread_profiles`.
     Times ``I0 / d^2`` it is the irradiance normal to the light's ray."""
     from scipy.special import gammaln
+
     d = distances()
     c = np.asarray(c, float)
     fb = float(forward_kept) * np.asarray(sigma_s, float)
     lam_max = float(np.max(fb)) * D_MAX
-    n_max = int(min(640, 32 * math.ceil((lam_max + 8.0 * math.sqrt(lam_max) + 12) / 32)))   # cache buckets
+    n_max = int(min(640, 32 * math.ceil((lam_max + 8.0 * math.sqrt(lam_max) + 12) / 32)))  # cache buckets
     profiles = spread_profiles(light_key(light), phase_key, float(forward_kept), n_max)
     sharp = light.profile(np.cos(psis()))
     n = np.arange(1, n_max + 1)
@@ -158,14 +165,15 @@ def beam_table(light, c: np.ndarray, sigma_s: np.ndarray, forward_kept: float, p
         logw = n[None, :] * np.log(np.maximum(fb[ch] * d, 1e-300))[:, None] - gammaln(n + 1)[None, :]
         logw -= (c[ch] * d)[:, None]
         out[..., ch] = np.exp(-c[ch] * d)[:, None] * sharp[None, :] + np.exp(logw) @ profiles
-    return np.maximum(out, 0.0, out=out)          # the transforms' ringing leaves ~-1e-4 far out
+    return np.maximum(out, 0.0, out=out)  # the transforms' ringing leaves ~-1e-4 far out
 
 
 def lookup(table: np.ndarray, cos_psi: np.ndarray, d: np.ndarray) -> np.ndarray:
     """The beam table (:func:`beam_table`) at angles ``cos_psi`` (h, w) and distances ``d``
     (h, w, m; clipped to [D_MIN, D_MAX]) -> (h, w, 3) float32, bilinear (``cv2.remap``)."""
     import cv2
-    if np.size(cos_psi) == 0:                 # cv2.remap rejects an empty map (a frame with no particle)
+
+    if np.size(cos_psi) == 0:  # cv2.remap rejects an empty map (a frame with no particle)
         return np.zeros((*np.shape(cos_psi), 3), np.float32)
     x = np.arccos(np.clip(cos_psi, -1.0, 1.0)).astype(np.float32) * np.float32((N_PSI - 1) / PSI_MAX)
     y = np.log(np.clip(d, D_MIN, D_MAX).astype(np.float32) * np.float32(1.0 / D_MIN))

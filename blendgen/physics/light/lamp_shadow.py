@@ -41,6 +41,7 @@ hidden behind another surface, casts no shadow; an edge cast by a face the camer
 e.g. a slab's far rim, is drawn as if the object were ``THICKNESS_M`` thick); the lamp is a point (hard shadows, as the
 reference's radius-0 spot).
 """
+
 from __future__ import annotations
 
 import functools
@@ -91,8 +92,9 @@ def _segment_range(t, xx, xs, ss):
     return np.sqrt(np.maximum(xx * (1 - t) ** 2 + 2 * t * (1 - t) * xs + t * t * ss, 0.0))
 
 
-def _march(points: np.ndarray, lamp: np.ndarray, K: np.ndarray, table: np.ndarray,
-           offsets: np.ndarray, z_min: float) -> np.ndarray:
+def _march(
+    points: np.ndarray, lamp: np.ndarray, K: np.ndarray, table: np.ndarray, offsets: np.ndarray, z_min: float
+) -> np.ndarray:
     """(N,) bool: is the segment from each point (N, 3) to ``lamp`` (3,) behind a surface of the pass.
 
     The march's offsets tile the segment's image into pieces (boundaries half-way between
@@ -104,7 +106,7 @@ def _march(points: np.ndarray, lamp: np.ndarray, K: np.ndarray, table: np.ndarra
     A = X @ K.T
     B = (lamp[None, :] - X) @ K.T
     az, bz = A[:, 2:3], B[:, 2:3]
-    a = A[:, :2] / az                                   # the point's own pixel (N, 2)
+    a = A[:, :2] / az  # the point's own pixel (N, 2)
     D = B[:, :2] * az - A[:, :2] * bz
     nd = np.sqrt(np.einsum("nk,nk->n", D, D))[:, None]
     e = D / np.maximum(nd, np.float32(1e-12))
@@ -114,7 +116,7 @@ def _march(points: np.ndarray, lamp: np.ndarray, K: np.ndarray, table: np.ndarra
     bnd = np.concatenate([offsets - np.maximum(gaps[:-1] / 2, 0.5), offsets[-1:] + np.maximum(gaps[-1:] / 2, 0.5)])
     den = nd - bnd[None, :] * az * bz
     tb = np.minimum(np.where(den > 0, bnd[None, :] * az * az / np.where(den > 0, den, 1.0), 1.0), 1.0)
-    rb = _segment_range(tb, xx, xs, ss)                                       # (N, S + 1)
+    rb = _segment_range(tb, xx, xs, ss)  # (N, S + 1)
     hi, lo = np.maximum(rb[:, :-1], rb[:, 1:]), np.minimum(rb[:, :-1], rb[:, 1:])
     ok = (tb[:, :-1] < 1) & ((X[:, 2:3] + tb[:, :-1] * (lamp[2] - X[:, 2:3])) > z_min)
     Rb, bias_b = _lookup(table, a, e, bnd[None, :], np.ones(rb.shape, bool))
@@ -156,8 +158,16 @@ def _table(range_m: np.ndarray, slope: np.ndarray | None = None) -> np.ndarray:
     return np.concatenate([range_m[..., None].astype(np.float32), slope.astype(np.float32)], axis=-1)
 
 
-def occluded(points: np.ndarray, lamp, K, range_m: np.ndarray, table: np.ndarray | None = None,
-             max_px: float | None = None, z_min: float | None = None, coarse: bool = False) -> np.ndarray:
+def occluded(
+    points: np.ndarray,
+    lamp,
+    K,
+    range_m: np.ndarray,
+    table: np.ndarray | None = None,
+    max_px: float | None = None,
+    z_min: float | None = None,
+    coarse: bool = False,
+) -> np.ndarray:
     """(N,) bool: which camera-frame points (N, 3) are hidden from the point ``lamp`` (3,) by a
     surface of ``range_m`` (H, W) under the pinhole ``K`` (module doc). ``max_px`` bounds the
     march (None: the image diagonal); ``z_min`` (m) the nearest surface depth (None: 0); ``coarse``:
@@ -171,7 +181,7 @@ def occluded(points: np.ndarray, lamp, K, range_m: np.ndarray, table: np.ndarray
     z0 = 0.0 if z_min is None else float(z_min)
     out = np.zeros(len(points), bool)
     for i in range(0, len(points), CHUNK):
-        out[i:i + CHUNK] = _march(points[i:i + CHUNK], lamp, K, table, offsets, z0)
+        out[i : i + CHUNK] = _march(points[i : i + CHUNK], lamp, K, table, offsets, z0)
     return out
 
 
@@ -194,17 +204,19 @@ def _grid_maps(h: int, w: int, step: int):
     return mx, my
 
 
-def visibility(lamp, K, rays: np.ndarray, range_m: np.ndarray, step: int = GRID_PX,
-               mask: np.ndarray | None = None) -> np.ndarray:
+def visibility(
+    lamp, K, rays: np.ndarray, range_m: np.ndarray, step: int = GRID_PX, mask: np.ndarray | None = None
+) -> np.ndarray:
     """(H, W) float32 in {0, 1}: 1 where the
     surface point of each pixel sees the point ``lamp`` (3,), camera frame; 1 where no surface.
     rays (H, W, 3) unit pixel rays; range_m (H, W); mask (H, W) bool: the only pixels tested
     (e.g. those the lamp's cone reaches; None: all). Coarse pass + full-resolution edges (module doc)."""
     import cv2
+
     K = np.asarray(K, np.float64)
     lamp = np.asarray(lamp, np.float64).reshape(3)
     h, w = range_m.shape
-    step = int(max(1, min(step, min(h, w) // 120)))     # small images: every pixel (they are cheap)
+    step = int(max(1, min(step, min(h, w) // 120)))  # small images: every pixel (they are cheap)
     surf = np.isfinite(range_m) & (range_m > 0)
     hit = surf if mask is None else surf & mask
     if not hit.any():

@@ -35,6 +35,7 @@ The Jaffe (1990) / McGlamery (1980) decomposition of an image under artificial l
   element in the same beam. The dock's LEDs keep ``c`` (single scattering) on surfaces and
   particles: F was fitted to the lamp's cone only.
 """
+
 from __future__ import annotations
 
 import functools
@@ -65,15 +66,16 @@ class LampWater:
 
     ``c_lamp`` is the effective attenuation ``c - F b`` of smooth light fields: on the
     lamp's path and on the veil's path to the camera; ``c`` stays on a surface's image."""
+
     lights: tuple[PointLight, ...]
     sigma_s: np.ndarray
     c: np.ndarray
     c_lamp: np.ndarray
-    phase: object          # callable cos(theta) (N,) -> 1/sr (N,)
-    shadows: bool = True   # screen-space shadows of the lamps on surfaces (physics/light/lamp_shadow.py)
-    veil_shadows: bool = True   # and in the veil (with ``shadows``; False: surfaces only, for comparison)
-    spread: bool = False        # the beam's forward-scattered light spreads in angle (physics/light/beam_spread.py)
-    tables: tuple = ()          # per light, its beam table (beam_spread.beam_table) when ``spread``
+    phase: object  # callable cos(theta) (N,) -> 1/sr (N,)
+    shadows: bool = True  # screen-space shadows of the lamps on surfaces (physics/light/lamp_shadow.py)
+    veil_shadows: bool = True  # and in the veil (with ``shadows``; False: surfaces only, for comparison)
+    spread: bool = False  # the beam's forward-scattered light spreads in angle (physics/light/beam_spread.py)
+    tables: tuple = ()  # per light, its beam table (beam_spread.beam_table) when ``spread``
 
     def beam(self, light: PointLight, cos_psi: np.ndarray, d: np.ndarray) -> np.ndarray:
         """(…, 3) float32 relative beam of ``light`` at angle ``cos_psi`` (…) and distance ``d``
@@ -82,33 +84,46 @@ class LampWater:
         distance, ``D_MAX``, attenuated on with ``c'``); times ``I0 / d^2`` it is the irradiance
         normal to the ray. Without spread: the sharp profile times ``exp(-c' d)``."""
         from blendgen.physics.light import beam_spread
+
         d = np.asarray(d, np.float32)
         c_lamp = self.c_lamp.astype(np.float32)
         if not self.spread:
             return light.profile(cos_psi)[..., None] * np.exp(-d[..., None] * c_lamp)
         k = next(i for i, li in enumerate(self.lights) if li is light)
         shape = np.shape(cos_psi)
-        out = beam_spread.lookup(self.tables[k], np.reshape(cos_psi, (shape[0], -1)),
-                                 np.reshape(d, (shape[0], -1))).reshape(*shape, 3)
+        out = beam_spread.lookup(
+            self.tables[k], np.reshape(cos_psi, (shape[0], -1)), np.reshape(d, (shape[0], -1))
+        ).reshape(*shape, 3)
         if d.size and float(d.max()) > beam_spread.D_MAX:
             out *= np.exp(-np.maximum(d - np.float32(beam_spread.D_MAX), 0)[..., None] * c_lamp)
         return out
 
     @classmethod
-    def build(cls, lights: list[PointLight], water, forward_kept: float | None = None,
-              shadows: bool = True) -> "LampWater":
+    def build(
+        cls, lights: list[PointLight], water, forward_kept: float | None = None, shadows: bool = True
+    ) -> LampWater:
         """From lights and an ``optics.WaterOptics`` (its phase function and coefficients);
         ``forward_kept`` F (None: :data:`FORWARD_KEPT`); ``shadows``: the lamps' shadow test."""
         from blendgen.physics.light import beam_spread
+
         b, c = np.asarray(water.sigma_s, float), np.asarray(water.c, float)
-        key = (("ff", float(water.ff_ior), float(water.ff_backscatter)) if water.phase == "ff"
-               else ("hg", float(water.g)))
+        key = (
+            ("ff", float(water.ff_ior), float(water.ff_backscatter)) if water.phase == "ff" else ("hg", float(water.g))
+        )
         phase = beam_spread.phase_of(key)
         forward_kept = FORWARD_KEPT if forward_kept is None else float(forward_kept)
         spread = 0 < forward_kept < 1 and bool(np.any(b > 0))
         tables = tuple(beam_spread.beam_table(li, c, b, forward_kept, key) for li in lights) if spread else ()
-        return cls(tuple(lights), b, c, lamp_attenuation(water, forward_kept), phase, bool(shadows),
-                   spread=spread, tables=tables)
+        return cls(
+            tuple(lights),
+            b,
+            c,
+            lamp_attenuation(water, forward_kept),
+            phase,
+            bool(shadows),
+            spread=spread,
+            tables=tables,
+        )
 
 
 def lamp_attenuation(water, forward_kept: float | None = None) -> np.ndarray:
@@ -130,18 +145,18 @@ def backscatter_table(model: LampWater, rays: np.ndarray, t: np.ndarray, visible
     (trapezoid rule; scalar geometry (N, T) first, the RGB attenuation once per light).
     ``visible``: None, or one (N, T) array per light, 0 where the node is in that lamp's shadow."""
     rays32, t32 = rays.astype(np.float32), t.astype(np.float32)
-    x = rays32[:, None, :] * t32[None, :, None]                   # (N, T, 3)
+    x = rays32[:, None, :] * t32[None, :, None]  # (N, T, 3)
     f = np.zeros(x.shape, np.float32)
     for i, light in enumerate(model.lights):
         v = x - np.asarray(light.position_m, np.float32)
         d = np.maximum(np.sqrt(np.einsum("ntk,ntk->nt", v, v)), np.float32(MIN_LAMP_DISTANCE_M))
         v /= d[..., None]
-        cos_scatter = -np.einsum("ntk,nk->nt", v, rays32)           # lamp ray vs direction to camera
+        cos_scatter = -np.einsum("ntk,nk->nt", v, rays32)  # lamp ray vs direction to camera
         geo = model.phase(cos_scatter).astype(np.float32) / (d * d)
         if visible is not None:
             geo *= visible[i]
-        lit = model.beam(light, v @ np.asarray(light.axis, np.float32), d)                 # (N, T, 3)
-        lit *= np.exp(-t32[None, :, None] * model.c_lamp.astype(np.float32))            # c' t to the camera
+        lit = model.beam(light, v @ np.asarray(light.axis, np.float32), d)  # (N, T, 3)
+        lit *= np.exp(-t32[None, :, None] * model.c_lamp.astype(np.float32))  # c' t to the camera
         f += geo[..., None] * lit * np.asarray(light.intensity_w_sr * model.sigma_s, np.float32)
     steps = 0.5 * (f[:, 1:] + f[:, :-1]) * np.diff(t32)[None, :, None]
     out = np.zeros_like(f)
@@ -183,7 +198,8 @@ def _volume_visibility(model: LampWater, K, range_m, rays: np.ndarray, t: np.nda
     veil (the reference's shadow volume, e.g. behind the dock); the F factor's light, scattered
     on into the shadow volume, is not added (documented approximation)."""
     from blendgen.physics.light import lamp_shadow
-    need = t[None, :] <= np.fmin(r_far, t[-1])[:, None] + 1e-6          # (N, T), and the next node
+
+    need = t[None, :] <= np.fmin(r_far, t[-1])[:, None] + 1e-6  # (N, T), and the next node
     need[:, 1:] |= need[:, :-1]
     pts = (rays[:, None, :] * t[None, :, None])[need]
     out = []
@@ -202,14 +218,17 @@ def backscatter(model: LampWater, K: np.ndarray, range_m: np.ndarray, step: int 
     interpolates between them at its own range (exact at both ends of a depth edge, e.g. the
     dock's outline against open water)."""
     import cv2
+
     h, w = range_m.shape
-    step = int(min(step, max(4, min(w, h) // 24)))      # at least ~24 rays across small images
+    step = int(min(step, max(4, min(w, h) // 24)))  # at least ~24 rays across small images
     t = range_nodes()
-    r = np.fmin(range_m.astype(np.float32, copy=False), np.float32(t[-1]))   # inf, NaN -> the last node
+    r = np.fmin(range_m.astype(np.float32, copy=False), np.float32(t[-1]))  # inf, NaN -> the last node
     rmin, rmax = _block_min_max(r, step)
     gh, gw = rmin.shape
     rays = _block_rays(tuple(np.asarray(K, float).ravel()), gw, gh, step)
-    visible = _volume_visibility(model, K, range_m, rays, t, rmax.ravel()) if model.shadows and model.veil_shadows else None
+    visible = (
+        _volume_visibility(model, K, range_m, rays, t, rmax.ravel()) if model.shadows and model.veil_shadows else None
+    )
     table = backscatter_table(model, rays, t, visible)
     vmin = _table_at(table, t, rmin.ravel().astype(np.float64)).reshape(gh, gw, 3).astype(np.float32)
     vmax = _table_at(table, t, rmax.ravel().astype(np.float64)).reshape(gh, gw, 3).astype(np.float32)
@@ -225,11 +244,18 @@ def _shadow_test(K, rays, range_m):
 
     def visible(light, lit):
         return lamp_shadow.visibility(light.position_m, K, rays, range_m, mask=lit)
+
     return visible
 
 
-def surface_radiance(model: LampWater, rays: np.ndarray, range_m: np.ndarray, albedo: np.ndarray,
-                     normals: np.ndarray | None, K: np.ndarray | None = None) -> np.ndarray:
+def surface_radiance(
+    model: LampWater,
+    rays: np.ndarray,
+    range_m: np.ndarray,
+    albedo: np.ndarray,
+    normals: np.ndarray | None,
+    K: np.ndarray | None = None,
+) -> np.ndarray:
     """Lamp light reflected by Lambertian surfaces, as seen by the camera (H, W, 3):
     ``albedo / pi * sum I(psi) cos(i) exp(-c' d) / d^2 * visible * exp(-c r)``
     (``surface_light.lambert_radiance`` on every pixel, then the camera path).
@@ -239,9 +265,11 @@ def surface_radiance(model: LampWater, rays: np.ndarray, range_m: np.ndarray, al
     K (3, 3) the pinhole of the pass, needed by the shadow test (None or ``model.shadows``
     False: no shadows, every surface sees the lamps)."""
     from blendgen.physics.light import surface_light
+
     visible = _shadow_test(K, rays, range_m) if model.shadows and K is not None else None
-    out = surface_light.lambert_radiance(model.lights, rays, range_m, albedo, model.c_lamp, normals, 1, visible,
-                                         beam=model.beam)
+    out = surface_light.lambert_radiance(
+        model.lights, rays, range_m, albedo, model.c_lamp, normals, 1, visible, beam=model.beam
+    )
     if out is None:
         return np.zeros(albedo.shape, np.float32)
     r = np.where(np.isfinite(range_m) & (range_m > 0), range_m, 0.0).astype(np.float32)
@@ -249,8 +277,14 @@ def surface_radiance(model: LampWater, rays: np.ndarray, range_m: np.ndarray, al
     return out
 
 
-def lamp_radiance(model: LampWater, K: np.ndarray, rays: np.ndarray, range_m: np.ndarray,
-                  albedo: np.ndarray, normals: np.ndarray | None) -> np.ndarray:
+def lamp_radiance(
+    model: LampWater,
+    K: np.ndarray,
+    rays: np.ndarray,
+    range_m: np.ndarray,
+    albedo: np.ndarray,
+    normals: np.ndarray | None,
+) -> np.ndarray:
     """Everything the lamps add to the camera image (H, W, 3): lit surfaces + backscatter."""
     out = surface_radiance(model, rays, range_m, albedo, normals, K)
     if np.any(model.sigma_s > 0):

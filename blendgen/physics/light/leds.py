@@ -14,6 +14,7 @@ and its total flux over the front hemisphere is ``pi I_k``. Radiometric units ar
 their ratio whatever the sensor does. The old ``strength`` key was this radiance per unit
 colour weight: ``I = strength * pi a^2`` (exact).
 """
+
 from __future__ import annotations
 
 import math
@@ -45,8 +46,10 @@ def led_lights(marker: dict, T_cam_dock) -> list[PointLight]:
     axis = T[:3, 2] / np.linalg.norm(T[:3, 2])
     I = float(marker["intensity_w_sr"])
     pts = np.asarray(marker["keypoints"], float) @ T[:3, :3].T + T[:3, 3]
-    return [PointLight(p, axis, I * np.asarray(col, float), math.pi / 2, 0.0, cosine_power=1.0)
-            for p, col in zip(pts, marker["colors"])]
+    return [
+        PointLight(p, axis, I * np.asarray(col, float), math.pi / 2, 0.0, cosine_power=1.0)
+        for p, col in zip(pts, marker["colors"])
+    ]
 
 
 def reach_m(lights: list[PointLight], min_irradiance: float) -> float:
@@ -63,8 +66,15 @@ def reach_m(lights: list[PointLight], min_irradiance: float) -> float:
 MIN_LED_RADIANCE = 1e-4
 
 
-def surface_radiance(lights: list[PointLight], range_m: np.ndarray, rays: np.ndarray, albedo: np.ndarray,
-                     c_per_m, step: int = 4, min_radiance: float = MIN_LED_RADIANCE) -> np.ndarray | None:
+def surface_radiance(
+    lights: list[PointLight],
+    range_m: np.ndarray,
+    rays: np.ndarray,
+    albedo: np.ndarray,
+    c_per_m,
+    step: int = 4,
+    min_radiance: float = MIN_LED_RADIANCE,
+) -> np.ndarray | None:
     """Radiance (H, W, 3) float32 that Lambertian surfaces of ``albedo`` (H, W, 3) reflect
     toward the camera under the LEDs ``lights``: ``L = albedo * E / pi``, E inverse square x
     exp(-c d) x cos(incidence), no shadows (``surface_light.lambert_radiance``). Surface points are

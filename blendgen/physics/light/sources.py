@@ -15,6 +15,7 @@ z forward), metres. Radiometry per linear RGB channel:
 A lamp of radiant flux ``P`` (W) spread evenly over a cone of half-angle ``a`` has
 ``I0 = P / (2 pi (1 - cos a))``.
 """
+
 from __future__ import annotations
 
 import math
@@ -30,6 +31,7 @@ class PointLight:
     (0, pi] (pi: isotropic); ``edge_rad`` the width of the soft edge inside it;
     ``cosine_power`` m multiplies the profile by ``cos(theta)^m`` (1 with half angle pi/2: a
     flat Lambertian emitter such as an LED disc, ``physics/light/leds.py``; 0: none)."""
+
     position_m: np.ndarray
     axis: np.ndarray
     intensity_w_sr: np.ndarray
@@ -42,9 +44,9 @@ class PointLight:
         if self.cosine_power > 0:
             lam = np.clip(cos_theta, 0.0, None)
             if self.cosine_power != 1:
-                lam = lam ** self.cosine_power
+                lam = lam**self.cosine_power
             if self.half_angle_rad >= math.pi / 2 and self.edge_rad <= 0:
-                return lam                          # the cosine is already 0 behind the emitter
+                return lam  # the cosine is already 0 behind the emitter
             base = PointLight(self.position_m, self.axis, self.intensity_w_sr, self.half_angle_rad, self.edge_rad)
             return base.profile(cos_theta) * lam
         if self.half_angle_rad >= math.pi:
@@ -70,8 +72,13 @@ def blender_spot_blend(half_angle_rad: float, edge_rad: float) -> float:
     return float(np.clip((cos_inner - cos_half) / (1.0 - cos_half), 0.0, 1.0)) if cos_half < 1.0 else 0.0
 
 
-def irradiance(lights: list[PointLight], points_m: np.ndarray, c_per_m: np.ndarray,
-               normals: np.ndarray | None = None, min_distance_m: float = 1e-3) -> np.ndarray:
+def irradiance(
+    lights: list[PointLight],
+    points_m: np.ndarray,
+    c_per_m: np.ndarray,
+    normals: np.ndarray | None = None,
+    min_distance_m: float = 1e-3,
+) -> np.ndarray:
     """Irradiance (N, 3) W/m^2 that ``lights`` give points ``points_m`` (N, 3), camera frame.
 
     ``c_per_m`` (3,) beam attenuation of the water along the light's path; ``normals`` (N, 3)
@@ -101,6 +108,13 @@ def lamp_lights(lamps) -> list[PointLight]:
         axis = np.array([math.sin(yaw) * math.cos(pitch), math.sin(pitch), math.cos(yaw) * math.cos(pitch)])
         half = math.radians(lamp.half_angle_deg)
         i0 = cone_intensity(lamp.power_w, half)
-        out.append(PointLight(np.asarray(lamp.offset_m, float), axis / np.linalg.norm(axis),
-                              i0 * np.asarray(lamp.color, float), half, min(math.radians(lamp.edge_deg), half)))
+        out.append(
+            PointLight(
+                np.asarray(lamp.offset_m, float),
+                axis / np.linalg.norm(axis),
+                i0 * np.asarray(lamp.color, float),
+                half,
+                min(math.radians(lamp.edge_deg), half),
+            )
+        )
     return out

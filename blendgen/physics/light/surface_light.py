@@ -15,6 +15,7 @@ with ``c`` (3,) the attenuation along the light's path (the beam's ``c - F b`` f
 product of the surface points' finite differences, ``leds.surface_normals``: a few pixels
 along silhouettes get the normal of the step between two surfaces).
 """
+
 from __future__ import annotations
 
 import functools
@@ -33,11 +34,12 @@ def surface_normals(points: np.ndarray) -> np.ndarray:
     (a surface next to a farther one) the normal is that of the step between them: a few
     pixels along silhouettes get a wrong light (documented approximation)."""
     from blendgen.physics.surface.kernels import normals
+
     P = np.ascontiguousarray(points)
     if P.ndim != 3 or P.shape[2] != 3 or min(P.shape[:2]) < 2:
         raise ValueError(f"surface points must be a grid (h, w, 3) with h, w >= 2, got {P.shape}")
     out = np.empty_like(P)
-    normals(P, out)                                     # one compiled pass (surface_kernels)
+    normals(P, out)  # one compiled pass (surface_kernels)
     return out
 
 
@@ -60,9 +62,18 @@ def _light_gain(light, x: np.ndarray, normals: np.ndarray, sharp: bool = True):
     return gain.astype(np.float32), d, cos_psi
 
 
-def lambert_radiance(lights, rays: np.ndarray, range_m: np.ndarray, albedo: np.ndarray, c_light,
-                     normals: np.ndarray | None = None, step: int = 1, visible=None,
-                     min_radiance: float = 0.0, beam=None) -> np.ndarray | None:
+def lambert_radiance(
+    lights,
+    rays: np.ndarray,
+    range_m: np.ndarray,
+    albedo: np.ndarray,
+    c_light,
+    normals: np.ndarray | None = None,
+    step: int = 1,
+    visible=None,
+    min_radiance: float = 0.0,
+    beam=None,
+) -> np.ndarray | None:
     """Clean radiance (H, W, 3) float32 that ``lights`` put on the surfaces of the range pass (module doc).
 
     rays (H, W, 3) unit pixel rays; range_m (H, W) (inf/NaN/0: no surface); albedo (H, W, 3);
@@ -74,24 +85,29 @@ def lambert_radiance(lights, rays: np.ndarray, range_m: np.ndarray, albedo: np.n
     lamp's spread in water, ``lamp_water.LampWater.beam``). Returns None when no light or when
     the brightest result is below ``min_radiance`` (nothing worth adding)."""
     import cv2
+
     if not lights:
         return None
     h, w = range_m.shape
     hit = np.isfinite(range_m) & (range_m > 0)
     r = np.where(hit, range_m, 0.0).astype(np.float32)[::step, ::step]
     x = rays[::step, ::step].astype(np.float32) * r[..., None]
-    nrm = (surface_normals(x.astype(np.float64)).astype(np.float32) if normals is None
-           else np.asarray(normals, np.float32)[::step, ::step])
+    nrm = (
+        surface_normals(x.astype(np.float64)).astype(np.float32)
+        if normals is None
+        else np.asarray(normals, np.float32)[::step, ::step]
+    )
     c = np.asarray(c_light, np.float32).reshape(3)
     grid = []
     for light in lights:
         gain, d, cos_psi = _light_gain(light, x, nrm, sharp=beam is None)
-        e = (gain * hit[::step, ::step])[..., None] * (np.exp(-d[..., None] * c) if beam is None
-                                                        else beam(light, cos_psi, d))
+        e = (gain * hit[::step, ::step])[..., None] * (
+            np.exp(-d[..., None] * c) if beam is None else beam(light, cos_psi, d)
+        )
         grid.append(e * np.asarray(light.intensity_w_sr, np.float32))
     a_max = float(np.max(albedo)) if albedo.size else 0.0
     if min_radiance > 0 and sum(float(e.max()) for e in grid) * a_max / math.pi < min_radiance:
-        return None                                       # before any full-resolution work
+        return None  # before any full-resolution work
     E = np.zeros((h, w, 3), np.float32)
     for light, e in zip(lights, grid):
         if step > 1:

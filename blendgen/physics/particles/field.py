@@ -34,13 +34,13 @@ Positions are stored as float32 (12 bytes per particle: 1e6 particles = 12 MB);
 keep region coordinates within a few hundred metres of the origin (float32 keeps
 ~10 um resolution at 100 m).
 """
+
 from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -50,7 +50,7 @@ from blendgen.physics.particles import splat as psplat
 
 COUNT_DISTS = ("poisson", "uniform", "fixed")
 MODES = ("backscatter", "silhouette")
-MAX_PARTICLES = 20_000_000            # 240 MB of float32 positions
+MAX_PARTICLES = 20_000_000  # 240 MB of float32 positions
 DEFAULT_R_MIN_M = 0.005
 DEFAULT_R_MAX_M = 0.02
 DEFAULT_AMBIENT_RGB = (0.60, 0.70, 0.62)  # light grey-green veiling/ambient light (linear)
@@ -67,10 +67,12 @@ def _check_region(region_min, region_max) -> tuple[np.ndarray, np.ndarray]:
     hi = np.asarray(region_max, float).reshape(-1)
     if lo.shape != (3,) or hi.shape != (3,) or not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
         raise ValueError(f"region_min/region_max must be finite (3,) vectors, got {lo}, {hi}")
-    scale = np.maximum(1.0, np.maximum(np.abs(lo), np.abs(hi)))   # float32 must resolve it
+    scale = np.maximum(1.0, np.maximum(np.abs(lo), np.abs(hi)))  # float32 must resolve it
     if np.any(hi - lo < 1e-6 * scale):
-        raise ValueError(f"region must be non-empty: region_max - region_min >= 1e-6 * max(1, |coord|) "
-                         f"m on every axis, got min={lo.tolist()} max={hi.tolist()}")
+        raise ValueError(
+            f"region must be non-empty: region_max - region_min >= 1e-6 * max(1, |coord|) "
+            f"m on every axis, got min={lo.tolist()} max={hi.tolist()}"
+        )
     return lo, hi
 
 
@@ -111,13 +113,14 @@ class ParticleField:
     C-contiguous rows x, y, z that the compiled loops read (an (N, 3) layout kept them from
     being vectorised: the projection's culling pass 0.4 -> 0.04 ms for 60000).
     """
+
     positions: np.ndarray
     radii: np.ndarray
     region_min: np.ndarray
     region_max: np.ndarray
 
     def __post_init__(self):
-        pos = np.ascontiguousarray(np.asarray(self.positions, np.float32).reshape(-1, 3).T).T   # planar
+        pos = np.ascontiguousarray(np.asarray(self.positions, np.float32).reshape(-1, 3).T).T  # planar
         radii = np.asarray(self.radii, np.float32).reshape(-1)
         lo, hi = _check_region(self.region_min, self.region_max)
         if radii.shape[0] != pos.shape[0]:
@@ -147,11 +150,20 @@ class ParticleField:
         return self.n / self.volume
 
     @classmethod
-    def sample(cls, rng, region_min, region_max, n_total: float | None = None,
-               density: float | None = None, r_min: float = DEFAULT_R_MIN_M,
-               r_max: float = DEFAULT_R_MAX_M, count_dist: str = "poisson",
-               n_max: int | None = None, size_dist: str = "uniform",
-               size_slope: float = 3.5) -> "ParticleField":
+    def sample(
+        cls,
+        rng,
+        region_min,
+        region_max,
+        n_total: float | None = None,
+        density: float | None = None,
+        r_min: float = DEFAULT_R_MIN_M,
+        r_max: float = DEFAULT_R_MAX_M,
+        count_dist: str = "poisson",
+        n_max: int | None = None,
+        size_dist: str = "uniform",
+        size_slope: float = 3.5,
+    ) -> ParticleField:
         """Draw a field. Give exactly one of ``n_total`` (expected/total count in the
         region) or ``density`` (rho, 1/m^3; then the mean count is rho * V_env).
 
@@ -170,18 +182,20 @@ class ParticleField:
         vol = float(np.prod(hi - lo))
         mean = float(n_total) if n_total is not None else float(density) * vol
         if not math.isfinite(mean) or mean < 0 or mean > MAX_PARTICLES:
-            raise ValueError(f"expected particle count must be in [0, {MAX_PARTICLES}], got {mean} "
-                             f"(n_total={n_total}, density={density}, V_env={vol:.6g} m^3)")
+            raise ValueError(
+                f"expected particle count must be in [0, {MAX_PARTICLES}], got {mean} "
+                f"(n_total={n_total}, density={density}, V_env={vol:.6g} m^3)"
+            )
         n = _draw_count(rng, mean, count_dist, n_max, n_total)
         if n > MAX_PARTICLES:
             raise ValueError(f"particle count must be <= {MAX_PARTICLES}, got {n}")
-        xyz = rng.random((3, n), dtype=np.float32)            # planar, in place: ~16 bytes/particle
+        xyz = rng.random((3, n), dtype=np.float32)  # planar, in place: ~16 bytes/particle
         xyz *= (hi - lo).astype(np.float32)[:, None]
         xyz += lo.astype(np.float32)[:, None]
-        _clamp32(xyz, lo, hi)                                # float32 rounding stays inside
+        _clamp32(xyz, lo, hi)  # float32 rounding stays inside
         return cls(xyz.T, popt.sample_radii(rng, n, size_dist, r_min, r_max, size_slope), lo, hi)
 
-    def step(self, dt: float, v_flow, sigma, rng) -> "ParticleField":
+    def step(self, dt: float, v_flow, sigma, rng) -> ParticleField:
         """Drift one time step: ``p + v_flow*dt + eta``, eta ~ N(0, Sigma), wrapped
         periodically into the region (density stays constant). Radii are kept.
 
@@ -200,8 +214,8 @@ class ParticleField:
             raise ValueError(f"v_flow must be a finite (3,) vector in m/s, got {v_flow}")
         L = _noise_factor_cached(tuple(np.asarray(sigma, float).reshape(-1).tolist()))
         seed = np.uint64(0)
-        if L is not None:                  # one word per step: the normals' SplitMix64 stream
-            seed = rng.integers(0, 2 ** 64, dtype=np.uint64)
+        if L is not None:  # one word per step: the normals' SplitMix64 stream
+            seed = rng.integers(0, 2**64, dtype=np.uint64)
         lo, hi = self.region_min, self.region_max
         xyz = kern.drift(self.xyz, v * dt, _ZERO_L if L is None else L, np.uint64(seed), lo, hi, *self._bounds32)
         return self._moved(xyz)
@@ -217,12 +231,17 @@ class ParticleField:
             object.__setattr__(self, "_b32", b)
         return b
 
-    def _moved(self, xyz: np.ndarray) -> "ParticleField":
+    def _moved(self, xyz: np.ndarray) -> ParticleField:
         """The field at planar positions xyz (3, N) float32 C-contiguous, the same radii and region
         (already checked: no second validation)."""
         new = object.__new__(ParticleField)
-        for name, val in (("positions", xyz.T), ("radii", self.radii), ("region_min", self.region_min),
-                          ("region_max", self.region_max), ("_b32", self._bounds32)):
+        for name, val in (
+            ("positions", xyz.T),
+            ("radii", self.radii),
+            ("region_min", self.region_min),
+            ("region_max", self.region_max),
+            ("_b32", self._bounds32),
+        ):
             object.__setattr__(new, name, val)
         return new
 
@@ -281,7 +300,7 @@ def frustum_volume(K: np.ndarray, width: int, height: int, z_near: float, z_far:
     """
     if not (0 <= z_near <= z_far) or not math.isfinite(z_far):
         raise ValueError(f"need 0 <= z_near <= z_far < inf, got {z_near}, {z_far}")
-    return width * height / (K[0, 0] * K[1, 1]) * (z_far ** 3 - z_near ** 3) / 3.0
+    return width * height / (K[0, 0] * K[1, 1]) * (z_far**3 - z_near**3) / 3.0
 
 
 def _to_camera(field: ParticleField, T_world_cam: np.ndarray, z_min: float, z_max: float):
@@ -291,7 +310,7 @@ def _to_camera(field: ParticleField, T_world_cam: np.ndarray, z_min: float, z_ma
         raise ValueError(f"T_world_cam must be 4x4, got {T.shape}")
     R = T[:3, :3].astype(np.float32)
     t = T[:3, 3].astype(np.float32)
-    P = field.xyz                           # explicit row sums: no BLAS threads here
+    P = field.xyz  # explicit row sums: no BLAS threads here
     z = P[0] * R[0, 2] + P[1] * R[1, 2] + P[2] * R[2, 2] - np.float32(t @ R[:, 2])
     idx = np.flatnonzero((z > z_min) & (z <= z_max))
     d = P[:, idx].T - t
@@ -301,8 +320,9 @@ def _to_camera(field: ParticleField, T_world_cam: np.ndarray, z_min: float, z_ma
     return idx, pc
 
 
-def count_in_frustum(field: ParticleField, K: np.ndarray, T_world_cam: np.ndarray, width: int,
-                     height: int, z_near: float, z_far: float) -> int:
+def count_in_frustum(
+    field: ParticleField, K: np.ndarray, T_world_cam: np.ndarray, width: int, height: int, z_near: float, z_far: float
+) -> int:
     """Number of particle centres inside the image pyramid with z_near < Z <= z_far.
 
     Its expectation is rho * V(frustum & region); for a frustum inside the region
@@ -323,26 +343,49 @@ def _project(K: np.ndarray, pc: np.ndarray):
 @dataclass
 class ProjectedParticles:
     """Image-space footprint of the particles that can touch the image (float32 arrays)."""
-    u: np.ndarray        # (M,) centre column (px)
-    v: np.ndarray        # (M,) centre row (px)
-    a: np.ndarray        # (M,) radial semi-axis (px)
-    b: np.ndarray        # (M,) tangential semi-axis (px) = f r / Z
-    c: np.ndarray        # (M,) cos of the radial direction in the image
-    s: np.ndarray        # (M,) sin of the radial direction
+
+    u: np.ndarray  # (M,) centre column (px)
+    v: np.ndarray  # (M,) centre row (px)
+    a: np.ndarray  # (M,) radial semi-axis (px)
+    b: np.ndarray  # (M,) tangential semi-axis (px) = f r / Z
+    c: np.ndarray  # (M,) cos of the radial direction in the image
+    s: np.ndarray  # (M,) sin of the radial direction
     surf_range: np.ndarray  # (M,) range to the particle surface, ||p|| - r (m)
-    pc: np.ndarray | None = None       # (3, M) centres in the camera frame (m): x, y, z rows
-    index: np.ndarray | None = None    # (M,) indices into the field
+    pc: np.ndarray | None = None  # (3, M) centres in the camera frame (m): x, y, z rows
+    index: np.ndarray | None = None  # (M,) indices into the field
     opacity: np.ndarray | None = None  # (M,) peak opacity after blur (None: 1)
 
-    def subset(self, keep: np.ndarray) -> "ProjectedParticles":
+    def subset(self, keep: np.ndarray) -> ProjectedParticles:
         """The particles selected by ``keep`` (bool mask or indices)."""
-        return ProjectedParticles(*(None if x is None else x[..., keep] for x in (
-            self.u, self.v, self.a, self.b, self.c, self.s, self.surf_range, self.pc, self.index,
-            self.opacity)))
+        return ProjectedParticles(
+            *(
+                None if x is None else x[..., keep]
+                for x in (
+                    self.u,
+                    self.v,
+                    self.a,
+                    self.b,
+                    self.c,
+                    self.s,
+                    self.surf_range,
+                    self.pc,
+                    self.index,
+                    self.opacity,
+                )
+            )
+        )
 
 
-def project_particles(field: ParticleField, K: np.ndarray, T_world_cam: np.ndarray, width: int,
-                      height: int, z_near: float = 0.05, margin_px: float = 0.0, blur=None) -> ProjectedParticles:
+def project_particles(
+    field: ParticleField,
+    K: np.ndarray,
+    T_world_cam: np.ndarray,
+    width: int,
+    height: int,
+    z_near: float = 0.05,
+    margin_px: float = 0.0,
+    blur=None,
+) -> ProjectedParticles:
     """Project the particles that can touch the image (vectorised culling, float32).
 
     Keeps particles with Z > z_near, the camera outside the sphere, and the ellipse
@@ -354,15 +397,28 @@ def project_particles(field: ParticleField, K: np.ndarray, T_world_cam: np.ndarr
     if T.shape != (4, 4):
         raise ValueError(f"T_world_cam must be 4x4, got {T.shape}")
     R = T[:3, :3].astype(np.float32)
-    off = (-(T[:3, 3] @ T[:3, :3])).astype(np.float32)   # -R^T t
+    off = (-(T[:3, 3] @ T[:3, :3])).astype(np.float32)  # -R^T t
     xyz, radii, K32 = field.xyz, np.ascontiguousarray(field.radii, np.float32), np.asarray(K, np.float32)
     if blur is not None:
         idx, cols, surf_range, pc, op = kern.project_blurred(
-            xyz, radii, R, off, K32, np.float32(z_near), blur.M, blur.o, blur.scale, blur.coc_k, blur.focus_m,
-            int(width), int(height))
+            xyz,
+            radii,
+            R,
+            off,
+            K32,
+            np.float32(z_near),
+            blur.M,
+            blur.o,
+            blur.scale,
+            blur.coc_k,
+            blur.focus_m,
+            int(width),
+            int(height),
+        )
         return ProjectedParticles(*cols, surf_range, pc, idx, op)
-    idx, cols, surf_range, pc = kern.project(xyz, radii, R, off, K32, int(width), int(height), np.float32(z_near),
-                                             np.float32(margin_px))
+    idx, cols, surf_range, pc = kern.project(
+        xyz, radii, R, off, K32, int(width), int(height), np.float32(z_near), np.float32(margin_px)
+    )
     return ProjectedParticles(*cols, surf_range, pc, idx)
 
 
@@ -381,6 +437,7 @@ def _water_callable(water) -> Callable | None:
     def blend(rgb, rng):
         w = 1.0 - np.exp(-beta[None, :] * rng[:, None])
         return rgb * (1.0 - w) + colour[None, :] * w
+
     return blend
 
 
@@ -393,11 +450,23 @@ def _particle_colour(mode: str, colour, ambient) -> np.ndarray:
     return (amb if mode == "backscatter" else SILHOUETTE_ALBEDO * amb).astype(np.float32)
 
 
-def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: ParticleField,
-                     K: np.ndarray, T_world_cam: np.ndarray, water=None, mode: str = "backscatter",
-                     z_near: float = 0.05, colour=None, ambient=DEFAULT_AMBIENT_RGB,
-                     shade: Callable | None = None, blur=None, margin_px: float = 0.0,
-                     merged_range: bool = False, background=None):
+def render_particles(
+    image_linear: np.ndarray,
+    range_m: np.ndarray,
+    field: ParticleField,
+    K: np.ndarray,
+    T_world_cam: np.ndarray,
+    water=None,
+    mode: str = "backscatter",
+    z_near: float = 0.05,
+    colour=None,
+    ambient=DEFAULT_AMBIENT_RGB,
+    shade: Callable | None = None,
+    blur=None,
+    margin_px: float = 0.0,
+    merged_range: bool = False,
+    background=None,
+):
     """Draw the particle field into a linear RGB image with a depth test.
 
     image_linear (H,W,3) float, range_m (H,W) float (range along each pixel ray to
@@ -446,28 +515,45 @@ def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: Parti
     col = _particle_colour(mode, colour, ambient)
     water_fn = _water_callable(water)
     p = project_particles(field, K, T_world_cam, w, h, z_near, margin_px, blur)
-    surf = np.ascontiguousarray(range_m, np.float32).reshape(-1)     # NaN = no surface hit = background
-    colours = (np.asarray(shade(p), np.float32).reshape(-1, 3) if shade is not None
-               else np.zeros((p.u.size, 0), np.float32))
+    surf = np.ascontiguousarray(range_m, np.float32).reshape(-1)  # NaN = no surface hit = background
+    colours = (
+        np.asarray(shade(p), np.float32).reshape(-1, 3) if shade is not None else np.zeros((p.u.size, 0), np.float32)
+    )
     scene = surf if merged_range else np.full(h * w, np.inf, np.float32)
-    if shade is not None and water_fn is None:              # the pipeline's case: one fused pass
+    if shade is not None and water_fn is None:  # the pipeline's case: one fused pass
         tp = background.packed() if background is not None else kern.NO_TRANSFER
         out, merged, mask = psplat.over(_splat_input(p, colours), surf, scene, img.reshape(-1), tp, w, h)
         return out.reshape(h, w, 3), mask.reshape(h, w), merged.reshape(h, w)
     sums = psplat.splat(_splat_input(p, colours), surf, w, h)
     hit = sums.hit
-    colour_px = col[:, None] if shade is None else np.zeros((3, 0), np.float32)   # (3, 0): w c / w
+    colour_px = col[:, None] if shade is None else np.zeros((3, 0), np.float32)  # (3, 0): w c / w
     if water_fn is not None:
         wc = sums.wc
-        c = wc[1:] / np.where(wc[0] > 0, wc[0], np.float32(1.0)) if shade is not None \
+        c = (
+            wc[1:] / np.where(wc[0] > 0, wc[0], np.float32(1.0))
+            if shade is not None
             else np.broadcast_to(col[:, None], (3, hit.size))
-        colour_px = np.ascontiguousarray(
-            np.asarray(water_fn(np.ascontiguousarray(c.T), sums.near), np.float32).T)
+        )
+        colour_px = np.ascontiguousarray(np.asarray(water_fn(np.ascontiguousarray(c.T), sums.near), np.float32).T)
     out, merged, mask = np.empty_like(img), np.empty(h * w, np.float32), np.zeros(h * w, bool)
-    gain_add = background.gain_add(hit, sums.near, sums.far, w) if background is not None and hit.size \
+    gain_add = (
+        background.gain_add(hit, sums.near, sums.far, w)
+        if background is not None and hit.size
         else np.zeros((6, 0), np.float32)
-    kern.resolve(out.reshape(-1), np.ascontiguousarray(img).reshape(-1), merged, scene, mask, hit, sums.acc,
-                 sums.near, colour_px, gain_add, w)
+    )
+    kern.resolve(
+        out.reshape(-1),
+        np.ascontiguousarray(img).reshape(-1),
+        merged,
+        scene,
+        mask,
+        hit,
+        sums.acc,
+        sums.near,
+        colour_px,
+        gain_add,
+        w,
+    )
     return out, mask.reshape(h, w), merged.reshape(h, w)
 
 
@@ -477,8 +563,7 @@ def _splat_input(p: ProjectedParticles, colours: np.ndarray) -> psplat.Particles
 
 
 # ----------------------------------------------------------------------------- visibility
-def visible_fraction_from_masks(marker_mask: np.ndarray, occluder_mask: np.ndarray,
-                                expected_area_px: float) -> float:
+def visible_fraction_from_masks(marker_mask: np.ndarray, occluder_mask: np.ndarray, expected_area_px: float) -> float:
     """Share of a marker left visible: |marker & ~occluder| / expected area, in [0, 1].
 
     expected_area_px is the marker's unoccluded projected area (px); 0 -> 0.0."""
@@ -492,8 +577,7 @@ def visible_fraction_from_masks(marker_mask: np.ndarray, occluder_mask: np.ndarr
     return float(min(1.0, seen / expected_area_px))
 
 
-def led_visible_fraction(led_pixels, index_image: np.ndarray, led_index_values,
-                         occluder_mask: np.ndarray) -> float:
+def led_visible_fraction(led_pixels, index_image: np.ndarray, led_index_values, occluder_mask: np.ndarray) -> float:
     """Share of LEDs whose centre pixel (u, v) is inside the image, shows an LED
     (index_image value in ``led_index_values``) and is not occluded."""
     uv = np.rint(np.asarray(led_pixels, float)).reshape(-1, 2)
@@ -505,6 +589,7 @@ def led_visible_fraction(led_pixels, index_image: np.ndarray, led_index_values,
     ok = np.all(np.isfinite(uv), axis=1)
     ok &= (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
     u, v = uv[ok, 0].astype(int), uv[ok, 1].astype(int)
-    seen = np.isin(np.asarray(index_image)[v, u], np.atleast_1d(led_index_values)) \
-        & ~np.asarray(occluder_mask, bool)[v, u]
+    seen = (
+        np.isin(np.asarray(index_image)[v, u], np.atleast_1d(led_index_values)) & ~np.asarray(occluder_mask, bool)[v, u]
+    )
     return float(np.count_nonzero(seen)) / uv.shape[0]

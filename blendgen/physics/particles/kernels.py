@@ -34,6 +34,7 @@ loops read like the formulas, and it is part of the render extra (generation onl
 never imports this). Compiled once per machine (``cache=True``: beside this file, like .pyc
 files), single-threaded (the render workers are processes, pipeline/allocator.py).
 """
+
 from __future__ import annotations
 
 import math
@@ -45,16 +46,16 @@ try:
     from llvmlite import ir
     from numba.core import cgutils, types
     from numba.extending import intrinsic
-except ImportError as exc:                      # pragma: no cover - the render extra installs it
+except ImportError as exc:  # pragma: no cover - the render extra installs it
     raise ImportError("the fast particle path needs numba: pip install 'dockbench[render]'") from exc
 
-SPLAT_BELOW_PX = 0.5                 # semi-axis below which a particle is a bilinear speck
-NORMALISE_BELOW_PX = 4.0             # small ellipses: rescale coverage to the exact area
-GROUP_MAX_PX = 16                    # boxes up to this size are renormalised over the box
-ALPHA_MAX = 1.0 - 1e-6               # keeps the transmittance T = prod(1 - alpha) > 0
+SPLAT_BELOW_PX = 0.5  # semi-axis below which a particle is a bilinear speck
+NORMALISE_BELOW_PX = 4.0  # small ellipses: rescale coverage to the exact area
+GROUP_MAX_PX = 16  # boxes up to this size are renormalised over the box
+ALPHA_MAX = 1.0 - 1e-6  # keeps the transmittance T = prod(1 - alpha) > 0
 
 _jit = nb.njit(cache=True, nogil=True)
-_inline = nb.njit(cache=True, nogil=True, inline="always")   # helpers: no call (array arguments still
+_inline = nb.njit(cache=True, nogil=True, inline="always")  # helpers: no call (array arguments still
 #                                                                cost reference counts: scalars in hot loops)
 _F0, _F1, _HALF, _PI = np.float32(0.0), np.float32(1.0), np.float32(0.5), np.float32(np.pi)
 
@@ -63,8 +64,10 @@ _F0, _F1, _HALF, _PI = np.float32(0.0), np.float32(1.0), np.float32(0.5), np.flo
 @intrinsic
 def _f32_from_bits(typingctx, bits):
     """The float32 whose IEEE bits are the int32 ``bits`` (an LLVM bitcast)."""
+
     def codegen(context, builder, signature, args):
         return builder.bitcast(args[0], context.get_value_type(types.float32))
+
     return types.float32(types.int32), codegen
 
 
@@ -72,18 +75,21 @@ def _f32_from_bits(typingctx, bits):
 def _prefetch(typingctx, arr, idx):
     """A software prefetch of arr[idx] (llvm.prefetch: read, kept in every cache level; x86's
     prefetcht0): a hint, never a fault (an index past the end is harmless), no value."""
+
     def codegen(context, builder, signature, args):
         ary = context.make_array(signature.args[0])(context, builder, args[0])
-        ptr = builder.bitcast(builder.gep(ary.data, [args[1]]), ir.IntType(8).as_pointer())   # one declaration
+        ptr = builder.bitcast(builder.gep(ary.data, [args[1]]), ir.IntType(8).as_pointer())  # one declaration
         i32 = ir.IntType(32)
         fnty = ir.FunctionType(ir.VoidType(), [ptr.type, i32, i32, i32])
-        builder.call(cgutils.get_or_insert_function(builder.module, fnty, "llvm.prefetch.p0"),
-                     [ptr, i32(0), i32(3), i32(1)])
+        builder.call(
+            cgutils.get_or_insert_function(builder.module, fnty, "llvm.prefetch.p0"), [ptr, i32(0), i32(3), i32(1)]
+        )
         return context.get_dummy_value()
+
     return types.void(arr, types.uint64), codegen
 
 
-_EXP = {"nsz"}          # as _VEC (below): no flag that lets a compile choose its own rounding
+_EXP = {"nsz"}  # as _VEC (below): no flag that lets a compile choose its own rounding
 _exp_vec = nb.njit(cache=True, nogil=True, fastmath=_EXP, error_model="numpy")
 _inline_exp = nb.njit(cache=True, nogil=True, fastmath=_EXP, error_model="numpy", inline="always")
 
@@ -114,8 +120,10 @@ def exp32(x):
 @intrinsic
 def _bits_of_f32(typingctx, x):
     """The int32 IEEE bits of the float32 ``x`` (an LLVM bitcast)."""
+
     def codegen(context, builder, signature, args):
         return builder.bitcast(args[0], context.get_value_type(types.int32))
+
     return types.int32(types.float32), codegen
 
 
@@ -126,7 +134,7 @@ def log32(x):
     Library, logf.c) and ln 2 split in two as in :func:`exp32`. Relative error ~1e-7."""
     bits = _bits_of_f32(x)
     e = np.float32((bits >> np.int32(23)) - np.int32(127))
-    m = _f32_from_bits((bits & np.int32(0x7FFFFF)) | np.int32(0x3F800000))   # [1, 2)
+    m = _f32_from_bits((bits & np.int32(0x7FFFFF)) | np.int32(0x3F800000))  # [1, 2)
     big = m > np.float32(1.4142135623730951)
     m = m * _HALF if big else m
     e = e + _F1 if big else e
@@ -149,12 +157,21 @@ def log32(x):
 def _sin_cos_octant(r):
     """(sin, cos) of phi = r 2 pi / 2^24 for an integer r in [0, 2^21] (phi in [0, pi/4]):
     the Cephes sinf / cosf polynomials (|error| ~1e-7)."""
-    phi = np.float32(r) * np.float32(2.0 * math.pi / 2 ** 24)
+    phi = np.float32(r) * np.float32(2.0 * math.pi / 2**24)
     z = phi * phi
-    sin = phi + phi * z * ((np.float32(-1.9515295891e-4) * z + np.float32(8.3321608736e-3)) * z
-                           - np.float32(1.6666654611e-1))
-    cos = _F1 - _HALF * z + z * z * ((np.float32(2.443315711809948e-5) * z - np.float32(1.388731625493765e-3)) * z
-                                     + np.float32(4.166664568298827e-2))
+    sin = phi + phi * z * (
+        (np.float32(-1.9515295891e-4) * z + np.float32(8.3321608736e-3)) * z - np.float32(1.6666654611e-1)
+    )
+    cos = (
+        _F1
+        - _HALF * z
+        + z
+        * z
+        * (
+            (np.float32(2.443315711809948e-5) * z - np.float32(1.388731625493765e-3)) * z
+            + np.float32(4.166664568298827e-2)
+        )
+    )
     return sin, cos
 
 
@@ -165,16 +182,16 @@ def _normal_pair(w):
     ``R = sqrt(-2 ln(1 - U1))``. The angle is reduced to its octant in integers (exact), so the
     polynomials only see [0, pi/4]; the octant's reflections and the quadrant's rotation are
     arithmetic, not branches (loops that call it are vectorised)."""
-    k = np.int32(w >> np.uint64(40))                           # U1 = k 2^-24 in [0, 1)
-    j = np.int32((w >> np.uint64(16)) & np.uint64(0xFFFFFF))   # theta = 2 pi j 2^-24
-    radius = np.sqrt(np.float32(-2.0) * log32(np.float32(np.int32(16777216) - k) * np.float32(2.0 ** -24)))
-    odd = (j >> np.int32(21)) & np.int32(1)                    # odd octant: pi/4 - phi, swapped
+    k = np.int32(w >> np.uint64(40))  # U1 = k 2^-24 in [0, 1)
+    j = np.int32((w >> np.uint64(16)) & np.uint64(0xFFFFFF))  # theta = 2 pi j 2^-24
+    radius = np.sqrt(np.float32(-2.0) * log32(np.float32(np.int32(16777216) - k) * np.float32(2.0**-24)))
+    odd = (j >> np.int32(21)) & np.int32(1)  # odd octant: pi/4 - phi, swapped
     r = j & np.int32(0x1FFFFF)
     s, c = _sin_cos_octant(r + odd * (np.int32(0x200000) - r - r))
     f = np.float32(odd)
-    s, c = s + f * (c - s), c + f * (s - c)                   # (sin, cos) within the quadrant
+    s, c = s + f * (c - s), c + f * (s - c)  # (sin, cos) within the quadrant
     q = j >> np.int32(22)
-    f = np.float32(q & np.int32(1))                            # rotate by q quarter turns
+    f = np.float32(q & np.int32(1))  # rotate by q quarter turns
     sin_t = (s + f * (c - s)) * (_F1 - np.float32(2 * (q >> np.int32(1))))
     cos_t = (c + f * (s - c)) * (_F1 - np.float32(2 * (((q + np.int32(1)) >> np.int32(1)) & np.int32(1))))
     return radius * cos_t, radius * sin_t
@@ -191,7 +208,7 @@ def box_muller(bits):
     return out
 
 
-GAMMA = np.uint64(0x9E3779B97F4A7C15)       # SplitMix64's increment (physics/particles/gauss.py)
+GAMMA = np.uint64(0x9E3779B97F4A7C15)  # SplitMix64's increment (physics/particles/gauss.py)
 
 
 @_inline_exp
@@ -211,8 +228,7 @@ def _eta(seed, i, L):
     z0, z1 = _normal_pair(splitmix64(seed, 2 * i + 1))
     z2 = np.float64(_normal_pair(splitmix64(seed, 2 * i + 2))[0])
     z0, z1 = np.float64(z0), np.float64(z1)
-    return (z0 * L[0] + z1 * L[1] + z2 * L[2], z0 * L[3] + z1 * L[4] + z2 * L[5],
-            z0 * L[6] + z1 * L[7] + z2 * L[8])
+    return (z0 * L[0] + z1 * L[1] + z2 * L[2], z0 * L[3] + z1 * L[4] + z2 * L[5], z0 * L[6] + z1 * L[7] + z2 * L[8])
 
 
 @_inline_exp
@@ -232,7 +248,7 @@ def _wrapped(x, vk, eta, lok, ext, l32, t32):
 
 
 # ----------------------------------------------------------------------------- drift
-_exact = nb.njit(cache=True, nogil=True, error_model="numpy")   # IEEE order kept: no fast-math
+_exact = nb.njit(cache=True, nogil=True, error_model="numpy")  # IEEE order kept: no fast-math
 
 
 @_exp_vec
@@ -369,8 +385,8 @@ def _moments(a, b, c, s, iso, du, dv):
     syy) / r``, ``cos phi = sqrt((1 + cos 2phi) / 2)``, ``sin phi = sign(sxy) sqrt((1 - cos 2phi)
     / 2)`` (phi in (-90, 90] deg; a circle keeps phi = 0)."""
     aa, bb = a * a, b * b
-    k = np.float32(4.0 / 12.0)                    # segment L^2 / 12 per axis, x 4 to match R^2 / 4
-    sxx = aa * c * c + bb * s * s + iso + k * du * du      # 4 x the second-moment matrix
+    k = np.float32(4.0 / 12.0)  # segment L^2 / 12 per axis, x 4 to match R^2 / 4
+    sxx = aa * c * c + bb * s * s + iso + k * du * du  # 4 x the second-moment matrix
     syy = aa * s * s + bb * c * c + iso + k * dv * dv
     sxy = (aa - bb) * c * s + k * du * dv
     half_tr = _HALF * (sxx + syy)
@@ -393,8 +409,7 @@ def blur(a, b, c, s, iso, du, dv):
     c', s', opacity a b / (a' b')."""
     out = np.empty((5, a.size), np.float32)
     for i in range(a.size):
-        out[0, i], out[1, i], out[2, i], out[3, i], out[4, i] = _moments(
-            a[i], b[i], c[i], s[i], iso[i], du[i], dv[i])
+        out[0, i], out[1, i], out[2, i], out[3, i], out[4, i] = _moments(a[i], b[i], c[i], s[i], iso[i], du[i], dv[i])
     return out
 
 
@@ -407,7 +422,7 @@ def _blurred_one(px, py, pz, r, Rs, fx, sk, cx, fy, cy, fb, z_near, Ms, scale, c
     m00, m01, m02, m10, m11, m12, m20, m21, m22, o0, o1, o2 = Ms
     x, y, z, u, v, a, b, sec = _camera(px, py, pz, r, Rs, fx, sk, cx, fy, cy, fb, z_near)
     c, s = _radial(u - cx, v - cy)
-    x0 = m00 * x + m01 * y + m02 * z + o0                         # where it was, seen from then
+    x0 = m00 * x + m01 * y + m02 * z + o0  # where it was, seen from then
     y0 = m10 * x + m11 * y + m12 * z + o1
     z0 = m20 * x + m21 * y + m22 * z + o2
     iz = _F1 / max(z0, np.float32(1e-3))
@@ -415,10 +430,10 @@ def _blurred_one(px, py, pz, r, Rs, fx, sk, cx, fy, cy, fb, z_near, Ms, scale, c
     du = (u - (fx * x0 * iz + sk * y0 * iz + cx)) * scale if ahead else _F0
     dv = (v - (fy * y0 * iz + cy)) * scale if ahead else _F0
     dz = z - focus_m
-    coc = coc_k * max(dz, -dz) / max(z, z_near)                   # thin-lens blur diameter (px)
+    coc = coc_k * max(dz, -dz) / max(z, z_near)  # thin-lens blur diameter (px)
     a2, b2, c2, s2, op = _moments(a, b, c, s, np.float32(0.25) * coc * coc, du, dv)
-    ex, ey = _half_extents(a2, b2, c2, s2)                        # box(): the ellipse's pixel box
-    speck = a2 < np.float32(SPLAT_BELOW_PX)                       # _footprint: the 2 x 2 pixels
+    ex, ey = _half_extents(a2, b2, c2, s2)  # box(): the ellipse's pixel box
+    speck = a2 < np.float32(SPLAT_BELOW_PX)  # _footprint: the 2 x 2 pixels
     lo_x = np.floor(u) if speck else np.ceil(u - ex)
     lo_y = np.floor(v) if speck else np.ceil(v - ey)
     hi_x = np.floor(u) + _F1 if speck else np.floor(u + ex)
@@ -443,8 +458,26 @@ def _blurred_keep(xyz, radii, R, off, K, z_near, M, o, scale, coc_k, focus_m, wi
     one array written: vectorised (16 float32 lanes here)."""
     fx, sk, cx, fy, cy, fb, Rs, Ms, w1, h1 = _blur_consts(R, off, K, M, o, width, height)
     for i in range(xyz.shape[1]):
-        k = _blurred_one(xyz[0, i], xyz[1, i], xyz[2, i], radii[i], Rs, fx, sk, cx, fy, cy, fb, z_near, Ms,
-                         scale, coc_k, focus_m, w1, h1)[11]
+        k = _blurred_one(
+            xyz[0, i],
+            xyz[1, i],
+            xyz[2, i],
+            radii[i],
+            Rs,
+            fx,
+            sk,
+            cx,
+            fy,
+            cy,
+            fb,
+            z_near,
+            Ms,
+            scale,
+            coc_k,
+            focus_m,
+            w1,
+            h1,
+        )[11]
         keep[i] = _F1 if k else _F0
 
 
@@ -454,9 +487,26 @@ def _blurred_rows(pts, R, off, K, z_near, M, o, scale, coc_k, focus_m, width, he
     = x, y, z, r (vectorised)."""
     fx, sk, cx, fy, cy, fb, Rs, Ms, w1, h1 = _blur_consts(R, off, K, M, o, width, height)
     for i in range(pts.shape[1]):
-        u, v, a2, b2, c2, s2, d, x, y, z, op, k = _blurred_one(pts[0, i], pts[1, i], pts[2, i], pts[3, i], Rs, fx,
-                                                              sk, cx, fy, cy, fb, z_near, Ms, scale, coc_k, focus_m,
-                                                              w1, h1)
+        u, v, a2, b2, c2, s2, d, x, y, z, op, k = _blurred_one(
+            pts[0, i],
+            pts[1, i],
+            pts[2, i],
+            pts[3, i],
+            Rs,
+            fx,
+            sk,
+            cx,
+            fy,
+            cy,
+            fb,
+            z_near,
+            Ms,
+            scale,
+            coc_k,
+            focus_m,
+            w1,
+            h1,
+        )
         out[0, i], out[1, i], out[2, i], out[3, i], out[4, i], out[5, i] = u, v, a2, b2, c2, s2
         out[6, i], out[7, i], out[8, i], out[9, i], out[10, i] = d, x, y, z, op
 
@@ -481,7 +531,7 @@ def project_blurred(xyz, radii, R, off, K, z_near, M, o, scale, coc_k, focus_m, 
     _blurred_keep(xyz, radii, R, off, K, z_near, M, o, scale, coc_k, focus_m, width, height, keep)
     idx = np.empty(n, np.int64)
     m = 0
-    for i in range(n):                   # branch-free: every index written, kept ones advance m
+    for i in range(n):  # branch-free: every index written, kept ones advance m
         idx[_U(m)] = i
         m += keep[i] > _F0
     idx = idx[:m]
@@ -511,7 +561,7 @@ def _coverage(x, y, u, v, ca, sa, cb, sb, k0, k1):
 def box(u, v, a, b, c, s):
     """Pixel box (x0, y0, sx, sy) holding every centre with alpha > 0 of an ellipse."""
     ex, ey = _half_extents(a, b, c, s)
-    x0, y0 = int(np.ceil(u - ex)), int(np.ceil(v - ey))           # np's: inlined (math's: 3 ns)
+    x0, y0 = int(np.ceil(u - ex)), int(np.ceil(v - ey))  # np's: inlined (math's: 3 ns)
     return x0, y0, int(np.floor(u + ex)) + 1 - x0, int(np.floor(v + ey)) + 1 - y0
 
 
@@ -527,10 +577,10 @@ def _footprint(u, v, a, b, c, s):
     return x0, y0, max(sx, 0), max(sy, 0), ca, sa, cb, sb, k0, k1
 
 
-AHEAD = 8                            # the splat prefetches the data of the member this many ahead
-TILE_PX = 32                         # the splat's screen tiles: 32 x 32 pixels of sums stay in L1
-LIST = max(GROUP_MAX_PX, TILE_PX) ** 2   # an ellipse's samples listed at most: a tile or a small box
-_U = np.uint64                       # indices read from data, cast: no wraparound test (module doc)
+AHEAD = 8  # the splat prefetches the data of the member this many ahead
+TILE_PX = 32  # the splat's screen tiles: 32 x 32 pixels of sums stay in L1
+LIST = max(GROUP_MAX_PX, TILE_PX) ** 2  # an ellipse's samples listed at most: a tile or a small box
+_U = np.uint64  # indices read from data, cast: no wraparound test (module doc)
 
 
 @_inline
@@ -543,8 +593,8 @@ def _image_pixel(t, tx0, ty0, width):
 @_inline
 def _speck_box(u, v):
     """A speck's 2 x 2 pixels: (x0, y0) of its top-left one and the bilinear fractions (fx, fy)."""
-    x0f, y0f = np.floor(u), np.floor(v)          # np's floor is inlined; math.floor cost 3 ns each
-    return int(x0f), int(y0f), u - x0f, v - y0f   # exact in float32
+    x0f, y0f = np.floor(u), np.floor(v)  # np's floor is inlined; math.floor cost 3 ns each
+    return int(x0f), int(y0f), u - x0f, v - y0f  # exact in float32
 
 
 @_inline
@@ -565,7 +615,7 @@ def _clipped_boxes(u, v, a, b, c, s, width, height, box4):
         ui, vi = u[i], v[i]
         ex, ey = _half_extents(a[i], b[i], c[i], s[i])
         ex0, ey0 = int(np.ceil(ui - ex)), int(np.ceil(vi - ey))
-        ex1, ey1 = int(np.floor(ui + ex)), int(np.floor(vi + ey))      # inclusive ends
+        ex1, ey1 = int(np.floor(ui + ex)), int(np.floor(vi + ey))  # inclusive ends
         sx0, sy0 = int(np.floor(ui)), int(np.floor(vi))
         speck = a[i] < np.float32(SPLAT_BELOW_PX)
         x0, y0 = (sx0 if speck else ex0), (sy0 if speck else ey0)
@@ -625,11 +675,11 @@ def _tile_near(surf, width, height):
     for ty in range(tiles_y):
         low[:] = np.int32(0x7FFFFFFF)
         for y in range(ty * TILE_PX, min(ty * TILE_PX + TILE_PX, height)):
-            row = bits[y * width:(y + 1) * width]
+            row = bits[y * width : (y + 1) * width]
             for tx in range(tiles_x):
-                seg = row[tx * TILE_PX:min(tx * TILE_PX + TILE_PX, width)]
+                seg = row[tx * TILE_PX : min(tx * TILE_PX + TILE_PX, width)]
                 m = low[tx]
-                for k in range(seg.size):                 # k >= 0: no wraparound, vectorised
+                for k in range(seg.size):  # k >= 0: no wraparound, vectorised
                     m = min(m, seg[k])
                 low[tx] = m
         for tx in range(tiles_x):
@@ -647,7 +697,7 @@ def _ellipse_samples(xs, ys, xe, ye, tx0, ty0, tx1, ty1, u, v, ca, sa, cb, sb, k
     outside it and the branch mispredicted (the update loop over the list has none)."""
     total = _F0
     n = 0
-    for y in range(ys, ye):                  # rows and columns: no integer division per sample
+    for y in range(ys, ye):  # rows and columns: no integer division per sample
         row_in = (y >= ty0) & (y < ty1)
         for x in range(xs, xe):
             cov = _coverage(x, y, u, v, ca, sa, cb, sb, k0, k1)
@@ -658,7 +708,7 @@ def _ellipse_samples(xs, ys, xe, ye, tx0, ty0, tx1, ty1, u, v, ca, sa, cb, sb, k
     return n, total
 
 
-REC = 8                              # floats per particle record: u, v, a, b, c, s, d, op
+REC = 8  # floats per particle record: u, v, a, b, c, s, d, op
 
 
 @_jit_vec
@@ -676,8 +726,7 @@ def _particle_records(u, v, a, b, c, s, d, op):
 
 
 @_exact
-def _tile_sums(tx0, ty0, tx1, ty1, members, m0, m1, rec, colour, n_col, surf, zmin, width, acc,
-               near, touched, buf):
+def _tile_sums(tx0, ty0, tx1, ty1, members, m0, m1, rec, colour, n_col, surf, zmin, width, acc, near, touched, buf):
     """The depth-tested samples of the tile [tx0, tx1) x [ty0, ty1)'s particles ``members[m0:m1]``
     (their data in ``rec``, :func:`_particle_records`; colour (M n_col,)) into its sums acc
     (TILE_PX^2 (2 + n_col),) flat and near (TILE_PX^2,); returns the count of
@@ -691,29 +740,47 @@ def _tile_sums(tx0, ty0, tx1, ty1, members, m0, m1, rec, colour, n_col, surf, zm
     last = members.size - 1
     for k in range(m0, m1):
         i = _U(members[k])
-        p = _U(members[min(k + AHEAD, last)])      # a later member's data on its way to the cache
-        _prefetch(rec, p * _U(REC)); _prefetch(colour, p * _U(n_col))
+        p = _U(members[min(k + AHEAD, last)])  # a later member's data on its way to the cache
+        _prefetch(rec, p * _U(REC))
+        _prefetch(colour, p * _U(n_col))
         r, ci = i * _U(REC), i * _U(n_col)
         ui, vi, ai, bi = rec[r], rec[r + _U(1)], rec[r + _U(2)], rec[r + _U(3)]
         cs, sn, di, opi = rec[r + _U(4)], rec[r + _U(5)], rec[r + _U(6)], rec[r + _U(7)]
         dd = max(di, np.float32(1e-3))
-        if not ai < np.float32(SPLAT_BELOW_PX):                   # an anti-aliased ellipse
+        if not ai < np.float32(SPLAT_BELOW_PX):  # an anti-aliased ellipse
             x0, y0, sx, sy, ca, sa, cb, sb, k0, k1 = _footprint(ui, vi, ai, bi, cs, sn)
-            if max(sx, sy) <= GROUP_MAX_PX and ai < np.float32(NORMALISE_BELOW_PX):   # small: its box
-                n_cov, total = _ellipse_samples(x0, y0, x0 + sx, y0 + sy, tx0, ty0, tx1, ty1, ui, vi, ca, sa,
-                                                cb, sb, k0, k1, buf)
+            if max(sx, sy) <= GROUP_MAX_PX and ai < np.float32(NORMALISE_BELOW_PX):  # small: its box
+                n_cov, total = _ellipse_samples(
+                    x0, y0, x0 + sx, y0 + sy, tx0, ty0, tx1, ty1, ui, vi, ca, sa, cb, sb, k0, k1, buf
+                )
                 scale = _PI * ai * bi / max(total, np.float32(1e-12)) if total > _F0 else _F1
-            else:                                                      # its box, clipped to the tile
-                n_cov = _ellipse_samples(max(x0, tx0), max(y0, ty0), min(x0 + sx, tx1), min(y0 + sy, ty1), tx0,
-                                         ty0, tx1, ty1, ui, vi, ca, sa, cb, sb, k0, k1, buf)[0]
+            else:  # its box, clipped to the tile
+                n_cov = _ellipse_samples(
+                    max(x0, tx0),
+                    max(y0, ty0),
+                    min(x0 + sx, tx1),
+                    min(y0 + sy, ty1),
+                    tx0,
+                    ty0,
+                    tx1,
+                    ty1,
+                    ui,
+                    vi,
+                    ca,
+                    sa,
+                    cb,
+                    sb,
+                    k0,
+                    k1,
+                    buf,
+                )[0]
                 scale = _F1
-            col0, col1, col2 = (colour[ci], colour[ci + _U(1)], colour[ci + _U(2)]) if n_col == 3 \
-                else (_F0, _F0, _F0)
+            col0, col1, col2 = (colour[ci], colour[ci + _U(1)], colour[ci + _U(2)]) if n_col == 3 else (_F0, _F0, _F0)
             for q in range(n_cov):
                 alpha = min(buf[_U(q)] * scale, _F1) * opi
                 t = _U(int(buf[_U(LIST + q)]))
                 if not alpha > _F0 or (not di < zmin and surf[_image_pixel(t, tx0, ty0, width)] <= di):
-                    continue                                            # as below
+                    continue  # as below
                 touched[_U(n_touched)] = t
                 n_touched += near[t] == np.inf
                 near[t] = min(near[t], di)
@@ -721,7 +788,7 @@ def _tile_sums(tx0, ty0, tx1, ty1, members, m0, m1, rec, colour, n_col, surf, zm
                 acc[o] *= _F1 - min(alpha, np.float32(ALPHA_MAX))
                 w = alpha / (dd * dd)
                 acc[o + _U(1)] += w
-                if n_col == 3:                                        # the usual case, unrolled
+                if n_col == 3:  # the usual case, unrolled
                     acc[o + _U(2)] += w * col0
                     acc[o + _U(3)] += w * col1
                     acc[o + _U(4)] += w * col2
@@ -729,22 +796,22 @@ def _tile_sums(tx0, ty0, tx1, ty1, members, m0, m1, rec, colour, n_col, surf, zm
                     for j in range(n_col):
                         acc[o + _U(2 + j)] += w * colour[ci + _U(j)]
             continue
-        w_d = _F1 / (dd * dd)                                            # a speck: 2 x 2 pixels
+        w_d = _F1 / (dd * dd)  # a speck: 2 x 2 pixels
         x0, y0, fx, fy = _speck_box(ui, vi)
         scale = _PI * ai * bi * opi
         for q in range(4):
             x, y, alpha = _speck_pixel(q, x0, y0, fx, fy, scale, tx0, ty0, tx1, ty1)
-            if not alpha > _F0 or (not di < zmin and surf[_U(y * width + x)] <= di):   # depth test:
-                continue                         # nearer than the tile's nearest surface, or NaN: none
+            if not alpha > _F0 or (not di < zmin and surf[_U(y * width + x)] <= di):  # depth test:
+                continue  # nearer than the tile's nearest surface, or NaN: none
             t = _U((y - ty0) * TILE_PX + x - tx0)
-            touched[_U(n_touched)] = t           # listed for the write-out at its first touch
-            n_touched += near[t] == np.inf             # (no branch: it mispredicted half the time)
+            touched[_U(n_touched)] = t  # listed for the write-out at its first touch
+            n_touched += near[t] == np.inf  # (no branch: it mispredicted half the time)
             near[t] = min(near[t], di)
             o = t * _U(2 + n_col)
             acc[o] *= _F1 - min(alpha, np.float32(ALPHA_MAX))
             w = alpha * w_d
             acc[o + _U(1)] += w
-            if n_col == 3:                                   # the usual case, unrolled
+            if n_col == 3:  # the usual case, unrolled
                 acc[o + _U(2)] += w * colour[ci]
                 acc[o + _U(3)] += w * colour[ci + _U(1)]
                 acc[o + _U(4)] += w * colour[ci + _U(2)]
@@ -762,8 +829,12 @@ def _tile_buffers(n_acc):
     acc = np.zeros(TILE_PX * TILE_PX * n_acc, np.float32)
     for t in range(TILE_PX * TILE_PX):
         acc[t * n_acc] = _F1
-    return (acc, np.full(TILE_PX * TILE_PX, np.inf, np.float32), np.empty(TILE_PX * TILE_PX + 1, np.uint64),
-            np.empty(2 * LIST, np.float32))
+    return (
+        acc,
+        np.full(TILE_PX * TILE_PX, np.inf, np.float32),
+        np.empty(TILE_PX * TILE_PX + 1, np.uint64),
+        np.empty(2 * LIST, np.float32),
+    )
 
 
 @_jit
@@ -787,7 +858,7 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height):
     n_col = colour.shape[1]
     n_acc = 2 + n_col
     start, members, samples = _bins(u, v, a, b, c, s, op, width, height)
-    cap = min(samples, width * height)                        # each pixel at most once
+    cap = min(samples, width * height)  # each pixel at most once
     hit = np.empty(cap, np.int64)
     out = np.empty((n_acc, cap), np.float32)
     rng = np.empty(cap, np.float32)
@@ -802,15 +873,31 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height):
         if start[tile + 1] == start[tile]:
             continue
         tx0, ty0 = (tile % tiles_x) * TILE_PX, (tile // tiles_x) * TILE_PX
-        n_touched = _tile_sums(tx0, ty0, min(tx0 + TILE_PX, width), min(ty0 + TILE_PX, height),
-                               members, start[tile], start[tile + 1], rec, col, n_col, surf, tnear[tile], width,
-                               acc, near, touched, buf)
-        for q in range(n_touched):                            # write out, reset
+        n_touched = _tile_sums(
+            tx0,
+            ty0,
+            min(tx0 + TILE_PX, width),
+            min(ty0 + TILE_PX, height),
+            members,
+            start[tile],
+            start[tile + 1],
+            rec,
+            col,
+            n_col,
+            surf,
+            tnear[tile],
+            width,
+            acc,
+            near,
+            touched,
+            buf,
+        )
+        for q in range(n_touched):  # write out, reset
             t = touched[q]
             pix = _image_pixel(t, tx0, ty0, width)
             hit[n], rng[n], far[n] = pix, near[t], surf[_U(pix)]
             o = t * _U(n_acc)
-            if n_acc == 5:                                    # RGB, unrolled
+            if n_acc == 5:  # RGB, unrolled
                 out[0, n], out[1, n], out[2, n] = acc[o], acc[o + _U(1)], acc[o + _U(2)]
                 out[3, n], out[4, n] = acc[o + _U(3)], acc[o + _U(4)]
                 acc[o + _U(1)], acc[o + _U(2)], acc[o + _U(3)], acc[o + _U(4)] = _F0, _F0, _F0, _F0
@@ -826,8 +913,9 @@ def splat(u, v, a, b, c, s, d, op, colour, surf, width, height):
 
 # ----------------------------------------------------------------------------- compositing
 @_inline_exp
-def _gain_add(xf, yf, r_p, r_bg, physical, c0, c1, c2, k0, k1, k2, v0, v1, v2, cam_depth, fx, sk, cx, fy, cy,
-              rz0, rz1, rz2):
+def _gain_add(
+    xf, yf, r_p, r_bg, physical, c0, c1, c2, k0, k1, k2, v0, v1, v2, cam_depth, fx, sk, cx, fy, cy, rz0, rz1, rz2
+):
     """The background transfer's (gain, add) per channel (6 float32) at pixel (xf, yf) (px), the
     particle's and the scene's range r_p, r_bg (m): :func:`transfer`'s law, scalars only (a helper
     taking arrays costs reference counts per call)."""
@@ -836,15 +924,21 @@ def _gain_add(xf, yf, r_p, r_bg, physical, c0, c1, c2, k0, k1, k2, v0, v1, v2, c
     t0 = exp32(-c0 * dr) if finite or not c0 > _F0 else _F0
     t1 = exp32(-c1 * dr) if finite or not c1 > _F0 else _F0
     t2 = exp32(-c2 * dr) if finite or not c2 > _F0 else _F0
-    if not physical:                          # the depth factors are 1: 3 exps instead of 9
+    if not physical:  # the depth factors are 1: 3 exps instead of 9
         return t0, t1, t2, (_F1 - t0) * v0, (_F1 - t1) * v1, (_F1 - t2) * v2
     y = (yf - cy) / fy
     x = (xf - cx - sk * y) / fx
     dz = (x * rz0 + y * rz1 + rz2) / np.sqrt(x * x + y * y + _F1)
     dp = max(cam_depth - r_p * dz, _F0)
     ddep = max(cam_depth - (r_bg if finite else r_p) * dz, _F0) - dp
-    return (t0 * exp32(-k0 * ddep), t1 * exp32(-k1 * ddep), t2 * exp32(-k2 * ddep),
-            (_F1 - t0) * exp32(k0 * dp) * v0, (_F1 - t1) * exp32(k1 * dp) * v1, (_F1 - t2) * exp32(k2 * dp) * v2)
+    return (
+        t0 * exp32(-k0 * ddep),
+        t1 * exp32(-k1 * ddep),
+        t2 * exp32(-k2 * ddep),
+        (_F1 - t0) * exp32(k0 * dp) * v0,
+        (_F1 - t1) * exp32(k1 * dp) * v1,
+        (_F1 - t2) * exp32(k2 * dp) * v2,
+    )
 
 
 @nb.njit(cache=True, nogil=True, fastmath=_EXP, error_model="numpy")
@@ -876,10 +970,32 @@ def _transfer_loop(hit, near, far, width, tp, physical, out):
     inv_w = 1.0 / width
     for j in range(hit.size):
         pix = hit[j]
-        row = np.floor((np.float64(pix) + 0.5) * inv_w)            # pix // width, vectorisable
+        row = np.floor((np.float64(pix) + 0.5) * inv_w)  # pix // width, vectorisable
         out[0, j], out[1, j], out[2, j], out[3, j], out[4, j], out[5, j] = _gain_add(
-            np.float32(np.float64(pix) - row * width), np.float32(row), near[j], far[j], physical, c0, c1, c2,
-            k0, k1, k2, v0, v1, v2, cam_depth, fx, sk, cx, fy, cy, rz0, rz1, rz2)
+            np.float32(np.float64(pix) - row * width),
+            np.float32(row),
+            near[j],
+            far[j],
+            physical,
+            c0,
+            c1,
+            c2,
+            k0,
+            k1,
+            k2,
+            v0,
+            v1,
+            v2,
+            cam_depth,
+            fx,
+            sk,
+            cx,
+            fy,
+            cy,
+            rz0,
+            rz1,
+            rz2,
+        )
 
 
 @_inline_exp
@@ -898,11 +1014,29 @@ def transfer_params(K, rz, c, kd, veil, cam_depth, physical):
 def _transfer_consts(tp):
     """The 18 scalars of a packed transfer (:func:`transfer_params`) after its mode flag: c (3), kd
     (3), veil (3), cam_depth, fx, skew, cx, fy, cy, rz (3)."""
-    return (tp[1], tp[2], tp[3], tp[4], tp[5], tp[6], tp[7], tp[8], tp[9], tp[10], tp[11], tp[12], tp[13],
-            tp[14], tp[15], tp[16], tp[17], tp[18])
+    return (
+        tp[1],
+        tp[2],
+        tp[3],
+        tp[4],
+        tp[5],
+        tp[6],
+        tp[7],
+        tp[8],
+        tp[9],
+        tp[10],
+        tp[11],
+        tp[12],
+        tp[13],
+        tp[14],
+        tp[15],
+        tp[16],
+        tp[17],
+        tp[18],
+    )
 
 
-NO_TRANSFER = np.zeros(19, np.float32)   # article, c = 0, veil = 0: gain exp(0) = 1, add 0 exactly
+NO_TRANSFER = np.zeros(19, np.float32)  # article, c = 0, veil = 0: gain exp(0) = 1, add 0 exactly
 
 
 @_inline
@@ -910,7 +1044,7 @@ def _copy(dst, src, start, stop):
     """dst[start:stop] = src[start:stop] as a plain loop (vectorised; numba's slice assignment,
     which guards against overlap, copied 3x slower)."""
     d, s = dst[start:stop], src[start:stop]
-    for k in range(d.size):                  # k >= 0: no wraparound test, so LLVM vectorises
+    for k in range(d.size):  # k >= 0: no wraparound test, so LLVM vectorises
         d[k] = s[k]
 
 
@@ -933,11 +1067,11 @@ def resolve(out, img, merged, rng, mask, hit, acc, near, colour, gain_add, width
     mean, with_bg = not (per_pixel or one), gain_add.shape[1] == n
     height = rng.size // width
     inv_w = 1.0 / width
-    done = 0                                   # rows [0, done) copied
+    done = 0  # rows [0, done) copied
     for j in range(n):
         pix = _U(hit[j])
         row = int((np.float64(pix) + 0.5) * inv_w)
-        if row >= done:                        # a new band: copy up to its end
+        if row >= done:  # a new band: copy up to its end
             end = min((row // TILE_PX + 1) * TILE_PX, height)
             _copy(out, img, done * width * 3, end * width * 3)
             _copy(merged, rng, done * width, end * width)
@@ -947,12 +1081,12 @@ def resolve(out, img, merged, rng, mask, hit, acc, near, colour, gain_add, width
         o, o1, o2 = pix * _U(3), pix * _U(3) + _U(1), pix * _U(3) + _U(2)
         w = acc[1, j]
         inv = _F1 / w if w > _F0 else _F1
-        if mean and with_bg:                   # the lit case: unrolled
+        if mean and with_bg:  # the lit case: unrolled
             out[o] = (img[o] * gain_add[0, j] + gain_add[3, j]) * keep + acc[2, j] * inv * cov
             out[o1] = (img[o1] * gain_add[1, j] + gain_add[4, j]) * keep + acc[3, j] * inv * cov
             out[o2] = (img[o2] * gain_add[2, j] + gain_add[5, j]) * keep + acc[4, j] * inv * cov
-        else:                                  # any colour source and transfer (no helper: the
-            for ch in range(3):                # arrays it took cost reference counts per pixel)
+        else:  # any colour source and transfer (no helper: the
+            for ch in range(3):  # arrays it took cost reference counts per pixel)
                 col = colour[ch, j] if per_pixel else (colour[ch, 0] if one else acc[2 + ch, j] * inv)
                 bg = img[o + _U(ch)]
                 if with_bg:
@@ -974,8 +1108,30 @@ def _compact_transfer(tx0, ty0, n, ct, cnear, cfar, tp, physical, cga):
     for q in range(n):
         t = ct[q]
         cga[0, q], cga[1, q], cga[2, q], cga[3, q], cga[4, q], cga[5, q] = _gain_add(
-            np.float32(tx0 + t % np.int32(TILE_PX)), np.float32(ty0 + t // np.int32(TILE_PX)), cnear[q], cfar[q],
-            physical, c0, c1, c2, k0, k1, k2, v0, v1, v2, cam_depth, fx, sk, cx, fy, cy, rz0, rz1, rz2)
+            np.float32(tx0 + t % np.int32(TILE_PX)),
+            np.float32(ty0 + t // np.int32(TILE_PX)),
+            cnear[q],
+            cfar[q],
+            physical,
+            c0,
+            c1,
+            c2,
+            k0,
+            k1,
+            k2,
+            v0,
+            v1,
+            v2,
+            cam_depth,
+            fx,
+            sk,
+            cx,
+            fy,
+            cy,
+            rz0,
+            rz1,
+            rz2,
+        )
 
 
 # The fused pass keeps a tile's sums planar (T, w, w c, near: one plane each), so that an ellipse's
@@ -984,11 +1140,11 @@ def _compact_transfer(tx0, ty0, n, ct, cnear, cfar, tp, physical, cga):
 # identities: T x 1, w + 0, near min inf -- the same bytes, and full-width loads and stores
 # (LLVM made masked stores of a select, which are slow on this CPU and stalled the loads after
 # them: a select per lane and masked stores measured no faster than the per-sample list).
-INF_BITS = np.int32(0x7F800000)      # the IEEE bits of float32 inf
-LANES = 16                           # an ellipse's row segment: 16 float32 lanes (one AVX-512 register)
-PAD = LANES                          # lanes before and after each plane's TILE_PX^2 pixels
+INF_BITS = np.int32(0x7F800000)  # the IEEE bits of float32 inf
+LANES = 16  # an ellipse's row segment: 16 float32 lanes (one AVX-512 register)
+PAD = LANES  # lanes before and after each plane's TILE_PX^2 pixels
 PLANE = TILE_PX * TILE_PX + 2 * PAD  # floats per plane
-_NEAR = 5                            # planes: T, w, w c0, w c1, w c2, near
+_NEAR = 5  # planes: T, w, w c0, w c1, w c2, near
 
 
 @_jit
@@ -996,7 +1152,7 @@ def _planar_buffers():
     """A tile's empty planar sums (6 PLANE,) float32: T = 1, w = w c = 0, near = inf."""
     acc = np.zeros(6 * PLANE, np.float32)
     acc[:PLANE] = _F1
-    acc[_NEAR * PLANE:] = np.inf
+    acc[_NEAR * PLANE :] = np.inf
     return acc
 
 
@@ -1072,18 +1228,19 @@ def _planar_sums(tx0, ty0, tx1, ty1, members, m0, m1, rec, colour, surf, zmin, w
     n_touched, rows = 0, False
     for k in range(m0, m1):
         i = _U(members[k])
-        p = _U(members[min(k + AHEAD, last)])      # a later member's data on its way to the cache
-        _prefetch(rec, p * _U(REC)); _prefetch(colour, p * _U(3))
+        p = _U(members[min(k + AHEAD, last)])  # a later member's data on its way to the cache
+        _prefetch(rec, p * _U(REC))
+        _prefetch(colour, p * _U(3))
         r, ci = i * _U(REC), i * _U(3)
         ui, vi, ai, bi = rec[r], rec[r + _U(1)], rec[r + _U(2)], rec[r + _U(3)]
         cs, sn, di, opi = rec[r + _U(4)], rec[r + _U(5)], rec[r + _U(6)], rec[r + _U(7)]
         dd = max(di, np.float32(1e-3))
         col0, col1, col2 = colour[ci], colour[ci + _U(1)], colour[ci + _U(2)]
-        tested = not di < zmin                                       # depth test per pixel
-        if not ai < np.float32(SPLAT_BELOW_PX):                      # an anti-aliased ellipse
+        tested = not di < zmin  # depth test per pixel
+        if not ai < np.float32(SPLAT_BELOW_PX):  # an anti-aliased ellipse
             x0, y0, sx, sy, ca, sa, cb, sb, k0, k1 = _footprint(ui, vi, ai, bi, cs, sn)
             rows = True
-            if max(sx, sy) <= GROUP_MAX_PX and ai < np.float32(NORMALISE_BELOW_PX):   # small: its box
+            if max(sx, sy) <= GROUP_MAX_PX and ai < np.float32(NORMALISE_BELOW_PX):  # small: its box
                 total = _F0
                 for q in range(sy):
                     _lanes_coverage(cbuf, q * LANES, x0, y0 + q, ui, vi, ca, sa, cb, sb, k0, k1, sx)
@@ -1094,23 +1251,59 @@ def _planar_sums(tx0, ty0, tx1, ty1, members, m0, m1, rec, colour, surf, zmin, w
                     y = y0 + q
                     tb = PAD + (y - ty0) * TILE_PX + x0 - tx0
                     if tested:
-                        _lanes_tested(acc, tb, x0, sx, tx0, tx1, y, cbuf, q * LANES, scale, opi, di, dd, col0, col1,
-                                      col2, surf, width)
+                        _lanes_tested(
+                            acc,
+                            tb,
+                            x0,
+                            sx,
+                            tx0,
+                            tx1,
+                            y,
+                            cbuf,
+                            q * LANES,
+                            scale,
+                            opi,
+                            di,
+                            dd,
+                            col0,
+                            col1,
+                            col2,
+                            surf,
+                            width,
+                        )
                     else:
                         _lanes_update(acc, tb, x0, sx, tx0, tx1, cbuf, q * LANES, scale, opi, di, dd, col0, col1, col2)
-            else:                                                     # its box, clipped to the tile
+            else:  # its box, clipped to the tile
                 xs, xe = max(x0, tx0), min(x0 + sx, tx1)
                 for y in range(max(y0, ty0), min(y0 + sy, ty1)):
                     for xc in range(xs, xe, LANES):
                         _lanes_coverage(cbuf, 0, xc, y, ui, vi, ca, sa, cb, sb, k0, k1, xe - xc)
                         tb = PAD + (y - ty0) * TILE_PX + xc - tx0
                         if tested:
-                            _lanes_tested(acc, tb, xc, xe - xc, tx0, tx1, y, cbuf, 0, _F1, opi, di, dd, col0, col1,
-                                          col2, surf, width)
+                            _lanes_tested(
+                                acc,
+                                tb,
+                                xc,
+                                xe - xc,
+                                tx0,
+                                tx1,
+                                y,
+                                cbuf,
+                                0,
+                                _F1,
+                                opi,
+                                di,
+                                dd,
+                                col0,
+                                col1,
+                                col2,
+                                surf,
+                                width,
+                            )
                         else:
                             _lanes_update(acc, tb, xc, xe - xc, tx0, tx1, cbuf, 0, _F1, opi, di, dd, col0, col1, col2)
             continue
-        w_d = _F1 / (dd * dd)                                            # a speck: 2 x 2 pixels
+        w_d = _F1 / (dd * dd)  # a speck: 2 x 2 pixels
         x0, y0, fx, fy = _speck_box(ui, vi)
         scale = _PI * ai * bi * opi
         for q in range(4):
@@ -1134,7 +1327,7 @@ def _planar_over(tx0, ty0, ty1, n, acc, surf, img, out, merged, mask, tp, width,
     evaluated on them in one vectorised loop (cga (6, TILE_PX^2))."""
     if n < 0:
         n = 0
-        for t in range((ty1 - ty0) * TILE_PX):                  # written always, counted when covered
+        for t in range((ty1 - ty0) * TILE_PX):  # written always, counted when covered
             ct[_U(n)] = np.int32(t)
             n += acc[_U(_NEAR * PLANE + PAD + t)] < np.inf
     for q in range(n):
@@ -1186,13 +1379,28 @@ def splat_over(u, v, a, b, c, s, d, op, colour, surf, scene, img, out, merged, m
     tiles_x, tiles_y = (width + TILE_PX - 1) // TILE_PX, (height + TILE_PX - 1) // TILE_PX
     for ty in range(tiles_y):
         ty0, ty1 = ty * TILE_PX, min(ty * TILE_PX + TILE_PX, height)
-        _copy(out, img, ty0 * width * 3, ty1 * width * 3)    # the band, just before its pixels
+        _copy(out, img, ty0 * width * 3, ty1 * width * 3)  # the band, just before its pixels
         _copy(merged, scene, ty0 * width, ty1 * width)
         for tx in range(tiles_x):
             tile = ty * tiles_x + tx
             if start[tile + 1] == start[tile]:
                 continue
             tx0 = tx * TILE_PX
-            n = _planar_sums(tx0, ty0, min(tx0 + TILE_PX, width), ty1, members, start[tile], start[tile + 1], rec,
-                             col, surf, tnear[tile], width, acc, cbuf, ct)
+            n = _planar_sums(
+                tx0,
+                ty0,
+                min(tx0 + TILE_PX, width),
+                ty1,
+                members,
+                start[tile],
+                start[tile + 1],
+                rec,
+                col,
+                surf,
+                tnear[tile],
+                width,
+                acc,
+                cbuf,
+                ct,
+            )
             _planar_over(tx0, ty0, ty1, n, acc, surf, img, out, merged, mask, tp, width, ct, cnear, cfar, cga)

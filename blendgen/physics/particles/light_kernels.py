@@ -10,6 +10,7 @@ lookup, stays outside (``light_rays`` gives its distances and angles; ``particle
 ``tests/test_particle_optics.py`` checks every term against the numpy laws (lights.irradiance,
 the phase functions) in float64.
 """
+
 from __future__ import annotations
 
 import math
@@ -20,9 +21,9 @@ from blendgen.physics.particles.kernels import _EXP, _F0, _F1, exp32, nb
 
 _vec = nb.njit(cache=True, nogil=True, fastmath=_EXP, error_model="numpy")
 _vec_inline = nb.njit(cache=True, nogil=True, fastmath=_EXP, error_model="numpy", inline="always")
-_LAMBERT = np.float32(2.0 / (3.0 * math.pi ** 2))
+_LAMBERT = np.float32(2.0 / (3.0 * math.pi**2))
 _PI32 = np.float32(math.pi)
-LIGHT_COLUMNS = 12          # position (3), unit axis (3), intensity (3), cos half, cos inner, power
+LIGHT_COLUMNS = 12  # position (3), unit axis (3), intensity (3), cos half, cos inner, power
 
 
 @_vec_inline
@@ -104,7 +105,7 @@ def radiance(x, y, z, lights, c_light, beams, gain, mat, amb):
         px, py, pz, ax, ay, az = L[0], L[1], L[2], L[3], L[4], L[5]
         i0, i1, i2, cos_half, cos_inner, power = L[6], L[7], L[8], L[9], L[10], L[11]
         c0, c1, c2 = c_light[li, 0], c_light[li, 1], c_light[li, 2]
-        if power < _F0:                           # the beam given (a table lookup)
+        if power < _F0:  # the beam given (a table lookup)
             for i in range(n):
                 ph = _scatter(x[i], y[i], z[i], px, py, pz, forward, g) * albedo
                 art[0, i] += beams[li, 0, i] * i0 * ph

@@ -39,6 +39,7 @@ Optics (:func:`coc_px`, :func:`coc_scale`, :func:`blurred_shapes`)
     summed moments and its opacity falls by the area ratio (the light is spread, not
     created).
 """
+
 from __future__ import annotations
 
 import math
@@ -51,16 +52,17 @@ from blendgen.physics.particles import kernels as kern
 from blendgen.physics.particles import light_kernels as plk
 
 SIZE_DISTS = ("power_law", "uniform")
-MARINE_SNOW_R_MIN_M = 0.00025      # 0.5 mm diameter
-MARINE_SNOW_R_MAX_M = 0.015        # 3 cm diameter
-MARINE_SNOW_SLOPE = 3.5            # n(D) ~ D^-3.5 (Stemmann & Boss 2012: ~2 to 4.5)
+MARINE_SNOW_R_MIN_M = 0.00025  # 0.5 mm diameter
+MARINE_SNOW_R_MAX_M = 0.015  # 3 cm diameter
+MARINE_SNOW_SLOPE = 3.5  # n(D) ~ D^-3.5 (Stemmann & Boss 2012: ~2 to 4.5)
 ARTICLE_R_MIN_M = 0.005
 ARTICLE_R_MAX_M = 0.02
 
 
 # ----------------------------------------------------------------------------- sizes
-def sample_radii(rng: np.random.Generator, n: int, dist: str, r_min: float, r_max: float,
-                 slope: float = MARINE_SNOW_SLOPE) -> np.ndarray:
+def sample_radii(
+    rng: np.random.Generator, n: int, dist: str, r_min: float, r_max: float, slope: float = MARINE_SNOW_SLOPE
+) -> np.ndarray:
     """(n,) float32 radii (m): ``uniform`` in [r_min, r_max] or the truncated ``power_law``
     ``dN/dr ~ r^-slope`` on [r_min, r_max] (inverse CDF; slope 1 is log-uniform)."""
     if dist not in SIZE_DISTS:
@@ -75,15 +77,17 @@ def sample_radii(rng: np.random.Generator, n: int, dist: str, r_min: float, r_ma
     if abs(slope - 1.0) < 1e-9:
         return (r_min * (r_max / r_min) ** u.astype(np.float64)).astype(np.float32)
     k = 1.0 - slope
-    lo, hi = r_min ** k, r_max ** k
+    lo, hi = r_min**k, r_max**k
     return ((lo + u.astype(np.float64) * (hi - lo)) ** (1.0 / k)).astype(np.float32)
 
 
 def power_law_mean_area(r_min: float, r_max: float, slope: float) -> float:
     """E[pi r^2] (m^2) of the truncated power law (for coverage expectations)."""
+
     def moment(j):
         e = j + 1.0 - slope
-        return math.log(r_max / r_min) if abs(e) < 1e-12 else (r_max ** e - r_min ** e) / e
+        return math.log(r_max / r_min) if abs(e) < 1e-12 else (r_max**e - r_min**e) / e
+
     return math.pi * moment(2) / moment(0)
 
 
@@ -93,7 +97,7 @@ def lambert_sphere_phase(cos_theta: np.ndarray) -> np.ndarray:
     (0 forward). ``p = 2/(3 pi^2) (sin a + (pi - a) cos a)``, a = pi - theta the phase angle
     (so cos a = -cos theta, pi - a = theta). Keeps the input's float dtype."""
     mu = np.clip(np.asarray(cos_theta), -1.0, 1.0)
-    return (2.0 / (3.0 * math.pi ** 2)) * (np.sqrt(1.0 - mu * mu) - np.arccos(mu) * mu)
+    return (2.0 / (3.0 * math.pi**2)) * (np.sqrt(1.0 - mu * mu) - np.arccos(mu) * mu)
 
 
 def hg_phase(cos_theta: np.ndarray, g: float) -> np.ndarray:
@@ -107,6 +111,7 @@ def hg_phase(cos_theta: np.ndarray, g: float) -> np.ndarray:
 class ParticleMaterial:
     """Albedo (fraction of the geometric cross-section scattered), share of that in the
     forward lobe and the lobe's HG asymmetry."""
+
     albedo: float = 0.3
     forward_fraction: float = 0.5
     forward_g: float = 0.9
@@ -151,7 +156,7 @@ def light_field(xyz, material: ParticleMaterial, ambient_rgb, lights: list, gain
     amb = (np.float32(material.albedo) * np.asarray(ambient_rgb, np.float32).reshape(3)).astype(np.float32)
     tabled = [k for k, (li, _, beam) in enumerate(lights) if beam is not None or li.cosine_power not in (0, 1)]
     beams = np.zeros((len(lights), 3, n if tabled else 0), np.float32)
-    for k in tabled:                       # beams given, or profiles the kernel has not: numpy
+    for k in tabled:  # beams given, or profiles the kernel has not: numpy
         li, c, beam = lights[k]
         d, cos_psi = plk.light_rays(x, y, z, np.asarray(li.position_m, np.float32), np.asarray(li.axis, np.float32))
         if beam is not None:
@@ -165,8 +170,9 @@ def light_field(xyz, material: ParticleMaterial, ambient_rgb, lights: list, gain
     return plk.radiance(x, y, z, rows, c, beams, g, mat, amb)
 
 
-def radiance_planar(xyz, material: ParticleMaterial, ambient_rgb, point_lights: list, c_per_m,
-                    light_gain=None, beam=None) -> list:
+def radiance_planar(
+    xyz, material: ParticleMaterial, ambient_rgb, point_lights: list, c_per_m, light_gain=None, beam=None
+) -> list:
     """:func:`particle_radiance` on columns: xyz = (x, y, z) (M,) float32, light_gain None or
     3 x (M,) (per channel), beam None or the lights' beam (:func:`light_field`); returns 3 x (M,)
     float32."""
@@ -175,8 +181,14 @@ def radiance_planar(xyz, material: ParticleMaterial, ambient_rgb, point_lights: 
     return list(light_field(xyz, material, ambient_rgb, [(li, c, beam) for li in point_lights], gain))
 
 
-def particle_radiance(points_cam: np.ndarray, material: ParticleMaterial, ambient_rgb,
-                      point_lights: list, c_per_m, light_gain: np.ndarray | None = None) -> np.ndarray:
+def particle_radiance(
+    points_cam: np.ndarray,
+    material: ParticleMaterial,
+    ambient_rgb,
+    point_lights: list,
+    c_per_m,
+    light_gain: np.ndarray | None = None,
+) -> np.ndarray:
     """Mean radiance (M, 3) float32 of each particle's disc toward the camera (at the origin).
 
     points_cam (M, 3) particle centres; ambient_rgb (3,) mean radiance of the light field at
@@ -234,8 +246,9 @@ def coc_scale(focal_length_m: float, f_number: float, focus_m: float, fx_px: flo
     """k (px) of the thin-lens circle of confusion ``c_px = k |s - s_f| / s`` (module doc):
     ``k = A f / (s_f - f) * f_px / f``, A = f / N."""
     if not (focus_m > focal_length_m > 0 and f_number > 0):
-        raise ValueError(f"need focus_m > focal_length > 0 and f_number > 0, got {focus_m}, "
-                         f"{focal_length_m}, {f_number}")
+        raise ValueError(
+            f"need focus_m > focal_length > 0 and f_number > 0, got {focus_m}, {focal_length_m}, {f_number}"
+        )
     return (focal_length_m / f_number) / (focus_m - focal_length_m) * fx_px
 
 

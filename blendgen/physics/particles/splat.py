@@ -15,6 +15,7 @@ on the rim) and m = sqrt(a b), the signed distance to the rim is ~ (q - 1) m and
 clip(0.5 + m - m q, 0, 1). The rim is exact; only the 1-px ramp is approximate, so ellipses
 with a < 4 px are renormalised to the exact area pi a b over their box (up to GROUP_MAX_PX).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -24,8 +25,17 @@ import numpy as np
 from blendgen.physics.particles import kernels as kern
 from blendgen.physics.particles.kernels import ALPHA_MAX, GROUP_MAX_PX, NORMALISE_BELOW_PX, SPLAT_BELOW_PX
 
-__all__ = ["ALPHA_MAX", "GROUP_MAX_PX", "NORMALISE_BELOW_PX", "SPLAT_BELOW_PX", "Particles", "Sums",
-           "boxes", "over", "splat"]
+__all__ = [
+    "ALPHA_MAX",
+    "GROUP_MAX_PX",
+    "NORMALISE_BELOW_PX",
+    "SPLAT_BELOW_PX",
+    "Particles",
+    "Sums",
+    "boxes",
+    "over",
+    "splat",
+]
 
 
 @dataclass
@@ -34,6 +44,7 @@ class Sums:
     once, in tile order): ``acc`` (2 + C, n) float32 = [T, w, w c_1 .. w c_C] (the transmittance,
     the weights and the weighted colours); ``near`` (n,) float32 the nearest covering particle's
     surface range and ``far`` (n,) float32 the scene's range there (m)."""
+
     hit: np.ndarray
     acc: np.ndarray
     near: np.ndarray
@@ -55,6 +66,7 @@ class Particles:
     """What the splat needs per particle (all (M,) float32 unless noted): centre u, v (px),
     semi-axes a (radial), b (px), radial direction c, s, surface range d (m), blur opacity
     op, colour (M, C) (C = 0: one colour for all, no colour sums)."""
+
     u: np.ndarray
     v: np.ndarray
     a: np.ndarray
@@ -78,13 +90,26 @@ def splat(p: Particles, surf: np.ndarray, width: int, height: int) -> Sums:
 
     surf (H*W,) float32 scene range per pixel (inf or NaN = background)."""
     f32 = lambda x: np.ascontiguousarray(x, np.float32)
-    hit, acc, near, far = kern.splat(f32(p.u), f32(p.v), f32(p.a), f32(p.b), f32(p.c), f32(p.s), f32(p.d),
-                                f32(p.op), _records(p.colour), f32(surf), int(width), int(height))
+    hit, acc, near, far = kern.splat(
+        f32(p.u),
+        f32(p.v),
+        f32(p.a),
+        f32(p.b),
+        f32(p.c),
+        f32(p.s),
+        f32(p.d),
+        f32(p.op),
+        _records(p.colour),
+        f32(surf),
+        int(width),
+        int(height),
+    )
     return Sums(hit, acc, near, far)
 
 
-def over(p: Particles, surf: np.ndarray, scene: np.ndarray, img: np.ndarray, transfer: np.ndarray, width: int,
-         height: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def over(
+    p: Particles, surf: np.ndarray, scene: np.ndarray, img: np.ndarray, transfer: np.ndarray, width: int, height: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`splat`, the background transfer and the compositing in one compiled pass
     (``particle_kernels.splat_over``), for particles with their own RGB colours (p.colour (M, 3)):
     the covered part of a pixel takes their weighted mean colour.
@@ -96,15 +121,36 @@ def over(p: Particles, surf: np.ndarray, scene: np.ndarray, img: np.ndarray, tra
     ``particle_kernels.transfer`` and ``resolve``, without their per-pixel lists."""
     if np.shape(p.colour)[1:] != (3,):
         raise ValueError(f"over needs one RGB colour per particle (M, 3), got {np.shape(p.colour)}")
-    if np.size(p.d) and not np.min(p.d) >= 0:          # the kernel's nearest range: a minimum of IEEE bits
+    if np.size(p.d) and not np.min(p.d) >= 0:  # the kernel's nearest range: a minimum of IEEE bits
         raise ValueError(f"over needs particle surface ranges d >= 0 m, got min {np.min(p.d)}")
-    if np.size(p.colour) and not np.isfinite(p.colour).all():   # idle lanes add 0 x colour (kernel)
+    if np.size(p.colour) and not np.isfinite(p.colour).all():  # idle lanes add 0 x colour (kernel)
         raise ValueError("over needs finite particle colours (linear radiance), got inf or NaN")
     f32 = lambda x: np.ascontiguousarray(x, np.float32)
-    out, merged, mask = np.empty(height * width * 3, np.float32), np.empty(height * width, np.float32), \
-        np.zeros(height * width, bool)
-    kern.splat_over(f32(p.u), f32(p.v), f32(p.a), f32(p.b), f32(p.c), f32(p.s), f32(p.d), f32(p.op), _records(p.colour),
-                    f32(surf), f32(scene), f32(img), out, merged, mask, f32(transfer), int(width), int(height))
+    out, merged, mask = (
+        np.empty(height * width * 3, np.float32),
+        np.empty(height * width, np.float32),
+        np.zeros(height * width, bool),
+    )
+    kern.splat_over(
+        f32(p.u),
+        f32(p.v),
+        f32(p.a),
+        f32(p.b),
+        f32(p.c),
+        f32(p.s),
+        f32(p.d),
+        f32(p.op),
+        _records(p.colour),
+        f32(surf),
+        f32(scene),
+        f32(img),
+        out,
+        merged,
+        mask,
+        f32(transfer),
+        int(width),
+        int(height),
+    )
     return out, merged, mask
 
 

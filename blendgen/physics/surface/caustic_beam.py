@@ -17,6 +17,7 @@ surface patch is ``cos theta_air`` of a unit area across the air beam, ``cos the
 across the water beam). ``M`` = photons per bin over that flat count: 1 on average, so the
 spot keeps the plain sun's energy.
 """
+
 from __future__ import annotations
 
 import math
@@ -26,8 +27,8 @@ import numpy as np
 
 from blendgen.physics.surface import optics as sf
 
-D_SPOT = 1000.0          # m: the spot's rays are within 8 mrad of parallel over a 15 m pool
-OFFSET = 100.0           # m, added to recorded plane coordinates (photon recorders' emission stays positive)
+D_SPOT = 1000.0  # m: the spot's rays are within 8 mrad of parallel over a 15 m pool
+OFFSET = 100.0  # m, added to recorded plane coordinates (photon recorders' emission stays positive)
 
 
 @dataclass
@@ -35,6 +36,7 @@ class Grid:
     """The cross-section grid: ``c`` (3,) centre on the surface plane (world, m), ``t`` (3,)
     the beam in water (unit), ``e1``/``e2`` (3,) across it (the spot's x and y), ``lo`` (2,)
     lower corner (m, projective), ``bin_m``, ``shape`` (rows along e2, columns along e1)."""
+
     c: np.ndarray
     t: np.ndarray
     e1: np.ndarray
@@ -98,8 +100,7 @@ def pattern(grid: Grid, P: np.ndarray, pitch_m: float, renders: int, air) -> np.
     pq, _ = grid.coords(P)
     rows, cols = grid.shape
     hi = grid.lo + grid.size()
-    hist, _, _ = np.histogram2d(pq[:, 1], pq[:, 0], bins=[rows, cols],
-                                range=[[grid.lo[1], hi[1]], [grid.lo[0], hi[0]]])
+    hist, _, _ = np.histogram2d(pq[:, 1], pq[:, 0], bins=[rows, cols], range=[[grid.lo[1], hi[1]], [grid.lo[0], hi[0]]])
     rho_t = (-air[2]) / (-grid.t[2]) / (pitch_m * pitch_m)
     flat = rho_t * grid.bin_m * grid.bin_m * renders * transmittance(air)
     return (hist / flat).astype(np.float32)
@@ -109,11 +110,15 @@ def lookup(grid: Grid, M: np.ndarray, P: np.ndarray) -> np.ndarray:
     """``M`` at world points ``P`` (N, 3), bilinear between bin centres, 1 outside the grid:
     what the spot's light texture gives each point (before the inverse square)."""
     pq, _ = grid.coords(P)
-    x = (pq - grid.lo) / grid.bin_m - 0.5                 # bin-centre units
+    x = (pq - grid.lo) / grid.bin_m - 0.5  # bin-centre units
     rows, cols = grid.shape
     inside = (x[:, 0] >= -0.5) & (x[:, 0] <= cols - 0.5) & (x[:, 1] >= -0.5) & (x[:, 1] <= rows - 0.5)
     i0 = np.clip(np.floor(x).astype(int), 0, [cols - 2, rows - 2])
     f = np.clip(x - i0, 0.0, 1.0)
-    m = (M[i0[:, 1], i0[:, 0]] * (1 - f[:, 0]) * (1 - f[:, 1]) + M[i0[:, 1], i0[:, 0] + 1] * f[:, 0] * (1 - f[:, 1])
-         + M[i0[:, 1] + 1, i0[:, 0]] * (1 - f[:, 0]) * f[:, 1] + M[i0[:, 1] + 1, i0[:, 0] + 1] * f[:, 0] * f[:, 1])
+    m = (
+        M[i0[:, 1], i0[:, 0]] * (1 - f[:, 0]) * (1 - f[:, 1])
+        + M[i0[:, 1], i0[:, 0] + 1] * f[:, 0] * (1 - f[:, 1])
+        + M[i0[:, 1] + 1, i0[:, 0]] * (1 - f[:, 0]) * f[:, 1]
+        + M[i0[:, 1] + 1, i0[:, 0] + 1] * f[:, 0] * f[:, 1]
+    )
     return np.where(inside, m, 1.0)

@@ -27,6 +27,7 @@ Judge: ``dockbench bench caustics`` (a Cycles photon map: sun rays refracted by 
 glass surface and histogrammed on the floor). Units: metres, beam paths along the refracted
 sun; arrays (ny, nx) are bins of a :class:`Patch`.
 """
+
 from __future__ import annotations
 
 import math
@@ -34,11 +35,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from blendgen.physics.surface import caustic_mesh as cm, optics as sf
+from blendgen.physics.surface import caustic_mesh as cm
+from blendgen.physics.surface import optics as sf
 
-SLOPE_SIGMAS = 5.0                   # reach of a deflection: this many rms slopes (capped by the sum of all)
-FINEST_BIN_M = 0.01                  # bins of a frame's maps: the sample's footprint, rounded up to 1 cm x 2^l
-COARSEST_BIN_M = 0.32                # a footprint wider than this averages the network out (cells 0.4-1 m)
+SLOPE_SIGMAS = 5.0  # reach of a deflection: this many rms slopes (capped by the sum of all)
+FINEST_BIN_M = 0.01  # bins of a frame's maps: the sample's footprint, rounded up to 1 cm x 2^l
+COARSEST_BIN_M = 0.32  # a footprint wider than this averages the network out (cells 0.4-1 m)
 #: Source vertices: ``SOURCE_PER_BIN`` per bin side, more (up to ``MAX_PER_BIN``) where a bin
 #: is wider than ``1 / MESH_PER_WAVELENGTH`` of the shortest wave; waves shorter than
 #: ``MESH_PER_WAVELENGTH / 3`` mesh cells are left out of the mesh (their focusing is finer
@@ -51,13 +53,14 @@ COARSEST_BIN_M = 0.32                # a footprint wider than this averages the 
 SOURCE_PER_BIN = 1
 MAX_PER_BIN = 4
 MESH_PER_WAVELENGTH = 24
-BAND_START_M = 0.25                  # frame groups: beam paths in octaves from here (the blurs' parameters)
+BAND_START_M = 0.25  # frame groups: beam paths in octaves from here (the blurs' parameters)
 
 
 @dataclass(frozen=True)
 class Patch:
     """Bins of the surface-crossing coordinates: origin ``(x0, y0)`` (m, the first bin's
     corner), ``bin_m`` (m), ``shape`` (ny, nx)."""
+
     x0: float
     y0: float
     bin_m: float
@@ -68,17 +71,21 @@ class Patch:
         ny, nx = self.shape
         return (self.x0 + (np.arange(nx) + 0.5) * self.bin_m, self.y0 + (np.arange(ny) + 0.5) * self.bin_m)
 
-    def padded(self, pad: int) -> "Patch":
+    def padded(self, pad: int) -> Patch:
         """The patch ``pad`` bins wider on every side."""
-        return Patch(self.x0 - pad * self.bin_m, self.y0 - pad * self.bin_m, self.bin_m,
-                     (self.shape[0] + 2 * pad, self.shape[1] + 2 * pad))
+        return Patch(
+            self.x0 - pad * self.bin_m,
+            self.y0 - pad * self.bin_m,
+            self.bin_m,
+            (self.shape[0] + 2 * pad, self.shape[1] + 2 * pad),
+        )
 
 
 def reach_m(waves: sf.WaveField, path_m: float, deflect: np.ndarray) -> float:
     """Farthest (m) a ray can land from its straight path at beam path ``path_m``:
     ``L ||D|| min(5 rms slope, sum of the waves' slope amplitudes)``."""
     slope_amp = waves.amp * np.hypot(waves.k[:, 0], waves.k[:, 1])
-    s = min(SLOPE_SIGMAS * math.sqrt(float((slope_amp ** 2).sum() / 2)), float(slope_amp.sum()))
+    s = min(SLOPE_SIGMAS * math.sqrt(float((slope_amp**2).sum() / 2)), float(slope_amp.sum()))
     return float(path_m) * float(np.linalg.norm(deflect, 2)) * s
 
 
@@ -86,6 +93,7 @@ def sun_transfer(k: np.ndarray, path_m, n: float = sf.N_WATER) -> np.ndarray:
     """Transfer function of the sun's disc (uniform, radius ``R = L theta_sun / n``) at
     wavenumbers k (rad/m): ``2 J1(k R) / (k R)``."""
     from scipy.special import j1
+
     kr = k * path_m * sf.SUN_RADIUS_RAD / n
     return np.where(kr > 1e-6, 2 * j1(kr) / np.where(kr > 1e-6, kr, 1.0), 1.0)
 
@@ -116,11 +124,18 @@ def _slack_bins(waves: sf.WaveField, path_m: float, bin_m: float, D: np.ndarray)
     bounded by ``sum a |k|^3``."""
     third = float((waves.amp * np.hypot(waves.k[:, 0], waves.k[:, 1]) ** 3).sum())
     side_m = cm.BLOCK / 2 * bin_m
-    return 1.0 + side_m ** 2 / 4 * path_m * float(np.linalg.norm(D, 2)) * third / bin_m
+    return 1.0 + side_m**2 / 4 * path_m * float(np.linalg.norm(D, 2)) * third / bin_m
 
 
-def _deposit(waves: sf.WaveField, grid: Patch, path_m: np.ndarray, t: float, D: np.ndarray,
-             traced: np.ndarray | None, per_bin: int | None = None) -> np.ndarray:
+def _deposit(
+    waves: sf.WaveField,
+    grid: Patch,
+    path_m: np.ndarray,
+    t: float,
+    D: np.ndarray,
+    traced: np.ndarray | None,
+    per_bin: int | None = None,
+) -> np.ndarray:
     """Sunlight per bin (ny, nx) over its flat-surface value on ``grid``, before any blur:
     a source mesh of ``per_bin`` vertices per bin side (None: as ``SOURCE_PER_BIN`` and
     ``MAX_PER_BIN`` say; the waves it cannot resolve left out) over the grid plus the reach of
@@ -130,26 +145,39 @@ def _deposit(waves: sf.WaveField, grid: Patch, path_m: np.ndarray, t: float, D: 
     reach = int(math.ceil(reach_m(waves, L, D) / b)) + 1
     wavelength = 2 * math.pi / np.hypot(waves.k[:, 0], waves.k[:, 1])
     if per_bin is None:
-        per_bin = min(max(SOURCE_PER_BIN, math.ceil(b * MESH_PER_WAVELENGTH / float(wavelength.min()) - 1e-9)),
-                      MAX_PER_BIN)
+        per_bin = min(
+            max(SOURCE_PER_BIN, math.ceil(b * MESH_PER_WAVELENGTH / float(wavelength.min()) - 1e-9)), MAX_PER_BIN
+        )
     step = 1.0 / per_bin
     keep = wavelength >= MESH_PER_WAVELENGTH / 3 * b * step
     if not keep.any():
         return np.ones(grid.shape, np.float32)
     if not keep.all():
         waves = sf.WaveField(waves.amp[keep], waves.k[keep], waves.omega[keep], waves.phase[keep])
-    xs = -reach + step * np.arange(per_bin * (grid.shape[1] + 2 * reach) + 1)        # bin units
+    xs = -reach + step * np.arange(per_bin * (grid.shape[1] + 2 * reach) + 1)  # bin units
     ys = -reach + step * np.arange(per_bin * (grid.shape[0] + 2 * reach) + 1)
     phase = waves.phase - t * waves.omega
     ax = np.multiply.outer(grid.x0 + b * xs, waves.k[:, 0])
     ay = np.multiply.outer(grid.y0 + b * ys, waves.k[:, 1]) + phase
     sat = np.zeros((grid.shape[0] + 1, grid.shape[1] + 1), np.int64)
     sat[1:, 1:] = (np.ones(grid.shape, bool) if traced is None else traced).cumsum(0).cumsum(1)
-    E = cm.deposit(np.cos(ax), np.sin(ax), np.cos(ay), np.sin(ay), waves.amp * waves.k[:, 0],
-                   waves.amp * waves.k[:, 1], xs, ys, np.ascontiguousarray(path_m / b, np.float64),
-                   np.ascontiguousarray(D, np.float64).ravel(), sat, step * step, _slack_bins(waves, L, b, D))
+    E = cm.deposit(
+        np.cos(ax),
+        np.sin(ax),
+        np.cos(ay),
+        np.sin(ay),
+        waves.amp * waves.k[:, 0],
+        waves.amp * waves.k[:, 1],
+        xs,
+        ys,
+        np.ascontiguousarray(path_m / b, np.float64),
+        np.ascontiguousarray(D, np.float64).ravel(),
+        sat,
+        step * step,
+        _slack_bins(waves, L, b, D),
+    )
     if traced is not None:
-        E[~traced] = 1.0                   # the flat surface's light, for the blurs' tails
+        E[~traced] = 1.0  # the flat surface's light, for the blurs' tails
     return E
 
 
@@ -166,26 +194,41 @@ def _mark(shape: tuple[int, int], j: np.ndarray, i: np.ndarray, offsets) -> np.n
 
 def _dilate(mask: np.ndarray, pad: int) -> np.ndarray:
     import cv2
+
     return cv2.dilate(mask.astype(np.uint8), np.ones((2 * pad + 1, 2 * pad + 1), np.uint8)).astype(bool)
 
 
 def _scattered(E: np.ndarray, grid: Patch, path_m: np.ndarray, scattering: float, g: float, n: float) -> np.ndarray:
     """The deposit blurred by the scattered light's transfer function (and the sun's disc)
     at the least and largest path of the grid, blended per bin linearly in log path."""
-    k = 2 * np.pi * np.hypot(*np.meshgrid(np.fft.rfftfreq(grid.shape[1], grid.bin_m),
-                                           np.fft.fftfreq(grid.shape[0], grid.bin_m)))
+    k = (
+        2
+        * np.pi
+        * np.hypot(*np.meshgrid(np.fft.rfftfreq(grid.shape[1], grid.bin_m), np.fft.fftfreq(grid.shape[0], grid.bin_m)))
+    )
     spectrum = np.fft.rfft2(E)
     lo, hi = max(float(path_m.min()), 1e-3), max(float(path_m.max()), 1e-3)
-    maps = [np.fft.irfft2(spectrum * sun_transfer(k, L, n) * scattered_transfer(k, L, scattering, g), s=E.shape)
-            for L in ((lo,) if hi < 1.01 * lo else (lo, hi))]
+    maps = [
+        np.fft.irfft2(spectrum * sun_transfer(k, L, n) * scattered_transfer(k, L, scattering, g), s=E.shape)
+        for L in ((lo,) if hi < 1.01 * lo else (lo, hi))
+    ]
     if len(maps) == 1:
         return maps[0]
     w = np.clip(np.log(np.maximum(path_m, lo) / lo) / math.log(hi / lo), 0.0, 1.0)
     return maps[0] + w * (maps[1] - maps[0])
 
 
-def light_map(waves: sf.WaveField, patch: Patch, path_m, t: float, deflect=None, scattering: float = 0.0,
-              g: float = 0.9, n: float = sf.N_WATER, wanted: np.ndarray | None = None) -> np.ndarray:
+def light_map(
+    waves: sf.WaveField,
+    patch: Patch,
+    path_m,
+    t: float,
+    deflect=None,
+    scattering: float = 0.0,
+    g: float = 0.9,
+    n: float = sf.N_WATER,
+    wanted: np.ndarray | None = None,
+) -> np.ndarray:
     """Sun irradiance over its flat-surface value (ny, nx) on ``patch``, time ``t`` (module
     docstring). ``path_m``: the beam path (m) to the receiver under each bin, a number or
     (ny, nx); ``deflect``: :func:`surface.sun_deflection` (None: the zenith); ``scattering``
@@ -195,12 +238,25 @@ def light_map(waves: sf.WaveField, patch: Patch, path_m, t: float, deflect=None,
     see the light that lands from outside it."""
     X, Y = np.meshgrid(*patch.centres())
     L = np.broadcast_to(np.asarray(path_m, np.float64), patch.shape)
-    return _light_at(waves, patch, L, t, deflect, scattering, g, n, wanted, X.ravel(), Y.ravel(),
-                     L.ravel()).reshape(patch.shape)
+    return _light_at(waves, patch, L, t, deflect, scattering, g, n, wanted, X.ravel(), Y.ravel(), L.ravel()).reshape(
+        patch.shape
+    )
 
 
-def _light_at(waves: sf.WaveField, patch: Patch, L: np.ndarray, t: float, deflect, scattering: float, g: float,
-              n: float, wanted: np.ndarray | None, x: np.ndarray, y: np.ndarray, path_m: np.ndarray) -> np.ndarray:
+def _light_at(
+    waves: sf.WaveField,
+    patch: Patch,
+    L: np.ndarray,
+    t: float,
+    deflect,
+    scattering: float,
+    g: float,
+    n: float,
+    wanted: np.ndarray | None,
+    x: np.ndarray,
+    y: np.ndarray,
+    path_m: np.ndarray,
+) -> np.ndarray:
     """:func:`light_map` (bins' beam paths ``L`` (ny, nx)) read at points (x, y, path) (m,):
     ``e^{-b L} sharp + (1 - e^{-b L}) scattered``, each map read bilinearly."""
     D = np.asarray(sf.sun_deflection(None, n) if deflect is None else deflect, np.float64).reshape(2, 2)
@@ -211,7 +267,7 @@ def _light_at(waves: sf.WaveField, patch: Patch, L: np.ndarray, t: float, deflec
     pad = int(math.ceil(3 * hi * theta / b)) + 2
     a, turbid = _kernel_width(g), math.exp(-scattering * lo) < 0.999
     ratio = 2 ** max(0, int(math.floor(math.log2(max(a * lo / 4, b) / b)))) if turbid else 1
-    if turbid and ratio == 1:              # the scattered blur is a few bins: one deposit serves both
+    if turbid and ratio == 1:  # the scattered blur is a few bins: one deposit serves both
         pad = max(pad, int(math.ceil(2 * a * hi / b)) + 2)
     grid = patch.padded(pad)
     Lg = np.pad(L, pad, mode="edge")
@@ -222,9 +278,9 @@ def _light_at(waves: sf.WaveField, patch: Patch, L: np.ndarray, t: float, deflec
     if not turbid:
         return out
     beam = np.exp(-scattering * np.asarray(path_m, np.float32))
-    longest = 0.5 * float(np.hypot(waves.k[:, 0], waves.k[:, 1]).min())      # rad/m: twice the longest wave
+    longest = 0.5 * float(np.hypot(waves.k[:, 0], waves.k[:, 1]).min())  # rad/m: twice the longest wave
     if float(scattered_transfer(np.array([longest]), lo, scattering, g)[0]) < 0.01:
-        return beam * out + (1.0 - beam)   # the scattered light keeps < 1 % of any pattern: its mean
+        return beam * out + (1.0 - beam)  # the scattered light keeps < 1 % of any pattern: its mean
     if ratio == 1:
         wide, wide_grid = _scattered(E, grid, Lg, scattering, g, n), grid
     else:
@@ -232,12 +288,14 @@ def _light_at(waves: sf.WaveField, patch: Patch, L: np.ndarray, t: float, deflec
     return beam * out + (1.0 - beam) * lookup(wide, wide_grid, x, y)
 
 
-def _coarse_scattered(waves, patch: Patch, L: np.ndarray, wanted, ratio: int, t: float, D, scattering: float,
-                      g: float, n: float) -> tuple[np.ndarray, Patch]:
+def _coarse_scattered(
+    waves, patch: Patch, L: np.ndarray, wanted, ratio: int, t: float, D, scattering: float, g: float, n: float
+) -> tuple[np.ndarray, Patch]:
     """The scattered part of :func:`light_map` made on bins ``ratio`` times coarser (a deposit
     of its own, blurred over ``~a L``) and its grid."""
-    coarse = Patch(patch.x0, patch.y0, patch.bin_m * ratio,
-                   (-(-patch.shape[0] // ratio) + 1, -(-patch.shape[1] // ratio) + 1))
+    coarse = Patch(
+        patch.x0, patch.y0, patch.bin_m * ratio, (-(-patch.shape[0] // ratio) + 1, -(-patch.shape[1] // ratio) + 1)
+    )
     cpad = int(math.ceil(2 * _kernel_width(g) * float(L.max()) / coarse.bin_m)) + 2
     grid = coarse.padded(cpad)
     jj = np.clip(np.arange(coarse.shape[0]) * ratio + ratio // 2, 0, patch.shape[0] - 1)
@@ -254,13 +312,19 @@ def lookup(M: np.ndarray, patch: Patch, x: np.ndarray, y: np.ndarray) -> np.ndar
     """Bilinear value (m,) float32 of the map (ny, nx) at points (x, y) (m,), clamped to its
     edge bins (OpenCV's remap: the points are laid out in rows of 1024)."""
     import cv2
+
     m = np.size(x)
     rows = -(-m // 1024)
     fx, fy = np.zeros(rows * 1024, np.float32), np.zeros(rows * 1024, np.float32)
     fx[:m] = (np.asarray(x, np.float64) - patch.x0) / patch.bin_m - 0.5
     fy[:m] = (np.asarray(y, np.float64) - patch.y0) / patch.bin_m - 0.5
-    out = cv2.remap(np.ascontiguousarray(M, np.float32), fx.reshape(rows, 1024), fy.reshape(rows, 1024),
-                    cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    out = cv2.remap(
+        np.ascontiguousarray(M, np.float32),
+        fx.reshape(rows, 1024),
+        fy.reshape(rows, 1024),
+        cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_REPLICATE,
+    )
     return out.ravel()[:m]
 
 
@@ -285,12 +349,14 @@ def _group_patch(x: np.ndarray, y: np.ndarray, L: np.ndarray, b: float) -> tuple
     return patch, wanted, _fill_nearest(own_j, own_i, L, patch.shape)
 
 
-def _fill_nearest(j: np.ndarray, i: np.ndarray, values: np.ndarray, shape: tuple[int, int],
-                  block: int = 8) -> np.ndarray:
+def _fill_nearest(
+    j: np.ndarray, i: np.ndarray, values: np.ndarray, shape: tuple[int, int], block: int = 8
+) -> np.ndarray:
     """(ny, nx) mean of ``values`` (m,) over the points in each bin (their bins ``j, i`` (m,));
     in a bin without any, the mean of the nearest block (``block`` x ``block`` bins) that has
     some (a Euclidean transform on the blocks)."""
     from scipy import ndimage
+
     ny, nx = shape
     by, bx = -(-ny // block), -(-nx // block)
     own = j * nx + i
@@ -305,8 +371,18 @@ def _fill_nearest(j: np.ndarray, i: np.ndarray, values: np.ndarray, shape: tuple
     return np.where(count > 0, total / np.maximum(count, 1), filled)
 
 
-def frame_factor(waves: sf.WaveField, x, y, path_m, footprint_m, t: float, deflect=None, scattering: float = 0.0,
-                 g: float = 0.9, n: float = sf.N_WATER) -> np.ndarray:
+def frame_factor(
+    waves: sf.WaveField,
+    x,
+    y,
+    path_m,
+    footprint_m,
+    t: float,
+    deflect=None,
+    scattering: float = 0.0,
+    g: float = 0.9,
+    n: float = sf.N_WATER,
+) -> np.ndarray:
     """Sun irradiance over its flat-surface value (m,) at m receiver points: ``x, y`` (m,) where
     each point's beam crossed the surface, ``path_m`` (m,) its slant beam path, ``footprint_m``
     (m,) the width of surface a sample stands for (its map is binned that coarse: a pixel sees
@@ -321,10 +397,10 @@ def frame_factor(waves: sf.WaveField, x, y, path_m, footprint_m, t: float, defle
     out = np.ones(x.shape, np.float32)
     if not np.any(key >= 0):
         return out
-    order = np.argsort(key, kind="stable")             # 16-bit keys: a radix sort, O(m)
+    order = np.argsort(key, kind="stable")  # 16-bit keys: a radix sort, O(m)
     starts = np.searchsorted(key[order], np.arange(-1, int(key.max()) + 2))
     for group in range(int(key.max()) + 1):
-        sel = order[starts[group + 1]:starts[group + 2]]
+        sel = order[starts[group + 1] : starts[group + 2]]
         if sel.size:
             xs, ys, Ls = x[sel], y[sel], L[sel]
             patch, wanted, path = _group_patch(xs, ys, Ls, FINEST_BIN_M * 2 ** (group % 16))

@@ -20,6 +20,7 @@ Slopes are summed wave by wave with separable trig (``cos(kx x + ky y + ph) = co
 cos(ky y + ph) - sin(kx x) sin(ky y + ph)``): no transcendental per vertex. numba, like
 :mod:`blendgen.physics.particles.kernels` (render extra; compiled once per machine).
 """
+
 from __future__ import annotations
 
 import math
@@ -28,12 +29,12 @@ import numpy as np
 
 try:
     import numba as nb
-except ImportError as exc:                      # pragma: no cover - the render extra installs it
+except ImportError as exc:  # pragma: no cover - the render extra installs it
     raise ImportError("the forward caustic map needs numba: pip install 'dockbench[render]'") from exc
 
 _jit = nb.njit(cache=True, nogil=True)
 _jit_sum = nb.njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
-BLOCK = 8                            # source cells per side of a culling block
+BLOCK = 8  # source cells per side of a culling block
 
 
 @_jit_sum
@@ -57,7 +58,7 @@ def _row(cx, sx, cy, sy, ax, ay, xs, y, path_b, deflect, i0, i1, out_x, out_y):
         dx = deflect[0] * gx + deflect[1] * gy
         dy = deflect[2] * gx + deflect[3] * gy
         lb = path_b[jj, min(max(int(math.floor(xs[i])), 0), nx - 1)]
-        for _ in range(2):        # the path of the receiver where the ray lands, not under its start
+        for _ in range(2):  # the path of the receiver where the ray lands, not under its start
             lx, ly = xs[i] + lb * dx, y + lb * dy
             lb = path_b[min(max(int(math.floor(ly)), 0), ny - 1), min(max(int(math.floor(lx)), 0), nx - 1)]
         out_x[i - i0] = xs[i] + lb * dx
@@ -78,7 +79,9 @@ def _cell(E, ax, ay, bx, by, cx, cy, dx, dy, e):
     bin gets the box's overlap with it (exact on the grid, so a smooth stretch leaves no
     lattice ripple)."""
     ny, nx = E.shape
-    area = 0.5 * (abs((bx - ax) * (cy - ay) - (cx - ax) * (by - ay)) + abs((cx - ax) * (dy - ay) - (dx - ax) * (cy - ay)))
+    area = 0.5 * (
+        abs((bx - ax) * (cy - ay) - (cx - ax) * (by - ay)) + abs((cx - ax) * (dy - ay) - (dx - ax) * (cy - ay))
+    )
     wx = max(ax, bx, cx, dx) - min(ax, bx, cx, dx)
     wy = max(ay, by, cy, dy) - min(ay, by, cy, dy)
     scale = math.sqrt(area / (wx * wy)) if wx * wy > 1e-12 else 0.0
@@ -124,7 +127,7 @@ def deposit(cx, sx, cy, sy, ax, ay, xs, ys, path_b, deflect, wanted, cell_area, 
     cj = np.minimum(np.arange(nby + 1) * BLOCK, ys.size - 1)
     ccx, csx, cxs = cx[ci], sx[ci], xs[ci]
     QX, QY = np.empty((nby + 1, nbx + 1)), np.empty((nby + 1, nbx + 1))
-    for j in range(nby + 1):                                  # coarse pass: the blocks' corners
+    for j in range(nby + 1):  # coarse pass: the blocks' corners
         _row(ccx, csx, cy[cj[j]], sy[cj[j]], ax, ay, cxs, ys[cj[j]], path_b, deflect, 0, nbx + 1, QX[j], QY[j])
     PX, PY = np.empty((BLOCK + 1, BLOCK + 1)), np.empty((BLOCK + 1, BLOCK + 1))
     for bj in range(nby):
@@ -137,8 +140,18 @@ def deposit(cx, sx, cy, sy, ax, ay, xs, ys, path_b, deflect, wanted, cell_area, 
                 _row(cx, sx, cy[j], sy[j], ax, ay, xs, ys[j], path_b, deflect, i0, i1, PX[j - j0], PY[j - j0])
             for j in range(j1 - j0 - 1):
                 for i in range(i1 - i0 - 1):
-                    _cell(E, PX[j, i], PY[j, i], PX[j, i + 1], PY[j, i + 1], PX[j + 1, i + 1], PY[j + 1, i + 1],
-                          PX[j + 1, i], PY[j + 1, i], cell_area)
+                    _cell(
+                        E,
+                        PX[j, i],
+                        PY[j, i],
+                        PX[j, i + 1],
+                        PY[j, i + 1],
+                        PX[j + 1, i + 1],
+                        PY[j + 1, i + 1],
+                        PX[j + 1, i],
+                        PY[j + 1, i],
+                        cell_area,
+                    )
     return E
 
 

@@ -8,13 +8,14 @@ over the (h, w, 3) interleaved grid (differences, cross product, norm, orientati
 the law and calls it. numba, like
 :mod:`blendgen.physics.particles.kernels` (render extra; compiled once per machine).
 """
+
 from __future__ import annotations
 
 import math
 
 try:
     import numba as nb
-except ImportError as exc:                      # pragma: no cover - the render extra installs it
+except ImportError as exc:  # pragma: no cover - the render extra installs it
     raise ImportError("the surface kernels need numba: pip install 'dockbench[render]'") from exc
 
 
@@ -79,7 +80,7 @@ def reflect(P, E, C, Rt, K, range_m, max_s, pix, dist):
     5 cm + 5 % of the distance, the crossing refined by bisection, and kept only when the ray
     is behind by less than a step (else it passed behind an object, as behind the dock, and
     marches on)."""
-    far = 0.0                                  # no surface is farther from the camera than this
+    far = 0.0  # no surface is farther from the camera than this
     for v in range(range_m.shape[0]):
         for u in range(range_m.shape[1]):
             if range_m[v, u] < math.inf:
@@ -88,19 +89,19 @@ def reflect(P, E, C, Rt, K, range_m, max_s, pix, dist):
     for i in range(P.shape[0]):
         pix[i], dist[i] = -1, 0.0
         d0, d1, d2 = P[i, 0] - C[0], P[i, 1] - C[1], P[i, 2] - C[2]
-        a0 = Rt[0, 0] * d0 + Rt[0, 1] * d1 + Rt[0, 2] * d2          # start, camera frame
+        a0 = Rt[0, 0] * d0 + Rt[0, 1] * d1 + Rt[0, 2] * d2  # start, camera frame
         a1 = Rt[1, 0] * d0 + Rt[1, 1] * d1 + Rt[1, 2] * d2
         a2 = Rt[2, 0] * d0 + Rt[2, 1] * d1 + Rt[2, 2] * d2
-        e0 = Rt[0, 0] * E[i, 0] + Rt[0, 1] * E[i, 1] + Rt[0, 2] * E[i, 2]   # direction, camera frame
+        e0 = Rt[0, 0] * E[i, 0] + Rt[0, 1] * E[i, 1] + Rt[0, 2] * E[i, 2]  # direction, camera frame
         e1 = Rt[1, 0] * E[i, 0] + Rt[1, 1] * E[i, 1] + Rt[1, 2] * E[i, 2]
         e2 = Rt[2, 0] * E[i, 0] + Rt[2, 1] * E[i, 1] + Rt[2, 2] * E[i, 2]
-        ae = a0 * e0 + a1 * e1 + a2 * e2       # d|c|^2/ds = 2 (ae + s): the range grows once s > -ae
+        ae = a0 * e0 + a1 * e1 + a2 * e2  # d|c|^2/ds = 2 (ae + s): the range grows once s > -ae
         lo, s = 0.0, 0.02
         while s < max_s:
             c0, c1, c2 = a0 + s * e0, a1 + s * e1, a2 + s * e2
             p, behind = _pixel(c0, c1, c2, K, range_m)
             if p < 0 or (c0 * c0 + c1 * c1 + c2 * c2 > far2 and ae + s > 0):
-                break                          # left the image, or going away beyond every surface
+                break  # left the image, or going away beyond every surface
             if behind > 0:
                 x, y = lo, s
                 for _ in range(8):

@@ -27,6 +27,7 @@ the light scattered on the way down: :mod:`blendgen.physics.surface.caustic_map`
 irradiance fluctuations fall with depth the same way (Maritorena, Morel & Gentili 2000,
 Limnol. Oceanogr. 45(6)).
 """
+
 from __future__ import annotations
 
 import math
@@ -34,9 +35,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-N_WATER = 1.333                     # refractive index of water (visible, 20 C)
-G = 9.81                            # m/s^2
-GAMMA_OVER_RHO = 7.3e-5             # surface tension / density of water, m^3/s^2
+N_WATER = 1.333  # refractive index of water (visible, 20 C)
+G = 9.81  # m/s^2
+GAMMA_OVER_RHO = 7.3e-5  # surface tension / density of water, m^3/s^2
 SUN_RADIUS_RAD = math.radians(0.265)
 
 
@@ -73,14 +74,23 @@ def _weighted_sum(a: np.ndarray, w: np.ndarray) -> np.ndarray:
 class WaveField:
     """A seeded sum of linear waves. ``amp`` (n,) m, ``k`` (n, 2) rad/m, ``omega`` (n,) rad/s,
     ``phase`` (n,) rad."""
+
     amp: np.ndarray
     k: np.ndarray
     omega: np.ndarray
     phase: np.ndarray
 
     @classmethod
-    def sample(cls, seed: int, wind_mps: float, n: int = 24, wind_dir_deg: float = 0.0,
-               lambda_min_m: float = 0.25, lambda_max_m: float = 2.0, mss: float | None = None) -> "WaveField":
+    def sample(
+        cls,
+        seed: int,
+        wind_mps: float,
+        n: int = 24,
+        wind_dir_deg: float = 0.0,
+        lambda_min_m: float = 0.25,
+        lambda_max_m: float = 2.0,
+        mss: float | None = None,
+    ) -> WaveField:
         """``n`` waves, wavelengths log-uniform in [min, max] (equal slope variance per wave: a
         slope spectrum flat in log k, Phillips' saturation range), headings uniform within
         +-90 deg of the wind; total mean-square slope ``mss`` (default :func:`cox_munk_mss`).
@@ -91,9 +101,13 @@ class WaveField:
         kk = 2 * np.pi / lam
         head = math.radians(wind_dir_deg) + rng.uniform(-math.pi / 2, math.pi / 2, n)
         s2 = cox_munk_mss(wind_mps) if mss is None else float(mss)
-        amp = np.sqrt(2 * s2 / n) / kk              # each wave: slope variance (a k)^2 / 2 = s2 / n
-        return cls(amp=amp, k=np.column_stack([kk * np.cos(head), kk * np.sin(head)]),
-                   omega=np.sqrt(G * kk + GAMMA_OVER_RHO * kk ** 3), phase=rng.uniform(0, 2 * np.pi, n))
+        amp = np.sqrt(2 * s2 / n) / kk  # each wave: slope variance (a k)^2 / 2 = s2 / n
+        return cls(
+            amp=amp,
+            k=np.column_stack([kk * np.cos(head), kk * np.sin(head)]),
+            omega=np.sqrt(G * kk + GAMMA_OVER_RHO * kk**3),
+            phase=rng.uniform(0, 2 * np.pi, n),
+        )
 
     def _arg(self, x, y, t: float) -> np.ndarray:
         """Phases ``k_i . x - w_i t + phi_i`` (..., n) float32, built in one buffer."""
@@ -127,8 +141,9 @@ def window_radiance(cos_up, sky_radiance, below_radiance, n: float = N_WATER, re
     return (1.0 - R) * sky + R * np.asarray(below_radiance, np.float32)
 
 
-def sun_disc_radiance(d_up, normal, cos_up, reflectance, to_sun, irradiance: float, px_rad: float,
-                      n: float = N_WATER) -> np.ndarray:
+def sun_disc_radiance(
+    d_up, normal, cos_up, reflectance, to_sun, irradiance: float, px_rad: float, n: float = N_WATER
+) -> np.ndarray:
     """Radiance (m,) of the sun's disc seen from below along rays ``d_up`` (m, 3) (world, unit)
     meeting the surface of unit ``normal`` (m, 3) at incidence cosine ``cos_up`` (m,) with
     Fresnel ``reflectance`` (m,) (1: total internal reflection, no sun): the ray refracted into
@@ -141,7 +156,7 @@ def sun_disc_radiance(d_up, normal, cos_up, reflectance, to_sun, irradiance: flo
     ci = np.clip(np.asarray(cos_up, np.float32), 0.0, 1.0)
     k = 1.0 - np.float32(n * n) * (1.0 - ci * ci)
     cos_a = np.sqrt(np.maximum(k, 0.0))
-    t = np.float32(n) * d_up + (cos_a - np.float32(n) * ci)[:, None] * normal        # into the air
+    t = np.float32(n) * d_up + (cos_a - np.float32(n) * ci)[:, None] * normal  # into the air
     s = np.asarray(to_sun, np.float32) / np.float32(np.linalg.norm(to_sun))
     delta = np.arccos(np.clip(np.einsum("ij,j->i", t, s), -1.0, 1.0))
     p = np.float32(px_rad * n) * ci / np.maximum(cos_a, np.float32(0.05))
@@ -154,7 +169,7 @@ def sun_disc_radiance(d_up, normal, cos_up, reflectance, to_sun, irradiance: flo
 def focal_depth(waves: WaveField, n: float = N_WATER) -> float:
     """Depth (m) of the first caustic focus, ``1 / (alpha rms(laplacian eta))``: where the ray
     map ``x + h alpha grad eta`` starts to fold (inf for a flat surface)."""
-    lap = math.sqrt(float((waves.amp ** 2 * np.hypot(waves.k[:, 0], waves.k[:, 1]) ** 4).sum() / 2))
+    lap = math.sqrt(float((waves.amp**2 * np.hypot(waves.k[:, 0], waves.k[:, 1]) ** 4).sum() / 2))
     return math.inf if lap == 0 else 1.0 / ((1.0 - 1.0 / n) * lap)
 
 
@@ -204,6 +219,8 @@ def sun_in_air(water_travel_dir, n: float = N_WATER) -> np.ndarray:
     h = n * t[:2]
     s2 = float(h @ h)
     if t[2] >= 0 or s2 >= 1.0:
-        raise ValueError(f"a beam at {math.degrees(math.acos(max(-1.0, min(1.0, -t[2])))):.1f} deg from the "
-                         f"vertical in water has no sun in the sky (at most {math.degrees(critical_angle_rad(n)):.1f})")
+        raise ValueError(
+            f"a beam at {math.degrees(math.acos(max(-1.0, min(1.0, -t[2])))):.1f} deg from the "
+            f"vertical in water has no sun in the sky (at most {math.degrees(critical_angle_rad(n)):.1f})"
+        )
     return np.array([h[0], h[1], -math.sqrt(1.0 - s2)])

@@ -51,6 +51,7 @@ reference Cycles renders:
 - the veil's change of depth along a slanted ray (it uses the camera's depth);
 - ``beta_D != beta_B`` and their range/reflectance dependence (A&T 2018).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -64,12 +65,12 @@ import numpy as np
 
 from blendgen.physics.water import presets as wp
 
-COEF_RANGE = (0.0, 5.0)          # sigma_a, sigma_s, beta, Kd (1/m)
-G_RANGE = (-1.0, 1.0)            # open interval
-COLOR_RANGE = (0.0, 1.0)         # water_color (linear RGB)
-B_INF_RANGE = (0.0, 10.0)        # B_inf (radiance per unit surface irradiance)
-FF_IOR_RANGE = (1.0, 1.5)        # Fournier-Forand relative particle index (open at 1)
-FF_B_RANGE = (0.0, 0.5)          # Fournier-Forand backscatter fraction (open)
+COEF_RANGE = (0.0, 5.0)  # sigma_a, sigma_s, beta, Kd (1/m)
+G_RANGE = (-1.0, 1.0)  # open interval
+COLOR_RANGE = (0.0, 1.0)  # water_color (linear RGB)
+B_INF_RANGE = (0.0, 10.0)  # B_inf (radiance per unit surface irradiance)
+FF_IOR_RANGE = (1.0, 1.5)  # Fournier-Forand relative particle index (open at 1)
+FF_B_RANGE = (0.0, 0.5)  # Fournier-Forand backscatter fraction (open)
 MODELS = ("physical", "article")
 #: Mean cosine of downwelling light (Kirk 2011: about 0.7-0.9 near the surface; 0.75 here).
 MEAN_COSINE_DOWN = 0.75
@@ -87,6 +88,7 @@ class WaterOptics:
     node). The image-formation mode is not a property of the water: see
     :func:`apply_water`'s ``model``.
     """
+
     name: str
     sigma_a: np.ndarray
     sigma_s: np.ndarray
@@ -123,26 +125,33 @@ class WaterOptics:
         """True when the water neither attenuates nor scatters (c == 0)."""
         return not bool(np.any(self.c > 0))
 
-    def replace(self, **kw) -> "WaterOptics":
+    def replace(self, **kw) -> WaterOptics:
         return dataclasses.replace(self, **kw)
 
     def to_dict(self) -> dict:
         """JSON-friendly dict (for manifests); ``WaterOptics(**d)`` round-trips it."""
-        return {"name": self.name, "sigma_a": self.sigma_a.tolist(),
-                "sigma_s": self.sigma_s.tolist(), "Kd": self.Kd.tolist(),
-                "B_inf": self.B_inf.tolist(), "g": self.g, "phase": self.phase,
-                "ff_ior": self.ff_ior, "ff_backscatter": self.ff_backscatter,
-                "provenance": self.provenance}
+        return {
+            "name": self.name,
+            "sigma_a": self.sigma_a.tolist(),
+            "sigma_s": self.sigma_s.tolist(),
+            "Kd": self.Kd.tolist(),
+            "B_inf": self.B_inf.tolist(),
+            "g": self.g,
+            "phase": self.phase,
+            "ff_ior": self.ff_ior,
+            "ff_backscatter": self.ff_backscatter,
+            "provenance": self.provenance,
+        }
 
 
 # --------------------------------------------------------------------------- validation
+
 
 def _vec3(name: str, value, lo: float, hi: float, unit: str = "") -> np.ndarray:
     try:
         v = np.array(value, dtype=float).reshape(-1)
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number or 3 numbers in [{lo:g}, {hi:g}]{unit}, "
-                         f"got {value!r}") from None
+        raise ValueError(f"{name} must be a number or 3 numbers in [{lo:g}, {hi:g}]{unit}, got {value!r}") from None
     if v.size == 1:
         v = np.repeat(v, 3)
     if v.size != 3:
@@ -184,8 +193,9 @@ JERLOV_PRESETS = tuple(f"jerlov_{t}" for t in wp.JERLOV_TYPES)
 PRESETS = ARTICLE_PRESETS + JERLOV_PRESETS
 
 
-def article_water(beta=0.0, water_color=wp.ARTICLE_WATER_COLOR, k=wp.ARTICLE_K,
-                  albedo=None, name: str = "article", **kw) -> WaterOptics:
+def article_water(
+    beta=0.0, water_color=wp.ARTICLE_WATER_COLOR, k=wp.ARTICLE_K, albedo=None, name: str = "article", **kw
+) -> WaterOptics:
     """The article's water: ``c = beta``, ``B_inf = water_color``, depth light ``k``."""
     beta = _vec3("beta", beta, *COEF_RANGE, " 1/m")
     color = _vec3("water_color", water_color, *COLOR_RANGE)
@@ -214,21 +224,30 @@ def water_optics(spec) -> WaterOptics:
     """:class:`WaterOptics` of a validated water section (``blendgen.config.models.Water``).
 
     The preset (or a turbidity reading, ``secchi_m`` / ``ntu``) gives every coefficient; the
-    section's non-null fields override them. Article presets take ``beta``, ``water_color``, ``k``/``Kd`` and ``albedo`` through
+    section's non-null fields override them. Article presets take ``beta``, ``water_color``, ``k``/``Kd`` and
+    ``albedo`` through
     :func:`article_water`; a Jerlov preset takes ``water_color`` as its ``B_inf``."""
     key = spec.preset
     reading = _reading(spec)
     if key in ARTICLE_PRESETS and reading is None:
-        w = article_water(_first(spec.beta, wp.ARTICLE_BETAS[key]), _first(spec.water_color, wp.ARTICLE_WATER_COLOR),
-                          _first(spec.k, spec.Kd, wp.ARTICLE_K), spec.albedo, name=key)
+        w = article_water(
+            _first(spec.beta, wp.ARTICLE_BETAS[key]),
+            _first(spec.water_color, wp.ARTICLE_WATER_COLOR),
+            _first(spec.k, spec.Kd, wp.ARTICLE_K),
+            spec.albedo,
+            name=key,
+        )
     else:
         w = get_preset(key) if reading is None else reading_water(*reading)
         if spec.water_color is not None:
             w = w.replace(B_inf=spec.water_color)
         if _first(spec.k, spec.Kd) is not None:
             w = w.replace(Kd=_first(spec.k, spec.Kd))
-    upd = {f: getattr(spec, f) for f in ("sigma_a", "sigma_s", "B_inf", "g", "phase", "ff_ior",
-                                         "ff_backscatter", "name", "provenance") if getattr(spec, f) is not None}
+    upd = {
+        f: getattr(spec, f)
+        for f in ("sigma_a", "sigma_s", "B_inf", "g", "phase", "ff_ior", "ff_backscatter", "name", "provenance")
+        if getattr(spec, f) is not None
+    }
     if any(f in upd for f in ("sigma_a", "sigma_s", "B_inf")):
         upd.setdefault("name", f"{key}+custom")
         upd.setdefault("provenance", f"config: explicit coefficients over preset {key!r}")
@@ -282,6 +301,7 @@ def light_field_veil(water: WaterOptics, mean_cosine_down: float = MEAN_COSINE_D
 def reading_water(kind: str, value: float) -> WaterOptics:
     """The water of a turbidity reading (``secchi_m`` m or ``ntu``; :mod:`physics.water.turbidity`)."""
     from blendgen.physics.water import turbidity
+
     return WaterOptics(name=f"{kind}={value:g}", **turbidity.water_from_reading(kind, value))
 
 
@@ -316,16 +336,20 @@ def water_for_mode(spec, mode: str) -> WaterOptics:
     if spec.is_bare:
         jerlov = get_preset(effective_preset(spec, mode))
         beta = wp.ARTICLE_BETAS[spec.preset]
-        return jerlov.replace(name=spec.preset, provenance=f"physical {spec.preset} (article beta {beta:g} 1/m) = "
-                              f"{jerlov.name}, the type of nearest per-channel c: " + jerlov.provenance)
+        return jerlov.replace(
+            name=spec.preset,
+            provenance=f"physical {spec.preset} (article beta {beta:g} 1/m) = "
+            f"{jerlov.name}, the type of nearest per-channel c: " + jerlov.provenance,
+        )
     jerlov = get_preset(f"jerlov_{wp.ARTICLE_KD_JERLOV[spec.preset]}")
     if spec.k is None and spec.Kd is None:
         water = water.replace(Kd=jerlov.Kd, provenance=water.provenance + f"; Kd: {jerlov.name} (physical mode)")
     return water
 
 
-def fast_water(spec, mode: str, irradiance: float, calibration: dict | None = None,
-               veil: dict | None = None) -> tuple[WaterOptics, dict]:
+def fast_water(
+    spec, mode: str, irradiance: float, calibration: dict | None = None, veil: dict | None = None
+) -> tuple[WaterOptics, dict]:
     """Water and ``apply_water`` options for the fast fidelity of one condition.
 
     ``spec`` a validated water section (``config.models.Water``); ``mode`` 'physical'
@@ -350,18 +374,27 @@ def fast_water(spec, mode: str, irradiance: float, calibration: dict | None = No
         per_ed = np.asarray(entry["B_inf"], float) / math.sin(math.radians(cal.get("sun_elevation_deg", 90.0)))
         water = water.replace(B_inf=per_ed, provenance=water.provenance + "; calibrated: " + str(cal.get("method", "")))
     elif veil is not None and mode == "physical" and spec.B_inf is None:
-        water = water.replace(B_inf=np.clip(veil_radiance_at(water, veil, 0.0), *B_INF_RANGE),
-                              provenance=water.provenance + "; B_inf: calibrated beam + diffuse veil model "
-                              "(physics.water.veil, water_calibration.json 'veil')")
+        water = water.replace(
+            B_inf=np.clip(veil_radiance_at(water, veil, 0.0), *B_INF_RANGE),
+            provenance=water.provenance + "; B_inf: calibrated beam + diffuse veil model "
+            "(physics.water.veil, water_calibration.json 'veil')",
+        )
     elif spec.B_inf is None and not article_colour:
-        water = water.replace(B_inf=light_field_veil(water),
-                              provenance=water.provenance + "; B_inf: light-field estimate (b/c)/(4 pi mu_d)")
+        water = water.replace(
+            B_inf=light_field_veil(water),
+            provenance=water.provenance + "; B_inf: light-field estimate (b/c)/(4 pi mu_d)",
+        )
     irr = float(irradiance)
     if mode == "article" and not article_colour:
-        water = water.replace(B_inf=water.B_inf * irr)     # a colour, used as is
+        water = water.replace(B_inf=water.B_inf * irr)  # a colour, used as is
     on = veil is not None and mode == "physical" and spec.B_inf is None and not use
-    return water, {"irradiance": 1.0 if mode == "article" else irr, "blur": bool(spec.blur), "calibrated": use,
-                   "veil": veil if on else None, "glow": bool(getattr(spec, "glow", True))}
+    return water, {
+        "irradiance": 1.0 if mode == "article" else irr,
+        "blur": bool(spec.blur),
+        "calibrated": use,
+        "veil": veil if on else None,
+        "glow": bool(getattr(spec, "glow", True)),
+    }
 
 
 def veil_parameters(spec, mode: str, calibration: dict | None = None) -> dict | None:
@@ -377,25 +410,46 @@ def veil_parameters(spec, mode: str, calibration: dict | None = None) -> dict | 
     entry = (section.get("presets") or {}).get(effective_preset(spec, mode))
     if not entry or water_for_mode(spec, mode).is_clear:
         return None
-    return {"kappa": list(entry["kappa"]), "K_v": list(entry["K_v"]), "eta": float(entry["eta"]),
-            "max_abs_rel_residual": float(entry.get("max_abs_rel_residual", float("nan"))),
-            "method": f"{section.get('method', '')} ({section.get('date', '')})"}
+    return {
+        "kappa": list(entry["kappa"]),
+        "K_v": list(entry["K_v"]),
+        "eta": float(entry["eta"]),
+        "max_abs_rel_residual": float(entry.get("max_abs_rel_residual", float("nan"))),
+        "method": f"{section.get('method', '')} ({section.get('date', '')})",
+    }
 
 
-def veil_radiance_at(water: WaterOptics, veil: dict, depth_m: float, view_elevation_rad: float = 0.0,
-                     sun_elevation_deg: float = 90.0, sun_share: float = 1.0) -> np.ndarray:
+def veil_radiance_at(
+    water: WaterOptics,
+    veil: dict,
+    depth_m: float,
+    view_elevation_rad: float = 0.0,
+    sun_elevation_deg: float = 90.0,
+    sun_share: float = 1.0,
+) -> np.ndarray:
     """Veiling radiance per unit ``E_d0`` (3,) of the calibrated model (:mod:`physics.water.veil`)
     for a camera at ``depth_m`` looking at ``view_elevation_rad``: the sun's beam term (its
     share ``sun_share`` of ``E_d0``, at ``sun_elevation_deg``, 90 deg of azimuth from the
     view) plus the fitted diffuse term (sky light joins the diffuse field)."""
     from blendgen.physics.water import veil as vm
-    beam, diffuse = vm.veil_radiance(water.sigma_a, water.sigma_s, veil["K_v"], lambda t: phase_value(water, t),
-                                     veil["kappa"], depth_m, view_elevation_rad, eta=veil["eta"],
-                                     sun_elevation_rad=math.radians(sun_elevation_deg), parts=True)
+
+    beam, diffuse = vm.veil_radiance(
+        water.sigma_a,
+        water.sigma_s,
+        veil["K_v"],
+        lambda t: phase_value(water, t),
+        veil["kappa"],
+        depth_m,
+        view_elevation_rad,
+        eta=veil["eta"],
+        sun_elevation_rad=math.radians(sun_elevation_deg),
+        parts=True,
+    )
     return float(sun_share) * beam + diffuse
 
 
 # --------------------------------------------------------------------------- phase functions
+
 
 def hg_phase(cos_theta, g: float):
     """Henyey-Greenstein phase function (1/sr, integrates to 1 over 4 pi)."""
@@ -409,14 +463,15 @@ def _ff_delta(theta, n):
 
 def _ff_backscatter_fraction(nu: float, n: float) -> float:
     d90 = float(_ff_delta(np.pi / 2, n))
-    return 1.0 - (1.0 - d90 ** (nu + 1) - 0.5 * (1.0 - d90 ** nu)) / ((1.0 - d90) * d90 ** nu)
+    return 1.0 - (1.0 - d90 ** (nu + 1) - 0.5 * (1.0 - d90**nu)) / ((1.0 - d90) * d90**nu)
 
 
 def ff_nu(ior: float, backscatter: float) -> float:
     """Fournier-Forand slope parameter nu = (3 - mu)/2 giving ``backscatter`` at ``ior``."""
     from scipy.optimize import brentq
+
     f = lambda nu: _ff_backscatter_fraction(nu, ior) - backscatter  # noqa: E731
-    lo, hi = -0.9999, -1e-6     # nu < 0 for Junge slopes mu in (3, 5)
+    lo, hi = -0.9999, -1e-6  # nu < 0 for Junge slopes mu in (3, 5)
     if f(lo) * f(hi) > 0:
         raise ValueError(f"no Fournier-Forand slope gives backscatter {backscatter} at IOR {ior}")
     return brentq(f, lo, hi, xtol=1e-12)
@@ -428,10 +483,10 @@ def ff_phase(theta, ior: float = 1.1, backscatter: float = 0.0183):
     th = np.clip(np.asarray(theta, float), 1e-9, np.pi)
     d = _ff_delta(th, ior)
     d180 = float(_ff_delta(np.pi, ior))
-    dn = d ** nu
+    dn = d**nu
     s2 = np.sin(th / 2.0) ** 2
     p = (nu * (1 - d) - (1 - dn) + (d * (1 - dn) - nu * (1 - d)) / s2) / (4 * np.pi * (1 - d) ** 2 * dn)
-    p += (1 - d180 ** nu) / (16 * np.pi * (d180 - 1) * d180 ** nu) * (3 * np.cos(th) ** 2 - 1)
+    p += (1 - d180**nu) / (16 * np.pi * (d180 - 1) * d180**nu) * (3 * np.cos(th) ** 2 - 1)
     return p
 
 
@@ -476,9 +531,9 @@ def glow_encircled_energy(water: WaterOptics, range_m: float, psi, n_steps: int 
     b = water.sigma_s
     if r <= 0 or not np.any(b > 0):
         return np.zeros(psi.shape + (3,))
-    u = (np.arange(n_steps) + 0.5) / n_steps * r                        # midpoints along the path
-    P = phase_cumulative(water, np.minimum(psi[..., None] * r / u, np.pi))   # (..., n)
-    single = P.mean(axis=-1)[..., None] * (b * r)                       # (..., 3)
+    u = (np.arange(n_steps) + 0.5) / n_steps * r  # midpoints along the path
+    P = phase_cumulative(water, np.minimum(psi[..., None] * r / u, np.pi))  # (..., n)
+    single = P.mean(axis=-1)[..., None] * (b * r)  # (..., 3)
     br = b * r
     boost = np.where(br > 0, np.expm1(br) / np.where(br > 0, br, 1.0), 1.0)
     return single * boost
@@ -487,7 +542,7 @@ def glow_encircled_energy(water: WaterOptics, range_m: float, psi, n_steps: int 
 def _ring_kernel(ring_energy: np.ndarray, R: int) -> np.ndarray:
     """(2R+1, 2R+1, C) kernel spreading ``ring_energy[k]`` (K, C) evenly over the pixels whose
     rounded distance from the centre is k (k = 0..R)."""
-    yy, xx = np.mgrid[-R:R + 1, -R:R + 1]
+    yy, xx = np.mgrid[-R : R + 1, -R : R + 1]
     ring = np.rint(np.hypot(xx, yy)).astype(int)
     counts = np.bincount(ring.ravel(), minlength=R + 2)[: R + 1]
     k = np.zeros(ring.shape + (ring_energy.shape[1],))
@@ -496,8 +551,9 @@ def _ring_kernel(ring_energy: np.ndarray, R: int) -> np.ndarray:
     return k
 
 
-def glow_kernel_multiple(water: WaterOptics, range_m: float, fx: float, max_radius_px: int = 96,
-                         keep_centre: bool = False) -> np.ndarray:
+def glow_kernel_multiple(
+    water: WaterOptics, range_m: float, fx: float, max_radius_px: int = 96, keep_centre: bool = False
+) -> np.ndarray:
     """Like :func:`glow_kernel`, but the glow widens with ``b r`` by multiple forward scattering.
 
     Small-angle approximation (Wells 1973; Mobley's Ocean Optics Web Book, "The small-angle
@@ -514,14 +570,15 @@ def glow_kernel_multiple(water: WaterOptics, range_m: float, fx: float, max_radi
     if r <= 0 or not np.any(b > 0):
         return np.zeros((1, 1, 3), np.float32)
     R = int(max_radius_px)
-    edges = glow_encircled_energy(water, r, (np.arange(R + 2) - 0.5).clip(0) / float(fx))   # (R+2, 3)
+    edges = glow_encircled_energy(water, r, (np.arange(R + 2) - 0.5).clip(0) / float(fx))  # (R+2, 3)
     br = b * r
-    single = edges / np.where(br > 0, np.expm1(br), 1.0)                 # unit-mass single scatter (CDF)
-    k1 = _ring_kernel(np.diff(single, axis=0), R)                        # (2R+1, 2R+1, 3)
+    single = edges / np.where(br > 0, np.expm1(br), 1.0)  # unit-mass single scatter (CDF)
+    k1 = _ring_kernel(np.diff(single, axis=0), R)  # (2R+1, 2R+1, 3)
     from scipy import fft as sfft
-    n = sfft.next_fast_len(3 * R + 2, real=True)   # what wraps around comes from > 2R px away
+
+    n = sfft.next_fast_len(3 * R + 2, real=True)  # what wraps around comes from > 2R px away
     pad = np.zeros((3, n, n), np.float32)
-    for c in range(3):                               # centre at (0, 0)
+    for c in range(3):  # centre at (0, 0)
         pad[c][np.ix_(np.arange(-R, R + 1) % n, np.arange(-R, R + 1) % n)] = k1[..., c]
     F = sfft.rfft2(pad, axes=(1, 2))
     F *= br.astype(np.float32)[:, None, None]
@@ -529,15 +586,16 @@ def glow_kernel_multiple(water: WaterOptics, range_m: float, fx: float, max_radi
     idx = np.arange(-R, R + 1) % n
     psf = np.moveaxis(psf[:, idx][:, :, idx], 0, -1).astype(np.float64)
     psf = np.clip(psf, 0.0, None)
-    if keep_centre:                                  # the glow inside the emitter's own pixel (for checks)
+    if keep_centre:  # the glow inside the emitter's own pixel (for checks)
         return psf.astype(np.float32)
     psf[R, R] = 0.0
-    ring = np.ceil(np.hypot(*np.mgrid[-R:R + 1, -R:R + 1])).astype(int).ravel()
-    enc = np.cumsum(np.stack([np.bincount(ring, psf[..., c].ravel(), minlength=2 * R + 2)
-                              for c in range(3)], axis=-1), axis=0)[: R + 1]   # energy within radius q
+    ring = np.ceil(np.hypot(*np.mgrid[-R : R + 1, -R : R + 1])).astype(int).ravel()
+    enc = np.cumsum(
+        np.stack([np.bincount(ring, psf[..., c].ravel(), minlength=2 * R + 2) for c in range(3)], axis=-1), axis=0
+    )[: R + 1]  # energy within radius q
     inside = np.nonzero(np.all(enc >= 0.99 * psf.sum(axis=(0, 1)), axis=-1))[0]
     Rk = max(int(inside[0]) if inside.size else R, 1)
-    return psf[R - Rk: R + Rk + 1, R - Rk: R + Rk + 1].astype(np.float32)
+    return psf[R - Rk : R + Rk + 1, R - Rk : R + Rk + 1].astype(np.float32)
 
 
 #: Ranges are binned in steps of this fraction (log scale) for the kernel cache: the glow's
@@ -569,18 +627,18 @@ def glow_kernel(water: WaterOptics, range_m: float, fx: float, max_radius_px: in
     (the direct term keeps it). R grows with range until 99 % of the glow is inside, at most
     ``max_radius_px``. Single-scatter shape (see :func:`glow_kernel_multiple` for the widening)."""
     rad = np.arange(0.0, max_radius_px + 1.5)
-    ee = glow_encircled_energy(water, range_m, rad / float(fx))           # (R+2, 3) at ring edges
+    ee = glow_encircled_energy(water, range_m, rad / float(fx))  # (R+2, 3) at ring edges
     total = glow_encircled_energy(water, range_m, np.array(np.pi))
     if not np.any(total > 0):
         return np.zeros((1, 1, 3), np.float32)
     inside = np.nonzero(np.all(ee >= 0.99 * total, axis=-1))[0]
     R = int(min(max_radius_px, inside[0] if inside.size else max_radius_px))
     R = max(R, 1)
-    yy, xx = np.mgrid[-R:R + 1, -R:R + 1]
+    yy, xx = np.mgrid[-R : R + 1, -R : R + 1]
     rho = np.hypot(xx, yy)
     ring = np.rint(rho).astype(int)
     edges = glow_encircled_energy(water, range_m, (np.arange(R + 2) - 0.5).clip(0) / float(fx))
-    ring_energy = np.diff(edges, axis=0)                                # energy in ring k = [k-.5, k+.5)
+    ring_energy = np.diff(edges, axis=0)  # energy in ring k = [k-.5, k+.5)
     counts = np.bincount(ring.ravel(), minlength=R + 2)[: R + 1]
     k = np.zeros(rho.shape + (3,))
     ok = (ring >= 1) & (ring <= R)
@@ -590,9 +648,18 @@ def glow_kernel(water: WaterOptics, range_m: float, fx: float, max_radius_px: in
 
 # --------------------------------------------------------------------------- analytic scatter
 
-def single_scatter_backscatter(sigma_a, sigma_s, g: float = 0.0, E=1.0, depth_m=0.0,
-                               range_m=np.inf, theta_deg: float = 90.0, sun_c=None,
-                               phase_fn=None):
+
+def single_scatter_backscatter(
+    sigma_a,
+    sigma_s,
+    g: float = 0.0,
+    E=1.0,
+    depth_m=0.0,
+    range_m=np.inf,
+    theta_deg: float = 90.0,
+    sun_c=None,
+    phase_fn=None,
+):
     """Single-scattered path radiance for a horizontal view at depth H, sun straight down.
 
     ``L = sigma_s p(theta) E exp(-c_sun H) / c * (1 - exp(-c z))`` per channel, with
@@ -613,16 +680,24 @@ def single_scatter_backscatter(sigma_a, sigma_s, g: float = 0.0, E=1.0, depth_m=
     z = np.asarray(range_m, float)[..., None]
     safe_c = np.where(c > 0, c, 1.0)
     zf = np.where(np.isinf(z), 0.0, z)
-    grow = np.where(c > 0, -np.expm1(-c * zf) / safe_c, zf)   # (1 - e^{-cz})/c, -> z as c -> 0
+    grow = np.where(c > 0, -np.expm1(-c * zf) / safe_c, zf)  # (1 - e^{-cz})/c, -> z as c -> 0
     grow = np.where(np.isinf(z), np.where(c > 0, 1.0 / safe_c, 0.0), grow)
     return ss * p * np.asarray(E, float) * np.exp(-c_sun * depth_m) * grow
 
 
 def veiling_light(water: WaterOptics, E=1.0, depth_m=0.0, theta_deg: float = 90.0, sun_c=None):
     """Single-scatter ``B_inf`` (3,) of ``water`` (its own phase function)."""
-    return single_scatter_backscatter(water.sigma_a, water.sigma_s, water.g, E, depth_m,
-                                      np.inf, theta_deg, sun_c,
-                                      phase_fn=lambda t: phase_value(water, t))
+    return single_scatter_backscatter(
+        water.sigma_a,
+        water.sigma_s,
+        water.g,
+        E,
+        depth_m,
+        np.inf,
+        theta_deg,
+        sun_c,
+        phase_fn=lambda t: phase_value(water, t),
+    )
 
 
 # --------------------------------------------------------------------------- fast model
@@ -645,6 +720,7 @@ def _gray3(x: np.ndarray) -> np.ndarray:
     h, w = x.shape
     if x.dtype == np.float32:
         import cv2
+
         return cv2.cvtColor(x, cv2.COLOR_GRAY2BGR).reshape(h, 3 * w)
     return np.repeat(x, 3, axis=1)
 
@@ -657,7 +733,7 @@ def _clean_range(range_m, dtype) -> np.ndarray:
     r = np.asarray(range_m).astype(dtype, copy=False)
     big = _FMAX32 if dtype == np.float32 else float(np.finfo(np.float64).max)
     if not np.isfinite(r).all():
-        r = np.fmin(r, dtype(big))                   # NaN, +inf -> big; -inf -> 0 below
+        r = np.fmin(r, dtype(big))  # NaN, +inf -> big; -inf -> 0 below
     if (r < 0).any():
         r = np.maximum(r, dtype(0))
     return r
@@ -667,7 +743,7 @@ def depth_light(water: WaterOptics, depth_m) -> np.ndarray:
     """Downwelling light fraction ``exp(-Kd depth)``: (3,) for scalar depth, (..., 3) else."""
     d = np.asarray(depth_m, float)
     if np.any(d < 0) or np.any(~np.isfinite(d)):
-        raise ValueError(f"depth_m must be finite and >= 0 (metres below the surface)")
+        raise ValueError("depth_m must be finite and >= 0 (metres below the surface)")
     return np.exp(-water.Kd * d[..., None]) if d.ndim else np.exp(-water.Kd * float(d))
 
 
@@ -676,7 +752,7 @@ def transmittance(water: WaterOptics, range_m: np.ndarray, dtype=np.float32) -> 
     r = _clean_range(range_m, dtype)
     h, w = r.shape
     x = _gray3(r)
-    with np.errstate(over="ignore"):           # huge range * c -> -inf -> exp 0
+    with np.errstate(over="ignore"):  # huge range * c -> -inf -> exp 0
         x *= _row(-water.c, w, dtype)
         np.exp(x, out=x)
     return x.reshape(h, w, 3)
@@ -695,11 +771,22 @@ def _depth_factor(water: WaterOptics, depth_m, h: int, w: int, dtype) -> np.ndar
     return np.exp(D, out=D)
 
 
-def apply_water(J: np.ndarray, range_m: np.ndarray, emissive_mask=None,
-                water: WaterOptics | None = None, depth_m=0.0, *, model: str = "physical",
-                veil_depth_m: float | None = None, irradiance=1.0, blur: bool = False,
-                blur_px_per_tau: float = 2.0, blur_max_px: float = 3.0, blur_levels: int = 4,
-                glow_fx: float | None = None) -> np.ndarray:
+def apply_water(
+    J: np.ndarray,
+    range_m: np.ndarray,
+    emissive_mask=None,
+    water: WaterOptics | None = None,
+    depth_m=0.0,
+    *,
+    model: str = "physical",
+    veil_depth_m: float | None = None,
+    irradiance=1.0,
+    blur: bool = False,
+    blur_px_per_tau: float = 2.0,
+    blur_max_px: float = 3.0,
+    blur_levels: int = 4,
+    glow_fx: float | None = None,
+) -> np.ndarray:
     """Fast underwater image formation (module docstring) on a clean render.
 
     J (H, W, 3) float32/float64 linear; range_m (H, W) metres along the ray (inf or
@@ -737,38 +824,49 @@ def apply_water(J: np.ndarray, range_m: np.ndarray, emissive_mask=None,
     t = transmittance(water, range_m, dtype).reshape(h, 3 * w)
     D = _depth_factor(water, depth_m, h, w, dtype)
     if model == "physical":
-        direct = J2 * D                                   # J_lit: each surface dims by its own depth
+        direct = J2 * D  # J_lit: each surface dims by its own depth
         if em is not None and em.any():
-            direct.reshape(h, w, 3)[em] = J2.reshape(h, w, 3)[em]   # emitters: only their path
+            direct.reshape(h, w, 3)[em] = J2.reshape(h, w, 3)[em]  # emitters: only their path
         if veil_depth_m is None:
             veil_depth_m = float(depth_m) if np.ndim(depth_m) == 0 else 0.0
         B = _row(water.B_inf * irr * depth_light(water, float(veil_depth_m)), w, dtype)
     else:
-        direct = J2.copy()                                # the article: scale everything at the end
+        direct = J2.copy()  # the article: scale everything at the end
         B = _row(water.B_inf, w, dtype)
-    direct *= t                                           # J_lit exp(-c r)
+    direct *= t  # J_lit exp(-c r)
     if blur and np.any(water.sigma_s > 0) and blur_max_px > 0:
-        direct = _forward_scatter_blur(direct.reshape(h, w, 3), range_m, float(np.mean(water.sigma_s)),
-                                       blur_px_per_tau, blur_max_px, blur_levels
-                                       ).astype(dtype, copy=False).reshape(h, 3 * w)
-    if glow_fx and em is not None and em.any() and np.any(water.sigma_s > 0):     # both modes
+        direct = (
+            _forward_scatter_blur(
+                direct.reshape(h, w, 3),
+                range_m,
+                float(np.mean(water.sigma_s)),
+                blur_px_per_tau,
+                blur_max_px,
+                blur_levels,
+            )
+            .astype(dtype, copy=False)
+            .reshape(h, 3 * w)
+        )
+    if glow_fx and em is not None and em.any() and np.any(water.sigma_s > 0):  # both modes
         direct = add_emitter_glow(direct.reshape(h, w, 3), em, range_m, water, float(glow_fx)).reshape(h, 3 * w)
     if bool(np.any(B != 0)):
-        np.subtract(dtype(1), t, out=t)                   # 1 - exp(-c r), in place
+        np.subtract(dtype(1), t, out=t)  # 1 - exp(-c r), in place
         t *= B
-        direct += t                                       # + B (1 - exp(-c r)); exact J at c = 0
+        direct += t  # + B (1 - exp(-c r)); exact J at c = 0
     if model == "article":
-        direct *= D                                       # every pixel times exp(-k d)
+        direct *= D  # every pixel times exp(-k d)
     return direct.reshape(h, w, 3)
 
 
-def add_emitter_glow(img: np.ndarray, emissive: np.ndarray, range_m: np.ndarray, water: WaterOptics,
-                     fx: float) -> np.ndarray:
+def add_emitter_glow(
+    img: np.ndarray, emissive: np.ndarray, range_m: np.ndarray, water: WaterOptics, fx: float
+) -> np.ndarray:
     """``img`` (H, W, 3) plus the forward-scattered glow of its emitter pixels (``emissive``
     (H, W) bool; their values in ``img`` are the attenuated direct radiance): the emitters'
     image convolved with :func:`glow_kernel` at their median range, in the box they and the
     kernel cover. Returns a new array (the input when nothing glows)."""
     import cv2
+
     r = np.asarray(range_m, float)[emissive]
     r = r[np.isfinite(r)]
     if r.size == 0:
@@ -788,8 +886,9 @@ def add_emitter_glow(img: np.ndarray, emissive: np.ndarray, range_m: np.ndarray,
     return out
 
 
-def _forward_scatter_blur(img: np.ndarray, range_m, sigma_s_mean: float, px_per_tau: float,
-                          max_px: float, levels: int) -> np.ndarray:
+def _forward_scatter_blur(
+    img: np.ndarray, range_m, sigma_s_mean: float, px_per_tau: float, max_px: float, levels: int
+) -> np.ndarray:
     """Blend ``levels`` Gaussian blurs of ``img`` (H, W, 3) by per-pixel sigma (hat weights).
 
     Level i has sigma ``i * max_px / (levels - 1)`` (level 0 = unblurred), each blurred
@@ -801,7 +900,7 @@ def _forward_scatter_blur(img: np.ndarray, range_m, sigma_s_mean: float, px_per_
     r = _clean_range(range_m, np.float32)
     sig = np.minimum(np.float32(max_px), np.float32(px_per_tau * sigma_s_mean) * r)
     step = max_px / (levels - 1)
-    pos = sig / np.float32(step)                      # fractional level index
+    pos = sig / np.float32(step)  # fractional level index
     out = np.zeros_like(img)
     src, s_prev = img, 0.0
     for i in range(levels):

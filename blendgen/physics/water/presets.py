@@ -44,6 +44,7 @@ tabulated points). Sources:
   reference medium gives with 0 volume bounces; multiple scattering raises it
   1.5-7x (docs/water.md). Calibrate it against reference renders before use.
 """
+
 from __future__ import annotations
 
 import functools
@@ -82,8 +83,7 @@ ARTICLE_WATER_COLOR = (0.03, 0.20, 0.15)
 ARTICLE_ALBEDO_MAX = 0.8
 
 
-def article_coefficients(beta, water_color=ARTICLE_WATER_COLOR, k=ARTICLE_K,
-                         albedo=None) -> dict:
+def article_coefficients(beta, water_color=ARTICLE_WATER_COLOR, k=ARTICLE_K, albedo=None) -> dict:
     """sigma_a, sigma_s, Kd, B_inf (3,) for the article's model.
 
     ``beta`` scalar or (3,) in 1/m; ``albedo`` None -> proportional to the water
@@ -97,11 +97,16 @@ def article_coefficients(beta, water_color=ARTICLE_WATER_COLOR, k=ARTICLE_K,
     else:
         omega = np.broadcast_to(np.asarray(albedo, float), (3,)).copy()
     kd = np.broadcast_to(np.asarray(k, float), (3,)).copy()
-    return {"sigma_a": (1.0 - omega) * beta, "sigma_s": omega * beta, "Kd": kd,
-            "B_inf": color, "g": 0.9,
-            "provenance": "article: c = beta, B_inf = water colour, "
-                          "sigma_s = albedo*beta with albedo ~ colour (max "
-                          f"{ARTICLE_ALBEDO_MAX})"}
+    return {
+        "sigma_a": (1.0 - omega) * beta,
+        "sigma_s": omega * beta,
+        "Kd": kd,
+        "B_inf": color,
+        "g": 0.9,
+        "provenance": "article: c = beta, B_inf = water colour, "
+        "sigma_s = albedo*beta with albedo ~ colour (max "
+        f"{ARTICLE_ALBEDO_MAX})",
+    }
 
 
 def _band_means(fn) -> np.ndarray:
@@ -116,8 +121,10 @@ def nearest_jerlov_type(c_rgb) -> tuple[str, float]:
     target = np.broadcast_to(np.asarray(c_rgb, float), (3,))
     if not np.all(target > 0):
         raise ValueError(f"c must be > 0 in every channel to compare on a log scale, got {target}")
-    best = min((float(np.sqrt(np.mean(np.log((d["sigma_a"] + d["sigma_s"]) / target) ** 2))), t)
-               for t, d in ((t, jerlov_coefficients(t)) for t in JERLOV_TYPES))
+    best = min(
+        (float(np.sqrt(np.mean(np.log((d["sigma_a"] + d["sigma_s"]) / target) ** 2))), t)
+        for t, d in ((t, jerlov_coefficients(t)) for t in JERLOV_TYPES)
+    )
     return best[1], best[0]
 
 
@@ -126,15 +133,14 @@ def hg_phase_90(g: float) -> float:
     return (1.0 - g * g) / (4.0 * math.pi * (1.0 + g * g) ** 1.5)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def jerlov_coefficients(water_type: str) -> dict:
     """RGB sigma_a, sigma_s, Kd, g, B_inf for a Jerlov type (see module docstring)."""
     import jerlov  # lazy: ~50 ms of CSV parsing, only when a Jerlov preset is used
 
     if water_type not in JERLOV_TYPES:
         raise KeyError(f"unknown Jerlov type {water_type!r} (known: {', '.join(JERLOV_TYPES)})")
-    notes = ["Kd: jerlov1976 (Jerlov 1976 Table XXVII)",
-             "a, b: solonenko2015 (Solonenko & Mobley 2015)"]
+    notes = ["Kd: jerlov1976 (Jerlov 1976 Table XXVII)", "a, b: solonenko2015 (Solonenko & Mobley 2015)"]
     with warnings.catch_warnings():
         # Provenance warnings are about flagged samples; the ones we use are
         # recorded below from the sources' caveats instead.
@@ -148,8 +154,7 @@ def jerlov_coefficients(water_type: str) -> dict:
             a_w = _band_means(wh.a)
             for i in np.flatnonzero(np.isnan(a)):
                 a[i] = a_w[i]
-                notes.append(f"a[{'RGB'[i]}]: williamson2022 (measured; solonenko2015 has "
-                             "no a there)")
+                notes.append(f"a[{'RGB'[i]}]: williamson2022 (measured; solonenko2015 has no a there)")
         b_w = _band_means(jerlov.pure_water_scattering)
     if not (np.isfinite(a).all() and np.isfinite(b).all() and np.isfinite(kd).all()):
         raise RuntimeError(f"Jerlov {water_type}: missing coefficients a={a} b={b} Kd={kd}")
@@ -157,10 +162,16 @@ def jerlov_coefficients(water_type: str) -> dict:
     g = PARTICLE_G * float(b_p.sum() / b.sum())
     c = a + b
     b_inf = b * hg_phase_90(g) / c
-    return {"sigma_a": a, "sigma_s": b, "Kd": kd, "g": g, "B_inf": b_inf,
-            "provenance": "; ".join(notes) + "; RGB = mean at R 600/625/650, "
-                          "G 525/550, B 450/475 nm; g = 0.92*b_p/b; "
-                          "B_inf = single-scatter sigma_s p_HG(90)/c per unit sun"}
+    return {
+        "sigma_a": a,
+        "sigma_s": b,
+        "Kd": kd,
+        "g": g,
+        "B_inf": b_inf,
+        "provenance": "; ".join(notes) + "; RGB = mean at R 600/625/650, "
+        "G 525/550, B 450/475 nm; g = 0.92*b_p/b; "
+        "B_inf = single-scatter sigma_s p_HG(90)/c per unit sun",
+    }
 
 
 #: Every preset name, as :func:`preset_key` spells it.

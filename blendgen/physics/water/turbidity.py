@@ -6,7 +6,8 @@ into a green quantity by a cited rule (``c_G + Kd_G`` for a Secchi depth, ``b_G`
 NTU), then into a whole RGB water by following the ladder of Jerlov types (:data:`LADDER`,
 ordered by turbidity) to the place where that quantity has that value: every coefficient (a, b, Kd
 per channel, and g) is interpolated between the two neighbouring types, geometrically for
-the coefficients, with the weight at which the blend's green quantity is the reading's. The spectral shape is thus that of real water of
+the coefficients, with the weight at which the blend's green quantity is the reading's. The spectral shape is thus
+that of real water of
 about that clarity, not a grey scale.
 
 Rules and their uncertainty (docs/waters.md):
@@ -23,6 +24,7 @@ Rules and their uncertainty (docs/waters.md):
 Readings beyond the ladder (clearer than Jerlov I, more turbid than 9C) are refused with
 the allowed range: the coefficients outside it are not tabulated.
 """
+
 from __future__ import annotations
 
 import functools
@@ -51,7 +53,7 @@ def b_green_from_ntu(ntu: float) -> float:
     return NTU_B_PER_NTU * float(ntu)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _ladder(quantity: str) -> np.ndarray:
     """(len(LADDER),) green c + Kd (``"cKd"``) or b (``"b"``) of each ladder type, 1/m."""
     return np.array([_green(wp.jerlov_coefficients(t), quantity) for t in LADDER])
@@ -68,7 +70,7 @@ def reading_range(kind: str) -> tuple[float, float]:
 
 def _blend(i: int, w: float) -> dict:
     """a, b, Kd (3,) geometric and g linear between ladder types i and i + 1 (weight w)."""
-    lo_d, hi_d = (wp.jerlov_coefficients(t) for t in LADDER[i:i + 2])
+    lo_d, hi_d = (wp.jerlov_coefficients(t) for t in LADDER[i : i + 2])
     out = {k: np.exp((1 - w) * np.log(lo_d[k]) + w * np.log(hi_d[k])) for k in ("sigma_a", "sigma_s", "Kd")}
     out["g"] = (1 - w) * lo_d["g"] + w * hi_d["g"]
     return out
@@ -110,14 +112,20 @@ def water_from_reading(kind: str, value: float) -> dict:
     lo, hi = reading_range(kind)
     if not lo <= value <= hi:
         unit = "m" if kind == "secchi_m" else "NTU"
-        raise ValueError(f"{kind} {value:g} is outside the Jerlov ladder I..9C; allowed "
-                         f"{lo:.3g} <= {kind} <= {hi:.3g} {unit}")
+        raise ValueError(
+            f"{kind} {value:g} is outside the Jerlov ladder I..9C; allowed {lo:.3g} <= {kind} <= {hi:.3g} {unit}"
+        )
     quantity, target = _target(kind, value)
-    rule = (f"(c + Kd)_G = {SECCHI_GAMMA:g} / Z_SD (Tyler 1968; +-30 %)"
-            if kind == "secchi_m" else f"b_G = {NTU_B_PER_NTU:g} x NTU (Kirk 1994; factor 2)")
+    rule = (
+        f"(c + Kd)_G = {SECCHI_GAMMA:g} / Z_SD (Tyler 1968; +-30 %)"
+        if kind == "secchi_m"
+        else f"b_G = {NTU_B_PER_NTU:g} x NTU (Kirk 1994; factor 2)"
+    )
     i, w = _interpolate(quantity, target)
     out = _blend(i, w)
     out["B_inf"] = out["sigma_s"] * wp.hg_phase_90(out["g"]) / (out["sigma_a"] + out["sigma_s"])
-    out["provenance"] = (f"{kind} {value:g}: {rule} = {target:.3g} 1/m; between Jerlov {LADDER[i]} and "
-                         f"{LADDER[i + 1]} (weight {w:.2f}, geometric in a, b, Kd)")
+    out["provenance"] = (
+        f"{kind} {value:g}: {rule} = {target:.3g} 1/m; between Jerlov {LADDER[i]} and "
+        f"{LADDER[i + 1]} (weight {w:.2f}, geometric in a, b, Kd)"
+    )
     return out

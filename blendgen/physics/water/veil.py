@@ -33,6 +33,7 @@ through it). The veil goes to 0 as ``b -> 0``; at fixed ``a``, ``kappa`` and ``K
 diffuse term grows monotonically with ``b``; the beam term only while ``b h < a / c`` (deeper,
 more scattering also dims the beam that feeds it).
 """
+
 from __future__ import annotations
 
 import math
@@ -63,10 +64,20 @@ def scatter_cosine(sun_elevation_rad: float, view_elevation_rad: float, rel_azim
     return math.sin(e) * math.sin(t) - math.cos(e) * math.cos(t) * math.cos(rel_azimuth_rad)
 
 
-def veil_radiance(sigma_a, sigma_s, K_v, phase_fn, kappa, depth_m: float, view_elevation_rad: float = 0.0,
-                  eta: float = 0.0,
-                  sun_elevation_rad: float = math.pi / 2, rel_azimuth_rad: float = math.pi / 2,
-                  mean_cosine_down: float = MEAN_COSINE_DOWN, parts: bool = False):
+def veil_radiance(
+    sigma_a,
+    sigma_s,
+    K_v,
+    phase_fn,
+    kappa,
+    depth_m: float,
+    view_elevation_rad: float = 0.0,
+    eta: float = 0.0,
+    sun_elevation_rad: float = math.pi / 2,
+    rel_azimuth_rad: float = math.pi / 2,
+    mean_cosine_down: float = MEAN_COSINE_DOWN,
+    parts: bool = False,
+):
     """Path radiance of an unobstructed ray per unit ``E_d0`` (3,), 1/sr (module docstring).
 
     ``sigma_a``, ``sigma_s``, ``K_v`` (3,) 1/m; ``phase_fn(psi_rad) -> 1/sr``; ``kappa`` scalar
@@ -83,12 +94,18 @@ def veil_radiance(sigma_a, sigma_s, K_v, phase_fn, kappa, depth_m: float, view_e
     mu_s = max(math.sin(sun_elevation_rad), 1e-3)
     st = math.sin(view_elevation_rad)
     length = h / st if st > 1e-9 else math.inf
-    beam_e = np.exp(-c * h / mu_s)                       # unscattered beam share of E_d0 at h
+    beam_e = np.exp(-c * h / mu_s)  # unscattered beam share of E_d0 at h
     psi = math.acos(max(-1.0, min(1.0, scatter_cosine(sun_elevation_rad, view_elevation_rad, rel_azimuth_rad))))
     beam = b * float(phase_fn(psi)) * beam_e / mu_s * _path_integral(c - c / mu_s * st, length)
-    tilt = max(1.0 + float(eta) * st, 0.0)                # two-term angular shape of J_diff
-    diffuse = (np.asarray(kappa, float) * tilt * b * np.exp(-K * h) / (4.0 * math.pi * float(mean_cosine_down))
-               * _path_integral(c - K * st, length))
+    tilt = max(1.0 + float(eta) * st, 0.0)  # two-term angular shape of J_diff
+    diffuse = (
+        np.asarray(kappa, float)
+        * tilt
+        * b
+        * np.exp(-K * h)
+        / (4.0 * math.pi * float(mean_cosine_down))
+        * _path_integral(c - K * st, length)
+    )
     beam, diffuse = np.nan_to_num(beam, posinf=0.0), np.nan_to_num(diffuse, posinf=0.0)
     return (beam, diffuse) if parts else beam + diffuse
 
@@ -99,6 +116,7 @@ def fit_channel(beam: np.ndarray, ref: np.ndarray, shape_fn, k_bounds: tuple[flo
     term at kappa 1). For a given K_v the best kappa is linear; K_v is scanned over
     ``k_bounds`` (1/m) then refined (scipy's bounded scalar minimiser)."""
     from scipy.optimize import minimize_scalar
+
     w = 1.0 / np.maximum(ref, 1e-12)
     y = (ref - beam) * w
 
@@ -111,7 +129,11 @@ def fit_channel(beam: np.ndarray, ref: np.ndarray, shape_fn, k_bounds: tuple[flo
     grid = np.linspace(*k_bounds, 41)
     K0 = grid[int(np.argmin([best(K)[1] for K in grid]))]
     step = (k_bounds[1] - k_bounds[0]) / 40
-    r = minimize_scalar(lambda K: best(K)[1], bounds=(max(k_bounds[0], K0 - step), min(k_bounds[1], K0 + step)),
-                        method="bounded", options={"xatol": 1e-5})
+    r = minimize_scalar(
+        lambda K: best(K)[1],
+        bounds=(max(k_bounds[0], K0 - step), min(k_bounds[1], K0 + step)),
+        method="bounded",
+        options={"xatol": 1e-5},
+    )
     K = float(r.x) if r.fun <= best(K0)[1] else float(K0)
     return best(K)[0], K

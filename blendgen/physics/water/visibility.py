@@ -18,6 +18,7 @@ square marker also needs its cells resolved: ``f s / r >= MIN_PX_PER_CELL`` for 
 side ``s``. Not modelled: the glow of forward-scattered light, sensor noise and saturation,
 the veil's change along a slanted ray.
 """
+
 from __future__ import annotations
 
 import math
@@ -45,8 +46,9 @@ def apparent_contrast(L_target, L_background, L_inf, c, range_m) -> np.ndarray:
     return np.divide(num, den, out=np.full(np.broadcast(num, den).shape, np.inf), where=den > 0)
 
 
-def visible_range_m(contrast: np.ndarray, ranges_m: np.ndarray = RANGE_GRID_M,
-                    threshold: float = CONTRAST_THRESHOLD) -> float:
+def visible_range_m(
+    contrast: np.ndarray, ranges_m: np.ndarray = RANGE_GRID_M, threshold: float = CONTRAST_THRESHOLD
+) -> float:
     """Largest range (m) up to which the best channel of ``contrast`` (N, 3) stays at or above
     ``threshold`` from the nearest range on; 0 when it is below at the nearest."""
     ok = np.abs(contrast).max(axis=-1) >= threshold
@@ -56,18 +58,34 @@ def visible_range_m(contrast: np.ndarray, ranges_m: np.ndarray = RANGE_GRID_M,
     return float(ranges_m[-1] if bad.size == 0 else ranges_m[bad[0] - 1])
 
 
-def led_range_m(intensity_rgb, radius_m: float, L_face, L_inf, c, f_px: float,
-                ranges_m: np.ndarray = RANGE_GRID_M, threshold: float = CONTRAST_THRESHOLD) -> float:
+def led_range_m(
+    intensity_rgb,
+    radius_m: float,
+    L_face,
+    L_inf,
+    c,
+    f_px: float,
+    ranges_m: np.ndarray = RANGE_GRID_M,
+    threshold: float = CONTRAST_THRESHOLD,
+) -> float:
     """Predicted range (m) at which one LED (on-axis intensity ``intensity_rgb`` (3,), W/sr,
     disc ``radius_m``) stops standing out from the dock face (radiance ``L_face`` (3,))."""
-    L_led = np.asarray(intensity_rgb, float) / (math.pi * radius_m ** 2)
-    cover = np.minimum(1.0, math.pi * radius_m ** 2 * f_px ** 2 / ranges_m ** 2)[:, None]
+    L_led = np.asarray(intensity_rgb, float) / (math.pi * radius_m**2)
+    cover = np.minimum(1.0, math.pi * radius_m**2 * f_px**2 / ranges_m**2)[:, None]
     L_pix = cover * L_led + (1.0 - cover) * np.asarray(L_face, float)
     return visible_range_m(apparent_contrast(L_pix, L_face, L_inf, c, ranges_m), ranges_m, threshold)
 
 
-def square_marker_range_m(cell_m: float, L_white, L_black, L_inf, c, f_px: float,
-                          ranges_m: np.ndarray = RANGE_GRID_M, threshold: float = CONTRAST_THRESHOLD) -> dict:
+def square_marker_range_m(
+    cell_m: float,
+    L_white,
+    L_black,
+    L_inf,
+    c,
+    f_px: float,
+    ranges_m: np.ndarray = RANGE_GRID_M,
+    threshold: float = CONTRAST_THRESHOLD,
+) -> dict:
     """Predicted range (m) of a printed code with cells of side ``cell_m``: where the white
     cells' contrast against the black ones falls below ``threshold`` (``contrast_m``), where a
     cell shrinks below :data:`MIN_PX_PER_CELL` pixels (``resolution_m``) and the smaller."""

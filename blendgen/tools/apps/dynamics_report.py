@@ -1,4 +1,5 @@
 """Reports of the vehicle model: the article's Table 5 and docking paths under current."""
+
 from __future__ import annotations
 
 import time
@@ -6,10 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
-from blendgen.vehicle import docking
-
-from blendgen.vehicle import trajectories as tj
 from blendgen.config.models import Dock
+from blendgen.vehicle import docking
+from blendgen.vehicle import trajectories as tj
 
 
 def docking_paths(currents=(0.0, 0.5, 1.0), seed: int = 1, start: dict | None = None) -> list[dict]:
@@ -28,6 +28,7 @@ def docking_paths(currents=(0.0, 0.5, 1.0), seed: int = 1, start: dict | None = 
     from blendgen.vehicle import authority
     from blendgen.vehicle.closed_loop import TrialSetup, simulate_closed_loop
     from blendgen.vehicle.dynamics import VehicleParams
+
     dock, traj = Dock(), DockingTrajectory()
     T_wd = tj.T_world_dock_from_spec(dock)
     T_bc = tj.T_body_cam_from_spec(Camera.model_fields["T_body_cam"].default)
@@ -38,31 +39,48 @@ def docking_paths(currents=(0.0, 0.5, 1.0), seed: int = 1, start: dict | None = 
     out = []
     for c in currents:
         t0 = time.process_time()
-        setup = TrialSetup(T_wd, start, T_bc, capture, current_world=tuple(c * lateral), seed=seed,
-                           max_time_s=traj.max_time_s,
-                           guidance=docking.LosGuidance(traj.cruise_speed_mps, traj.final_speed_mps))
+        setup = TrialSetup(
+            T_wd,
+            start,
+            T_bc,
+            capture,
+            current_world=tuple(c * lateral),
+            seed=seed,
+            max_time_s=traj.max_time_s,
+            guidance=docking.LosGuidance(traj.cruise_speed_mps, traj.final_speed_mps),
+        )
         run = simulate_closed_loop(setup)
         cpu = time.process_time() - t0
         f = run["frames"]
         auth = authority.docking_authority(c * lateral, approach, traj.final_speed_mps, capture.max_heading_deg)
         if c > 0:
-            auth["max_current_mps"] = authority.max_docking_current(lateral, approach, traj.final_speed_mps,
-                                                                    capture.max_heading_deg)
-        out.append({"current_mps": c, "t": np.array([r["t"] for r in f]),
-                    "p_dock": np.array([[r["lateral_m"], r["vertical_m"], r["range_m"]] for r in f]),
-                    "heading_error_deg": np.array([r["heading_err_deg"] for r in f]),
-                    "outcome": run["outcome"], "cross_lateral_m": run["cross_lateral_m"],
-                    "cross_heading_deg": run["cross_heading_deg"], "impact_speed_mps": run["impact_speed_mps"],
-                    "authority": authority_verdict(auth, c),
-                    "ms_per_sim_s": 1e3 * cpu / max(float(run["t_end"]), 1e-9)})
+            auth["max_current_mps"] = authority.max_docking_current(
+                lateral, approach, traj.final_speed_mps, capture.max_heading_deg
+            )
+        out.append(
+            {
+                "current_mps": c,
+                "t": np.array([r["t"] for r in f]),
+                "p_dock": np.array([[r["lateral_m"], r["vertical_m"], r["range_m"]] for r in f]),
+                "heading_error_deg": np.array([r["heading_err_deg"] for r in f]),
+                "outcome": run["outcome"],
+                "cross_lateral_m": run["cross_lateral_m"],
+                "cross_heading_deg": run["cross_heading_deg"],
+                "impact_speed_mps": run["impact_speed_mps"],
+                "authority": authority_verdict(auth, c),
+                "ms_per_sim_s": 1e3 * cpu / max(float(run["t_end"]), 1e-9),
+            }
+        )
     return out
 
 
 def plot_docking_paths(runs: list[dict], path: Path) -> Path:
     """Top view (lateral vs range) and heading error vs time, one line per current."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.2))
     for r in runs:
         lab = f"{r['current_mps']:g} m/s lateral: {r['outcome']}"
@@ -71,7 +89,7 @@ def plot_docking_paths(runs: list[dict], path: Path) -> Path:
     a.invert_xaxis()
     a.set(xlabel="range to dock face (m)", ylabel="lateral offset (m)", title="docking path (top view)")
     b.set(xlabel="time (s)", ylabel="heading error (deg)", title="heading")
-    a.grid(alpha=.3), b.grid(alpha=.3), a.legend(fontsize=8), b.legend(fontsize=8)
+    a.grid(alpha=0.3), b.grid(alpha=0.3), a.legend(fontsize=8), b.legend(fontsize=8)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)

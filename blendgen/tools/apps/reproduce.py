@@ -14,13 +14,13 @@ every experiment that shares it (turbidity, depth, occlusion and the zero-curren
 condition share their trajectories), then evaluates each (``dockbench calibrate``
 covers section 6).
 """
+
 from __future__ import annotations
 
 import time
 from pathlib import Path
 
 import pandas as pd
-
 from pydantic import ValidationError
 
 from blendgen.config.bundled import bundled_file
@@ -55,11 +55,11 @@ def experiment(name: str, trials: int | None, mode: str | None = None):
     path = bundled_file("configs", config_file(name))
     exp = load_experiment(path)
     raw = exp.model_dump()
-    if trials is not None:         # re-validated: the trials and frame limits apply here too
+    if trials is not None:  # re-validated: the trials and frame limits apply here too
         raw.update(trials=trials, name=f"{raw['name']}-{trials}trials")
     if mode is not None and mode != exp.image_formation:
         raw.update(image_formation=mode, name=f"{raw['name']}-{mode}")
-    if raw["image_formation"] == "physical":      # the dock at the deepest condition: the surface
+    if raw["image_formation"] == "physical":  # the dock at the deepest condition: the surface
         depths = [c["dock_water_depth_m"] for c in raw["conditions"] if c.get("dock_water_depth_m") is not None]
         raw["scene"]["dock"]["water_depth_m"] = max([raw["scene"]["dock"]["water_depth_m"], *depths])
     try:
@@ -73,6 +73,7 @@ def evaluate(dataset_dir: Path, out: Path, localizers=LOCALIZERS, workers: int |
     """Run the localizers over the dataset (one process per core, split by sequence) and
     save the full run record."""
     from evalkit.reports.results import EvalRequest, evaluate_dataset
+
     req = EvalRequest(dataset_dir, list(localizers), out, overwrite=True, workers=workers)
     return evaluate_dataset(req)[1]
 
@@ -84,21 +85,33 @@ def report(name: str, paths: dict, exp=None) -> str:
     group = ["localizer", "trajectory", "condition"]
     rt = pd.read_csv(paths["runtime"], keep_default_na=False, na_values=[""])
     m = m.merge(rt[group + ["ms_median"]], on=group, how="left")
-    lines = [f"## {name}", "", Path(paths["article_md"]).read_text().strip(), "",
-             "breakdown by localizer (marker): usable range = largest 1 m bin with P_succ >= 0.9", ""]
+    lines = [
+        f"## {name}",
+        "",
+        Path(paths["article_md"]).read_text().strip(),
+        "",
+        "breakdown by localizer (marker): usable range = largest 1 m bin with P_succ >= 0.9",
+        "",
+    ]
     for _, r in m.iterrows():
         rng = "-" if pd.isna(r["max_range_m"]) else f"{r['max_range_m']:.0f} m"
-        lines.append(f"- {r['localizer']:7s} {r['trajectory']}/{r['condition']:12s} "
-                     f"P_succ {100 * r['P_succ_mean']:5.1f}%  P_detect {100 * r['P_detect_mean']:5.1f}%  "
-                     f"E_rel {100 * r['E_rel_mean']:.2f}% (range-matched {_matched(r)})  usable range {rng}  "
-                     f"{r['ms_median']:.1f} ms/frame")
+        lines.append(
+            f"- {r['localizer']:7s} {r['trajectory']}/{r['condition']:12s} "
+            f"P_succ {100 * r['P_succ_mean']:5.1f}%  P_detect {100 * r['P_detect_mean']:5.1f}%  "
+            f"E_rel {100 * r['E_rel_mean']:.2f}% (range-matched {_matched(r)})  usable range {rng}  "
+            f"{r['ms_median']:.1f} ms/frame"
+        )
     if exp is not None and exp.name.startswith("turbidity_ladder"):
         from blendgen.tools.apps.water_ladder import ladder_table
+
         lines += ["", "usable range per water: contrast-threshold prediction / measured", "", ladder_table(exp, m)]
     lines += ["", Path(paths["range_bins_md"]).read_text().strip()]
     plots = Path(paths["article_md"]).parent.parent / "plots"
-    lines += ["", f"plots: {plots / 'range_bins.png'} (success and error per range bin, conditions as lines), "
-                  f"{plots / 'error_vs_distance.png'}, {plots / 'success_vs_distance.png'}"]
+    lines += [
+        "",
+        f"plots: {plots / 'range_bins.png'} (success and error per range bin, conditions as lines), "
+        f"{plots / 'error_vs_distance.png'}, {plots / 'success_vs_distance.png'}",
+    ]
     return "\n".join(lines)
 
 
@@ -109,26 +122,36 @@ def _matched(r) -> str:
     return f"{100 * r['E_rel_matched']:.2f}% over {r['matched_lo_m']:g}-{r['matched_hi_m']:g} m"
 
 
-def reproduce(names: tuple[str, ...], out_root: Path, trials: int | None, workers: int | None,
-              overwrite: bool = False, mode: str | None = None, images: str = "all") -> list[str]:
+def reproduce(
+    names: tuple[str, ...],
+    out_root: Path,
+    trials: int | None,
+    workers: int | None,
+    overwrite: bool = False,
+    mode: str | None = None,
+    images: str = "all",
+) -> list[str]:
     """Generate the experiments' datasets together (each shared camera path is rendered
     once for all of them) and evaluate every sequence as soon as it is written
     (:mod:`blendgen.tools.apps.streamrun`; ``images``: which camera images stay on disk), then
     report each; returns the Markdown reports."""
     from blendgen.pipeline.generate import check_out_dir
     from blendgen.tools.apps.streamrun import RunRequest, stream_run
+
     exps = [experiment(n, trials, mode) for n in names]
     bases = [Path(out_root) / e.name for e in exps]
     for e, b in zip(exps, bases):
         check_out_dir(e, b / "dataset", overwrite=overwrite)
     t0 = time.perf_counter()
-    runs = stream_run(list(zip(exps, bases)), RunRequest(localizers_of(names), images=images, workers=workers,
-                                                         overwrite=overwrite))
+    runs = stream_run(
+        list(zip(exps, bases)), RunRequest(localizers_of(names), images=images, workers=workers, overwrite=overwrite)
+    )
     dt = time.perf_counter() - t0
     reports = []
     for e, b, r in zip(exps, bases, runs):
-        text = report(e.name, r["paths"], e) + (f"\n\ntimes: generate + evaluate (all {len(exps)} together, "
-                                             f"evaluated while rendering) {dt:.0f} s\n")
+        text = report(e.name, r["paths"], e) + (
+            f"\n\ntimes: generate + evaluate (all {len(exps)} together, evaluated while rendering) {dt:.0f} s\n"
+        )
         (b / "report.md").write_text(text)
         reports.append(text)
     return reports

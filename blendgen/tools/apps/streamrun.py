@@ -25,6 +25,7 @@ Output folder OUT (datasets_spec/FORMAT.md, "Runs"):
   hashes. Interrupt at any point: a re-run resumes (committed sequences are not rendered
   again, evaluated ones not evaluated again).
 """
+
 from __future__ import annotations
 
 import json
@@ -36,13 +37,13 @@ from dataclasses import dataclass, field
 from multiprocessing import get_context
 from pathlib import Path
 
-from datasets_spec.io import content_hash, save_json_atomic, sha256_file
-from evalkit import stream
 from blendgen.pipeline import allocator
 from blendgen.pipeline.passstore import PIXELS as PASS_PIXELS
+from datasets_spec.io import content_hash, save_json_atomic, sha256_file
+from evalkit import stream
 
-STREAM_FORMAT, STREAM_VERSION = stream.STREAM_FORMAT, stream.STREAM_VERSION   # checked by stream.load_stream_summary
-PIXELS_PREFIX = "pixels:"           # content_hash entry of an image hashed by its pixels
+STREAM_FORMAT, STREAM_VERSION = stream.STREAM_FORMAT, stream.STREAM_VERSION  # checked by stream.load_stream_summary
+PIXELS_PREFIX = "pixels:"  # content_hash entry of an image hashed by its pixels
 STREAM_JSON = "stream.json"
 
 
@@ -51,6 +52,7 @@ class RunRequest:
     """One ``dockbench run``: evaluate ``localizers`` (``params``: ``-p`` items) while
     generating; ``images``: ``none``, ``all`` or ``sample:N`` (per sequence);
     ``workers``: render processes (evaluation: one process per core)."""
+
     localizers: list[str]
     params: list[str] = field(default_factory=list)
     images: str = "sample:5"
@@ -79,8 +81,16 @@ class _Streamer:
         self._passes(target, job, keep)
         manifest = target.manifest_base()
         for s in seqs:
-            task = stream.SequenceTask(str(target.out), manifest, s.id, str(self.work(target)),
-                                       self.req.localizers, self.req.params, keep, self.req.preprocess)
+            task = stream.SequenceTask(
+                str(target.out),
+                manifest,
+                s.id,
+                str(self.work(target)),
+                self.req.localizers,
+                self.req.params,
+                keep,
+                self.req.preprocess,
+            )
             if stream.done(self.work(target), s.id):
                 stream.prune_sequence(task)
                 continue
@@ -95,10 +105,9 @@ class _Streamer:
         if not rdir.is_dir():
             return
         if record.relative_to(self.work(target)).as_posix() not in stream.recorded_files(self.work(target)):
-            files = {p.relative_to(target.out).as_posix(): sha256_file(p)
-                     for p in sorted(rdir.rglob("*.png"))}
+            files = {p.relative_to(target.out).as_posix(): sha256_file(p) for p in sorted(rdir.rglob("*.png"))}
             pixels = {}
-            if (rdir / PASS_PIXELS).is_file():       # passes of frames not kept: never encoded
+            if (rdir / PASS_PIXELS).is_file():  # passes of frames not kept: never encoded
                 for line in (rdir / PASS_PIXELS).read_text().splitlines():
                     pixels.update(json.loads(line))
             record.parent.mkdir(parents=True, exist_ok=True)
@@ -117,6 +126,7 @@ class _Streamer:
         left = sum(not f.done() for f in self.futures)
         if left and self.req.progress:
             import sys
+
             print(f"evaluating: {left} of {len(self.futures)} sequences still running", file=sys.stderr)
         for f in list(self.futures):
             f.result()
@@ -148,6 +158,7 @@ def stream_run(items: list[tuple], req: RunRequest) -> list[dict]:
     rendered once); returns, per item, ``{"out", "manifest", "stream", "paths"}`` where
     ``paths`` are the results files (as :func:`evalkit.reports.results.save_run`)."""
     from blendgen.pipeline.generate import generate_many
+
     stream.parse_images(req.images)
     for e, o in items:
         _stamp_work(e, Path(o), req)
@@ -158,14 +169,14 @@ def stream_run(items: list[tuple], req: RunRequest) -> list[dict]:
     with ProcessPoolExecutor(n_eval, mp_context=get_context("spawn"), initializer=allocator.keep_heap) as pool:
         streamer = _Streamer(req, pool)
         try:
-            manifests = generate_many([(e, Path(o) / "dataset") for e, o in items], workers=req.workers,
-                                      progress=req.progress, hooks=streamer)
+            manifests = generate_many(
+                [(e, Path(o) / "dataset") for e, o in items], workers=req.workers, progress=req.progress, hooks=streamer
+            )
         except BaseException:
             for f in streamer.futures:
                 f.cancel()
             raise
-    return [_finish(Path(o), m, work_dir(Path(o) / "dataset", e.name), req)
-            for (e, o), m in zip(items, manifests)]
+    return [_finish(Path(o), m, work_dir(Path(o) / "dataset", e.name), req) for (e, o), m in zip(items, manifests)]
 
 
 def work_dir(dataset: Path, name: str) -> Path:
@@ -182,15 +193,26 @@ def _stamp_work(exp, out: Path, req: RunRequest) -> None:
     ``overwrite`` they are dropped with the dataset (its images may be pruned), else
     :class:`RunDirError`."""
     import shutil
+
     from blendgen.pipeline.generate import config_digest
+
     work = work_dir(Path(out) / "dataset", exp.name)
-    stamp = json.dumps({"config": config_digest(exp), "localizers": req.localizers, "params": req.params,
-                        "preprocess": req.preprocess}, sort_keys=True)
+    stamp = json.dumps(
+        {
+            "config": config_digest(exp),
+            "localizers": req.localizers,
+            "params": req.params,
+            "preprocess": req.preprocess,
+        },
+        sort_keys=True,
+    )
     f = work / "stamp.json"
     if f.is_file() and f.read_text() != stamp:
         if not req.overwrite:
-            raise RunDirError(f"{out} holds a run of other localizers, params or config (its images may "
-                              "be gone); choose a new -o or pass --overwrite to start over")
+            raise RunDirError(
+                f"{out} holds a run of other localizers, params or config (its images may "
+                "be gone); choose a new -o or pass --overwrite to start over"
+            )
         shutil.rmtree(work)
         shutil.rmtree(Path(out) / "dataset", ignore_errors=True)
     if req.overwrite and any(work.glob(f"*{stream.LEGACY_SUFFIX}")):
@@ -203,10 +225,11 @@ def _stamp_work(exp, out: Path, req: RunRequest) -> None:
 
 def _finish(out: Path, manifest: dict, work: Path, req: RunRequest) -> dict:
     """The run's results folder and stream.json from the per-sequence work files."""
-    from evalkit.reports.results import EvalSettings, RunRecord, save_run
+    from evalkit import registry
     from evalkit.reports.outdir import results_dir
     from evalkit.reports.provenance import localizer_record
-    from evalkit import registry
+    from evalkit.reports.results import EvalSettings, RunRecord, save_run
+
     seq_ids = [s["id"] for s in manifest["sequences"]]
     df, _ = stream.load_results(work, seq_ids)
     pixels = stream.recorded_pixels(work)
@@ -217,17 +240,37 @@ def _finish(out: Path, manifest: dict, work: Path, req: RunRequest) -> dict:
     records = [localizer_record(n, registry.params_for(n, kw, req.localizers)) for n in req.localizers]
     ds = stream.run_record_dataset(out / "dataset", full)
     settings = EvalSettings(d_min_rel_m=ds.d_min_rel_m)
-    options = {"params": list(req.params), "isolate": None, "frame_timeout_s": None,
-               "preprocess": req.preprocess, "verify": True, "images": req.images, "streamed": True}
+    options = {
+        "params": list(req.params),
+        "isolate": None,
+        "frame_timeout_s": None,
+        "preprocess": req.preprocess,
+        "verify": True,
+        "images": req.images,
+        "streamed": True,
+    }
     cpu0 = time.process_time()
     with results_dir(out / "results", overwrite=True) as tmp:
         paths, _ = save_run(df, tmp, RunRecord(ds, records, settings, req.command, options))
     paths = {k: out / "results" / p.relative_to(tmp) for k, p in paths.items()}
-    summary = {"format": STREAM_FORMAT, "format_version": STREAM_VERSION, "name": manifest["name"],
-               "version": manifest["version"], "images": req.images, "content_hash": full["content_hash"],
-               "kept_content_hash": manifest["content_hash"], "n_files": len(every),
-               "n_kept": len(manifest["files"]), "files": dict(sorted(files.items())),
-               "pixels": dict(sorted(pixels.items()))}
+    summary = {
+        "format": STREAM_FORMAT,
+        "format_version": STREAM_VERSION,
+        "name": manifest["name"],
+        "version": manifest["version"],
+        "images": req.images,
+        "content_hash": full["content_hash"],
+        "kept_content_hash": manifest["content_hash"],
+        "n_files": len(every),
+        "n_kept": len(manifest["files"]),
+        "files": dict(sorted(files.items())),
+        "pixels": dict(sorted(pixels.items())),
+    }
     save_json_atomic(out / STREAM_JSON, summary)
-    return {"out": out, "manifest": manifest, "stream": summary, "paths": paths,
-            "finish_cpu_s": time.process_time() - cpu0}
+    return {
+        "out": out,
+        "manifest": manifest,
+        "stream": summary,
+        "paths": paths,
+        "finish_cpu_s": time.process_time() - cpu0,
+    }

@@ -5,6 +5,7 @@ The prediction uses the experiment's own numbers: the condition's water in its i
 formation (coefficients and the veil the fast model composes with), the downwelling
 irradiance, the dock's depth, LED intensities and colours, code sizes, camera focal length.
 """
+
 from __future__ import annotations
 
 import math
@@ -43,6 +44,7 @@ def _cell_m(m) -> float:
     if m["kind"] == "qr":
         return float(m["module_size_m"])
     import cv2
+
     n = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, m["dictionary"])).markerSize + 2
     return float(m["size_m"]) / n
 
@@ -51,7 +53,7 @@ def predict(exp, cond) -> dict:
     """Predicted usable range (m) per marker id of one condition, plus ``ref_led_red_m`` (the
     reference LED's red channel alone) and the water's ``c`` (3,)."""
     depth = cond.dock_water_depth_m if cond.dock_water_depth_m is not None else exp.scene.dock.water_depth_m
-    depth += dock_top_m(exp.scene.dock)                  # the face centre's depth
+    depth += dock_top_m(exp.scene.dock)  # the face centre's depth
     water, L_inf = _water_and_veil(exp, cond, depth)
     E_face = plan.downwelling_irradiance(exp) * optics.depth_light(water, depth) * VERTICAL_FACE_SHARE
     L_face = np.asarray(exp.scene.dock.face_color, float) * E_face / math.pi
@@ -59,15 +61,19 @@ def predict(exp, cond) -> dict:
     out = {"c": water.c.tolist()}
     for m in plan.manifest_markers(exp):
         if m["kind"] == "led_array":
-            ranges = [visibility.led_range_m(np.asarray(col) * m["intensity_w_sr"], m["led_radius_m"], L_face,
-                                             L_inf, water.c, f_px) for col in m["colors"]]
+            ranges = [
+                visibility.led_range_m(
+                    np.asarray(col) * m["intensity_w_sr"], m["led_radius_m"], L_face, L_inf, water.c, f_px
+                )
+                for col in m["colors"]
+            ]
             out[m["id"]] = min(ranges)
             ref = np.asarray(m["colors"][m["reference_index"]]) * m["intensity_w_sr"] * [1.0, 0.0, 0.0]
             out["ref_led_red_m"] = visibility.led_range_m(ref, m["led_radius_m"], L_face, L_inf, water.c, f_px)
         else:
-            out[m["id"]] = visibility.square_marker_range_m(_cell_m(m), PRINT_WHITE * E_face / math.pi,
-                                                            PRINT_BLACK * E_face / math.pi, L_inf, water.c,
-                                                            f_px)["range_m"]
+            out[m["id"]] = visibility.square_marker_range_m(
+                _cell_m(m), PRINT_WHITE * E_face / math.pi, PRINT_BLACK * E_face / math.pi, L_inf, water.c, f_px
+            )["range_m"]
     return out
 
 
@@ -97,10 +103,14 @@ def ladder_table(exp, metrics: pd.DataFrame) -> str:
             row.append(f"{_fmt(p.get(LOCALIZER_MARKER[n]))} / {_fmt(meas)}")
         row.append(_fmt(p.get("ref_led_red_m")))
         lines.append("| " + " | ".join(row) + " |")
-    far = max(t.start.range_m[1] for t in exp.trajectories if t.kind == "docking") if any(
-        t.kind == "docking" for t in exp.trajectories) else None
-    note = (f"predicted: contrast threshold {visibility.CONTRAST_THRESHOLD:g} (Duntley), code cells >= "
-            f"{visibility.MIN_PX_PER_CELL:g} px; measured: largest 1 m bin with P_succ >= 0.9"
-            + (f" (the paths start at most {far:g} m away: a measured range at the start is a lower bound)"
-               if far else ""))
+    far = (
+        max(t.start.range_m[1] for t in exp.trajectories if t.kind == "docking")
+        if any(t.kind == "docking" for t in exp.trajectories)
+        else None
+    )
+    note = (
+        f"predicted: contrast threshold {visibility.CONTRAST_THRESHOLD:g} (Duntley), code cells >= "
+        f"{visibility.MIN_PX_PER_CELL:g} px; measured: largest 1 m bin with P_succ >= 0.9"
+        + (f" (the paths start at most {far:g} m away: a measured range at the start is a lower bound)" if far else "")
+    )
     return "\n".join(lines + ["", note])

@@ -6,6 +6,7 @@ at the printed wavelengths each RGB channel averages (``water_presets.RGB_BANDS_
 the preset's channel values; then the article levels and the Jerlov type each is in the
 physical mode. Markdown on stdout.
 """
+
 from __future__ import annotations
 
 import warnings
@@ -20,13 +21,14 @@ WAVELENGTHS_NM = sorted({w for band in wp.RGB_BANDS_NM.values() for w in band})
 def _source_rows(t: str) -> list[str]:
     """Source values (1/m) at :data:`WAVELENGTHS_NM` of Kd, a, b for type ``t``."""
     import jerlov
+
     wl = np.array(WAVELENGTHS_NM)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", jerlov.ProvenanceWarning)
         kd = jerlov.water(t, "jerlov1976").kd(wl)
         sm = jerlov.water(t, "solonenko2015")
         a, b = sm.a(wl), sm.b(wl)
-    fmt = lambda v: " ".join("  nan" if np.isnan(x) else f"{x:5.3f}" for x in v)   # noqa: E731
+    fmt = lambda v: " ".join("  nan" if np.isnan(x) else f"{x:5.3f}" for x in v)  # noqa: E731
     return [f"| {t} | Kd | {fmt(kd)} |", f"| {t} | a | {fmt(a)} |", f"| {t} | b | {fmt(b)} |"]
 
 
@@ -42,25 +44,31 @@ def source_table() -> str:
 def preset_table() -> str:
     """Markdown: each preset's R/G/B a, b, c, Kd and g (what dockbench uses)."""
     lines = ["| preset | a R/G/B | b R/G/B | c R/G/B | Kd R/G/B | g |", "|---|---|---|---|---|---|"]
-    f3 = lambda v: "/".join(f"{x:.3f}" for x in v)      # noqa: E731
+    f3 = lambda v: "/".join(f"{x:.3f}" for x in v)  # noqa: E731
     for t in wp.JERLOV_TYPES:
         d = wp.jerlov_coefficients(t)
-        lines.append(f"| jerlov_{t} | {f3(d['sigma_a'])} | {f3(d['sigma_s'])} | {f3(d['sigma_a'] + d['sigma_s'])} "
-                     f"| {f3(d['Kd'])} | {d['g']:.2f} |")
+        lines.append(
+            f"| jerlov_{t} | {f3(d['sigma_a'])} | {f3(d['sigma_s'])} | {f3(d['sigma_a'] + d['sigma_s'])} "
+            f"| {f3(d['Kd'])} | {d['g']:.2f} |"
+        )
     return "\n".join(lines)
 
 
 def article_table() -> str:
     """Markdown: the article levels, their grey c and the Jerlov type of nearest per-channel c."""
-    lines = ["| article level | beta (1/m, grey) | physical mode: Jerlov type | RMS ln(c_type / beta) | runner-up |",
-             "|---|---|---|---|---|"]
+    lines = [
+        "| article level | beta (1/m, grey) | physical mode: Jerlov type | RMS ln(c_type / beta) | runner-up |",
+        "|---|---|---|---|---|",
+    ]
     for name, beta in wp.ARTICLE_BETAS.items():
         t = wp.ARTICLE_JERLOV[name]
         if beta <= 0:
             lines.append(f"| {name} | 0 | {t} (the clearest type: beta 0 is no water) | - | - |")
             continue
-        ranked = sorted((float(np.sqrt(np.mean(np.log((d['sigma_a'] + d['sigma_s']) / beta) ** 2))), k)
-                        for k, d in ((k, wp.jerlov_coefficients(k)) for k in wp.JERLOV_TYPES))
+        ranked = sorted(
+            (float(np.sqrt(np.mean(np.log((d["sigma_a"] + d["sigma_s"]) / beta) ** 2))), k)
+            for k, d in ((k, wp.jerlov_coefficients(k)) for k in wp.JERLOV_TYPES)
+        )
         lines.append(f"| {name} | {beta:g} | {t} | {ranked[0][0]:.2f} | {ranked[1][1]} ({ranked[1][0]:.2f}) |")
     return "\n".join(lines)
 

@@ -21,6 +21,7 @@ channel of a Jerlov type (``sigma_a``, ``sigma_s``, HG ``g`` of
   and the mean |log10| power ratio over the bands the reference resolves above its noise
   (:func:`spectrum_stats`).
 """
+
 from __future__ import annotations
 
 import json
@@ -32,8 +33,9 @@ from pathlib import Path
 
 import numpy as np
 
-from blendgen.blender.caustic_reference import sun_travel      # numpy only: no bpy at import
-from blendgen.physics.surface import caustic_map, optics as sf
+from blendgen.blender.caustic_reference import sun_travel  # numpy only: no bpy at import
+from blendgen.physics.surface import caustic_map
+from blendgen.physics.surface import optics as sf
 
 GREEN = 1
 WAVE_SEED, WIND_MPS = 7, 2.0
@@ -44,21 +46,48 @@ def water_of(name: str | None) -> dict:
     if name is None:
         return {"name": "none", "sigma_a": 0.0, "sigma_s": 0.0, "g": 0.9, "Kd": 0.0}
     from blendgen.physics.water.presets import jerlov_coefficients
+
     c = jerlov_coefficients(name)
-    return {"name": name, "sigma_a": float(c["sigma_a"][GREEN]), "sigma_s": float(c["sigma_s"][GREEN]),
-            "g": float(c["g"]), "Kd": float(c["Kd"][GREEN])}
+    return {
+        "name": name,
+        "sigma_a": float(c["sigma_a"][GREEN]),
+        "sigma_s": float(c["sigma_s"][GREEN]),
+        "g": float(c["g"]),
+        "Kd": float(c["Kd"][GREEN]),
+    }
 
 
-def reference_spec(depth: float, water: dict, size: int, renders: int, seed: int = 0, t: float = 0.0,
-                   bins: int = 96, sun_zenith_deg: float = 0.0) -> dict:
+def reference_spec(
+    depth: float,
+    water: dict,
+    size: int,
+    renders: int,
+    seed: int = 0,
+    t: float = 0.0,
+    bins: int = 96,
+    sun_zenith_deg: float = 0.0,
+) -> dict:
     """The photon-map job; the camera's margin grows with depth in scattering water (light
     scattered in from outside the patch). ``sun_zenith_deg``: the sun's zenith angle in air
     (heading +x); the key is left out at the zenith (the cached maps stay valid)."""
     margin = 0.3 + (0.5 * depth if water["sigma_s"] > 0 else 0.0)
-    spec = {"depth_m": depth, "wave_seed": WAVE_SEED, "wind_mps": WIND_MPS, "t": t, "patch_m": 2.0,
-            "bins": bins, "margin_m": margin, "size": size, "renders": renders, "sun_radius_deg": 0.265,
-            "sigma_a": water["sigma_a"], "sigma_s": water["sigma_s"], "g": water["g"],
-            "volume_bounces": 64 if water["sigma_s"] > 0 else 0, "seed": seed}
+    spec = {
+        "depth_m": depth,
+        "wave_seed": WAVE_SEED,
+        "wind_mps": WIND_MPS,
+        "t": t,
+        "patch_m": 2.0,
+        "bins": bins,
+        "margin_m": margin,
+        "size": size,
+        "renders": renders,
+        "sun_radius_deg": 0.265,
+        "sigma_a": water["sigma_a"],
+        "sigma_s": water["sigma_s"],
+        "g": water["g"],
+        "volume_bounces": 64 if water["sigma_s"] > 0 else 0,
+        "seed": seed,
+    }
     return {**spec, "sun_zenith_deg": float(sun_zenith_deg)} if sun_zenith_deg else spec
 
 
@@ -78,8 +107,13 @@ def run_reference(spec: dict, out: Path) -> dict:
     out.parent.mkdir(parents=True, exist_ok=True)
     sp = out.with_suffix(".json")
     sp.write_text(json.dumps(spec))
-    subprocess.run(["nice", "-n", "10", sys.executable, "-m", "blendgen.blender.caustic_reference", str(sp),
-                    str(out)], check=True, capture_output=True, timeout=3600, env=dict(os.environ))
+    subprocess.run(
+        ["nice", "-n", "10", sys.executable, "-m", "blendgen.blender.caustic_reference", str(sp), str(out)],
+        check=True,
+        capture_output=True,
+        timeout=3600,
+        env=dict(os.environ),
+    )
     return dict(np.load(out))
 
 
@@ -90,8 +124,7 @@ def fast_map(spec: dict, sigma_s: float, g: float = 0.9) -> np.ndarray:
     nb, half, h = int(spec["bins"]), spec["patch_m"] / 2, spec["depth_m"]
     _, run, slant = sun_geometry(spec)
     patch = caustic_map.Patch(-half - h * run, -half, spec["patch_m"] / nb, (nb, nb))
-    return caustic_map.light_map(waves, patch, h * slant, spec["t"], sf.sun_deflection(sun_travel(spec)[0]),
-                                 sigma_s, g)
+    return caustic_map.light_map(waves, patch, h * slant, spec["t"], sf.sun_deflection(sun_travel(spec)[0]), sigma_s, g)
 
 
 def radial_psd(img: np.ndarray, bin_m: float, noise_var: float = 0.0, n_bands: int = 16):
@@ -126,8 +159,12 @@ def spectrum_stats(E: np.ndarray, F: np.ndarray, bin_m: float, noise_var: float)
     cell = lambda p: float(np.sum(p) / np.sum(k * p)) if np.sum(p) > 0 else float("nan")
     band = pe >= max(floor, 1e-30)
     logerr = float(np.mean(np.abs(np.log10(np.clip(pf[band], 1e-30, None) / pe[band])))) if band.any() else float("nan")
-    return {"cell_m_ref": cell(pe_pos), "cell_m_fast": cell(np.clip(pf, 0.0, None)), "psd_log10_err": logerr,
-            "psd_bands": int(band.sum())}
+    return {
+        "cell_m_ref": cell(pe_pos),
+        "cell_m_fast": cell(np.clip(pf, 0.0, None)),
+        "psd_log10_err": logerr,
+        "psd_bands": int(band.sum()),
+    }
 
 
 def compare(ref: dict, spec: dict, water: dict) -> dict:
@@ -138,18 +175,31 @@ def compare(ref: dict, spec: dict, water: dict) -> dict:
     cos_sun, _, slant = sun_geometry(spec)
     r = float(np.corrcoef(E.ravel(), F.ravel())[0, 1])
     share = math.sqrt(var_true / float(E.var())) if E.var() > 0 else 0.0
-    return {"water": water["name"], "depth_m": spec["depth_m"],
-            "contrast_ref": math.sqrt(var_true) / float(E.mean()), "contrast_fast": float(F.std() / F.mean()),
-            "noise_contrast_ref": math.sqrt(noise) / float(E.mean()),
-            "meanE_ref": float(E.mean()), "meanE_fast": cos_sun * math.exp(-water["Kd"] * spec["depth_m"]),
-            "meanE_beam": cos_sun * math.exp(-(water["sigma_a"] + water["sigma_s"]) * spec["depth_m"] * slant),
-            "corr": r, "corr_noise_free": r / share if share > 0 else float("nan"),
-            **spectrum_stats(E, F, spec["patch_m"] / spec["bins"], noise),
-            "photons": int(ref["photons"])}
+    return {
+        "water": water["name"],
+        "depth_m": spec["depth_m"],
+        "contrast_ref": math.sqrt(var_true) / float(E.mean()),
+        "contrast_fast": float(F.std() / F.mean()),
+        "noise_contrast_ref": math.sqrt(noise) / float(E.mean()),
+        "meanE_ref": float(E.mean()),
+        "meanE_fast": cos_sun * math.exp(-water["Kd"] * spec["depth_m"]),
+        "meanE_beam": cos_sun * math.exp(-(water["sigma_a"] + water["sigma_s"]) * spec["depth_m"] * slant),
+        "corr": r,
+        "corr_noise_free": r / share if share > 0 else float("nan"),
+        **spectrum_stats(E, F, spec["patch_m"] / spec["bins"], noise),
+        "photons": int(ref["photons"]),
+    }
 
 
-def run(out: Path, depths=(1.0, 2.0, 4.0), waters=("IB", "1C"), size: int = 1024, renders: int = 4,
-        echo=print, sun_zenith_deg: float = 0.0) -> list[dict]:
+def run(
+    out: Path,
+    depths=(1.0, 2.0, 4.0),
+    waters=("IB", "1C"),
+    size: int = 1024,
+    renders: int = 4,
+    echo=print,
+    sun_zenith_deg: float = 0.0,
+) -> list[dict]:
     """The table over depths x waters; reference maps cached under ``out``."""
     rows = []
     tag = f"-sun{sun_zenith_deg:g}" if sun_zenith_deg else ""
@@ -163,13 +213,17 @@ def run(out: Path, depths=(1.0, 2.0, 4.0), waters=("IB", "1C"), size: int = 1024
 
 
 def format_rows(rows: list[dict]) -> str:
-    head = (f"{'water':>5} {'h m':>4} {'C ref':>6} {'C fast':>6} {'C err':>6} {'noise':>6} {'E ref':>6} "
-            f"{'E fast':>6} {'E beam':>6} {'corr':>5} {'corr*':>5} {'cell ref':>8} {'cell fast':>9} {'PSD err':>7}")
+    head = (
+        f"{'water':>5} {'h m':>4} {'C ref':>6} {'C fast':>6} {'C err':>6} {'noise':>6} {'E ref':>6} "
+        f"{'E fast':>6} {'E beam':>6} {'corr':>5} {'corr*':>5} {'cell ref':>8} {'cell fast':>9} {'PSD err':>7}"
+    )
     lines = [head]
     for r in rows:
         err = r["contrast_fast"] / r["contrast_ref"] - 1 if r["contrast_ref"] > 0 else float("nan")
-        lines.append(f"{r['water']:>5} {r['depth_m']:4.1f} {r['contrast_ref']:6.3f} {r['contrast_fast']:6.3f} "
-                     f"{err:+6.0%} {r['noise_contrast_ref']:6.3f} {r['meanE_ref']:6.3f} {r['meanE_fast']:6.3f} "
-                     f"{r['meanE_beam']:6.3f} {r['corr']:5.2f} {r['corr_noise_free']:5.2f} "
-                     f"{r['cell_m_ref']:8.3f} {r['cell_m_fast']:9.3f} {r['psd_log10_err']:7.2f}")
+        lines.append(
+            f"{r['water']:>5} {r['depth_m']:4.1f} {r['contrast_ref']:6.3f} {r['contrast_fast']:6.3f} "
+            f"{err:+6.0%} {r['noise_contrast_ref']:6.3f} {r['meanE_ref']:6.3f} {r['meanE_fast']:6.3f} "
+            f"{r['meanE_beam']:6.3f} {r['corr']:5.2f} {r['corr_noise_free']:5.2f} "
+            f"{r['cell_m_ref']:8.3f} {r['cell_m_fast']:9.3f} {r['psd_log10_err']:7.2f}"
+        )
     return "\n".join(lines)

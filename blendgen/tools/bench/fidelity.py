@@ -23,6 +23,7 @@ attenuation), then stores ``Kd = -ln(a) / depth`` (effective depth light) and
 ``B_inf = B / (a E_sun)`` (per unit sun irradiance) in
 ``blendgen/data/water_calibration.json`` with the residuals before and after.
 """
+
 from __future__ import annotations
 
 import json
@@ -39,7 +40,6 @@ if TYPE_CHECKING:
 
 from blendgen.config.bundled import bundled_file
 
-
 CONDITIONS = ("clear", "mild", "moderate", "jerlov_1C")
 LOCALIZERS = ("led", "qr")
 D_FAR, D_NEAR = 10.0, 1.0
@@ -47,16 +47,27 @@ D_FAR, D_NEAR = 10.0, 1.0
 
 # --------------------------------------------------------------------------- experiments
 
-def held_in_experiment(width: int, height: int, frames: int, conditions=CONDITIONS, *,
-                       fidelity: str = "fast", samples: int = 4, water_opts: dict | None = None,
-                       volume_bounces: int = 0, caustics: bool = False):
+
+def held_in_experiment(
+    width: int,
+    height: int,
+    frames: int,
+    conditions=CONDITIONS,
+    *,
+    fidelity: str = "fast",
+    samples: int = 4,
+    water_opts: dict | None = None,
+    volume_bounces: int = 0,
+    caustics: bool = False,
+):
     """The held-in set: quickstart pool, one approach 10 m -> 1 m in ``frames`` frames
     (``volume_bounces``: the reference medium's multiple scattering; ``caustics``: both
     fidelities with caustics, the reference's from its photon-map spot)."""
     from blendgen.config.models import Condition, Water, load_experiment
+
     exp = load_experiment(bundled_file("configs", "quickstart.yaml"))
     traj = exp.trajectories[0]
-    lead = exp.camera.T_body_cam.xyz[0]          # the camera sits ahead of the body: d_true = range - lead
+    lead = exp.camera.T_body_cam.xyz[0]  # the camera sits ahead of the body: d_true = range - lead
     traj.start_range_m, traj.end_range_m = D_FAR + lead, D_NEAR + lead
     traj.speed_mps = (D_FAR - D_NEAR) * exp.camera.fps / max(1, frames - 1)
     exp.trajectories = [traj]
@@ -77,6 +88,7 @@ def render(exp, out: Path, fresh: bool = False) -> tuple[Path, dict]:
 
     Returns (path, timing) with median seconds per stage and the wall time."""
     from blendgen.pipeline.generate import config_digest, generate, timing_summary
+
     stamp = out / ".work" / "config.sha256"
     done = (out / "manifest.json").exists() and stamp.exists() and stamp.read_text().strip() == config_digest(exp)
     if fresh or not done:
@@ -89,6 +101,7 @@ def render(exp, out: Path, fresh: bool = False) -> tuple[Path, dict]:
 
 # --------------------------------------------------------------------------- images
 
+
 def srgb_to_linear(img_u8: np.ndarray) -> np.ndarray:
     x = img_u8.astype(np.float64) / 255.0
     return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
@@ -98,6 +111,7 @@ def load_frames(ds_path: Path) -> dict:
     """{(condition, frame index): {"rgb" linear, "index", "range", "d_true"}} of a dataset."""
     from datasets_spec.io import load_index, load_range
     from evalkit.dataset import Dataset
+
     ds = Dataset.open(ds_path)
     out = {}
     for seq in ds.sequences:
@@ -113,6 +127,7 @@ def load_frames(ds_path: Path) -> dict:
 
 def marker_region(index: np.ndarray, markers: list[dict], dilate_px: int = 3) -> np.ndarray:
     import cv2
+
     m = np.isin(index, [mk["object_index"] for mk in markers]).astype(np.uint8)
     if dilate_px > 0:
         m = cv2.dilate(m, np.ones((2 * dilate_px + 1,) * 2, np.uint8))
@@ -122,20 +137,25 @@ def marker_region(index: np.ndarray, markers: list[dict], dilate_px: int = 3) ->
 def image_errors(fast: np.ndarray, ref: np.ndarray, mask: np.ndarray) -> tuple[float, float]:
     """(PSNR dB with peak 1, mean absolute error) over ``mask``, linear RGB."""
     import cv2
+
     if fast.shape[:2] != ref.shape[:2]:
         ref = cv2.resize(ref, (fast.shape[1], fast.shape[0]), interpolation=cv2.INTER_AREA)
-        mask = cv2.resize(mask.astype(np.uint8), (fast.shape[1], fast.shape[0]),
-                          interpolation=cv2.INTER_NEAREST).astype(bool)
+        mask = cv2.resize(
+            mask.astype(np.uint8), (fast.shape[1], fast.shape[0]), interpolation=cv2.INTER_NEAREST
+        ).astype(bool)
     d = (fast - ref)[mask]
     if d.size == 0:
         return float("nan"), float("nan")
-    mse = float(np.mean(d ** 2))
+    mse = float(np.mean(d**2))
     return (10 * math.log10(1.0 / mse) if mse > 0 else float("inf")), float(np.mean(np.abs(d)))
 
 
 # --------------------------------------------------------------------------- calibration
 
-def fit_condition(samples: list[tuple[np.ndarray, np.ndarray, np.ndarray]], c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+
+def fit_condition(
+    samples: list[tuple[np.ndarray, np.ndarray, np.ndarray]], c: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares ``(a, B)`` (3,) each of ``y = a J t + B (1 - t)``, t = exp(-c r).
 
     ``samples``: (y (N,3), J (N,3), r (N,)) per frame, already masked."""
@@ -154,22 +174,32 @@ def fit_mask(clean: dict, ref_rgb: np.ndarray, dock_ids: list[int], markers: lis
     """Dock and marker pixels away from the LEDs: no LED pixel within 3 px (the box
     pixel filter bleeds their clipped glow into neighbours), nothing clipped."""
     import cv2
+
     from blendgen.pipeline.compose import emissive_mask
+
     led = cv2.dilate(emissive_mask(clean["index"], markers).astype(np.uint8), np.ones((7, 7), np.uint8))
-    return (np.isin(clean["index"], dock_ids) & (led == 0) & np.isfinite(clean["range"])
-            & (clean["rgb"].max(axis=2) < 0.98) & (ref_rgb.max(axis=2) < 0.98))
+    return (
+        np.isin(clean["index"], dock_ids)
+        & (led == 0)
+        & np.isfinite(clean["range"])
+        & (clean["rgb"].max(axis=2) < 0.98)
+        & (ref_rgb.max(axis=2) < 0.98)
+    )
 
 
-def calibrate(ref_path: Path, clean_path: Path, light_depth_m: float, irradiance: float,
-              sun_elevation_deg: float = 90.0) -> dict:
+def calibrate(
+    ref_path: Path, clean_path: Path, light_depth_m: float, irradiance: float, sun_elevation_deg: float = 90.0
+) -> dict:
     """Fit every turbid condition of the reference dataset; returns the calibration dict.
     ``irradiance`` is the sun's strength (W/m^2, normal to the beam) at ``sun_elevation_deg``."""
     from blendgen.config.models import Water
     from blendgen.physics.water import optics
     from evalkit.dataset import Dataset
+
     ref, clean = load_frames(ref_path), load_frames(clean_path)
     markers = Dataset.open(ref_path).markers
     from blendgen.pipeline.plan import INDEX_DOCK
+
     dock_ids = [INDEX_DOCK] + [m["object_index"] for m in markers]
     presets = {}
     for cond in sorted({k[0] for k in ref}):
@@ -184,9 +214,12 @@ def calibrate(ref_path: Path, clean_path: Path, light_depth_m: float, irradiance
             pix.append((ref[k]["rgb"][m], cl["rgb"][m], cl["range"][m]))
         a, B = fit_condition(pix, w0.c)
         a = np.clip(a, 1e-6, None)
-        entry = {"B_inf": (B / (a * irradiance)).round(6).tolist(),
-                 "Kd": np.clip(-np.log(a) / max(light_depth_m, 1e-6), 0.0, 5.0).round(5).tolist(),
-                 "blur": False, "a": a.round(5).tolist()}
+        entry = {
+            "B_inf": (B / (a * irradiance)).round(6).tolist(),
+            "Kd": np.clip(-np.log(a) / max(light_depth_m, 1e-6), 0.0, 5.0).round(5).tolist(),
+            "blur": False,
+            "a": a.round(5).tolist(),
+        }
         cal = {"presets": {cond: entry}, "sun_elevation_deg": sun_elevation_deg}
         res = {}
         for label, use in (("uncalibrated", False), ("calibrated", True)):
@@ -194,20 +227,32 @@ def calibrate(ref_path: Path, clean_path: Path, light_depth_m: float, irradiance
             w, fo = optics.fast_water(Water(preset=cond, calibrated=use), "physical", e_d, cal)
             err = []
             for _k, (y, J, r) in zip(keys, pix):
-                pred = optics.apply_water(J[None].astype(np.float64), r[None], None, w, light_depth_m,
-                                          irradiance=fo["irradiance"])[0]
+                pred = optics.apply_water(
+                    J[None].astype(np.float64), r[None], None, w, light_depth_m, irradiance=fo["irradiance"]
+                )[0]
                 err.append(np.abs(pred - y))
             e = np.concatenate(err)
-            res[label] = {"mae": float(e.mean()), "mae_rgb": e.mean(axis=0).round(5).tolist(),
-                          "rel_mae": float(e.mean() / max(np.concatenate([p[0] for p in pix]).mean(), 1e-12))}
+            res[label] = {
+                "mae": float(e.mean()),
+                "mae_rgb": e.mean(axis=0).round(5).tolist(),
+                "rel_mae": float(e.mean() / max(np.concatenate([p[0] for p in pix]).mean(), 1e-12)),
+            }
         entry["residual"] = res
         entry["n_pixels"] = int(sum(len(p[0]) for p in pix))
         presets[cond] = entry
     return presets
 
 
-def run_calibration(work: Path, data_path: Path, width: int, height: int, frames: int,
-                    ref_samples: int, conditions=CONDITIONS, echo=print) -> dict:
+def run_calibration(
+    work: Path,
+    data_path: Path,
+    width: int,
+    height: int,
+    frames: int,
+    ref_samples: int,
+    conditions=CONDITIONS,
+    echo=print,
+) -> dict:
     """Render reference + clean sets, fit, write ``data_path``; returns the file's dict."""
     echo(f"reference: {len(conditions)} conditions x {frames} frames at {width}x{height}, {ref_samples} spp ...")
     ref_exp = held_in_experiment(width, height, frames, conditions, fidelity="reference", samples=ref_samples)
@@ -216,23 +261,31 @@ def run_calibration(work: Path, data_path: Path, width: int, height: int, frames
     clean_exp = held_in_experiment(width, height, frames, ("clear",), fidelity="fast", samples=ref_samples)
     clean_path, _ = render(clean_exp, work / f"clean-{width}x{height}-s{ref_samples}")
     from blendgen.vehicle.trajectories import dock_top_m
-    depth = ref_exp.scene.dock.water_depth_m + dock_top_m(ref_exp.scene.dock)    # the face centre's depth
+
+    depth = ref_exp.scene.dock.water_depth_m + dock_top_m(ref_exp.scene.dock)  # the face centre's depth
     E = ref_exp.scene.sun_strength
     presets = calibrate(ref_path, clean_path, depth, E, ref_exp.scene.sun_elevation_deg)
-    data = {"version": 1,
-            "method": (f"least squares of I_ref = a J exp(-c r) + B (1 - exp(-c r)) over dock+marker pixels; "
-                       f"reference: Cycles medium, 0 volume bounces (single scattering), {ref_samples} spp, "
-                       f"{width}x{height}, {frames} frames {D_FAR:g}-{D_NEAR:g} m, dock depth {depth:g} m, "
-                       f"sun {E:g} W/m^2 at {ref_exp.scene.sun_elevation_deg:g} deg; Kd = -ln(a)/depth, "
-                       "B_inf = B/(a E) per unit sun irradiance; blur off (no forward scatter at 0 bounces)"),
-            "sun_strength": E, "light_depth_m": depth, "sun_elevation_deg": ref_exp.scene.sun_elevation_deg,
-            "presets": presets}
+    data = {
+        "version": 1,
+        "method": (
+            f"least squares of I_ref = a J exp(-c r) + B (1 - exp(-c r)) over dock+marker pixels; "
+            f"reference: Cycles medium, 0 volume bounces (single scattering), {ref_samples} spp, "
+            f"{width}x{height}, {frames} frames {D_FAR:g}-{D_NEAR:g} m, dock depth {depth:g} m, "
+            f"sun {E:g} W/m^2 at {ref_exp.scene.sun_elevation_deg:g} deg; Kd = -ln(a)/depth, "
+            "B_inf = B/(a E) per unit sun irradiance; blur off (no forward scatter at 0 bounces)"
+        ),
+        "sun_strength": E,
+        "light_depth_m": depth,
+        "sun_elevation_deg": ref_exp.scene.sun_elevation_deg,
+        "presets": presets,
+    }
     data_path.parent.mkdir(parents=True, exist_ok=True)
     data_path.write_text(json.dumps(data, indent=1) + "\n")
     return data
 
 
 # --------------------------------------------------------------------------- bench
+
 
 def default_ladder(width: int, height: int) -> list[dict]:
     """Fast settings compared with the reference. ``calibrated: False`` is the physical default
@@ -254,8 +307,10 @@ def veil_residual_table(calibration: dict | None = None):
     (``calibrate-veil``), per preset, camera depth, view elevation and channel: DataFrame with
     reference, fast, their relative difference and the old isotropic-equivalent estimate's."""
     import pandas as pd
+
     from blendgen.physics.water import optics
     from blendgen.tools.calibration import veil as vc
+
     cal = calibration if calibration is not None else optics.load_calibration()
     rows = []
     for name, e in sorted(((cal.get("veil") or {}).get("presets") or {}).items()):
@@ -264,14 +319,23 @@ def veil_residual_table(calibration: dict | None = None):
         w = vc.physical_water(name)
         for p in e["points"]:
             ref = np.array(p["reference"])
-            fast = vc.model_value(w, p["depth_m"], p["elevation_deg"], np.array(e["kappa"]), np.array(e["K_v"]),
-                                  e["eta"])
+            fast = vc.model_value(
+                w, p["depth_m"], p["elevation_deg"], np.array(e["kappa"]), np.array(e["K_v"]), e["eta"]
+            )
             iso = vc.model_value(w, p["depth_m"], p["elevation_deg"], 1.0, w.Kd)
             for ch, c in enumerate("RGB"):
-                rows.append({"preset": name, "depth_m": p["depth_m"], "elev_deg": p["elevation_deg"], "ch": c,
-                             "reference": ref[ch], "fast": fast[ch],
-                             "rel_err": (fast[ch] - ref[ch]) / ref[ch] if ref[ch] > 0 else float("nan"),
-                             "rel_err_isotropic": (iso[ch] - ref[ch]) / ref[ch] if ref[ch] > 0 else float("nan")})
+                rows.append(
+                    {
+                        "preset": name,
+                        "depth_m": p["depth_m"],
+                        "elev_deg": p["elevation_deg"],
+                        "ch": c,
+                        "reference": ref[ch],
+                        "fast": fast[ch],
+                        "rel_err": (fast[ch] - ref[ch]) / ref[ch] if ref[ch] > 0 else float("nan"),
+                        "rel_err_isotropic": (iso[ch] - ref[ch]) / ref[ch] if ref[ch] > 0 else float("nan"),
+                    }
+                )
     return pd.DataFrame(rows)
 
 
@@ -282,31 +346,52 @@ def ms_per_image(timing: dict, n_conditions_sharing: int) -> float:
     return 1e3 * (shared / n_conditions_sharing + timing.get("post_write", 0.0) / n_conditions_sharing)
 
 
-def localization(ds_path: Path) -> "pd.DataFrame":
+def localization(ds_path: Path) -> pd.DataFrame:
     """Per (localizer, condition): P_succ and e_rel_mean over the held-in frames."""
-    import pandas as pd
     from evalkit import registry, runner
-    from evalkit.metrics import core as metrics
     from evalkit.dataset import Dataset
+    from evalkit.metrics import core as metrics
+
     ds = Dataset.open(ds_path)
     df = runner.evaluate(ds, [(n, registry.resolve(n, {})) for n in LOCALIZERS], progress=False)
     trials, _ = metrics.summarize(df, d_min_rel=ds.d_min_rel_m)
     return trials.groupby(["localizer", "condition"])[["P_succ", "e_rel_mean"]].mean()
 
 
-def run_bench(out: Path, width: int, height: int, frames: int, ref_samples: int,
-              ladder: list[dict] | None = None, conditions=CONDITIONS, echo=print, volume_bounces: int = 32,
-              caustics: bool = False):
+def run_bench(
+    out: Path,
+    width: int,
+    height: int,
+    frames: int,
+    ref_samples: int,
+    ladder: list[dict] | None = None,
+    conditions=CONDITIONS,
+    echo=print,
+    volume_bounces: int = 32,
+    caustics: bool = False,
+):
     """Render reference (``volume_bounces`` multiple scattering) and ladder, with ``caustics``
     in both or in neither; returns the table (also written to OUT/fidelity.csv)."""
     import pandas as pd
+
     from evalkit.dataset import Dataset
+
     out.mkdir(parents=True, exist_ok=True)
     ladder = ladder or default_ladder(width, height)
-    echo(f"reference: {len(conditions)} conditions x {frames} frames at {width}x{height}, {ref_samples} spp, "
-         f"{volume_bounces} volume bounces ...")
-    ref_exp = held_in_experiment(width, height, frames, conditions, fidelity="reference", samples=ref_samples,
-                                 volume_bounces=volume_bounces, caustics=caustics)
+    echo(
+        f"reference: {len(conditions)} conditions x {frames} frames at {width}x{height}, {ref_samples} spp, "
+        f"{volume_bounces} volume bounces ..."
+    )
+    ref_exp = held_in_experiment(
+        width,
+        height,
+        frames,
+        conditions,
+        fidelity="reference",
+        samples=ref_samples,
+        volume_bounces=volume_bounces,
+        caustics=caustics,
+    )
     tail = "-caustics" if caustics else ""
     ref_path, ref_t = render(ref_exp, out / f"reference-{width}x{height}-s{ref_samples}-vb{volume_bounces}{tail}")
     ref = load_frames(ref_path)
@@ -319,16 +404,36 @@ def run_bench(out: Path, width: int, height: int, frames: int, ref_samples: int,
         ref_ms[cond] = 1e3 * float(np.median(np.add(np.add(t["render"], t["depth_to_range"]), t["post_write"])))
     rows = []
     for cond in conditions:
-        rows.append({"setting": f"reference s{ref_samples} vb{volume_bounces}", "condition": cond, "width": width, "height": height,
-                     "ms_per_frame": ref_ms.get(cond, float("nan")), "psnr_db": float("inf"), "mae": 0.0,
-                     **{f"{m}_{n}": ref_loc.loc[(n, cond), c] for n in LOCALIZERS
-                        for m, c in (("P_succ", "P_succ"), ("e_rel", "e_rel_mean"))},
-                     **{f"d{m}_{n}": 0.0 for n in LOCALIZERS for m in ("P_succ", "e_rel")}})
+        rows.append(
+            {
+                "setting": f"reference s{ref_samples} vb{volume_bounces}",
+                "condition": cond,
+                "width": width,
+                "height": height,
+                "ms_per_frame": ref_ms.get(cond, float("nan")),
+                "psnr_db": float("inf"),
+                "mae": 0.0,
+                **{
+                    f"{m}_{n}": ref_loc.loc[(n, cond), c]
+                    for n in LOCALIZERS
+                    for m, c in (("P_succ", "P_succ"), ("e_rel", "e_rel_mean"))
+                },
+                **{f"d{m}_{n}": 0.0 for n in LOCALIZERS for m in ("P_succ", "e_rel")},
+            }
+        )
     for st in ladder:
         w, h = st["size"]
         echo(f"{st['setting']}: {w}x{h}, {st['samples']} spp ...")
-        exp = held_in_experiment(w, h, frames, conditions, fidelity="fast", samples=st["samples"],
-                                 water_opts={"calibrated": st["calibrated"], "blur": st["blur"]}, caustics=caustics)
+        exp = held_in_experiment(
+            w,
+            h,
+            frames,
+            conditions,
+            fidelity="fast",
+            samples=st["samples"],
+            water_opts={"calibrated": st["calibrated"], "blur": st["blur"]},
+            caustics=caustics,
+        )
         tag = f"{st['samples']}-{w}x{h}-b{int(st['blur'])}-c{int(st['calibrated'])}{tail}"
         path, t = render(exp, out / f"fast-{tag}", fresh=True)
         fast = load_frames(path)
@@ -341,13 +446,25 @@ def run_bench(out: Path, width: int, height: int, frames: int, ref_samples: int,
                 p, a = image_errors(fast[k]["rgb"], ref[k]["rgb"], mask)
                 ps.append(p)
                 ma.append(a)
-            row = {"setting": st["setting"], "condition": cond, "width": w, "height": h, "ms_per_frame": ms,
-                   "psnr_db": float(np.mean(ps)), "mae": float(np.mean(ma))}
+            row = {
+                "setting": st["setting"],
+                "condition": cond,
+                "width": w,
+                "height": h,
+                "ms_per_frame": ms,
+                "psnr_db": float(np.mean(ps)),
+                "mae": float(np.mean(ma)),
+            }
             for n in LOCALIZERS:
                 P, E = loc.loc[(n, cond), "P_succ"], loc.loc[(n, cond), "e_rel_mean"]
-                row.update({f"P_succ_{n}": P, f"e_rel_{n}": E,
-                            f"dP_succ_{n}": P - ref_loc.loc[(n, cond), "P_succ"],
-                            f"de_rel_{n}": E - ref_loc.loc[(n, cond), "e_rel_mean"]})
+                row.update(
+                    {
+                        f"P_succ_{n}": P,
+                        f"e_rel_{n}": E,
+                        f"dP_succ_{n}": P - ref_loc.loc[(n, cond), "P_succ"],
+                        f"de_rel_{n}": E - ref_loc.loc[(n, cond), "e_rel_mean"],
+                    }
+                )
             rows.append(row)
     df = pd.DataFrame(rows)
     df.to_csv(out / "fidelity.csv", index=False)
@@ -359,8 +476,10 @@ def pareto_plot(df, path: Path) -> None:
     """ms/frame (log) against MAE over the marker region, one marker per setting, mean over
     the turbid conditions; the Pareto front is drawn as a line."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     fast = df[~df["setting"].str.startswith("reference")]
     turbid = fast[fast["condition"] != "clear"]
     agg = turbid.groupby("setting", sort=False).agg(ms=("ms_per_frame", "mean"), mae=("mae", "mean"))
@@ -391,13 +510,30 @@ GLOW_RANGES = (2.0, 5.0, 8.0)
 GLOW_RADII_PX = (3, 6, 12, 24, 40)
 
 
-def glow_reference(water, range_m: float, out: Path, size: int = 96, hfov_deg: float = 40.0,
-                   samples: int = 64, power_w: float = 100.0, volume_bounces: int = 0) -> np.ndarray:
+def glow_reference(
+    water,
+    range_m: float,
+    out: Path,
+    size: int = 96,
+    hfov_deg: float = 40.0,
+    samples: int = 64,
+    power_w: float = 100.0,
+    volume_bounces: int = 0,
+) -> np.ndarray:
     """Render the reference glow of a point light ``range_m`` ahead (``blendgen.blender.glow_scene``,
     Blender in a subprocess); returns its linear RGB (size, size, 3)."""
-    spec = {"water": _water_spec(water),
-            "range_m": range_m, "power_w": power_w, "light_radius_m": 0.005, "hfov_deg": hfov_deg,
-            "width": size, "height": size, "samples": samples, "seed": 1, "volume_bounces": int(volume_bounces)}
+    spec = {
+        "water": _water_spec(water),
+        "range_m": range_m,
+        "power_w": power_w,
+        "light_radius_m": 0.005,
+        "hfov_deg": hfov_deg,
+        "width": size,
+        "height": size,
+        "samples": samples,
+        "seed": 1,
+        "volume_bounces": int(volume_bounces),
+    }
     return _glow_scene(spec, out, f"glow-{water.name}-{range_m:g}-b{int(volume_bounces)}", "glow")
 
 
@@ -405,8 +541,14 @@ def _water_spec(water) -> dict | None:
     """The glow scene's medium from a ``WaterOptics`` (None: no medium, air)."""
     if water is None:
         return None
-    return {"sigma_a": water.sigma_a.tolist(), "sigma_s": water.sigma_s.tolist(), "phase": water.phase,
-            "g": float(water.g), "ff_ior": float(water.ff_ior), "ff_backscatter": float(water.ff_backscatter)}
+    return {
+        "sigma_a": water.sigma_a.tolist(),
+        "sigma_s": water.sigma_s.tolist(),
+        "phase": water.phase,
+        "g": float(water.g),
+        "ff_ior": float(water.ff_ior),
+        "ff_backscatter": float(water.ff_backscatter),
+    }
 
 
 def _glow_scene(spec: dict, out: Path, tag: str, what: str) -> np.ndarray:
@@ -414,24 +556,44 @@ def _glow_scene(spec: dict, out: Path, tag: str, what: str) -> np.ndarray:
     ``out/tag.json|npy``); linear RGB (H, W, 3). RuntimeError naming ``what`` on failure."""
     import subprocess
     import sys
+
     out.mkdir(parents=True, exist_ok=True)
     sp, npy = out / f"{tag}.json", out / f"{tag}.npy"
     sp.write_text(json.dumps(spec))
-    res = subprocess.run([sys.executable, "-m", "blendgen.blender.glow_scene", str(sp), str(npy)],
-                         capture_output=True, text=True, timeout=600)
+    res = subprocess.run(
+        [sys.executable, "-m", "blendgen.blender.glow_scene", str(sp), str(npy)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     if res.returncode != 0:
         raise RuntimeError(f"{what} reference render failed: {res.stderr[-1500:]}")
     return np.load(npy)
 
 
-def led_reference(water, range_m: float, radiance, radius_m: float, out: Path, size: int = 96,
-                  hfov_deg: float = 40.0, samples: int = 64, lights_scene: bool = True) -> np.ndarray:
+def led_reference(
+    water,
+    range_m: float,
+    radiance,
+    radius_m: float,
+    out: Path,
+    size: int = 96,
+    hfov_deg: float = 40.0,
+    samples: int = 64,
+    lights_scene: bool = True,
+) -> np.ndarray:
     """Render the dataset's disc LED (radiance (3,), radius) ``range_m`` ahead, facing the camera,
     through ``water`` (None: no medium) with Blender in a subprocess; linear RGB (size, size, 3)."""
-    spec = {"water": _water_spec(water),
-            "range_m": range_m, "led": {"radiance": [float(v) for v in radiance], "radius_m": radius_m,
-                                        "lights_scene": lights_scene},
-            "hfov_deg": hfov_deg, "width": size, "height": size, "samples": samples, "seed": 1}
+    spec = {
+        "water": _water_spec(water),
+        "range_m": range_m,
+        "led": {"radiance": [float(v) for v in radiance], "radius_m": radius_m, "lights_scene": lights_scene},
+        "hfov_deg": hfov_deg,
+        "width": size,
+        "height": size,
+        "samples": samples,
+        "seed": 1,
+    }
     tag = f"led-{'air' if water is None else water.name}-{range_m:g}-{int(lights_scene)}"
     return _glow_scene(spec, out, tag, "LED")
 
@@ -443,7 +605,7 @@ def encircled_glow(img: np.ndarray, fx: float, radii_px) -> np.ndarray:
     yy, xx = np.mgrid[0:h, 0:w]
     dx, dy = xx - (w - 1) / 2, yy - (h - 1) / 2
     rho = np.hypot(dx, dy)
-    omega = (1.0 / (1.0 + (rho / fx) ** 2)) ** 1.5 / fx ** 2
+    omega = (1.0 / (1.0 + (rho / fx) ** 2)) ** 1.5 / fx**2
     return np.array([(img * omega[..., None])[rho <= R].sum(axis=0) for R in radii_px])
 
 
@@ -459,18 +621,27 @@ def _fast_encircled(w, r: float, fx: float, radii, multiple: bool) -> np.ndarray
     """(len(radii), 3) fast-model glow within each pixel radius, relative to the direct light:
     single scattering (analytic, without the multiple-scatter energy) or the widened kernel."""
     from blendgen.physics.water import optics
+
     radii = np.asarray(radii, float)
     if not multiple:
         single = optics.glow_encircled_energy(w, r, radii / fx)
         return single / (np.expm1(w.sigma_s * r) / (w.sigma_s * r))
     k = optics.glow_kernel_multiple(w, r, fx, keep_centre=True).astype(np.float64)
     R = k.shape[0] // 2
-    rho = np.hypot(*np.mgrid[-R:R + 1, -R:R + 1])
+    rho = np.hypot(*np.mgrid[-R : R + 1, -R : R + 1])
     return np.array([k[rho <= q].sum(axis=0) for q in radii])
 
 
-def glow_comparison(work: Path, waters=GLOW_WATERS, ranges=GLOW_RANGES, size: int = 96, samples: int = 64,
-                    power_w: float = 100.0, hfov_deg: float = 40.0, volume_bounces: int = 0):
+def glow_comparison(
+    work: Path,
+    waters=GLOW_WATERS,
+    ranges=GLOW_RANGES,
+    size: int = 96,
+    samples: int = 64,
+    power_w: float = 100.0,
+    hfov_deg: float = 40.0,
+    volume_bounces: int = 0,
+):
     """Fast glow model vs the reference medium, per water, range and radius: encircled glow
     relative to the unscattered irradiance of the source, ``EE = sum(L Omega) / (I exp(-c r) / r^2)``
     with Cycles' point-light intensity ``I = P / (4 pi)`` W/sr, and the glow radius r50 (px
@@ -478,23 +649,34 @@ def glow_comparison(work: Path, waters=GLOW_WATERS, ranges=GLOW_RANGES, size: in
     single-scatter Cycles; > 0: the multiple-scatter (widening) kernel vs Cycles with that many
     volume bounces. Returns a DataFrame (green channel)."""
     import pandas as pd
+
     from blendgen.config.models import Water, article_grey_spec
     from blendgen.physics.water import optics
+
     fx = (size / 2) / math.tan(math.radians(hfov_deg) / 2)
     fine = np.arange(1, max(GLOW_RADII_PX) + 1)
     rows = []
-    for name in waters:                 # an article level: its grey water (article_grey_spec)
+    for name in waters:  # an article level: its grey water (article_grey_spec)
         spec = article_grey_spec(name) if name in optics.ARTICLE_PRESETS else Water(preset=name)
         w = optics.water_for_mode(spec, "physical")
         for r in ranges:
             img = glow_reference(w, r, work, size, hfov_deg, samples, power_w, volume_bounces)
-            direct = power_w / (4 * math.pi) * np.exp(-w.c * r) / r ** 2
+            direct = power_w / (4 * math.pi) * np.exp(-w.c * r) / r**2
             ref = encircled_glow(img.astype(np.float64), fx, fine)[:, 1] / direct[1]
             fast = _fast_encircled(w, r, fx, fine, volume_bounces > 0)[:, 1]
             r50_ref, r50_fast = glow_radius_px(ref), glow_radius_px(fast)
             for R in GLOW_RADII_PX:
                 e_ref, e_fast = ref[R - 1], fast[R - 1]
-                rows.append({"water": name, "range_m": r, "radius_px": R, "EE_reference": e_ref,
-                             "EE_fast": e_fast, "ratio": e_fast / e_ref if e_ref > 0 else float("nan"),
-                             "r50_reference_px": r50_ref, "r50_fast_px": r50_fast})
+                rows.append(
+                    {
+                        "water": name,
+                        "range_m": r,
+                        "radius_px": R,
+                        "EE_reference": e_ref,
+                        "EE_fast": e_fast,
+                        "ratio": e_fast / e_ref if e_ref > 0 else float("nan"),
+                        "r50_reference_px": r50_ref,
+                        "r50_fast_px": r50_fast,
+                    }
+                )
     return pd.DataFrame(rows)

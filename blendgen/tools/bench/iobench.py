@@ -11,6 +11,7 @@ the render EXR read (README, "Cost of the whole suite").
 
 CPU time (``time.process_time``), median of ``repeat`` runs; a shared machine inflates it.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -35,6 +36,7 @@ def camera_images(dataset: Path | None, n: int = 40) -> list[np.ndarray]:
     """Up to ``n`` camera images (H,W,3) uint8 RGB of ``dataset``, else ``n`` synthetic
     640x480 frames (a vertical gradient plus Gaussian noise of sigma 2 DN)."""
     import cv2
+
     if dataset is not None:
         paths = sorted(Path(dataset).glob("sequences/*/rgb/*.png"))[:n]
         if paths:
@@ -47,7 +49,9 @@ def camera_images(dataset: Path | None, n: int = 40) -> list[np.ndarray]:
 def image_io_table(images: list[np.ndarray], repeat: int = 5) -> list[tuple[str, float]]:
     """(what, CPU ms per frame) of writing and reading ``images`` each way."""
     import cv2
+
     from datasets_spec import io as dsio
+
     cv2.setNumThreads(1)
     n = len(images)
     with tempfile.TemporaryDirectory(prefix="dockbench-io-") as d:
@@ -66,31 +70,45 @@ def image_io_table(images: list[np.ndarray], repeat: int = 5) -> list[tuple[str,
         h, w = images[0].shape[:2]
         rng = np.random.default_rng(1)
         ranges = [np.full((h, w), 3.0, np.float32) + rng.normal(0, 0.01, (h, w)).astype(np.float32) for _ in range(n)]
-        rows = [("camera image: PNG encode + write", lambda: [dsio.save_image(p, im) for p, im in zip(paths, images)]),
-                ("camera image: read + sha256 + PNG decode", png_read),
-                ("camera image: raw .npy write", lambda: [dsio.save_raw_image(p, im) for p, im in zip(paths, images)]),
-                ("camera image: raw read + pixel sha256", raw_read),
-                ("range pass: uint16 PNG encode + write", lambda: [dsio.save_range(p, r) for p, r in zip(paths, ranges)]),
-                ("range pass: pixel sha256 (not kept)", lambda: [dsio.pixel_sha256(dsio.range_to_units(r)) for r in ranges])]
+        rows = [
+            ("camera image: PNG encode + write", lambda: [dsio.save_image(p, im) for p, im in zip(paths, images)]),
+            ("camera image: read + sha256 + PNG decode", png_read),
+            ("camera image: raw .npy write", lambda: [dsio.save_raw_image(p, im) for p, im in zip(paths, images)]),
+            ("camera image: raw read + pixel sha256", raw_read),
+            ("range pass: uint16 PNG encode + write", lambda: [dsio.save_range(p, r) for p, r in zip(paths, ranges)]),
+            (
+                "range pass: pixel sha256 (not kept)",
+                lambda: [dsio.pixel_sha256(dsio.range_to_units(r)) for r in ranges],
+            ),
+        ]
         return [(name, _cpu_ms(fn, n, repeat)) for name, fn in rows]
 
 
 def exr_table(exrs: list[Path], repeat: int = 20) -> list[tuple[str, float, float, bool]]:
     """(EXR, OpenImageIO CPU ms, direct CPU ms, same bytes) per read of each EXR."""
     from blendgen.blender import render
+
     out = []
     for p in exrs:
         a, b = render.read_passes(str(p)), render.read_passes_oiio(str(p))
-        same = sorted(a) == sorted(b) and all(a[k].dtype == b[k].dtype and a[k].shape == b[k].shape
-                                              and a[k].tobytes() == b[k].tobytes() for k in a)
-        out.append((f"{p.name} ({', '.join(sorted(a))})", _cpu_ms(lambda: render.read_passes_oiio(str(p)), 1, repeat),
-                    _cpu_ms(lambda: render.read_passes(str(p)), 1, repeat), same))
+        same = sorted(a) == sorted(b) and all(
+            a[k].dtype == b[k].dtype and a[k].shape == b[k].shape and a[k].tobytes() == b[k].tobytes() for k in a
+        )
+        out.append(
+            (
+                f"{p.name} ({', '.join(sorted(a))})",
+                _cpu_ms(lambda: render.read_passes_oiio(str(p)), 1, repeat),
+                _cpu_ms(lambda: render.read_passes(str(p)), 1, repeat),
+                same,
+            )
+        )
     return out
 
 
 def run_io_bench(dataset: Path | None) -> None:
     """Print both tables (EXRs rendered here with Cycles, 1 spp, a monkey in an empty scene)."""
     from blendgen.blender import render
+
     images = camera_images(dataset)
     src = f"{len(images)} frames of {dataset}" if dataset else f"{len(images)} synthetic 640x480 frames"
     print(f"per-frame file I/O, {src} (CPU ms per frame, median of 5)")

@@ -12,6 +12,7 @@ render). Two comparisons:
   reported as the ratio of the mean veil (per channel) and the per-pixel relative error
   over the pixels holding 90 % of the reference's veil energy.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -26,18 +27,27 @@ import pandas as pd
 
 from blendgen.geometry import intrinsics_from_hfov
 from blendgen.physics.light import lamp_water
+from blendgen.physics.light.sources import lamp_lights
 from blendgen.physics.water import optics
-from blendgen.physics.light.sources import PointLight, lamp_lights
 
 #: The evidence lamp: 0.3 m below the camera, aimed 5 deg down, a 30 deg cone with a
 #: 5 deg soft edge, 20 W of radiant flux (a typical AUV LED lamp: 2000-3000 lm at ~100 lm/W
 #: of white LED radiometric efficiency ~ 20-30 W optical).
-DEMO_LAMP = {"id": "lamp", "offset_m": [0.0, 0.3, 0.0], "yaw_deg": 0.0, "pitch_deg": 5.0, "half_angle_deg": 30.0,
-             "edge_deg": 5.0, "power_w": 20.0, "color": [1.0, 1.0, 1.0]}
+DEMO_LAMP = {
+    "id": "lamp",
+    "offset_m": [0.0, 0.3, 0.0],
+    "yaw_deg": 0.0,
+    "pitch_deg": 5.0,
+    "half_angle_deg": 30.0,
+    "edge_deg": 5.0,
+    "power_w": 20.0,
+    "color": [1.0, 1.0, 1.0],
+}
 
 
 def _ns(d: dict):
     from types import SimpleNamespace
+
     return SimpleNamespace(**d)
 
 
@@ -45,11 +55,17 @@ def water_dict(w: optics.WaterOptics) -> dict | None:
     """The lamp scene's medium (``plan.water_volume`` keys without the box), None if clear."""
     if w.is_clear:
         return None
-    return {"sigma_a": list(map(float, w.sigma_a)), "sigma_s": list(map(float, w.sigma_s)), "phase": w.phase,
-            "g": float(w.g), "ff_ior": float(w.ff_ior), "ff_backscatter": float(w.ff_backscatter)}
+    return {
+        "sigma_a": list(map(float, w.sigma_a)),
+        "sigma_s": list(map(float, w.sigma_s)),
+        "phase": w.phase,
+        "g": float(w.g),
+        "ff_ior": float(w.ff_ior),
+        "ff_backscatter": float(w.ff_backscatter),
+    }
 
 
-ON_RENDER = None    # callable(message) told before each Cycles render (the CLI's progress line), or None
+ON_RENDER = None  # callable(message) told before each Cycles render (the CLI's progress line), or None
 _RENDERS = [0]
 
 
@@ -61,11 +77,17 @@ def reference(spec: dict, work: Path) -> np.ndarray:
     if not out.exists():
         _RENDERS[0] += 1
         if ON_RENDER is not None:
-            ON_RENDER(f"Cycles render {_RENDERS[0]} ({spec.get('width')}x{spec.get('height')}, "
-                      f"{spec.get('samples')} spp, {spec.get('volume_bounces')} volume bounces)")
+            ON_RENDER(
+                f"Cycles render {_RENDERS[0]} ({spec.get('width')}x{spec.get('height')}, "
+                f"{spec.get('samples')} spp, {spec.get('volume_bounces')} volume bounces)"
+            )
         sp.write_text(json.dumps(spec))
-        res = subprocess.run(["nice", "-n", "10", sys.executable, "-m", "blendgen.blender.lamp_scene", str(sp),
-                              str(out)], capture_output=True, text=True, timeout=3600)
+        res = subprocess.run(
+            ["nice", "-n", "10", sys.executable, "-m", "blendgen.blender.lamp_scene", str(sp), str(out)],
+            capture_output=True,
+            text=True,
+            timeout=3600,
+        )
         if res.returncode != 0:
             raise RuntimeError(res.stderr[-2000:])
     return np.load(out)
@@ -74,6 +96,7 @@ def reference(spec: dict, work: Path) -> np.ndarray:
 def camera(spec: dict) -> tuple[np.ndarray, np.ndarray]:
     """(K (3, 3), unit rays (H, W, 3)) of a lamp-scene spec's pinhole."""
     from blendgen.pipeline.compose import _unit_rays
+
     w, h = int(spec["width"]), int(spec["height"])
     K = intrinsics_from_hfov(w, h, math.radians(spec["hfov_deg"]))
     return K, _unit_rays(tuple(K.ravel()), w, h)
@@ -112,14 +135,19 @@ def scene_passes(spec: dict, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
         n = np.zeros((h, w, 3))
         np.put_along_axis(n, axis[..., None], -np.sign(np.take_along_axis(rays, axis[..., None], -1)), -1)
         nrm[near] = n[near]
-    return (rng.astype(np.float32), np.repeat(alb[..., None], 3, -1).astype(np.float32),
-            nrm.astype(np.float32), obj)
+    return (rng.astype(np.float32), np.repeat(alb[..., None], 3, -1).astype(np.float32), nrm.astype(np.float32), obj)
 
 
-def fast(spec: dict, water: optics.WaterOptics, forward_kept: float | None = None,
-         shadows: bool = True, veil_shadows: bool = True) -> np.ndarray:
+def fast(
+    spec: dict,
+    water: optics.WaterOptics,
+    forward_kept: float | None = None,
+    shadows: bool = True,
+    veil_shadows: bool = True,
+) -> np.ndarray:
     """The fast model's lamp image (H, W, 3) for a lamp-scene spec (card, boxes or none)."""
     import dataclasses
+
     K, rays = camera(spec)
     kw = {} if forward_kept is None else {"forward_kept": forward_kept}
     model = lamp_water.LampWater.build(lamp_lights([_ns(d) for d in spec["lamps"]]), water, shadows=shadows, **kw)
@@ -146,8 +174,17 @@ def geometric_shadow(spec: dict, rays: np.ndarray) -> np.ndarray:
 
 
 def scene_spec(water, lamps, card=None, size=(96, 72), samples=64, bounces=0, hfov=60.0) -> dict:
-    return {"water": water_dict(water), "lamps": lamps, "card": card, "hfov_deg": hfov, "width": size[0],
-            "height": size[1], "samples": samples, "volume_bounces": bounces, "seed": 1}
+    return {
+        "water": water_dict(water),
+        "lamps": lamps,
+        "card": card,
+        "hfov_deg": hfov,
+        "width": size[0],
+        "height": size[1],
+        "samples": samples,
+        "volume_bounces": bounces,
+        "seed": 1,
+    }
 
 
 def card_law(lamp: dict, d: float, albedo: float, c: float) -> float:
@@ -156,11 +193,12 @@ def card_law(lamp: dict, d: float, albedo: float, c: float) -> float:
     exp(-c d)`` with ``d_l`` the lamp-card distance (inside the cone's full-intensity core)."""
     d_l = math.hypot(d, math.hypot(lamp["offset_m"][0], lamp["offset_m"][1]))
     i0 = lamp["power_w"] / (2 * math.pi * (1 - math.cos(math.radians(lamp["half_angle_deg"]))))
-    return albedo / math.pi * i0 * (d / d_l) / d_l ** 2 * math.exp(-c * (d_l + d))
+    return albedo / math.pi * i0 * (d / d_l) / d_l**2 * math.exp(-c * (d_l + d))
 
 
-def card_table(work: Path, waters=("clear", "mild", "moderate"), distances=(1.0, 2.0, 4.0),
-               samples: int = 256) -> pd.DataFrame:
+def card_table(
+    work: Path, waters=("clear", "mild", "moderate"), distances=(1.0, 2.0, 4.0), samples: int = 256
+) -> pd.DataFrame:
     """Grey-card centre radiance (green) vs distance: reference, fast and the analytic law
     (card minus black card: the veil in front of the card cancels, same seed)."""
     lamp = {**DEMO_LAMP, "pitch_deg": 0.0}
@@ -174,8 +212,17 @@ def card_table(work: Path, waters=("clear", "mild", "moderate"), distances=(1.0,
             ref = reference(grey, work)[centre].mean() - reference(black, work)[centre].mean()
             fst = fast(grey, w, 0.0)[centre].mean() - fast(black, w, 0.0)[centre].mean()
             law = card_law(lamp, d, 0.5, float(w.c[1]))
-            rows.append({"water": name, "d_m": d, "law": law, "reference": ref, "fast": fst,
-                         "ref/law": ref / law, "fast/law": fst / law})
+            rows.append(
+                {
+                    "water": name,
+                    "d_m": d,
+                    "law": law,
+                    "reference": ref,
+                    "fast": fst,
+                    "ref/law": ref / law,
+                    "fast/law": fst / law,
+                }
+            )
     return pd.DataFrame(rows)
 
 
@@ -186,12 +233,18 @@ def veil_stats(fast_img: np.ndarray, ref_img: np.ndarray, blocks=(8, 6), outside
     with ``outside`` (H, W) bool, the pixels outside the lamp's single-scatter cone, the mean
     ratio there and inside."""
     import cv2
+
     f = cv2.resize(np.ascontiguousarray(fast_img[..., 1]), blocks, interpolation=cv2.INTER_AREA)
     r = cv2.resize(np.ascontiguousarray(ref_img[..., 1]), blocks, interpolation=cv2.INTER_AREA)
     top = r >= np.quantile(r, 0.25)
     err = np.abs(f - r)[top] / r[top]
-    out = {"ref_mean": float(r.mean()), "fast_mean": float(f.mean()), "ratio": float(f.mean() / r.mean()),
-           "block_err_mean": float(err.mean()), "block_err_max": float(err.max())}
+    out = {
+        "ref_mean": float(r.mean()),
+        "fast_mean": float(f.mean()),
+        "ratio": float(f.mean() / r.mean()),
+        "block_err_mean": float(err.mean()),
+        "block_err_max": float(err.max()),
+    }
     if outside is not None and outside.any() and not outside.all():
         fg, rg = fast_img[..., 1], ref_img[..., 1]
         out["ratio_outside_cone"] = float(fg[outside].mean() / rg[outside].mean())
@@ -206,8 +259,14 @@ def outside_cone(spec: dict, water: optics.WaterOptics) -> np.ndarray:
     return single < 0.05 * single.mean()
 
 
-def veil_table(work: Path, waters=("mild", "moderate"), bounces=(0, 32), samples: int = 256,
-               size=(96, 72), forward_kept: float | None = None) -> pd.DataFrame:
+def veil_table(
+    work: Path,
+    waters=("mild", "moderate"),
+    bounces=(0, 32),
+    samples: int = 256,
+    size=(96, 72),
+    forward_kept: float | None = None,
+) -> pd.DataFrame:
     """Backscatter veil with no surface: fast (single scatter; with bounces the F correction and
     the beam spread) vs Cycles."""
     rows = []
@@ -217,18 +276,26 @@ def veil_table(work: Path, waters=("mild", "moderate"), bounces=(0, 32), samples
             spec = scene_spec(w, [DEMO_LAMP], None, size, samples, nb)
             ref = reference(spec, work)
             fk = 0.0 if nb == 0 else forward_kept
-            rows.append({"water": name, "volume_bounces": nb, "F": lamp_water.FORWARD_KEPT if fk is None else fk,
-                         **veil_stats(fast(spec, w, fk), ref, outside=outside_cone(spec, w) if nb else None)})
+            rows.append(
+                {
+                    "water": name,
+                    "volume_bounces": nb,
+                    "F": lamp_water.FORWARD_KEPT if fk is None else fk,
+                    **veil_stats(fast(spec, w, fk), ref, outside=outside_cone(spec, w) if nb else None),
+                }
+            )
     return pd.DataFrame(rows)
 
 
-def lamp_experiment(width: int, height: int, samples: int, fidelity: str, depth_m: float, lamp: bool,
-                    sun_strength: float | None = None):
+def lamp_experiment(
+    width: int, height: int, samples: int, fidelity: str, depth_m: float, lamp: bool, sun_strength: float | None = None
+):
     """The preview approach (camera 8, 5, 2 m from the dock) in clear/mild/moderate water at
     dock depth ``depth_m``, with or without :data:`DEMO_LAMP`; ``sun_strength`` (W/m^2) None
     keeps the template's daylight, a small value is dusk/night."""
     from blendgen.config.models import Condition, Lamp, Water
     from blendgen.tools.apps.preview import WATERS, preview_experiment
+
     exp = preview_experiment(width, height, samples, fidelity)
     exp.conditions = [Condition(label=w, water=Water(preset=w), dock_water_depth_m=depth_m) for w in WATERS]
     exp.vehicle.lamps = [Lamp(**DEMO_LAMP)] if lamp else []
@@ -238,26 +305,49 @@ def lamp_experiment(width: int, height: int, samples: int, fidelity: str, depth_
     return exp
 
 
-def lamp_sheet(out: Path, width: int = 320, height: int = 240, samples: int = 4, fidelity: str = "fast",
-               depth_m: float = 5.0, sun_strength: float | None = None) -> Path:
+def lamp_sheet(
+    out: Path,
+    width: int = 320,
+    height: int = 240,
+    samples: int = 4,
+    fidelity: str = "fast",
+    depth_m: float = 5.0,
+    sun_strength: float | None = None,
+) -> Path:
     """Contact sheet: rows clear/mild/moderate x lamp off/on, columns camera 8/5/2 m from the dock."""
-    import cv2
     import shutil
+
+    import cv2
+
     from blendgen.pipeline.generate import generate
-    from evalkit.dataset import Dataset
     from blendgen.tools.apps.preview import VIEWS, WATERS
+    from evalkit.dataset import Dataset
+
     rows = []
     for lamp in (False, True):
         work = out.parent / f"{out.stem}-{'on' if lamp else 'off'}"
         shutil.rmtree(work, ignore_errors=True)
-        generate(lamp_experiment(width, height, samples, fidelity, depth_m, lamp, sun_strength), work, workers=1, progress=False)
+        generate(
+            lamp_experiment(width, height, samples, fidelity, depth_m, lamp, sun_strength),
+            work,
+            workers=1,
+            progress=False,
+        )
         ds = Dataset.open(work)
         frames = {s["condition"]: list(ds.iter_frames(s["id"])) for s in ds.sequences}
         for w in WATERS:
-            imgs = [ds.load_image(f).copy() for f in frames[w][:len(VIEWS)]]
+            imgs = [ds.load_image(f).copy() for f in frames[w][: len(VIEWS)]]
             for img, (_, vl) in zip(imgs, VIEWS):
-                cv2.putText(img, f"{w}, lamp {'on' if lamp else 'off'}, {vl}", (4, height - 6),
-                            cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1, cv2.LINE_AA)
+                cv2.putText(
+                    img,
+                    f"{w}, lamp {'on' if lamp else 'off'}, {vl}",
+                    (4, height - 6),
+                    cv2.FONT_HERSHEY_SIMPLEX,
+                    0.4,
+                    (255, 255, 255),
+                    1,
+                    cv2.LINE_AA,
+                )
             rows.append((WATERS.index(w), lamp, np.hstack(imgs)))
     sheet = np.vstack([r[2] for r in sorted(rows, key=lambda r: (r[0], r[1]))])
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -268,8 +358,10 @@ def lamp_sheet(out: Path, width: int = 320, height: int = 240, samples: int = 4,
 #: The shadow scene: a lamp 0.2 m right of and 0.3 m below the camera (diagonal shadows),
 #: a 40 x 10 x 5 cm slab 1 m ahead and a 5 cm post 1.8 m ahead, a grey wall at 3 m.
 SHADOW_LAMP = {**DEMO_LAMP, "offset_m": [0.2, 0.3, 0.0]}
-SHADOW_OCCLUDERS = [{"min": [-0.25, 0.0, 1.0], "max": [0.15, 0.1, 1.05], "albedo": 0.5},
-                    {"min": [0.3, -0.5, 1.8], "max": [0.35, 0.2, 1.85], "albedo": 0.5}]
+SHADOW_OCCLUDERS = [
+    {"min": [-0.25, 0.0, 1.0], "max": [0.15, 0.1, 1.05], "albedo": 0.5},
+    {"min": [0.3, -0.5, 1.8], "max": [0.35, 0.2, 1.85], "albedo": 0.5},
+]
 
 
 def shadow_spec(water, size=(320, 240), samples: int = 64, occluders=True) -> dict:
@@ -294,6 +386,7 @@ def shadow_stats(fast_img, fast_free, ref_img, ref_free, obj, geo, fast_lit_veil
     """Shadowed-area IoU fast/reference/geometry and the shadow-to-lit radiance ratio of each
     (green; core: the geometric shadow eroded 2 px; lit: a 2-6 px ring around it on the wall)."""
     import cv2
+
     wall, sf = shadow_masks(fast_img, fast_free, obj)
     _, sr = shadow_masks(ref_img, ref_free, obj)
     geo = geo & wall
@@ -303,10 +396,15 @@ def shadow_stats(fast_img, fast_free, ref_img, ref_free, obj, geo, fast_lit_veil
     ring = wall & cv2.dilate(g8, k, iterations=6).astype(bool) & ~cv2.dilate(g8, k, iterations=2).astype(bool)
     imgs = (("fast", fast_img), ("ref", ref_img), ("lit_veil", fast_img if fast_lit_veil is None else fast_lit_veil))
     ratio = {n: float(im[core, 1].mean() / im[ring, 1].mean()) for n, im in imgs}
-    return {"iou_fast_ref": _iou(sf, sr), "iou_fast_geo": _iou(sf, geo), "iou_ref_geo": _iou(sr, geo),
-            "shadow/lit_ref": ratio["ref"], "shadow/lit_fast": ratio["fast"],
-            "shadow/lit_fast_lit_veil": ratio["lit_veil"],
-            "lit_fast/ref": float(fast_img[ring, 1].mean() / ref_img[ring, 1].mean())}
+    return {
+        "iou_fast_ref": _iou(sf, sr),
+        "iou_fast_geo": _iou(sf, geo),
+        "iou_ref_geo": _iou(sr, geo),
+        "shadow/lit_ref": ratio["ref"],
+        "shadow/lit_fast": ratio["fast"],
+        "shadow/lit_fast_lit_veil": ratio["lit_veil"],
+        "lit_fast/ref": float(fast_img[ring, 1].mean() / ref_img[ring, 1].mean()),
+    }
 
 
 def shadow_table(work: Path, waters=("clear", "mild", "moderate"), size=(320, 240), samples: int = 64):
@@ -318,7 +416,14 @@ def shadow_table(work: Path, waters=("clear", "mild", "moderate"), size=(320, 24
         spec, free = shadow_spec(w, size, samples), shadow_spec(w, size, samples, occluders=False)
         _, rays = camera(spec)
         _, _, _, obj = scene_passes(spec, rays)
-        st = shadow_stats(fast(spec, w, 0.0), fast(free, w, 0.0), reference(spec, work), reference(free, work),
-                          obj, geometric_shadow(spec, rays), fast(spec, w, 0.0, veil_shadows=False))
+        st = shadow_stats(
+            fast(spec, w, 0.0),
+            fast(free, w, 0.0),
+            reference(spec, work),
+            reference(free, work),
+            obj,
+            geometric_shadow(spec, rays),
+            fast(spec, w, 0.0, veil_shadows=False),
+        )
         rows.append({"water": name, **st})
     return pd.DataFrame(rows)

@@ -17,6 +17,7 @@ Per localizer and condition (:func:`localization`): P_succ and E_rel on each dat
 their differences fast - reference. The water medium stays the fast model in both: this
 compares the particles, not the Cycles volume.
 """
+
 from __future__ import annotations
 
 import shutil
@@ -30,7 +31,7 @@ if TYPE_CHECKING:
 
 CHANGE_DN = 3
 COUNTS = (6000, 60000)
-D_START_M, D_END_M = 5.0, 1.0          # LED range down to where QR decodes at 320x240 (< 2 m)
+D_START_M, D_END_M = 5.0, 1.0  # LED range down to where QR decodes at 320x240 (< 2 m)
 
 
 def experiment(geometry: str, width: int, height: int, counts=COUNTS, frames: int = 8):
@@ -38,9 +39,10 @@ def experiment(geometry: str, width: int, height: int, counts=COUNTS, frames: in
     plus ``occ-<N>`` for each count; one linear approach from D_START_M to D_END_M in ``frames`` frames."""
     from blendgen.config.bundled import bundled_file
     from blendgen.config.models import Condition, Occlusion, Water, load_experiment
+
     exp = load_experiment(bundled_file("configs", "quickstart.yaml"))
     traj = exp.trajectories[0]
-    lead = exp.camera.T_body_cam.xyz[0]          # the camera sits ahead of the body: d_true = range - lead
+    lead = exp.camera.T_body_cam.xyz[0]  # the camera sits ahead of the body: d_true = range - lead
     traj.start_range_m, traj.end_range_m, traj.speed_mps = D_START_M + lead, D_END_M + lead, 0.5
     exp.trajectories = [traj]
     exp.camera.fps = max(frames - 1, 1) * traj.speed_mps / (D_START_M - D_END_M)
@@ -49,40 +51,59 @@ def experiment(geometry: str, width: int, height: int, counts=COUNTS, frames: in
     exp.render.samples = 4
     exp.scene.world.caustics = False
     exp.water = Water(preset="mild")
-    occ = {"count_dist": "fixed", "size_dist": "uniform", "r_min_m": 0.005, "r_max_m": 0.02,
-           "drift_sigma_m": 0.0, "geometry": geometry, "forward_fraction": 0.0}
+    occ = {
+        "count_dist": "fixed",
+        "size_dist": "uniform",
+        "r_min_m": 0.005,
+        "r_max_m": 0.02,
+        "drift_sigma_m": 0.0,
+        "geometry": geometry,
+        "forward_fraction": 0.0,
+    }
     exp.conditions = [Condition(label="none")] + [
-        Condition(label=f"occ-{n}", occlusion=Occlusion(n_total=n, **occ)) for n in counts]
+        Condition(label=f"occ-{n}", occlusion=Occlusion(n_total=n, **occ)) for n in counts
+    ]
     exp.name = f"pfid-{geometry}"
     return exp
 
 
 def _frames(root: Path):
     from evalkit.dataset import Dataset
+
     ds = Dataset.open(root)
     return ds, {s["condition"]: list(ds.iter_frames(s["id"])) for s in ds.sequences}
 
 
 def _frame_row(out: Path, dsi, dsb, cond: str, k: int, a0, a1, b0, b1) -> dict:
-    from datasets_spec.io import load_index
     from blendgen.pipeline.plan import INDEX_PARTICLES
+    from datasets_spec.io import load_index
+
     da = dsi.load_image(a1).astype(np.int16) - dsi.load_image(a0).astype(np.int16)
     db = dsb.load_image(b1).astype(np.int16) - dsb.load_image(b0).astype(np.int16)
     ma, mb = np.abs(da).max(axis=2) >= CHANGE_DN, np.abs(db).max(axis=2) >= CHANGE_DN
     spheres = load_index(out / "blender" / b1["object_index"]) == INDEX_PARTICLES
-    vis = [abs(a1["markers"][m]["visible_fraction"] - b1["markers"][m]["visible_fraction"])
-           for m in a1["markers"] if a1["markers"][m].get("in_fov")]
-    return {"condition": cond, "frame": k, "coverage_fast": float(ma.mean()), "coverage_ref": float(mb.mean()),
-            "iou": float((ma & mb).sum() / max((ma | mb).sum(), 1)),
-            "contrast_fast_dn": float(da[spheres].mean()) if spheres.any() else float("nan"),
-            "contrast_ref_dn": float(db[spheres].mean()) if spheres.any() else float("nan"),
-            "max_visible_fraction_delta": float(max(vis, default=0.0))}
+    vis = [
+        abs(a1["markers"][m]["visible_fraction"] - b1["markers"][m]["visible_fraction"])
+        for m in a1["markers"]
+        if a1["markers"][m].get("in_fov")
+    ]
+    return {
+        "condition": cond,
+        "frame": k,
+        "coverage_fast": float(ma.mean()),
+        "coverage_ref": float(mb.mean()),
+        "iou": float((ma & mb).sum() / max((ma | mb).sum(), 1)),
+        "contrast_fast_dn": float(da[spheres].mean()) if spheres.any() else float("nan"),
+        "contrast_ref_dn": float(db[spheres].mean()) if spheres.any() else float("nan"),
+        "max_visible_fraction_delta": float(max(vis, default=0.0)),
+    }
 
 
-def localization(out: Path) -> "pd.DataFrame":
+def localization(out: Path) -> pd.DataFrame:
     """Per (localizer, condition): P_succ and E_rel (evalkit's e_rel_mean: mean relative range
     error of the detected frames) on the fast and the reference dataset, and fast - reference."""
     from blendgen.tools.bench.fidelity import localization as loc
+
     fast, ref = loc(out / "image"), loc(out / "blender")
     table = fast.join(ref, lsuffix="_fast", rsuffix="_ref")
     table["dP_succ"] = table["P_succ_fast"] - table["P_succ_ref"]
@@ -90,11 +111,13 @@ def localization(out: Path) -> "pd.DataFrame":
     return table.reset_index()
 
 
-def compare(out: Path, width: int = 320, height: int = 240, counts=COUNTS, frames: int = 8,
-            render: bool = True) -> tuple[list[dict], "pd.DataFrame"]:
+def compare(
+    out: Path, width: int = 320, height: int = 240, counts=COUNTS, frames: int = 8, render: bool = True
+) -> tuple[list[dict], pd.DataFrame]:
     """Render both datasets under ``out`` (unless ``render`` is False and they exist) and return
     (one row per occ condition and frame, the localization table) (module doc)."""
     from blendgen.pipeline.generate import generate
+
     if render:
         for g in ("image", "blender"):
             shutil.rmtree(out / g, ignore_errors=True)

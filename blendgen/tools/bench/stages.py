@@ -8,6 +8,7 @@ image-formation term on one 640x480 frame, then runs each built-in localizer on 
 core over the frames and reports frames/s. A benchmark, not a test: nothing is
 asserted; the numbers are printed and written to ``OUT/bench.csv``.
 """
+
 from __future__ import annotations
 
 import shutil
@@ -18,15 +19,19 @@ import click
 import numpy as np
 import pandas as pd
 
-from blendgen.pipeline.generate import generate, timing_summary
-from blendgen.config.models import load_experiment
 from blendgen.config.bundled import bundled_file
+from blendgen.config.models import load_experiment
+from blendgen.pipeline.generate import generate, timing_summary
 
 LOCALIZERS = ("led", "qr", "aruco", "hybrid", "qr_track")
 # (label, QrLocalizer params): single-frame decoders, then zxing with the ROI of the previous
 # frame's code resampled 2x (what "qr" does in a sequence).
-QR_DETECTORS = (("zxing", {"detector": "zxing", "roi": False}), ("aruco", {"detector": "aruco", "roi": False}),
-                ("classic", {"detector": "classic", "roi": False}), ("zxing+roi2x", {"detector": "zxing"}))
+QR_DETECTORS = (
+    ("zxing", {"detector": "zxing", "roi": False}),
+    ("aruco", {"detector": "aruco", "roi": False}),
+    ("classic", {"detector": "classic", "roi": False}),
+    ("zxing+roi2x", {"detector": "zxing"}),
+)
 RANGE_BINS_M = ((0.0, 1.0), (1.0, 2.0), (2.0, 4.0), (4.0, float("inf")))
 
 
@@ -53,11 +58,17 @@ def render_stages(out: Path, frames: int, samples: int, mode: str = "physical", 
     wall = time.perf_counter() - t0
     st = timing_summary(out)
     n = sum(s["n_frames"] for s in man["sequences"])
-    return {"mode": mode, "samples": samples, "frames": n, "scene_build_ms": 1e3 * st["scene_build"],
-            "render_read_ms": 1e3 * st["render"], "depth_to_range_ms": 1e3 * st["depth_to_range"],
-            "post_write_ms": 1e3 * st["post_write"],
-            "render+write_ms": 1e3 * (st["render"] + st["depth_to_range"] + st["post_write"]),
-            "wall_ms_per_frame": 1e3 * wall / n}
+    return {
+        "mode": mode,
+        "samples": samples,
+        "frames": n,
+        "scene_build_ms": 1e3 * st["scene_build"],
+        "render_read_ms": 1e3 * st["render"],
+        "depth_to_range_ms": 1e3 * st["depth_to_range"],
+        "post_write_ms": 1e3 * st["post_write"],
+        "render+write_ms": 1e3 * (st["render"] + st["depth_to_range"] + st["post_write"]),
+        "wall_ms_per_frame": 1e3 * wall / n,
+    }
 
 
 def _median_ms(fn, repeats: int = 15, clock=time.perf_counter) -> float:
@@ -77,38 +88,67 @@ def term_costs(dataset: Path) -> pd.DataFrame:
     (its range and index passes, its image as the clean render, albedo 0.5). A term that
     is switched off is not called: its cost is 0 by construction."""
     from blendgen.config.models import Sensor, Water
-    from blendgen.physics.water import optics
     from blendgen.physics.camera import sensor
+    from blendgen.physics.water import optics
     from blendgen.pipeline import compose
-    from blendgen.pipeline import world_post
     from blendgen.pipeline.plan import SequencePost, WorldPost
     from datasets_spec.io import load_index, load_range
     from evalkit.dataset import Dataset
+
     ds = Dataset.open(dataset)
     frames = list(ds.iter_frames(ds.sequences[0]["id"]))
     f = frames[len(frames) // 2]
     K = np.asarray(ds.manifest["camera"]["K"], float)
     rgb = sensor.srgb_decode(ds.load_image(f)).astype(np.float32)
-    passes = {"rgb": rgb, "albedo": np.full_like(rgb, 0.5),
-              "range_m": np.asarray(load_range(ds.frame_file(f, "depth")), np.float32),   # 1.1 PNG or 1.0 NPZ
-              "index": load_index(ds.frame_file(f, "object_index"))}
+    passes = {
+        "rgb": rgb,
+        "albedo": np.full_like(rgb, 0.5),
+        "range_m": np.asarray(load_range(ds.frame_file(f, "depth")), np.float32),  # 1.1 PNG or 1.0 NPZ
+        "index": load_index(ds.frame_file(f, "object_index")),
+    }
     frame = {"T_world_cam": f["T_world_cam"]}
     markers = ds.markers
     T_wd = np.asarray(ds.manifest["dock"]["T_world_dock"], float)
 
     def state(mode, world=None, lamps=(), **sens):
-        return compose.SequenceState.start(SequencePost(
-            seed=0, fps=10, image_formation=mode, water=Water(preset="mild"), light_depth_m=1.0, surface_z_m=0.0,
-            irradiance_w_m2=3.2, sensor=Sensor(**sens), world=world, lamps=list(lamps),
-            lamp_forward_kept=0.85 if lamps else None))
+        return compose.SequenceState.start(
+            SequencePost(
+                seed=0,
+                fps=10,
+                image_formation=mode,
+                water=Water(preset="mild"),
+                light_depth_m=1.0,
+                surface_z_m=0.0,
+                irradiance_w_m2=3.2,
+                sensor=Sensor(**sens),
+                world=world,
+                lamps=list(lamps),
+                lamp_forward_kept=0.85 if lamps else None,
+            )
+        )
+
     phys, art = state("physical", noise=False), state("article")
-    surf, caus = (state("physical", WorldPost(surface=s, caustics=not s, wind_mps=1.0, wave_seed=0, sky_radiance=0.21,
-                                              ambient_radiance=0.34, sun_travel_dir=[0.0, -0.5, -0.866]),
-                        noise=False) for s in (True, False))
-    compose.water_image(passes, caus, K, frame["T_world_cam"], markers, t=0.3)   # per-sequence caustic table
+    surf, caus = (
+        state(
+            "physical",
+            WorldPost(
+                surface=s,
+                caustics=not s,
+                wind_mps=1.0,
+                wave_seed=0,
+                sky_radiance=0.21,
+                ambient_radiance=0.34,
+                sun_travel_dir=[0.0, -0.5, -0.866],
+            ),
+            noise=False,
+        )
+        for s in (True, False)
+    )
+    compose.water_image(passes, caus, K, frame["T_world_cam"], markers, t=0.3)  # per-sequence caustic table
     from blendgen.config.models import Lamp
     from blendgen.physics.light import lamp_shadow, lamp_water
     from blendgen.tools.bench.lamp_bench import DEMO_LAMP
+
     lamp = state("physical", lamps=[Lamp(**DEMO_LAMP)], noise=False)
     noshadow = compose.SequenceState.start(lamp.post.model_copy(update={"lamp_shadows": False}))
     lit = {**passes, "normal": np.broadcast_to(np.float32([0, 0, 1]), rgb.shape).copy()}
@@ -117,51 +157,91 @@ def term_costs(dataset: Path) -> pd.DataFrame:
     rows = [
         ("ambient (albedo x L)", lambda: compose.add_ambient(dict(passes), 0.34)),
         ("surface depth map", lambda: compose.surface_depth(passes["range_m"], K, frame["T_world_cam"], 0.0)),
-        ("water physical (incl. depth map)", lambda: compose.water_image(passes, phys, K, frame["T_world_cam"], markers)),
+        (
+            "water physical (incl. depth map)",
+            lambda: compose.water_image(passes, phys, K, frame["T_world_cam"], markers),
+        ),
         ("water article", lambda: compose.water_image(passes, art, K, frame["T_world_cam"], markers)),
-        ("water physical + surface (Snell's window)",
-         lambda: compose.water_image(passes, surf, K, frame["T_world_cam"], markers, t=0.3)),
-        ("water physical + caustics", lambda: compose.water_image(passes, caus, K, frame["T_world_cam"], markers, t=0.3)),
+        (
+            "water physical + surface (Snell's window)",
+            lambda: compose.water_image(passes, surf, K, frame["T_world_cam"], markers, t=0.3),
+        ),
+        (
+            "water physical + caustics",
+            lambda: compose.water_image(passes, caus, K, frame["T_world_cam"], markers, t=0.3),
+        ),
         ("water physical + vehicle lamp", lambda: compose.water_image(lit, lamp, K, frame["T_world_cam"], markers)),
         ("  vehicle lamp (surfaces + veil)", lambda: compose.lamp_image(lit, lamp.lamp, K, frame["T_world_cam"])),
         ("  of which backscatter veil", lambda: lamp_water.backscatter(lamp.lamp, K, passes["range_m"])),
-        ("  of which lamp shadows (screen-space test)", lambda: lamp_shadow.visibility(
-            lamp.lamp.lights[0].position_m, K, compose._unit_rays(tuple(K.ravel()), rgb.shape[1], rgb.shape[0]),
-            passes["range_m"])),
+        (
+            "  of which lamp shadows (screen-space test)",
+            lambda: lamp_shadow.visibility(
+                lamp.lamp.lights[0].position_m,
+                K,
+                compose._unit_rays(tuple(K.ravel()), rgb.shape[1], rgb.shape[0]),
+                passes["range_m"],
+            ),
+        ),
         ("  vehicle lamp without shadows", lambda: compose.lamp_image(lit, noshadow.lamp, K, frame["T_world_cam"])),
-        ("  of which LED glow", lambda: optics.add_emitter_glow(
-            rgb, compose.emissive_mask(passes["index"], markers), passes["range_m"], phys.water, float(K[0, 0]))),
+        (
+            "  of which LED glow",
+            lambda: optics.add_emitter_glow(
+                rgb, compose.emissive_mask(passes["index"], markers), passes["range_m"], phys.water, float(K[0, 0])
+            ),
+        ),
         ("8-bit sRGB encode only (before: to_uint8)", lambda: sensor.to_uint8(rgb)),
         ("sensor, no noise", lambda: phys.camera.apply(rgb, phys.rng)),
         ("sensor, shot + read noise", lambda: noisy.camera.apply(rgb, noisy.rng)),
         ("sensor, blooming", lambda: bloom.camera.apply(rgb * 20, bloom.rng)),
-        ("LEDs light nearby surfaces (physical)", lambda: compose.led_light(
-            passes, phys, K, frame["T_world_cam"], markers, T_wd)),
-        ("  LEDs light: no LED array (off)", lambda: compose.led_light(passes, phys, K, frame["T_world_cam"], [], T_wd)),
-        ("auto-exposure metering (99.9 percentile)", lambda: sensor.AutoExposure().next_exposure(
-            rgb, 0.004, phys.camera, 0.1)),
+        (
+            "LEDs light nearby surfaces (physical)",
+            lambda: compose.led_light(passes, phys, K, frame["T_world_cam"], markers, T_wd),
+        ),
+        (
+            "  LEDs light: no LED array (off)",
+            lambda: compose.led_light(passes, phys, K, frame["T_world_cam"], [], T_wd),
+        ),
+        (
+            "auto-exposure metering (99.9 percentile)",
+            lambda: sensor.AutoExposure().next_exposure(rgb, 0.004, phys.camera, 0.1),
+        ),
         ("motion blur 5 px", lambda: sensor.motion_blur(rgb, (5.0, 1.0))),
-        ("distortion RGB + index + range", lambda: (sensor.distort_image(rgb, K, dist),
-                                                    compose.output_passes(passes, K, dist))),
+        (
+            "distortion RGB + index + range",
+            lambda: (sensor.distort_image(rgb, K, dist), compose.output_passes(passes, K, dist)),
+        ),
     ]
-    return pd.DataFrame([{"term": name, "ms_per_frame": _median_ms(fn), "cpu_ms_per_frame": _median_ms(fn, clock=time.process_time)}
-                         for name, fn in rows])
+    return pd.DataFrame(
+        [
+            {"term": name, "ms_per_frame": _median_ms(fn), "cpu_ms_per_frame": _median_ms(fn, clock=time.process_time)}
+            for name, fn in rows
+        ]
+    )
 
 
 def localizer_speed(dataset: Path) -> pd.DataFrame:
     """Frames/s of each built-in localizer on one core over a rendered dataset."""
     import cv2
+
     from evalkit import registry, runner
     from evalkit.dataset import Dataset
+
     cv2.setNumThreads(1)
     ds = Dataset.open(dataset)
     rows = []
     for name in LOCALIZERS:
         df = runner.evaluate(ds, [(name, registry.resolve(name, {}))], progress=False)
         ms = df["ms"].to_numpy()
-        rows.append({"localizer": name, "frames": len(ms), "median_ms": float(np.median(ms)),
-                     "p95_ms": float(np.percentile(ms, 95)), "frames_per_s": 1e3 / float(np.mean(ms)),
-                     "P_succ_in_view": float(df.loc[df["in_view"], "success"].mean())})
+        rows.append(
+            {
+                "localizer": name,
+                "frames": len(ms),
+                "median_ms": float(np.median(ms)),
+                "p95_ms": float(np.percentile(ms, 95)),
+                "frames_per_s": 1e3 / float(np.mean(ms)),
+                "P_succ_in_view": float(df.loc[df["in_view"], "success"].mean()),
+            }
+        )
     return pd.DataFrame(rows)
 
 
@@ -170,6 +250,7 @@ def load_sequences(dataset: Path) -> tuple:
     every image decoded once up front, so that timings hold only the localizer."""
     from evalkit import runner
     from evalkit.dataset import Dataset
+
     ds = Dataset.open(dataset)
     seqs = [(s["id"], [(f, ds.load_image(f)) for f in ds.iter_frames(s["id"])]) for s in ds.sequences]
     return ds, runner.camera_for_localizers(ds), seqs
@@ -186,18 +267,28 @@ def time_localizer(loc, camera: dict, seqs) -> pd.DataFrame:
             est = loc.localize(img)
             cpu, wall = 1e3 * (time.thread_time() - c0), 1e3 * (time.perf_counter() - w0)
             markers = frame.get("markers") or {}
-            rows.append({"sequence": seq_id, "d_true": frame.get("d_true"), "cpu_ms": cpu, "wall_ms": wall,
-                         "in_view": any(bool(m.get("in_fov")) for m in markers.values()),
-                         "in_fov": {k: bool(m.get("in_fov")) for k, m in markers.items()},
-                         "success": isinstance(est, dict), "marker": est.get("marker_id") if est else None,
-                         "d_est": float(est["distance"]) if est else np.nan})
+            rows.append(
+                {
+                    "sequence": seq_id,
+                    "d_true": frame.get("d_true"),
+                    "cpu_ms": cpu,
+                    "wall_ms": wall,
+                    "in_view": any(bool(m.get("in_fov")) for m in markers.values()),
+                    "in_fov": {k: bool(m.get("in_fov")) for k, m in markers.items()},
+                    "success": isinstance(est, dict),
+                    "marker": est.get("marker_id") if est else None,
+                    "d_est": float(est["distance"]) if est else np.nan,
+                }
+            )
     return pd.DataFrame(rows)
 
 
 def localizer_cpu_table(dataset: Path, names=LOCALIZERS) -> pd.DataFrame:
     """CPU ms per frame (one thread) of each localizer, default parameters, frames in order."""
     import cv2
+
     from evalkit import registry
+
     cv2.setNumThreads(1)
     _, camera, seqs = load_sequences(dataset)
     rows = []
@@ -205,12 +296,19 @@ def localizer_cpu_table(dataset: Path, names=LOCALIZERS) -> pd.DataFrame:
         loc = registry.resolve(name, {})
         df = time_localizer(loc, camera, seqs)
         cpu = df["cpu_ms"].to_numpy()
-        rows.append({"localizer": name, "frames": len(df), "cpu_ms_median": float(np.median(cpu)),
-                     "cpu_ms_mean": float(cpu.mean()), "cpu_ms_p95": float(np.percentile(cpu, 95)),
-                     "wall_ms_median": float(df["wall_ms"].median()),
-                     "P_succ_in_view": float(df.loc[df["in_view"], "success"].mean()),
-                     "estimates_by_marker": " ".join(f"{k}:{v}" for k, v in df["marker"].value_counts().items()),
-                     "near_range_m": getattr(loc, "near_range_m", np.nan)})  # the hybrid's QR range
+        rows.append(
+            {
+                "localizer": name,
+                "frames": len(df),
+                "cpu_ms_median": float(np.median(cpu)),
+                "cpu_ms_mean": float(cpu.mean()),
+                "cpu_ms_p95": float(np.percentile(cpu, 95)),
+                "wall_ms_median": float(df["wall_ms"].median()),
+                "P_succ_in_view": float(df.loc[df["in_view"], "success"].mean()),
+                "estimates_by_marker": " ".join(f"{k}:{v}" for k, v in df["marker"].value_counts().items()),
+                "near_range_m": getattr(loc, "near_range_m", np.nan),
+            }
+        )  # the hybrid's QR range
     return pd.DataFrame(rows)
 
 
@@ -219,7 +317,9 @@ def qr_decode_table(dataset: Path, detectors=QR_DETECTORS, marker_id: str | None
     (payload decoded and pose solved) per d_true bin, the farthest success and its
     px/module (f * module_size_m / d_true), CPU ms median (one thread)."""
     import cv2
+
     from evalkit.localizers.qr import QrLocalizer
+
     cv2.setNumThreads(1)
     ds, camera, seqs = load_sequences(dataset)
     qr = next(m for m in ds.markers if (m["id"] == marker_id if marker_id else m["kind"] == "qr"))
@@ -246,7 +346,9 @@ def led_centroid_table(dataset: Path) -> pd.DataFrame:
     mode (intensity-weighted vs saturated core) and d_true bin: each true LED in the image
     is matched to the nearest candidate blob (within 5 px)."""
     import cv2
+
     from evalkit.localizers.led import LedLocalizer
+
     ds, camera, seqs = load_sequences(dataset)
     led = next(m for m in ds.markers if m["kind"] == "led_array")
     K = np.asarray(camera["K"], float).reshape(3, 3)
@@ -283,12 +385,14 @@ def led_centroid_table(dataset: Path) -> pd.DataFrame:
 def run_localizer_bench(dataset: Path, out: Path) -> None:
     """Print and write OUT/bench_localizer_cpu.csv and OUT/bench_qr_decoders.csv."""
     from evalkit.reports.tables import print_table
+
     out.mkdir(parents=True, exist_ok=True)
     cpu = localizer_cpu_table(dataset)
     click.echo("localizers, CPU ms per frame on one thread (cv2.setNumThreads(1), images decoded beforehand):")
     print_table(cpu, floatfmt=".2f")
     cpu.to_csv(out / "bench_localizer_cpu.csv", index=False)
     from evalkit.dataset import Dataset
+
     kinds = {m.get("kind") for m in Dataset.open(dataset).markers}
     for kind, table in (("qr", "QR decoders"), ("led_array", "LED centroids")):
         if kind not in kinds:
@@ -310,6 +414,7 @@ def run_localizer_bench(dataset: Path, out: Path) -> None:
 def run_bench(out: Path, frames: int, samples: tuple[int, ...]) -> None:
     """Run and print both tables; write them to OUT/bench_render.csv and OUT/bench_localizers.csv."""
     from evalkit.reports.tables import print_table
+
     out.mkdir(parents=True, exist_ok=True)
     rows = []
     for mode in ("physical", "article"):

@@ -23,6 +23,7 @@ and a linear extrapolation to 100 trials. Stage CPU comes from the workers' own 
 is asserted. On a shared machine wall times include waiting for other users' work;
 CPU seconds do not.
 """
+
 from __future__ import annotations
 
 import json
@@ -130,6 +131,7 @@ def stage_totals(dataset_dirs: list[Path]) -> dict[str, float]:
 @dataclass
 class SuiteRun:
     """Figures of one measured run (seconds, MB)."""
+
     label: str
     trials: int
     width: int
@@ -144,7 +146,7 @@ class SuiteRun:
     wall: dict = field(default_factory=dict)
     peak_rss_mb: float = 0.0
     disk: dict = field(default_factory=dict)
-    path: str = "generate+evaluate"      # or "run --images POLICY" (evaluated while rendering)
+    path: str = "generate+evaluate"  # or "run --images POLICY" (evaluated while rendering)
 
 
 @dataclass(frozen=True)
@@ -154,6 +156,7 @@ class Overrides:
     ``size`` (width, height) px; ``particles``: the occlusion experiment keeps one
     condition with this many small obstacles; ``max_distance_m``: only frames within this
     distance of the dock are rendered; ``samples``: Cycles samples in the dock's region."""
+
     size: tuple[int, int] | None = None
     particles: int | None = None
     max_distance_m: float | None = None
@@ -170,6 +173,7 @@ class Overrides:
 def configure(names: tuple[str, ...], trials: int, ov: Overrides = Overrides()):
     """The paper experiments with ``trials`` and the overrides ``ov``."""
     from blendgen.tools.apps.reproduce import experiment
+
     exps = []
     for n in names:
         e = experiment(n, trials)
@@ -189,19 +193,27 @@ def configure(names: tuple[str, ...], trials: int, ov: Overrides = Overrides()):
     return exps
 
 
-def run_suite(exps: list, out: Path, label: str, workers: int | None, evaluate: bool = True,
-              images: str = "all") -> SuiteRun:
+def run_suite(
+    exps: list, out: Path, label: str, workers: int | None, evaluate: bool = True, images: str = "all"
+) -> SuiteRun:
     """Generate ``exps`` together into ``out/<name>/dataset``, evaluate each, measure.
     ``images`` other than ``all``: the streaming path of ``dockbench run`` instead."""
     from blendgen.pipeline.generate import generate_many
     from blendgen.tools.apps.reproduce import evaluate as run_eval
+
     if out.exists():
         shutil.rmtree(out)
     dsets = [out / e.name / "dataset" for e in exps]
     c = exps[0].camera
     occ = [f"{cnd.occlusion.n_total:g}" for e in exps for cnd in e.conditions if cnd.occlusion]
-    run = SuiteRun(label, exps[0].trials, c.width, c.height, "/".join(occ) or "-",
-                   ",".join(e.name.split("-")[0].removeprefix("paper_") for e in exps))
+    run = SuiteRun(
+        label,
+        exps[0].trials,
+        c.width,
+        c.height,
+        "/".join(occ) or "-",
+        ",".join(e.name.split("-")[0].removeprefix("paper_") for e in exps),
+    )
     if images != "all" and evaluate:
         return _stream_suite(exps, out, run, workers, images)
     with TreeRSS() as rss:
@@ -224,12 +236,14 @@ def _stream_suite(exps: list, out: Path, run: SuiteRun, workers: int | None, ima
     parent's metrics/tables; its wall, the summed wall of the evaluation workers."""
     from blendgen.tools.apps.reproduce import LOCALIZERS
     from blendgen.tools.apps.streamrun import RunRequest, stream_run
+
     run.path = f"run --images {images}"
     bases = [out / e.name for e in exps]
     with TreeRSS() as rss:
         c0, w0 = both_cpu_s(), time.perf_counter()
-        res = stream_run(list(zip(exps, bases)), RunRequest(list(LOCALIZERS), images=images, workers=workers,
-                                                            progress=False))
+        res = stream_run(
+            list(zip(exps, bases)), RunRequest(list(LOCALIZERS), images=images, workers=workers, progress=False)
+        )
         cpu, wall = both_cpu_s() - c0, time.perf_counter() - w0
     run.peak_rss_mb = rss.peak_mb
     costs = [json.loads(p.read_text()) for b in bases for p in (b / ".stream").glob("*/*.cost.json")]
@@ -262,10 +276,18 @@ def _fill_counts(run: SuiteRun, mans: list[dict], dsets: list[Path], out: Path) 
 def stage_table(run: SuiteRun):
     """Rows stage, CPU s, wall s (wall of render/compose/write: summed over workers)."""
     import pandas as pd
-    rows = [{"stage": s, "cpu_s": run.cpu.get(s), "wall_s": run.wall.get(s, float("nan"))}
-            for s in (*STAGES, "generate_other", "generate", "evaluate")]
-    rows.append({"stage": "total", "cpu_s": run.cpu["generate"] + run.cpu["evaluate"],
-                 "wall_s": run.wall.get("total", run.wall["generate"] + run.wall["evaluate"])})
+
+    rows = [
+        {"stage": s, "cpu_s": run.cpu.get(s), "wall_s": run.wall.get(s, float("nan"))}
+        for s in (*STAGES, "generate_other", "generate", "evaluate")
+    ]
+    rows.append(
+        {
+            "stage": "total",
+            "cpu_s": run.cpu["generate"] + run.cpu["evaluate"],
+            "wall_s": run.wall.get("total", run.wall["generate"] + run.wall["evaluate"]),
+        }
+    )
     return pd.DataFrame(rows)
 
 
@@ -275,23 +297,40 @@ def extrapolate(run: SuiteRun, trials: int = 100, cores: int | None = None) -> d
     k = trials / run.trials
     cores = cores or os.cpu_count() or 1
     cpu = (run.cpu["generate"] + run.cpu["evaluate"]) * k
-    return {"trials": trials, "cpu_h": cpu / 3600, "cpu_bound_wall_h": cpu / cores / 3600, "cores": cores,
-            "measured_wall_scaled_h": run.wall.get("total", run.wall["generate"] + run.wall["evaluate"]) * k / 3600,
-            "disk_gb": run.disk["total"] * k / 1e3, "disk_without_images_gb": run.disk["without_images"] * k / 1e3,
-            "peak_rss_mb": run.peak_rss_mb}
+    return {
+        "trials": trials,
+        "cpu_h": cpu / 3600,
+        "cpu_bound_wall_h": cpu / cores / 3600,
+        "cores": cores,
+        "measured_wall_scaled_h": run.wall.get("total", run.wall["generate"] + run.wall["evaluate"]) * k / 3600,
+        "disk_gb": run.disk["total"] * k / 1e3,
+        "disk_without_images_gb": run.disk["without_images"] * k / 1e3,
+        "peak_rss_mb": run.peak_rss_mb,
+    }
 
 
 def scaling_row(run: SuiteRun) -> dict:
     per_trial_cpu = (run.cpu["generate"] + run.cpu["evaluate"]) / run.trials
-    return {"label": run.label, "experiments": run.experiments, "trials": run.trials,
-            "size": f"{run.width}x{run.height}", "particles": run.particles, "renders": run.renders,
-            "frames_rendered": run.frames_rendered, "frames_written": run.frames_written,
-            "render_cpu_s": run.cpu["render"], "compose_cpu_s": run.cpu["compose"],
-            "write_cpu_s": run.cpu["write"], "evaluate_cpu_s": run.cpu["evaluate"],
-            "cpu_s_per_trial": per_trial_cpu,
-            "wall_s": run.wall.get("total", run.wall["generate"] + run.wall["evaluate"]), "path": run.path,
-            "peak_rss_mb": run.peak_rss_mb, "disk_mb": run.disk["total"],
-            "disk_mb_without_images": run.disk["without_images"]}
+    return {
+        "label": run.label,
+        "experiments": run.experiments,
+        "trials": run.trials,
+        "size": f"{run.width}x{run.height}",
+        "particles": run.particles,
+        "renders": run.renders,
+        "frames_rendered": run.frames_rendered,
+        "frames_written": run.frames_written,
+        "render_cpu_s": run.cpu["render"],
+        "compose_cpu_s": run.cpu["compose"],
+        "write_cpu_s": run.cpu["write"],
+        "evaluate_cpu_s": run.cpu["evaluate"],
+        "cpu_s_per_trial": per_trial_cpu,
+        "wall_s": run.wall.get("total", run.wall["generate"] + run.wall["evaluate"]),
+        "path": run.path,
+        "peak_rss_mb": run.peak_rss_mb,
+        "disk_mb": run.disk["total"],
+        "disk_mb_without_images": run.disk["without_images"],
+    }
 
 
 def save(run: SuiteRun, out: Path) -> None:
@@ -312,29 +351,39 @@ SCALING = (  # (label, experiments, trials, size, particles): one factor at a ti
 
 def print_run(run: SuiteRun) -> None:
     import click
+
     from evalkit.reports.tables import print_table
-    click.echo(f"\n{run.label} ({run.path}): {run.experiments}, {run.trials} trial(s), {run.width}x{run.height}: "
-               f"{run.renders} renders / {run.frames_rendered} rendered frames -> {run.sequences} sequences / "
-               f"{run.frames_written} written frames")
+
+    click.echo(
+        f"\n{run.label} ({run.path}): {run.experiments}, {run.trials} trial(s), {run.width}x{run.height}: "
+        f"{run.renders} renders / {run.frames_rendered} rendered frames -> {run.sequences} sequences / "
+        f"{run.frames_written} written frames"
+    )
     print_table(stage_table(run), floatfmt=".1f")
     d = run.disk
-    click.echo(f"peak RSS of the process tree {run.peak_rss_mb:.0f} MB; disk {d['total']:.1f} MB "
-               f"(camera images {d['images']:.1f}, shared range/index passes {d['passes']:.1f}, "
-               f"without images {d['without_images']:.1f})")
+    click.echo(
+        f"peak RSS of the process tree {run.peak_rss_mb:.0f} MB; disk {d['total']:.1f} MB "
+        f"(camera images {d['images']:.1f}, shared range/index passes {d['passes']:.1f}, "
+        f"without images {d['without_images']:.1f})"
+    )
     x = extrapolate(run)
-    click.echo(f"extrapolated to {x['trials']} trials (linear in trials; machine shared, so wall is an upper "
-               f"bound): {x['cpu_h']:.2f} CPU-h = {x['cpu_bound_wall_h']:.2f} h on {x['cores']} idle cores; "
-               f"measured wall x {x['trials']}/{run.trials} = {x['measured_wall_scaled_h']:.2f} h; disk "
-               f"{x['disk_gb']:.1f} GB ({x['disk_without_images_gb']:.1f} GB without images); "
-               f"peak RSS {x['peak_rss_mb']:.0f} MB (bounded in trials: a render worker is replaced "
-               f"above executor.RECYCLE_MB)")
+    click.echo(
+        f"extrapolated to {x['trials']} trials (linear in trials; machine shared, so wall is an upper "
+        f"bound): {x['cpu_h']:.2f} CPU-h = {x['cpu_bound_wall_h']:.2f} h on {x['cores']} idle cores; "
+        f"measured wall x {x['trials']}/{run.trials} = {x['measured_wall_scaled_h']:.2f} h; disk "
+        f"{x['disk_gb']:.1f} GB ({x['disk_without_images_gb']:.1f} GB without images); "
+        f"peak RSS {x['peak_rss_mb']:.0f} MB (bounded in trials: a render worker is replaced "
+        f"above executor.RECYCLE_MB)"
+    )
 
 
 def print_recorded(out: Path) -> None:
     """Print the scaling table of every run recorded in ``out/bench_suite.jsonl``."""
     import click
     import pandas as pd
+
     from evalkit.reports.tables import print_table
+
     path = out / "bench_suite.jsonl"
     if not path.is_file():
         raise click.UsageError(f"{path}: no recorded runs; run `dockbench bench suite -o {out}` first")
@@ -345,19 +394,30 @@ def print_recorded(out: Path) -> None:
     df.to_csv(out / "bench_scaling.csv", index=False)
 
 
-def bench_suite(trials: int, names: tuple[str, ...], ov: Overrides, out: Path, workers: int | None,
-                scaling: bool, evaluate: bool, images: str = "all") -> None:
+def bench_suite(
+    trials: int,
+    names: tuple[str, ...],
+    ov: Overrides,
+    out: Path,
+    workers: int | None,
+    scaling: bool,
+    evaluate: bool,
+    images: str = "all",
+) -> None:
     """The ``bench suite`` command body (see the module docstring); parameters are its options."""
     import click
     import pandas as pd
+
     from evalkit.reports.tables import print_table
+
     if scaling:
         rows = []
         for label, exps, n, sz, p in SCALING:
             click.echo(f"scaling run: {label} ...", err=True)
             row_ov = Overrides(sz, p, ov.max_distance_m, ov.samples)
-            run = run_suite(configure(exps, n, row_ov), out / "scaling" / label.replace(" ", "_"), label,
-                            workers, evaluate, images)
+            run = run_suite(
+                configure(exps, n, row_ov), out / "scaling" / label.replace(" ", "_"), label, workers, evaluate, images
+            )
             save(run, out)
             rows.append(scaling_row(run))
         df = pd.DataFrame(rows)
@@ -365,8 +425,11 @@ def bench_suite(trials: int, names: tuple[str, ...], ov: Overrides, out: Path, w
         print_table(df, floatfmt=".1f")
         df.to_csv(out / "bench_scaling.csv", index=False)
         return
-    label = "-".join([f"t{trials}", *names] + ([ov.tag()] if ov.tag() else [])
-                     + ([f"images-{images.replace(':', '')}"] if images != "all" else []))
+    label = "-".join(
+        [f"t{trials}", *names]
+        + ([ov.tag()] if ov.tag() else [])
+        + ([f"images-{images.replace(':', '')}"] if images != "all" else [])
+    )
     run = run_suite(configure(names, trials, ov), out / "suite", label, workers, evaluate, images)
     save(run, out)
     print_run(run)

@@ -13,6 +13,7 @@ grid (:data:`GRID`); the file keeps the references, kappa, the model's values an
 relative residual per point, with the method, so ``dockbench bench fidelity`` can publish
 them and a test can check that the stored calibration reproduces them.
 """
+
 from __future__ import annotations
 
 import datetime as _dt
@@ -33,8 +34,20 @@ BOUNCES, SPP, SIZE = 64, 1024, 16
 CONVERGENCE = {0: 0.00333, 8: 0.01491, 16: 0.01575, 32: 0.01594, 64: 0.01594, 128: 0.01594}
 TARGET_X_M, BOX_HALF_M = 150.0, 200.0
 #: Presets measured; bare ``clear`` is Jerlov I in the physical mode and shares its entry.
-PRESETS = ("mild", "moderate", "jerlov_I", "jerlov_IA", "jerlov_IB", "jerlov_II", "jerlov_III",
-           "jerlov_1C", "jerlov_3C", "jerlov_5C", "jerlov_7C", "jerlov_9C")
+PRESETS = (
+    "mild",
+    "moderate",
+    "jerlov_I",
+    "jerlov_IA",
+    "jerlov_IB",
+    "jerlov_II",
+    "jerlov_III",
+    "jerlov_1C",
+    "jerlov_3C",
+    "jerlov_5C",
+    "jerlov_7C",
+    "jerlov_9C",
+)
 ALIASES = {"clear": "jerlov_I"}
 
 
@@ -44,20 +57,31 @@ def physical_water(preset: str):
     type, calibrated under that type's name)."""
     from blendgen.config.models import Water, article_grey_spec
     from blendgen.physics.water import optics
+
     spec = article_grey_spec(preset) if preset in optics.ARTICLE_PRESETS else Water(preset=preset)
     return optics.water_for_mode(spec, "physical")
 
 
-def reference_spec(water, depth_m: float, elevation_deg: float, bounces: int = BOUNCES, spp: int = SPP,
-                   size: int = SIZE, seed: int = 1) -> dict:
+def reference_spec(
+    water, depth_m: float, elevation_deg: float, bounces: int = BOUNCES, spp: int = SPP, size: int = SIZE, seed: int = 1
+) -> dict:
     """oracle_scenes spec of one veil reference (module docstring)."""
     box = {"box_min": [-BOX_HALF_M] * 3, "box_max": [BOX_HALF_M, BOX_HALF_M, 0.0]}
-    return {"water": {"sigma_a": water.sigma_a.tolist(), "sigma_s": water.sigma_s.tolist(), "phase": water.phase,
-                      "g": float(water.g), "ff_ior": float(water.ff_ior),
-                      "ff_backscatter": float(water.ff_backscatter), **box},
-            "camera": {"z": -float(depth_m), "clip_start": 0.001, "pitch_deg": float(elevation_deg)},
-            "target": {"kind": "black", "x": TARGET_X_M}, "sun": {"direction": [0, 0, -1], "strength": 1.0},
-            "render": {"width": size, "height": size, "samples": spp, "volume_bounces": int(bounces), "seed": seed}}
+    return {
+        "water": {
+            "sigma_a": water.sigma_a.tolist(),
+            "sigma_s": water.sigma_s.tolist(),
+            "phase": water.phase,
+            "g": float(water.g),
+            "ff_ior": float(water.ff_ior),
+            "ff_backscatter": float(water.ff_backscatter),
+            **box,
+        },
+        "camera": {"z": -float(depth_m), "clip_start": 0.001, "pitch_deg": float(elevation_deg)},
+        "target": {"kind": "black", "x": TARGET_X_M},
+        "sun": {"direction": [0, 0, -1], "strength": 1.0},
+        "render": {"width": size, "height": size, "samples": spp, "volume_bounces": int(bounces), "seed": seed},
+    }
 
 
 def render_reference(spec: dict, work: Path) -> tuple[np.ndarray, float]:
@@ -66,8 +90,9 @@ def render_reference(spec: dict, work: Path) -> tuple[np.ndarray, float]:
     p = work / f"veil-{time.time_ns()}.json"
     p.write_text(json.dumps(spec))
     t0 = time.perf_counter()
-    res = subprocess.run([sys.executable, "-m", "blendgen.blender.oracle_scenes", str(p)],
-                         capture_output=True, text=True, timeout=900)
+    res = subprocess.run(
+        [sys.executable, "-m", "blendgen.blender.oracle_scenes", str(p)], capture_output=True, text=True, timeout=900
+    )
     if res.returncode != 0:
         raise RuntimeError(f"veil reference render failed: {res.stderr[-1500:]}")
     return np.array(json.loads(res.stdout.strip().splitlines()[-1])["mean"]), time.perf_counter() - t0
@@ -76,8 +101,18 @@ def render_reference(spec: dict, work: Path) -> tuple[np.ndarray, float]:
 def model_value(water, depth_m: float, elevation_deg: float, kappa, K_v, eta: float = 0.0, parts: bool = False):
     """The veil model per unit E_d0 (3,) for the oracle geometry (sun overhead)."""
     from blendgen.physics.water import optics, veil
-    return veil.veil_radiance(water.sigma_a, water.sigma_s, K_v, lambda t: optics.phase_value(water, t),
-                              kappa, depth_m, math.radians(elevation_deg), eta=eta, parts=parts)
+
+    return veil.veil_radiance(
+        water.sigma_a,
+        water.sigma_s,
+        K_v,
+        lambda t: optics.phase_value(water, t),
+        kappa,
+        depth_m,
+        math.radians(elevation_deg),
+        eta=eta,
+        parts=parts,
+    )
 
 
 ETA_GRID = np.round(np.linspace(0.0, 1.0, 11), 2)
@@ -89,6 +124,7 @@ def fit_preset(water, points: list[dict]) -> tuple[np.ndarray, np.ndarray, float
     dim faster than the beam; the transient field above 6 m can dim slower than absorption); the eta with the least
     total squared relative residual."""
     from blendgen.physics.water import veil
+
     hs = [(p["depth_m"], p["elevation_deg"]) for p in points]
     ref = np.array([p["reference"] for p in points])
     beam = np.array([model_value(water, h, el, 0.0, 0.0) for h, el in hs])
@@ -100,8 +136,8 @@ def fit_preset(water, points: list[dict]) -> tuple[np.ndarray, np.ndarray, float
                 continue
 
             def shape(K, ch=ch):
-                return np.array([model_value(water, h, el, 1.0, np.full(3, K), eta, parts=True)[1][ch]
-                                 for h, el in hs])
+                return np.array([model_value(water, h, el, 1.0, np.full(3, K), eta, parts=True)[1][ch] for h, el in hs])
+
             kappa[ch], K_v[ch] = veil.fit_channel(beam[:, ch], ref[:, ch], shape, (0.0, float(water.c[ch])))
         fast = np.array([model_value(water, h, el, kappa, K_v, eta) for h, el in hs])
         err = float(np.sum((np.divide(fast - ref, ref, out=np.zeros_like(ref), where=ref > 0)) ** 2))
@@ -118,7 +154,9 @@ def residuals(water, entry: dict) -> dict:
         fast = model_value(water, p["depth_m"], p["elevation_deg"], kappa, K_v, eta)
         p["fast"] = fast.round(7).tolist()
         p["rel_residual"] = np.divide(fast - ref, ref, out=np.zeros(3), where=ref > 0).round(4).tolist()
-        p["fast_isotropic_estimate"] = model_value(water, p["depth_m"], p["elevation_deg"], 1.0, water.Kd).round(7).tolist()
+        p["fast_isotropic_estimate"] = (
+            model_value(water, p["depth_m"], p["elevation_deg"], 1.0, water.Kd).round(7).tolist()
+        )
     entry["max_abs_rel_residual"] = float(np.max(np.abs([p["rel_residual"] for p in entry["points"]])))
     return entry
 
@@ -132,10 +170,16 @@ def measure_preset(name: str, work: Path, echo=print) -> dict:
         points.append({"depth_m": h, "elevation_deg": el, "reference": ref.round(7).tolist(), "seconds": round(sec, 1)})
         echo(f"veil {name}: h {h:g} m, elevation {el:+g} deg: reference {np.round(ref, 5).tolist()} ({sec:.1f} s)")
     ss, sec = render_reference(reference_spec(w, 3.0, 0.0, bounces=0), work)
-    entry = {"points": points,
-             "single_scatter_check": {"depth_m": 3.0, "elevation_deg": 0.0, "reference_0_bounces": ss.round(7).tolist(),
-                                      "beam_term": model_value(w, 3.0, 0.0, 0.0, 0.0).round(7).tolist(),
-                                      "seconds": round(sec, 1)}}
+    entry = {
+        "points": points,
+        "single_scatter_check": {
+            "depth_m": 3.0,
+            "elevation_deg": 0.0,
+            "reference_0_bounces": ss.round(7).tolist(),
+            "beam_term": model_value(w, 3.0, 0.0, 0.0, 0.0).round(7).tolist(),
+            "seconds": round(sec, 1),
+        },
+    }
     return refit(name, entry)
 
 
@@ -158,6 +202,7 @@ def check_data_file(path: Path) -> dict:
     :class:`~blendgen.config.models.ConfigError` (one line: file, what, the allowed form)."""
     from blendgen.config.models import ConfigError
     from blendgen.physics.water import optics
+
     path = Path(path)
     if not path.exists():
         return dict(optics.load_calibration()) or {"version": 1}
@@ -172,8 +217,9 @@ def check_data_file(path: Path) -> dict:
         raise ConfigError(f"--data {path}: top level is {type(data).__name__}; expected {allowed}")
     unknown = sorted(set(data) - set(CALIBRATION_KEYS))
     if unknown:
-        raise ConfigError(f"--data {path}: unknown key {unknown[0]!r} (not a dockbench calibration file?); "
-                          f"expected {allowed}")
+        raise ConfigError(
+            f"--data {path}: unknown key {unknown[0]!r} (not a dockbench calibration file?); expected {allowed}"
+        )
     return data
 
 
@@ -189,14 +235,19 @@ def run(work: Path, data_path: Path, presets=PRESETS, echo=print) -> dict:
             entries[alias] = entries[src]
     old = (data.get("veil") or {}).get("presets", {})
     data["veil"] = {
-        "method": (f"kappa, K_v per preset and channel: relative least squares of reference = beam + diffuse(kappa, K_v) "
-                   f"(blendgen.physics.water.veil) over depth/elevation {list(GRID)}; reference: Cycles medium "
-                   f"(blendgen.blender.oracle_scenes) with {BOUNCES} volume bounces, {SPP} spp, {SIZE}x{SIZE} px, "
-                   f"ortho camera, black target at {TARGET_X_M:g} m, sun overhead 1 W/m^2, no sky; "
-                   f"coefficients: optics.water_for_mode(preset, 'physical')"),
-        "date": _dt.date.today().isoformat(), "convergence_mild_2m_G": CONVERGENCE,
-        "presets": {**old, **entries}}
+        "method": (
+            f"kappa, K_v per preset and channel: relative least squares of reference = beam + diffuse(kappa, K_v) "
+            f"(blendgen.physics.water.veil) over depth/elevation {list(GRID)}; reference: Cycles medium "
+            f"(blendgen.blender.oracle_scenes) with {BOUNCES} volume bounces, {SPP} spp, {SIZE}x{SIZE} px, "
+            f"ortho camera, black target at {TARGET_X_M:g} m, sun overhead 1 W/m^2, no sky; "
+            f"coefficients: optics.water_for_mode(preset, 'physical')"
+        ),
+        "date": _dt.date.today().isoformat(),
+        "convergence_mild_2m_G": CONVERGENCE,
+        "presets": {**old, **entries},
+    }
     from datasets_spec.io import save_json_atomic
+
     data_path.parent.mkdir(parents=True, exist_ok=True)
     save_json_atomic(data_path, data)
     return data["veil"]
