@@ -23,8 +23,8 @@ from blendgen.config.effective import effective
 from blendgen.config.models import Experiment, OutputDirError
 from blendgen.pipeline import executor as ex
 from blendgen.pipeline import passstore, plan
-from blendgen.pipeline.writer import FORMAT, SPEC_VERSION, DatasetWriter
-from datasets_spec.io import path_inside
+from blendgen.pipeline.writer import FORMAT, DatasetWriter
+from datasets_spec.io import SPEC_VERSION, path_inside
 
 
 def versions() -> dict:
