@@ -159,3 +159,23 @@ def test_sensor_model_pipeline():
     assert np.array_equal(s.SensorModel().apply(img), s.to_uint8(img))  # noise-free: the sRGB encode
     with pytest.raises(ValueError):
         s.SensorModel(noise=True).apply(img)  # noise needs a Generator
+
+
+def test_exact_poisson_only_where_the_read_noise_leaves_the_count_skewed():
+    """Poisson(lam) + Normal(0, r) has skewness lam / (lam + r^2)^1.5 (cumulants lam, lam + r^2,
+    lam): the Normal stand-in is used where that is below 1/sqrt(20), as for the shot noise alone
+    above 20 e-. With the default 2.3 e- no pixel needs the exact draw; with 1 e- the low counts do,
+    and those draws keep the Poisson's skew."""
+    lam = np.linspace(0.0, 30.0, 3001, dtype=np.float32)
+    assert s._exact_poisson(lam, 0.0).tolist() == np.flatnonzero(lam < 20).tolist()
+    assert s._exact_poisson(lam, 2.3).size == 0
+    skew = lam.astype(np.float64) / (lam.astype(np.float64) + 1.0) ** 1.5
+    want = np.flatnonzero((skew >= 20**-0.5) & (lam < 20))
+    got = s._exact_poisson(lam, 1.0)
+    assert want.size > 0 and abs(got.size - want.size) <= 2 and set(got) <= set(range(lam.size))
+    rng = np.random.default_rng(3)
+    x = np.full(400_000, 2.0, np.float32)  # skew 2 / 3^1.5 = 0.385 with r = 1
+    e = s.shot_read_noise_e(x, rng, read_noise_e=1.0).astype(np.float64)
+    z = (e - e.mean()) / e.std()
+    assert e.mean() == pytest.approx(2.0, abs=0.01) and e.var() == pytest.approx(3.0, rel=0.02)
+    assert (z**3).mean() == pytest.approx(2.0 / 3.0**1.5, abs=0.03)
