@@ -1413,8 +1413,6 @@ def export_bop(
             f"written as 0 (use a larger --depth-scale)",
             err=True,
         )
-    if results_dirs:
-        _bop_results(dataset, out, runs)
 
 
 def _bop_runs(dataset: Path, results_dirs: tuple[Path, ...]) -> list:

@@ -42,6 +42,8 @@ class Dataset:
         self.root = Path(root)
         self.manifest = manifest
         self.verify = verify
+        # set by a streamed run: its files were hashed as the run read them (images not kept are gone)
+        self.streamed = False
         self._seq_by_id = {s["id"]: s for s in manifest["sequences"]}
 
     @classmethod

@@ -110,7 +110,7 @@ def warn_once_unavailable() -> None:
         )
 
 
-def wrap(argv: list[str], scratch: Path, cwd: str | None = None) -> list[str]:
+def wrap(argv: list[str], scratch: str | Path, cwd: str | None = None) -> list[str]:
     """``argv`` run inside the sandbox: read-only everywhere but ``scratch`` (created by the
     caller; also TMPDIR and HOME), working directory ``cwd`` (default: the current one, read-only).
     Callers check :func:`available` first."""

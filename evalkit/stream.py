@@ -29,7 +29,6 @@ import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -279,7 +278,7 @@ def parse_images(images: str) -> int | None:
     )
 
 
-def run_record_dataset(root: Path, manifest: dict) -> Any:
+def run_record_dataset(root: Path, manifest: dict) -> Dataset:
     """A :class:`Dataset` over ``manifest`` (with the full ``files`` map) for the run record:
     its ``content_hash`` is the one ``dockbench generate`` gives the same config. ``streamed``:
     its files were hashed as the run read them (images not kept are gone from disk)."""

@@ -392,3 +392,16 @@ def test_distorted_dataset_is_refused_or_undistorted(tmp_path):
         assert both.sum() > 1000 and np.median(np.abs(a - b)[both]) <= 10  # 0.1 mm units
     scenes = json.loads((tmp_path / "b" / "dockbench_scenes.json").read_text())
     assert scenes["undistorted_from"] == dist
+
+
+def test_undistort_names_an_unreadable_image(tmp_path):
+    """--undistort reads each image to remap it: one that is not an image is a DatasetError
+    naming it (not OpenCV's error about an empty source)."""
+    root = _distorted(_enrich(write_fake_dataset(tmp_path / "ds")), [-0.3, 0.08, 0.0, 0.0, 0.0])
+    ds = Dataset.open(root)
+    seq = ds.sequences[0]["id"]
+    bad = ds.image_path(next(iter(ds.iter_frames(seq))))
+    bad.write_bytes(b"not a png")
+    with pytest.raises(bop.DatasetError, match="unreadable image") as exc:
+        bop.export_bop(ds, tmp_path / "b", depth_scale=0.1, undistort=True)
+    assert str(bad) in str(exc.value)

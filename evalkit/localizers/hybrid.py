@@ -98,7 +98,7 @@ class HybridLocalizer:
         self.min_sigma_px = float(min_sigma_px)
         if not self.min_sigma_px > 0:
             raise ValueError(f"min_sigma_px must be > 0, got {self.min_sigma_px}")
-        self._f = None
+        self._f: float | None = None
         self._span_m: dict[str, float] = {}
         self.min_px_per_module = float(min_px_per_module)
         self.switch_m = None if switch_m is None or str(switch_m) in ("None", "") else float(switch_m)

@@ -210,7 +210,7 @@ class LedLocalizer:
         if any(not 0.0 < f <= 1.0 for f in self.ladder):
             raise ValueError(f"ladder fractions must be in (0, 1], got {self.ladder}")
         self._marker: Any = None  # the manifest's LED marker dict, set by reset()
-        self._prev_T = None
+        self._prev_T: np.ndarray | None = None
 
     def reset(self, camera: dict) -> None:
         """Pick the LED marker; precompute its keypoint order, colour pattern and colour axis."""

@@ -60,6 +60,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -153,7 +154,7 @@ class _Export:
     visib_sources: dict = field(default_factory=lambda: {"depth_test": 0, "object_index": 0, "copied": 0})
     targets: list = field(default_factory=list)
     sample_offset: float = OPENCV_SAMPLE_OFFSET  # the silhouettes' pixel convention
-    tick: object = None  # progress: tick(n) per n images written
+    tick: Callable[[int], None] | None = None  # progress: tick(n) per n images written
 
     @property
     def K(self) -> np.ndarray:
@@ -257,7 +258,10 @@ def _frame_rgb(ex: _Export, frame: dict, dst: Path) -> None:
     if ex.undistort_maps is None:
         _link_or_copy(ex.ds.image_path(frame), dst, ex.copy_images)
     else:
-        rgb = cv2.imread(str(ex.ds.image_path(frame)), cv2.IMREAD_UNCHANGED)
+        src = ex.ds.image_path(frame)
+        rgb = cv2.imread(str(src), cv2.IMREAD_UNCHANGED)
+        if rgb is None:
+            raise DatasetError(f"{src}: missing or unreadable image")
         cv2.imwrite(str(dst), ex.remap(rgb, nearest=False))
 
 
@@ -284,7 +288,8 @@ def _object_info(ex: _Export, marker: dict, R, t_mm, view: ImageView, frame: dic
     mid, oid = str(marker["id"]), ex.obj_ids[str(marker["id"])]
     if view.dist_mm is not None or (view.index is not None and mid in ex.index_values):
         ex.visib_sources["depth_test" if view.dist_mm is not None else "object_index"] += 1
-        return gt_info(*ex.meshes[oid], R, t_mm, view, VISIB_DELTA_MM, ex.index_values.get(mid), ex.sample_offset)
+        vertices_mm, faces = ex.meshes[oid]
+        return gt_info(vertices_mm, faces, R, t_mm, view, VISIB_DELTA_MM, ex.index_values.get(mid), ex.sample_offset)
     ex.visib_sources["copied"] += 1
     fm = (frame.get("markers") or {}).get(mid) or {}
     return (
@@ -310,7 +315,10 @@ def _export_frame(ex: _Export, sdir: Path, scene_id: int, frame: dict, coco: Sce
         index = ex.remap(load_index(ex.ds.frame_file(frame, "object_index")), nearest=True)
     cam = ex.ds.camera
     view = ImageView.from_depth_png(ex.K, cam["width"], cam["height"], depth, ex.depth_scale, index)
-    gts, infos, coco_objects, is_target = [], [], [], False
+    gts: list[dict] = []
+    infos: list[dict] = []
+    coco_objects: list[tuple[int, float, np.ndarray, np.ndarray]] = []
+    is_target = False
     for m in ex.ds.markers:
         oid = ex.obj_ids[str(m["id"])]
         R, t_mm = ex.models[oid].pose_m2c(_marker_pose(frame, m))

@@ -10,6 +10,8 @@ background run, ``size = [H, W]``), ``bbox`` the amodal box of ``mask`` inside t
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 IGNORE_BELOW_VISIB = 0.1  # calc_gt_coco.py: annotations of objects < 10 % visible are "ignore"
@@ -35,7 +37,7 @@ class SceneCoco:
     """Collects one scene's COCO images and annotations."""
 
     def __init__(self, obj_ids: list[int], dataset_name: str, split: str):
-        self.doc = {
+        self.doc: dict[str, Any] = {
             "info": {"description": f"{dataset_name}_{split}"},
             "licenses": [],
             "categories": [{"id": i, "name": str(i), "supercategory": dataset_name} for i in obj_ids],

@@ -53,7 +53,9 @@ class ObjectModel:
     def mesh(self, step_mm: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(vertices (N, 3) mm, normals (N, 3), faces (F, 3))`` about the model origin; each box
         face a grid of at most ``step_mm`` spacing (None: its 4 corners only)."""
-        verts, norms, faces = [], [], []
+        verts: list[np.ndarray] = []
+        norms: list[np.ndarray] = []
+        faces: list[np.ndarray] = []
         for box in self.boxes - self.centre_mm:
             middle = box.mean(axis=0)
             for quad in _BOX_QUADS:

@@ -91,7 +91,7 @@ def pooled_dock_ar(estimates: pd.DataFrame, markers: list[dict], camera: dict) -
     from evalkit.metrics import recall
 
     model = recall.DockModel.from_markers(markers, camera["K"], int(camera["width"]))
-    out = {}
+    out: dict[str, float] = {}
     if model is None:
         return out
     for name, frames in estimates.groupby("localizer", sort=True):

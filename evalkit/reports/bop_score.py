@@ -29,6 +29,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -150,7 +151,7 @@ def target_errors(export_dir: Path, results_csv: Path, tick=None) -> list[dict]:
         if tick is not None:
             tick(1)
         s, i, o = int(t["scene_id"]), int(t["im_id"]), int(t["obj_id"])
-        row = {"scene_id": s, "im_id": i, "obj_id": o, "vsd": None, "mssd": None, "mspd": None}
+        row: dict[str, Any] = {"scene_id": s, "im_id": i, "obj_id": o, "vsd": None, "mssd": None, "mspd": None}
         rows.append(row)
         cand = ests.get((s, i, o))
         if not cand:

@@ -111,14 +111,15 @@ def check_metric_row(where: str, row: dict, d_min_rel_m: float | None = None) ->
     vals = {k: _check(where, k, row[k], lo, hi) for k, (lo, hi) in bounds.items() if k in row}
     for name in INTERVALS:
         lo, mean, hi = (vals.get(f"{name}_{s}") for s in ("lo", "mean", "hi"))
-        if None not in (lo, mean, hi) and not (lo - 1e-9 <= mean <= hi + 1e-9):
+        if lo is not None and mean is not None and hi is not None and not (lo - 1e-9 <= mean <= hi + 1e-9):
             raise NumberError(
                 f"{where}: {name}_lo <= {name}_mean <= {name}_hi does not hold ({lo!r}, {mean!r}, {hi!r})"
             )
     n = {k: _count(where, k, row[k], 1 if k == "n_trials" else 0) for k in COUNTS if k in row}
     for small, big in (("n_fp", "n_est"), ("n_est", "n_frames"), ("n_targets", "n_frames")):
-        if n.get(small) is not None and n.get(big) is not None and n[small] > n[big]:
-            raise NumberError(f"{where}: {small} = {n[small]} exceeds {big} = {n[big]} (counts disagree)")
+        n_small, n_big = n.get(small), n.get(big)
+        if n_small is not None and n_big is not None and n_small > n_big:
+            raise NumberError(f"{where}: {small} = {n_small} exceeds {big} = {n_big} (counts disagree)")
 
 
 def check_metric_rows(path: Path, rows: Iterable[dict], d_min_rel_m: float | None = None) -> None:
@@ -139,9 +140,9 @@ CL_BOUNDS = {
 def check_closed_loop_row(where: str, row: dict) -> None:
     """One row of closed_loop.json (counts are checked by evalkit.reports.closed_loop)."""
     vals = {k: _check(where, k, row[k], 0.0, 1.0) for k in CL_FRACTIONS if k in row}
-    for k, (lo, hi) in CL_BOUNDS.items():
+    for k, (k_lo, k_hi) in CL_BOUNDS.items():
         if k in row:
-            _check(where, k, row[k], lo, hi)
+            _check(where, k, row[k], k_lo, k_hi)
     lo, p, hi = vals.get("ci_low"), vals.get("success_rate"), vals.get("ci_high")
-    if None not in (lo, p, hi) and not (lo - 1e-9 <= p <= hi + 1e-9):
+    if lo is not None and p is not None and hi is not None and not (lo - 1e-9 <= p <= hi + 1e-9):
         raise NumberError(f"{where}: ci_low <= success_rate <= ci_high does not hold ({lo!r}, {p!r}, {hi!r})")

@@ -462,7 +462,9 @@ def _check_numbers(root: Path, run: dict, m: pd.DataFrame, runtime: pd.DataFrame
     (:mod:`evalkit.reports.numbers`); else :class:`ResultsError` naming file, row and column."""
     from evalkit.reports.numbers import NumberError, check_metric_rows
 
-    settings = run.get("settings") if isinstance(run.get("settings"), dict) else {}
+    settings = run.get("settings")
+    if not isinstance(settings, dict):
+        settings = {}
     d_min = settings.get("d_min_rel_m")
     d_min = d_min if isinstance(d_min, (int, float)) and not isinstance(d_min, bool) else None
     try:

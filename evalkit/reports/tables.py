@@ -176,9 +176,9 @@ def article_table(metrics: pd.DataFrame, with_ci: bool = True, digits: int = 1) 
     order = metrics.sort_values(["trajectory", "condition", "localizer"], kind="stable")
     for _, r in order.iterrows():
 
-        def cell(mean_col, prefix):
+        def cell(mean_col, prefix, nd=digits):
             lo, hi = (r.get(f"{prefix}_lo"), r.get(f"{prefix}_hi")) if with_ci else (None, None)
-            return _pct(r.get(mean_col), lo, hi, digits)
+            return _pct(r.get(mean_col), lo, hi, nd)
 
         m = int(r["n_trials"])
         rows.append(
@@ -189,11 +189,7 @@ def article_table(metrics: pd.DataFrame, with_ci: bool = True, digits: int = 1) 
                 "M": f"{m}*" if m < MIN_TRIALS_FOR_CI else str(m),
                 ARTICLE_SUCCESS: cell("P_succ_mean", "P_succ"),
                 ARTICLE_DETECT: cell("P_detect_mean", "P_detect"),
-                ARTICLE_ERROR: _pct(
-                    r.get("E_rel_mean"),
-                    *((r.get("E_rel_lo"), r.get("E_rel_hi")) if with_ci else (None, None)),
-                    digits=err_digits,
-                ),
+                ARTICLE_ERROR: cell("E_rel_mean", "E_rel", err_digits),
                 ARTICLE_MATCHED: _pct(r.get("E_rel_matched"), digits=err_digits),
                 ARTICLE_MATCHED_RANGE: _bins_text(r),
             }
