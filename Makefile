@@ -61,7 +61,7 @@ test-slow: setup
 	$(BIN)/python -m pytest -q --slow
 
 bench: setup
-	$(BIN)/dockbench bench stages
+	$(BIN)/dockbench bench stages -o out/bench
 
 clean:
 	rm -rf out .pytest_cache .hypothesis

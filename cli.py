@@ -489,8 +489,8 @@ def _experiment_authority(experiment: str) -> str:
     "--out",
     "out",
     type=click.Path(dir_okay=False, path_type=Path),
-    default=Path("out/docking_paths.png"),
-    show_default=True,
+    required=True,
+    help="PNG to write: the top view of one docking trial per current",
 )
 def docking_paths_cmd(currents: tuple[float, ...], seed: int, out: Path):
     """Plot one docking trial per lateral current (same start), judged by `dock`'s capture geometry."""
@@ -512,12 +512,9 @@ def docking_paths_cmd(currents: tuple[float, ...], seed: int, out: Path):
     click.echo(f"plot: {plot_docking_paths(runs, out)}")
 
 
-@main.group(cls=_Commands, invoke_without_command=True)
-@click.pass_context
-def bench(ctx: click.Context):
-    """Benchmarks (print and write CSV; nothing is asserted). Without a subcommand: stages."""
-    if ctx.invoked_subcommand is None:
-        ctx.invoke(bench_stages)
+@main.group(cls=_Commands)
+def bench():
+    """Benchmarks (print and write CSV under -o; nothing is asserted)."""
 
 
 @bench.command("stages")
@@ -531,7 +528,12 @@ def bench(ctx: click.Context):
     help="Cycles samples to time (repeatable; default 1 and 4)",
 )
 @click.option(
-    "-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path), default=Path("out/bench"), show_default=True
+    "-o",
+    "--out",
+    "out",
+    type=click.Path(file_okay=False, path_type=Path),
+    required=True,
+    help="directory to write bench_render.csv, bench_terms.csv and bench_localizers.csv into (and the renders)",
 )
 @_user_errors
 def bench_stages(frames: int, samples: tuple[int, ...], out: Path):
@@ -605,8 +607,8 @@ def bench_io(dataset: Path | None):
     "--out",
     "out",
     type=click.Path(file_okay=False, path_type=Path),
-    default=Path("out/bench_fidelity"),
-    show_default=True,
+    required=True,
+    help="directory for veil.csv, fidelity.csv, fidelity_pareto.png and the fast and reference renders",
 )
 @click.option(
     "--volume-bounces",
@@ -691,8 +693,8 @@ def bench_fidelity(
     "--out",
     "out",
     type=click.Path(file_okay=False, path_type=Path),
-    default=Path("out/bench_render_settings"),
-    show_default=True,
+    required=True,
+    help="directory to write the image and localization delta tables into",
 )
 def bench_render_settings(base: Path, variant: Path, names: tuple[str, ...], out: Path):
     """Image and localization deltas of two datasets made from one config with different
@@ -714,7 +716,12 @@ def bench_render_settings(base: Path, variant: Path, names: tuple[str, ...], out
 )
 @click.option("--seed", type=click.IntRange(0, 2**32 - 1), default=0, show_default=True)
 @click.option(
-    "-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path), default=Path("out/bench"), show_default=True
+    "-o",
+    "--out",
+    "out",
+    type=click.Path(file_okay=False, path_type=Path),
+    required=True,
+    help="directory to write pnp.csv and pnp.png into",
 )
 def bench_pnp(trials: int, seed: int, out: Path):
     """Stress the planar PnP solvers: error vs distance/angle/noise against the Z^2 law,
@@ -807,8 +814,8 @@ def bench_particles(counts: tuple[int, ...], size: tuple[int, int], frames: int,
     "--out",
     "out",
     type=click.Path(file_okay=False, path_type=Path),
-    default=Path("out/bench_glow"),
-    show_default=True,
+    required=True,
+    help="directory for glow.csv and the Cycles medium renders",
 )
 def bench_glow(samples: int, size: int, volume_bounces: int, out: Path):
     """Emitter glow: fast PSF vs the Cycles medium (HG g 0.9), mild/moderate x 2/5/8 m: energy and radius."""
@@ -866,8 +873,8 @@ def bench_glow(samples: int, size: int, volume_bounces: int, out: Path):
     "--out",
     "out",
     type=click.Path(file_okay=False, path_type=Path),
-    default=Path("out/bench_caustics"),
-    show_default=True,
+    required=True,
+    help="directory for caustics.csv and the cached photon-map reference renders",
 )
 @_user_errors
 def bench_caustics(
@@ -919,8 +926,8 @@ def bench_caustics(
     "--out",
     "out",
     type=click.Path(file_okay=False, path_type=Path),
-    default=Path("out/bench_lamp"),
-    show_default=True,
+    required=True,
+    help="directory for lamp_card.csv, lamp_shadow.csv, lamp_veil.csv and renders/",
 )
 def bench_lamp(samples: int, bounces: int, out: Path):
     """Vehicle lamp: grey card vs inverse square x attenuation, and the backscatter veil, fast vs Cycles."""
@@ -965,9 +972,8 @@ def bench_lamp(samples: int, bounces: int, out: Path):
     "--out",
     "out",
     type=click.Path(file_okay=False, path_type=Path),
-    default=Path("out/bench_fidelity"),
-    show_default=True,
-    help="work directory for the renders",
+    required=True,
+    help="work directory for the renders; water_calibration.json too unless --data names another",
 )
 @click.option(
     "--data",
@@ -1000,9 +1006,8 @@ def calibrate_water(width: int, height: int, ref_samples: int, frames: int, out:
     "--out",
     "out",
     type=click.Path(file_okay=False, path_type=Path),
-    default=Path("out/calibrate_veil"),
-    show_default=True,
-    help="work directory for the render specs",
+    required=True,
+    help="work directory for the render specs; water_calibration.json too unless --data names another",
 )
 @click.option(
     "--data",
@@ -1034,8 +1039,8 @@ def calibrate_veil(out: Path, data: Path | None, presets: tuple[str, ...]):
     "--out",
     "out",
     type=click.Path(dir_okay=False, path_type=Path),
-    default=Path("out/preview.png"),
-    show_default=True,
+    required=True,
+    help="PNG to write: the contact sheet",
 )
 @_wh_size("320x240")
 @click.option("--samples", type=click.IntRange(1, 65536), default=4, show_default=True)
@@ -1065,8 +1070,8 @@ def preview(out: Path, width: int, height: int, samples: int, fidelity: str, mod
     "--out",
     "out",
     type=click.Path(file_okay=False, path_type=Path),
-    default=Path("out/reproduce"),
-    show_default=True,
+    required=True,
+    help="directory to write each experiment's dataset, results and report.md into",
 )
 @click.option("--workers", type=click.IntRange(1, 256), default=None)
 @click.option("--overwrite", is_flag=True, help="replace a dataset made from an older version of the config")
@@ -1123,8 +1128,8 @@ def _images_policy(value: str) -> str:
     "--out",
     "out",
     type=click.Path(file_okay=False, path_type=Path),
-    default=None,
-    help="run folder: dataset/, results/, stream.json (default out/<config name>); an interrupted run in it is resumed",
+    required=True,
+    help="run folder: dataset/, results/, stream.json; an interrupted run in it is resumed",
 )
 @click.option(
     "--images",
@@ -1147,7 +1152,7 @@ def run(
     config: Path,
     localizers: tuple[str, ...],
     params: tuple[str, ...],
-    out: Path | None,
+    out: Path,
     images: str,
     workers: int | None,
     preprocess: str | None,
@@ -1166,7 +1171,6 @@ def run(
     from evalkit import assemble, registry
 
     exp = load_experiment(config)
-    out = out or Path("out") / exp.name
     kw = registry.parse_params(list(params))
     for n in localizers:  # bad specs and params before anything renders
         assemble.build(n, registry.params_for(n, kw, list(localizers)), preprocess=preprocess)
@@ -1207,8 +1211,7 @@ def run(
     "--out",
     "out",
     type=click.Path(file_okay=False, path_type=Path),
-    default=Path("out/calibration"),
-    show_default=True,
+    required=True,
     help="output directory (rendered frames, calibration.csv, calibration_trials.csv)",
 )
 @click.option(
@@ -1249,7 +1252,12 @@ def calibrate(config: Path | None, out: Path, size: tuple[int, int] | None, tria
 @_writes_out("bench")
 @click.argument("dataset", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option(
-    "-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path), default=Path("out/bench"), show_default=True
+    "-o",
+    "--out",
+    "out",
+    type=click.Path(file_okay=False, path_type=Path),
+    required=True,
+    help="directory to write bench_localizer_cpu.csv, bench_qr_decoders.csv and bench_led_centroids.csv into",
 )
 def bench_localizers(dataset: Path, out: Path) -> None:
     """CPU ms per 640x480 frame of each built-in localizer and QR decode rate by range, on DATASET."""
@@ -1265,8 +1273,7 @@ def bench_localizers(dataset: Path, out: Path) -> None:
     "--out",
     "out",
     type=click.Path(dir_okay=False, path_type=Path),
-    default=Path("leaderboard.html"),
-    show_default=True,
+    required=True,
     help="HTML file to write",
 )
 @click.option("--title", default="dockbench leaderboard", show_default=True)
@@ -1510,8 +1517,9 @@ def _bop_results(dataset: Path, out: Path, runs: list, final_out: Path) -> None:
     "--out",
     "out",
     type=click.Path(file_okay=False, path_type=Path),
-    default=None,
-    help="output directory (default out/dock/NAME)",
+    required=True,
+    help="output directory: trials.parquet, frames.parquet, summary.csv/.md, paths.png, closed_loop.json "
+    "(--report-only: the directory read)",
 )
 @click.option("--overwrite", is_flag=True, help="write into a non-empty OUT that dock did not write")
 def dock(
@@ -1550,7 +1558,6 @@ def dock(
             getattr(loc, "close", lambda: None)()
     from datasets_spec import outdir
 
-    out = out or Path("out/dock") / exp.name
     with outdir.writing(out, "dock", overwrite):  # the -o rule and lock of every writing command
         paths = run_dock(
             exp,
@@ -1589,8 +1596,8 @@ def dock(
     "--out",
     "out",
     type=click.Path(file_okay=False, path_type=Path),
-    default=Path("out/bench_closed_loop"),
-    show_default=True,
+    required=True,
+    help="directory for bench_closed_loop.csv, the trials' renders and open_loop/",
 )
 def bench_closed_loop(experiment, localizer, trials, size, open_loop_frames, threads, out):
     """Seconds per closed-loop trial (fast fidelity) vs the open-loop cost per frame."""
@@ -1689,7 +1696,13 @@ def _suite_size(ctx, param, value):
     "`dockbench run` (evaluated while rendering, N images per sequence kept)",
 )
 @click.option(
-    "-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path), default=Path("out/bench"), show_default=True
+    "-o",
+    "--out",
+    "out",
+    type=click.Path(file_okay=False, path_type=Path),
+    required=True,
+    help="directory for bench_suite.jsonl (appended), bench_scaling.csv and the suite's datasets and "
+    "results; with --table: the directory read",
 )
 def bench_suite(
     trials, names, size, particles, workers, scaling, no_evaluate, table, max_distance_m, samples, images, out

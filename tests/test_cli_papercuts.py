@@ -1,4 +1,4 @@
-"""CLI paper cuts: bundled configs by name, the quickstart's header, the demo target."""
+"""CLI paper cuts: bundled configs by name, the quickstart's header, the demo target, outputs only under -o."""
 
 from __future__ import annotations
 
@@ -143,3 +143,58 @@ def test_lamp_bench_announces_each_cycles_render(tmp_path, monkeypatch):
     lb.reference(spec, tmp_path)  # cached: no render, no line
     lb.reference({**spec, "samples": 8}, tmp_path)
     assert len(seen) == 2 and "96x72, 64 spp, 0 volume bounces" in seen[0] and "8 spp" in seen[1]
+
+
+#: every writing command whose output once defaulted to the current directory: argv without -o (positional
+#: arguments valid, so the missing -o is the first error)
+_OUT_REQUIRED = {
+    "docking-paths": [],
+    "bench stages": [],
+    "bench fidelity": [],
+    "bench render-settings": ["{base}", "{base}"],
+    "bench pnp": [],
+    "bench glow": [],
+    "bench caustics": [],
+    "bench lamp": [],
+    "bench localizers": ["{base}"],
+    "bench closed-loop": [],
+    "bench suite": [],
+    "calibrate": [],
+    "calibrate-water": [],
+    "calibrate-veil": [],
+    "preview": [],
+    "reproduce": ["turbidity"],
+    "run": ["quickstart", "-l", "aruco"],
+    "dock": ["turbidity"],
+    "leaderboard": ["{base}"],
+}
+
+
+@pytest.mark.parametrize("command", sorted(_OUT_REQUIRED))
+def test_writing_commands_require_out_and_write_nothing_without_it(command, tmp_path, monkeypatch):
+    base = tmp_path / "in"
+    base.mkdir()
+    cwd = tmp_path / "cwd"
+    cwd.mkdir()
+    monkeypatch.chdir(cwd)
+    argv = command.split() + [a.format(base=base) for a in _OUT_REQUIRED[command]]
+    res = CliRunner().invoke(cli.main, argv)
+    assert res.exit_code == 2, res.output
+    assert "Missing option '-o' / '--out'" in res.output, res.output
+    assert list(cwd.iterdir()) == [] and list(base.iterdir()) == []
+
+
+def test_no_output_defaults_under_the_current_directory(tmp_path, monkeypatch):
+    """No -o defaults to a path of the current directory; `dockbench bench` alone runs nothing."""
+    required = set()
+    for path, cmd in _walk(cli.main):
+        for p in cmd.params:
+            if "-o" in getattr(p, "opts", ()):
+                assert not isinstance(p.default, Path), (path, p.default)
+                if p.required:
+                    required.add(path)
+    assert set(_OUT_REQUIRED) <= required
+    monkeypatch.chdir(tmp_path)
+    res = CliRunner().invoke(cli.main, ["bench"])
+    assert res.exit_code == 2 and "Commands:" in res.output, res.output
+    assert list(tmp_path.iterdir()) == []
