@@ -16,7 +16,8 @@ CFG = {
     "seed": 4,
     "scene": {
         "template": "pool_15x5x8",
-        "obstacles": [{"kind": "box", "pose": {"xyz": [6.2, 0.2, -0.8]}, "size_m": [0.1, 0.1, 0.1]}],
+        # 0.2 m above the dock's face centre (z = -1.5 m: its top, 0.5 m above the centre, at 1 m depth)
+        "obstacles": [{"kind": "box", "pose": {"xyz": [6.2, 0.2, -1.3]}, "size_m": [0.1, 0.1, 0.1]}],
     },
     "camera": {"width": 160, "height": 120, "hfov_deg": 60, "fps": 10},
     "render": {"samples": 1},

@@ -120,31 +120,15 @@ class LedLocalizer:
     name = "led"
     outputs = ("distance", "T_cam_dock", "marker_id")
 
-    def __init__(
-        self,
-        marker_id: str | None = None,
-        threshold: float = 200.0,
-        rel_threshold: float = 0.6,
-        min_threshold: float = 40.0,
-        min_area_px: int = 1,
-        max_area_frac: float = 0.05,
-        min_circularity: float = 0.4,
-        ref_hue: float | None = None,
-        max_candidates: int | None = None,
-        max_blobs: int = 2000,
-        max_reproj_px: float = 3.0,
-        min_saturation: float = 0.2,
-        max_hue_err_deg: float = 60.0,
-        centroid: str = "core",
-        max_view_deg: float = 70.0,
-        ladder: tuple = (0.8, 0.97),
-        prior: bool = True,
-        prior_gate_px: float = 8.0,
-        measure_factor: int = 3,
-        accept_px: float = 0.5,
-        min_size_frac: float = 0.4,
-        max_solves: int = 35,
-    ):
+    # fmt: off
+    def __init__(self, marker_id: str | None = None, threshold: float = 200.0,
+                 rel_threshold: float = 0.6, min_threshold: float = 40.0,
+                 min_area_px: int = 1, max_area_frac: float = 0.05, min_circularity: float = 0.4,
+                 ref_hue: float | None = None, max_candidates: int | None = None, max_blobs: int = 2000,
+                 max_reproj_px: float = 3.0, min_saturation: float = 0.2, max_hue_err_deg: float = 60.0,
+                 centroid: str = "core", max_view_deg: float = 70.0, ladder: tuple = (0.8, 0.97),
+                 prior: bool = True, prior_gate_px: float = 8.0, measure_factor: int = 3,
+                 accept_px: float = 0.5, min_size_frac: float = 0.4, max_solves: int = 35):
         """threshold: brightness (max channel, 0-255) that LED cores exceed; lowered to
         rel_threshold * image max (not below min_threshold) for dim images.
         min_area_px / max_area_frac: blob area limits (px / fraction of the image).
@@ -152,8 +136,8 @@ class LedLocalizer:
         ref_hue: reference LED hue in degrees (None: from the marker's colours).
         max_candidates: most LED-like coloured blobs considered (None: N + 3); max_blobs:
         give up above this many blobs (the sunlit demo pool holds 200-370 at 0.6 x max; blob
-        statistics are vectorised, so only the measured candidates cost). max_reproj_px: RMS reprojection error (px)
-        above
+        statistics are vectorised, so only the measured candidates cost).
+        max_reproj_px: RMS reprojection error (px) above
         which a blob set is rejected. min_saturation: chroma / brightness of a blob's
         background-subtracted colour (0 grey, ~0.9 the LEDs' own colours) it needs to
         count as a coloured LED, so white/grey highlights are not taken for LEDs (measured
@@ -189,9 +173,8 @@ class LedLocalizer:
         self.max_area_frac = float(max_area_frac)
         self.min_circularity = float(min_circularity)
         self.ref_hue = None if ref_hue is None or str(ref_hue) in ("None", "") else float(ref_hue)
-        self.max_candidates = (
-            None if max_candidates is None or str(max_candidates) in ("None", "") else int(max_candidates)
-        )
+        self.max_candidates = (None if max_candidates is None or str(max_candidates) in ("None", "")
+                               else int(max_candidates))
         self.max_blobs = int(max_blobs)
         self.max_reproj_px = float(max_reproj_px)
         self.min_saturation = float(min_saturation)
@@ -204,13 +187,14 @@ class LedLocalizer:
         self.cos_hue = math.cos(math.radians(float(max_hue_err_deg)))
         self.centroid = centroid
         self.cos_view = math.cos(math.radians(float(max_view_deg)))
-        if isinstance(ladder, str):  # from ``-p led.ladder=0.8,0.97``
+        if isinstance(ladder, str):          # from ``-p led.ladder=0.8,0.97``
             ladder = [x for x in ladder.replace("(", "").replace(")", "").split(",") if x.strip()]
         self.ladder = tuple(sorted(float(f) for f in ladder))
         if any(not 0.0 < f <= 1.0 for f in self.ladder):
             raise ValueError(f"ladder fractions must be in (0, 1], got {self.ladder}")
-        self._marker: Any = None  # the manifest's LED marker dict, set by reset()
+        self._marker: Any = None            # the manifest's LED marker dict, set by reset()
         self._prev_T: np.ndarray | None = None
+    # fmt: on
 
     def reset(self, camera: dict) -> None:
         """Pick the LED marker; precompute its keypoint order, colour pattern and colour axis."""

@@ -450,23 +450,12 @@ def _particle_colour(mode: str, colour, ambient) -> np.ndarray:
     return (amb if mode == "backscatter" else SILHOUETTE_ALBEDO * amb).astype(np.float32)
 
 
-def render_particles(
-    image_linear: np.ndarray,
-    range_m: np.ndarray,
-    field: ParticleField,
-    K: np.ndarray,
-    T_world_cam: np.ndarray,
-    water=None,
-    mode: str = "backscatter",
-    z_near: float = 0.05,
-    colour=None,
-    ambient=DEFAULT_AMBIENT_RGB,
-    shade: Callable | None = None,
-    blur=None,
-    margin_px: float = 0.0,
-    merged_range: bool = False,
-    background=None,
-):
+# fmt: off
+def render_particles(image_linear: np.ndarray, range_m: np.ndarray, field: ParticleField,
+                     K: np.ndarray, T_world_cam: np.ndarray, water=None, mode: str = "backscatter",
+                     z_near: float = 0.05, colour=None, ambient=DEFAULT_AMBIENT_RGB,
+                     shade: Callable | None = None, blur=None, margin_px: float = 0.0,
+                     merged_range: bool = False, background=None):
     """Draw the particle field into a linear RGB image with a depth test.
 
     image_linear (H,W,3) float, range_m (H,W) float (range along each pixel ray to
@@ -515,46 +504,30 @@ def render_particles(
     col = _particle_colour(mode, colour, ambient)
     water_fn = _water_callable(water)
     p = project_particles(field, K, T_world_cam, w, h, z_near, margin_px, blur)
-    surf = np.ascontiguousarray(range_m, np.float32).reshape(-1)  # NaN = no surface hit = background
-    colours = (
-        np.asarray(shade(p), np.float32).reshape(-1, 3) if shade is not None else np.zeros((p.u.size, 0), np.float32)
-    )
+    surf = np.ascontiguousarray(range_m, np.float32).reshape(-1)     # NaN = no surface hit = background
+    colours = (np.asarray(shade(p), np.float32).reshape(-1, 3) if shade is not None
+               else np.zeros((p.u.size, 0), np.float32))
     scene = surf if merged_range else np.full(h * w, np.inf, np.float32)
-    if shade is not None and water_fn is None:  # the pipeline's case: one fused pass
+    if shade is not None and water_fn is None:              # the pipeline's case: one fused pass
         tp = background.packed() if background is not None else kern.NO_TRANSFER
         out, merged, mask = psplat.over(_splat_input(p, colours), surf, scene, img.reshape(-1), tp, w, h)
         return out.reshape(h, w, 3), mask.reshape(h, w), merged.reshape(h, w)
     sums = psplat.splat(_splat_input(p, colours), surf, w, h)
     hit = sums.hit
-    colour_px = col[:, None] if shade is None else np.zeros((3, 0), np.float32)  # (3, 0): w c / w
+    colour_px = col[:, None] if shade is None else np.zeros((3, 0), np.float32)   # (3, 0): w c / w
     if water_fn is not None:
         wc = sums.wc
-        c = (
-            wc[1:] / np.where(wc[0] > 0, wc[0], np.float32(1.0))
-            if shade is not None
+        c = wc[1:] / np.where(wc[0] > 0, wc[0], np.float32(1.0)) if shade is not None \
             else np.broadcast_to(col[:, None], (3, hit.size))
-        )
-        colour_px = np.ascontiguousarray(np.asarray(water_fn(np.ascontiguousarray(c.T), sums.near), np.float32).T)
+        colour_px = np.ascontiguousarray(
+            np.asarray(water_fn(np.ascontiguousarray(c.T), sums.near), np.float32).T)
     out, merged, mask = np.empty_like(img), np.empty(h * w, np.float32), np.zeros(h * w, bool)
-    gain_add = (
-        background.gain_add(hit, sums.near, sums.far, w)
-        if background is not None and hit.size
+    gain_add = background.gain_add(hit, sums.near, sums.far, w) if background is not None and hit.size \
         else np.zeros((6, 0), np.float32)
-    )
-    kern.resolve(
-        out.reshape(-1),
-        np.ascontiguousarray(img).reshape(-1),
-        merged,
-        scene,
-        mask,
-        hit,
-        sums.acc,
-        sums.near,
-        colour_px,
-        gain_add,
-        w,
-    )
+    kern.resolve(out.reshape(-1), np.ascontiguousarray(img).reshape(-1), merged, scene, mask, hit, sums.acc,
+                 sums.near, colour_px, gain_add, w)
     return out, mask.reshape(h, w), merged.reshape(h, w)
+# fmt: on
 
 
 def _splat_input(p: ProjectedParticles, colours: np.ndarray) -> psplat.Particles:

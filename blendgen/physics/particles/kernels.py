@@ -725,8 +725,10 @@ def _particle_records(u, v, a, b, c, s, d, op):
     return rec
 
 
+# fmt: off
 @_exact
-def _tile_sums(tx0, ty0, tx1, ty1, members, m0, m1, rec, colour, n_col, surf, zmin, width, acc, near, touched, buf):
+def _tile_sums(tx0, ty0, tx1, ty1, members, m0, m1, rec, colour, n_col, surf, zmin, width, acc,
+               near, touched, buf):
     """The depth-tested samples of the tile [tx0, tx1) x [ty0, ty1)'s particles ``members[m0:m1]``
     (their data in ``rec``, :func:`_particle_records`; colour (M n_col,)) into its sums acc
     (TILE_PX^2 (2 + n_col),) flat and near (TILE_PX^2,); returns the count of
@@ -740,47 +742,30 @@ def _tile_sums(tx0, ty0, tx1, ty1, members, m0, m1, rec, colour, n_col, surf, zm
     last = members.size - 1
     for k in range(m0, m1):
         i = _U(members[k])
-        p = _U(members[min(k + AHEAD, last)])  # a later member's data on its way to the cache
+        p = _U(members[min(k + AHEAD, last)])      # a later member's data on its way to the cache
         _prefetch(rec, p * _U(REC))
         _prefetch(colour, p * _U(n_col))
         r, ci = i * _U(REC), i * _U(n_col)
         ui, vi, ai, bi = rec[r], rec[r + _U(1)], rec[r + _U(2)], rec[r + _U(3)]
         cs, sn, di, opi = rec[r + _U(4)], rec[r + _U(5)], rec[r + _U(6)], rec[r + _U(7)]
         dd = max(di, np.float32(1e-3))
-        if not ai < np.float32(SPLAT_BELOW_PX):  # an anti-aliased ellipse
+        if not ai < np.float32(SPLAT_BELOW_PX):                   # an anti-aliased ellipse
             x0, y0, sx, sy, ca, sa, cb, sb, k0, k1 = _footprint(ui, vi, ai, bi, cs, sn)
-            if max(sx, sy) <= GROUP_MAX_PX and ai < np.float32(NORMALISE_BELOW_PX):  # small: its box
-                n_cov, total = _ellipse_samples(
-                    x0, y0, x0 + sx, y0 + sy, tx0, ty0, tx1, ty1, ui, vi, ca, sa, cb, sb, k0, k1, buf
-                )
+            if max(sx, sy) <= GROUP_MAX_PX and ai < np.float32(NORMALISE_BELOW_PX):   # small: its box
+                n_cov, total = _ellipse_samples(x0, y0, x0 + sx, y0 + sy, tx0, ty0, tx1, ty1, ui, vi, ca, sa,
+                                                cb, sb, k0, k1, buf)
                 scale = _PI * ai * bi / max(total, np.float32(1e-12)) if total > _F0 else _F1
-            else:  # its box, clipped to the tile
-                n_cov = _ellipse_samples(
-                    max(x0, tx0),
-                    max(y0, ty0),
-                    min(x0 + sx, tx1),
-                    min(y0 + sy, ty1),
-                    tx0,
-                    ty0,
-                    tx1,
-                    ty1,
-                    ui,
-                    vi,
-                    ca,
-                    sa,
-                    cb,
-                    sb,
-                    k0,
-                    k1,
-                    buf,
-                )[0]
+            else:                                                      # its box, clipped to the tile
+                n_cov = _ellipse_samples(max(x0, tx0), max(y0, ty0), min(x0 + sx, tx1), min(y0 + sy, ty1), tx0,
+                                         ty0, tx1, ty1, ui, vi, ca, sa, cb, sb, k0, k1, buf)[0]
                 scale = _F1
-            col0, col1, col2 = (colour[ci], colour[ci + _U(1)], colour[ci + _U(2)]) if n_col == 3 else (_F0, _F0, _F0)
+            col0, col1, col2 = (colour[ci], colour[ci + _U(1)], colour[ci + _U(2)]) if n_col == 3 \
+                else (_F0, _F0, _F0)
             for q in range(n_cov):
                 alpha = min(buf[_U(q)] * scale, _F1) * opi
                 t = _U(int(buf[_U(LIST + q)]))
                 if not alpha > _F0 or (not di < zmin and surf[_image_pixel(t, tx0, ty0, width)] <= di):
-                    continue  # as below
+                    continue                                            # as below
                 touched[_U(n_touched)] = t
                 n_touched += near[t] == np.inf
                 near[t] = min(near[t], di)
@@ -788,7 +773,7 @@ def _tile_sums(tx0, ty0, tx1, ty1, members, m0, m1, rec, colour, n_col, surf, zm
                 acc[o] *= _F1 - min(alpha, np.float32(ALPHA_MAX))
                 w = alpha / (dd * dd)
                 acc[o + _U(1)] += w
-                if n_col == 3:  # the usual case, unrolled
+                if n_col == 3:                                        # the usual case, unrolled
                     acc[o + _U(2)] += w * col0
                     acc[o + _U(3)] += w * col1
                     acc[o + _U(4)] += w * col2
@@ -796,22 +781,22 @@ def _tile_sums(tx0, ty0, tx1, ty1, members, m0, m1, rec, colour, n_col, surf, zm
                     for j in range(n_col):
                         acc[o + _U(2 + j)] += w * colour[ci + _U(j)]
             continue
-        w_d = _F1 / (dd * dd)  # a speck: 2 x 2 pixels
+        w_d = _F1 / (dd * dd)                                            # a speck: 2 x 2 pixels
         x0, y0, fx, fy = _speck_box(ui, vi)
         scale = _PI * ai * bi * opi
         for q in range(4):
             x, y, alpha = _speck_pixel(q, x0, y0, fx, fy, scale, tx0, ty0, tx1, ty1)
-            if not alpha > _F0 or (not di < zmin and surf[_U(y * width + x)] <= di):  # depth test:
-                continue  # nearer than the tile's nearest surface, or NaN: none
+            if not alpha > _F0 or (not di < zmin and surf[_U(y * width + x)] <= di):   # depth test:
+                continue                         # nearer than the tile's nearest surface, or NaN: none
             t = _U((y - ty0) * TILE_PX + x - tx0)
-            touched[_U(n_touched)] = t  # listed for the write-out at its first touch
-            n_touched += near[t] == np.inf  # (no branch: it mispredicted half the time)
+            touched[_U(n_touched)] = t           # listed for the write-out at its first touch
+            n_touched += near[t] == np.inf             # (no branch: it mispredicted half the time)
             near[t] = min(near[t], di)
             o = t * _U(2 + n_col)
             acc[o] *= _F1 - min(alpha, np.float32(ALPHA_MAX))
             w = alpha * w_d
             acc[o + _U(1)] += w
-            if n_col == 3:  # the usual case, unrolled
+            if n_col == 3:                                   # the usual case, unrolled
                 acc[o + _U(2)] += w * colour[ci]
                 acc[o + _U(3)] += w * colour[ci + _U(1)]
                 acc[o + _U(4)] += w * colour[ci + _U(2)]
@@ -819,6 +804,7 @@ def _tile_sums(tx0, ty0, tx1, ty1, members, m0, m1, rec, colour, n_col, surf, zm
                 for j in range(n_col):
                     acc[o + _U(2 + j)] += w * colour[ci + _U(j)]
     return n_touched
+# fmt: on
 
 
 @_jit
@@ -1214,6 +1200,7 @@ def _lanes_tested(acc, tb, x0, sx, tx0, tx1, y, cov, co, scale, opi, di, dd, col
         _planar_add(acc, _U(tb + j), alpha, alpha / (dd * dd), di, col0, col1, col2)
 
 
+# fmt: off
 @_exact
 def _planar_sums(tx0, ty0, tx1, ty1, members, m0, m1, rec, colour, surf, zmin, width, acc, cbuf, touched):
     """:func:`_tile_sums`' law into planar sums (:func:`_planar_buffers`), every pixel taking the
@@ -1228,7 +1215,7 @@ def _planar_sums(tx0, ty0, tx1, ty1, members, m0, m1, rec, colour, surf, zmin, w
     n_touched, rows = 0, False
     for k in range(m0, m1):
         i = _U(members[k])
-        p = _U(members[min(k + AHEAD, last)])  # a later member's data on its way to the cache
+        p = _U(members[min(k + AHEAD, last)])      # a later member's data on its way to the cache
         _prefetch(rec, p * _U(REC))
         _prefetch(colour, p * _U(3))
         r, ci = i * _U(REC), i * _U(3)
@@ -1236,11 +1223,11 @@ def _planar_sums(tx0, ty0, tx1, ty1, members, m0, m1, rec, colour, surf, zmin, w
         cs, sn, di, opi = rec[r + _U(4)], rec[r + _U(5)], rec[r + _U(6)], rec[r + _U(7)]
         dd = max(di, np.float32(1e-3))
         col0, col1, col2 = colour[ci], colour[ci + _U(1)], colour[ci + _U(2)]
-        tested = not di < zmin  # depth test per pixel
-        if not ai < np.float32(SPLAT_BELOW_PX):  # an anti-aliased ellipse
+        tested = not di < zmin                                       # depth test per pixel
+        if not ai < np.float32(SPLAT_BELOW_PX):                      # an anti-aliased ellipse
             x0, y0, sx, sy, ca, sa, cb, sb, k0, k1 = _footprint(ui, vi, ai, bi, cs, sn)
             rows = True
-            if max(sx, sy) <= GROUP_MAX_PX and ai < np.float32(NORMALISE_BELOW_PX):  # small: its box
+            if max(sx, sy) <= GROUP_MAX_PX and ai < np.float32(NORMALISE_BELOW_PX):   # small: its box
                 total = _F0
                 for q in range(sy):
                     _lanes_coverage(cbuf, q * LANES, x0, y0 + q, ui, vi, ca, sa, cb, sb, k0, k1, sx)
@@ -1251,59 +1238,23 @@ def _planar_sums(tx0, ty0, tx1, ty1, members, m0, m1, rec, colour, surf, zmin, w
                     y = y0 + q
                     tb = PAD + (y - ty0) * TILE_PX + x0 - tx0
                     if tested:
-                        _lanes_tested(
-                            acc,
-                            tb,
-                            x0,
-                            sx,
-                            tx0,
-                            tx1,
-                            y,
-                            cbuf,
-                            q * LANES,
-                            scale,
-                            opi,
-                            di,
-                            dd,
-                            col0,
-                            col1,
-                            col2,
-                            surf,
-                            width,
-                        )
+                        _lanes_tested(acc, tb, x0, sx, tx0, tx1, y, cbuf, q * LANES, scale, opi, di, dd, col0, col1,
+                                      col2, surf, width)
                     else:
                         _lanes_update(acc, tb, x0, sx, tx0, tx1, cbuf, q * LANES, scale, opi, di, dd, col0, col1, col2)
-            else:  # its box, clipped to the tile
+            else:                                                     # its box, clipped to the tile
                 xs, xe = max(x0, tx0), min(x0 + sx, tx1)
                 for y in range(max(y0, ty0), min(y0 + sy, ty1)):
                     for xc in range(xs, xe, LANES):
                         _lanes_coverage(cbuf, 0, xc, y, ui, vi, ca, sa, cb, sb, k0, k1, xe - xc)
                         tb = PAD + (y - ty0) * TILE_PX + xc - tx0
                         if tested:
-                            _lanes_tested(
-                                acc,
-                                tb,
-                                xc,
-                                xe - xc,
-                                tx0,
-                                tx1,
-                                y,
-                                cbuf,
-                                0,
-                                _F1,
-                                opi,
-                                di,
-                                dd,
-                                col0,
-                                col1,
-                                col2,
-                                surf,
-                                width,
-                            )
+                            _lanes_tested(acc, tb, xc, xe - xc, tx0, tx1, y, cbuf, 0, _F1, opi, di, dd, col0, col1,
+                                          col2, surf, width)
                         else:
                             _lanes_update(acc, tb, xc, xe - xc, tx0, tx1, cbuf, 0, _F1, opi, di, dd, col0, col1, col2)
             continue
-        w_d = _F1 / (dd * dd)  # a speck: 2 x 2 pixels
+        w_d = _F1 / (dd * dd)                                            # a speck: 2 x 2 pixels
         x0, y0, fx, fy = _speck_box(ui, vi)
         scale = _PI * ai * bi * opi
         for q in range(4):
@@ -1315,6 +1266,7 @@ def _planar_sums(tx0, ty0, tx1, ty1, members, m0, m1, rec, colour, surf, zmin, w
             n_touched += acc[_U(_NEAR * PLANE + PAD) + t] == np.inf
             _planar_add(acc, t + _U(PAD), alpha, alpha * w_d, di, col0, col1, col2)
     return -1 if rows else n_touched
+# fmt: on
 
 
 @_exp_vec

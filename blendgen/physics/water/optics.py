@@ -771,22 +771,12 @@ def _depth_factor(water: WaterOptics, depth_m, h: int, w: int, dtype) -> np.ndar
     return np.exp(D, out=D)
 
 
-def apply_water(
-    J: np.ndarray,
-    range_m: np.ndarray,
-    emissive_mask=None,
-    water: WaterOptics | None = None,
-    depth_m=0.0,
-    *,
-    model: str = "physical",
-    veil_depth_m: float | None = None,
-    irradiance=1.0,
-    blur: bool = False,
-    blur_px_per_tau: float = 2.0,
-    blur_max_px: float = 3.0,
-    blur_levels: int = 4,
-    glow_fx: float | None = None,
-) -> np.ndarray:
+# fmt: off
+def apply_water(J: np.ndarray, range_m: np.ndarray, emissive_mask=None,
+                water: WaterOptics | None = None, depth_m=0.0, *, model: str = "physical",
+                veil_depth_m: float | None = None, irradiance=1.0, blur: bool = False,
+                blur_px_per_tau: float = 2.0, blur_max_px: float = 3.0, blur_levels: int = 4,
+                glow_fx: float | None = None) -> np.ndarray:
     """Fast underwater image formation (module docstring) on a clean render.
 
     J (H, W, 3) float32/float64 linear; range_m (H, W) metres along the ray (inf or
@@ -824,38 +814,30 @@ def apply_water(
     t = transmittance(water, range_m, dtype).reshape(h, 3 * w)
     D = _depth_factor(water, depth_m, h, w, dtype)
     if model == "physical":
-        direct = J2 * D  # J_lit: each surface dims by its own depth
+        direct = J2 * D                                   # J_lit: each surface dims by its own depth
         if em is not None and em.any():
-            direct.reshape(h, w, 3)[em] = J2.reshape(h, w, 3)[em]  # emitters: only their path
+            direct.reshape(h, w, 3)[em] = J2.reshape(h, w, 3)[em]   # emitters: only their path
         if veil_depth_m is None:
             veil_depth_m = float(depth_m) if np.ndim(depth_m) == 0 else 0.0
         B = _row(water.B_inf * irr * depth_light(water, float(veil_depth_m)), w, dtype)
     else:
-        direct = J2.copy()  # the article: scale everything at the end
+        direct = J2.copy()                                # the article: scale everything at the end
         B = _row(water.B_inf, w, dtype)
-    direct *= t  # J_lit exp(-c r)
+    direct *= t                                           # J_lit exp(-c r)
     if blur and np.any(water.sigma_s > 0) and blur_max_px > 0:
-        direct = (
-            _forward_scatter_blur(
-                direct.reshape(h, w, 3),
-                range_m,
-                float(np.mean(water.sigma_s)),
-                blur_px_per_tau,
-                blur_max_px,
-                blur_levels,
-            )
-            .astype(dtype, copy=False)
-            .reshape(h, 3 * w)
-        )
-    if glow_fx and em is not None and em.any() and np.any(water.sigma_s > 0):  # both modes
+        direct = _forward_scatter_blur(direct.reshape(h, w, 3), range_m, float(np.mean(water.sigma_s)),
+                                       blur_px_per_tau, blur_max_px, blur_levels
+                                       ).astype(dtype, copy=False).reshape(h, 3 * w)
+    if glow_fx and em is not None and em.any() and np.any(water.sigma_s > 0):     # both modes
         direct = add_emitter_glow(direct.reshape(h, w, 3), em, range_m, water, float(glow_fx)).reshape(h, 3 * w)
     if bool(np.any(B != 0)):
-        np.subtract(dtype(1), t, out=t)  # 1 - exp(-c r), in place
+        np.subtract(dtype(1), t, out=t)                   # 1 - exp(-c r), in place
         t *= B
-        direct += t  # + B (1 - exp(-c r)); exact J at c = 0
+        direct += t                                       # + B (1 - exp(-c r)); exact J at c = 0
     if model == "article":
-        direct *= D  # every pixel times exp(-k d)
+        direct *= D                                       # every pixel times exp(-k d)
     return direct.reshape(h, w, 3)
+# fmt: on
 
 
 def add_emitter_glow(

@@ -38,6 +38,8 @@ def preview_experiment(width: int, height: int, samples: int, fidelity: str, mod
     exp.conditions = [
         Condition(label=f"{w}-d{d:g}", water=Water(preset=w), dock_water_depth_m=d) for w in WATERS for d in DEPTHS
     ]
+    if mode == "physical":  # a depth condition lowers the surface over a dock at the deepest one
+        exp.scene.dock.water_depth_m = max(DEPTHS)
     exp.name = f"preview-{mode}"
     return exp
 

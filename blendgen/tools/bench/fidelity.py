@@ -203,7 +203,8 @@ def calibrate(
     dock_ids = [INDEX_DOCK] + [m["object_index"] for m in markers]
     presets = {}
     for cond in sorted({k[0] for k in ref}):
-        w0 = optics.water_optics(Water(preset=cond))
+        spec = Water(preset=cond)  # rendered bare: in physical mode the level's Jerlov type
+        w0, key = optics.water_for_mode(spec, "physical"), optics.effective_preset(spec, "physical")
         if w0.is_clear:
             continue
         keys = sorted(k for k in ref if k[0] == cond)
@@ -220,7 +221,7 @@ def calibrate(
             "blur": False,
             "a": a.round(5).tolist(),
         }
-        cal = {"presets": {cond: entry}, "sun_elevation_deg": sun_elevation_deg}
+        cal = {"presets": {key: entry}, "sun_elevation_deg": sun_elevation_deg}
         res = {}
         for label, use in (("uncalibrated", False), ("calibrated", True)):
             e_d = irradiance * math.sin(math.radians(sun_elevation_deg))
@@ -239,7 +240,7 @@ def calibrate(
             }
         entry["residual"] = res
         entry["n_pixels"] = int(sum(len(p[0]) for p in pix))
-        presets[cond] = entry
+        presets[key] = entry
     return presets
 
 
@@ -358,40 +359,21 @@ def localization(ds_path: Path) -> pd.DataFrame:
     return trials.groupby(["localizer", "condition"])[["P_succ", "e_rel_mean"]].mean()
 
 
-def run_bench(
-    out: Path,
-    width: int,
-    height: int,
-    frames: int,
-    ref_samples: int,
-    ladder: list[dict] | None = None,
-    conditions=CONDITIONS,
-    echo=print,
-    volume_bounces: int = 32,
-    caustics: bool = False,
-):
+# fmt: off
+def run_bench(out: Path, width: int, height: int, frames: int, ref_samples: int,
+              ladder: list[dict] | None = None, conditions=CONDITIONS, echo=print, volume_bounces: int = 32,
+              caustics: bool = False):
     """Render reference (``volume_bounces`` multiple scattering) and ladder, with ``caustics``
     in both or in neither; returns the table (also written to OUT/fidelity.csv)."""
     import pandas as pd
 
     from evalkit.dataset import Dataset
-
     out.mkdir(parents=True, exist_ok=True)
     ladder = ladder or default_ladder(width, height)
-    echo(
-        f"reference: {len(conditions)} conditions x {frames} frames at {width}x{height}, {ref_samples} spp, "
-        f"{volume_bounces} volume bounces ..."
-    )
-    ref_exp = held_in_experiment(
-        width,
-        height,
-        frames,
-        conditions,
-        fidelity="reference",
-        samples=ref_samples,
-        volume_bounces=volume_bounces,
-        caustics=caustics,
-    )
+    echo(f"reference: {len(conditions)} conditions x {frames} frames at {width}x{height}, {ref_samples} spp, "
+         f"{volume_bounces} volume bounces ...")
+    ref_exp = held_in_experiment(width, height, frames, conditions, fidelity="reference", samples=ref_samples,
+                                 volume_bounces=volume_bounces, caustics=caustics)
     tail = "-caustics" if caustics else ""
     ref_path, ref_t = render(ref_exp, out / f"reference-{width}x{height}-s{ref_samples}-vb{volume_bounces}{tail}")
     ref = load_frames(ref_path)
@@ -404,36 +386,17 @@ def run_bench(
         ref_ms[cond] = 1e3 * float(np.median(np.add(np.add(t["render"], t["depth_to_range"]), t["post_write"])))
     rows = []
     for cond in conditions:
-        rows.append(
-            {
-                "setting": f"reference s{ref_samples} vb{volume_bounces}",
-                "condition": cond,
-                "width": width,
-                "height": height,
-                "ms_per_frame": ref_ms.get(cond, float("nan")),
-                "psnr_db": float("inf"),
-                "mae": 0.0,
-                **{
-                    f"{m}_{n}": ref_loc.loc[(n, cond), c]
-                    for n in LOCALIZERS
-                    for m, c in (("P_succ", "P_succ"), ("e_rel", "e_rel_mean"))
-                },
-                **{f"d{m}_{n}": 0.0 for n in LOCALIZERS for m in ("P_succ", "e_rel")},
-            }
-        )
+        rows.append({"setting": f"reference s{ref_samples} vb{volume_bounces}", "condition": cond,
+                     "width": width, "height": height,
+                     "ms_per_frame": ref_ms.get(cond, float("nan")), "psnr_db": float("inf"), "mae": 0.0,
+                     **{f"{m}_{n}": ref_loc.loc[(n, cond), c] for n in LOCALIZERS
+                        for m, c in (("P_succ", "P_succ"), ("e_rel", "e_rel_mean"))},
+                     **{f"d{m}_{n}": 0.0 for n in LOCALIZERS for m in ("P_succ", "e_rel")}})
     for st in ladder:
         w, h = st["size"]
         echo(f"{st['setting']}: {w}x{h}, {st['samples']} spp ...")
-        exp = held_in_experiment(
-            w,
-            h,
-            frames,
-            conditions,
-            fidelity="fast",
-            samples=st["samples"],
-            water_opts={"calibrated": st["calibrated"], "blur": st["blur"]},
-            caustics=caustics,
-        )
+        exp = held_in_experiment(w, h, frames, conditions, fidelity="fast", samples=st["samples"],
+                                 water_opts={"calibrated": st["calibrated"], "blur": st["blur"]}, caustics=caustics)
         tag = f"{st['samples']}-{w}x{h}-b{int(st['blur'])}-c{int(st['calibrated'])}{tail}"
         path, t = render(exp, out / f"fast-{tag}", fresh=True)
         fast = load_frames(path)
@@ -446,30 +409,19 @@ def run_bench(
                 p, a = image_errors(fast[k]["rgb"], ref[k]["rgb"], mask)
                 ps.append(p)
                 ma.append(a)
-            row = {
-                "setting": st["setting"],
-                "condition": cond,
-                "width": w,
-                "height": h,
-                "ms_per_frame": ms,
-                "psnr_db": float(np.mean(ps)),
-                "mae": float(np.mean(ma)),
-            }
+            row = {"setting": st["setting"], "condition": cond, "width": w, "height": h, "ms_per_frame": ms,
+                   "psnr_db": float(np.mean(ps)), "mae": float(np.mean(ma))}
             for n in LOCALIZERS:
                 P, E = loc.loc[(n, cond), "P_succ"], loc.loc[(n, cond), "e_rel_mean"]
-                row.update(
-                    {
-                        f"P_succ_{n}": P,
-                        f"e_rel_{n}": E,
-                        f"dP_succ_{n}": P - ref_loc.loc[(n, cond), "P_succ"],
-                        f"de_rel_{n}": E - ref_loc.loc[(n, cond), "e_rel_mean"],
-                    }
-                )
+                row.update({f"P_succ_{n}": P, f"e_rel_{n}": E,
+                            f"dP_succ_{n}": P - ref_loc.loc[(n, cond), "P_succ"],
+                            f"de_rel_{n}": E - ref_loc.loc[(n, cond), "e_rel_mean"]})
             rows.append(row)
     df = pd.DataFrame(rows)
     df.to_csv(out / "fidelity.csv", index=False)
     pareto_plot(df, out / "fidelity_pareto.png")
     return df
+# fmt: on
 
 
 def pareto_plot(df, path: Path) -> None:

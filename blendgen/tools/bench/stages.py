@@ -83,6 +83,7 @@ def _median_ms(fn, repeats: int = 15, clock=time.perf_counter) -> float:
     return 1e3 * float(np.median(ts))
 
 
+# fmt: off
 def term_costs(dataset: Path) -> pd.DataFrame:
     """Median ms of each image-formation term on one frame of a rendered bench dataset
     (its range and index passes, its image as the clean render, albedo 0.5). A term that
@@ -94,61 +95,31 @@ def term_costs(dataset: Path) -> pd.DataFrame:
     from blendgen.pipeline.plan import SequencePost, WorldPost
     from datasets_spec.io import load_index, load_range
     from evalkit.dataset import Dataset
-
     ds = Dataset.open(dataset)
     frames = list(ds.iter_frames(ds.sequences[0]["id"]))
     f = frames[len(frames) // 2]
     K = np.asarray(ds.manifest["camera"]["K"], float)
     rgb = sensor.srgb_decode(ds.load_image(f)).astype(np.float32)
-    passes = {
-        "rgb": rgb,
-        "albedo": np.full_like(rgb, 0.5),
-        "range_m": np.asarray(load_range(ds.frame_file(f, "depth")), np.float32),  # 1.1 PNG or 1.0 NPZ
-        "index": load_index(ds.frame_file(f, "object_index")),
-    }
+    passes = {"rgb": rgb, "albedo": np.full_like(rgb, 0.5),
+              "range_m": np.asarray(load_range(ds.frame_file(f, "depth")), np.float32),   # 1.1 PNG or 1.0 NPZ
+              "index": load_index(ds.frame_file(f, "object_index"))}
     frame = {"T_world_cam": f["T_world_cam"]}
     markers = ds.markers
     T_wd = np.asarray(ds.manifest["dock"]["T_world_dock"], float)
 
     def state(mode, world=None, lamps=(), **sens):
-        return compose.SequenceState.start(
-            SequencePost(
-                seed=0,
-                fps=10,
-                image_formation=mode,
-                water=Water(preset="mild"),
-                light_depth_m=1.0,
-                surface_z_m=0.0,
-                irradiance_w_m2=3.2,
-                sensor=Sensor(**sens),
-                world=world,
-                lamps=list(lamps),
-                lamp_forward_kept=0.85 if lamps else None,
-            )
-        )
-
+        return compose.SequenceState.start(SequencePost(
+            seed=0, fps=10, image_formation=mode, water=Water(preset="mild"), light_depth_m=1.0, surface_z_m=0.0,
+            irradiance_w_m2=3.2, sensor=Sensor(**sens), world=world, lamps=list(lamps),
+            lamp_forward_kept=0.85 if lamps else None))
     phys, art = state("physical", noise=False), state("article")
-    surf, caus = (
-        state(
-            "physical",
-            WorldPost(
-                surface=s,
-                caustics=not s,
-                wind_mps=1.0,
-                wave_seed=0,
-                sky_radiance=0.21,
-                ambient_radiance=0.34,
-                sun_travel_dir=[0.0, -0.5, -0.866],
-            ),
-            noise=False,
-        )
-        for s in (True, False)
-    )
-    compose.water_image(passes, caus, K, frame["T_world_cam"], markers, t=0.3)  # per-sequence caustic table
+    surf, caus = (state("physical", WorldPost(surface=s, caustics=not s, wind_mps=1.0, wave_seed=0, sky_radiance=0.21,
+                                              ambient_radiance=0.34, sun_travel_dir=[0.0, -0.5, -0.866]),
+                        noise=False) for s in (True, False))
+    compose.water_image(passes, caus, K, frame["T_world_cam"], markers, t=0.3)   # per-sequence caustic table
     from blendgen.config.models import Lamp
     from blendgen.physics.light import lamp_shadow, lamp_water
     from blendgen.tools.bench.lamp_bench import DEMO_LAMP
-
     lamp = state("physical", lamps=[Lamp(**DEMO_LAMP)], noise=False)
     noshadow = compose.SequenceState.start(lamp.post.model_copy(update={"lamp_shadows": False}))
     lit = {**passes, "normal": np.broadcast_to(np.float32([0, 0, 1]), rgb.shape).copy()}
@@ -157,66 +128,40 @@ def term_costs(dataset: Path) -> pd.DataFrame:
     rows = [
         ("ambient (albedo x L)", lambda: compose.add_ambient(dict(passes), 0.34)),
         ("surface depth map", lambda: compose.surface_depth(passes["range_m"], K, frame["T_world_cam"], 0.0)),
-        (
-            "water physical (incl. depth map)",
-            lambda: compose.water_image(passes, phys, K, frame["T_world_cam"], markers),
-        ),
+        ("water physical (incl. depth map)",
+         lambda: compose.water_image(passes, phys, K, frame["T_world_cam"], markers)),
         ("water article", lambda: compose.water_image(passes, art, K, frame["T_world_cam"], markers)),
-        (
-            "water physical + surface (Snell's window)",
-            lambda: compose.water_image(passes, surf, K, frame["T_world_cam"], markers, t=0.3),
-        ),
-        (
-            "water physical + caustics",
-            lambda: compose.water_image(passes, caus, K, frame["T_world_cam"], markers, t=0.3),
-        ),
+        ("water physical + surface (Snell's window)",
+         lambda: compose.water_image(passes, surf, K, frame["T_world_cam"], markers, t=0.3)),
+        ("water physical + caustics",
+         lambda: compose.water_image(passes, caus, K, frame["T_world_cam"], markers, t=0.3)),
         ("water physical + vehicle lamp", lambda: compose.water_image(lit, lamp, K, frame["T_world_cam"], markers)),
         ("  vehicle lamp (surfaces + veil)", lambda: compose.lamp_image(lit, lamp.lamp, K, frame["T_world_cam"])),
         ("  of which backscatter veil", lambda: lamp_water.backscatter(lamp.lamp, K, passes["range_m"])),
-        (
-            "  of which lamp shadows (screen-space test)",
-            lambda: lamp_shadow.visibility(
-                lamp.lamp.lights[0].position_m,
-                K,
-                compose._unit_rays(tuple(K.ravel()), rgb.shape[1], rgb.shape[0]),
-                passes["range_m"],
-            ),
-        ),
+        ("  of which lamp shadows (screen-space test)", lambda: lamp_shadow.visibility(
+            lamp.lamp.lights[0].position_m, K, compose._unit_rays(tuple(K.ravel()), rgb.shape[1], rgb.shape[0]),
+            passes["range_m"])),
         ("  vehicle lamp without shadows", lambda: compose.lamp_image(lit, noshadow.lamp, K, frame["T_world_cam"])),
-        (
-            "  of which LED glow",
-            lambda: optics.add_emitter_glow(
-                rgb, compose.emissive_mask(passes["index"], markers), passes["range_m"], phys.water, float(K[0, 0])
-            ),
-        ),
+        ("  of which LED glow", lambda: optics.add_emitter_glow(
+            rgb, compose.emissive_mask(passes["index"], markers), passes["range_m"], phys.water, float(K[0, 0]))),
         ("8-bit sRGB encode only (before: to_uint8)", lambda: sensor.to_uint8(rgb)),
         ("sensor, no noise", lambda: phys.camera.apply(rgb, phys.rng)),
         ("sensor, shot + read noise", lambda: noisy.camera.apply(rgb, noisy.rng)),
         ("sensor, blooming", lambda: bloom.camera.apply(rgb * 20, bloom.rng)),
-        (
-            "LEDs light nearby surfaces (physical)",
-            lambda: compose.led_light(passes, phys, K, frame["T_world_cam"], markers, T_wd),
-        ),
-        (
-            "  LEDs light: no LED array (off)",
-            lambda: compose.led_light(passes, phys, K, frame["T_world_cam"], [], T_wd),
-        ),
-        (
-            "auto-exposure metering (99.9 percentile)",
-            lambda: sensor.AutoExposure().next_exposure(rgb, 0.004, phys.camera, 0.1),
-        ),
+        ("LEDs light nearby surfaces (physical)", lambda: compose.led_light(
+            passes, phys, K, frame["T_world_cam"], markers, T_wd)),
+        ("  LEDs light: no LED array (off)",
+         lambda: compose.led_light(passes, phys, K, frame["T_world_cam"], [], T_wd)),
+        ("auto-exposure metering (99.9 percentile)", lambda: sensor.AutoExposure().next_exposure(
+            rgb, 0.004, phys.camera, 0.1)),
         ("motion blur 5 px", lambda: sensor.motion_blur(rgb, (5.0, 1.0))),
-        (
-            "distortion RGB + index + range",
-            lambda: (sensor.distort_image(rgb, K, dist), compose.output_passes(passes, K, dist)),
-        ),
+        ("distortion RGB + index + range", lambda: (sensor.distort_image(rgb, K, dist),
+                                                    compose.output_passes(passes, K, dist))),
     ]
-    return pd.DataFrame(
-        [
-            {"term": name, "ms_per_frame": _median_ms(fn), "cpu_ms_per_frame": _median_ms(fn, clock=time.process_time)}
-            for name, fn in rows
-        ]
-    )
+    return pd.DataFrame([{"term": name, "ms_per_frame": _median_ms(fn),
+                          "cpu_ms_per_frame": _median_ms(fn, clock=time.process_time)}
+                         for name, fn in rows])
+# fmt: on
 
 
 def localizer_speed(dataset: Path) -> pd.DataFrame:
