@@ -96,6 +96,20 @@ def hold(
     )
 
 
+def _largest_speed(ok, tol: float) -> float:
+    """Largest speed (m/s) in [0, SPEED_SEARCH_MAX_MPS] for which the monotone test ``ok``
+    holds, by bisection to ``tol``; 0 when it fails at rest."""
+    if not ok(0.0):
+        return 0.0
+    lo, hi = 0.0, SPEED_SEARCH_MAX_MPS
+    if ok(hi):
+        return hi
+    while hi - lo > tol:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if ok(mid) else (lo, mid)
+    return lo
+
+
 def max_holdable_speed(
     direction_flu,
     rho: float = 1025.0,
@@ -112,15 +126,7 @@ def max_holdable_speed(
     def ok(speed: float) -> bool:
         return hold(-(F_FLU_FRD @ d) * speed, rho, params, thrusters).holds
 
-    if not ok(0.0):
-        return 0.0
-    lo, hi = 0.0, SPEED_SEARCH_MAX_MPS
-    if ok(hi):
-        return hi
-    while hi - lo > tol:
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if ok(mid) else (lo, mid)
-    return lo
+    return _largest_speed(ok, tol)
 
 
 def station_keeping_authority(
@@ -205,15 +211,7 @@ def max_docking_current(
     def ok(c: float) -> bool:
         return docking_authority(c * d, approach_world, final_speed_mps, max_heading_deg, rho, params)["holds"]
 
-    if not ok(0.0):
-        return 0.0
-    lo, hi = 0.0, SPEED_SEARCH_MAX_MPS
-    if ok(hi):
-        return hi
-    while hi - lo > tol:
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if ok(mid) else (lo, mid)
-    return lo
+    return _largest_speed(ok, tol)
 
 
 __all__ = [
