@@ -358,11 +358,18 @@ def _export_scene(ex: _Export, scene_id: int, seq: dict) -> int:
     return len(scene_camera)
 
 
-# fmt: off
-def export_bop(dataset: Dataset | str | Path, out_dir: str | Path, split: str = "test",
-               copy_images: bool = True, depth_scale: float = 1.0, masks: bool = True,
-               sequences: list[str] | None = None, undistort: bool = False, pixels: str = "opencv",
-               progress: bool = False) -> dict:
+def export_bop(
+    dataset: Dataset | str | Path,
+    out_dir: str | Path,
+    split: str = "test",
+    copy_images: bool = True,
+    depth_scale: float = 1.0,
+    masks: bool = True,
+    sequences: list[str] | None = None,
+    undistort: bool = False,
+    pixels: str = "opencv",
+    progress: bool = False,
+) -> dict:
     """Write ``dataset`` as a BOP dataset into ``out_dir`` (see the module docstring); images are
     copied unless ``copy_images=False`` (relative symlinks). ``pixels``: the silhouettes' pixel
     convention, ``"opencv"`` (the renderer's, default) or ``"toolkit"`` (the BOP toolkit's OpenGL
@@ -372,45 +379,106 @@ def export_bop(dataset: Dataset | str | Path, out_dir: str | Path, split: str = 
 
     Returns a summary ``{scenes, images, objects, depth_clipped_px, undistorted}``."""
     ds = dataset if isinstance(dataset, Dataset) else Dataset.open(dataset)
-    if depth_scale <= 0:
-        raise ValueError("depth_scale must be > 0")
-    if pixels not in PIXEL_CONVENTIONS:
-        raise ValueError(f"pixels must be one of {sorted(PIXEL_CONVENTIONS)}, got {pixels!r}")
-    distorted = has_distortion(ds)
-    if distorted and not undistort:
-        raise DatasetError(f"{ds.root}: the camera has lens distortion {ds.camera['dist'].tolist()} but BOP "
-                           "cameras are pinhole (cam_K only); export with --undistort (undistort=True) to "
-                           "remap images, depth and masks to the pinhole camera of the same K")
-    ex = _Export(ds, Path(out_dir), split, copy_images, depth_scale, masks, index_values=_index_values(ds),
-                 undistort_maps=_undistort_maps(ds) if distorted else None, sample_offset=PIXEL_CONVENTIONS[pixels])
+    distorted = _check_export_args(ds, depth_scale, pixels, undistort)
+    ex = _Export(
+        ds,
+        Path(out_dir),
+        split,
+        copy_images,
+        depth_scale,
+        masks,
+        index_values=_index_values(ds),
+        undistort_maps=_undistort_maps(ds) if distorted else None,
+        sample_offset=PIXEL_CONVENTIONS[pixels],
+    )
     ex.out.mkdir(parents=True, exist_ok=True)
-    cam = ds.camera
-    _json(ex.out / "camera.json", {"cx": float(ex.K[0, 2]), "cy": float(ex.K[1, 2]), "fx": float(ex.K[0, 0]),
-                                   "fy": float(ex.K[1, 1]), "width": cam["width"], "height": cam["height"],
-                                   "depth_scale": depth_scale})
+    _write_camera(ex, depth_scale)
     _write_models(ex)
     scenes, n_images = {}, 0
     chosen = [(i, q) for i, q in enumerate(ds.sequences) if sequences is None or q["id"] in sequences]
     with progress_bar(sum(int(q.get("n_frames") or 0) for _, q in chosen), progress, "export-bop: images") as tick:
         ex.tick = tick
         for scene_id, seq in chosen:
-            scenes[f"{scene_id:06d}"] = {"sequence": seq["id"], "condition": seq.get("condition"),
-                                         "trajectory": seq.get("trajectory"), "trial": seq.get("trial")}
+            scenes[f"{scene_id:06d}"] = {
+                "sequence": seq["id"],
+                "condition": seq.get("condition"),
+                "trajectory": seq.get("trajectory"),
+                "trial": seq.get("trial"),
+            }
             n_images += _export_scene(ex, scene_id, seq)
     _json(ex.out / "test_targets_bop19.json", ex.targets)
-    m = ds.manifest
-    _json(ex.out / "dockbench_scenes.json", {
+    _write_scenes_doc(ex, scenes, split, depth_scale, pixels, distorted)
+    cam = ds.camera
+    (ex.out / "register_bop_toolkit.py").write_text(
+        registration_script(
+            BOP_DATASET_NAME,
+            sorted(ex.obj_ids.values()),
+            [int(k) for k in scenes],
+            cam["width"],
+            cam["height"],
+            VISIB_DELTA_MM,
+        )
+    )
+    return {
+        "scenes": len(scenes),
+        "images": n_images,
+        "objects": len(ds.markers),
+        "depth_clipped_px": ex.clipped,
+        "undistorted": distorted,
+    }
+
+
+def _check_export_args(ds: Dataset, depth_scale: float, pixels: str, undistort: bool) -> bool:
+    """Validate :func:`export_bop`'s arguments; returns whether the camera has lens distortion."""
+    if depth_scale <= 0:
+        raise ValueError("depth_scale must be > 0")
+    if pixels not in PIXEL_CONVENTIONS:
+        raise ValueError(f"pixels must be one of {sorted(PIXEL_CONVENTIONS)}, got {pixels!r}")
+    distorted = has_distortion(ds)
+    if distorted and not undistort:
+        raise DatasetError(
+            f"{ds.root}: the camera has lens distortion {ds.camera['dist'].tolist()} but BOP "
+            "cameras are pinhole (cam_K only); export with --undistort (undistort=True) to "
+            "remap images, depth and masks to the pinhole camera of the same K"
+        )
+    return distorted
+
+
+def _write_camera(ex: _Export, depth_scale: float) -> None:
+    """``camera.json``: the pinhole intrinsics (px) and the depth scale (mm per depth unit)."""
+    cam = ex.ds.camera
+    _json(
+        ex.out / "camera.json",
+        {
+            "cx": float(ex.K[0, 2]),
+            "cy": float(ex.K[1, 2]),
+            "fx": float(ex.K[0, 0]),
+            "fy": float(ex.K[1, 1]),
+            "width": cam["width"],
+            "height": cam["height"],
+            "depth_scale": depth_scale,
+        },
+    )
+
+
+def _write_scenes_doc(ex: _Export, scenes: dict, split: str, depth_scale: float, pixels: str, distorted: bool) -> None:
+    """``dockbench_scenes.json``: which dataset sequence each BOP scene is, and how visibility was computed."""
+    m, cam = ex.ds.manifest, ex.ds.camera
+    doc = {
         "dataset": {"name": m.get("name"), "version": m.get("version"), "content_hash": m.get("content_hash")},
-        "bop_name": BOP_DATASET_NAME, "split": split, "depth_scale": depth_scale, "scenes": scenes,
-        "width": int(cam["width"]), "height": int(cam["height"]),
-        "undistorted_from": ds.camera["dist"].tolist() if distorted else None,
-        "visib_fract": {"from_depth_test": ex.visib_sources["depth_test"],
-                        "from_object_index": ex.visib_sources["object_index"],
-                        "copied_from_dataset": ex.visib_sources["copied"], "delta_mm": VISIB_DELTA_MM,
-                        "pixel_convention": pixels}})
-    (ex.out / "register_bop_toolkit.py").write_text(registration_script(
-        BOP_DATASET_NAME, sorted(ex.obj_ids.values()), [int(k) for k in scenes], cam["width"], cam["height"],
-        VISIB_DELTA_MM))
-    return {"scenes": len(scenes), "images": n_images, "objects": len(ds.markers),
-            "depth_clipped_px": ex.clipped, "undistorted": distorted}
-# fmt: on
+        "bop_name": BOP_DATASET_NAME,
+        "split": split,
+        "depth_scale": depth_scale,
+        "scenes": scenes,
+        "width": int(cam["width"]),
+        "height": int(cam["height"]),
+        "undistorted_from": cam["dist"].tolist() if distorted else None,
+        "visib_fract": {
+            "from_depth_test": ex.visib_sources["depth_test"],
+            "from_object_index": ex.visib_sources["object_index"],
+            "copied_from_dataset": ex.visib_sources["copied"],
+            "delta_mm": VISIB_DELTA_MM,
+            "pixel_convention": pixels,
+        },
+    }
+    _json(ex.out / "dockbench_scenes.json", doc)
