@@ -40,6 +40,12 @@ checks it), so the colour pattern fixes the order. Pipeline (blob stage in
    against the keypoints' (dock frame, y up) at the single rotation where it agrees;
 6. PnP: SOLVEPNP_IPPE on the dock-frame keypoints, both solutions checked, LM refine.
 
+Search window: with a previous pose, steps 1-6 run first on the window around the LEDs it
+projects (``roi``), with the whole image's threshold levels (fractions of its maximum) and
+background cell size; the whole image when the window gives no pose. On a sunlit pool
+the window leaves most caustic blobs out, which is where the time went (the blob stage
+and the measured candidates scale with the pixels searched).
+
 Particles, caustics and reflections (more than N blobs): the N most LED-like candidates
 are solved first; when they do not fit within ``accept_px``, an assignment search with a
 geometric consistency check over the ``max_candidates`` candidates (N + 3 by default):
