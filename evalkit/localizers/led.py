@@ -116,7 +116,9 @@ def image_order(uv: np.ndarray, ref: int | None = None) -> np.ndarray:
 
 def match_rotation(labels: np.ndarray, pattern: np.ndarray) -> int | None:
     """The unique k with roll(labels, -k) == pattern (cyclic sequences of 0/1), or None."""
-    hits = [k for k in range(len(pattern)) if np.array_equal(np.roll(labels, -k), pattern)]
+    n = len(pattern)
+    twice = np.concatenate((labels, labels))  # twice[k : k + n] == roll(labels, -k)
+    hits = [k for k in range(n) if np.array_equal(twice[k : k + n], pattern)]
     return hits[0] if len(hits) == 1 else None
 
 
@@ -504,8 +506,9 @@ def _convex(uv: np.ndarray) -> bool:
     strictly convex polygon with no coincident points."""
     c = uv - uv.mean(axis=0)
     p = uv[np.argsort(np.arctan2(c[:, 1], c[:, 0]))]
-    e = np.roll(p, -1, axis=0) - p
+    e = np.concatenate((p[1:], p[:1])) - p  # edge i: vertex i -> i + 1 (cyclic)
     if np.min(np.hypot(e[:, 0], e[:, 1])) < 1.0:
         return False
-    cross = e[:, 0] * np.roll(e, -1, axis=0)[:, 1] - e[:, 1] * np.roll(e, -1, axis=0)[:, 0]
+    e_next = np.concatenate((e[1:], e[:1]))
+    cross = e[:, 0] * e_next[:, 1] - e[:, 1] * e_next[:, 0]
     return bool(np.all(cross > 0) or np.all(cross < 0))

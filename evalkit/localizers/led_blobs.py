@@ -221,11 +221,10 @@ def centroid(
     else:
         w = np.clip(vf - t_low, 0, None)
         w[(lab_roi != lab) & (lab_roi != 0)] = 0.0
-    s = float(w.sum())
-    if s <= 0:
+    m = cv2.moments(w)  # sums of w, x w and y w (box px), accumulated in float64
+    if not m["m00"] > 0:
         return None
-    yy, xx = np.mgrid[ya : ya + v_roi.shape[0], xa : xa + v_roi.shape[1]]
-    return float((w * xx).sum() / s), float((w * yy).sum() / s)
+    return xa + m["m10"] / m["m00"], ya + m["m01"] / m["m00"]
 
 
 def colour(fr: Frame, lab_roi: np.ndarray, lab: int, xa: int, ya: int) -> tuple[np.ndarray, float] | None:
@@ -240,13 +239,15 @@ def colour(fr: Frame, lab_roi: np.ndarray, lab: int, xa: int, ya: int) -> tuple[
     h, w = lab_roi.shape
     rgb = fr.rgb[ya : ya + h, xa : xa + w]
     lo = cv2.min(cv2.min(rgb[:, :, 0], rgb[:, :, 1]), rgb[:, :, 2])
-    use = ((lab_roi == lab) | (lab_roi == 0)) & (fr.excess[ya : ya + h, xa : xa + w] > fr.floor) & (lo < CLIP_DN)
-    if not use.any():
+    excess = fr.excess[ya : ya + h, xa : xa + w]
+    use = (((lab_roi == lab) | (lab_roi == 0)) & (excess > fr.floor) & (lo < CLIP_DN)).view(np.uint8)
+    n = cv2.countNonZero(use)
+    if n == 0:
         return None
-    px = rgb[use].astype(np.float32) - fr.bg_at(xa + 0.5 * w, ya + 0.5 * h)
-    s = px.sum(axis=0)
+    # per-channel sums over the used pixels (cv2.mean over the mask x their count), minus the background's
+    s = n * (np.array(cv2.mean(rgb, use)[:3]) - fr.bg_at(xa + 0.5 * w, ya + 0.5 * h))
     ab = np.array([s[0] - 0.5 * (s[1] + s[2]), SQ3_2 * (s[1] - s[2])])
-    bright = float(fr.excess[ya : ya + h, xa : xa + w][use].sum())
+    bright = n * cv2.mean(excess, use)[0]
     if bright <= 0:
         return None
     return ab, float(np.hypot(*ab)) / bright
