@@ -152,8 +152,12 @@ def test_prefer_footprint_takes_the_marker_spanning_more_pixels():
 
 def test_prefer_uncertainty_takes_the_pose_with_the_smaller_predicted_range_error():
     h = stubbed(prefer="uncertainty")
-    # same residual: the LED array's 0.85 m diagonal beats the QR's 0.21 m (sigma_Z ~ 1 / span)
-    assert frame(h, (2.0, 0.1), (2.0, 0.1)) == ("led", (1, 1))
+    # same residual: the LED array's 0.85 m diagonal beats the QR's 0.21 m (sigma_Z ~ 1 / span),
+    # so much that the QR, at its noise floor and 0.8 x the LED's range, could not win: not run
+    assert frame(h, (2.0, 0.1), (2.0, 0.1)) == ("led", (0, 1))
+    # an LED fit 3x worse: sigma 0.6 px / 0.85 m = 0.71 px/m exceeds the QR's best case,
+    # 0.8^2 x 0.1 px / 0.21 m = 0.30 px/m, so the QR runs; its own 0.2 px / 0.21 m = 0.94 loses
+    assert frame(h, (2.0, 0.1), (2.0, 0.3)) == ("led", (1, 1))
     # an LED fit 10x worse than the QR's: 0.85 / 1.0 px < 0.21 / 0.1 px, the QR wins
     assert frame(h, (2.0, 0.1), (2.0, 1.0)) == ("qr", (1, 1))
     assert frame(h, (0.5, 0.1), None) == ("qr", (1, 1))  # LED array out of view: QR

@@ -147,3 +147,54 @@ def test_previous_pose_is_the_prior_and_shared_state():
     loc.reset({"K": K, "width": 640, "height": 480, "markers": [LED]})
     assert loc.memo_state() == b"-"
     assert make(LedLocalizer, [LED], prior=False).localize(img) is not None
+
+
+def test_search_window_holds_the_predicted_leds_on_background_cells():
+    """With a prior, the window is the projected LEDs' box grown by half their span (at
+    least 48 px), snapped outwards to the 32 px background cells of a 640 px image."""
+    img, camera, T, uv, _ = _captured()
+    loc = LedLocalizer()
+    loc.reset(camera)
+    assert loc._window(img.shape[:2]) is None  # no prior: no window
+    loc._prev_T = T.copy()
+    x0, y0, x1, y1 = loc._window(img.shape[:2])
+    span = float(np.ptp(uv, axis=0).max())  # 58 px at 5.75 m: margin 48 px
+    margin = max(48.0, 0.5 * span)
+    assert all(v % 32 == 0 for v in (x0, y0, x1, y1))
+    assert x0 <= uv[:, 0].min() - margin and x1 >= uv[:, 0].max() + margin
+    assert y0 <= uv[:, 1].min() - margin and y1 >= uv[:, 1].max() + margin
+    assert x0 > uv[:, 0].min() - margin - 32 and x1 < uv[:, 0].max() + margin + 32
+    loc._prev_T = T.copy()
+    loc._prev_T[:3, 3] *= 0.2  # 1.15 m away: the array spans ~290 px, window > half the image
+    assert loc._window(img.shape[:2]) is None
+    behind = T.copy()
+    behind[2, 3] = -5.0
+    loc._prev_T = behind
+    assert loc._window(img.shape[:2]) is None
+
+
+def test_tracked_window_gives_the_whole_image_pose_and_falls_back_when_the_prior_is_wrong():
+    """On the sunlit frame: with the true pose as prior the window search gives the same
+    pose as the whole image (within 1 mm and 0.01 deg); with a prior pointing at the
+    other side of the frame (no LEDs in the window) the whole image still finds the dock."""
+    img, camera, T, _, d_true = _captured()
+    whole = LedLocalizer(roi=False)
+    whole.reset(camera)
+    whole._prev_T = T.copy()
+    ref = whole.localize(img)
+    loc = LedLocalizer()
+    loc.reset(camera)
+    loc._prev_T = T.copy()
+    assert loc._tracked(img) is not None
+    loc._prev_T = T.copy()
+    est = loc.localize(img)
+    assert ref is not None and est is not None
+    assert est["distance"] == pytest.approx(ref["distance"], abs=1e-3)
+    assert rot_err_deg(est["T_cam_dock"], ref["T_cam_dock"]) < 0.01
+    wrong = T.copy()
+    wrong[0, 3] += 2.5  # the array predicted ~240 px to the side
+    loc._prev_T = wrong
+    assert loc._tracked(img) is None
+    loc._prev_T = wrong
+    est = loc.localize(img)
+    assert est is not None and est["distance"] == pytest.approx(d_true, rel=0.01)

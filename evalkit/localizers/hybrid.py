@@ -23,7 +23,9 @@ otherwise. Per frame (the distance known before it: the previous estimate of the
   near localizer first searches where that pose projects the near marker
   (``set_roi_hint``: an upscaled ROI, which is what lets small codes decode).
 ``prefer="uncertainty"`` (default) chooses per frame by each pose's predicted range
-error: both run within the near range (far first; the QR skipped beyond it), and of two
+error: both run within the near range (far first; the QR skipped beyond it, and also
+when even its best case, keypoint noise at ``min_sigma_px`` and a range 0.8 x the LED's,
+predicts a larger error than the LED pose's: then it cannot win), and of two
 estimates the one with the smaller
 
     sigma_Z = 0.87 Z^2 sigma_px / (f S)
@@ -207,10 +209,23 @@ class HybridLocalizer:
             return far, "far"
         if far is not None and far.get("T_cam_dock") is not None:
             self._hint(far["T_cam_dock"])
+        if far is not None and self._sigma(far) < self._near_best_sigma(far):
+            return far, "far"  # the near marker could not win: not run
         near = self._try("near", image)
         if near is None or far is None:
             return (near, "near") if near is not None else (far, "far")
         return (near, "near") if self._sigma(near) < self._sigma(far) else (far, "far")
+
+    def _near_best_sigma(self, far: dict) -> float:
+        """The smallest predicted range error (m) a near estimate could have on this frame:
+        its keypoint noise at the floor ``min_sigma_px`` and its range NEAR_RANGE_FLOOR x
+        the far estimate's; 0 when the near marker's span or the focal length is unknown
+        (then it is always run)."""
+        marker = getattr(self.subs["near"], "_marker", None)
+        span = self._span_m.get(str(marker.get("id")), 0.0) if isinstance(marker, dict) else 0.0
+        if not span or not self._f:
+            return 0.0
+        return range_sigma_m(NEAR_RANGE_FLOOR * float(far["distance"]), self._f, span, None, None, self.min_sigma_px)
 
     def _sigma(self, est: dict) -> float:
         """Predicted range error (m) of an estimate (:func:`range_sigma_m`); inf when the
@@ -247,6 +262,12 @@ class HybridLocalizer:
 
 
 PREFER = ("uncertainty", "near", "footprint")
+#: prefer=uncertainty skips the near marker when even a near estimate this fraction of the
+#: far one's range, with keypoint noise at the floor, would predict a larger range error:
+#: 0.8 is twice the evaluation's default 10 % distance tolerance (``dockbench evaluate
+#: --max-rel-error``), so a near estimate shorter than that disagrees with a far one that
+#: fits, and one of the two fails anyway.
+NEAR_RANGE_FLOOR = 0.8
 
 
 def keypoint_sigma_px(reproj_rms_px, n_points, floor_px: float) -> float:

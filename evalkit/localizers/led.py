@@ -40,6 +40,12 @@ checks it), so the colour pattern fixes the order. Pipeline (blob stage in
    against the keypoints' (dock frame, y up) at the single rotation where it agrees;
 6. PnP: SOLVEPNP_IPPE on the dock-frame keypoints, both solutions checked, LM refine.
 
+Search window: with a previous pose, steps 1-6 run first on the window around the LEDs it
+projects (``roi``), with the whole image's threshold levels (fractions of its maximum) and
+background cell size; the whole image when the window gives no pose. On a sunlit pool
+the window leaves most caustic blobs out, which is where the time went (the blob stage
+and the measured candidates scale with the pixels searched).
+
 Particles, caustics and reflections (more than N blobs): the N most LED-like candidates
 are solved first; when they do not fit within ``accept_px``, an assignment search with a
 geometric consistency check over the ``max_candidates`` candidates (N + 3 by default):
@@ -110,7 +116,9 @@ def image_order(uv: np.ndarray, ref: int | None = None) -> np.ndarray:
 
 def match_rotation(labels: np.ndarray, pattern: np.ndarray) -> int | None:
     """The unique k with roll(labels, -k) == pattern (cyclic sequences of 0/1), or None."""
-    hits = [k for k in range(len(pattern)) if np.array_equal(np.roll(labels, -k), pattern)]
+    n = len(pattern)
+    twice = np.concatenate((labels, labels))  # twice[k : k + n] == roll(labels, -k)
+    hits = [k for k in range(n) if np.array_equal(twice[k : k + n], pattern)]
     return hits[0] if len(hits) == 1 else None
 
 
@@ -128,7 +136,9 @@ class LedLocalizer:
                  max_reproj_px: float = 3.0, min_saturation: float = 0.2, max_hue_err_deg: float = 60.0,
                  centroid: str = "core", max_view_deg: float = 70.0, ladder: tuple = (0.8, 0.97),
                  prior: bool = True, prior_gate_px: float = 8.0, measure_factor: int = 3,
-                 accept_px: float = 0.5, min_size_frac: float = 0.4, max_solves: int = 35):
+                 accept_px: float = 0.5, min_size_frac: float = 0.4, max_solves: int = 35,
+                 roi: bool = True, roi_margin: float = 0.5, roi_min_margin_px: float = 48.0,
+                 roi_max_frac: float = 0.5):
         """threshold: brightness (max channel, 0-255) that LED cores exceed; lowered to
         rel_threshold * image max (not below min_threshold) for dim images.
         min_area_px / max_area_frac: blob area limits (px / fraction of the image).
@@ -162,6 +172,12 @@ class LedLocalizer:
         image diameter the set's span implies, less 1.5 px (``_sizes_fit``; 0.4: a
         blurred disc cut at 0.97 of its peak by the ladder keeps about half its diameter).
         max_solves: PnP solves per threshold level at most (35 = every 4-subset of 7).
+        roi: with a previous pose, search first only the window around the LEDs it
+        projects (``_window``), the whole image when that gives no pose; roi_margin: the
+        window's margin around the projected LEDs as a fraction of their span (0.5: the
+        array may move by half its own size between frames), at least roi_min_margin_px
+        (48 px: 5 deg of yaw at f = 554 px); roi_max_frac: above this share of the image the
+        window saves too little, the whole image is searched at once.
         Reason for > 8 params: every threshold of the blob pipeline is a documented knob."""
         if centroid not in ("weighted", "core"):
             raise ValueError(f"centroid must be weighted or core, got {centroid!r}")
@@ -184,6 +200,10 @@ class LedLocalizer:
         self.accept_px = float(accept_px)
         self.min_size_frac = float(min_size_frac)
         self.max_solves = max(1, int(max_solves))
+        self.roi = str(roi).lower() not in ("false", "0", "no", "off")
+        self.roi_margin = float(roi_margin)
+        self.roi_min_margin_px = float(roi_min_margin_px)
+        self.roi_max_frac = float(roi_max_frac)
         self.cos_hue = math.cos(math.radians(float(max_hue_err_deg)))
         self.centroid = centroid
         self.cos_view = math.cos(math.radians(float(max_view_deg)))
@@ -251,16 +271,53 @@ class LedLocalizer:
         if a.dtype != np.uint8 or a.ndim != 3 or a.shape[2] != 3 or min(a.shape[:2]) < 8:
             return None
         try:
-            est = self._localize(lb.prepare(a))
+            est = self._tracked(a)
+            if est is None:
+                est = self._localize(lb.prepare(a), self._vmax(a))
         except (cv2.error, ValueError, FloatingPointError, np.linalg.LinAlgError):
             est = None
         if self.prior:
             self._prev_T = None if est is None else np.array(est["T_cam_dock"], np.float64)
         return est
 
-    def _localize(self, fr: lb.Frame) -> dict | None:
+    def _tracked(self, image: np.ndarray) -> dict | None:
+        """Pose from the search window around the LEDs projected with the previous
+        frame's pose (:meth:`_window`), or None (no prior, window too large, or no pose in it:
+        the caller then searches the whole image)."""
+        win = self._window(image.shape[:2]) if self.roi and self._prev_T is not None else None
+        if win is None:
+            return None
+        return self._localize(lb.prepare(image, win), self._vmax(image))
+
+    def _window(self, shape: tuple[int, int]) -> tuple[int, int, int, int] | None:
+        """Search window (x0, y0, x1, y1) px: the bounding box of the LEDs projected with
+        the previous frame's pose, grown by ``roi_margin`` x the predicted array span (at
+        least ``roi_min_margin_px``) and snapped outwards to the background grid's cells
+        (so its background cells are the whole image's). None when the LEDs project
+        behind the camera or the window would cover more than ``roi_max_frac`` of the image."""
+        pred = self._predicted_uv()
+        if pred is None:
+            return None
+        h, w = shape
+        cell = lb.background_cell(w)
+        span = float(np.ptp(pred, axis=0).max())
+        m = max(self.roi_min_margin_px, self.roi_margin * span)
+        x0, y0 = np.floor((pred.min(axis=0) - m) / cell).astype(int) * cell
+        x1, y1 = np.ceil((pred.max(axis=0) + m) / cell).astype(int) * cell
+        x0, y0, x1, y1 = max(0, x0), max(0, y0), min(w, x1), min(h, y1)
+        if x1 - x0 < 2 * cell or y1 - y0 < 2 * cell or (x1 - x0) * (y1 - y0) > self.roi_max_frac * h * w:
+            return None
+        return int(x0), int(y0), int(x1), int(y1)
+
+    @staticmethod
+    def _vmax(image: np.ndarray) -> float:
+        """Largest channel value (0-255) of the whole image (the threshold levels'
+        reference, also when only a window is searched)."""
+        return float(cv2.minMaxLoc(image.reshape(image.shape[0], -1))[1])
+
+    def _localize(self, fr: lb.Frame, vmax: float) -> dict | None:
         """Threshold levels in turn (module docstring, step 1) until one gives a pose."""
-        for t in self._levels(float(fr.v.max())):
+        for t in self._levels(vmax):
             est = self._pose_at(fr, t)
             if est is not None:
                 return est
@@ -290,7 +347,7 @@ class LedLocalizer:
         if self._marker is None:
             return None
         fr = lb.prepare(np.asarray(image))
-        levels = self._levels(float(fr.v.max()))
+        levels = self._levels(self._vmax(np.ascontiguousarray(image)))
         return self._blobs(fr, levels[0]) if levels else None
 
     def _levels(self, vmax: float) -> list[float]:
@@ -314,7 +371,7 @@ class LedLocalizer:
         blobs = lb.components(fr, t, self.max_blobs)
         if blobs is None or blobs.count < self._n:
             return
-        for lab in self._ranked(blobs, fr.v.size)[: self.measure_factor * self._k()]:
+        for lab in self._ranked(blobs, fr)[: self.measure_factor * self._k()]:
             m = lb.measure(fr, blobs, int(lab), t, self.centroid)
             if m is None or m.saturation < self.min_saturation:
                 continue
@@ -322,7 +379,7 @@ class LedLocalizer:
                 continue  # neither the reference LEDs' colour nor the others'
             yield m
 
-    def _ranked(self, blobs: lb.Blobs, n_px: int) -> np.ndarray:
+    def _ranked(self, blobs: lb.Blobs, fr: lb.Frame) -> np.ndarray:
         """Labels of the blobs that pass the area and circularity limits, most LED-like
         first: those within the gate of an LED predicted by the previous frame's pose,
         then by compactness^2 x excess mass (a compact bright spot beats a caustic
@@ -331,10 +388,10 @@ class LedLocalizer:
         area = st[:, cv2.CC_STAT_AREA]
         w, h = st[:, cv2.CC_STAT_WIDTH], st[:, cv2.CC_STAT_HEIGHT]
         circ = area / (np.pi * (np.maximum(w, h) / 2.0) ** 2)
-        ok = (area >= self.min_area_px) & (area <= self.max_area_frac * n_px)
+        ok = (area >= self.min_area_px) & (area <= self.max_area_frac * fr.image_px)
         ok &= (area < 12) | (circ >= self.min_circularity)
         score = blobs.compact[1:] ** 2 * blobs.mass[1:]
-        near = self._near_prior(blobs.centres[1:] + blobs.origin)
+        near = self._near_prior(blobs.centres[1:] + blobs.origin + fr.origin)
         idx = np.nonzero(ok)[0]
         order = idx[np.lexsort((-score[idx], ~near[idx]))]
         return order + 1
@@ -343,16 +400,22 @@ class LedLocalizer:
         """(M,) bool: blob centres (M,2) px within the gate of an LED projected with the
         previous frame's pose (all False without one). Gate: a quarter of the smallest
         predicted LED spacing, at least ``prior_gate_px``."""
-        if self._prev_T is None or len(uv) == 0:
+        pred = self._predicted_uv() if len(uv) else None
+        if pred is None:
             return np.zeros(len(uv), bool)
-        T = self._prev_T
-        pred = cv2.projectPoints(
-            self._kp.reshape(-1, 1, 3), cv2.Rodrigues(T[:3, :3])[0], T[:3, 3], self._K, self._dist
-        )[0].reshape(-1, 2)
         gaps = np.linalg.norm(pred[:, None] - pred[None], axis=2)[np.triu_indices(len(pred), 1)]
         gate = max(self.prior_gate_px, 0.25 * float(gaps.min()))
         d = np.linalg.norm(uv[:, None, :] - pred[None, :, :], axis=2).min(axis=1)
         return d <= gate
+
+    def _predicted_uv(self) -> np.ndarray | None:
+        """The LEDs (N,2) px projected with the previous frame's pose; None without one or
+        when an LED is not in front of the camera."""
+        T = self._prev_T
+        if T is None or np.any((self._kp @ T[:3, :3].T + T[:3, 3])[:, 2] <= 0):
+            return None
+        rvec = cv2.Rodrigues(T[:3, :3])[0]
+        return cv2.projectPoints(self._kp.reshape(-1, 1, 3), rvec, T[:3, 3], self._K, self._dist)[0].reshape(-1, 2)
 
     def _best_pose(self, cents, masses, chroma, sizes=None):
         """The assignment search of the module docstring over the candidates (most
@@ -443,8 +506,9 @@ def _convex(uv: np.ndarray) -> bool:
     strictly convex polygon with no coincident points."""
     c = uv - uv.mean(axis=0)
     p = uv[np.argsort(np.arctan2(c[:, 1], c[:, 0]))]
-    e = np.roll(p, -1, axis=0) - p
+    e = np.concatenate((p[1:], p[:1])) - p  # edge i: vertex i -> i + 1 (cyclic)
     if np.min(np.hypot(e[:, 0], e[:, 1])) < 1.0:
         return False
-    cross = e[:, 0] * np.roll(e, -1, axis=0)[:, 1] - e[:, 1] * np.roll(e, -1, axis=0)[:, 0]
+    e_next = np.concatenate((e[1:], e[:1]))
+    cross = e[:, 0] * e_next[:, 1] - e[:, 1] * e_next[:, 0]
     return bool(np.all(cross > 0) or np.all(cross < 0))

@@ -52,7 +52,9 @@ class Frame:
 
     rgb (H,W,3) uint8; v (H,W) uint8 brightness max(R,G,B); excess (H,W) uint8
     ``v - background`` (saturating); bg_rgb (h,w,3) uint8 the coarse per-channel background;
-    cell (px) its cell size; sigma (DN) the noise standard deviation of ``v``."""
+    cell (px) its cell size; sigma (DN) the noise standard deviation of ``v``; origin
+    (x0, y0) px of these arrays in the camera image (a search window; (0, 0) for the whole
+    image) and image_px the camera image's pixel count."""
 
     rgb: np.ndarray
     v: np.ndarray
@@ -60,6 +62,8 @@ class Frame:
     bg_rgb: np.ndarray
     cell: int
     sigma: float
+    origin: tuple[int, int] = (0, 0)
+    image_px: int = 0
 
     @property
     def floor(self) -> float:
@@ -104,17 +108,28 @@ def noise_sigma(v: np.ndarray) -> float:
     return max(MIN_SIGMA_DN, med / (0.6745 * math.sqrt(2.0)))
 
 
-def prepare(rgb: np.ndarray) -> Frame:
-    """The :class:`Frame` of an RGB uint8 image (H,W,3)."""
+def background_cell(width: int) -> int:
+    """Background cell size (px) of an image ``width`` px wide (BG_CELLS_PER_WIDTH cells)."""
+    return max(2, int(round(width / BG_CELLS_PER_WIDTH)))
+
+
+def prepare(rgb: np.ndarray, window: tuple[int, int, int, int] | None = None) -> Frame:
+    """The :class:`Frame` of an RGB uint8 image (H,W,3), or of the search window
+    (x0, y0, x1, y1) px of it: the window is measured alone (its background, noise and
+    components), with the whole image's background cell size."""
+    h_img, w_img = rgb.shape[:2]
+    cell = background_cell(w_img)
+    x0, y0 = (0, 0) if window is None else window[:2]
+    if window is not None:
+        rgb = rgb[window[1] : window[3], window[0] : window[2]]
     rgb = np.ascontiguousarray(rgb)
     r, g, b = cv2.split(rgb)
     v = cv2.max(cv2.max(r, g), b)
     h, w = v.shape
-    cell = max(2, int(round(w / BG_CELLS_PER_WIDTH)))
     bg_rgb = background(rgb, cell)
     bg_v = bg_rgb.max(axis=2)
     bg_full = cv2.resize(bg_v, (w, h), interpolation=cv2.INTER_LINEAR)
-    return Frame(rgb, v, cv2.subtract(v, bg_full), bg_rgb, cell, noise_sigma(v))
+    return Frame(rgb, v, cv2.subtract(v, bg_full), bg_rgb, cell, noise_sigma(v), (x0, y0), h_img * w_img)
 
 
 @dataclass
@@ -206,11 +221,10 @@ def centroid(
     else:
         w = np.clip(vf - t_low, 0, None)
         w[(lab_roi != lab) & (lab_roi != 0)] = 0.0
-    s = float(w.sum())
-    if s <= 0:
+    m = cv2.moments(w)  # sums of w, x w and y w (box px), accumulated in float64
+    if not m["m00"] > 0:
         return None
-    yy, xx = np.mgrid[ya : ya + v_roi.shape[0], xa : xa + v_roi.shape[1]]
-    return float((w * xx).sum() / s), float((w * yy).sum() / s)
+    return xa + m["m10"] / m["m00"], ya + m["m01"] / m["m00"]
 
 
 def colour(fr: Frame, lab_roi: np.ndarray, lab: int, xa: int, ya: int) -> tuple[np.ndarray, float] | None:
@@ -225,20 +239,22 @@ def colour(fr: Frame, lab_roi: np.ndarray, lab: int, xa: int, ya: int) -> tuple[
     h, w = lab_roi.shape
     rgb = fr.rgb[ya : ya + h, xa : xa + w]
     lo = cv2.min(cv2.min(rgb[:, :, 0], rgb[:, :, 1]), rgb[:, :, 2])
-    use = ((lab_roi == lab) | (lab_roi == 0)) & (fr.excess[ya : ya + h, xa : xa + w] > fr.floor) & (lo < CLIP_DN)
-    if not use.any():
+    excess = fr.excess[ya : ya + h, xa : xa + w]
+    use = (((lab_roi == lab) | (lab_roi == 0)) & (excess > fr.floor) & (lo < CLIP_DN)).view(np.uint8)
+    n = cv2.countNonZero(use)
+    if n == 0:
         return None
-    px = rgb[use].astype(np.float32) - fr.bg_at(xa + 0.5 * w, ya + 0.5 * h)
-    s = px.sum(axis=0)
+    # per-channel sums over the used pixels (cv2.mean over the mask x their count), minus the background's
+    s = n * (np.array(cv2.mean(rgb, use)[:3]) - fr.bg_at(xa + 0.5 * w, ya + 0.5 * h))
     ab = np.array([s[0] - 0.5 * (s[1] + s[2]), SQ3_2 * (s[1] - s[2])])
-    bright = float(fr.excess[ya : ya + h, xa : xa + w][use].sum())
+    bright = n * cv2.mean(excess, use)[0]
     if bright <= 0:
         return None
     return ab, float(np.hypot(*ab)) / bright
 
 
 def measure(fr: Frame, blobs: Blobs, lab: int, t: float, mode: str) -> BlobMeasure | None:
-    """Centroid and colour of blob ``lab`` at level ``t`` (image coordinates), or None."""
+    """Centroid and colour of blob ``lab`` at level ``t`` (camera image coordinates), or None."""
     ox, oy = blobs.origin
     xa, ya, xb, yb = box(blobs.stats[lab], blobs.labels.shape)
     lab_roi = blobs.labels[ya:yb, xa:xb]
@@ -251,4 +267,5 @@ def measure(fr: Frame, blobs: Blobs, lab: int, t: float, mode: str) -> BlobMeasu
     if norm <= 0:
         return None
     diameter = 2.0 * math.sqrt(float(blobs.stats[lab, cv2.CC_STAT_AREA]) / math.pi)
-    return BlobMeasure((c[0] + ox, c[1] + oy), float(blobs.mass[lab]), ab / norm, sat, diameter)
+    u0, v0 = ox + fr.origin[0], oy + fr.origin[1]
+    return BlobMeasure((c[0] + u0, c[1] + v0), float(blobs.mass[lab]), ab / norm, sat, diameter)
