@@ -502,7 +502,7 @@ def docking_paths_cmd(currents: tuple[float, ...], seed: int, out: Path):
     check_file_out(out, "docking-paths")
     runs = docking_paths(currents or (0.0, 0.5, 1.0), seed=seed)
     for r in runs:
-        hit = f", impact {r['impact_speed_mps']:.2f} m/s" if r["outcome"] == "collision" else ""
+        hit = f", {r['contact_part']} hit at {r['impact_speed_mps']:.2f} m/s" if r["outcome"] == "collision" else ""
         click.echo(
             f"current {r['current_mps']:.2f} m/s: {r['outcome']}{hit} after {r['t'][-1]:.1f} s "
             f"(crossing lateral {r['cross_lateral_m']:+.2f} m, heading {r['cross_heading_deg']:+.1f} deg), "

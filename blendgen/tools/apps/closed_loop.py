@@ -221,6 +221,7 @@ class Bench:
             filter=FilterParams(),
             latency_s=self.exp.camera.latency_s,
             compute_latency=self.compute_latency,
+            dock_size_m=tuple(self.exp.scene.dock.body_size_m),
         )
 
     def condition_authority(self, cond) -> dict:
@@ -369,6 +370,7 @@ TRIAL_COLUMNS = [
     "n_frames",
     "wall_s",
     "impact_speed_mps",
+    "contact_part",
     "reacquisitions",
     "lost_after_s",
     "authority",
@@ -474,7 +476,9 @@ def run_suite(
                     frames.extend(fr)
                     write_tables(rows, frames, out)
                     extra = (f", re-acquired {row['reacquisitions']}x" if row.get("reacquisitions") else "") + (
-                        f", impact {row['impact_speed_mps']:.2f} m/s" if row["outcome"] == "collision" else ""
+                        f", {row['contact_part']} hit at {row['impact_speed_mps']:.2f} m/s"
+                        if row["outcome"] == "collision"
+                        else ""
                     )
                     progress(
                         f"{cond.label:14s} {name:10s} trial {trial:3d}: {row['outcome']:15s} "
