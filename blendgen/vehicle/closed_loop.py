@@ -312,8 +312,8 @@ class HullContact:
         eta, nu = plant.s[:6], plant.s[6:]
         T_db = self.T_dock_world @ eta_to_T_world_body(eta)
         o, sd = T_db[:3, 3], self.solid
-        gap = np.maximum(np.abs(o) - [sd.half_w, sd.half_h, sd.depth / 2], 0.0)
-        gap[2] = max(abs(o[2] + sd.depth / 2) - sd.depth / 2, 0.0)
+        centre = np.array([0.0, 0.0, -sd.depth / 2])  # of the dock's box
+        gap = np.maximum(np.abs(o - centre) - [sd.half_w, sd.half_h, sd.depth / 2], 0.0)  # origin to box
         if np.linalg.norm(gap) > self.reach:
             return None
         c = hull_contact(sd, self.hull, T_db)
