@@ -436,6 +436,7 @@ def test_dock_with_localizer_none_runs_the_truth_baseline_alone(tmp_path):
     assert res.exit_code == 0, res.output
     trials = pd.read_parquet(out / "trials.parquet")
     assert list(trials["localizer"]) == ["truth"] and trials["outcome"].iloc[0] == "docked"
+    assert trials["contact_part"].iloc[0] == "" and math.isnan(trials["impact_speed_mps"].iloc[0])
     assert not (out / "render_server.log").exists()  # nothing rendered
     bad = CliRunner().invoke(cli.main, ["dock", "current", "-l", "none", "--no-baseline", "-o", str(tmp_path / "b")])
     assert bad.exit_code == 2 and "nothing to run" in bad.output and not (tmp_path / "b").exists()
