@@ -502,7 +502,7 @@ def docking_paths_cmd(currents: tuple[float, ...], seed: int, out: Path):
     check_file_out(out, "docking-paths")
     runs = docking_paths(currents or (0.0, 0.5, 1.0), seed=seed)
     for r in runs:
-        hit = f", impact {r['impact_speed_mps']:.2f} m/s" if r["outcome"] == "collision" else ""
+        hit = f", {r['contact_part']} hit at {r['impact_speed_mps']:.2f} m/s" if r["outcome"] == "collision" else ""
         click.echo(
             f"current {r['current_mps']:.2f} m/s: {r['outcome']}{hit} after {r['t'][-1]:.1f} s "
             f"(crossing lateral {r['cross_lateral_m']:+.2f} m, heading {r['cross_heading_deg']:+.1f} deg), "
@@ -1485,7 +1485,8 @@ def _bop_results(dataset: Path, out: Path, runs: list, final_out: Path) -> None:
     multiple=True,
     default=("led", "aruco", "hybrid"),
     show_default=True,
-    help="localizer spec as for `dockbench evaluate` (repeatable)",
+    help="localizer spec as for `dockbench evaluate` (repeatable); `none`: only the ground-truth baseline "
+    "(no rendering)",
 )
 @click.option("-p", "--param", "params", multiple=True, help="key=value or NAME.key=value for localizers")
 @click.option(
@@ -1544,6 +1545,7 @@ def dock(
 
     EXPERIMENT is turbidity, depth, current, occlusion (the paper configs) or a config file.
     Writes trials.parquet, frames.parquet, summary.csv/.md and paths.png (top view)."""
+    from blendgen.config.models import ConfigError
     from blendgen.pipeline.executor import require_render_stack
     from blendgen.tools.apps.closed_loop import _specs, load_bench_experiment, parse_compute_latency, run_dock
     from evalkit.reports.tables import print_table
@@ -1551,6 +1553,8 @@ def dock(
     exp = load_bench_experiment(experiment, size, conditions)
     compute_latency = parse_compute_latency(compute_latency)
     specs = _specs(localizers, params, isolate, frame_timeout, preprocess)
+    if not specs and no_baseline and not report_only:
+        raise ConfigError("-l none with --no-baseline: nothing to run (drop one of them)")
     if specs and not report_only:
         require_render_stack()
         for s in specs:  # user errors before the first trial

@@ -423,3 +423,20 @@ def test_summary_of_an_older_run_without_lost_target_and_contact_columns():
     s = summary_table(old, pd.DataFrame(), authority={"c": "within (margin 61%)"}).iloc[0]
     assert s["n_docked"] == 1 and s["n_reacquired"] == 0 and math.isnan(s["impact_speed_median_mps"])
     assert s["authority"] == "within (margin 61%)"
+
+
+def test_dock_with_localizer_none_runs_the_truth_baseline_alone(tmp_path):
+    from click.testing import CliRunner
+
+    import cli
+
+    out = tmp_path / "truth"
+    args = ["dock", "current", "-l", "none", "--trials", "1", "--condition", "current_0.0", "-o", str(out)]
+    res = CliRunner().invoke(cli.main, args)
+    assert res.exit_code == 0, res.output
+    trials = pd.read_parquet(out / "trials.parquet")
+    assert list(trials["localizer"]) == ["truth"] and trials["outcome"].iloc[0] == "docked"
+    assert trials["contact_part"].iloc[0] == "" and math.isnan(trials["impact_speed_mps"].iloc[0])
+    assert not (out / "render_server.log").exists()  # nothing rendered
+    bad = CliRunner().invoke(cli.main, ["dock", "current", "-l", "none", "--no-baseline", "-o", str(tmp_path / "b")])
+    assert bad.exit_code == 2 and "nothing to run" in bad.output and not (tmp_path / "b").exists()

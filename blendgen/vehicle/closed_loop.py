@@ -14,12 +14,16 @@ default): the estimate of a frame captured at ``t`` reaches the filter at ``t + 
 and is processed as a delayed measurement stamped ``t``, then re-propagated to now
 (:class:`DelayLine`); with both 0 the fix updates the filter at its capture time, as before.
 
-Docking is judged by geometry (:func:`blendgen.vehicle.visual_nav.crossing_outcome`) when
-the camera (at the nose) crosses the dock's entry plane: inside the capture radius it is
-``docked`` (or ``misaligned``), on the dock's frame (the face plate around the mouth, grown by
-the hull radius) a ``collision`` whose impact speed (the nose's speed into the face, m/s) is
-recorded, beside the dock ``out_of_capture``; a trial also ends when the target is lost or at
-``max_time_s`` (``timeout``).
+Docking is judged by geometry. Every frame the hull (a capsule of the vehicle's length and
+diameter) is tested against the dock's collision geometry (:mod:`blendgen.vehicle.contact`: the
+body box with its face plate and sides, and the funnel cone through it): a touch ends the trial
+as ``collision`` with ``contact_part`` and ``impact_speed_mps`` (the hull's contact point's speed
+into the dock along the surface normal, m/s). When the camera (at the nose) crosses the dock's
+entry plane the capture test (:func:`blendgen.vehicle.visual_nav.crossing_outcome`) decides:
+inside the capture radius ``docked`` (or ``misaligned``); on the face plate grown by the hull
+radius ``collision`` (when the frame-rate contact test missed it between frames); beside the
+dock ``out_of_capture``. A trial also ends when the target is lost or at ``max_time_s``
+(``timeout``).
 
 Lost target (:class:`Recovery`), like a vehicle without a fix: for ``FilterParams.hold_s`` after
 the last accepted fix guidance keeps steering on the navigation filter's dead-reckoned estimate
@@ -45,6 +49,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from blendgen.vehicle.contact import DockSolid, Hull, hull_contact, impact_speed
 from blendgen.vehicle.control import Autopilot, Sensors
 from blendgen.vehicle.docking import DockAxesNED, Gusts, LosGuidance, Turbulence, los_references, start_pose_world
 from blendgen.vehicle.dynamics import (
@@ -122,6 +127,7 @@ class TrialSetup:
     params: VehicleParams = VehicleParams()
     latency_s: float = 0.0
     compute_latency: float | str = 0.0
+    dock_size_m: tuple = (1.0, 1.0, 0.4)  # the dock model's body (w, h, depth): config Dock.body_size_m
 
     def __post_init__(self):
         if not 0.0 <= self.latency_s <= 10.0:
@@ -282,7 +288,61 @@ def _crossing(setup: TrialSetup, axes: DockAxesNED, prev: np.ndarray, nose: np.n
     }
     if outcome == "collision":
         out["impact_speed_mps"] = nose_closing_speed(axes, eta, nu, setup.T_body_cam)
+        inside_mouth = math.hypot(pt[0], pt[1]) <= min(setup.dock_size_m[:2]) / 2
+        out["contact_part"] = "funnel" if inside_mouth else "face_plate"
     return out
+
+
+class HullContact:
+    """The hull against the dock's collision geometry (:mod:`blendgen.vehicle.contact`) at the
+    plant's state; ``hit(plant)`` -> collision record or None."""
+
+    MARGIN_M = 0.05  # skip the exact test while the body origin is this far beyond any reach
+
+    def __init__(self, setup: TrialSetup):
+        p = setup.params
+        self.solid = DockSolid.from_dock(setup.dock_size_m, p.diameter / 2)
+        self.hull = Hull.from_vehicle(p.length, p.diameter)
+        self.T_dock_world = np.linalg.inv(np.asarray(setup.T_world_dock, float))
+        self.reach = self.hull.half_axis + self.hull.radius + self.MARGIN_M
+
+    def hit(self, plant: Plant) -> dict | None:
+        """Collision record (``outcome``, ``contact_part``, ``impact_speed_mps``, ``contact_*_m``)
+        if the hull touches or penetrates the dock, else None."""
+        eta, nu = plant.s[:6], plant.s[6:]
+        T_db = self.T_dock_world @ eta_to_T_world_body(eta)
+        o, sd = T_db[:3, 3], self.solid
+        centre = np.array([0.0, 0.0, -sd.depth / 2])  # of the dock's box
+        gap = np.maximum(np.abs(o - centre) - [sd.half_w, sd.half_h, sd.depth / 2], 0.0)  # origin to box
+        if np.linalg.norm(gap) > self.reach:
+            return None
+        c = hull_contact(sd, self.hull, T_db)
+        if c.clearance_m > 0:
+            return None
+        R_dw, R = self.T_dock_world[:3, :3], Autopilot._R(eta)
+        v = R_dw @ F_WORLD_NED @ R @ np.asarray(nu[:3], float)
+        w = R_dw @ F_WORLD_NED @ R @ np.asarray(nu[3:6], float)
+        return {
+            "outcome": "collision",
+            "contact_part": c.part,
+            "impact_speed_mps": impact_speed(c, self.hull, v, w, T_db),
+            "contact_lateral_m": float(c.point_dock[0]),
+            "contact_vertical_m": float(c.point_dock[1]),
+            "contact_range_m": float(c.point_dock[2]),
+        }
+
+
+def _judge(setup: TrialSetup, axes: DockAxesNED, touch: HullContact, prev, nose, plant: Plant) -> dict | None:
+    """The trial's end at this frame, or None: the capture test when the nose crossed the entry
+    plane (a docked/misaligned crossing stands; otherwise a hull touch names the part hit), else
+    a hull touch."""
+    if prev is not None and prev[2] > setup.capture.entry_plane_m >= nose[2]:
+        res = _crossing(setup, axes, prev, nose, plant)
+        if res["outcome"] in ("docked", "misaligned"):
+            return res
+        hit = touch.hit(plant)
+        return res if hit is None else {**res, **hit}
+    return touch.hit(plant)
 
 
 def nose_closing_speed(axes: DockAxesNED, eta, nu, T_body_cam: np.ndarray) -> float:
@@ -298,7 +358,9 @@ def simulate_closed_loop(setup: TrialSetup, observe: Observer | None = None) -> 
 
     Returns ``{"outcome": str (visual_nav.OUTCOMES), "t_end": s, "time_to_dock_s": s or NaN,
     "cross_*": crossing offsets (m), heading (deg), lateral speed (m/s) or NaN, "impact_speed_mps"
-    (collision only, else NaN), "lost_after_s" (lost_target only: s since the last fix, else NaN),
+    (collision only, else NaN), "contact_part" (collision: :data:`blendgen.vehicle.contact.PARTS`,
+    else ""), "contact_lateral_m"/"contact_vertical_m"/"contact_range_m" (the dock point touched,
+    dock frame, m, else NaN), "lost_after_s" (lost_target only: s since the last fix, else NaN),
     "reacquisitions" (fixes that ended a back_off/hold),
     "final_lateral_m", "final_vertical_m", "final_range_m", "final_heading_deg" (body origin
     at the last frame), "frames": list of per-frame dicts}`` with frame keys ``t``,
@@ -321,14 +383,15 @@ def simulate_closed_loop(setup: TrialSetup, observe: Observer | None = None) -> 
             filt, np.asarray(setup.T_world_dock)[:2, 3], setup.guidance, stop_m, setup.recovery, 1.0 / setup.fps
         )
     )
-    reacquired = 0
+    reacquired, touch = 0, HullContact(setup)
     delay = DelayLine(setup.latency_s, setup.compute_latency) if setup.delayed and observe is not None else None
     frames, res, prev = [], {"outcome": "timeout"}, None
     for k in range(n_max):
         t, eta = k / setup.fps, plant.s[:6].copy()
         T_wc, nose = _nose_dock(axes, eta, setup.T_body_cam)
-        if prev is not None and prev[2] > setup.capture.entry_plane_m >= nose[2]:
-            res = _crossing(setup, axes, prev, nose, plant)
+        end = _judge(setup, axes, touch, prev, nose, plant)
+        if end is not None:
+            res = end
             break
         prev = nose
         sens = sensors.read(eta)
@@ -408,6 +471,10 @@ def _summary(res: dict, frames: list[dict], fps: float, k_end: int) -> dict:
         "cross_heading_deg": nan,
         "cross_lateral_speed_mps": nan,
         "impact_speed_mps": nan,
+        "contact_part": "",
+        "contact_lateral_m": nan,
+        "contact_vertical_m": nan,
+        "contact_range_m": nan,
         "lost_after_s": nan,
         **res,
         "t_end": k_end / fps,
@@ -429,5 +496,6 @@ __all__ = [
     "DelayLine",
     "simulate_closed_loop",
     "nose_closing_speed",
+    "HullContact",
     "RECOVERY_MODES",
 ]

@@ -221,6 +221,7 @@ class Bench:
             filter=FilterParams(),
             latency_s=self.exp.camera.latency_s,
             compute_latency=self.compute_latency,
+            dock_size_m=tuple(self.exp.scene.dock.body_size_m),
         )
 
     def condition_authority(self, cond) -> dict:
@@ -369,6 +370,7 @@ TRIAL_COLUMNS = [
     "n_frames",
     "wall_s",
     "impact_speed_mps",
+    "contact_part",
     "reacquisitions",
     "lost_after_s",
     "authority",
@@ -474,7 +476,9 @@ def run_suite(
                     frames.extend(fr)
                     write_tables(rows, frames, out)
                     extra = (f", re-acquired {row['reacquisitions']}x" if row.get("reacquisitions") else "") + (
-                        f", impact {row['impact_speed_mps']:.2f} m/s" if row["outcome"] == "collision" else ""
+                        f", {row['contact_part']} hit at {row['impact_speed_mps']:.2f} m/s"
+                        if row["outcome"] == "collision"
+                        else ""
                     )
                     progress(
                         f"{cond.label:14s} {name:10s} trial {trial:3d}: {row['outcome']:15s} "
@@ -627,6 +631,16 @@ def _with_camera_xy(frames, T_world_dock: np.ndarray, cam_forward_m: float):
     )
 
 
+def _draw_dock(ax, T_world_dock: np.ndarray, capture: CaptureSpec, dock_size_m) -> None:
+    """Top view of the dock's body (face width x depth, black) and the capture mouth (green)."""
+    o, xd, zd = T_world_dock[:3, 3], T_world_dock[:3, 0], T_world_dock[:3, 2]
+    hw, d = float(dock_size_m[0]) / 2, float(dock_size_m[2])
+    box = np.array([o - xd * hw, o + xd * hw, o + xd * hw - zd * d, o - xd * hw - zd * d, o - xd * hw])
+    ax.plot(box[:, 0], box[:, 1], color="k", lw=1.5)
+    mouth = np.array([o - xd * capture.capture_radius_m, o + xd * capture.capture_radius_m])
+    ax.plot(mouth[:, 0], mouth[:, 1], color="limegreen", lw=3)
+
+
 def plot_paths(
     trials,
     frames,
@@ -635,10 +649,11 @@ def plot_paths(
     path: Path,
     cam_forward_m: float = 0.65,
     pool_xy_m: tuple[float, float] | None = None,
+    dock_size_m=(1.0, 1.0, 0.4),
 ) -> Path:
     """Top-down paths of the camera (= nose; world x, y) per condition, one colour per localizer;
-    the dock face and its capture mouth drawn, and the pool walls (length, width centred on the
-    origin) when given; last points: o docked, x any failure."""
+    the dock's body (``dock_size_m`` w, h, depth, m) and its capture mouth drawn, and the pool walls
+    (length, width centred on the origin) when given; last points: o docked, x any failure."""
     from evalkit.reports.plots import _pyplot
 
     plt = _pyplot()
@@ -649,7 +664,6 @@ def plot_paths(
     ncols = min(3, len(conds))
     nrows = -(-len(conds) // ncols)
     fig, axes = plt.subplots(nrows, ncols, figsize=(max(5.4 * ncols, 9.0), 4.2 * nrows), squeeze=False)
-    o, xd = T_world_dock[:3, 3], T_world_dock[:3, 0]
     for ax, cond in zip(axes.ravel(), conds):
         for (loc, trial), g in frames[frames["condition"] == cond].groupby(["localizer", "trial"], sort=False):
             ax.plot(
@@ -665,10 +679,7 @@ def plot_paths(
             ax.plot(
                 g["x_cam_world"].iloc[-1], g["y_cam_world"].iloc[-1], "o" if docked else "x", color=colours[loc], ms=4
             )
-        face = np.array([o - xd * capture.frame_half_m[0], o + xd * capture.frame_half_m[0]])
-        ax.plot(face[:, 0], face[:, 1], color="k", lw=3)
-        mouth = np.array([o - xd * capture.capture_radius_m, o + xd * capture.capture_radius_m])
-        ax.plot(mouth[:, 0], mouth[:, 1], color="limegreen", lw=3)
+        _draw_dock(ax, T_world_dock, capture, dock_size_m)
         if pool_xy_m is not None:
             lx, ly = pool_xy_m[0] / 2, pool_xy_m[1] / 2
             ax.plot([-lx, lx, lx, -lx, -lx], [-ly, -ly, ly, ly, -ly], color="0.5", lw=1, ls="--")
@@ -680,10 +691,10 @@ def plot_paths(
         ax.legend(fontsize=7, loc="best")
     for ax in axes.ravel()[len(conds) :]:
         ax.set_visible(False)
+    walls = ", dashed: pool walls (not obstacles to the dynamics)" if pool_xy_m is not None else ""
     fig.suptitle(
         "closed-loop docking, camera/nose paths (top view): o docked, x failed\n"
-        "black: dock face + hull radius (collision), green: capture radius, dashed: pool walls "
-        "(not obstacles to the dynamics)",
+        f"black: the dock's body (collision geometry), green: capture radius{walls}",
         fontsize=10,
     )
     fig.tight_layout()
@@ -850,6 +861,7 @@ def run_dock(
         out / "paths.png",
         float(bench.T_body_cam[0, 3]),
         None if pool is None else (pool.length_m, pool.width_m),
+        exp.scene.dock.body_size_m,
     )
     paths["report"] = out / "summary.md"
     report(summary, out, exp, bench.capture)
@@ -884,11 +896,18 @@ def parse_compute_latency(text: str) -> float | str:
     return v
 
 
+NO_LOCALIZER = "none"  # ``-l none``: only the ground-truth baseline
+
+
 def _specs(localizers, params, isolate, frame_timeout, preprocess) -> list[LocalizerSpec]:
     from evalkit.registry import params_for, parse_params
 
     p = parse_params(params)
     names = list(localizers)
+    if NO_LOCALIZER in names:  # the ground-truth baseline alone: no rendering
+        if len(names) > 1:
+            raise ConfigError(f"-l {NO_LOCALIZER}: runs the ground-truth baseline alone; give no other -l")
+        return []
     if TRUTH in names:
         raise ConfigError(f"-l {TRUTH}: the ground-truth baseline is always run (omit it with --no-baseline)")
     return [

@@ -21,7 +21,8 @@ def docking_paths(currents=(0.0, 0.5, 1.0), seed: int = 1, start: dict | None = 
 
     Returns per current: ``p_dock`` (N,3) body-origin path in the dock frame (x lateral, y vertical,
     z range), heading error (deg), ``t`` (s), ``outcome`` (the capture verdict), the crossing's lateral
-    offset (m) and heading (deg), impact speed (m/s, collisions), the docking ``authority`` verdict of
+    offset (m) and heading (deg), impact speed (m/s) and part hit (collisions: the hull against the
+    dock's collision geometry, :mod:`blendgen.vehicle.contact`), the docking ``authority`` verdict of
     that current (:func:`blendgen.vehicle.authority.docking_authority`) and CPU ms per simulated second."""
     from blendgen.config.models import Camera, DockingTrajectory
     from blendgen.tools.apps.closed_loop import authority_verdict, capture_spec
@@ -48,6 +49,7 @@ def docking_paths(currents=(0.0, 0.5, 1.0), seed: int = 1, start: dict | None = 
             seed=seed,
             max_time_s=traj.max_time_s,
             guidance=docking.LosGuidance(traj.cruise_speed_mps, traj.final_speed_mps),
+            dock_size_m=tuple(dock.body_size_m),
         )
         run = simulate_closed_loop(setup)
         cpu = time.process_time() - t0
@@ -67,6 +69,7 @@ def docking_paths(currents=(0.0, 0.5, 1.0), seed: int = 1, start: dict | None = 
                 "cross_lateral_m": run["cross_lateral_m"],
                 "cross_heading_deg": run["cross_heading_deg"],
                 "impact_speed_mps": run["impact_speed_mps"],
+                "contact_part": run["contact_part"],
                 "authority": authority_verdict(auth, c),
                 "ms_per_sim_s": 1e3 * cpu / max(float(run["t_end"]), 1e-9),
             }
