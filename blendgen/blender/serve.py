@@ -10,8 +10,9 @@ goes to ``LOG_FILE``):
   ``{"ok": true, "scene_build_s": s}``;
 - ``{"cmd": "render", "T_world_cam": 4x4, "roi": [x0, y0, x1, y1] | null, "rois": [[x0, y0, x1, y1], ...],
   "out": path}`` (``rois``, per-marker boxes, optional and winning over ``roi``, as in a dataset frame) ->
-  the clean passes written to ``path`` as an uncompressed ``.npz`` (``rgb`` (H,W,3) float32
-  linear, ``depth_z`` (H,W) float32 planar depth m, ``index`` (H,W) uint8), reply
+  the clean passes written to ``path`` as a raw pass file (:mod:`blendgen.passfile`: ``rgb``
+  (H,W,3) float32 linear, ``depth_z`` (H,W) float32 planar depth m, ``index`` (H,W) uint8, plus
+  ``albedo``/``sun``/``normal`` when the render settings ask for them), reply
   ``{"ok": true, "ms": render + read time}``;
 - ``{"cmd": "quit"}`` or end of input -> exit 0.
 
@@ -29,7 +30,7 @@ import sys
 import time
 import traceback
 
-import numpy as np
+from blendgen import passfile
 
 
 class _Server:
@@ -50,10 +51,7 @@ class _Server:
         frame = {"T_world_cam": req["T_world_cam"], "roi": req.get("roi")}
         if req.get("rois") is not None:
             frame["rois"] = req["rois"]
-        passes = self.renderer.render(frame)
-        with open(req["out"] + ".tmp", "wb") as fh:
-            np.savez(fh, **passes)  # rgb, depth_z, index (+ albedo, normal when asked)
-        os.replace(req["out"] + ".tmp", req["out"])
+        passfile.write_passes(req["out"], self.renderer.render(frame))
         return {"ok": True, "ms": 1e3 * (time.perf_counter() - t0)}
 
     def close(self) -> None:

@@ -40,6 +40,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from blendgen import passfile
 from blendgen.config.models import ConfigError, DockingTrajectory, Experiment
 from blendgen.pipeline import compose, frameloop, groundtruth, plan, scene_check
 from blendgen.vehicle import docking
@@ -93,7 +94,7 @@ class RenderClient:
     def render(self, T_world_cam: np.ndarray, regions: dict | None = None) -> dict:
         """Clean passes (``rgb``, ``depth_z``, ``index``) at the camera pose (4x4, OpenCV); ``regions``
         the frame's ROI boxes (:meth:`blendgen.pipeline.plan.RenderRegions.boxes`; None: whole frame)."""
-        out = os.path.join(self.scratch, "frame.npz")
+        out = os.path.join(self.scratch, "frame.passes")
         regions = regions or {}
         roi, rois = regions.get("roi"), regions.get("rois")
         self._ask(
@@ -105,8 +106,7 @@ class RenderClient:
                 "out": out,
             }
         )
-        with np.load(out) as z:
-            return {k: z[k] for k in z.files}
+        return passfile.read_passes(out)  # views of the server's file, copied only where written
 
     def close(self) -> None:
         if self.proc.poll() is None:
