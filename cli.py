@@ -1818,10 +1818,7 @@ def bench_check(baseline, tolerance, floor_s, record, trials, names, size, image
         meas = guard.Measurement(
             tuple(names) or d.experiments, trials or d.trials, size or d.size, images or d.images, modes
         )
-    req = guard.CheckRequest(
-        out, baseline, tolerance, floor_s, record, meas, workers, " ".join(_command_line(click.get_current_context()))
-    )
-    guard.run_check(req)
+    guard.run_check(guard.CheckRequest(out, baseline, tolerance, floor_s, record, meas, workers))
 
 
 if __name__ == "__main__":

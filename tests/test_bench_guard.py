@@ -121,11 +121,14 @@ def test_baseline_round_trip_and_bad_files_are_one_line_errors(tmp_path, monkeyp
     monkeypatch.setattr("evalkit.reports.provenance.git_state", lambda: {"commit": "abc", "dirty": False})
     runs = {"physical": _run("physical", 60.0, 40.0, {"compose.water": 30.0}, 2.0)}
     meas = guard.Measurement(("turbidity",), 1, (640, 480), "none", ("physical",))
-    doc = guard.record(runs, meas, "dockbench bench check --record", guard.machine())
+    doc = guard.record(runs, meas, guard.machine())
     path = tmp_path / "b.json"
     guard.write_baseline(doc, path)
     back = guard.load_baseline(path)
     assert guard.Measurement.from_json(back["measurement"]) == meas and back["commit"] == "abc"
+    assert back["command"] == (
+        "dockbench bench check -o OUT --record --trials 1 -e turbidity --size 640x480 --images none --mode physical"
+    )
     assert guard.flat_figures(back["runs"])["physical compose.water"] == 30.0
     assert back["machine"]["cores"] >= 1 and back["machine"]["cpu_model"]
     path.write_text(json.dumps({"runs": {}}))

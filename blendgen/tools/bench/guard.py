@@ -107,8 +107,9 @@ def machine() -> dict:
     }
 
 
-def record(runs: dict, meas: Measurement, command: str, host: dict) -> dict:
-    """The baseline document of suite ``runs`` (mode -> SuiteRun) measured as ``meas``."""
+def record(runs: dict, meas: Measurement, host: dict) -> dict:
+    """The baseline document of suite ``runs`` (mode -> SuiteRun) measured as ``meas`` (the
+    command that reproduces it names no path of this machine: ``-o OUT``)."""
     from blendgen.tools.bench.suitebench import REFERENCE_CORES, extrapolate, stage_figures
     from evalkit.reports.provenance import git_state
 
@@ -116,7 +117,7 @@ def record(runs: dict, meas: Measurement, command: str, host: dict) -> dict:
     return {
         "version": VERSION,
         "what": "dockbench bench suite: CPU seconds per stage and image-formation mode (blendgen/tools/bench/guard.py)",
-        "command": command,
+        "command": f"dockbench bench check -o OUT --record {meas.options()}",
         "commit": git.get("commit"),
         "dirty": git.get("dirty"),
         "recorded_utc": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
@@ -192,7 +193,6 @@ class CheckRequest:
     record: bool = False
     meas: Measurement | None = None
     workers: int | None = None
-    command: str = ""
 
 
 def _plan(req: CheckRequest) -> tuple[dict | None, Measurement, Path | None]:
@@ -227,7 +227,7 @@ def run_check(req: CheckRequest) -> None:
     runs = measure_modes(
         meas.trials, meas.experiments, Overrides(size=meas.size), req.out, req.workers, True, meas.images, meas.modes
     )
-    doc = record(runs, meas, req.command, host)
+    doc = record(runs, meas, host)
     if base is not None and Measurement.from_json(base["measurement"]) == meas:
         _report(base, doc, req)
     elif base is not None:
