@@ -168,3 +168,29 @@ def test_localizer_seconds_scale_each_sequence_by_its_process_cpu_share(tmp_path
     assert got["led"]["wall_s"] == pytest.approx(0.080) and got["led"]["frames"] == 6
     assert got["led"]["s"] == pytest.approx(0.040 * 0.25 + 0.040 * 1.0)  # s2's share capped at 1
     assert got["qr"]["s"] == pytest.approx(0.004 * 0.25)
+
+
+def test_check_records_then_flags_what_moved(tmp_path, monkeypatch):
+    """The command's flow on synthetic suite runs (the measurement itself is bench suite's)."""
+    calls, compose_s = [], [30.0]
+
+    def fake_measure(trials, names, ov, out, workers, evaluate, images, modes):
+        calls.append((trials, names, ov.size, images, modes))
+        return {m: _run(m, 60.0, compose_s[0], {"compose.water": 20.0}, 2.0) for m in modes}
+
+    monkeypatch.setattr(sb, "measure_modes", fake_measure)
+    base = tmp_path / "base.json"
+    rec = ["bench", "check", "--record", "--baseline", str(base), "--mode", "article", "--size", "320x240"]
+    res = CliRunner().invoke(cli.main, [*rec, "-o", str(tmp_path / "a")])
+    assert res.exit_code == 0, res.output
+    assert calls == [(1, ("turbidity",), (320, 240), "none", ("article",))] and "recorded the baseline" in res.output
+    compose_s[0] = 40.0  # compose.other 10 -> 20 s, compose 30 -> 40 s
+    res = CliRunner().invoke(cli.main, ["bench", "check", "--baseline", str(base), "-o", str(tmp_path / "b")])
+    assert res.exit_code == 0, res.output
+    assert calls[-1] == calls[0]  # the baseline's measurement, rerun
+    moved = [ln for ln in res.output.splitlines() if ln.startswith("MOVED")]
+    assert moved == [  # total 107 -> 117 s (x1.09) is within the tolerance
+        "MOVED article compose: slower x1.33, more than 20 %",
+        "MOVED article compose.other: slower x2.00, more than 20 %",
+    ]
+    assert (tmp_path / "b" / "bench_check.csv").is_file() and not (tmp_path / "b" / "bench_baseline.json").exists()

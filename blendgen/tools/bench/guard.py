@@ -228,6 +228,7 @@ def run_check(req: CheckRequest) -> None:
         meas.trials, meas.experiments, Overrides(size=meas.size), req.out, req.workers, True, meas.images, meas.modes
     )
     doc = record(runs, meas, host)
+    _print_modes(runs, meas)
     if base is not None and Measurement.from_json(base["measurement"]) == meas:
         _report(base, doc, req)
     elif base is not None:
@@ -235,6 +236,17 @@ def run_check(req: CheckRequest) -> None:
     if target is not None:
         write_baseline(doc, target)
         click.echo(f"recorded the baseline {target} (commit {doc['commit']}, {meas.options()})")
+
+
+def _print_modes(runs: dict, meas: Measurement) -> None:
+    """The modes side by side, as ``bench suite`` prints them."""
+    import click
+
+    from blendgen.tools.bench.suitebench import side_by_side
+    from evalkit.reports.tables import print_table
+
+    click.echo(f"\nCPU seconds per stage ({meas.options()}):")
+    print_table(side_by_side(runs), floatfmt=".2f")
 
 
 def _report(base: dict, doc: dict, req: CheckRequest) -> None:
