@@ -194,3 +194,11 @@ def test_check_records_then_flags_what_moved(tmp_path, monkeypatch):
         "MOVED article compose.other: slower x2.00, more than 20 %",
     ]
     assert (tmp_path / "b" / "bench_check.csv").is_file() and not (tmp_path / "b" / "bench_baseline.json").exists()
+
+
+def test_the_package_baseline_loads_and_names_its_machine():
+    base = guard.load_baseline(guard.BASELINE)
+    assert base["commit"] and base["machine"]["cores"] and base["machine"]["cpu_model"]
+    assert set(base["runs"]) == set(base["measurement"]["modes"])
+    for run in base["runs"].values():
+        assert {"render", "compose", "write", "evaluate", "total"} <= set(run["cpu_s"]) and run["frames_rendered"] > 0
