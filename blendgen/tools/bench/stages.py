@@ -1,12 +1,14 @@
 """``dockbench bench``: where the time goes at 640x480, per stage and per localizer.
 
 Renders the quickstart approach (``frames`` frames, 12 m -> 1 m) once per sample
-count and image-formation mode (``physical``: ambient pass, per-surface depth light,
-sensor noise; ``article``: none of them) with one worker using every core, reports
-the median ms/frame of each stage from the worker's own timers and the cost of each
-image-formation term on one 640x480 frame, then runs each built-in localizer on one
-core over the frames and reports frames/s. A benchmark, not a test: nothing is
-asserted; the numbers are printed and written to ``OUT/bench.csv``.
+count and image-formation mode (``--mode``: ``physical``: ambient pass, per-surface
+depth light, sensor noise; ``article``: none of them; ``both``) with one worker using
+every core, reports the median ms/frame of each stage and the CPU ms per frame of each
+stage and compose term (:func:`blendgen.pipeline.stagetimer.term`) from the worker's own
+timers, modes side by side, and the cost of each image-formation term on one 640x480
+frame, then runs each built-in localizer on one core over each mode's frames and reports
+frames/s. A benchmark, not a test: nothing is asserted; the numbers are printed and
+written to CSV files under ``OUT``.
 """
 
 from __future__ import annotations
