@@ -517,6 +517,23 @@ def bench():
     """Benchmarks (print and write CSV under -o; nothing is asserted)."""
 
 
+def _bench_mode(fn):
+    """``--mode physical|article|both`` (default both), given to the command as ``modes``: a
+    tuple of image formations; it overrides the experiments' ``image_formation``."""
+
+    @functools.wraps(fn)
+    def inner(*args, mode: str, **kwargs):
+        return fn(*args, modes=("physical", "article") if mode == "both" else (mode,), **kwargs)
+
+    return click.option(
+        "--mode",
+        type=click.Choice(["physical", "article", "both"]),
+        default="both",
+        show_default=True,
+        help="image formation of the measured runs (overrides the configs'); both: side by side",
+    )(inner)
+
+
 @bench.command("stages")
 @_writes_out("bench")
 @click.option("--frames", type=click.IntRange(5, 10000), default=40, help="frames to render per setting")
@@ -527,21 +544,23 @@ def bench():
     type=click.IntRange(1, 4096),
     help="Cycles samples to time (repeatable; default 1 and 4)",
 )
+@_bench_mode
 @click.option(
     "-o",
     "--out",
     "out",
     type=click.Path(file_okay=False, path_type=Path),
     required=True,
-    help="directory to write bench_render.csv, bench_terms.csv and bench_localizers.csv into (and the renders)",
+    help="directory to write bench_render.csv, bench_stage_cpu.csv, bench_terms.csv and bench_localizers.csv "
+    "into (and the renders)",
 )
 @_user_errors
-def bench_stages(frames: int, samples: tuple[int, ...], out: Path):
-    """Time each stage at 640x480 (scene build, render + EXR read, depth to range, post+write) and localizer
-    frames/s."""
+def bench_stages(frames: int, samples: tuple[int, ...], modes: tuple[str, ...], out: Path):
+    """Time each stage at 640x480 (scene build, render + EXR read, depth to range, post+write; CPU per stage and
+    term) and localizer frames/s, per image-formation mode."""
     from blendgen.tools.bench.stages import run_bench
 
-    run_bench(out, frames, samples or (1, 4))
+    run_bench(out, frames, samples or (1, 4), modes)
 
 
 def _size_options(fn):
@@ -1699,19 +1718,21 @@ def _suite_size(ctx, param, value):
     help="all: generate then evaluate (datasets kept); none or sample:N: the streaming path of "
     "`dockbench run` (evaluated while rendering, N images per sequence kept)",
 )
+@_bench_mode
 @click.option(
     "-o",
     "--out",
     "out",
     type=click.Path(file_okay=False, path_type=Path),
     required=True,
-    help="directory for bench_suite.jsonl (appended), bench_scaling.csv and the suite's datasets and "
-    "results; with --table: the directory read",
+    help="directory for bench_suite.jsonl (appended), bench_suite.csv, bench_scaling.csv and the suite's "
+    "datasets and results; with --table: the directory read",
 )
 def bench_suite(
-    trials, names, size, particles, workers, scaling, no_evaluate, table, max_distance_m, samples, images, out
+    trials, names, size, particles, workers, scaling, no_evaluate, table, max_distance_m, samples, images, modes, out
 ):
-    """Generate and evaluate the article's suite at N trials; CPU/wall per stage, RSS, disk, 100-trial estimate."""
+    """Generate and evaluate the article's suite at N trials per image-formation mode; CPU/wall per stage, RSS,
+    disk, 100-trial estimate, modes side by side."""
     from blendgen.tools.apps.reproduce import EXPERIMENTS
     from blendgen.tools.bench.suitebench import Overrides, print_recorded
     from blendgen.tools.bench.suitebench import bench_suite as run
@@ -1727,7 +1748,81 @@ def bench_suite(
         scaling,
         not no_evaluate,
         images,
+        modes,
     )
+
+
+@bench.command("check")
+@_writes_out("bench")
+@click.option(
+    "--baseline",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="baseline to compare with (default: the package's blendgen/data/bench_baseline.json); with --record "
+    "the file rewritten (default: OUT/bench_baseline.json, never the package's unless named here)",
+)
+@click.option(
+    "--tolerance",
+    type=click.FloatRange(0.01, 10.0),
+    default=0.2,
+    show_default=True,
+    help="flag a stage whose CPU moved by more than this fraction, either way",
+)
+@click.option(
+    "--floor",
+    "floor_s",
+    type=click.FloatRange(0.0, 1e6),
+    default=0.5,
+    show_default=True,
+    help="CPU s under which (in both runs) a stage is not flagged",
+)
+@click.option("--record", is_flag=True, help="write the new figures as the baseline")
+@click.option("--trials", type=click.IntRange(1, 100000), default=None, help="with --record: trials (default 1)")
+@click.option(
+    "-e",
+    "--experiment",
+    "names",
+    multiple=True,
+    type=click.Choice(("turbidity", "depth", "current", "occlusion")),
+    help="with --record: experiments (repeatable; default turbidity)",
+)
+@click.option("--size", callback=_suite_size, default=None, help="with --record: image size (default 640x480)")
+@click.option(
+    "--images",
+    default=None,
+    callback=lambda c, p, v: None if v is None else _images_policy(v),
+    help="with --record: all, none or sample:N as for bench suite (default none)",
+)
+@click.option(
+    "--mode",
+    type=click.Choice(["physical", "article", "both"]),
+    default=None,
+    help="with --record: image formation (default both)",
+)
+@click.option("--workers", type=click.IntRange(1, 256), default=None)
+@click.option(
+    "-o",
+    "--out",
+    "out",
+    type=click.Path(file_okay=False, path_type=Path),
+    required=True,
+    help="directory for the suite's runs, bench_suite.jsonl and bench_check.csv",
+)
+@_user_errors
+def bench_check(baseline, tolerance, floor_s, record, trials, names, size, images, mode, workers, out):
+    """Rerun the baseline's `bench suite` measurement; print per stage old and new CPU s, their ratio and a flag
+    where a stage moved by more than --tolerance (a benchmark: exit code 0 whatever moved)."""
+    from blendgen.tools.bench import guard
+
+    given = {"trials": trials, "experiments": names or None, "size": size, "images": images, "mode": mode}
+    meas = None
+    if any(v is not None for v in given.values()):
+        d = guard.Measurement()
+        modes = d.modes if mode in (None, "both") else (mode,)
+        meas = guard.Measurement(
+            tuple(names) or d.experiments, trials or d.trials, size or d.size, images or d.images, modes
+        )
+    guard.run_check(guard.CheckRequest(out, baseline, tolerance, floor_s, record, meas, workers))
 
 
 if __name__ == "__main__":

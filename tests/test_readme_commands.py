@@ -112,6 +112,7 @@ def test_bench_particles_smallest():
 ELSEWHERE.update(
     {  # exercised through their library functions at small sizes
         "bench suite": "test_suitebench.py",
+        "bench check": "test_bench_guard.py (its checks; the measurement is bench suite's)",
         "bench render-settings": "test_render_settings_bench.py",
         "bench lamp": "test_lamp_reference.py, test_lamp_shadow.py",
         "bench caustics": "test_caustic_reference.py",

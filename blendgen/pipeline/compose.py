@@ -29,6 +29,7 @@ from blendgen.physics.particles import field as occlusion
 from blendgen.physics.water import optics
 from blendgen.pipeline import groundtruth, particle_light
 from blendgen.pipeline.plan import INDEX_PARTICLES, SequencePost
+from blendgen.pipeline.stagetimer import term
 from datasets_spec.io import save_image
 
 
@@ -94,6 +95,7 @@ class SequenceState:
             self.field = self.field.step(1.0 / self.post.fps, occ.v_flow, [occ.drift_sigma_m] * 3, self.rng)
 
 
+@term("particles")
 def add_particles(
     passes: dict,
     state: SequenceState,
@@ -177,6 +179,7 @@ def surface_depth(range_m: np.ndarray, K: np.ndarray, T_world_cam, surface_z_m: 
     return np.maximum(depth, np.float32(0.0)), cam_depth
 
 
+@term("led_light")
 def led_light(
     passes: dict, state: SequenceState, K: np.ndarray, T_world_cam, markers: list[dict], T_world_dock
 ) -> np.ndarray | None:
@@ -193,6 +196,7 @@ def led_light(
     return leds.surface_radiance(lights, passes["range_m"], rays, passes["albedo"], state.water.c)
 
 
+@term("water")
 def water_image(
     passes: dict,
     state: SequenceState,
@@ -310,6 +314,7 @@ def _world(
     return rgb, range_m, depth
 
 
+@term("surface")
 def mirror_fill(rgb: np.ndarray, range_m: np.ndarray, depth, w: optics.WaterOptics, veil) -> np.ndarray:
     """Radiance (3,) the surface reflects where its mirror image is not in the frame: the
     scene below seen through water. The frame's surfaces (clean ``rgb`` (H,W,3) dimmed by the
@@ -327,6 +332,7 @@ def mirror_fill(rgb: np.ndarray, range_m: np.ndarray, depth, w: optics.WaterOpti
     return (lit.mean(axis=0) * tr + np.asarray(veil, float) * (1.0 - tr)).astype(np.float32)
 
 
+@term("lamp")
 def lamp_image(passes: dict, lamp: lamp_water.LampWater, K: np.ndarray, T_world_cam) -> np.ndarray:
     """Fast fidelity: what the vehicle's lamps add to the camera image (H, W, 3): lamp-lit
     surfaces (albedo pass, normal pass rotated into the camera frame) and the backscatter
@@ -386,15 +392,16 @@ def camera_image(
         rgb = water_image(
             passes, state, K, frame["T_world_cam"], markers, occluded, T_world_dock, float(frame.get("t", 0.0))
         )
-    if frame.get("blur_px") is not None:
-        rgb = sensor.motion_blur(rgb, frame["blur_px"])
-    if state.post.distortion:
-        rgb = sensor.distort_image(rgb, K, state.post.distortion)
-    img = state.camera.apply(rgb, state.rng)
-    state.exposure_s = state.camera.exposure_s
-    if state.auto_exposure is not None:  # the AE loop sets the next frame's exposure
-        t = state.auto_exposure.next_exposure(rgb, state.camera.exposure_s, state.camera, 1.0 / state.post.fps)
-        state.camera = dataclasses.replace(state.camera, exposure_s=t)
+    with term("sensor"):
+        if frame.get("blur_px") is not None:
+            rgb = sensor.motion_blur(rgb, frame["blur_px"])
+        if state.post.distortion:
+            rgb = sensor.distort_image(rgb, K, state.post.distortion)
+        img = state.camera.apply(rgb, state.rng)
+        state.exposure_s = state.camera.exposure_s
+        if state.auto_exposure is not None:  # the AE loop sets the next frame's exposure
+            t = state.auto_exposure.next_exposure(rgb, state.camera.exposure_s, state.camera, 1.0 / state.post.fps)
+            state.camera = dataclasses.replace(state.camera, exposure_s=t)
     return img
 
 
@@ -436,6 +443,7 @@ def visible_fraction(
     return occlusion.visible_fraction_from_masks(index == marker["object_index"], occluded, max(area, 0.0))
 
 
+@term("truth")
 def frame_record(
     frame: dict,
     T_world_dock: np.ndarray,
@@ -452,6 +460,7 @@ def frame_record(
     return with_visibility(rec, markers, K, index, None)
 
 
+@term("truth")
 def with_visibility(
     rec: dict, markers: list[dict], K: np.ndarray, index: np.ndarray, occluded: np.ndarray | None
 ) -> dict:

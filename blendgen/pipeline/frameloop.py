@@ -33,11 +33,12 @@ from blendgen.pipeline import plan
 from blendgen.pipeline import renderer as rd
 from blendgen.pipeline.frameshare import FrameShare
 from blendgen.pipeline.passstore import PassStore
-from blendgen.pipeline.stagetimer import StageTimer
+from blendgen.pipeline.stagetimer import StageTimer, term
 from blendgen.render_spec import FramePlan
 
 
 # -- the per-frame stages (datasets and the closed loop) ----------------------------
+@term("passes")
 def clean_passes(raw: dict, K: np.ndarray, ambient_radiance: float) -> dict:
     """The renderer's passes with ``range_m`` (H,W) float32 m along each ray and the ambient
     light field added to ``rgb`` (0: none); in place, no copies of the other passes."""

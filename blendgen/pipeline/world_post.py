@@ -28,6 +28,7 @@ import numpy as np
 
 from blendgen.physics.surface import caustic_map
 from blendgen.physics.surface import optics as sf
+from blendgen.pipeline.stagetimer import term
 
 
 @functools.lru_cache(maxsize=8)
@@ -66,6 +67,7 @@ def surface_slopes(waves: sf.WaveField, cam_xy, rays, r_all, t: float, stride: i
     return g[..., 0], g[..., 1]
 
 
+@term("surface")
 def add_surface(
     rgb,
     range_m,
@@ -204,6 +206,7 @@ def footprint_m(rays, range_m, normals, px_rad: float, beam=None, beam_cos=None)
     return np.where(np.isfinite(f) & (cos > 1e-3), f, np.inf).astype(np.float32)
 
 
+@term("caustics")
 def add_caustics(
     rgb,
     albedo,

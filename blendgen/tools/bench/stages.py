@@ -1,16 +1,19 @@
 """``dockbench bench``: where the time goes at 640x480, per stage and per localizer.
 
 Renders the quickstart approach (``frames`` frames, 12 m -> 1 m) once per sample
-count and image-formation mode (``physical``: ambient pass, per-surface depth light,
-sensor noise; ``article``: none of them) with one worker using every core, reports
-the median ms/frame of each stage from the worker's own timers and the cost of each
-image-formation term on one 640x480 frame, then runs each built-in localizer on one
-core over the frames and reports frames/s. A benchmark, not a test: nothing is
-asserted; the numbers are printed and written to ``OUT/bench.csv``.
+count and image-formation mode (``--mode``: ``physical``: ambient pass, per-surface
+depth light, sensor noise; ``article``: none of them; ``both``) with one worker using
+every core, reports the median ms/frame of each stage and the CPU ms per frame of each
+stage and compose term (:func:`blendgen.pipeline.stagetimer.term`) from the worker's own
+timers, modes side by side, and the cost of each image-formation term on one 640x480
+frame, then runs each built-in localizer on one core over each mode's frames and reports
+frames/s. A benchmark, not a test: nothing is asserted; the numbers are printed and
+written to CSV files under ``OUT``.
 """
 
 from __future__ import annotations
 
+import json
 import shutil
 import time
 from pathlib import Path
@@ -69,6 +72,34 @@ def render_stages(out: Path, frames: int, samples: int, mode: str = "physical", 
         "render+write_ms": 1e3 * (st["render"] + st["depth_to_range"] + st["post_write"]),
         "wall_ms_per_frame": 1e3 * wall / n,
     }
+
+
+def stage_cpu_table(dirs: dict[str, Path]) -> pd.DataFrame:
+    """CPU ms per frame of each frame-loop stage and term (``compose.water``, ...; the worker's
+    own :class:`~blendgen.pipeline.stagetimer.StageTimer`), one column per bench dataset
+    (``dirs``: label -> rendered bench dataset); the ratio physical / article when both ran."""
+    from blendgen.tools.bench.suitebench import STAGES, stage_totals
+
+    cols = {}
+    for label, d in dirs.items():
+        st = stage_totals([d])
+        n = sum(len(json.loads(p.read_text())["frames"]) for p in (d / ".work" / "jobs").glob("*.json"))
+        cpu = {k[4:-2]: 1e3 * v / max(n, 1) for k, v in st.items() if k.startswith("cpu_")}
+        for s in STAGES:
+            terms = [v for k, v in cpu.items() if k.startswith(f"{s}.")]
+            if terms and s in cpu:
+                cpu[f"{s}.other"] = cpu[s] - sum(terms)
+        cols[f"{label} CPU ms/frame"] = cpu
+    order = sorted(
+        {k for c in cols.values() for k in c},
+        key=lambda k: (STAGES.index(k.split(".")[0]) if k.split(".")[0] in STAGES else 9, k),
+    )
+    df = pd.DataFrame({"stage": order, **{c: [v.get(k, np.nan) for k in order] for c, v in cols.items()}})
+    phys = [c for c in cols if c.startswith("physical")]
+    art = [c for c in cols if c.startswith("article")]
+    if phys and art:
+        df["physical / article"] = df[phys[0]] / df[art[0]]
+    return df
 
 
 def _median_ms(fn, repeats: int = 15, clock=time.perf_counter) -> float:
@@ -165,7 +196,8 @@ def term_costs(dataset: Path) -> pd.DataFrame:
 
 
 def localizer_speed(dataset: Path) -> pd.DataFrame:
-    """Frames/s of each built-in localizer on one core over a rendered dataset."""
+    """Frames/s of each built-in localizer on one core over a rendered dataset (a ``mode``
+    column: the dataset's image formation, from its manifest)."""
     import cv2
 
     from evalkit import registry, runner
@@ -173,12 +205,14 @@ def localizer_speed(dataset: Path) -> pd.DataFrame:
 
     cv2.setNumThreads(1)
     ds = Dataset.open(dataset)
+    mode = ds.manifest.get("config", {}).get("image_formation", "?")
     rows = []
     for name in LOCALIZERS:
         df = runner.evaluate(ds, [(name, registry.resolve(name, {}))], progress=False)
         ms = df["ms"].to_numpy()
         rows.append(
             {
+                "mode": mode,
                 "localizer": name,
                 "frames": len(ms),
                 "median_ms": float(np.median(ms)),
@@ -356,13 +390,16 @@ def run_localizer_bench(dataset: Path, out: Path) -> None:
     led.to_csv(out / "bench_led_centroids.csv", index=False)
 
 
-def run_bench(out: Path, frames: int, samples: tuple[int, ...]) -> None:
-    """Run and print both tables; write them to OUT/bench_render.csv and OUT/bench_localizers.csv."""
+def run_bench(
+    out: Path, frames: int, samples: tuple[int, ...], modes: tuple[str, ...] = ("physical", "article")
+) -> None:
+    """Run and print the tables for each image-formation mode in ``modes``; write them to
+    OUT/bench_render.csv, OUT/bench_terms.csv and OUT/bench_localizers.csv."""
     from evalkit.reports.tables import print_table
 
     out.mkdir(parents=True, exist_ok=True)
     rows = []
-    for mode in ("physical", "article"):
+    for mode in modes:
         for s in samples:
             click.echo(f"rendering {frames} frames at 640x480, {s} spp, {mode} mode ...", err=True)
             rows.append(render_stages(out / f"{mode}-s{s}", frames, s, mode, progress=True))
@@ -370,11 +407,15 @@ def run_bench(out: Path, frames: int, samples: tuple[int, ...]) -> None:
     click.echo("\nrender stages (median ms/frame; scene_build once per sequence):")
     print_table(render_df, floatfmt=".1f")
     render_df.to_csv(out / "bench_render.csv", index=False)
-    terms = term_costs(out / f"physical-s{max(samples)}")
+    cpu_df = stage_cpu_table({m: out / f"{m}-s{max(samples)}" for m in modes})
+    click.echo(f"\nCPU ms per rendered frame per stage and term at {max(samples)} spp (the worker's own timers):")
+    print_table(cpu_df, floatfmt=".2f")
+    cpu_df.to_csv(out / "bench_stage_cpu.csv", index=False)
+    terms = term_costs(out / f"{modes[0]}-s{max(samples)}")
     click.echo("\nimage-formation terms on one 640x480 frame (median ms; a term switched off is not called):")
     print_table(terms, floatfmt=".2f")
     terms.to_csv(out / "bench_terms.csv", index=False)
-    loc_df = localizer_speed(out / f"physical-s{max(samples)}")
-    click.echo("\nlocalizers on one core (cv2.setNumThreads(1)):")
+    loc_df = pd.concat([localizer_speed(out / f"{mode}-s{max(samples)}") for mode in modes], ignore_index=True)
+    click.echo(f"\nlocalizers on one core (cv2.setNumThreads(1)), on the {' and '.join(modes)} frames:")
     print_table(loc_df, floatfmt=".2f")
     loc_df.to_csv(out / "bench_localizers.csv", index=False)

@@ -11,6 +11,20 @@ seconds:
   manifest hashing): the workers' and the parent's CPU minus the three stages;
 - ``evaluate`` localizers, metrics, tables and plots.
 
+``compose`` is split into its terms where the frame loop times them
+(:func:`blendgen.pipeline.stagetimer.term`: ``compose.passes``, ``compose.particles``,
+``compose.water``, ``compose.caustics``, ``compose.surface``, ``compose.led_light``,
+``compose.lamp``, ``compose.sensor``, ``compose.truth``; ``compose.other`` is the rest), and
+``evaluate`` per localizer (``evaluate.<name>``: the wall time the evaluator records per call,
+summed over the frames, times the CPU / wall of the one-thread process that evaluated the
+sequence: an estimate of the calls' CPU that removes the waiting on a shared machine; the
+hybrid's includes the LED and QR calls it shares with them, so these overlap).
+
+``--mode physical|article|both`` overrides the experiments' ``image_formation`` the way
+``dockbench reproduce --mode`` does (:func:`blendgen.tools.apps.reproduce.experiment`); with
+``both`` the two suites run one after the other and are printed side by side with their
+100-trial estimates on 2 cores (the machine the article's suite targets).
+
 ``--images none|sample:N`` measures the streaming path instead (``dockbench run``:
 each sequence evaluated by a pool of processes as soon as it is rendered, only the
 sampled images kept): ``evaluate`` is then the evaluation workers' CPU plus the
@@ -36,6 +50,10 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 STAGES = ("render", "compose", "write")
+MODES = ("physical", "article")
+#: The 100-trial estimate is quoted on this many idle cores: the 2-core machine the suite's cost
+#: targets are set on (README, "Cost of the whole suite").
+REFERENCE_CORES = 2
 
 
 # -- measuring -------------------------------------------------------------------
@@ -147,6 +165,9 @@ class SuiteRun:
     peak_rss_mb: float = 0.0
     disk: dict = field(default_factory=dict)
     path: str = "generate+evaluate"  # or "run --images POLICY" (evaluated while rendering)
+    mode: str = ""  # image formation forced by --mode ("": the configs' own)
+    terms: dict = field(default_factory=dict)  # CPU s of the stages' terms, "compose.water": s
+    localizers: dict = field(default_factory=dict)  # name -> {"s": summed per-call s, "frames": n}
 
 
 @dataclass(frozen=True)
@@ -170,13 +191,14 @@ class Overrides:
         return "-".join(parts)
 
 
-def configure(names: tuple[str, ...], trials: int, ov: Overrides = Overrides()):
-    """The paper experiments with ``trials`` and the overrides ``ov``."""
+def configure(names: tuple[str, ...], trials: int, ov: Overrides = Overrides(), mode: str | None = None):
+    """The paper experiments with ``trials``, the overrides ``ov`` and image formation ``mode``
+    (None: the configs' own), as ``dockbench reproduce --mode`` builds them."""
     from blendgen.tools.apps.reproduce import experiment
 
     exps = []
     for n in names:
-        e = experiment(n, trials)
+        e = experiment(n, trials, mode)
         if ov.max_distance_m is not None:
             e.render.max_distance_m = ov.max_distance_m
         if ov.samples is not None:
@@ -262,6 +284,8 @@ def _fill_counts(run: SuiteRun, mans: list[dict], dsets: list[Path], out: Path) 
         run.cpu[s] = st.get(f"cpu_{s}_s", float("nan"))
         run.wall[s] = st.get(f"wall_{s}_s", float("nan"))
     run.cpu["generate_other"] = run.cpu["generate"] - sum(run.cpu[s] for s in STAGES)
+    run.terms = {k[4:-2]: v for k, v in st.items() if k.startswith("cpu_") and "." in k}
+    run.localizers = localizer_seconds(out)
     jobs = {}
     for d in dsets:
         for jf in (d / ".work" / "jobs").glob("*.json"):
@@ -270,6 +294,36 @@ def _fill_counts(run: SuiteRun, mans: list[dict], dsets: list[Path], out: Path) 
     run.sequences = sum(len(m["sequences"]) for m in mans)
     run.frames_written = sum(s["n_frames"] for m in mans for s in m["sequences"])
     run.disk = disk_mb(out)
+
+
+def localizer_seconds(out: Path) -> dict[str, dict]:
+    """Per localizer over every frame of the results under ``out``
+    (``*/results/estimates.parquet``): ``wall_s``, the evaluator's per-call seconds summed;
+    ``s``, the same scaled per sequence by its evaluation process's CPU / wall
+    (``.stream/*/<sequence>.cost.json``, at most 1; 1 without it: the generate-then-evaluate
+    path), i.e. the call's CPU if the process waited evenly; ``frames``."""
+    import pandas as pd
+
+    tot: dict[str, dict] = {}
+    for p in sorted(Path(out).glob("*/results/estimates.parquet")):
+        busy = _cpu_share(p.parent.parent / ".stream")
+        df = pd.read_parquet(p, columns=["localizer", "sequence", "ms"])
+        for (name, seq), ms in df.groupby(["localizer", "sequence"])["ms"]:
+            t = tot.setdefault(str(name), {"s": 0.0, "wall_s": 0.0, "frames": 0})
+            t["wall_s"] += float(ms.sum()) / 1e3
+            t["s"] += float(ms.sum()) / 1e3 * busy.get(str(seq), 1.0)
+            t["frames"] += int(ms.size)
+    return tot
+
+
+def _cpu_share(stream: Path) -> dict[str, float]:
+    """Sequence id -> CPU / wall (at most 1) of the process that evaluated it."""
+    out = {}
+    for c in stream.glob("*/*.cost.json"):
+        d = json.loads(c.read_text())
+        if d.get("wall_s"):
+            out[c.name.removesuffix(".cost.json")] = min(1.0, float(d["cpu_s"]) / float(d["wall_s"]))
+    return out
 
 
 # -- reporting -----------------------------------------------------------------------
@@ -289,6 +343,42 @@ def stage_table(run: SuiteRun):
         }
     )
     return pd.DataFrame(rows)
+
+
+def stage_figures(run: SuiteRun) -> dict[str, float]:
+    """CPU seconds per stage in print order: each frame-loop stage then its terms (and
+    ``<stage>.other``, the stage minus its terms), ``generate_other``, ``evaluate`` then
+    ``evaluate.<localizer>`` (the evaluator's per-call seconds, module docstring), ``total``."""
+    cpu, out = run.cpu, {}
+    for s in STAGES:
+        out[s] = cpu[s]
+        terms = {k: v for k, v in run.terms.items() if k.startswith(f"{s}.")}
+        out.update(sorted(terms.items()))
+        if terms:
+            out[f"{s}.other"] = cpu[s] - sum(terms.values())
+    out["generate_other"] = cpu["generate_other"]
+    out["evaluate"] = cpu["evaluate"]
+    out.update({f"evaluate.{n}": v["s"] for n, v in sorted(run.localizers.items())})
+    out["total"] = cpu["generate"] + cpu["evaluate"]
+    return out
+
+
+def side_by_side(runs: dict[str, SuiteRun]):
+    """Rows stage; a CPU-seconds column per mode (``runs``: mode -> run), the ratio of
+    physical to article when both ran, and the 100-trial estimate on
+    :data:`REFERENCE_CORES` idle cores as the last row."""
+    import pandas as pd
+
+    figs = {m: stage_figures(r) for m, r in runs.items()}
+    stages = list(dict.fromkeys(k for f in figs.values() for k in f))
+    df = pd.DataFrame(
+        {"stage": stages, **{f"{m} CPU s": [f.get(k, float("nan")) for k in stages] for m, f in figs.items()}}
+    )
+    est = {f"{m} CPU s": extrapolate(r, cores=REFERENCE_CORES)["cpu_bound_wall_h"] for m, r in runs.items()}
+    df = pd.concat([df, pd.DataFrame([{"stage": f"100 trials: h on {REFERENCE_CORES} idle cores", **est}])])
+    if {"physical", "article"} <= set(runs):
+        df["physical / article"] = df["physical CPU s"] / df["article CPU s"]
+    return df.reset_index(drop=True)
 
 
 def extrapolate(run: SuiteRun, trials: int = 100, cores: int | None = None) -> dict:
@@ -394,6 +484,66 @@ def print_recorded(out: Path) -> None:
     df.to_csv(out / "bench_scaling.csv", index=False)
 
 
+def run_scaling(ov: Overrides, out: Path, workers: int | None, evaluate: bool, images: str, modes) -> None:
+    """The ``--scaling`` table: :data:`SCALING`, one factor at a time, in each of ``modes``
+    (None: the configs' own image formation)."""
+    import click
+    import pandas as pd
+
+    from evalkit.reports.tables import print_table
+
+    rows = []
+    for mode in modes:
+        for label, exps, n, sz, p in SCALING:
+            label = f"{label} {mode}" if mode else label
+            click.echo(f"scaling run: {label} ...", err=True)
+            row_ov = Overrides(sz, p, ov.max_distance_m, ov.samples)
+            run = run_suite(
+                configure(exps, n, row_ov, mode),
+                out / "scaling" / label.replace(" ", "_"),
+                label,
+                workers,
+                evaluate,
+                images,
+            )
+            run.mode = mode or ""
+            save(run, out)
+            rows.append(scaling_row(run))
+    df = pd.DataFrame(rows)
+    click.echo(f"\nscaling (one factor at a time; CPU seconds; wall on a shared machine; {ov.tag() or '-'}):")
+    print_table(df, floatfmt=".1f")
+    df.to_csv(out / "bench_scaling.csv", index=False)
+
+
+def measure_modes(
+    trials: int,
+    names: tuple[str, ...],
+    ov: Overrides,
+    out: Path,
+    workers: int | None,
+    evaluate: bool,
+    images: str,
+    modes,
+) -> dict[str, SuiteRun]:
+    """One suite run per image-formation mode into ``out/suite-<mode>`` (``modes``: names,
+    or ``(None,)`` for the configs' own, into ``out/suite``); each saved and printed."""
+    runs = {}
+    for mode in modes:
+        label = "-".join(
+            [f"t{trials}", *names]
+            + ([ov.tag()] if ov.tag() else [])
+            + ([f"images-{images.replace(':', '')}"] if images != "all" else [])
+            + ([mode] if mode else [])
+        )
+        sub = out / (f"suite-{mode}" if mode else "suite")
+        run = run_suite(configure(names, trials, ov, mode), sub, label, workers, evaluate, images)
+        run.mode = mode or ""
+        save(run, out)
+        print_run(run)
+        runs[mode or "configured"] = run
+    return runs
+
+
 def bench_suite(
     trials: int,
     names: tuple[str, ...],
@@ -403,34 +553,18 @@ def bench_suite(
     scaling: bool,
     evaluate: bool,
     images: str = "all",
+    modes: tuple = MODES,
 ) -> None:
-    """The ``bench suite`` command body (see the module docstring); parameters are its options."""
+    """The ``bench suite`` command body (see the module docstring); parameters are its options,
+    ``modes`` the image formations to run (``(None,)``: the configs' own)."""
     import click
-    import pandas as pd
 
     from evalkit.reports.tables import print_table
 
     if scaling:
-        rows = []
-        for label, exps, n, sz, p in SCALING:
-            click.echo(f"scaling run: {label} ...", err=True)
-            row_ov = Overrides(sz, p, ov.max_distance_m, ov.samples)
-            run = run_suite(
-                configure(exps, n, row_ov), out / "scaling" / label.replace(" ", "_"), label, workers, evaluate, images
-            )
-            save(run, out)
-            rows.append(scaling_row(run))
-        df = pd.DataFrame(rows)
-        click.echo(f"\nscaling (one factor at a time; CPU seconds; wall on a shared machine; {ov.tag() or '-'}):")
-        print_table(df, floatfmt=".1f")
-        df.to_csv(out / "bench_scaling.csv", index=False)
-        return
-    label = "-".join(
-        [f"t{trials}", *names]
-        + ([ov.tag()] if ov.tag() else [])
-        + ([f"images-{images.replace(':', '')}"] if images != "all" else [])
-    )
-    run = run_suite(configure(names, trials, ov), out / "suite", label, workers, evaluate, images)
-    save(run, out)
-    print_run(run)
-    stage_table(run).to_csv(out / "bench_suite.csv", index=False)
+        return run_scaling(ov, out, workers, evaluate, images, modes)
+    runs = measure_modes(trials, names, ov, out, workers, evaluate, images, modes)
+    df = side_by_side(runs)
+    click.echo(f"\nCPU seconds per stage, {' vs '.join(runs)} ({trials} trial(s); module docstring of suitebench):")
+    print_table(df, floatfmt=".2f")
+    df.to_csv(out / "bench_suite.csv", index=False)
