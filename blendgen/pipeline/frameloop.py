@@ -72,7 +72,8 @@ def condition_image(
     )
 
     def image():
-        return pp.camera_image(seen, state, K, frame, markers, fidelity, occluded, T_world_dock=T_world_dock)
+        memo = None if share is None else share.memo(seen)
+        return pp.camera_image(seen, state, K, frame, markers, fidelity, occluded, T_world_dock, memo)
 
     return (image() if share is None else share.image(state, seen, image)), occluded
 

@@ -256,9 +256,12 @@ def _light_at(
     x: np.ndarray,
     y: np.ndarray,
     path_m: np.ndarray,
+    memo: dict | None = None,
 ) -> np.ndarray:
     """:func:`light_map` (bins' beam paths ``L`` (ny, nx)) read at points (x, y, path) (m,):
-    ``e^{-b L} sharp + (1 - e^{-b L}) scattered``, each map read bilinearly."""
+    ``e^{-b L} sharp + (1 - e^{-b L}) scattered``, each map read bilinearly. ``memo``: a dict
+    kept for the same points, patch and waves (:class:`FrameCaustics`): the sharp reading and
+    the deposit are made once for every water (they do not depend on it)."""
     D = np.asarray(sf.sun_deflection(None, n) if deflect is None else deflect, np.float64).reshape(2, 2)
     b = patch.bin_m
     sel = L if wanted is None else L[wanted]
@@ -269,12 +272,12 @@ def _light_at(
     ratio = 2 ** max(0, int(math.floor(math.log2(max(a * lo / 4, b) / b)))) if turbid else 1
     if turbid and ratio == 1:  # the scattered blur is a few bins: one deposit serves both
         pad = max(pad, int(math.ceil(2 * a * hi / b)) + 2)
-    grid = patch.padded(pad)
-    Lg = np.pad(L, pad, mode="edge")
-    look = None if wanted is None else np.pad(wanted, pad)
-    E = _deposit(waves, grid, Lg, t, D, None if look is None else _dilate(look, pad))
-    sharp = cm.disc_blur(E, (Lg * theta / b).astype(np.float64), np.ones(E.shape, bool) if look is None else look)
-    out = lookup(sharp, grid, x, y)
+    memo = {} if memo is None else memo
+    if "sharp" not in memo:  # the sun-disc blurred map read at the points: the same at any pad >= its own
+        memo["deposit"] = grid, Lg, E, look = _padded_deposit(waves, patch, L, t, D, wanted, pad)
+        sharp = cm.disc_blur(E, (Lg * theta / b).astype(np.float64), np.ones(E.shape, bool) if look is None else look)
+        memo["sharp"] = lookup(sharp, grid, x, y)
+    out = memo["sharp"]
     if not turbid:
         return out
     beam = np.exp(-scattering * np.asarray(path_m, np.float32))
@@ -282,10 +285,38 @@ def _light_at(
     if float(scattered_transfer(np.array([longest]), lo, scattering, g)[0]) < 0.01:
         return beam * out + (1.0 - beam)  # the scattered light keeps < 1 % of any pattern: its mean
     if ratio == 1:
+        grid, Lg, E = _deposit_padded_by(memo, waves, patch, L, t, D, wanted, pad)
         wide, wide_grid = _scattered(E, grid, Lg, scattering, g, n), grid
     else:
         wide, wide_grid = _coarse_scattered(waves, patch, L, wanted, ratio, t, D, scattering, g, n)
     return beam * out + (1.0 - beam) * lookup(wide, wide_grid, x, y)
+
+
+def _deposit_padded_by(memo: dict, waves, patch: Patch, L: np.ndarray, t: float, D, wanted, pad: int) -> tuple:
+    """(grid, beam paths, deposit) of :func:`_padded_deposit` at ``pad``, cut from the widest
+    one made so far (``memo["deposit"]``; its bins traced only by the wider margin reset to
+    the flat 1, as a deposit at ``pad`` leaves them) or made and kept when wider than it."""
+    grid, Lg, E, _ = memo["deposit"]
+    cut = (grid.shape[0] - patch.shape[0]) // 2 - pad
+    if cut < 0:
+        memo["deposit"] = grid, Lg, E, _ = _padded_deposit(waves, patch, L, t, D, wanted, pad)
+        return grid, Lg, E
+    if cut == 0:
+        return grid, Lg, E
+    inner = (slice(cut, E.shape[0] - cut), slice(cut, E.shape[1] - cut))
+    E = E[inner].copy()
+    if wanted is not None:
+        E[~_dilate(np.pad(wanted, pad), pad)] = 1.0
+    return patch.padded(pad), Lg[inner], E
+
+
+def _padded_deposit(waves: sf.WaveField, patch: Patch, L: np.ndarray, t: float, D, wanted, pad: int) -> tuple:
+    """:func:`_deposit` on ``patch`` padded by ``pad`` bins: (grid, its beam paths (edge
+    values in the margin), the deposit, the padded ``wanted`` bins or None)."""
+    grid = patch.padded(pad)
+    Lg = np.pad(L, pad, mode="edge")
+    look = None if wanted is None else np.pad(wanted, pad)
+    return grid, Lg, _deposit(waves, grid, Lg, t, D, None if look is None else _dilate(look, pad)), look
 
 
 def _coarse_scattered(
@@ -371,6 +402,43 @@ def _fill_nearest(
     return np.where(count > 0, total / np.maximum(count, 1), filled)
 
 
+class FrameCaustics:
+    """:func:`frame_factor`'s points grouped once, ``factor(scattering, g)`` per water. A
+    group's deposit and sharp (sun-disc blurred) map do not depend on the water, so a frame
+    seen through several waters (the conditions of one render) makes them once; only the
+    scattered part is made per water."""
+
+    def __init__(self, waves: sf.WaveField, x, y, path_m, footprint_m, t: float, deflect=None, n: float = sf.N_WATER):
+        self.waves, self.t, self.deflect, self.n = waves, t, deflect, n
+        x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
+        L = np.maximum(np.asarray(path_m, np.float64), 0.0)
+        level = _levels(footprint_m)
+        band = np.floor(np.log2(np.maximum(L, BAND_START_M) / BAND_START_M)).astype(np.int64)
+        key = np.where(level >= 0, band * 16 + level, -1).astype(np.int16)
+        self.size = x.size
+        self.groups: list[tuple] = []
+        if not np.any(key >= 0):
+            return
+        order = np.argsort(key, kind="stable")  # 16-bit keys: a radix sort, O(m)
+        starts = np.searchsorted(key[order], np.arange(-1, int(key.max()) + 2))
+        for group in range(int(key.max()) + 1):
+            sel = order[starts[group + 1] : starts[group + 2]]
+            if sel.size:
+                xs, ys, Ls = x[sel], y[sel], L[sel]
+                patch, wanted, path = _group_patch(xs, ys, Ls, FINEST_BIN_M * 2 ** (group % 16))
+                self.groups.append((sel, patch, path, wanted, xs, ys, Ls, {}))
+
+    def factor(self, scattering: float = 0.0, g: float = 0.9) -> np.ndarray:
+        """Sun irradiance over its flat-surface value (m,) float32 in water of ``scattering``
+        (1/m) and HG ``g`` (:func:`frame_factor`)."""
+        out = np.ones(self.size, np.float32)
+        for sel, patch, path, wanted, xs, ys, Ls, memo in self.groups:
+            out[sel] = _light_at(
+                self.waves, patch, path, self.t, self.deflect, scattering, g, self.n, wanted, xs, ys, Ls, memo
+            )
+        return out
+
+
 def frame_factor(
     waves: sf.WaveField,
     x,
@@ -388,21 +456,5 @@ def frame_factor(
     (m,) the width of surface a sample stands for (its map is binned that coarse: a pixel sees
     the mean over its footprint; 1 beyond ``COARSEST_BIN_M``). Points are grouped by bin level
     and by octave of beam path; each group is one :func:`light_map` over its bounding box
-    with every bin's own beam path."""
-    x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
-    L = np.maximum(np.asarray(path_m, np.float64), 0.0)
-    level = _levels(footprint_m)
-    band = np.floor(np.log2(np.maximum(L, BAND_START_M) / BAND_START_M)).astype(np.int64)
-    key = np.where(level >= 0, band * 16 + level, -1).astype(np.int16)
-    out = np.ones(x.shape, np.float32)
-    if not np.any(key >= 0):
-        return out
-    order = np.argsort(key, kind="stable")  # 16-bit keys: a radix sort, O(m)
-    starts = np.searchsorted(key[order], np.arange(-1, int(key.max()) + 2))
-    for group in range(int(key.max()) + 1):
-        sel = order[starts[group + 1] : starts[group + 2]]
-        if sel.size:
-            xs, ys, Ls = x[sel], y[sel], L[sel]
-            patch, wanted, path = _group_patch(xs, ys, Ls, FINEST_BIN_M * 2 ** (group % 16))
-            out[sel] = _light_at(waves, patch, path, t, deflect, scattering, g, n, wanted, xs, ys, Ls)
-    return out
+    with every bin's own beam path (:class:`FrameCaustics`, for one water)."""
+    return FrameCaustics(waves, x, y, path_m, footprint_m, t, deflect, n).factor(scattering, g)
