@@ -285,58 +285,73 @@ def _light_at(
     if float(scattered_transfer(np.array([longest]), lo, scattering, g)[0]) < 0.01:
         return beam * out + (1.0 - beam)  # the scattered light keeps < 1 % of any pattern: its mean
     if ratio == 1:
-        grid, Lg, E = _deposit_padded_by(memo, waves, patch, L, t, D, wanted, pad)
+        grid, Lg, E = _deposit_padded_by(memo, "deposit", waves, patch, L, t, D, wanted, pad)
         wide, wide_grid = _scattered(E, grid, Lg, scattering, g, n), grid
     else:
-        wide, wide_grid = _coarse_scattered(waves, patch, L, wanted, ratio, t, D, scattering, g, n)
+        wide, wide_grid = _coarse_scattered(waves, patch, L, wanted, ratio, t, D, scattering, g, n, memo)
     return beam * out + (1.0 - beam) * lookup(wide, wide_grid, x, y)
 
 
-def _deposit_padded_by(memo: dict, waves, patch: Patch, L: np.ndarray, t: float, D, wanted, pad: int) -> tuple:
+def _deposit_padded_by(
+    memo: dict, key, waves, patch: Patch, L: np.ndarray, t: float, D, marks, pad: int
+) -> tuple[Patch, np.ndarray, np.ndarray]:
     """(grid, beam paths, deposit) of :func:`_padded_deposit` at ``pad``, cut from the widest
-    one made so far (``memo["deposit"]``; its bins traced only by the wider margin reset to
-    the flat 1, as a deposit at ``pad`` leaves them) or made and kept when wider than it."""
-    grid, Lg, E, _ = memo["deposit"]
-    cut = (grid.shape[0] - patch.shape[0]) // 2 - pad
-    if cut < 0:
-        memo["deposit"] = grid, Lg, E, _ = _padded_deposit(waves, patch, L, t, D, wanted, pad)
-        return grid, Lg, E
-    if cut == 0:
-        return grid, Lg, E
-    inner = (slice(cut, E.shape[0] - cut), slice(cut, E.shape[1] - cut))
-    E = E[inner].copy()
-    if wanted is not None:
-        E[~_dilate(np.pad(wanted, pad), pad)] = 1.0
-    return patch.padded(pad), Lg[inner], E
+    one made so far (``memo[key]``; its bins traced only by the wider margin reset to the flat
+    1, as a deposit at ``pad`` leaves them) or made and kept when there is none as wide."""
+    if key in memo:
+        grid, Lg, E, _ = memo[key]
+        cut = (grid.shape[0] - patch.shape[0]) // 2 - pad
+        if cut == 0:
+            return grid, Lg, E
+        if cut > 0:
+            inner = (slice(cut, E.shape[0] - cut), slice(cut, E.shape[1] - cut))
+            E = E[inner].copy()
+            if marks is not None:
+                E[~_dilate(np.pad(marks, pad), pad)] = 1.0
+            return patch.padded(pad), Lg[inner], E
+    memo[key] = grid, Lg, E, _ = _padded_deposit(waves, patch, L, t, D, marks, pad)
+    return grid, Lg, E
 
 
-def _padded_deposit(waves: sf.WaveField, patch: Patch, L: np.ndarray, t: float, D, wanted, pad: int) -> tuple:
-    """:func:`_deposit` on ``patch`` padded by ``pad`` bins: (grid, its beam paths (edge
-    values in the margin), the deposit, the padded ``wanted`` bins or None)."""
+def _padded_deposit(waves: sf.WaveField, patch: Patch, L: np.ndarray, t: float, D, marks, pad: int) -> tuple:
+    """:func:`_deposit` on ``patch`` padded by ``pad`` bins, traced within ``pad`` of the
+    ``marks`` bins (None: everywhere): (grid, its beam paths (edge values in the margin), the
+    deposit, the padded ``marks`` or None)."""
     grid = patch.padded(pad)
     Lg = np.pad(L, pad, mode="edge")
-    look = None if wanted is None else np.pad(wanted, pad)
+    look = None if marks is None else np.pad(marks, pad)
     return grid, Lg, _deposit(waves, grid, Lg, t, D, None if look is None else _dilate(look, pad)), look
 
 
 def _coarse_scattered(
-    waves, patch: Patch, L: np.ndarray, wanted, ratio: int, t: float, D, scattering: float, g: float, n: float
+    waves,
+    patch: Patch,
+    L: np.ndarray,
+    wanted,
+    ratio: int,
+    t: float,
+    D,
+    scattering: float,
+    g: float,
+    n: float,
+    memo: dict | None = None,
 ) -> tuple[np.ndarray, Patch]:
     """The scattered part of :func:`light_map` made on bins ``ratio`` times coarser (a deposit
-    of its own, blurred over ``~a L``) and its grid."""
+    of its own, blurred over ``~a L``) and its grid; ``memo`` as :func:`_light_at`'s (the
+    deposit kept per ``ratio``, cut to a narrower margin for a water of wider ``g``)."""
     coarse = Patch(
         patch.x0, patch.y0, patch.bin_m * ratio, (-(-patch.shape[0] // ratio) + 1, -(-patch.shape[1] // ratio) + 1)
     )
     cpad = int(math.ceil(2 * _kernel_width(g) * float(L.max()) / coarse.bin_m)) + 2
-    grid = coarse.padded(cpad)
     jj = np.clip(np.arange(coarse.shape[0]) * ratio + ratio // 2, 0, patch.shape[0] - 1)
     ii = np.clip(np.arange(coarse.shape[1]) * ratio + ratio // 2, 0, patch.shape[1] - 1)
-    Lg = np.pad(L[np.ix_(jj, ii)], cpad, mode="edge")
-    traced = None
+    marks = None
     if wanted is not None:
         j, i = np.nonzero(wanted)
-        traced = _dilate(np.pad(_mark(coarse.shape, j // ratio, i // ratio, (-1, 0, 1)), cpad), cpad)
-    return _scattered(_deposit(waves, grid, Lg, t, D, traced), grid, Lg, scattering, g, n), grid
+        marks = _mark(coarse.shape, j // ratio, i // ratio, (-1, 0, 1))
+    memo = {} if memo is None else memo
+    grid, Lg, E = _deposit_padded_by(memo, ("coarse", ratio), waves, coarse, L[np.ix_(jj, ii)], t, D, marks, cpad)
+    return _scattered(E, grid, Lg, scattering, g, n), grid
 
 
 def lookup(M: np.ndarray, patch: Patch, x: np.ndarray, y: np.ndarray) -> np.ndarray:
