@@ -155,3 +155,19 @@ def test_glow_radius_and_energy_match_multiple_scattering_reference(tmp_path):
     np.testing.assert_allclose(by["r50_fast_px"], by["r50_reference_px"], rtol=0.05)
     assert by.loc[("moderate", 8.0), "r50_reference_px"] > by.loc[("moderate", 2.0), "r50_reference_px"] + 3
     assert df["ratio"].between(0.9, 1.25).all(), df.to_string()
+
+
+def test_glow_kernel_cache_keys_on_scattering_not_on_the_veil():
+    """The glow depends on sigma_s and the phase function only: a frame's veil (B_inf, which
+    physical mode changes with the camera's depth and view every frame) reuses the kernel,
+    identical to one made afresh at the binned range; other scattering or g makes its own."""
+    o._GLOW_CACHE.clear()
+    wat = _water(0.3)
+    k = o.cached_glow_kernel(wat, 5.0, 300.0)
+    assert o.cached_glow_kernel(wat.replace(B_inf=np.array([0.01, 0.02, 0.05])), 5.01, 300.0) is k
+    rbin = round(np.log(5.0) / np.log1p(o.GLOW_RANGE_BIN))
+    np.testing.assert_array_equal(
+        k, o.glow_kernel_multiple(wat, float(np.exp(rbin * np.log1p(o.GLOW_RANGE_BIN))), 300.0)
+    )
+    assert o.cached_glow_kernel(_water(0.35), 5.0, 300.0) is not k
+    assert not np.array_equal(o.cached_glow_kernel(_water(0.3, g=0.8), 5.0, 300.0), k)

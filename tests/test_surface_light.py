@@ -93,3 +93,19 @@ def test_surface_normals_are_the_cross_product_of_the_grid(dtype):
     assert np.count_nonzero(np.all(want == 0, axis=2)) > 100  # the holes' neighbours are 0
     assert np.max(np.abs(got - want)) < 1e-5
     assert np.all(np.sum(got * np.nan_to_num(bumpy), axis=2) <= 1e-6)  # toward the camera
+
+
+def test_several_lights_on_the_coarse_grid_are_the_sum_of_each_alone():
+    """Without shadows the lights' grids are summed before the one (linear) resampling: four
+    LEDs on the 1/4 grid give the sum of each LED's own radiance (float32 rounding)."""
+    rays, rng, n = _tilted_wall()
+    lights = [
+        PointLight(np.array([sx, sy, 0.0]), np.array([0.0, 0.0, 1.0]), np.array([1.0, 2.0, 3.0]))
+        for sx in (-0.3, 0.3)
+        for sy in (-0.2, 0.2)
+    ]
+    albedo = np.random.default_rng(1).uniform(0.1, 0.9, rng.shape + (3,)).astype(np.float32)
+    c = np.array([0.1, 0.2, 0.3])
+    together = lambert_radiance(lights, rays, rng, albedo, c, step=4)
+    alone = sum(lambert_radiance([li], rays, rng, albedo, c, step=4) for li in lights)
+    np.testing.assert_allclose(together, alone, rtol=1e-5, atol=1e-9)

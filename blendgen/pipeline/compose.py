@@ -206,11 +206,13 @@ def water_image(
     occluded: np.ndarray | None = None,
     T_world_dock=None,
     t: float = 0.0,
+    memo: dict | None = None,
 ) -> np.ndarray:
     """Fast fidelity: the clean linear render (H,W,3) seen through the condition's water
     with light at depth, in the sequence's image-formation mode (optics module docstring);
     in physical mode plus the LEDs' light on nearby surfaces (:func:`led_light`), attenuated
-    along the view ray only."""
+    along the view ray only. ``memo``: the frame's water-independent parts, shared by the
+    sequences that see these very passes (``FrameShare.memo``; None: nothing shared)."""
     post = state.post
     emissive = emissive_mask(passes["index"], markers)
     if occluded is not None:
@@ -227,7 +229,7 @@ def water_image(
         depth, veil_depth = post.light_depth_m, None
     rgb, range_m = passes["rgb"], passes["range_m"]
     if post.world is not None and post.image_formation == "physical":
-        rgb, range_m, depth = _world(passes, state, water, K, T_world_cam, depth, veil_depth, t, emissive)
+        rgb, range_m, depth = _world(passes, state, water, K, T_world_cam, depth, veil_depth, t, emissive, memo)
     img = optics.apply_water(
         rgb,
         range_m,
@@ -275,42 +277,39 @@ def _world(
     veil_depth: float,
     t: float,
     emissive=None,
+    memo: dict | None = None,
 ):
     """Caustics (not on the ``emissive`` pixels: an LED's light is not sunlight), then the
     surface seen from below (``pipeline/world_post.py``) in water ``w`` (the frame's veil);
-    (rgb, range, depth)."""
+    (rgb, range, depth). ``memo``: the frame's dict of water-independent parts (shared by the
+    sequences that see the frame's own passes; None: nothing shared)."""
     from blendgen.pipeline import world_post
 
     wp = state.post.world
+    memo = {} if memo is None else memo
     rgb, range_m = passes["rgb"], passes["range_m"]
     h, wd = range_m.shape
-    rays = np.einsum(
-        "ijk,lk->ijl",
-        _unit_rays(tuple(np.asarray(K, float).ravel()), wd, h),
-        np.asarray(T_world_cam, float)[:3, :3].astype(np.float32),
-    )  # einsum: @ is slower here
+    if "rays" not in memo:  # world directions of the pixels: the frame's pose
+        memo["rays"] = np.einsum(
+            "ijk,lk->ijl",
+            _unit_rays(tuple(np.asarray(K, float).ravel()), wd, h),
+            np.asarray(T_world_cam, float)[:3, :3].astype(np.float32),
+        )  # einsum: @ is slower here
+    rays = memo["rays"]
     if wp.caustics:
-        rgb = world_post.add_caustics(
-            rgb,
-            passes.get("albedo"),
-            range_m,
-            depth,
-            wp,
-            rays,
-            K,
-            T_world_cam,
-            t,
-            float(np.mean(w.sigma_s)),
-            float(w.g),
-            emissive,
-            passes.get("sun"),
-        )
+        key = ("caustics", state.post.surface_z_m, wp.model_dump_json(), t)
+        if key not in memo:  # the same for every water of this frame
+            memo[key] = world_post.caustic_geometry(
+                rgb, passes.get("albedo"), range_m, depth, wp, rays, K, T_world_cam, t, emissive, passes.get("sun")
+            )
+        rgb = world_post.shade_caustics(rgb, memo[key], float(np.mean(w.sigma_s)), float(w.g))
     if wp.surface:
         veil = w.B_inf * state.water_opts["irradiance"] * optics.depth_light(w, veil_depth)
         below = mirror_fill(rgb, range_m, depth, w, veil)
-        rgb, range_m, depth = world_post.add_surface(
-            rgb, range_m, depth, wp, rays, K, T_world_cam, state.post.surface_z_m, t, below
-        )
+        key = ("surface", state.post.surface_z_m, wp.model_dump_json(), t)
+        if key not in memo:  # the same for every water of this frame
+            memo[key] = world_post.surface_geometry(range_m, depth, wp, rays, K, T_world_cam, state.post.surface_z_m, t)
+        rgb, range_m, depth = world_post.shade_surface(rgb, range_m, depth, memo[key], wp, below)
     return rgb, range_m, depth
 
 
@@ -383,14 +382,16 @@ def camera_image(
     fidelity: str,
     occluded: np.ndarray | None = None,
     T_world_dock=None,
+    memo: dict | None = None,
 ) -> np.ndarray:
     """Linear clean RGB (H,W,3) -> uint8 image (H,W,3) for one condition; ``frame`` is the
     planned frame (``T_world_cam``, optional ``blur_px`` motion over the exposure);
-    ``T_world_dock`` places the LEDs that light nearby surfaces (None: they light nothing)."""
+    ``T_world_dock`` places the LEDs that light nearby surfaces (None: they light nothing);
+    ``memo``: :func:`water_image`'s."""
     rgb = passes["rgb"]
     if fidelity == "fast":
         rgb = water_image(
-            passes, state, K, frame["T_world_cam"], markers, occluded, T_world_dock, float(frame.get("t", 0.0))
+            passes, state, K, frame["T_world_cam"], markers, occluded, T_world_dock, float(frame.get("t", 0.0)), memo
         )
     with term("sensor"):
         if frame.get("blur_px") is not None:

@@ -60,7 +60,8 @@ def condition_image(
     """One sequence's camera image (H,W,3) uint8 of a frame's clean passes, and the particles'
     occluder mask (H,W) bool (None without particles). ``T_cam_dock`` lets the LEDs light the
     particles (None: unlit by them); ``particle_time``: the particles' motion blur uses the
-    frame time ``t`` (else one frame period); ``share``: the frame's shared images."""
+    frame time ``t`` (else one frame period); ``share``: the frame's shared images and
+    water-independent parts (``FrameShare.memo``)."""
     seen, occluded = pp.add_particles(
         passes,
         state,
@@ -73,7 +74,10 @@ def condition_image(
     )
 
     def image():
-        return pp.camera_image(seen, state, K, frame, markers, fidelity, occluded, T_world_dock=T_world_dock)
+        # water-independent parts shared only by sequences without occluders (an occluder mask
+        # changes the emitters and the sun pass the caustics see)
+        memo = None if share is None or occluded is not None else share.memo(seen)
+        return pp.camera_image(seen, state, K, frame, markers, fidelity, occluded, T_world_dock, memo)
 
     return (image() if share is None else share.image(state, seen, image)), occluded
 

@@ -6,7 +6,9 @@ light depth). When a sequence's image is a deterministic function of the frame's
 and its processing -- no random draws (no shot/read or 8-bit noise, no particles) and no
 state carried between frames (no auto-exposure) -- two sequences whose processing is equal
 up to the random seed get the same uint8 image: it is made once per frame and copied.
-Anything else is composed as before.
+Anything else is composed as before. Parts of the image that do not depend on the water
+(the caustics' geometry and deposits) are kept per frame for every sequence that sees the
+frame's own passes (:meth:`FrameShare.memo`), noise or not.
 """
 
 from __future__ import annotations
@@ -37,12 +39,20 @@ class FrameShare:
     def __init__(self):
         self._passes = None
         self._images: dict[str, np.ndarray] = {}
+        self._memo: dict = {}
         self.hits = 0
 
     def begin(self, passes: dict) -> None:
         """A new frame's clean passes (kept referenced: identity stays valid)."""
         self._passes = passes
         self._images = {}
+        self._memo = {}
+
+    def memo(self, seen: dict) -> dict:
+        """The frame's dict of parts of an image that do not depend on the water (caustic
+        geometry, the surface's wave geometry) when ``seen`` is the frame's own passes; a
+        fresh dict otherwise (particles: the sequence sees passes of its own)."""
+        return self._memo if seen is self._passes else {}
 
     def image(self, state, seen: dict, make: Callable[[], np.ndarray]) -> np.ndarray:
         """The image ``make()`` returns for ``state`` on ``seen`` (the frame's passes as the

@@ -87,7 +87,27 @@ def add_surface(
     radiance at the surface's range, depth 0. Totally reflected pixels: the clean scene where
     the mirrored ray from the surface meets it, when the camera's own image holds that point
     (:func:`_mirror`), else ``below_radiance`` (open water). Wave slopes on the
-    :data:`SLOPE_STRIDE` grid (``stride`` overrides it)."""
+    :data:`SLOPE_STRIDE` grid (``stride`` overrides it). The same as :func:`shade_surface` of
+    :func:`surface_geometry`, which a frame seen through several waters makes once."""
+    geo = surface_geometry(range_m, depth, wp, rays, K, T_world_cam, surface_z_m, t, stride)
+    return shade_surface(rgb, range_m, depth, geo, wp, below_radiance)
+
+
+class SurfaceGeometry:
+    """What :func:`add_surface` needs of a frame whatever the water, on the pixels that see the
+    surface (flat indices ``up`` (m,)): range ``r`` (m,) to it, incidence cosine ``cos_up`` and
+    Fresnel reflectance ``R`` (m,), the sun's disc (m,) (None: no sun), and the mirrored pixels:
+    their indices ``idx`` into the m, the pixel ``src`` each reflects, its path ``path`` (m)
+    and depth ``depth`` (m)."""
+
+    def __init__(self, up, r, cos_up, R, sun, idx, src, path, depth):
+        self.up, self.r, self.cos_up, self.R, self.sun = up, r, cos_up, R, sun
+        self.idx, self.src, self.path, self.depth = idx, src, path, depth
+
+
+def surface_geometry(range_m, depth, wp, rays, K, T_world_cam, surface_z_m: float, t: float, stride=None):
+    """The water-independent part of :func:`add_surface` (same arguments); None when no pixel
+    sees the surface."""
     T = np.asarray(T_world_cam, float)
     d = rays
     rise = np.float32(max(surface_z_m - T[2, 3], 0.0))
@@ -97,7 +117,7 @@ def add_surface(
     # (a depth condition moves the surface, not the pool: its rim may stand above it)
     up = np.isfinite(r_all) & ~(range_m < r_all)
     if not up.any():
-        return rgb, range_m, depth
+        return None
     gx, gy = surface_slopes(
         waves_of(wp.wave_seed, wp.wind_mps),
         T[:2, 3],
@@ -109,37 +129,51 @@ def add_surface(
     r, du, sx, sy = r_all[up].astype(np.float32), d[up], gx[up], gy[up]
     norm = np.sqrt(sx * sx + sy * sy + 1)
     cos_up = (du[:, 2] - sx * du[:, 0] - sy * du[:, 1]) / norm
-    depth = np.array(np.broadcast_to(depth, range_m.shape), np.float32)
+    depth = np.broadcast_to(np.asarray(depth, np.float32), range_m.shape)
     R = sf.fresnel_reflectance(cos_up)
-    J = sf.window_radiance(cos_up, [wp.sky_radiance] * 3, below_radiance, reflectance=R)
+    sun = None
     if wp.sun_irradiance > 0:  # the sun's disc in Snell's window
         nrm = np.stack([-sx, -sy, np.ones_like(sx)], -1) / norm[:, None]
-        J += sf.sun_disc_radiance(
+        sun = sf.sun_disc_radiance(
             du, nrm, cos_up, R, -np.asarray(wp.sun_travel_dir, np.float32), wp.sun_irradiance, 1.0 / float(K[0, 0])
-        )[:, None]
-    rr, hh = r, np.zeros_like(r)
+        )
+    idx, src, path, m_h = np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.float32), np.zeros(0)
     tir = R >= 1.0
     if tir.any():
         n = np.stack([-sx[tir], -sy[tir], np.ones_like(sx[tir])], -1) / norm[tir, None]
-        m_rgb, m_r, m_h, ok = _mirror(
+        src, m_r, m_h, ok = _mirror(
             T[:3, 3] + r[tir, None] * du[tir],
             du[tir] - 2 * cos_up[tir, None] * n,
             K,
             T,
-            rgb,
             range_m,
             depth,
             np.flatnonzero(up)[tir],
         )
         idx = np.flatnonzero(tir)[ok]
-        J[idx], rr[idx], hh[idx] = m_rgb, r[idx] + m_r, m_h
+        path = r[idx] + m_r
+    return SurfaceGeometry(np.flatnonzero(up), r, cos_up, R, sun, idx, src, path, m_h)
+
+
+def shade_surface(rgb, range_m, depth, geo: SurfaceGeometry | None, wp, below_radiance):
+    """(rgb, range_m, depth) with the surface of ``geo`` (made from this range and depth) seen
+    in water whose veil at the camera is ``below_radiance`` (3,): new arrays (the inputs when
+    no pixel sees the surface)."""
+    if geo is None:
+        return rgb, range_m, depth
+    J = sf.window_radiance(geo.cos_up, [wp.sky_radiance] * 3, below_radiance, reflectance=geo.R)
+    if geo.sun is not None:
+        J += geo.sun[:, None]
+    rr, hh = geo.r.copy(), np.zeros_like(geo.r)
+    J[geo.idx], rr[geo.idx], hh[geo.idx] = np.asarray(rgb).reshape(-1, 3)[geo.src], geo.path, geo.depth
+    depth = np.array(np.broadcast_to(depth, range_m.shape), np.float32)
     rgb, range_m = rgb.copy(), range_m.copy()
-    rgb[up], range_m[up], depth[up] = J, rr, hh
+    rgb.reshape(-1, 3)[geo.up], range_m.reshape(-1)[geo.up], depth.reshape(-1)[geo.up] = J, rr, hh
     return rgb, range_m, depth
 
 
-def _mirror(start, d_refl, K, T, rgb, range_m, depth, pixels=None, max_m: float = 60.0):
-    """Screen-space reflection: the clean radiance (n, 3), path (m, (n,): from the surface to
+def _mirror(start, d_refl, K, T, range_m, depth, pixels=None, max_m: float = 60.0):
+    """Screen-space reflection: the pixel (flat index), path (m, (n,): from the surface to
     it) and depth (n,) of the surface the camera itself sees where each reflected ray from the
     surface points ``start`` (n, 3) along ``d_refl`` (n, 3) (world) meets it
     (``surface_kernels.reflect``: a march through the range pass, parallax included), and
@@ -156,7 +190,7 @@ def _mirror(start, d_refl, K, T, rgb, range_m, depth, pixels=None, max_m: float 
     ok = pix >= 0
     ok[ok] = depth.ravel()[pix[ok]] > 0
     at = pix[ok]
-    return rgb.reshape(-1, 3)[at], dist[ok].astype(np.float32), depth.ravel()[at], ok
+    return at, dist[ok].astype(np.float32), depth.ravel()[at], ok
 
 
 def _march(start, d_refl, K, T, range_m, max_m: float):
@@ -230,7 +264,27 @@ def add_caustics(
     filter does). The focused part of a pixel is its sunlight: the render's ``sun_pass`` (H, W,
     3) (the sun's light group: its light alone, shadows and all) when given, else
     :func:`sunlight`'s estimate from the ``albedo`` pass. So the light an LED spills into the
-    pixels around its own, or a fill light, is not refocused."""
+    pixels around its own, or a fill light, is not refocused. The same as
+    :func:`shade_caustics` of :func:`caustic_geometry`, which a frame seen through several
+    waters makes once."""
+    geo = caustic_geometry(rgb, albedo, range_m, depth, wp, rays, K, T_world_cam, t, emissive, sun_pass)
+    return shade_caustics(rgb, geo, scattering, g)
+
+
+class CausticGeometry:
+    """What :func:`add_caustics` needs of a frame whatever the water: the sun-lit pixels (flat
+    indices ``at`` (m,)), their clean radiance ``base`` and sunlight ``lit`` (m, 3) float32, and
+    their rays' :class:`caustic_map.FrameCaustics` (deposits and sharp maps made once)."""
+
+    def __init__(self, at: np.ndarray, base: np.ndarray, lit: np.ndarray, caustics: caustic_map.FrameCaustics):
+        self.at, self.base, self.lit, self.caustics = at, base, lit, caustics
+
+
+def caustic_geometry(
+    rgb, albedo, range_m, depth, wp, rays, K, T_world_cam, t: float, emissive=None, sun_pass=None
+) -> CausticGeometry | None:
+    """The water-independent part of :func:`add_caustics` (same arguments); None when no
+    pixel is sun-lit."""
     T = np.asarray(T_world_cam, float)
     depth = np.broadcast_to(np.asarray(depth, np.float32), range_m.shape)
     sun = sf.refracted_sun(wp.sun_travel_dir)
@@ -241,7 +295,7 @@ def add_caustics(
     if emissive is not None:
         hit &= ~emissive
     if not hit.any():
-        return rgb
+        return None
     d = rays[hit]
     r = range_m[hit].astype(np.float32)
     h = depth[hit]
@@ -250,34 +304,33 @@ def add_caustics(
     y = np.float32(T[1, 3]) + r * d[:, 1] + h * back[1]
     path = h / np.float32(-sun[2])  # slant path of the beam to the point
     foot = footprint_m(rays, range_m, normals, 1.0 / float(K[0, 0]), sun, cos_i)[hit]
-    gain = (
-        caustic_map.frame_factor(
-            waves_of(wp.wave_seed, wp.wind_mps),
-            x,
-            y,
-            path,
-            foot,
-            t,
-            sf.sun_deflection(wp.sun_travel_dir),
-            scattering,
-            g,
-        )
-        - 1
-    )  # M - 1
-    out = np.array(rgb, np.float32)
+    fc = caustic_map.FrameCaustics(
+        waves_of(wp.wave_seed, wp.wind_mps), x, y, path, foot, t, sf.sun_deflection(wp.sun_travel_dir)
+    )
     at = np.flatnonzero(hit)  # flat pixel indices: take/put, not masks
+    shape = (*range_m.shape, 3)
     rows = lambda img: np.take(
-        np.broadcast_to(np.asarray(img, np.float32), out.shape).reshape(-1, 3),  # noqa: E731
+        np.broadcast_to(np.asarray(img, np.float32), shape).reshape(-1, 3),  # noqa: E731
         at,
         axis=0,
     )
-    base = rows(out)
+    base = rows(rgb)
     lit = (
         rows(sun_pass)
         if sun_pass is not None
         else sunlight(base, None if albedo is None else rows(albedo), cos_i.ravel()[at], wp)
     )
-    out.reshape(-1, 3)[at] = base + lit * gain[:, None]
+    return CausticGeometry(at, base, lit, fc)
+
+
+def shade_caustics(rgb, geo: CausticGeometry | None, scattering: float, g: float = 0.9):
+    """``rgb`` (H, W, 3) with the sun-lit pixels of ``geo`` (made from this ``rgb``) focused in
+    water of ``scattering`` (1/m) and HG ``g``: a new float32 array (``rgb`` when none is lit)."""
+    if geo is None:
+        return rgb
+    gain = geo.caustics.factor(scattering, g) - 1  # M - 1
+    out = np.array(rgb, np.float32)
+    out.reshape(-1, 3)[geo.at] = geo.base + geo.lit * gain[:, None]
     return out
 
 

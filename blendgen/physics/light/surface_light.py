@@ -108,6 +108,8 @@ def lambert_radiance(
     a_max = float(np.max(albedo)) if albedo.size else 0.0
     if min_radiance > 0 and sum(float(e.max()) for e in grid) * a_max / math.pi < min_radiance:
         return None  # before any full-resolution work
+    if visible is None and step > 1:  # no per-light shadow: one resampling of the summed light (it is linear)
+        grid = [np.sum(grid, axis=0, dtype=np.float32)] if len(grid) > 1 else grid
     E = np.zeros((h, w, 3), np.float32)
     for light, e in zip(lights, grid):
         if step > 1:

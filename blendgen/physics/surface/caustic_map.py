@@ -256,9 +256,12 @@ def _light_at(
     x: np.ndarray,
     y: np.ndarray,
     path_m: np.ndarray,
+    memo: dict | None = None,
 ) -> np.ndarray:
     """:func:`light_map` (bins' beam paths ``L`` (ny, nx)) read at points (x, y, path) (m,):
-    ``e^{-b L} sharp + (1 - e^{-b L}) scattered``, each map read bilinearly."""
+    ``e^{-b L} sharp + (1 - e^{-b L}) scattered``, each map read bilinearly. ``memo``: a dict
+    kept for the same points, patch and waves (:class:`FrameCaustics`): the sharp reading and
+    the deposit are made once for every water (they do not depend on it)."""
     D = np.asarray(sf.sun_deflection(None, n) if deflect is None else deflect, np.float64).reshape(2, 2)
     b = patch.bin_m
     sel = L if wanted is None else L[wanted]
@@ -269,12 +272,12 @@ def _light_at(
     ratio = 2 ** max(0, int(math.floor(math.log2(max(a * lo / 4, b) / b)))) if turbid else 1
     if turbid and ratio == 1:  # the scattered blur is a few bins: one deposit serves both
         pad = max(pad, int(math.ceil(2 * a * hi / b)) + 2)
-    grid = patch.padded(pad)
-    Lg = np.pad(L, pad, mode="edge")
-    look = None if wanted is None else np.pad(wanted, pad)
-    E = _deposit(waves, grid, Lg, t, D, None if look is None else _dilate(look, pad))
-    sharp = cm.disc_blur(E, (Lg * theta / b).astype(np.float64), np.ones(E.shape, bool) if look is None else look)
-    out = lookup(sharp, grid, x, y)
+    memo = {} if memo is None else memo
+    if "sharp" not in memo:  # the sun-disc blurred map read at the points: the same at any pad >= its own
+        memo["deposit"] = grid, Lg, E, look = _padded_deposit(waves, patch, L, t, D, wanted, pad)
+        sharp = cm.disc_blur(E, (Lg * theta / b).astype(np.float64), np.ones(E.shape, bool) if look is None else look)
+        memo["sharp"] = lookup(sharp, grid, x, y)
+    out = memo["sharp"]
     if not turbid:
         return out
     beam = np.exp(-scattering * np.asarray(path_m, np.float32))
@@ -282,30 +285,73 @@ def _light_at(
     if float(scattered_transfer(np.array([longest]), lo, scattering, g)[0]) < 0.01:
         return beam * out + (1.0 - beam)  # the scattered light keeps < 1 % of any pattern: its mean
     if ratio == 1:
+        grid, Lg, E = _deposit_padded_by(memo, "deposit", waves, patch, L, t, D, wanted, pad)
         wide, wide_grid = _scattered(E, grid, Lg, scattering, g, n), grid
     else:
-        wide, wide_grid = _coarse_scattered(waves, patch, L, wanted, ratio, t, D, scattering, g, n)
+        wide, wide_grid = _coarse_scattered(waves, patch, L, wanted, ratio, t, D, scattering, g, n, memo)
     return beam * out + (1.0 - beam) * lookup(wide, wide_grid, x, y)
 
 
+def _deposit_padded_by(
+    memo: dict, key, waves, patch: Patch, L: np.ndarray, t: float, D, marks, pad: int
+) -> tuple[Patch, np.ndarray, np.ndarray]:
+    """(grid, beam paths, deposit) of :func:`_padded_deposit` at ``pad``, cut from the widest
+    one made so far (``memo[key]``; its bins traced only by the wider margin reset to the flat
+    1, as a deposit at ``pad`` leaves them) or made and kept when there is none as wide."""
+    if key in memo:
+        grid, Lg, E, _ = memo[key]
+        cut = (grid.shape[0] - patch.shape[0]) // 2 - pad
+        if cut == 0:
+            return grid, Lg, E
+        if cut > 0:
+            inner = (slice(cut, E.shape[0] - cut), slice(cut, E.shape[1] - cut))
+            E = E[inner].copy()
+            if marks is not None:
+                E[~_dilate(np.pad(marks, pad), pad)] = 1.0
+            return patch.padded(pad), Lg[inner], E
+    memo[key] = grid, Lg, E, _ = _padded_deposit(waves, patch, L, t, D, marks, pad)
+    return grid, Lg, E
+
+
+def _padded_deposit(waves: sf.WaveField, patch: Patch, L: np.ndarray, t: float, D, marks, pad: int) -> tuple:
+    """:func:`_deposit` on ``patch`` padded by ``pad`` bins, traced within ``pad`` of the
+    ``marks`` bins (None: everywhere): (grid, its beam paths (edge values in the margin), the
+    deposit, the padded ``marks`` or None)."""
+    grid = patch.padded(pad)
+    Lg = np.pad(L, pad, mode="edge")
+    look = None if marks is None else np.pad(marks, pad)
+    return grid, Lg, _deposit(waves, grid, Lg, t, D, None if look is None else _dilate(look, pad)), look
+
+
 def _coarse_scattered(
-    waves, patch: Patch, L: np.ndarray, wanted, ratio: int, t: float, D, scattering: float, g: float, n: float
+    waves,
+    patch: Patch,
+    L: np.ndarray,
+    wanted,
+    ratio: int,
+    t: float,
+    D,
+    scattering: float,
+    g: float,
+    n: float,
+    memo: dict | None = None,
 ) -> tuple[np.ndarray, Patch]:
     """The scattered part of :func:`light_map` made on bins ``ratio`` times coarser (a deposit
-    of its own, blurred over ``~a L``) and its grid."""
+    of its own, blurred over ``~a L``) and its grid; ``memo`` as :func:`_light_at`'s (the
+    deposit kept per ``ratio``, cut to a narrower margin for a water of wider ``g``)."""
     coarse = Patch(
         patch.x0, patch.y0, patch.bin_m * ratio, (-(-patch.shape[0] // ratio) + 1, -(-patch.shape[1] // ratio) + 1)
     )
     cpad = int(math.ceil(2 * _kernel_width(g) * float(L.max()) / coarse.bin_m)) + 2
-    grid = coarse.padded(cpad)
     jj = np.clip(np.arange(coarse.shape[0]) * ratio + ratio // 2, 0, patch.shape[0] - 1)
     ii = np.clip(np.arange(coarse.shape[1]) * ratio + ratio // 2, 0, patch.shape[1] - 1)
-    Lg = np.pad(L[np.ix_(jj, ii)], cpad, mode="edge")
-    traced = None
+    marks = None
     if wanted is not None:
         j, i = np.nonzero(wanted)
-        traced = _dilate(np.pad(_mark(coarse.shape, j // ratio, i // ratio, (-1, 0, 1)), cpad), cpad)
-    return _scattered(_deposit(waves, grid, Lg, t, D, traced), grid, Lg, scattering, g, n), grid
+        marks = _mark(coarse.shape, j // ratio, i // ratio, (-1, 0, 1))
+    memo = {} if memo is None else memo
+    grid, Lg, E = _deposit_padded_by(memo, ("coarse", ratio), waves, coarse, L[np.ix_(jj, ii)], t, D, marks, cpad)
+    return _scattered(E, grid, Lg, scattering, g, n), grid
 
 
 def lookup(M: np.ndarray, patch: Patch, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -371,6 +417,43 @@ def _fill_nearest(
     return np.where(count > 0, total / np.maximum(count, 1), filled)
 
 
+class FrameCaustics:
+    """:func:`frame_factor`'s points grouped once, ``factor(scattering, g)`` per water. A
+    group's deposit and sharp (sun-disc blurred) map do not depend on the water, so a frame
+    seen through several waters (the conditions of one render) makes them once; only the
+    scattered part is made per water."""
+
+    def __init__(self, waves: sf.WaveField, x, y, path_m, footprint_m, t: float, deflect=None, n: float = sf.N_WATER):
+        self.waves, self.t, self.deflect, self.n = waves, t, deflect, n
+        x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
+        L = np.maximum(np.asarray(path_m, np.float64), 0.0)
+        level = _levels(footprint_m)
+        band = np.floor(np.log2(np.maximum(L, BAND_START_M) / BAND_START_M)).astype(np.int64)
+        key = np.where(level >= 0, band * 16 + level, -1).astype(np.int16)
+        self.size = x.size
+        self.groups: list[tuple] = []
+        if not np.any(key >= 0):
+            return
+        order = np.argsort(key, kind="stable")  # 16-bit keys: a radix sort, O(m)
+        starts = np.searchsorted(key[order], np.arange(-1, int(key.max()) + 2))
+        for group in range(int(key.max()) + 1):
+            sel = order[starts[group + 1] : starts[group + 2]]
+            if sel.size:
+                xs, ys, Ls = x[sel], y[sel], L[sel]
+                patch, wanted, path = _group_patch(xs, ys, Ls, FINEST_BIN_M * 2 ** (group % 16))
+                self.groups.append((sel, patch, path, wanted, xs, ys, Ls, {}))
+
+    def factor(self, scattering: float = 0.0, g: float = 0.9) -> np.ndarray:
+        """Sun irradiance over its flat-surface value (m,) float32 in water of ``scattering``
+        (1/m) and HG ``g`` (:func:`frame_factor`)."""
+        out = np.ones(self.size, np.float32)
+        for sel, patch, path, wanted, xs, ys, Ls, memo in self.groups:
+            out[sel] = _light_at(
+                self.waves, patch, path, self.t, self.deflect, scattering, g, self.n, wanted, xs, ys, Ls, memo
+            )
+        return out
+
+
 def frame_factor(
     waves: sf.WaveField,
     x,
@@ -388,21 +471,5 @@ def frame_factor(
     (m,) the width of surface a sample stands for (its map is binned that coarse: a pixel sees
     the mean over its footprint; 1 beyond ``COARSEST_BIN_M``). Points are grouped by bin level
     and by octave of beam path; each group is one :func:`light_map` over its bounding box
-    with every bin's own beam path."""
-    x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
-    L = np.maximum(np.asarray(path_m, np.float64), 0.0)
-    level = _levels(footprint_m)
-    band = np.floor(np.log2(np.maximum(L, BAND_START_M) / BAND_START_M)).astype(np.int64)
-    key = np.where(level >= 0, band * 16 + level, -1).astype(np.int16)
-    out = np.ones(x.shape, np.float32)
-    if not np.any(key >= 0):
-        return out
-    order = np.argsort(key, kind="stable")  # 16-bit keys: a radix sort, O(m)
-    starts = np.searchsorted(key[order], np.arange(-1, int(key.max()) + 2))
-    for group in range(int(key.max()) + 1):
-        sel = order[starts[group + 1] : starts[group + 2]]
-        if sel.size:
-            xs, ys, Ls = x[sel], y[sel], L[sel]
-            patch, wanted, path = _group_patch(xs, ys, Ls, FINEST_BIN_M * 2 ** (group % 16))
-            out[sel] = _light_at(waves, patch, path, t, deflect, scattering, g, n, wanted, xs, ys, Ls)
-    return out
+    with every bin's own beam path (:class:`FrameCaustics`, for one water)."""
+    return FrameCaustics(waves, x, y, path_m, footprint_m, t, deflect, n).factor(scattering, g)

@@ -605,9 +605,12 @@ GLOW_RANGE_BIN = 0.05
 
 def cached_glow_kernel(water: WaterOptics, range_m: float, fx: float) -> np.ndarray:
     """:func:`glow_kernel_multiple` at ``range_m`` rounded to a ``GLOW_RANGE_BIN`` log step, cached
-    per water, range bin and focal length (read-only array)."""
+    per scattering (``sigma_s`` and phase function: all the glow depends on, so a frame's veil
+    ``B_inf``, which changes with the camera's depth and view, does not miss the cache), range bin
+    and focal length (read-only array)."""
     rbin = round(math.log(max(float(range_m), 1e-3)) / math.log1p(GLOW_RANGE_BIN))
-    key = (json.dumps(water.to_dict(), sort_keys=True, default=float), rbin, round(float(fx), 3))
+    scatter = (tuple(water.sigma_s.tolist()), water.phase, water.g, water.ff_ior, water.ff_backscatter)
+    key = (scatter, rbin, round(float(fx), 3))
     k = _GLOW_CACHE.get(key)
     if k is None:
         if len(_GLOW_CACHE) >= 512:
