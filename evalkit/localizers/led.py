@@ -60,6 +60,51 @@ brightness, separate the array from lookalikes.) Chosen over RANSAC because N is
 (C(7,4) = 35 subsets, most rejected by the cheap convexity, colour and size tests before
 any PnP), where RANSAC's minimal samples would still need the same colour/order
 bookkeeping.
+
+Parameters
+----------
+The keywords of :class:`LedLocalizer` (``-p led.NAME=VALUE`` on the command line):
+
+threshold: brightness (max channel, 0-255) that LED cores exceed; lowered to
+rel_threshold * image max (not below min_threshold) for dim images.
+min_area_px / max_area_frac: blob area limits (px / fraction of the image).
+min_circularity: area / (pi (max(w,h)/2)^2) for blobs of >= 12 px.
+ref_hue: reference LED hue in degrees (None: from the marker's colours).
+max_candidates: most LED-like coloured blobs considered (None: N + 3); max_blobs:
+give up above this many blobs (the sunlit demo pool holds 200-370 at 0.6 x max; blob
+statistics are vectorised, so only the measured candidates cost).
+max_reproj_px: RMS reprojection error (px) above
+which a blob set is rejected. min_saturation: chroma / brightness of a blob's
+background-subtracted colour (0 grey, ~0.9 the LEDs' own colours) it needs to
+count as a coloured LED, so white/grey highlights are not taken for LEDs (measured
+on the sunlit frame of tests/data/sunlit_pool: LEDs 1.2-1.8, caustics 0.4-0.7;
+0.2 rejects only near-grey blobs, shape and geometry do the rest).
+max_hue_err_deg: hue distance allowed between a blob and its expected LED
+colour. centroid: "core" or "weighted" (see the module docstring).
+max_view_deg: largest angle (deg) between the array's normal and the line of sight
+to it that a pose may have; flat LED discs seen beyond ~70 deg are foreshortened
+below a third of their width, and lookalike blob sets (tinted marker plates plus two
+LEDs) fit only at ~78 deg (measured on the physical-mode demo).
+ladder: higher thresholds (fractions of the frame's max brightness) tried in turn
+when the first level gives no pose (module docstring, step 1); () disables it.
+prior: rank the blobs near the LEDs projected with the previous frame's pose first
+(False: every frame alone); prior_gate_px: smallest gate radius (px) of that (8 px:
+1 deg of yaw between frames moves the image by f x 0.017 = 9.7 px at f = 554 px).
+measure_factor: at most measure_factor x max_candidates blobs are measured (colour,
+centroid), most LED-like first, which bounds the time spent on clutter.
+accept_px: a blob set fitting within this RMS reprojection error (px) ends the
+search (2.5 x the p95 centroid error of the core centroid, module docstring step 3).
+min_size_frac: a blob's diameter must be at least this fraction of the LED disc's
+image diameter the set's span implies, less 1.5 px (``_sizes_fit``; 0.4: a
+blurred disc cut at 0.97 of its peak by the ladder keeps about half its diameter).
+max_solves: PnP solves per threshold level at most (35 = every 4-subset of 7).
+roi: with a previous pose, search first only the window around the LEDs it
+projects (``_window``), the whole image when that gives no pose; roi_margin: the
+window's margin around the projected LEDs as a fraction of their span (0.5: the
+array may move by half its own size between frames), at least roi_min_margin_px
+(48 px: 5 deg of yaw at f = 554 px); roi_max_frac: above this share of the image the
+window saves too little, the whole image is searched at once.
+Reason for > 8 params: every threshold of the blob pipeline is a documented knob.
 """
 
 from __future__ import annotations
@@ -123,51 +168,7 @@ def match_rotation(labels: np.ndarray, pattern: np.ndarray) -> int | None:
 
 
 class LedLocalizer:
-    """LED array (N >= 4): noise-aware threshold, LED-like blobs, reference LEDs by colour, pattern order, IPPE PnP.
-
-    Parameters (the constructor's keywords, ``-p led.NAME=VALUE`` on the command line):
-
-    threshold: brightness (max channel, 0-255) that LED cores exceed; lowered to
-    rel_threshold * image max (not below min_threshold) for dim images.
-    min_area_px / max_area_frac: blob area limits (px / fraction of the image).
-    min_circularity: area / (pi (max(w,h)/2)^2) for blobs of >= 12 px.
-    ref_hue: reference LED hue in degrees (None: from the marker's colours).
-    max_candidates: most LED-like coloured blobs considered (None: N + 3); max_blobs:
-    give up above this many blobs (the sunlit demo pool holds 200-370 at 0.6 x max; blob
-    statistics are vectorised, so only the measured candidates cost).
-    max_reproj_px: RMS reprojection error (px) above
-    which a blob set is rejected. min_saturation: chroma / brightness of a blob's
-    background-subtracted colour (0 grey, ~0.9 the LEDs' own colours) it needs to
-    count as a coloured LED, so white/grey highlights are not taken for LEDs (measured
-    on the sunlit frame of tests/data/sunlit_pool: LEDs 1.2-1.8, caustics 0.4-0.7;
-    0.2 rejects only near-grey blobs, shape and geometry do the rest).
-    max_hue_err_deg: hue distance allowed between a blob and its expected LED
-    colour. centroid: "core" or "weighted" (see the module docstring).
-    max_view_deg: largest angle (deg) between the array's normal and the line of sight
-    to it that a pose may have; flat LED discs seen beyond ~70 deg are foreshortened
-    below a third of their width, and lookalike blob sets (tinted marker plates plus two
-    LEDs) fit only at ~78 deg (measured on the physical-mode demo).
-    ladder: higher thresholds (fractions of the frame's max brightness) tried in turn
-    when the first level gives no pose (module docstring, step 1); () disables it.
-    prior: rank the blobs near the LEDs projected with the previous frame's pose first
-    (False: every frame alone); prior_gate_px: smallest gate radius (px) of that (8 px:
-    1 deg of yaw between frames moves the image by f x 0.017 = 9.7 px at f = 554 px).
-    measure_factor: at most measure_factor x max_candidates blobs are measured (colour,
-    centroid), most LED-like first, which bounds the time spent on clutter.
-    accept_px: a blob set fitting within this RMS reprojection error (px) ends the
-    search (2.5 x the p95 centroid error of the core centroid, module docstring step 3).
-    min_size_frac: a blob's diameter must be at least this fraction of the LED disc's
-    image diameter the set's span implies, less 1.5 px (``_sizes_fit``; 0.4: a
-    blurred disc cut at 0.97 of its peak by the ladder keeps about half its diameter).
-    max_solves: PnP solves per threshold level at most (35 = every 4-subset of 7).
-    roi: with a previous pose, search first only the window around the LEDs it
-    projects (``_window``), the whole image when that gives no pose; roi_margin: the
-    window's margin around the projected LEDs as a fraction of their span (0.5: the
-    array may move by half its own size between frames), at least roi_min_margin_px
-    (48 px: 5 deg of yaw at f = 554 px); roi_max_frac: above this share of the image the
-    window saves too little, the whole image is searched at once.
-    Reason for > 8 params: every threshold of the blob pipeline is a documented knob.
-    """
+    """LED array (N >= 4): noise-aware threshold, LED-like blobs, reference LEDs by colour, pattern order, IPPE PnP."""
 
     name = "led"
     outputs = ("distance", "T_cam_dock", "marker_id")
@@ -183,7 +184,7 @@ class LedLocalizer:
                  accept_px: float = 0.5, min_size_frac: float = 0.4, max_solves: int = 35,
                  roi: bool = True, roi_margin: float = 0.5, roi_min_margin_px: float = 48.0,
                  roi_max_frac: float = 0.5):
-        """The keywords are documented in the class docstring."""
+        """The keywords are documented in the module docstring, section "Parameters"."""
         if centroid not in ("weighted", "core"):
             raise ValueError(f"centroid must be weighted or core, got {centroid!r}")
         self.marker_id = marker_id
