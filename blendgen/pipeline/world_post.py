@@ -105,6 +105,7 @@ class SurfaceGeometry:
         self.idx, self.src, self.path, self.depth = idx, src, path, depth
 
 
+@term("surface")
 def surface_geometry(range_m, depth, wp, rays, K, T_world_cam, surface_z_m: float, t: float, stride=None):
     """The water-independent part of :func:`add_surface` (same arguments); None when no pixel
     sees the surface."""
@@ -155,6 +156,7 @@ def surface_geometry(range_m, depth, wp, rays, K, T_world_cam, surface_z_m: floa
     return SurfaceGeometry(np.flatnonzero(up), r, cos_up, R, sun, idx, src, path, m_h)
 
 
+@term("surface")
 def shade_surface(rgb, range_m, depth, geo: SurfaceGeometry | None, wp, below_radiance):
     """(rgb, range_m, depth) with the surface of ``geo`` (made from this range and depth) seen
     in water whose veil at the camera is ``below_radiance`` (3,): new arrays (the inputs when
@@ -280,6 +282,7 @@ class CausticGeometry:
         self.at, self.base, self.lit, self.caustics = at, base, lit, caustics
 
 
+@term("caustics")
 def caustic_geometry(
     rgb, albedo, range_m, depth, wp, rays, K, T_world_cam, t: float, emissive=None, sun_pass=None
 ) -> CausticGeometry | None:
@@ -323,6 +326,7 @@ def caustic_geometry(
     return CausticGeometry(at, base, lit, fc)
 
 
+@term("caustics")
 def shade_caustics(rgb, geo: CausticGeometry | None, scattering: float, g: float = 0.9):
     """``rgb`` (H, W, 3) with the sun-lit pixels of ``geo`` (made from this ``rgb``) focused in
     water of ``scattering`` (1/m) and HG ``g``: a new float32 array (``rgb`` when none is lit)."""
