@@ -108,9 +108,18 @@ def test_world_off_costs_nothing_and_changes_nothing(monkeypatch):
     def boom(*a, **k):
         raise AssertionError("world_post called while off")
 
-    monkeypatch.setattr(world_post, "add_surface", boom)
-    monkeypatch.setattr(world_post, "add_caustics", boom)
+    for name in (
+        "add_surface",
+        "surface_geometry",
+        "shade_surface",
+        "add_caustics",
+        "caustic_geometry",
+        "shade_caustics",
+    ):
+        monkeypatch.setattr(world_post, name, boom)
     _open_water_up(_post(None))
+    with pytest.raises(AssertionError, match="while off"):  # the patch does catch the frame loop's calls
+        _open_water_up(_post(_world(wind=3.0)))
 
 
 def _floor_map(
