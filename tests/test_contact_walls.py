@@ -5,6 +5,7 @@ and the after-the-fact clearance of a run's frames."""
 import math
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from blendgen.vehicle.contact import PARTS, WATER_PARTS, Hull, WaterSolid, impact_speed, water_contact
@@ -207,3 +208,71 @@ def test_the_paper_pool_changes_no_truth_trial_of_the_turbidity_experiment(tmp_p
         s = bench.setup(exp.conditions[0], trial)
         a, b = simulate_closed_loop(s), simulate_closed_loop(replace(s, water=None))
         assert a["outcome"] == b["outcome"] == "docked" and a["t_end"] == b["t_end"]
+
+
+# ---------------------------------------------------------------- after the fact
+def _frames(rows, cam=0.65):
+    """Frames-table rows (trial, t, origin xyz, yaw deg, pitch-up deg) as a run would log them."""
+    out = []
+    for trial, t, o, yaw, pitch in rows:
+        x = pose(o, yaw, pitch)[:3, 0]
+        out.append(
+            {
+                "localizer": "truth",
+                "condition": "c",
+                "trial": trial,
+                "t": t,
+                "x_world": o[0],
+                "y_world": o[1],
+                "z_world": o[2],
+                "x_cam_world": o[0] + cam * x[0],
+                "y_cam_world": o[1] + cam * x[1],
+            }
+        )
+    return pd.DataFrame(out)
+
+
+def test_after_the_fact_clearance_per_trial_exact_from_the_camera_and_bounded_without():
+    from blendgen.vehicle.water_clearance import trial_water_clearance
+
+    rows = [
+        (0, 0.0, [0.0, 0.0, -1.5], 0.0, 0.0),
+        (0, 0.1, [1.0, 1.9, -1.5], 30.0, 0.0),  # tilted toward y = 2.5: 0.6 - A/2 - R
+        (1, 0.0, [1.0, 2.2, -1.5], 0.0, 0.0),  # parallel: 0.3 - R
+        (1, 0.1, [0.0, 0.0, -7.5], 0.0, -20.0),  # nose down over the floor: 0.5 - A sin 20 - R
+        (2, 0.0, [7.2, 0.0, -1.5], 0.0, 0.0),  # 0.3 m from the end wall, pointing at it: penetrates
+    ]
+    f = _frames(rows)
+    exact = trial_water_clearance(f, POOL, HULL, cam_forward_m=0.65)
+    for i, (_, _, o, yaw, pitch) in enumerate(rows):  # each frame alone equals water_contact
+        one = trial_water_clearance(f.iloc[[i]], POOL, HULL, cam_forward_m=0.65)
+        assert one["min_clearance_m"].iloc[0] == pytest.approx(
+            water_contact(POOL, HULL, pose(o, yaw, pitch)).clearance_m
+        )
+    want = [0.6 - A / 2 - R, 0.3 - R, 0.3 - A - R]
+    assert exact["min_clearance_m"].tolist() == pytest.approx(want)
+    assert exact["t_s"].tolist() == [0.1, 0.0, 0.0] and exact["part"].tolist() == ["pool_wall"] * 3
+    assert exact["touched"].tolist() == [False, False, True] and set(exact["method"]) == {"camera"}
+    bound = trial_water_clearance(f.drop(columns=["x_cam_world", "y_cam_world"]), POOL, HULL, cam_forward_m=0.65)
+    assert set(bound["method"]) == {"origin"}
+    # every axis end taken toward every face: origin distance - A - R
+    assert bound["min_clearance_m"].tolist() == pytest.approx([0.6 - A - R, 0.3 - A - R, 0.3 - A - R])
+    assert (bound["min_clearance_m"] <= exact["min_clearance_m"] + 1e-12).all()  # a lower bound
+    with pytest.raises(ValueError, match="not on the body x axis"):
+        trial_water_clearance(f, POOL, HULL, cam_forward_m=0.5)
+
+
+def test_after_the_fact_clearance_of_a_simulated_run_matches_the_loop_that_hit_the_wall():
+    from blendgen.vehicle.closed_loop import simulate_closed_loop
+    from blendgen.vehicle.water_clearance import trial_water_clearance
+
+    walls = WaterSolid.pool((-7.5, -20.0, -8.0), (7.5, 1.2, 0.0))
+    free = simulate_closed_loop(_setup({**START, "lateral_m": 0.0}, None, current=(0.0, 1.0, 0.0)))
+    hit = simulate_closed_loop(_setup({**START, "lateral_m": 0.0}, walls, current=(0.0, 1.0, 0.0)))
+    f = pd.DataFrame(free["frames"]).assign(trial=0)
+    got = trial_water_clearance(f, walls, HULL, cam_forward_m=0.65).iloc[0]
+    assert got["touched"] and got["part"] == "pool_wall"
+    # the first frame the run without walls is inside the wall is where the walled run stopped
+    first = trial_water_clearance(f[f["t"] <= hit["t_end"] + 1e-9], walls, HULL, cam_forward_m=0.65).iloc[0]
+    before = trial_water_clearance(f[f["t"] < hit["t_end"] - 1e-9], walls, HULL, cam_forward_m=0.65).iloc[0]
+    assert first["min_clearance_m"] <= 0 < before["min_clearance_m"]
