@@ -503,9 +503,13 @@ def docking_paths_cmd(currents: tuple[float, ...], seed: int, out: Path):
     runs = docking_paths(currents or (0.0, 0.5, 1.0), seed=seed)
     for r in runs:
         hit = f", {r['contact_part']} hit at {r['impact_speed_mps']:.2f} m/s" if r["outcome"] == "collision" else ""
+        crossing = (
+            f"crossing lateral {r['cross_lateral_m']:+.2f} m, heading {r['cross_heading_deg']:+.1f} deg"
+            if np.isfinite(r["cross_lateral_m"])
+            else "no entry-plane crossing"
+        )
         click.echo(
-            f"current {r['current_mps']:.2f} m/s: {r['outcome']}{hit} after {r['t'][-1]:.1f} s "
-            f"(crossing lateral {r['cross_lateral_m']:+.2f} m, heading {r['cross_heading_deg']:+.1f} deg), "
+            f"current {r['current_mps']:.2f} m/s: {r['outcome']}{hit} after {r['t'][-1]:.1f} s ({crossing}), "
             f"authority: {r['authority']}, heading std {np.std(r['heading_error_deg']):.2f} deg, "
             f"{r['ms_per_sim_s']:.2f} ms CPU per simulated s"
         )

@@ -18,6 +18,7 @@ import numpy as np
 
 from blendgen.config.models import ConfigError, Experiment
 from blendgen.vehicle import trajectories as tj
+from blendgen.vehicle.contact import WaterSolid
 
 #: Half side (m) of the open-water domain around the dock (the reference medium's box).
 OPEN_WATER_HALF_M = 60.0
@@ -56,6 +57,14 @@ def water_box(exp: Experiment) -> WaterBox:
     return WaterBox(
         np.array([x - h, y - h, -s.world.seabed_depth_m]), np.array([x + h, y + h, top]), "open-water domain"
     )
+
+
+def water_solid(exp: Experiment) -> WaterSolid:
+    """:func:`water_box` as the closed loop's collision geometry (world frame, +z up, m): a pool's
+    four walls and floor are solid, open water's seabed alone (the domain's sides are not walls);
+    the surface never is (:class:`blendgen.vehicle.contact.WaterSolid`)."""
+    box = water_box(exp)
+    return (WaterSolid.pool if exp.scene.kind == "pool" else WaterSolid.open_water)(box.lo, box.hi)
 
 
 def shift_range(points: np.ndarray, direction, box: WaterBox) -> tuple[float, float] | None:

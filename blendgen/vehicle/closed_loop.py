@@ -18,7 +18,10 @@ Docking is judged by geometry. Every frame the hull (a capsule of the vehicle's 
 diameter) is tested against the dock's collision geometry (:mod:`blendgen.vehicle.contact`: the
 body box with its face plate and sides, and the funnel cone through it): a touch ends the trial
 as ``collision`` with ``contact_part`` and ``impact_speed_mps`` (the hull's contact point's speed
-into the dock along the surface normal, m/s). When the camera (at the nose) crosses the dock's
+into the dock along the surface normal, m/s). With ``TrialSetup.water`` the hull is tested against
+the water's solid faces as well (a pool's walls and floor, open water's seabed;
+:class:`blendgen.vehicle.contact.WaterSolid`, world frame): a touch is a ``collision`` with
+``contact_part`` ``pool_wall``, ``pool_floor`` or ``seabed``. When the camera (at the nose) crosses the dock's
 entry plane the capture test (:func:`blendgen.vehicle.visual_nav.crossing_outcome`) decides:
 inside the capture radius ``docked`` (or ``misaligned``); on the face plate grown by the hull
 radius ``collision`` (when the frame-rate contact test missed it between frames); beside the
@@ -49,7 +52,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from blendgen.vehicle.contact import DockSolid, Hull, hull_contact, impact_speed
+from blendgen.vehicle.contact import DockSolid, Hull, WaterSolid, hull_contact, impact_speed, water_contact
 from blendgen.vehicle.control import Autopilot, Sensors
 from blendgen.vehicle.docking import DockAxesNED, Gusts, LosGuidance, Turbulence, los_references, start_pose_world
 from blendgen.vehicle.dynamics import (
@@ -128,6 +131,7 @@ class TrialSetup:
     latency_s: float = 0.0
     compute_latency: float | str = 0.0
     dock_size_m: tuple = (1.0, 1.0, 0.4)  # the dock model's body (w, h, depth): config Dock.body_size_m
+    water: WaterSolid | None = None  # the pool's walls and floor / the seabed (world frame); None: none
 
     def __post_init__(self):
         if not 0.0 <= self.latency_s <= 10.0:
@@ -294,8 +298,9 @@ def _crossing(setup: TrialSetup, axes: DockAxesNED, prev: np.ndarray, nose: np.n
 
 
 class HullContact:
-    """The hull against the dock's collision geometry (:mod:`blendgen.vehicle.contact`) at the
-    plant's state; ``hit(plant)`` -> collision record or None."""
+    """The hull against the dock's collision geometry and the water's solid faces (``setup.water``:
+    the pool's walls and floor, or the seabed; :mod:`blendgen.vehicle.contact`) at the plant's state;
+    ``hit(plant)`` -> collision record or None."""
 
     MARGIN_M = 0.05  # skip the exact test while the body origin is this far beyond any reach
 
@@ -305,12 +310,22 @@ class HullContact:
         self.hull = Hull.from_vehicle(p.length, p.diameter)
         self.T_dock_world = np.linalg.inv(np.asarray(setup.T_world_dock, float))
         self.reach = self.hull.half_axis + self.hull.radius + self.MARGIN_M
+        self.water = setup.water
 
     def hit(self, plant: Plant) -> dict | None:
-        """Collision record (``outcome``, ``contact_part``, ``impact_speed_mps``, ``contact_*_m``)
-        if the hull touches or penetrates the dock, else None."""
+        """Collision record (``outcome``, ``contact_part``, ``impact_speed_mps``, ``contact_*_m``: the
+        point touched in the dock frame, m) if the hull touches or penetrates the dock or a solid face
+        of the water, else None; both touching: the deeper one."""
         eta, nu = plant.s[:6], plant.s[6:]
-        T_db = self.T_dock_world @ eta_to_T_world_body(eta)
+        T_wb = eta_to_T_world_body(eta)  # world (+z up), body FLU
+        R_wb = F_WORLD_NED @ Autopilot._R(eta)  # body FRD -> NED -> world (F: a rotation, det +1)
+        v_w, w_w = R_wb @ np.asarray(nu[:3], float), R_wb @ np.asarray(nu[3:6], float)  # world, m/s, rad/s
+        hits = [h for h in (self._dock_hit(T_wb, v_w, w_w), self._water_hit(T_wb, v_w, w_w)) if h is not None]
+        return min(hits, key=lambda h: h[0])[1] if hits else None
+
+    def _dock_hit(self, T_wb: np.ndarray, v_w: np.ndarray, w_w: np.ndarray) -> tuple[float, dict] | None:
+        """(clearance m, record) of a touch of the dock, else None; velocities in the world frame."""
+        T_db = self.T_dock_world @ T_wb
         o, sd = T_db[:3, 3], self.solid
         centre = np.array([0.0, 0.0, -sd.depth / 2])  # of the dock's box
         gap = np.maximum(np.abs(o - centre) - [sd.half_w, sd.half_h, sd.depth / 2], 0.0)  # origin to box
@@ -319,16 +334,30 @@ class HullContact:
         c = hull_contact(sd, self.hull, T_db)
         if c.clearance_m > 0:
             return None
-        R_dw, R = self.T_dock_world[:3, :3], Autopilot._R(eta)
-        v = R_dw @ F_WORLD_NED @ R @ np.asarray(nu[:3], float)
-        w = R_dw @ F_WORLD_NED @ R @ np.asarray(nu[3:6], float)
+        R_dw = self.T_dock_world[:3, :3]
+        speed = impact_speed(c, self.hull, R_dw @ v_w, R_dw @ w_w, T_db)
+        return c.clearance_m, self._record(c.part, speed, c.point_dock)
+
+    def _water_hit(self, T_wb: np.ndarray, v_w: np.ndarray, w_w: np.ndarray) -> tuple[float, dict] | None:
+        """(clearance m, record) of a touch of a wall, the floor or the seabed, else None."""
+        if self.water is None:
+            return None
+        c = water_contact(self.water, self.hull, T_wb)
+        if c.clearance_m > 0:
+            return None
+        p_dock = self.T_dock_world[:3, :3] @ c.point_world + self.T_dock_world[:3, 3]
+        return c.clearance_m, self._record(c.part, impact_speed(c, self.hull, v_w, w_w, T_wb), p_dock)
+
+    @staticmethod
+    def _record(part: str, speed: float, p_dock: np.ndarray) -> dict:
+        """The collision record: part, impact speed (m/s), the point touched (dock frame, m)."""
         return {
             "outcome": "collision",
-            "contact_part": c.part,
-            "impact_speed_mps": impact_speed(c, self.hull, v, w, T_db),
-            "contact_lateral_m": float(c.point_dock[0]),
-            "contact_vertical_m": float(c.point_dock[1]),
-            "contact_range_m": float(c.point_dock[2]),
+            "contact_part": part,
+            "impact_speed_mps": speed,
+            "contact_lateral_m": float(p_dock[0]),
+            "contact_vertical_m": float(p_dock[1]),
+            "contact_range_m": float(p_dock[2]),
         }
 
 
@@ -358,8 +387,9 @@ def simulate_closed_loop(setup: TrialSetup, observe: Observer | None = None) -> 
 
     Returns ``{"outcome": str (visual_nav.OUTCOMES), "t_end": s, "time_to_dock_s": s or NaN,
     "cross_*": crossing offsets (m), heading (deg), lateral speed (m/s) or NaN, "impact_speed_mps"
-    (collision only, else NaN), "contact_part" (collision: :data:`blendgen.vehicle.contact.PARTS`,
-    else ""), "contact_lateral_m"/"contact_vertical_m"/"contact_range_m" (the dock point touched,
+    (collision only, else NaN), "contact_part" (collision: :data:`blendgen.vehicle.contact.PARTS`, the
+    dock's parts or the water's ``pool_wall``/``pool_floor``/``seabed``, else ""),
+    "contact_lateral_m"/"contact_vertical_m"/"contact_range_m" (the dock, wall or floor point touched,
     dock frame, m, else NaN), "lost_after_s" (lost_target only: s since the last fix, else NaN),
     "reacquisitions" (fixes that ended a back_off/hold),
     "final_lateral_m", "final_vertical_m", "final_range_m", "final_heading_deg" (body origin
@@ -464,7 +494,7 @@ def _frame_row(t: float, eta, axes: DockAxesNED) -> dict:
 
 def _summary(res: dict, frames: list[dict], fps: float, k_end: int) -> dict:
     nan = math.nan
-    last = frames[-1]
+    last = frames[-1] if frames else dict.fromkeys(("lateral_m", "vertical_m", "range_m", "heading_err_deg"), nan)
     out = {
         "cross_lateral_m": nan,
         "cross_vertical_m": nan,

@@ -20,6 +20,13 @@ distance to the dock is the smallest distance from the capsule's axis segment to
 surface minus the hull radius (negative = penetration); the distance to each part is exact (plane
 regions by clamping, the cone in its meridian half-plane), the segment is sampled every
 ``<= 2 cm`` and the best sample refined (bounded Brent, 1e-7 m tolerance).
+
+The water around them (:class:`WaterSolid`) is an axis-aligned box in the world frame (metres,
++z up) of which some faces are solid: a pool's four walls (``pool_wall``) and its floor
+(``pool_floor``); in open water only the seabed (``seabed``: the domain's sides are not walls).
+The water surface (the box's top) is never a collision. The hull's clearance to a face plane is
+exact: the distance from a line segment to a plane is smallest at one of its ends, so it is the
+smaller of the two axis ends' inward distances minus the hull radius (:func:`water_contact`).
 """
 
 from __future__ import annotations
@@ -29,7 +36,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-PARTS = ("face_plate", "funnel", "side", "back", "rim")
+DOCK_PARTS = ("face_plate", "funnel", "side", "back", "rim")
+WATER_PARTS = ("pool_wall", "pool_floor", "seabed")
+PARTS = DOCK_PARTS + WATER_PARTS  # every ``contact_part`` a collision can name
 
 
 @dataclass(frozen=True)
@@ -142,7 +151,7 @@ def _inside(p: np.ndarray, solid: DockSolid) -> np.ndarray:
 
 def surface_distance(p: np.ndarray, solid: DockSolid) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Signed distance (N,) from points ``p`` (N,3) (dock frame, m) to the dock's surface (negative
-    inside its material), the nearest surface points (N,3) and the part index (N,) into :data:`PARTS`."""
+    inside its material), the nearest surface points (N,3) and the part index (N,) into :data:`DOCK_PARTS`."""
     p = np.atleast_2d(np.asarray(p, float))
     cands = [
         (0, _plate(p, 0.0, solid.half_w, solid.half_h, solid.mouth_r)),
@@ -200,14 +209,93 @@ def hull_contact(solid: DockSolid, hull: Hull, T_dock_body: np.ndarray) -> Conta
     dd, q, part = surface_distance(p, solid)
     normal = _normal(p[0], q[0], float(dd[0]), int(part[0]), solid)
     on_rim = abs(q[0][2]) < 1e-9 and abs(math.hypot(q[0][0], q[0][1]) - solid.mouth_r) < 1e-9
-    return Contact(float(dd[0]) - hull.radius, "rim" if on_rim else PARTS[int(part[0])], q[0], normal, x)
+    return Contact(float(dd[0]) - hull.radius, "rim" if on_rim else DOCK_PARTS[int(part[0])], q[0], normal, x)
 
 
-def impact_speed(contact: Contact, hull: Hull, v_dock: np.ndarray, omega_dock: np.ndarray, T_dock_body) -> float:
+@dataclass(frozen=True)
+class WaterSolid:
+    """The water's solid boundary (module doc): the box ``lo`` .. ``hi`` (world frame, m, +z up)
+    and its solid ``faces``, each (axis 0/1/2 = x/y/z, side -1 = the ``lo`` plane or +1 = the
+    ``hi`` plane, part name in :data:`WATER_PARTS`). The top (z = ``hi[2]``, the surface) is
+    never solid."""
+
+    lo: tuple[float, float, float]
+    hi: tuple[float, float, float]
+    faces: tuple[tuple[int, int, str], ...]
+
+    def __post_init__(self):
+        if not all(a < b for a, b in zip(self.lo, self.hi)):
+            raise ValueError(f"water box: need lo < hi on every axis, got lo {self.lo}, hi {self.hi} m")
+        for axis, side, part in self.faces:
+            if axis not in (0, 1, 2) or side not in (-1, 1) or part not in WATER_PARTS or (axis, side) == (2, 1):
+                raise ValueError(f"water box: bad face ({axis}, {side}, {part!r}); the surface is never solid")
+
+    @classmethod
+    def pool(cls, lo, hi) -> WaterSolid:
+        """A pool: the four walls (x = lo/hi, y = lo/hi) and the floor (z = lo) are solid."""
+        walls = tuple((k, s, "pool_wall") for k in (0, 1) for s in (-1, 1))
+        return cls(_vec3(lo), _vec3(hi), (*walls, (2, -1, "pool_floor")))
+
+    @classmethod
+    def open_water(cls, lo, hi) -> WaterSolid:
+        """Open water: only the seabed (z = lo) is solid; the domain's sides are not walls."""
+        return cls(_vec3(lo), _vec3(hi), ((2, -1, "seabed"),))
+
+
+def _vec3(v) -> tuple[float, float, float]:
+    x, y, z = (float(c) for c in v)
+    return (x, y, z)
+
+
+@dataclass(frozen=True)
+class WaterContact:
+    """Closest approach of the hull to the water's solid faces: ``clearance_m`` (surface to face;
+    negative = penetration), ``part`` (:data:`WATER_PARTS`), ``point_world`` (3,) the face point
+    nearest the hull (world, m), ``normal`` (3,) the face's unit normal into the water (toward the
+    hull), ``axis_x_m`` the body x of the hull's axis point nearest the face (+-half axis at an
+    end; 0 when the axis is parallel to the face)."""
+
+    clearance_m: float
+    part: str
+    point_world: np.ndarray
+    normal: np.ndarray
+    axis_x_m: float
+
+
+def water_contact(water: WaterSolid, hull: Hull, T_world_body: np.ndarray) -> WaterContact:
+    """Closest approach of the hull at pose ``T_world_body`` (4x4, body FLU in the world frame,
+    +z up) to the solid faces of ``water``: exact (module doc). Clearance to a face = min over
+    the axis ends of their distance inside its plane - hull radius."""
+    T = np.asarray(T_world_body, float)
+    o, ax = T[:3, 3], T[:3, 0]
+    ends = np.array([-hull.half_axis, hull.half_axis])
+    best = None
+    for axis, side, part in water.faces:
+        plane = water.hi[axis] if side > 0 else water.lo[axis]
+        inward = -side * ((o[axis] + ends * ax[axis]) - plane)  # (2,) distance inside the water, m
+        d = float(inward.min())
+        if best is None or d < best[0]:
+            x = 0.0 if abs(inward[0] - inward[1]) < 1e-12 else float(ends[int(np.argmin(inward))])
+            best = (d, axis, side, part, x)
+    if best is None:
+        return WaterContact(math.inf, "", np.full(3, math.nan), np.zeros(3), 0.0)
+    d, axis, side, part, x = best
+    normal = np.zeros(3)
+    normal[axis] = -float(side)
+    point = o + x * ax
+    point[axis] = water.hi[axis] if side > 0 else water.lo[axis]
+    return WaterContact(d - hull.radius, part, point, normal, x)
+
+
+def impact_speed(
+    contact: Contact | WaterContact, hull: Hull, v_dock: np.ndarray, omega_dock: np.ndarray, T_dock_body
+) -> float:
     """Speed (m/s) of the hull's contact point into the dock along the dock's outward normal:
     -(v + omega x r) . n, with ``v_dock`` (3,) the body origin's velocity and ``omega_dock`` (3,) the
     angular velocity (rad/s), both in the dock frame; r from the body origin to the hull's surface
-    point facing the dock (axis point - radius x normal)."""
+    point facing the dock (axis point - radius x normal). A :class:`WaterContact` works the same
+    way in the world frame (``v_dock``, ``omega_dock``, ``T_dock_body`` world-frame): the speed
+    into the wall or floor along its normal into the water."""
     T = np.asarray(T_dock_body, float)
     axis_pt = T[:3, 3] + contact.axis_x_m * T[:3, 0]
     r = axis_pt - hull.radius * contact.normal - T[:3, 3]
@@ -215,4 +303,17 @@ def impact_speed(contact: Contact, hull: Hull, v_dock: np.ndarray, omega_dock: n
     return float(-(v @ contact.normal))
 
 
-__all__ = ["PARTS", "DockSolid", "Hull", "Contact", "surface_distance", "hull_contact", "impact_speed"]
+__all__ = [
+    "PARTS",
+    "DOCK_PARTS",
+    "WATER_PARTS",
+    "DockSolid",
+    "Hull",
+    "Contact",
+    "WaterSolid",
+    "WaterContact",
+    "surface_distance",
+    "hull_contact",
+    "water_contact",
+    "impact_speed",
+]

@@ -46,6 +46,7 @@ from blendgen.pipeline import compose, frameloop, groundtruth, plan, scene_check
 from blendgen.vehicle import docking
 from blendgen.vehicle import trajectories as tj
 from blendgen.vehicle.closed_loop import Observation, TrialSetup, simulate_closed_loop
+from blendgen.vehicle.contact import WaterSolid
 from blendgen.vehicle.dynamics import VehicleParams
 from blendgen.vehicle.visual_nav import CaptureSpec, FilterParams
 from datasets_spec.io import png_params
@@ -135,6 +136,7 @@ class Bench:
     traj: DockingTrajectory
     capture: CaptureSpec
     compute_latency: float | str = 0.0  # localizer time added to camera.latency_s (s or "measured")
+    water: WaterSolid | None = None  # the pool's walls and floor or the seabed: scene_check.water_solid
 
     @classmethod
     def prepare(cls, exp: Experiment, assets: Path) -> Bench:
@@ -172,6 +174,7 @@ class Bench:
             tj.T_body_cam_from_spec(exp.camera.T_body_cam),
             traj,
             capture_spec(traj, exp.scene.dock.body_size_m, hull_r),
+            water=scene_check.water_solid(exp),
         )
 
     def camera_job(self) -> dict:
@@ -222,6 +225,7 @@ class Bench:
             latency_s=self.exp.camera.latency_s,
             compute_latency=self.compute_latency,
             dock_size_m=tuple(self.exp.scene.dock.body_size_m),
+            water=self.water,
         )
 
     def condition_authority(self, cond) -> dict:
@@ -691,7 +695,7 @@ def plot_paths(
         ax.legend(fontsize=7, loc="best")
     for ax in axes.ravel()[len(conds) :]:
         ax.set_visible(False)
-    walls = ", dashed: pool walls (not obstacles to the dynamics)" if pool_xy_m is not None else ""
+    walls = ", dashed: pool walls (solid to the hull)" if pool_xy_m is not None else ""
     fig.suptitle(
         "closed-loop docking, camera/nose paths (top view): o docked, x failed\n"
         f"black: the dock's body (collision geometry), green: capture radius{walls}",

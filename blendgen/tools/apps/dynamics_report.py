@@ -7,7 +7,6 @@ from pathlib import Path
 
 import numpy as np
 
-from blendgen.config.models import Dock
 from blendgen.vehicle import docking
 from blendgen.vehicle import trajectories as tj
 
@@ -17,20 +16,24 @@ def docking_paths(currents=(0.0, 0.5, 1.0), seed: int = 1, start: dict | None = 
     same start, run and judged exactly as ``dockbench dock`` runs its ``truth`` baseline
     (:func:`blendgen.vehicle.closed_loop.simulate_closed_loop`: the trial ends when the nose crosses the
     dock's entry plane and the capture geometry names the outcome: docked, misaligned, collision,
-    out_of_capture; never range alone), with the default dock, camera mount and capture limits.
+    out_of_capture; never range alone), with the default dock, camera mount and capture limits, in
+    the default pool (its walls and floor solid to the hull: :func:`blendgen.pipeline.scene_check.water_solid`).
 
     Returns per current: ``p_dock`` (N,3) body-origin path in the dock frame (x lateral, y vertical,
     z range), heading error (deg), ``t`` (s), ``outcome`` (the capture verdict), the crossing's lateral
     offset (m) and heading (deg), impact speed (m/s) and part hit (collisions: the hull against the
     dock's collision geometry, :mod:`blendgen.vehicle.contact`), the docking ``authority`` verdict of
     that current (:func:`blendgen.vehicle.authority.docking_authority`) and CPU ms per simulated second."""
-    from blendgen.config.models import Camera, DockingTrajectory
+    from blendgen.config.models import Camera, DockingTrajectory, Experiment
+    from blendgen.pipeline.scene_check import water_solid
     from blendgen.tools.apps.closed_loop import authority_verdict, capture_spec
     from blendgen.vehicle import authority
     from blendgen.vehicle.closed_loop import TrialSetup, simulate_closed_loop
     from blendgen.vehicle.dynamics import VehicleParams
 
-    dock, traj = Dock(), DockingTrajectory()
+    traj = DockingTrajectory()
+    exp = Experiment(name="docking_paths", trajectories=[traj])  # the default scene: pool and dock
+    dock, water = exp.scene.dock, water_solid(exp)
     T_wd = tj.T_world_dock_from_spec(dock)
     T_bc = tj.T_body_cam_from_spec(Camera.model_fields["T_body_cam"].default)
     capture = capture_spec(traj, dock.body_size_m, VehicleParams().diameter / 2)
@@ -50,6 +53,7 @@ def docking_paths(currents=(0.0, 0.5, 1.0), seed: int = 1, start: dict | None = 
             max_time_s=traj.max_time_s,
             guidance=docking.LosGuidance(traj.cruise_speed_mps, traj.final_speed_mps),
             dock_size_m=tuple(dock.body_size_m),
+            water=water,
         )
         run = simulate_closed_loop(setup)
         cpu = time.process_time() - t0
