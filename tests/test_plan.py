@@ -145,3 +145,34 @@ def test_a_path_into_the_dock_fails_before_anything_is_written(tmp_path):
     with pytest.raises(ConfigError, match="marker plane"):
         generate(Experiment.model_validate(cfg), tmp_path / "out", progress=False)
     assert not (tmp_path / "out").exists()
+
+
+def test_a_current_that_carries_the_hull_into_a_wall_ends_the_trial_there():
+    """The article's current experiment: at 1.0 m/s across the approach the thrusters cannot hold
+    the line, the hull reaches the pool's side wall and the trial ends there (the closed loop's
+    ``collision``), instead of the camera leaving the pool or the experiment being refused."""
+    from pathlib import Path
+
+    import yaml
+
+    from blendgen.pipeline import scene_check
+    from blendgen.vehicle.contact import Hull, water_contact
+    from blendgen.vehicle.dynamics import VehicleParams
+
+    cfg = yaml.safe_load((Path(__file__).parents[1] / "configs" / "paper_current.yaml").read_text())
+    cfg["trials"] = 1
+    exp, jobs = jobs_for(cfg)
+    T_bc = np.linalg.inv(plan.tj.T_body_cam_from_spec(exp.camera.T_body_cam))
+    water, p = scene_check.water_solid(exp), VehicleParams()
+    hull = Hull.from_vehicle(p.length, p.diameter)
+    ends = {}
+    for job in jobs:
+        (label,) = {s.condition for s in job.sequences}  # each current its own path
+        clear = [water_contact(water, hull, np.asarray(f["T_world_cam"]) @ T_bc).clearance_m for f in job.frames]
+        assert min(clear) > 0, label  # no rendered frame has the hull in a wall
+        ends[label] = job.frames[-1]["t"]
+    # the strong current's trial ends at the wall, seconds before the others reach the dock
+    assert ends["current_1.0"] < 0.5 * min(ends["current_0.0"], ends["current_0.5"])
+    last = np.asarray(next(j for j in jobs if j.sequences[0].condition == "current_1.0").frames[-1]["T_world_cam"])
+    assert water_contact(water, hull, last @ T_bc).part == "pool_wall"
+    assert water_contact(water, hull, last @ T_bc).clearance_m < 0.1  # one frame (0.1 s) from the touch

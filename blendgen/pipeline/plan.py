@@ -345,6 +345,27 @@ def until_contact(exp: Experiment, traj, T_wc: np.ndarray, T_wd: np.ndarray) -> 
     )
 
 
+def until_wall(exp: Experiment, T_world_body: np.ndarray) -> int:
+    """Number of leading frames (poses (N, 4, 4), world +z up, body FLU) before the hull first
+    touches a solid face of the water: a pool's walls or floor, the seabed
+    (:func:`scene_check.water_solid`, the closed loop's collision geometry). A docking trial that
+    a current carries into a wall ends there, as the closed loop's ``collision`` does; its last
+    rendered frame is the one before the touch."""
+    from blendgen.vehicle.contact import Hull
+    from blendgen.vehicle.dynamics import VehicleParams
+    from blendgen.vehicle.water_clearance import frame_clearance
+
+    if len(T_world_body) == 0:
+        return 0
+    p = VehicleParams()
+    T = np.asarray(T_world_body, float)
+    clear, _ = frame_clearance(
+        T[:, :3, 3], np.abs(T[:, :3, 0]), scene_check.water_solid(exp), Hull.from_vehicle(p.length, p.diameter)
+    )
+    touch = np.flatnonzero(clear <= 0.0)
+    return int(touch[0]) if touch.size else len(T)
+
+
 def exposure_flow(exp: Experiment, T_wc: np.ndarray, T_wd: np.ndarray) -> np.ndarray:
     """(N, 2) image motion (px) of the dock's face centre during each frame's exposure.
 
@@ -403,6 +424,8 @@ def _frames(exp: Experiment, traj, T_wd: np.ndarray, T_body_cam: np.ndarray, see
     smp = tj.sample(traj, T_wd, exp.camera.fps, exp.camera.latency_s, seed=seed, fluid=fluid)
     T_wc = smp.T_world_body @ T_body_cam
     n = until_contact(exp, traj, T_wc, T_wd)
+    if traj.kind == "docking":
+        n = min(n, until_wall(exp, smp.T_world_body[:n]))
     d_max = exp.render.max_distance_m
     flow = exposure_flow(exp, T_wc[:n], T_wd) if exp.camera.sensor.motion_blur else None
     frames = [
