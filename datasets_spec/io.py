@@ -1,4 +1,4 @@
-"""Save/load pairs and hashing of the dataset format (FORMAT.md, spec_version 1.1; reads 1.0).
+"""Save/load pairs and hashing of the dataset format (FORMAT.md, spec_version 1.2; reads 1.0 and 1.1).
 
 One place reads and writes each file of a dataset: the generator writes through
 :func:`save_json_atomic`, :func:`append_frame`, :func:`save_image`, :func:`save_range`
@@ -34,8 +34,9 @@ from datasets_spec.validate import (
 )
 
 FORMAT_NAME = "dockbench-dataset"
-SPEC_VERSION = "1.1"
-SUPPORTED_SPEC_VERSIONS = ("1.0", SPEC_VERSION)  # 1.0: range as float32 NPZ, passes per sequence
+SPEC_VERSION = "1.2"
+#: 1.0: range as float32 NPZ, passes per sequence; 1.1: no sequences[].end
+SUPPORTED_SPEC_VERSIONS = ("1.0", "1.1", SPEC_VERSION)
 MANIFEST = "manifest.json"
 FRAMES = "frames.jsonl"
 DEFAULT_D_MIN_REL_M = 0.2

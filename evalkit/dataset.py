@@ -1,4 +1,4 @@
-"""Read-only access to a dockbench dataset (datasets_spec/FORMAT.md, spec_version 1.1 and 1.0).
+"""Read-only access to a dockbench dataset (datasets_spec/FORMAT.md, spec_version 1.2, 1.1 and 1.0).
 
 Never needs Blender. Units follow the format: metres, seconds, radians.
 """

@@ -176,3 +176,9 @@ def test_a_current_that_carries_the_hull_into_a_wall_ends_the_trial_there():
     last = np.asarray(next(j for j in jobs if j.sequences[0].condition == "current_1.0").frames[-1]["T_world_cam"])
     assert water_contact(water, hull, last @ T_bc).part == "pool_wall"
     assert water_contact(water, hull, last @ T_bc).clearance_m < 0.1  # one frame (0.1 s) from the touch
+    # the manifest says how each path ended (sequences[].end)
+    assert {j.sequences[0].condition: j.end for j in jobs} == {
+        "current_0.0": "dock",
+        "current_0.5": "dock",
+        "current_1.0": "pool_wall",
+    }

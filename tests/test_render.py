@@ -68,7 +68,7 @@ def frames(ds):
 def test_manifest_and_frames_follow_format(tiny):
     _, out = tiny
     man = json.loads((out / "manifest.json").read_text())
-    assert man["format"] == "dockbench-dataset" and man["spec_version"] == "1.1"
+    assert man["format"] == "dockbench-dataset" and man["spec_version"] == "1.2"
     assert man["generator"]["bpy"] == importlib.metadata.version("bpy")
     K = np.array(man["camera"]["K"])
     assert K.shape == (3, 3) and K[0, 2] == 319.5 and K[1, 2] == 239.5

@@ -85,7 +85,7 @@ def test_schema_keys_match_format_md():
     # depth/object_index may be absent; exposure_s is written with auto-exposure only)
     assert set(m["properties"]) - set(m["required"]) == {"d_min_rel_m", "reference_caustics", "effective_config"}
     assert set(f["properties"]) - set(f["required"]) == {"depth", "object_index", "exposure_s"}
-    assert m["properties"]["spec_version"]["enum"] == ["1.0", "1.1"]  # 1.1 written, 1.0 still read
+    assert m["properties"]["spec_version"]["enum"] == ["1.0", "1.1", "1.2"]  # 1.2 written, 1.0 and 1.1 still read
 
 
 # ------------------------------------------------------------------ datasets

@@ -104,6 +104,7 @@ def manifest_base(exp: Experiment, K: np.ndarray, markers: list[dict], scene: di
             "trial": s.trial,
             "trajectory": s.trajectory,
             "n_frames": len(j.frames),
+            "end": j.end,
         }
         for j in jobs
         for s in j.sequences

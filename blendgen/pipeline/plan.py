@@ -47,6 +47,11 @@ INDEX_POOL, INDEX_DOCK, INDEX_MARKER0, INDEX_OBSTACLE0, INDEX_PARTICLES = 1, 2, 
 JOB_RECORD_VERSION = 1
 #: The camera must stay this far (m) in front of the dock's marker plane: no frame from inside the dock.
 MIN_CLEARANCE_M = 0.05
+#: How a sequence's camera path ends (manifest ``sequences[].end``): ``path`` its own end (a
+#: kinematic path's last sample, a docking trial's stop distance or time limit), ``dock`` the
+#: camera at the marker plane (:func:`until_contact`), or the face of the water the hull touched
+#: (:func:`until_wall`).
+PATH_ENDS = ("path", "dock", "pool_wall", "pool_floor", "seabed")
 
 
 class OcclusionPost(Occlusion):
@@ -205,6 +210,7 @@ class RenderJob:
     scene: dict
     frames: list[dict]
     sequences: list[SequencePlan] = field(default_factory=list)
+    end: str = "path"  # how the camera path ends: PATH_ENDS
 
 
 def camera_K(exp: Experiment) -> np.ndarray:
@@ -345,25 +351,23 @@ def until_contact(exp: Experiment, traj, T_wc: np.ndarray, T_wd: np.ndarray) -> 
     )
 
 
-def until_wall(exp: Experiment, T_world_body: np.ndarray) -> int:
+def until_wall(exp: Experiment, T_world_body: np.ndarray) -> tuple[int, str]:
     """Number of leading frames (poses (N, 4, 4), world +z up, body FLU) before the hull first
-    touches a solid face of the water: a pool's walls or floor, the seabed
-    (:func:`scene_check.water_solid`, the closed loop's collision geometry). A docking trial that
-    a current carries into a wall ends there, as the closed loop's ``collision`` does; its last
-    rendered frame is the one before the touch."""
+    touches a solid face of the water (:func:`scene_check.water_solid`, the closed loop's
+    collision geometry), and that face's part (``pool_wall``, ``pool_floor``, ``seabed``; ""
+    when none is touched). A docking trial that a current carries into a wall ends there, as the
+    closed loop's ``collision`` does; its last rendered frame is the one before the touch."""
     from blendgen.vehicle.contact import Hull
     from blendgen.vehicle.dynamics import VehicleParams
     from blendgen.vehicle.water_clearance import frame_clearance
 
     if len(T_world_body) == 0:
-        return 0
-    p = VehicleParams()
+        return 0, ""
+    p, water = VehicleParams(), scene_check.water_solid(exp)
     T = np.asarray(T_world_body, float)
-    clear, _ = frame_clearance(
-        T[:, :3, 3], np.abs(T[:, :3, 0]), scene_check.water_solid(exp), Hull.from_vehicle(p.length, p.diameter)
-    )
+    clear, face = frame_clearance(T[:, :3, 3], np.abs(T[:, :3, 0]), water, Hull.from_vehicle(p.length, p.diameter))
     touch = np.flatnonzero(clear <= 0.0)
-    return int(touch[0]) if touch.size else len(T)
+    return (int(touch[0]), water.faces[int(face[touch[0]])][2]) if touch.size else (len(T), "")
 
 
 def exposure_flow(exp: Experiment, T_wc: np.ndarray, T_wd: np.ndarray) -> np.ndarray:
@@ -413,19 +417,23 @@ def check_paths(exp: Experiment) -> None:
             T_wc = smp.T_world_body @ T_bc
             n = until_contact(exp, traj, T_wc, T_wd)
             nearest = min((groundtruth.d_true(T, T_wd) for T in T_wc[:n]), default=None)
-            scene_check.check_frames(exp, i, None, _frames(exp, traj, T_wd, T_bc, 0, exp.fluid), nearest)
+            scene_check.check_frames(exp, i, None, _frames(exp, traj, T_wd, T_bc, 0, exp.fluid)[0], nearest)
 
 
-def _frames(exp: Experiment, traj, T_wd: np.ndarray, T_body_cam: np.ndarray, seed: int, fluid) -> list[dict]:
-    """Camera frames of one path up to contact (:func:`until_contact`); those farther than
-    ``render.max_distance_m`` from the marker plane are skipped (they are outside the
-    evaluation window). Indices keep the trajectory's sample numbering, so ``t`` stays
-    ``index / fps``."""
+def _frames(
+    exp: Experiment, traj, T_wd: np.ndarray, T_body_cam: np.ndarray, seed: int, fluid
+) -> tuple[list[dict], str]:
+    """Camera frames of one path up to contact (:func:`until_contact`, :func:`until_wall`) and
+    how the path ends (:data:`PATH_ENDS`); frames farther than ``render.max_distance_m`` from
+    the marker plane are skipped (they are outside the evaluation window). Indices keep the
+    trajectory's sample numbering, so ``t`` stays ``index / fps``."""
     smp = tj.sample(traj, T_wd, exp.camera.fps, exp.camera.latency_s, seed=seed, fluid=fluid)
     T_wc = smp.T_world_body @ T_body_cam
     n = until_contact(exp, traj, T_wc, T_wd)
+    end = "dock" if n < len(T_wc) else "path"
     if traj.kind == "docking":
-        n = min(n, until_wall(exp, smp.T_world_body[:n]))
+        n_wall, part = until_wall(exp, smp.T_world_body[:n])
+        n, end = (n_wall, part) if n_wall < n else (n, end)
     d_max = exp.render.max_distance_m
     flow = exposure_flow(exp, T_wc[:n], T_wd) if exp.camera.sensor.motion_blur else None
     frames = [
@@ -438,7 +446,7 @@ def _frames(exp: Experiment, traj, T_wd: np.ndarray, T_body_cam: np.ndarray, see
         regions = RenderRegions.of(exp)
         for f in frames:
             f.update(regions.boxes(np.asarray(f["T_world_cam"]), T_wd))
-    return frames
+    return frames, end
 
 
 @dataclass(frozen=True)
@@ -775,8 +783,8 @@ def plan_jobs(exp: Experiment, scene: dict) -> list[RenderJob]:
                 )
                 if mkey not in paths:
                     paths[mkey] = _frames(exp, traj, T_wd, T_bc, seed, fluid or exp.fluid)
-                    scene_check.check_frames(exp, exp.trajectories.index(traj), trial, paths[mkey])
-                frames = paths[mkey]
+                    scene_check.check_frames(exp, exp.trajectories.index(traj), trial, paths[mkey][0])
+                frames, end = paths[mkey]
                 post = condition_post(exp, c, seed)
                 sq = SequencePlan(f"{traj.id}-t{trial:03d}-{c.label}", traj.id, trial, c.label, post)
                 sc = (
@@ -801,7 +809,7 @@ def plan_jobs(exp: Experiment, scene: dict) -> list[RenderJob]:
                         },
                     }
                 key = job_key(exp, sc, frames)
-                jobs.setdefault(key, RenderJob(key, sc, frames)).sequences.append(sq)
+                jobs.setdefault(key, RenderJob(key, sc, frames, end=end)).sequences.append(sq)
     return list(jobs.values())
 
 

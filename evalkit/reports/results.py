@@ -143,8 +143,9 @@ def _localizer_entry(item: Any) -> dict:
     return {"name": str(name), "params": {}, "class": f"{cls.__module__}:{cls.__qualname__}", "code": []}
 
 
-def _write_tables(res: dict, out: Path, label: str) -> dict[str, Path]:
-    """CSV and Markdown/LaTeX tables of ``res`` (from :func:`compute_all`) into ``out``."""
+def _write_tables(res: dict, out: Path, label: str, sequences: list[dict] | None = None) -> dict[str, Path]:
+    """CSV and Markdown/LaTeX tables of ``res`` (from :func:`compute_all`) into ``out``;
+    ``sequences``: the manifest's (how each camera path ended, for the article table's note)."""
     paths = {
         "summary": out / "summary.csv",
         "metrics": out / "metrics.csv",
@@ -169,7 +170,7 @@ def _write_tables(res: dict, out: Path, label: str) -> dict[str, Path]:
         f"answer rate (P_detect) and average relative distance error (E_rel) per trajectory "
         f"and condition, {label}; 95% bootstrap CI over the M trials in brackets."
     )
-    paths["article_md"] = _write(tdir / "article.md", tables.article_markdown(res["metrics"]))
+    paths["article_md"] = _write(tdir / "article.md", tables.article_markdown(res["metrics"], sequences=sequences))
     paths["article_tex"] = _write(
         tdir / "article.tex", tables.article_latex(res["metrics"], caption=caption, label="tab:dockbench-article")
     )
@@ -224,7 +225,7 @@ def save_run(estimates_df: pd.DataFrame, out_dir: str | Path, record: RunRecord)
     res = metrics_extra.compute_all(estimates_df, settings, model)
     label = f"{ds.manifest.get('name')} {ds.manifest.get('version')}"
     paths = {"estimates": _write_estimates(res["frames"], out / "estimates.parquet")}
-    paths.update(_write_tables(res, out, label))
+    paths.update(_write_tables(res, out, label, ds.manifest.get("sequences")))
     if record.make_plots:
         paths.update(_write_plots(res, out, settings, label))
     run = {

@@ -222,8 +222,10 @@ def _few(metrics: pd.DataFrame) -> bool:
     return bool(len(metrics)) and bool((metrics["n_trials"] < MIN_TRIALS_FOR_CI).any())
 
 
-def article_markdown(metrics: pd.DataFrame, with_ci: bool = True) -> str:
-    """:func:`article_table` as Markdown, one table per trajectory (never pooled)."""
+def article_markdown(metrics: pd.DataFrame, with_ci: bool = True, sequences: list[dict] | None = None) -> str:
+    """:func:`article_table` as Markdown, one table per trajectory (never pooled); with the
+    manifest's ``sequences``, a note on the trials that ended at the water's boundary
+    (:func:`boundary_end_note`)."""
     art = article_table(metrics, with_ci)
     parts = []
     for traj, g in art.groupby("trajectory", sort=True):
@@ -231,7 +233,39 @@ def article_markdown(metrics: pd.DataFrame, with_ci: bool = True) -> str:
     parts.append(MATCHED_NOTE + "\n")
     if _few(metrics):
         parts.append(FEW_TRIALS_NOTE + "\n")
+    ends = boundary_end_note(sequences or [])
+    if ends:
+        parts.append(ends + "\n")
     return "\n".join(parts)
+
+
+#: Manifest ``sequences[].end`` values where the vehicle's hull touched the water's boundary.
+BOUNDARY_ENDS = ("pool_wall", "pool_floor", "seabed")
+
+
+def boundary_end_note(sequences: list[dict]) -> str:
+    """One line naming, per trajectory/condition, how many trials ended where the vehicle's
+    hull touched the pool's walls or floor or the seabed (manifest ``sequences[].end``,
+    spec_version 1.2: a current carried it there); "" when none did (or the dataset predates
+    the field). Their frames stop at the touch, so their P_succ and E_rel cover only the
+    ranges they reached."""
+    groups: dict[tuple[str, str], list[str]] = {}
+    for s in sequences:
+        groups.setdefault((str(s.get("trajectory")), str(s.get("condition"))), []).append(str(s.get("end", "")))
+    hits = []
+    for (traj, cond), ends in sorted(groups.items()):
+        parts = sorted({e for e in ends if e in BOUNDARY_ENDS})
+        if parts:
+            n = sum(e in BOUNDARY_ENDS for e in ends)
+            hits.append(f"{traj}/{cond} {n} of {len(ends)} ({', '.join(parts)})")
+    if not hits:
+        return ""
+    return (
+        "Trials that ended where the vehicle's hull touched the water's boundary, before the dock "
+        "(their frames stop there, so their P_succ and E_rel cover only the ranges they reached): "
+        + "; ".join(hits)
+        + "."
+    )
 
 
 def article_latex(
