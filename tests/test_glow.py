@@ -171,3 +171,26 @@ def test_glow_kernel_cache_keys_on_scattering_not_on_the_veil():
     )
     assert o.cached_glow_kernel(_water(0.35), 5.0, 300.0) is not k
     assert not np.array_equal(o.cached_glow_kernel(_water(0.3, g=0.8), 5.0, 300.0), k)
+
+
+@pytest.mark.parametrize("shape,R", [((200, 200), 96), ((53, 311), 40), ((480, 640), 96), ((7, 9), 3)])
+def test_spread_is_opencvs_zero_border_correlation(shape, R):
+    """The FFT spread equals cv2.filter2D (correlation, constant 0 border) per channel, for an
+    asymmetric kernel (a convolution instead of a correlation would fail) and emitters up to the
+    box's edges (a wrap-around would fail)."""
+    import cv2
+
+    rng = np.random.default_rng(R)
+    src = np.zeros((*shape, 3), np.float32)
+    spots = rng.integers(0, [shape[0], shape[1]], size=(20, 2))
+    src[spots[:, 0], spots[:, 1]] = rng.uniform(1, 50, (20, 3))
+    src[0, 0], src[-1, -1] = 30.0, 30.0  # corners: the kernel reaches beyond every edge
+    kernel = rng.random((2 * R + 1, 2 * R + 1, 3)).astype(np.float32)
+    kernel[: R // 2] *= 3  # not symmetric
+    want = np.stack(
+        [cv2.filter2D(src[..., c], -1, kernel[..., c], borderType=cv2.BORDER_CONSTANT) for c in range(3)], -1
+    )
+    got = o.spread(src, kernel)
+    assert got.shape == src.shape and got.dtype == np.float32
+    np.testing.assert_allclose(got, want, rtol=0, atol=2e-6 * float(np.abs(want).max()))
+    np.testing.assert_array_equal(o.spread(src, kernel), got)  # the cached spectrum gives the same

@@ -849,9 +849,7 @@ def add_emitter_glow(
     """``img`` (H, W, 3) plus the forward-scattered glow of its emitter pixels (``emissive``
     (H, W) bool; their values in ``img`` are the attenuated direct radiance): the emitters'
     image convolved with :func:`glow_kernel` at their median range, in the box they and the
-    kernel cover. Returns a new array (the input when nothing glows)."""
-    import cv2
-
+    kernel cover (:func:`spread`). Returns a new array (the input when nothing glows)."""
     r = np.asarray(range_m, float)[emissive]
     r = r[np.isfinite(r)]
     if r.size == 0:
@@ -866,9 +864,54 @@ def add_emitter_glow(
     x0, x1 = max(xs.min() - R, 0), min(xs.max() + R + 1, w)
     src = np.where(emissive[y0:y1, x0:x1, None], img[y0:y1, x0:x1], 0).astype(np.float32)
     out = img.copy()
-    for ch in range(3):
-        out[y0:y1, x0:x1, ch] += cv2.filter2D(src[:, :, ch], -1, k[:, :, ch], borderType=cv2.BORDER_CONSTANT)
+    out[y0:y1, x0:x1] += spread(src, k)
     return out
+
+
+#: FFT sizes of :func:`spread` are rounded up to a multiple of this (px), so consecutive frames
+#: reuse a kernel's spectrum (:data:`_SPECTRA`).
+SPREAD_SIZE_STEP = 64
+
+
+def spread(src: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+    """(h, w, 3) float32: each channel of ``src`` (h, w, 3), zero outside it, correlated with
+    the same channel of ``kernel`` (2R+1, 2R+1, 3) (what ``cv2.filter2D`` with a constant 0
+    border gives, to float32 rounding). By real FFTs padded by R (no wrap-around into the
+    output), all three channels at once, the kernel's spectrum kept per kernel and size."""
+    from scipy import fft as sfft
+
+    h, w = src.shape[:2]
+    R = kernel.shape[0] // 2
+    step = SPREAD_SIZE_STEP
+    shape = tuple(sfft.next_fast_len(-(-(n + R) // step) * step, real=True) for n in (h, w))
+    spec = sfft.rfft2(np.moveaxis(src, -1, 0), s=shape, axes=(1, 2), workers=1)
+    spec *= _kernel_spectrum(kernel, shape)
+    out = sfft.irfft2(spec, s=shape, axes=(1, 2), workers=1)[:, :h, :w]
+    return np.ascontiguousarray(np.moveaxis(out, 0, -1), dtype=np.float32)
+
+
+def _kernel_spectrum(kernel: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(3, shape[0], shape[1] // 2 + 1) complex: rfft2 of the kernel flipped (correlation as a
+    convolution) with its centre at (0, 0), per channel; the last few kept (:data:`_SPECTRA`,
+    keyed by the kernel's identity: :func:`cached_glow_kernel` hands out the same read-only array)."""
+    from scipy import fft as sfft
+
+    key = (id(kernel), shape)
+    hit = _SPECTRA.get(key)
+    if hit is not None and hit[0] is kernel:
+        return hit[1]
+    R = kernel.shape[0] // 2
+    pad = np.zeros((3, *shape), np.float32)
+    rows, cols = np.arange(-R, R + 1) % shape[0], np.arange(-R, R + 1) % shape[1]
+    pad[:, rows[:, None], cols[None, :]] = np.moveaxis(kernel[::-1, ::-1], -1, 0)
+    spectrum = sfft.rfft2(pad, axes=(1, 2), workers=1)
+    if len(_SPECTRA) >= 8:
+        _SPECTRA.pop(next(iter(_SPECTRA)))
+    _SPECTRA[key] = (kernel, spectrum)
+    return spectrum
+
+
+_SPECTRA: dict = {}
 
 
 def _forward_scatter_blur(
