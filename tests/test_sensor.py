@@ -179,3 +179,46 @@ def test_exact_poisson_only_where_the_read_noise_leaves_the_count_skewed():
     z = (e - e.mean()) / e.std()
     assert e.mean() == pytest.approx(2.0, abs=0.01) and e.var() == pytest.approx(3.0, rel=0.02)
     assert (z**3).mean() == pytest.approx(2.0 / 3.0**1.5, abs=0.03)
+
+
+@pytest.mark.parametrize("dark", [0.0, 3.0])
+@pytest.mark.parametrize("bloom", [0.0, 0.05])
+@pytest.mark.parametrize("read", [2.3, 1.8, 40.0])
+def test_fused_sensor_pass_is_bit_identical_to_the_numpy_chain(dark, bloom, read):
+    """The compiled pass (sensor_kernels) gives the very numbers of electrons() x gain, clipped at
+    1, from the same Generator state: dark, saturated, negative, NaN and infinite radiance,
+    blooming on and off, read noise from just above the exact-draw threshold to large."""
+    model = s.SensorModel(
+        exposure_s=0.002,
+        responsivity_e_per_s=2.23e6,
+        full_well_e=10500.0,
+        read_noise_e=read,
+        noise=True,
+        bloom_fraction=bloom,
+        dark_current_e_per_s=dark,
+    )
+    assert s._no_exact_draws(read)
+    x = np.random.default_rng(1).gamma(0.5, 0.2, (60, 80, 3)).astype(np.float32)
+    x[10:14, 20:26] = 400.0  # an LED far beyond the full well (bloom, cap at 4 wells)
+    x[0, :5] = np.array([np.nan, -1.0, np.inf, 0.0, -0.0])[:, None]
+    x[1, :3] = np.array([1e-9, 1e30, 3e-4])[:, None]
+    want = model.electrons(x, np.random.default_rng(7)) * np.float32(model.K / s.DN_MAX)
+    np.minimum(want, np.float32(1.0), out=want)
+    got = model._signal_fused(x, np.random.default_rng(7))
+    np.testing.assert_array_equal(got, want)
+    # and the whole apply(): the same 8-bit image either way
+    assert np.array_equal(
+        model.apply(x, np.random.default_rng(3)),
+        s.srgb_lut.encode_uint8(
+            np.minimum(model.electrons(x, np.random.default_rng(3)) * np.float32(model.K / s.DN_MAX), np.float32(1.0)),
+            s.srgb_encode,
+        ),
+    )
+
+
+def test_the_fused_pass_is_not_used_where_exact_poisson_draws_are_needed():
+    assert not s._no_exact_draws(0.0) and not s._no_exact_draws(1.0)
+    model = s.SensorModel(read_noise_e=0.0, noise=True, exposure_s=1e-6, responsivity_e_per_s=1e6)
+    dim = np.full((40, 40, 3), 2.0, np.float32)  # 2 electrons: exact Poisson counts, integers
+    img = model.electrons(dim, np.random.default_rng(0))
+    assert np.all(img == np.round(img))

@@ -88,11 +88,29 @@ def _exact_poisson(lam: np.ndarray, read_noise_e: float) -> np.ndarray:
     r2 = float(read_noise_e) ** 2
     if r2 == 0.0:
         return np.flatnonzero(lam < POISSON_EXACT_BELOW)
-    if 2.0 / (3.0**1.5 * np.sqrt(r2)) < SKEW_EXACT:
+    if _no_exact_draws(read_noise_e):
         return np.empty(0, np.intp)
     low = np.flatnonzero(lam < POISSON_EXACT_BELOW)
     lo = lam.ravel()[low]
     return low[lo >= SKEW_EXACT * (lo + np.float32(r2)) ** 1.5]
+
+
+@functools.cache
+def _fused_kernels() -> bool:
+    """Whether :mod:`sensor_kernels` (numba, the render extra) can be imported; without it the
+    numpy chain makes the same image."""
+    try:
+        from blendgen.physics.camera import sensor_kernels  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def _no_exact_draws(read_noise_e: float) -> bool:
+    """True when the read noise alone hides the photon count's skew everywhere, so
+    :func:`_exact_poisson` never asks for an exact draw (read noise above ~1.72 e-)."""
+    r2 = float(read_noise_e) ** 2
+    return r2 > 0.0 and 2.0 / (3.0**1.5 * math.sqrt(r2)) < SKEW_EXACT
 
 
 def shot_read_noise_e(mean_e: np.ndarray, rng: np.random.Generator, read_noise_e: float = 0.0) -> np.ndarray:
@@ -371,6 +389,19 @@ class SensorModel:
         np.minimum(mu, np.float32(self.full_well_e), out=mu)
         return np.fmax(mu, np.float32(0), out=mu)
 
+    def _signal_fused(self, linear: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """:meth:`electrons` times the system gain over full scale, clipped at 1 (H, W, 3)
+        float32, by :mod:`sensor_kernels` (one pass before the bloom, one after the normal
+        draws): bit-identical to the numpy chain, the random stream the same."""
+        from blendgen.physics.camera import sensor_kernels as sk
+
+        mu = sk.charge(linear, np.float32(self.responsivity_e_per_s * self.exposure_s))
+        if self.bloom_fraction > 0:
+            mu = self._bloom(mu, out=mu)
+        normals = rng.standard_normal(mu.shape, dtype=np.float32)
+        dark = np.float32(self.dark_current_e_per_s * self.exposure_s if self.dark_current_e_per_s > 0 else 0.0)
+        return sk.shot_read_signal(mu, normals, dark, self.read_noise_e, self.full_well_e, np.float32(self.K / DN_MAX))
+
     def _bloom(self, mu: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """Spill ``bloom_fraction`` of the charge above the full well with a Gaussian of
         ``bloom_sigma_px``; only the box around saturated pixels (+- 4 sigma) is filtered.
@@ -396,7 +427,9 @@ class SensorModel:
         x = np.asarray(linear, np.float32)
         if velocity_px is not None:
             x = motion_blur(x, velocity_px)
-        if self.noise or self.bloom_fraction > 0:
+        if self.noise and rng is not None and _no_exact_draws(self.read_noise_e) and _fused_kernels():
+            y = self._signal_fused(x, rng)  # the same numbers as the branch below, in two passes
+        elif self.noise or self.bloom_fraction > 0:
             y = self.electrons(x, rng)
             y *= np.float32(self.K / DN_MAX)  # y / 255 in [0, gain]
         else:  # noise-free: the same numbers in one pass (the encode clips at 0 and 1)
