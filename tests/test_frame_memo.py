@@ -106,3 +106,49 @@ def test_caustic_factor_per_water_equals_a_fresh_map_per_water():
         np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-6, err_msg=f"b={b} g={g}")
         assert np.std(want) > 0.005  # a real pattern, not the flat 1
     assert deposits["shared"] < deposits["fresh"] / 2, deposits
+
+
+def _with_particles(passes: dict) -> tuple[dict, np.ndarray]:
+    """The frame with a sun pass (the render's sun light group), and the same frame with a block
+    of near particles (0.6 m away, grey, no sunlight) over the floor and the surface above it, as
+    add_particles composites them; and the occluder mask."""
+    h, w = passes["range_m"].shape
+    passes = {**passes, "sun": (0.6 * passes["rgb"]).astype(np.float32)}
+    hidden = np.zeros((h, w), bool)
+    hidden[h // 2 - 10 : h // 2 + 25, w // 3 : w // 3 + 30] = True
+    rgb = np.where(hidden[..., None], np.float32(0.3), passes["rgb"]).astype(np.float32)
+    rng = np.where(hidden, np.float32(0.6), passes["range_m"]).astype(np.float32)
+    return passes, {**passes, "rgb": rgb, "range_m": rng}, hidden
+
+
+def test_sequences_with_particles_take_the_frames_caustics_where_nothing_hides_the_surface(monkeypatch):
+    """A sequence with particles focuses the sunlight with the caustic geometry of the frame's own
+    passes (made once for the frame, whatever the number of such sequences): where no particle
+    hides the floor its pixels are those of the frame without particles (particles in front of
+    the camera do not move the floor's caustics; to the module's 1e-4), and the hidden pixels are
+    exactly what its own passes give (no focusing on a particle). Surface off: it mixes the
+    whole frame."""
+    from blendgen.pipeline import world_post
+
+    passes, K, T = _pool_frame()
+    passes, seen, hidden = _with_particles(passes)
+    calls = []
+    real = world_post.caustic_geometry
+    monkeypatch.setattr(world_post, "caustic_geometry", lambda *a, **k: calls.append(1) or real(*a, **k))
+
+    def post(preset):
+        p = _post(preset)
+        return p.model_copy(update={"world": p.world.model_copy(update={"surface": False})})
+
+    share = FrameShare()
+    share.begin(passes)
+    for preset in ("jerlov_IB", "jerlov_II", "jerlov_IB"):  # three sequences with particles
+        got = compose.water_image(
+            seen, compose.SequenceState.start(post(preset)), K, T, [], occluded=hidden, t=0.4, memo=share.frame_memo()
+        )
+        own = compose.water_image(seen, compose.SequenceState.start(post(preset)), K, T, [], occluded=hidden, t=0.4)
+        clean = compose.water_image(passes, compose.SequenceState.start(post(preset)), K, T, [], t=0.4)
+        np.testing.assert_array_equal(got[hidden], own[hidden])
+        np.testing.assert_allclose(got[~hidden], clean[~hidden], rtol=1e-4, atol=1e-7)  # module docstring
+        assert not np.allclose(got[hidden], clean[hidden])  # the particles are really there
+    assert len(calls) == 1 + 3 + 3  # the frame's geometry once; each `own` and `clean` its own

@@ -28,6 +28,7 @@ from blendgen.physics.light.sources import lamp_lights
 from blendgen.physics.particles import field as occlusion
 from blendgen.physics.water import optics
 from blendgen.pipeline import groundtruth, particle_light
+from blendgen.pipeline.frameshare import CLEAN
 from blendgen.pipeline.plan import INDEX_PARTICLES, SequencePost
 from blendgen.pipeline.stagetimer import term
 from datasets_spec.io import save_image
@@ -214,9 +215,9 @@ def water_image(
     along the view ray only. ``memo``: the frame's water-independent parts, shared by the
     sequences that see these very passes (``FrameShare.memo``; None: nothing shared)."""
     post = state.post
-    emissive = emissive_mask(passes["index"], markers)
+    emissive = emissive_all = emissive_mask(passes["index"], markers)
     if occluded is not None:
-        emissive &= ~occluded
+        emissive = emissive & ~occluded
         if "sun" in passes:  # a particle in front hides the sunlit surface behind it
             passes = {**passes, "sun": np.where(occluded[..., None], np.float32(0), passes["sun"])}
     fx = float(K[0, 0])
@@ -229,7 +230,9 @@ def water_image(
         depth, veil_depth = post.light_depth_m, None
     rgb, range_m = passes["rgb"], passes["range_m"]
     if post.world is not None and post.image_formation == "physical":
-        rgb, range_m, depth = _world(passes, state, water, K, T_world_cam, depth, veil_depth, t, emissive, memo)
+        rgb, range_m, depth = _world(
+            passes, state, water, K, T_world_cam, depth, veil_depth, t, emissive, memo, (occluded, emissive_all)
+        )
     img = optics.apply_water(
         rgb,
         range_m,
@@ -278,15 +281,20 @@ def _world(
     t: float,
     emissive=None,
     memo: dict | None = None,
+    occluders: tuple | None = None,
 ):
     """Caustics (not on the ``emissive`` pixels: an LED's light is not sunlight), then the
     surface seen from below (``pipeline/world_post.py``) in water ``w`` (the frame's veil);
     (rgb, range, depth). ``memo``: the frame's dict of water-independent parts (shared by the
-    sequences that see the frame's own passes; None: nothing shared)."""
+    sequences that see the frame's own passes; None: nothing shared). ``occluders``: (mask
+    (H, W) bool or None, emitter mask of the frame's own passes) of a sequence with particles,
+    whose ``memo`` is the frame's (:meth:`FrameShare.frame_memo`): it shares only the caustics."""
     from blendgen.pipeline import world_post
 
     wp = state.post.world
     memo = {} if memo is None else memo
+    occluded = None if occluders is None else occluders[0]
+    own = memo if occluded is None else {}  # parts made from this sequence's own passes
     rgb, range_m = passes["rgb"], passes["range_m"]
     h, wd = range_m.shape
     if "rays" not in memo:  # world directions of the pixels: the frame's pose
@@ -298,18 +306,26 @@ def _world(
     rays = memo["rays"]
     if wp.caustics:
         key = ("caustics", state.post.surface_z_m, wp.model_dump_json(), t)
-        if key not in memo:  # the same for every water of this frame
-            memo[key] = world_post.caustic_geometry(
-                rgb, passes.get("albedo"), range_m, depth, wp, rays, K, T_world_cam, t, emissive, passes.get("sun")
+        clean = memo.get(CLEAN) if occluded is not None else None
+        if clean is None:  # this sequence's own passes (those of the frame, or no frame memo)
+            seen = (passes, depth, emissive)
+            geo_memo = own
+        else:  # the frame's own passes, as every sequence without particles makes them
+            seen = (clean, surface_depth(clean["range_m"], K, T_world_cam, state.post.surface_z_m)[0], occluders[1])
+            geo_memo = memo
+        if key not in geo_memo:  # the same for every water of this frame
+            p, d, em = seen
+            geo_memo[key] = world_post.caustic_geometry(
+                p["rgb"], p.get("albedo"), p["range_m"], d, wp, rays, K, T_world_cam, t, em, p.get("sun")
             )
-        rgb = world_post.shade_caustics(rgb, memo[key], float(np.mean(w.sigma_s)), float(w.g))
+        rgb = world_post.shade_caustics(rgb, geo_memo[key], float(np.mean(w.sigma_s)), float(w.g), occluded)
     if wp.surface:
         veil = w.B_inf * state.water_opts["irradiance"] * optics.depth_light(w, veil_depth)
         below = mirror_fill(rgb, range_m, depth, w, veil)
         key = ("surface", state.post.surface_z_m, wp.model_dump_json(), t)
-        if key not in memo:  # the same for every water of this frame
-            memo[key] = world_post.surface_geometry(range_m, depth, wp, rays, K, T_world_cam, state.post.surface_z_m, t)
-        rgb, range_m, depth = world_post.shade_surface(rgb, range_m, depth, memo[key], wp, below)
+        if key not in own:  # the same for every water of this frame
+            own[key] = world_post.surface_geometry(range_m, depth, wp, rays, K, T_world_cam, state.post.surface_z_m, t)
+        rgb, range_m, depth = world_post.shade_surface(rgb, range_m, depth, own[key], wp, below)
     return rgb, range_m, depth
 
 

@@ -31,7 +31,7 @@ from blendgen import workerio
 from blendgen.pipeline import compose as pp
 from blendgen.pipeline import plan
 from blendgen.pipeline import renderer as rd
-from blendgen.pipeline.frameshare import FrameShare
+from blendgen.pipeline.frameshare import CLEAN, FrameShare
 from blendgen.pipeline.passstore import PassStore
 from blendgen.pipeline.stagetimer import StageTimer, term
 from blendgen.render_spec import FramePlan
@@ -74,9 +74,12 @@ def condition_image(
     )
 
     def image():
-        # water-independent parts shared only by sequences without occluders (an occluder mask
-        # changes the emitters and the sun pass the caustics see)
-        memo = None if share is None or occluded is not None else share.memo(seen)
+        # water-independent parts of the frame; a sequence with occluders uses only those made
+        # from the frame's own passes (the caustics), not from its particle-composited ones
+        if share is None:  # one sequence: the frame's own passes still make its caustics
+            memo = None if occluded is None else {CLEAN: passes}
+        else:
+            memo = share.memo(seen) if occluded is None else share.frame_memo()
         return pp.camera_image(seen, state, K, frame, markers, fidelity, occluded, T_world_dock, memo)
 
     return (image() if share is None else share.image(state, seen, image)), occluded

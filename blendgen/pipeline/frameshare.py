@@ -8,7 +8,10 @@ state carried between frames (no auto-exposure) -- two sequences whose processin
 up to the random seed get the same uint8 image: it is made once per frame and copied.
 Anything else is composed as before. Parts of the image that do not depend on the water
 (the caustics' geometry and deposits) are kept per frame for every sequence that sees the
-frame's own passes (:meth:`FrameShare.memo`), noise or not.
+frame's own passes (:meth:`FrameShare.memo`), noise or not. A sequence with particles sees
+passes of its own, but its caustics are the frame's, made from the frame's own passes
+(:meth:`FrameShare.frame_memo`, :data:`CLEAN`) and not applied where a particle hides the
+surface.
 """
 
 from __future__ import annotations
@@ -16,6 +19,10 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+
+#: Key of the frame's own (clean) passes in its memo: what a sequence with particles builds the
+#: frame's caustics from (``compose._world``).
+CLEAN = "clean_passes"
 
 
 def share_key(state) -> str | None:
@@ -46,13 +53,19 @@ class FrameShare:
         """A new frame's clean passes (kept referenced: identity stays valid)."""
         self._passes = passes
         self._images = {}
-        self._memo = {}
+        self._memo = {CLEAN: passes}
 
     def memo(self, seen: dict) -> dict:
         """The frame's dict of parts of an image that do not depend on the water (caustic
         geometry, the surface's wave geometry) when ``seen`` is the frame's own passes; a
         fresh dict otherwise (particles: the sequence sees passes of its own)."""
         return self._memo if seen is self._passes else {}
+
+    def frame_memo(self) -> dict:
+        """The frame's dict of water-independent parts whatever passes a sequence sees (its
+        :data:`CLEAN` entry: the frame's own passes), for a sequence with particles: it reads and
+        adds only parts made from the frame's own passes (``compose._world``)."""
+        return self._memo
 
     def image(self, state, seen: dict, make: Callable[[], np.ndarray]) -> np.ndarray:
         """The image ``make()`` returns for ``state`` on ``seen`` (the frame's passes as the

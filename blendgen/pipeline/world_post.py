@@ -280,6 +280,15 @@ class CausticGeometry:
 
     def __init__(self, at: np.ndarray, base: np.ndarray, lit: np.ndarray, caustics: caustic_map.FrameCaustics):
         self.at, self.base, self.lit, self.caustics = at, base, lit, caustics
+        self._gain: dict = {}
+
+    def gain(self, scattering: float, g: float) -> np.ndarray:
+        """Focusing factor - 1 (m,) float32 of the sun-lit pixels in water of ``scattering`` (1/m)
+        and HG ``g``, made once per water (the sequences of a frame that share a water share it)."""
+        key = (float(scattering), float(g))
+        if key not in self._gain:
+            self._gain[key] = self.caustics.factor(scattering, g) - 1
+        return self._gain[key]
 
 
 @term("caustics")
@@ -327,14 +336,22 @@ def caustic_geometry(
 
 
 @term("caustics")
-def shade_caustics(rgb, geo: CausticGeometry | None, scattering: float, g: float = 0.9):
+def shade_caustics(rgb, geo: CausticGeometry | None, scattering: float, g: float = 0.9, hidden=None):
     """``rgb`` (H, W, 3) with the sun-lit pixels of ``geo`` (made from this ``rgb``) focused in
-    water of ``scattering`` (1/m) and HG ``g``: a new float32 array (``rgb`` when none is lit)."""
+    water of ``scattering`` (1/m) and HG ``g``: a new float32 array (``rgb`` when none is lit).
+    ``hidden`` (H, W) bool: pixels where something in front (a particle) hides the surface ``geo``
+    was made from; they keep ``rgb`` as it is, and the others add their focused sunlight to the
+    ``rgb`` given (a particle-composited frame whose caustics are the clean frame's)."""
     if geo is None:
         return rgb
-    gain = geo.caustics.factor(scattering, g) - 1  # M - 1
+    gain = geo.gain(scattering, g)  # M - 1
     out = np.array(rgb, np.float32)
-    out.reshape(-1, 3)[geo.at] = geo.base + geo.lit * gain[:, None]
+    if hidden is None:
+        out.reshape(-1, 3)[geo.at] = geo.base + geo.lit * gain[:, None]
+        return out
+    keep = ~np.asarray(hidden, bool).ravel()[geo.at]
+    at, flat = geo.at[keep], out.reshape(-1, 3)
+    flat[at] += geo.lit[keep] * gain[keep][:, None]
     return out
 
 
