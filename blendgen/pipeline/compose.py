@@ -307,14 +307,13 @@ def _world(
     if wp.caustics:
         key = ("caustics", state.post.surface_z_m, wp.model_dump_json(), t)
         clean = memo.get(CLEAN) if occluded is not None else None
-        if clean is None:  # this sequence's own passes (those of the frame, or no frame memo)
-            seen = (passes, depth, emissive)
-            geo_memo = own
-        else:  # the frame's own passes, as every sequence without particles makes them
-            seen = (clean, surface_depth(clean["range_m"], K, T_world_cam, state.post.surface_z_m)[0], occluders[1])
-            geo_memo = memo
+        geo_memo = own if clean is None else memo
         if key not in geo_memo:  # the same for every water of this frame
-            p, d, em = seen
+            if clean is None:  # this sequence's own passes (those of the frame, or no frame memo)
+                p, d, em = passes, depth, emissive
+            else:  # the frame's own passes, as every sequence without particles makes them
+                p, em = clean, occluders[1]
+                d = surface_depth(clean["range_m"], K, T_world_cam, state.post.surface_z_m)[0]
             geo_memo[key] = world_post.caustic_geometry(
                 p["rgb"], p.get("albedo"), p["range_m"], d, wp, rays, K, T_world_cam, t, em, p.get("sun")
             )
