@@ -37,6 +37,11 @@ FORMAT_NAME = "dockbench-dataset"
 SPEC_VERSION = "1.2"
 #: 1.0: range as float32 NPZ, passes per sequence; 1.1: no sequences[].end
 SUPPORTED_SPEC_VERSIONS = ("1.0", "1.1", SPEC_VERSION)
+#: How a sequence's camera path ends (manifest ``sequences[].end``, 1.2; FORMAT.md): its own end,
+#: the camera at the dock's marker plane, or the face of the water the vehicle's hull touched.
+SEQUENCE_ENDS = ("path", "dock", "pool_wall", "pool_floor", "seabed")
+#: The ends where the hull touched the water's boundary (a current carried it there).
+BOUNDARY_ENDS = SEQUENCE_ENDS[2:]
 MANIFEST = "manifest.json"
 FRAMES = "frames.jsonl"
 DEFAULT_D_MIN_REL_M = 0.2

@@ -33,3 +33,16 @@ def test_several_faces_are_named_and_the_markdown_carries_the_note():
     )
     assert note in tables.article_markdown(metrics, with_ci=False, sequences=seqs)
     assert note not in tables.article_markdown(metrics, with_ci=False)
+
+
+def test_the_schema_plan_and_report_share_the_contracts_list_of_ends():
+    import json
+    from pathlib import Path
+
+    from blendgen.pipeline import plan
+    from datasets_spec import io
+
+    schema = json.loads((Path(io.__file__).parent / "manifest.schema.json").read_text())
+    assert tuple(schema["$defs"]["sequence"]["properties"]["end"]["enum"]) == io.SEQUENCE_ENDS
+    assert plan.PATH_ENDS == io.SEQUENCE_ENDS and tables.BOUNDARY_ENDS == io.BOUNDARY_ENDS
+    assert set(io.BOUNDARY_ENDS) <= set(io.SEQUENCE_ENDS) and "dock" not in io.BOUNDARY_ENDS

@@ -41,6 +41,7 @@ from blendgen.physics.surface import optics as sf
 from blendgen.pipeline import groundtruth, scene_check
 from blendgen.render_spec import FramePlan, Marker, RenderScene, RenderSettings
 from blendgen.vehicle import trajectories as tj
+from datasets_spec.io import SEQUENCE_ENDS
 
 INDEX_POOL, INDEX_DOCK, INDEX_MARKER0, INDEX_OBSTACLE0, INDEX_PARTICLES = 1, 2, 10, 100, 250
 #: Version of :class:`JobRecord`, the file a render worker reads.
@@ -50,8 +51,8 @@ MIN_CLEARANCE_M = 0.05
 #: How a sequence's camera path ends (manifest ``sequences[].end``): ``path`` its own end (a
 #: kinematic path's last sample, a docking trial's stop distance or time limit), ``dock`` the
 #: camera at the marker plane (:func:`until_contact`), or the face of the water the hull touched
-#: (:func:`until_wall`).
-PATH_ENDS = ("path", "dock", "pool_wall", "pool_floor", "seabed")
+#: (:func:`until_wall`). The dataset contract's list.
+PATH_ENDS = SEQUENCE_ENDS
 
 
 class OcclusionPost(Occlusion):

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from datasets_spec.io import BOUNDARY_ENDS
 from evalkit.metrics.extra import MIN_TRIALS_FOR_CI
 
 
@@ -237,10 +238,6 @@ def article_markdown(metrics: pd.DataFrame, with_ci: bool = True, sequences: lis
     if ends:
         parts.append(ends + "\n")
     return "\n".join(parts)
-
-
-#: Manifest ``sequences[].end`` values where the vehicle's hull touched the water's boundary.
-BOUNDARY_ENDS = ("pool_wall", "pool_floor", "seabed")
 
 
 def boundary_end_note(sequences: list[dict]) -> str:
