@@ -30,6 +30,7 @@ sun; arrays (ny, nx) are bins of a :class:`Patch`.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -86,7 +87,18 @@ def reach_m(waves: sf.WaveField, path_m: float, deflect: np.ndarray) -> float:
     ``L ||D|| min(5 rms slope, sum of the waves' slope amplitudes)``."""
     slope_amp = waves.amp * np.hypot(waves.k[:, 0], waves.k[:, 1])
     s = min(SLOPE_SIGMAS * math.sqrt(float((slope_amp**2).sum() / 2)), float(slope_amp.sum()))
-    return float(path_m) * float(np.linalg.norm(deflect, 2)) * s
+    return float(path_m) * _spectral_norm(deflect) * s
+
+
+def _spectral_norm(D) -> float:
+    """Largest singular value of the 2 x 2 deflection matrix ``D`` (its 2-norm), kept per
+    matrix: a frame's every deposit asks for the same one."""
+    return _spectral_norm_of(tuple(np.asarray(D, np.float64).ravel().tolist()))
+
+
+@functools.lru_cache(maxsize=64)
+def _spectral_norm_of(entries: tuple[float, ...]) -> float:
+    return float(np.linalg.norm(np.array(entries).reshape(2, 2), 2))
 
 
 def sun_transfer(k: np.ndarray, path_m, n: float = sf.N_WATER) -> np.ndarray:
@@ -124,7 +136,7 @@ def _slack_bins(waves: sf.WaveField, path_m: float, bin_m: float, D: np.ndarray)
     bounded by ``sum a |k|^3``."""
     third = float((waves.amp * np.hypot(waves.k[:, 0], waves.k[:, 1]) ** 3).sum())
     side_m = cm.BLOCK / 2 * bin_m
-    return 1.0 + side_m**2 / 4 * path_m * float(np.linalg.norm(D, 2)) * third / bin_m
+    return 1.0 + side_m**2 / 4 * path_m * _spectral_norm(D) * third / bin_m
 
 
 def _deposit(
@@ -204,14 +216,15 @@ def _trig_table(start_m: float, spacing_m: float, n: int, k: np.ndarray, phase) 
 
 
 def _mark(shape: tuple[int, int], j: np.ndarray, i: np.ndarray, offsets) -> np.ndarray:
-    """(ny, nx) bool: the bins (j + dj, i + di) for every offset pair, clamped to the grid."""
-    out = np.zeros(shape[0] * shape[1], bool)
-    rows = [np.clip(j + dj, 0, shape[0] - 1) * shape[1] for dj in offsets]
-    cols = [np.clip(i + di, 0, shape[1] - 1) for di in offsets]
-    for r in rows:
-        for c in cols:
-            out[r + c] = True
-    return out.reshape(shape)
+    """(ny, nx) bool: the bins (j + dj, i + di) for every offset pair, clamped to the grid.
+    The bins (j, i) (each (m,) int) lie in the grid and ``offsets`` is a run of consecutive
+    integers holding 0, so this is the bins (j, i) dilated by the offsets' box."""
+    import cv2
+
+    out = np.zeros(shape, np.uint8)
+    out.ravel()[j * shape[1] + i] = 1
+    side, last = len(offsets), max(offsets)
+    return cv2.dilate(out, np.ones((side, side), np.uint8), anchor=(last, last)).view(bool)
 
 
 def _dilate(mask: np.ndarray, pad: int) -> np.ndarray:
@@ -286,15 +299,17 @@ def _light_at(
     the deposit are made once for every water (they do not depend on it)."""
     D = np.asarray(sf.sun_deflection(None, n) if deflect is None else deflect, np.float64).reshape(2, 2)
     b = patch.bin_m
-    sel = L if wanted is None else L[wanted]
-    lo, hi = float(sel.min()), float(sel.max())
+    memo = {} if memo is None else memo
+    if "paths" not in memo:  # the least and largest path of the bins read
+        sel = L if wanted is None else L[wanted]
+        memo["paths"] = float(sel.min()), float(sel.max())
+    lo, hi = memo["paths"]
     theta = sf.SUN_RADIUS_RAD / n
     pad = int(math.ceil(3 * hi * theta / b)) + 2
     a, turbid = _kernel_width(g), math.exp(-scattering * lo) < 0.999
     ratio = 2 ** max(0, int(math.floor(math.log2(max(a * lo / 4, b) / b)))) if turbid else 1
     if turbid and ratio == 1:  # the scattered blur is a few bins: one deposit serves both
         pad = max(pad, int(math.ceil(2 * a * hi / b)) + 2)
-    memo = {} if memo is None else memo
     if "sharp" not in memo:  # the sun-disc blurred map read at the points: the same at any pad >= its own
         memo["deposit"] = grid, Lg, E, look = _padded_deposit(waves, patch, L, t, D, wanted, pad)
         sharp = cm.disc_blur(E, (Lg * theta / b).astype(np.float64), np.ones(E.shape, bool) if look is None else look)
@@ -367,13 +382,22 @@ def _coarse_scattered(
     cpad = int(math.ceil(2 * _kernel_width(g) * float(L.max()) / coarse.bin_m)) + 2
     jj = np.clip(np.arange(coarse.shape[0]) * ratio + ratio // 2, 0, patch.shape[0] - 1)
     ii = np.clip(np.arange(coarse.shape[1]) * ratio + ratio // 2, 0, patch.shape[1] - 1)
-    marks = None
-    if wanted is not None:
-        j, i = np.nonzero(wanted)
-        marks = _mark(coarse.shape, j // ratio, i // ratio, (-1, 0, 1))
     memo = {} if memo is None else memo
+    if ("marks", ratio) not in memo:
+        memo["marks", ratio] = None if wanted is None else _coarse_marks(wanted, ratio, coarse.shape)
+    marks = memo["marks", ratio]
     grid, Lg, E = _deposit_padded_by(memo, ("coarse", ratio), waves, coarse, L[np.ix_(jj, ii)], t, D, marks, cpad)
     return _scattered(E, grid, Lg, scattering, g, n), grid
+
+
+def _coarse_marks(wanted: np.ndarray, ratio: int, shape: tuple[int, int]) -> np.ndarray:
+    """(ny', nx') bool on bins ``ratio`` times coarser (``shape`` holding every one): the coarse
+    bins of the ``wanted`` (ny, nx) bins and their 8 neighbours."""
+    ny, nx = wanted.shape
+    fine = np.zeros((-(-ny // ratio) * ratio, -(-nx // ratio) * ratio), bool)
+    fine[:ny, :nx] = wanted
+    j, i = np.nonzero(fine.reshape(fine.shape[0] // ratio, ratio, -1, ratio).any((1, 3)))
+    return _mark(shape, j, i, (-1, 0, 1))
 
 
 def lookup(M: np.ndarray, patch: Patch, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -430,11 +454,16 @@ def _fill_nearest(
     own = j * nx + i
     count = np.bincount(own, minlength=ny * nx).reshape(shape)
     total = np.bincount(own, values, minlength=ny * nx).reshape(shape)
-    blk = (j // block) * bx + i // block
-    bc = np.bincount(blk, minlength=by * bx).reshape(by, bx)
-    bt = np.bincount(blk, values, minlength=by * bx).reshape(by, bx)
-    near = ndimage.distance_transform_edt(bc == 0, return_distances=False, return_indices=True)
-    coarse = (bt / np.maximum(bc, 1))[near[0], near[1]]
+    bins_block = (np.arange(ny)[:, None] // block * bx + np.arange(nx) // block).ravel()
+    bc = np.zeros((by * block, bx * block), np.int64)
+    bc[:ny, :nx] = count
+    bc = bc.reshape(by, block, bx, block).sum((1, 3))
+    bt = np.bincount(bins_block[own], values, minlength=by * bx).reshape(by, bx)
+    if bc.all():
+        coarse = bt / bc
+    else:
+        near = ndimage.distance_transform_edt(bc == 0, return_distances=False, return_indices=True)
+        coarse = (bt / np.maximum(bc, 1))[near[0], near[1]]
     filled = np.repeat(np.repeat(coarse, block, 0), block, 1)[:ny, :nx]
     return np.where(count > 0, total / np.maximum(count, 1), filled)
 
