@@ -235,16 +235,18 @@ def _dilate(mask: np.ndarray, pad: int) -> np.ndarray:
 
 def _scattered(E: np.ndarray, grid: Patch, path_m: np.ndarray, scattering: float, g: float, n: float) -> np.ndarray:
     """The deposit blurred by the scattered light's transfer function (and the sun's disc)
-    at the least and largest path of the grid, blended per bin linearly in log path."""
-    k = (
-        2
-        * np.pi
-        * np.hypot(*np.meshgrid(np.fft.rfftfreq(grid.shape[1], grid.bin_m), np.fft.fftfreq(grid.shape[0], grid.bin_m)))
-    )
+    at the least and largest path of the grid, blended per bin linearly in log path. The
+    transfer functions depend on |k| alone: made on the rows of ky >= 0 (a row of -ky is
+    the same numbers) and copied to the others."""
+    ny = grid.shape[0]
+    half = ny // 2 + 1
+    ky = np.fft.fftfreq(ny, grid.bin_m)[:half]
+    k = 2 * np.pi * np.hypot(*np.meshgrid(np.fft.rfftfreq(grid.shape[1], grid.bin_m), ky))
+    rows = np.r_[0:half, (ny - 1) // 2 : 0 : -1]  # row of each frequency row's |ky| in k
     spectrum = np.fft.rfft2(E)
     lo, hi = max(float(path_m.min()), 1e-3), max(float(path_m.max()), 1e-3)
     maps = [
-        np.fft.irfft2(spectrum * sun_transfer(k, L, n) * scattered_transfer(k, L, scattering, g), s=E.shape)
+        np.fft.irfft2(spectrum * sun_transfer(k, L, n)[rows] * scattered_transfer(k, L, scattering, g)[rows], s=E.shape)
         for L in ((lo,) if hi < 1.01 * lo else (lo, hi))
     ]
     if len(maps) == 1:
