@@ -353,12 +353,21 @@ def shade_caustics(rgb, geo: CausticGeometry | None, scattering: float, g: float
     gain = geo.gain(scattering, g)  # M - 1
     out = np.array(rgb, np.float32)
     if hidden is None:
-        out.reshape(-1, 3)[geo.at] = geo.base + geo.lit * gain[:, None]
+        shaded = geo.lit * gain[:, None]
+        shaded += geo.base
+        _put_rows(out.reshape(-1, 3), geo.at, shaded)
         return out
     keep = ~np.asarray(hidden, bool).ravel()[geo.at]
     at, flat = geo.at[keep], out.reshape(-1, 3)
     flat[at] += geo.lit[keep] * gain[keep][:, None]
     return out
+
+
+def _put_rows(flat: np.ndarray, at: np.ndarray, rows: np.ndarray) -> None:
+    """Rows ``at`` (m,) of the C-contiguous ``flat`` (n, c) set to ``rows`` (m, c): each row one
+    copy of its bytes (np.put on a row-sized void view; a 2-D fancy assignment is ~4x slower)."""
+    row = np.dtype((np.void, flat.dtype.itemsize * flat.shape[1]))
+    np.put(flat.view(row).reshape(-1), at, np.ascontiguousarray(rows, flat.dtype).view(row).reshape(-1))
 
 
 def sunlight(rgb: np.ndarray, albedo: np.ndarray | None, cos_i: np.ndarray, wp) -> np.ndarray:

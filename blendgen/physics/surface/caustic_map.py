@@ -230,7 +230,21 @@ def _mark(shape: tuple[int, int], j: np.ndarray, i: np.ndarray, offsets) -> np.n
 def _dilate(mask: np.ndarray, pad: int) -> np.ndarray:
     import cv2
 
-    return cv2.dilate(mask.astype(np.uint8), np.ones((2 * pad + 1, 2 * pad + 1), np.uint8)).astype(bool)
+    return cv2.dilate(np.ascontiguousarray(mask).view(np.uint8), np.ones((2 * pad + 1, 2 * pad + 1), np.uint8)).view(
+        bool
+    )
+
+
+def _pad(a: np.ndarray, pad: int, edge: bool = False) -> np.ndarray:
+    """``a`` (ny, nx) (float or bool) ``pad`` bins wider on every side: the new bins copies of
+    the nearest edge bin (``edge``) or 0 (False); as ``np.pad``, by OpenCV's copyMakeBorder."""
+    import cv2
+
+    src = np.ascontiguousarray(a)
+    flag = a.dtype == np.bool_
+    border = cv2.BORDER_REPLICATE if edge else cv2.BORDER_CONSTANT
+    out = cv2.copyMakeBorder(src.view(np.uint8) if flag else src, pad, pad, pad, pad, border, value=0)
+    return out.view(bool) if flag else out
 
 
 def _scattered(E: np.ndarray, grid: Patch, path_m: np.ndarray, scattering: float, g: float, n: float) -> np.ndarray:
@@ -319,16 +333,22 @@ def _light_at(
     out = memo["sharp"]
     if not turbid:
         return out
-    beam = np.exp(-scattering * np.asarray(path_m, np.float32))
+    if "path32" not in memo:
+        memo["path32"] = np.asarray(path_m, np.float32)
+    beam = np.exp(-scattering * memo["path32"])
+    lit = beam * out  # the unscattered share of the sharp map
+    rest = np.subtract(1.0, beam, out=beam)
     longest = 0.5 * float(np.hypot(waves.k[:, 0], waves.k[:, 1]).min())  # rad/m: twice the longest wave
     if float(scattered_transfer(np.array([longest]), lo, scattering, g)[0]) < 0.01:
-        return beam * out + (1.0 - beam)  # the scattered light keeps < 1 % of any pattern: its mean
+        return np.add(lit, rest, out=lit)  # the scattered light keeps < 1 % of any pattern: its mean
     if ratio == 1:
         grid, Lg, E = _deposit_padded_by(memo, "deposit", waves, patch, L, t, D, wanted, pad)
         wide, wide_grid = _scattered(E, grid, Lg, scattering, g, n), grid
     else:
         wide, wide_grid = _coarse_scattered(waves, patch, L, wanted, ratio, t, D, scattering, g, n, memo)
-    return beam * out + (1.0 - beam) * lookup(wide, wide_grid, x, y)
+    wide_at = lookup(wide, wide_grid, x, y)
+    wide_at *= rest
+    return np.add(lit, wide_at, out=lit)
 
 
 def _deposit_padded_by(
@@ -346,7 +366,7 @@ def _deposit_padded_by(
             inner = (slice(cut, E.shape[0] - cut), slice(cut, E.shape[1] - cut))
             E = E[inner].copy()
             if marks is not None:
-                E[~_dilate(np.pad(marks, pad), pad)] = 1.0
+                E[~_dilate(_pad(marks, pad), pad)] = 1.0
             return patch.padded(pad), Lg[inner], E
     memo[key] = grid, Lg, E, _ = _padded_deposit(waves, patch, L, t, D, marks, pad)
     return grid, Lg, E
@@ -357,8 +377,8 @@ def _padded_deposit(waves: sf.WaveField, patch: Patch, L: np.ndarray, t: float, 
     ``marks`` bins (None: everywhere): (grid, its beam paths (edge values in the margin), the
     deposit, the padded ``marks`` or None)."""
     grid = patch.padded(pad)
-    Lg = np.pad(L, pad, mode="edge")
-    look = None if marks is None else np.pad(marks, pad)
+    Lg = _pad(L, pad, edge=True)
+    look = None if marks is None else _pad(marks, pad)
     return grid, Lg, _deposit(waves, grid, Lg, t, D, None if look is None else _dilate(look, pad)), look
 
 
