@@ -30,6 +30,7 @@ sun; arrays (ny, nx) are bins of a :class:`Patch`.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -86,7 +87,18 @@ def reach_m(waves: sf.WaveField, path_m: float, deflect: np.ndarray) -> float:
     ``L ||D|| min(5 rms slope, sum of the waves' slope amplitudes)``."""
     slope_amp = waves.amp * np.hypot(waves.k[:, 0], waves.k[:, 1])
     s = min(SLOPE_SIGMAS * math.sqrt(float((slope_amp**2).sum() / 2)), float(slope_amp.sum()))
-    return float(path_m) * float(np.linalg.norm(deflect, 2)) * s
+    return float(path_m) * _spectral_norm(deflect) * s
+
+
+def _spectral_norm(D) -> float:
+    """Largest singular value of the 2 x 2 deflection matrix ``D`` (its 2-norm), kept per
+    matrix: a frame's every deposit asks for the same one."""
+    return _spectral_norm_of(tuple(np.asarray(D, np.float64).ravel().tolist()))
+
+
+@functools.lru_cache(maxsize=64)
+def _spectral_norm_of(entries: tuple[float, ...]) -> float:
+    return float(np.linalg.norm(np.array(entries).reshape(2, 2), 2))
 
 
 def sun_transfer(k: np.ndarray, path_m, n: float = sf.N_WATER) -> np.ndarray:
@@ -124,7 +136,7 @@ def _slack_bins(waves: sf.WaveField, path_m: float, bin_m: float, D: np.ndarray)
     bounded by ``sum a |k|^3``."""
     third = float((waves.amp * np.hypot(waves.k[:, 0], waves.k[:, 1]) ** 3).sum())
     side_m = cm.BLOCK / 2 * bin_m
-    return 1.0 + side_m**2 / 4 * path_m * float(np.linalg.norm(D, 2)) * third / bin_m
+    return 1.0 + side_m**2 / 4 * path_m * _spectral_norm(D) * third / bin_m
 
 
 def _deposit(
@@ -156,16 +168,14 @@ def _deposit(
         waves = sf.WaveField(waves.amp[keep], waves.k[keep], waves.omega[keep], waves.phase[keep])
     xs = -reach + step * np.arange(per_bin * (grid.shape[1] + 2 * reach) + 1)  # bin units
     ys = -reach + step * np.arange(per_bin * (grid.shape[0] + 2 * reach) + 1)
-    phase = waves.phase - t * waves.omega
-    ax = np.multiply.outer(grid.x0 + b * xs, waves.k[:, 0])
-    ay = np.multiply.outer(grid.y0 + b * ys, waves.k[:, 1]) + phase
-    sat = np.zeros((grid.shape[0] + 1, grid.shape[1] + 1), np.int64)
-    sat[1:, 1:] = (np.ones(grid.shape, bool) if traced is None else traced).cumsum(0).cumsum(1)
+    cx, sx = _trig_table(grid.x0 + b * xs[0], b * step, xs.size, waves.k[:, 0], 0.0)
+    cy, sy = _trig_table(grid.y0 + b * ys[0], b * step, ys.size, waves.k[:, 1], waves.phase - t * waves.omega)
+    sat = _summed_area(np.ones(grid.shape, bool) if traced is None else traced)
     E = cm.deposit(
-        np.cos(ax),
-        np.sin(ax),
-        np.cos(ay),
-        np.sin(ay),
+        cx,
+        sx,
+        cy,
+        sy,
         waves.amp * waves.k[:, 0],
         waves.amp * waves.k[:, 1],
         xs,
@@ -181,35 +191,76 @@ def _deposit(
     return E
 
 
+def _summed_area(mask: np.ndarray) -> np.ndarray:
+    """Summed-area table (ny + 1, nx + 1) int64 of a bool (ny, nx): the count of True bins
+    above and left of each corner (OpenCV's integral, a zero first row and column)."""
+    import cv2
+
+    return cv2.integral(np.ascontiguousarray(mask).view(np.uint8)).astype(np.int64)
+
+
+def _trig_table(start_m: float, spacing_m: float, n: int, k: np.ndarray, phase) -> tuple[np.ndarray, np.ndarray]:
+    """``cos`` and ``sin`` (n, waves) of ``k (start + spacing j) + phase`` for j < n (positions
+    in m, ``k`` (waves,) rad/m, ``phase`` rad, a number or (waves,)), by angle addition: exact
+    at every ``~sqrt(n)``-th position and at the offsets within such a step, the rest
+    ``cos(a + b) = cos a cos b - sin a sin b`` (a few ulp from the direct values, ~2 sqrt(n)
+    transcendentals per wave instead of 2n)."""
+    step = max(1, int(math.isqrt(max(n - 1, 0))) + 1)
+    coarse = np.multiply.outer(start_m + spacing_m * step * np.arange(-(-n // step)), k) + phase
+    fine = np.multiply.outer(spacing_m * np.arange(step), k)
+    ca, sa, cb, sb = np.cos(coarse)[:, None], np.sin(coarse)[:, None], np.cos(fine), np.sin(fine)
+    shape = (-1, k.size)
+    cos = (ca * cb - sa * sb).reshape(shape)[:n]
+    sin = (sa * cb + ca * sb).reshape(shape)[:n]
+    return cos, sin
+
+
 def _mark(shape: tuple[int, int], j: np.ndarray, i: np.ndarray, offsets) -> np.ndarray:
-    """(ny, nx) bool: the bins (j + dj, i + di) for every offset pair, clamped to the grid."""
-    out = np.zeros(shape[0] * shape[1], bool)
-    rows = [np.clip(j + dj, 0, shape[0] - 1) * shape[1] for dj in offsets]
-    cols = [np.clip(i + di, 0, shape[1] - 1) for di in offsets]
-    for r in rows:
-        for c in cols:
-            out[r + c] = True
-    return out.reshape(shape)
+    """(ny, nx) bool: the bins (j + dj, i + di) for every offset pair, clamped to the grid.
+    The bins (j, i) (each (m,) int) lie in the grid and ``offsets`` is a run of consecutive
+    integers holding 0, so this is the bins (j, i) dilated by the offsets' box."""
+    import cv2
+
+    out = np.zeros(shape, np.uint8)
+    out.ravel()[j * shape[1] + i] = 1
+    side, last = len(offsets), max(offsets)
+    return cv2.dilate(out, np.ones((side, side), np.uint8), anchor=(last, last)).view(bool)
 
 
 def _dilate(mask: np.ndarray, pad: int) -> np.ndarray:
     import cv2
 
-    return cv2.dilate(mask.astype(np.uint8), np.ones((2 * pad + 1, 2 * pad + 1), np.uint8)).astype(bool)
+    return cv2.dilate(np.ascontiguousarray(mask).view(np.uint8), np.ones((2 * pad + 1, 2 * pad + 1), np.uint8)).view(
+        bool
+    )
+
+
+def _pad(a: np.ndarray, pad: int, edge: bool = False) -> np.ndarray:
+    """``a`` (ny, nx) (float or bool) ``pad`` bins wider on every side: the new bins copies of
+    the nearest edge bin (``edge``) or 0 (False); as ``np.pad``, by OpenCV's copyMakeBorder."""
+    import cv2
+
+    src = np.ascontiguousarray(a)
+    flag = a.dtype == np.bool_
+    border = cv2.BORDER_REPLICATE if edge else cv2.BORDER_CONSTANT
+    out = cv2.copyMakeBorder(src.view(np.uint8) if flag else src, pad, pad, pad, pad, border, value=0)
+    return out.view(bool) if flag else out
 
 
 def _scattered(E: np.ndarray, grid: Patch, path_m: np.ndarray, scattering: float, g: float, n: float) -> np.ndarray:
     """The deposit blurred by the scattered light's transfer function (and the sun's disc)
-    at the least and largest path of the grid, blended per bin linearly in log path."""
-    k = (
-        2
-        * np.pi
-        * np.hypot(*np.meshgrid(np.fft.rfftfreq(grid.shape[1], grid.bin_m), np.fft.fftfreq(grid.shape[0], grid.bin_m)))
-    )
+    at the least and largest path of the grid, blended per bin linearly in log path. The
+    transfer functions depend on |k| alone: made on the rows of ky >= 0 (a row of -ky is
+    the same numbers) and copied to the others."""
+    ny = grid.shape[0]
+    half = ny // 2 + 1
+    ky = np.fft.fftfreq(ny, grid.bin_m)[:half]
+    k = 2 * np.pi * np.hypot(*np.meshgrid(np.fft.rfftfreq(grid.shape[1], grid.bin_m), ky))
+    rows = np.r_[0:half, (ny - 1) // 2 : 0 : -1]  # row of each frequency row's |ky| in k
     spectrum = np.fft.rfft2(E)
     lo, hi = max(float(path_m.min()), 1e-3), max(float(path_m.max()), 1e-3)
     maps = [
-        np.fft.irfft2(spectrum * sun_transfer(k, L, n) * scattered_transfer(k, L, scattering, g), s=E.shape)
+        np.fft.irfft2(spectrum * sun_transfer(k, L, n)[rows] * scattered_transfer(k, L, scattering, g)[rows], s=E.shape)
         for L in ((lo,) if hi < 1.01 * lo else (lo, hi))
     ]
     if len(maps) == 1:
@@ -264,15 +315,17 @@ def _light_at(
     the deposit are made once for every water (they do not depend on it)."""
     D = np.asarray(sf.sun_deflection(None, n) if deflect is None else deflect, np.float64).reshape(2, 2)
     b = patch.bin_m
-    sel = L if wanted is None else L[wanted]
-    lo, hi = float(sel.min()), float(sel.max())
+    memo = {} if memo is None else memo
+    if "paths" not in memo:  # the least and largest path of the bins read
+        sel = L if wanted is None else L[wanted]
+        memo["paths"] = float(sel.min()), float(sel.max())
+    lo, hi = memo["paths"]
     theta = sf.SUN_RADIUS_RAD / n
     pad = int(math.ceil(3 * hi * theta / b)) + 2
     a, turbid = _kernel_width(g), math.exp(-scattering * lo) < 0.999
     ratio = 2 ** max(0, int(math.floor(math.log2(max(a * lo / 4, b) / b)))) if turbid else 1
     if turbid and ratio == 1:  # the scattered blur is a few bins: one deposit serves both
         pad = max(pad, int(math.ceil(2 * a * hi / b)) + 2)
-    memo = {} if memo is None else memo
     if "sharp" not in memo:  # the sun-disc blurred map read at the points: the same at any pad >= its own
         memo["deposit"] = grid, Lg, E, look = _padded_deposit(waves, patch, L, t, D, wanted, pad)
         sharp = cm.disc_blur(E, (Lg * theta / b).astype(np.float64), np.ones(E.shape, bool) if look is None else look)
@@ -280,16 +333,22 @@ def _light_at(
     out = memo["sharp"]
     if not turbid:
         return out
-    beam = np.exp(-scattering * np.asarray(path_m, np.float32))
+    if "path32" not in memo:
+        memo["path32"] = np.asarray(path_m, np.float32)
+    beam = np.exp(-scattering * memo["path32"])
+    lit = beam * out  # the unscattered share of the sharp map
+    rest = np.subtract(1.0, beam, out=beam)
     longest = 0.5 * float(np.hypot(waves.k[:, 0], waves.k[:, 1]).min())  # rad/m: twice the longest wave
     if float(scattered_transfer(np.array([longest]), lo, scattering, g)[0]) < 0.01:
-        return beam * out + (1.0 - beam)  # the scattered light keeps < 1 % of any pattern: its mean
+        return np.add(lit, rest, out=lit)  # the scattered light keeps < 1 % of any pattern: its mean
     if ratio == 1:
         grid, Lg, E = _deposit_padded_by(memo, "deposit", waves, patch, L, t, D, wanted, pad)
         wide, wide_grid = _scattered(E, grid, Lg, scattering, g, n), grid
     else:
         wide, wide_grid = _coarse_scattered(waves, patch, L, wanted, ratio, t, D, scattering, g, n, memo)
-    return beam * out + (1.0 - beam) * lookup(wide, wide_grid, x, y)
+    wide_at = lookup(wide, wide_grid, x, y)
+    wide_at *= rest
+    return np.add(lit, wide_at, out=lit)
 
 
 def _deposit_padded_by(
@@ -307,7 +366,7 @@ def _deposit_padded_by(
             inner = (slice(cut, E.shape[0] - cut), slice(cut, E.shape[1] - cut))
             E = E[inner].copy()
             if marks is not None:
-                E[~_dilate(np.pad(marks, pad), pad)] = 1.0
+                E[~_dilate(_pad(marks, pad), pad)] = 1.0
             return patch.padded(pad), Lg[inner], E
     memo[key] = grid, Lg, E, _ = _padded_deposit(waves, patch, L, t, D, marks, pad)
     return grid, Lg, E
@@ -318,8 +377,8 @@ def _padded_deposit(waves: sf.WaveField, patch: Patch, L: np.ndarray, t: float, 
     ``marks`` bins (None: everywhere): (grid, its beam paths (edge values in the margin), the
     deposit, the padded ``marks`` or None)."""
     grid = patch.padded(pad)
-    Lg = np.pad(L, pad, mode="edge")
-    look = None if marks is None else np.pad(marks, pad)
+    Lg = _pad(L, pad, edge=True)
+    look = None if marks is None else _pad(marks, pad)
     return grid, Lg, _deposit(waves, grid, Lg, t, D, None if look is None else _dilate(look, pad)), look
 
 
@@ -345,13 +404,22 @@ def _coarse_scattered(
     cpad = int(math.ceil(2 * _kernel_width(g) * float(L.max()) / coarse.bin_m)) + 2
     jj = np.clip(np.arange(coarse.shape[0]) * ratio + ratio // 2, 0, patch.shape[0] - 1)
     ii = np.clip(np.arange(coarse.shape[1]) * ratio + ratio // 2, 0, patch.shape[1] - 1)
-    marks = None
-    if wanted is not None:
-        j, i = np.nonzero(wanted)
-        marks = _mark(coarse.shape, j // ratio, i // ratio, (-1, 0, 1))
     memo = {} if memo is None else memo
+    if ("marks", ratio) not in memo:
+        memo["marks", ratio] = None if wanted is None else _coarse_marks(wanted, ratio, coarse.shape)
+    marks = memo["marks", ratio]
     grid, Lg, E = _deposit_padded_by(memo, ("coarse", ratio), waves, coarse, L[np.ix_(jj, ii)], t, D, marks, cpad)
     return _scattered(E, grid, Lg, scattering, g, n), grid
+
+
+def _coarse_marks(wanted: np.ndarray, ratio: int, shape: tuple[int, int]) -> np.ndarray:
+    """(ny', nx') bool on bins ``ratio`` times coarser (``shape`` holding every one): the coarse
+    bins of the ``wanted`` (ny, nx) bins and their 8 neighbours."""
+    ny, nx = wanted.shape
+    fine = np.zeros((-(-ny // ratio) * ratio, -(-nx // ratio) * ratio), bool)
+    fine[:ny, :nx] = wanted
+    j, i = np.nonzero(fine.reshape(fine.shape[0] // ratio, ratio, -1, ratio).any((1, 3)))
+    return _mark(shape, j, i, (-1, 0, 1))
 
 
 def lookup(M: np.ndarray, patch: Patch, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -408,11 +476,16 @@ def _fill_nearest(
     own = j * nx + i
     count = np.bincount(own, minlength=ny * nx).reshape(shape)
     total = np.bincount(own, values, minlength=ny * nx).reshape(shape)
-    blk = (j // block) * bx + i // block
-    bc = np.bincount(blk, minlength=by * bx).reshape(by, bx)
-    bt = np.bincount(blk, values, minlength=by * bx).reshape(by, bx)
-    near = ndimage.distance_transform_edt(bc == 0, return_distances=False, return_indices=True)
-    coarse = (bt / np.maximum(bc, 1))[near[0], near[1]]
+    bins_block = (np.arange(ny)[:, None] // block * bx + np.arange(nx) // block).ravel()
+    bc = np.zeros((by * block, bx * block), np.int64)
+    bc[:ny, :nx] = count
+    bc = bc.reshape(by, block, bx, block).sum((1, 3))
+    bt = np.bincount(bins_block[own], values, minlength=by * bx).reshape(by, bx)
+    if bc.all():
+        coarse = bt / bc
+    else:
+        near = ndimage.distance_transform_edt(bc == 0, return_distances=False, return_indices=True)
+        coarse = (bt / np.maximum(bc, 1))[near[0], near[1]]
     filled = np.repeat(np.repeat(coarse, block, 0), block, 1)[:ny, :nx]
     return np.where(count > 0, total / np.maximum(count, 1), filled)
 
