@@ -152,3 +152,42 @@ def test_sequences_with_particles_take_the_frames_caustics_where_nothing_hides_t
         np.testing.assert_allclose(got[~hidden], clean[~hidden], rtol=1e-4, atol=1e-7)  # module docstring
         assert not np.allclose(got[hidden], clean[hidden])  # the particles are really there
     assert len(calls) == 1 + 3 + 3  # the frame's geometry once; each `own` and `clean` its own
+
+
+def test_sequences_with_particles_take_the_frames_surface_where_nothing_is_in_front(monkeypatch):
+    """The surface seen from below, in a sequence with particles: its geometry (wave slopes,
+    Fresnel, sun disc, mirror march) is the frame's, made once for any number of such sequences,
+    on the pixels where no particle is in front. Every pixel that does not mirror the scene
+    (Snell's window, the particles, the scene below) is exactly what the sequence's own passes
+    give; a mirrored pixel reads the sequence's colours at the frame's own march. Without the
+    mask the particles in front of the surface would be painted over."""
+    from blendgen.pipeline import world_post
+
+    passes, K, T = _pool_frame()
+    passes, seen, hidden = _with_particles(passes)
+    calls = []
+    real = world_post.surface_geometry
+    monkeypatch.setattr(world_post, "surface_geometry", lambda *a, **k: calls.append(1) or real(*a, **k))
+
+    def post(preset):
+        p = _post(preset)
+        return p.model_copy(update={"world": p.world.model_copy(update={"caustics": False})})
+
+    rays = compose._unit_rays(tuple(K.ravel()), 160, 120) @ T[:3, :3].T.astype(np.float32)
+    depth = compose.surface_depth(passes["range_m"], K, T, 0.0)[0]
+    geo = real(passes["range_m"], depth, post("jerlov_IB").world, rays, K, T, 0.0, 0.4)
+    mirrored = np.zeros(hidden.size, bool)
+    mirrored[geo.up[geo.idx]] = True
+    mirrored = mirrored.reshape(hidden.shape)
+    assert mirrored.any() and (hidden & ~np.isfinite(passes["range_m"])).any()  # both really in view
+    calls.clear()
+    share = FrameShare()
+    share.begin(passes)
+    for preset in ("jerlov_IB", "jerlov_II", "jerlov_IB"):  # three sequences with particles
+        got = compose.water_image(
+            seen, compose.SequenceState.start(post(preset)), K, T, [], occluded=hidden, t=0.4, memo=share.frame_memo()
+        )
+        own = compose.water_image(seen, compose.SequenceState.start(post(preset)), K, T, [], occluded=hidden, t=0.4)
+        np.testing.assert_array_equal(got[~mirrored | hidden], own[~mirrored | hidden])
+        assert np.isfinite(got).all()
+    assert len(calls) == 1 + 3  # the frame's geometry once; each `own` its own

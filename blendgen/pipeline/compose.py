@@ -288,10 +288,11 @@ def _world(
     (rgb, range, depth). ``memo``: the frame's dict of water-independent parts (shared by the
     sequences that see the frame's own passes; None: nothing shared). ``occluders``: (mask
     (H, W) bool or None, emitter mask of the frame's own passes) of a sequence with particles,
-    whose ``memo`` is the frame's (:meth:`FrameShare.frame_memo`): it shares only the caustics."""
+    whose ``memo`` is the frame's (:meth:`FrameShare.frame_memo`): it shares the caustic and
+    surface geometry made from the frame's own passes, applied where no particle is in front."""
     from blendgen.pipeline import world_post
 
-    wp = state.post.world
+    wp, z = state.post.world, state.post.surface_z_m
     memo = {} if memo is None else memo
     occluded = None if occluders is None else occluders[0]
     own = memo if occluded is None else {}  # parts made from this sequence's own passes
@@ -305,15 +306,14 @@ def _world(
         )  # einsum: @ is slower here
     rays = memo["rays"]
     if wp.caustics:
-        key = ("caustics", state.post.surface_z_m, wp.model_dump_json(), t)
+        key = ("caustics", z, wp.model_dump_json(), t)
         clean = memo.get(CLEAN) if occluded is not None else None
         geo_memo = own if clean is None else memo
         if key not in geo_memo:  # the same for every water of this frame
             if clean is None:  # this sequence's own passes (those of the frame, or no frame memo)
                 p, d, em = passes, depth, emissive
             else:  # the frame's own passes, as every sequence without particles makes them
-                p, em = clean, occluders[1]
-                d = surface_depth(clean["range_m"], K, T_world_cam, state.post.surface_z_m)[0]
+                p, em, d = clean, occluders[1], _clean_depth(memo, K, T_world_cam, z)
             geo_memo[key] = world_post.caustic_geometry(
                 p["rgb"], p.get("albedo"), p["range_m"], d, wp, rays, K, T_world_cam, t, em, p.get("sun")
             )
@@ -321,11 +321,24 @@ def _world(
     if wp.surface:
         veil = w.B_inf * state.water_opts["irradiance"] * optics.depth_light(w, veil_depth)
         below = mirror_fill(rgb, range_m, depth, w, veil)
-        key = ("surface", state.post.surface_z_m, wp.model_dump_json(), t)
-        if key not in own:  # the same for every water of this frame
-            own[key] = world_post.surface_geometry(range_m, depth, wp, rays, K, T_world_cam, state.post.surface_z_m, t)
-        rgb, range_m, depth = world_post.shade_surface(rgb, range_m, depth, own[key], wp, below)
+        key = ("surface", z, wp.model_dump_json(), t)
+        clean = memo.get(CLEAN) if occluded is not None else None
+        geo_memo = own if clean is None else memo
+        if key not in geo_memo:  # the same for every water of this frame
+            r, d = (range_m, depth) if clean is None else (clean["range_m"], _clean_depth(memo, K, T_world_cam, z))
+            geo_memo[key] = world_post.surface_geometry(r, d, wp, rays, K, T_world_cam, z, t)
+        geo = geo_memo[key] if clean is None or geo_memo[key] is None else geo_memo[key].seen_past(range_m)
+        rgb, range_m, depth = world_post.shade_surface(rgb, range_m, depth, geo, wp, below)
     return rgb, range_m, depth
+
+
+def _clean_depth(memo: dict, K, T_world_cam, surface_z_m: float) -> np.ndarray:
+    """(H, W) :func:`surface_depth` of the frame's own range pass (``memo[CLEAN]``), made once
+    per frame and surface height (kept in ``memo``)."""
+    key = ("clean_depth", surface_z_m)
+    if key not in memo:
+        memo[key] = surface_depth(memo[CLEAN]["range_m"], K, T_world_cam, surface_z_m)[0]
+    return memo[key]
 
 
 @term("surface")

@@ -104,6 +104,29 @@ class SurfaceGeometry:
         self.up, self.r, self.cos_up, self.R, self.sun = up, r, cos_up, R, sun
         self.idx, self.src, self.path, self.depth = idx, src, path, depth
 
+    def seen_past(self, range_m: np.ndarray) -> SurfaceGeometry:
+        """This geometry (made from a frame's own range pass) on the pixels where a sequence's
+        range pass ``range_m`` (H, W) (the frame's with particles in front) has nothing nearer
+        than the surface: the pixels :func:`surface_geometry` of ``range_m`` would shade. A
+        mirrored pixel keeps its mirror march through the frame's own passes."""
+        keep = ~(np.asarray(range_m).ravel()[self.up] < self.r)
+        if keep.all():
+            return self
+        at = np.cumsum(keep) - 1  # position of each kept pixel among the kept
+        mirrored = keep[self.idx]
+        sun = None if self.sun is None else self.sun[keep]
+        return SurfaceGeometry(
+            self.up[keep],
+            self.r[keep],
+            self.cos_up[keep],
+            self.R[keep],
+            sun,
+            at[self.idx[mirrored]],
+            self.src[mirrored],
+            self.path[mirrored],
+            self.depth[mirrored],
+        )
+
 
 @term("surface")
 def surface_geometry(range_m, depth, wp, rays, K, T_world_cam, surface_z_m: float, t: float, stride=None):
