@@ -182,3 +182,21 @@ def test_a_current_that_carries_the_hull_into_a_wall_ends_the_trial_there():
         "current_0.5": "dock",
         "current_1.0": "pool_wall",
     }
+
+
+def test_a_trial_whose_hull_touches_a_wall_at_its_first_frame_is_refused_by_its_start():
+    """No frame because the hull starts in a wall: the error names the start and the wall, not
+    ``render.max_distance_m`` (which would send the user to the wrong setting)."""
+    from pathlib import Path
+
+    import yaml
+
+    from blendgen.config.models import ConfigError
+    from blendgen.pipeline import scene_check
+
+    cfg = yaml.safe_load((Path(__file__).parents[1] / "configs" / "paper_current.yaml").read_text())
+    exp, _ = jobs_for({**cfg, "trials": 1})
+    with pytest.raises(ConfigError, match=r"trajectories\[0\]\.start: 'dock' trial 3 starts with .* pool wall"):
+        scene_check.check_frames(exp, 0, 3, [], "pool_wall")
+    with pytest.raises(ConfigError, match=r"render\.max_distance_m"):
+        scene_check.check_frames(exp, 0, 3, [], "path")

@@ -418,7 +418,7 @@ def check_paths(exp: Experiment) -> None:
             T_wc = smp.T_world_body @ T_bc
             n = until_contact(exp, traj, T_wc, T_wd)
             nearest = min((groundtruth.d_true(T, T_wd) for T in T_wc[:n]), default=None)
-            scene_check.check_frames(exp, i, None, _frames(exp, traj, T_wd, T_bc, 0, exp.fluid)[0], nearest)
+            scene_check.check_frames(exp, i, None, *_frames(exp, traj, T_wd, T_bc, 0, exp.fluid), nearest)
 
 
 def _frames(
@@ -784,7 +784,7 @@ def plan_jobs(exp: Experiment, scene: dict) -> list[RenderJob]:
                 )
                 if mkey not in paths:
                     paths[mkey] = _frames(exp, traj, T_wd, T_bc, seed, fluid or exp.fluid)
-                    scene_check.check_frames(exp, exp.trajectories.index(traj), trial, paths[mkey][0])
+                    scene_check.check_frames(exp, exp.trajectories.index(traj), trial, *paths[mkey])
                 frames, end = paths[mkey]
                 post = condition_post(exp, c, seed)
                 sq = SequencePlan(f"{traj.id}-t{trial:03d}-{c.label}", traj.id, trial, c.label, post)

@@ -19,6 +19,7 @@ import numpy as np
 from blendgen.config.models import ConfigError, Experiment
 from blendgen.vehicle import trajectories as tj
 from blendgen.vehicle.contact import WaterSolid
+from datasets_spec.io import BOUNDARY_ENDS
 
 #: Half side (m) of the open-water domain around the dock (the reference medium's box).
 OPEN_WATER_HALF_M = 60.0
@@ -252,13 +253,24 @@ def check_start_box(i: int, traj, T_wd: np.ndarray, box: WaterBox) -> None:
 
 
 def check_frames(
-    exp: Experiment, traj_index: int, trial: int | None, frames: list[dict], nearest_m: float | None = None
+    exp: Experiment,
+    traj_index: int,
+    trial: int | None,
+    frames: list[dict],
+    end: str = "path",
+    nearest_m: float | None = None,
 ) -> None:
     """A sequence must have frames, and every camera pose inside the water (``trial`` None: a
-    kinematic path, the same for every trial; ``nearest_m`` the path's nearest camera distance
-    to the dock before contact, for the message)."""
+    kinematic path, the same for every trial; ``end``: how the path ends, a boundary part
+    when the hull touches the water's walls, floor or seabed; ``nearest_m`` the path's nearest
+    camera distance to the dock before contact, for the message)."""
     traj = exp.trajectories[traj_index]
     which = f"{traj.id!r}" + ("" if trial is None else f" trial {trial}")
+    if not frames and end in BOUNDARY_ENDS:
+        raise ConfigError(
+            f"trajectories[{traj_index}].start: {which} starts with the vehicle's hull touching the "
+            f"{end.replace('_', ' ')}, so it has no frame; narrow the start ranges"
+        )
     if not frames:
         d = exp.render.max_distance_m
         raise ConfigError(
