@@ -1,0 +1,104 @@
+"""What a caustic map of the dock's wall, shared by every trial, would cost (no Blender).
+
+The frames are those of ``experiments/caustic_cost.py`` (the article's approach in the 15 x 5 x 8 m
+pool, 1-10 m from the dock, three waters). For each frame this prints the CPU of its caustics as
+the frame loop makes them now (geometry and three waters), the share of its sunlit pixels on the
+dock's wall (the pool's +x wall, a fixed plane) and the bin levels they read. Then it makes, at one
+frame time, the map of the whole visible wall (``--depth`` m down, the pool's width) at each level
+that holds 1 % or more of the frames' wall pixels, as a frame would if it saw all of it at that
+level (the same grouping, deposit and blurs: :class:`caustic_map.FrameCaustics` on a grid of wall
+points whose footprint reads that level), and prints its CPU. Every trial of an experiment meets
+the same waves at the same frame times, so one such map per frame time and surface height could
+serve all of them; the last line is the number of trials beyond which it pays. Run from the
+repository root::
+
+    PYTHONPATH=. python experiments/caustic_wall_share.py
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from blendgen.config.models import Water
+from blendgen.physics.surface import caustic_map as cmap
+from blendgen.physics.surface import optics as sf
+from blendgen.physics.water import optics
+from blendgen.pipeline import world_post
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+cc = importlib.import_module("caustic_cost")  # the frames, waters and sun of the caustics harness
+
+
+def wall_pixels(frame, wp) -> tuple[np.ndarray, np.ndarray, int]:
+    """(on the wall (m,) bool, bin level (m,)) of a frame's sunlit pixels, and their number."""
+    rgb, albedo, rng, depth, rays, K, T = frame
+    sun = sf.refracted_sun(wp.sun_travel_dir)
+    n = world_post.facing_normals(rays, rng)
+    cos_i = -(n @ sun.astype(np.float32))
+    hit = np.isfinite(rng) & (depth > 0) & (cos_i > 0.02)
+    p = T[:3, 3] + rays * rng[..., None]
+    on_wall = np.abs(p[..., 0] - cc.POOL[0] / 2) < 0.01
+    foot = world_post.footprint_m(rays, rng, n, 1.0 / float(K[0, 0]), sun, cos_i)
+    return on_wall[hit], cmap._levels(foot[hit]), int(hit.sum())
+
+
+def wall_map_cpu(wp, waters, level: int, depth_m: float, t: float) -> tuple[float, int]:
+    """CPU s to make the whole wall's map at ``level`` in every water, and its number of points."""
+    sun = sf.refracted_sun(wp.sun_travel_dir)
+    b = cmap.FINEST_BIN_M * 2**level
+    y, z = np.meshgrid(np.arange(-cc.POOL[1] / 2, cc.POOL[1] / 2, b), np.arange(-depth_m, 0.0, b) + b / 2)
+    h = -z.ravel()
+    back = -sun[:2] / -sun[2]
+    x = cc.POOL[0] / 2 + h * back[0]
+    yy = y.ravel() + h * back[1]
+    path = h / -sun[2]
+    foot = np.full(h.size, 0.75 * b)  # a footprint that reads this level
+    c0 = time.process_time()
+    fc = cmap.FrameCaustics(
+        world_post.waves_of(wp.wave_seed, wp.wind_mps), x, yy, path, foot, t, sf.sun_deflection(wp.sun_travel_dir)
+    )
+    for w in waters.values():
+        fc.factor(float(np.mean(w.sigma_s)), float(w.g))
+    return time.process_time() - c0, h.size
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--depth", type=float, default=6.0, help="how far down the wall the map reaches (m)")
+    args = ap.parse_args()
+    wp = cc.world()
+    waters = {n: optics.fast_water(Water(preset=n), "physical", 3.0)[0] for n in cc.WATERS}
+    frames = [cc.frame(r) for r in cc.RANGES_M]
+    cc.run(frames[:1], waters)  # compile / warm the caches
+    levels: set[int] = set()
+    per_frame = []
+    for r, fr in zip(cc.RANGES_M, frames):
+        c0 = time.process_time()
+        cc.run([fr], waters)
+        cpu = time.process_time() - c0
+        wall, lev, n = wall_pixels(fr, wp)
+        hist = {int(v): round(float(np.mean(lev[wall] == v)), 3) for v in np.unique(lev[wall])}
+        levels |= {v for v, share in hist.items() if v >= 0 and share >= 0.01}  # rarer: left per frame
+        per_frame.append(cpu * wall.mean())
+        print(f"{r:4.1f} m: caustics {1e3 * cpu:6.1f} CPU ms, {n} sunlit px, {wall.mean():.2f} on the wall")
+        print(f"        share of its wall pixels per level (-1: coarser than the coarsest, no pattern): {hist}")
+    total = 0.0
+    for level in sorted(levels):
+        cpu, m = wall_map_cpu(wp, waters, level, args.depth, 0.4)
+        total += cpu
+        print(f"wall map, level {level} ({100 * cmap.FINEST_BIN_M * 2**level:g} cm, {m} bins): {1e3 * cpu:.0f} CPU ms")
+    share = float(np.mean(per_frame))
+    print(
+        f"per frame time: the whole wall {1e3 * total:.0f} CPU ms (levels {sorted(levels)}) against "
+        f"{1e3 * share:.0f} ms of a frame's caustics on the wall: pays beyond {total / share:.1f} trials"
+    )
+
+
+if __name__ == "__main__":
+    main()
