@@ -362,7 +362,8 @@ def _deposit_padded_by(
 ) -> tuple[Patch, np.ndarray, np.ndarray]:
     """(grid, beam paths, deposit) of :func:`_padded_deposit` at ``pad``, cut from the widest
     one made so far (``memo[key]``; its bins traced only by the wider margin reset to the flat
-    1, as a deposit at ``pad`` leaves them) or made and kept when there is none as wide."""
+    1, as a deposit at ``pad`` leaves them) or made and kept when there is none as wide.
+    ``per_bin``: mesh vertices per bin side, as :func:`_deposit`'s (kept with the deposit)."""
     if key in memo:
         grid, Lg, E, _ = memo[key]
         cut = (grid.shape[0] - patch.shape[0]) // 2 - pad
@@ -383,7 +384,7 @@ def _padded_deposit(
 ) -> tuple:
     """:func:`_deposit` on ``patch`` padded by ``pad`` bins, traced within ``pad`` of the
     ``marks`` bins (None: everywhere): (grid, its beam paths (edge values in the margin), the
-    deposit, the padded ``marks`` or None)."""
+    deposit, the padded ``marks`` or None). ``per_bin`` as :func:`_deposit`'s."""
     grid = patch.padded(pad)
     Lg = _pad(L, pad, edge=True)
     look = None if marks is None else _pad(marks, pad)
@@ -404,7 +405,8 @@ def _coarse_scattered(
     memo: dict | None = None,
 ) -> tuple[np.ndarray, Patch]:
     """The scattered part of :func:`light_map` made on bins ``ratio`` times coarser (a deposit
-    of its own, blurred over ``~a L``) and its grid; ``memo`` as :func:`_light_at`'s (the
+    of its own, :data:`SCATTERED_PER_BIN` mesh vertices per bin side, blurred over ``~a L``)
+    and its grid; ``memo`` as :func:`_light_at`'s (the
     deposit kept per ``ratio``, cut to a narrower margin for a water of wider ``g``)."""
     coarse = Patch(
         patch.x0, patch.y0, patch.bin_m * ratio, (-(-patch.shape[0] // ratio) + 1, -(-patch.shape[1] // ratio) + 1)
