@@ -121,6 +121,38 @@ def _with_particles(passes: dict) -> tuple[dict, np.ndarray]:
     return passes, {**passes, "rgb": rgb, "range_m": rng}, hidden
 
 
+def _counted(monkeypatch, name: str):
+    """(calls, the real function): ``world_post.<name>`` patched to count its calls."""
+    from blendgen.pipeline import world_post
+
+    calls, real = [], getattr(world_post, name)
+    monkeypatch.setattr(world_post, name, lambda *a, **k: calls.append(1) or real(*a, **k))
+    return calls, real
+
+
+def _post_without(part: str):
+    """Sequence post of a Jerlov preset with the world's ``part`` (surface or caustics) off."""
+
+    def post(preset):
+        p = _post(preset)
+        return p.model_copy(update={"world": p.world.model_copy(update={part: False})})
+
+    return post
+
+
+def _particle_sequences(passes, seen, hidden, post, K, T):
+    """Three sequences with particles (two waters, one twice) on one frame: (preset, image with
+    the frame's shared parts, image from the sequence's own passes alone) each."""
+    share = FrameShare()
+    share.begin(passes)
+    for preset in ("jerlov_IB", "jerlov_II", "jerlov_IB"):
+        got = compose.water_image(
+            seen, compose.SequenceState.start(post(preset)), K, T, [], occluded=hidden, t=0.4, memo=share.frame_memo()
+        )
+        own = compose.water_image(seen, compose.SequenceState.start(post(preset)), K, T, [], occluded=hidden, t=0.4)
+        yield preset, got, own
+
+
 def test_sequences_with_particles_take_the_frames_caustics_where_nothing_hides_the_surface(monkeypatch):
     """A sequence with particles focuses the sunlight with the caustic geometry of the frame's own
     passes (made once for the frame, whatever the number of such sequences): where no particle
@@ -128,25 +160,11 @@ def test_sequences_with_particles_take_the_frames_caustics_where_nothing_hides_t
     the camera do not move the floor's caustics; to the module's 1e-4), and the hidden pixels are
     exactly what its own passes give (no focusing on a particle). Surface off: it mixes the
     whole frame."""
-    from blendgen.pipeline import world_post
-
     passes, K, T = _pool_frame()
     passes, seen, hidden = _with_particles(passes)
-    calls = []
-    real = world_post.caustic_geometry
-    monkeypatch.setattr(world_post, "caustic_geometry", lambda *a, **k: calls.append(1) or real(*a, **k))
-
-    def post(preset):
-        p = _post(preset)
-        return p.model_copy(update={"world": p.world.model_copy(update={"surface": False})})
-
-    share = FrameShare()
-    share.begin(passes)
-    for preset in ("jerlov_IB", "jerlov_II", "jerlov_IB"):  # three sequences with particles
-        got = compose.water_image(
-            seen, compose.SequenceState.start(post(preset)), K, T, [], occluded=hidden, t=0.4, memo=share.frame_memo()
-        )
-        own = compose.water_image(seen, compose.SequenceState.start(post(preset)), K, T, [], occluded=hidden, t=0.4)
+    calls, _ = _counted(monkeypatch, "caustic_geometry")
+    post = _post_without("surface")
+    for preset, got, own in _particle_sequences(passes, seen, hidden, post, K, T):
         clean = compose.water_image(passes, compose.SequenceState.start(post(preset)), K, T, [], t=0.4)
         np.testing.assert_array_equal(got[hidden], own[hidden])
         np.testing.assert_allclose(got[~hidden], clean[~hidden], rtol=1e-4, atol=1e-7)  # module docstring
@@ -161,18 +179,10 @@ def test_sequences_with_particles_take_the_frames_surface_where_nothing_is_in_fr
     (Snell's window, the particles, the scene below) is exactly what the sequence's own passes
     give; a mirrored pixel reads the sequence's colours at the frame's own march. Without the
     mask the particles in front of the surface would be painted over."""
-    from blendgen.pipeline import world_post
-
     passes, K, T = _pool_frame()
     passes, seen, hidden = _with_particles(passes)
-    calls = []
-    real = world_post.surface_geometry
-    monkeypatch.setattr(world_post, "surface_geometry", lambda *a, **k: calls.append(1) or real(*a, **k))
-
-    def post(preset):
-        p = _post(preset)
-        return p.model_copy(update={"world": p.world.model_copy(update={"caustics": False})})
-
+    calls, real = _counted(monkeypatch, "surface_geometry")
+    post = _post_without("caustics")
     rays = compose._unit_rays(tuple(K.ravel()), 160, 120) @ T[:3, :3].T.astype(np.float32)
     depth = compose.surface_depth(passes["range_m"], K, T, 0.0)[0]
     geo = real(passes["range_m"], depth, post("jerlov_IB").world, rays, K, T, 0.0, 0.4)
@@ -181,13 +191,7 @@ def test_sequences_with_particles_take_the_frames_surface_where_nothing_is_in_fr
     mirrored = mirrored.reshape(hidden.shape)
     assert mirrored.any() and (hidden & ~np.isfinite(passes["range_m"])).any()  # both really in view
     calls.clear()
-    share = FrameShare()
-    share.begin(passes)
-    for preset in ("jerlov_IB", "jerlov_II", "jerlov_IB"):  # three sequences with particles
-        got = compose.water_image(
-            seen, compose.SequenceState.start(post(preset)), K, T, [], occluded=hidden, t=0.4, memo=share.frame_memo()
-        )
-        own = compose.water_image(seen, compose.SequenceState.start(post(preset)), K, T, [], occluded=hidden, t=0.4)
+    for _, got, own in _particle_sequences(passes, seen, hidden, post, K, T):
         np.testing.assert_array_equal(got[~mirrored | hidden], own[~mirrored | hidden])
         assert np.isfinite(got).all()
     assert len(calls) == 1 + 3  # the frame's geometry once; each `own` its own
