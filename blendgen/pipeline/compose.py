@@ -296,6 +296,8 @@ def _world(
     memo = {} if memo is None else memo
     occluded = None if occluders is None else occluders[0]
     own = memo if occluded is None else {}  # parts made from this sequence's own passes
+    clean = memo.get(CLEAN) if occluded is not None else None  # the frame's own passes (particles)
+    geo_memo = own if clean is None else memo  # where the water-independent geometry is kept
     rgb, range_m = passes["rgb"], passes["range_m"]
     h, wd = range_m.shape
     if "rays" not in memo:  # world directions of the pixels: the frame's pose
@@ -307,8 +309,6 @@ def _world(
     rays = memo["rays"]
     if wp.caustics:
         key = ("caustics", z, wp.model_dump_json(), t)
-        clean = memo.get(CLEAN) if occluded is not None else None
-        geo_memo = own if clean is None else memo
         if key not in geo_memo:  # the same for every water of this frame
             if clean is None:  # this sequence's own passes (those of the frame, or no frame memo)
                 p, d, em = passes, depth, emissive
@@ -322,8 +322,6 @@ def _world(
         veil = w.B_inf * state.water_opts["irradiance"] * optics.depth_light(w, veil_depth)
         below = mirror_fill(rgb, range_m, depth, w, veil)
         key = ("surface", z, wp.model_dump_json(), t)
-        clean = memo.get(CLEAN) if occluded is not None else None
-        geo_memo = own if clean is None else memo
         if key not in geo_memo:  # the same for every water of this frame
             r, d = (range_m, depth) if clean is None else (clean["range_m"], _clean_depth(memo, K, T_world_cam, z))
             geo_memo[key] = world_post.surface_geometry(r, d, wp, rays, K, T_world_cam, z, t)
