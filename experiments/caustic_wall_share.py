@@ -9,7 +9,8 @@ that holds 1 % or more of the frames' wall pixels, as a frame would if it saw al
 level (the same grouping, deposit and blurs: :class:`caustic_map.FrameCaustics` on a grid of wall
 points whose footprint reads that level), and prints its CPU. Every trial of an experiment meets
 the same waves at the same frame times, so one such map per frame time and surface height could
-serve all of them; the last line is the number of trials beyond which it pays. Run from the
+serve all of them; it prints the number of trials beyond which it pays, and how far the factors
+a frame's wall pixels would read from such maps are from the frame's own. Run from the
 repository root::
 
     PYTHONPATH=. python experiments/caustic_wall_share.py
@@ -50,22 +51,51 @@ def wall_pixels(frame, wp) -> tuple[np.ndarray, np.ndarray, int]:
 
 def wall_map_cpu(wp, waters, level: int, depth_m: float, t: float) -> tuple[float, int]:
     """CPU s to make the whole wall's map at ``level`` in every water, and its number of points."""
-    sun = sf.refracted_sun(wp.sun_travel_dir)
-    b = cmap.FINEST_BIN_M * 2**level
-    y, z = np.meshgrid(np.arange(-cc.POOL[1] / 2, cc.POOL[1] / 2, b), np.arange(-depth_m, 0.0, b) + b / 2)
-    h = -z.ravel()
-    back = -sun[:2] / -sun[2]
-    x = cc.POOL[0] / 2 + h * back[0]
-    yy = y.ravel() + h * back[1]
-    path = h / -sun[2]
-    foot = np.full(h.size, 0.75 * b)  # a footprint that reads this level
+    x, y, path, foot = wall_points(level, depth_m, wp)
     c0 = time.process_time()
     fc = cmap.FrameCaustics(
-        world_post.waves_of(wp.wave_seed, wp.wind_mps), x, yy, path, foot, t, sf.sun_deflection(wp.sun_travel_dir)
+        world_post.waves_of(wp.wave_seed, wp.wind_mps), x, y, path, foot, t, sf.sun_deflection(wp.sun_travel_dir)
     )
     for w in waters.values():
         fc.factor(float(np.mean(w.sigma_s)), float(w.g))
-    return time.process_time() - c0, h.size
+    return time.process_time() - c0, x.size
+
+
+def wall_points(level: int, depth_m: float, wp) -> tuple[np.ndarray, ...]:
+    """(x, y, path, footprint) (n,) of a grid of the dock's wall at ``level``'s bin: surface
+    crossings, beam paths and a footprint that reads that level."""
+    sun = sf.refracted_sun(wp.sun_travel_dir)
+    b = cmap.FINEST_BIN_M * 2**level
+    y, z = np.meshgrid(np.arange(-cc.POOL[1] / 2, cc.POOL[1] / 2, b) + b / 2, np.arange(-depth_m, 0.0, b) + b / 2)
+    h = -z.ravel()
+    back = -sun[:2] / -sun[2]
+    return cc.POOL[0] / 2 + h * back[0], y.ravel() + h * back[1], h / -sun[2], np.full(h.size, 0.75 * b)
+
+
+def accuracy(frame, wp, waters, depth_m: float, t: float) -> str:
+    """How far the factors a frame's wall pixels read from maps of the whole wall (their own
+    points grouped with the wall's grid at their levels) are from the frame's own factors."""
+    rgb, albedo, rng, depth, rays, K, T = frame
+    sun = sf.refracted_sun(wp.sun_travel_dir)
+    n = world_post.facing_normals(rays, rng)
+    cos_i = -(n @ sun.astype(np.float32))
+    hit = np.isfinite(rng) & (depth > 0) & (cos_i > 0.02)
+    p = T[:3, 3] + rays * rng[..., None]
+    wall = hit & (np.abs(p[..., 0] - cc.POOL[0] / 2) < 0.01)
+    foot = world_post.footprint_m(rays, rng, n, 1.0 / float(K[0, 0]), sun, cos_i)[wall]
+    h = depth[wall].astype(np.float64)
+    back = -sun[:2] / -sun[2]
+    own = (cc.POOL[0] / 2 + h * back[0], p[..., 1][wall] + h * back[1], h / -sun[2], foot)
+    grids = [wall_points(int(v), depth_m, wp) for v in np.unique(cmap._levels(foot)) if v >= 0]
+    pts = [np.concatenate(c) for c in zip(own, *grids)]
+    waves, D = world_post.waves_of(wp.wave_seed, wp.wind_mps), sf.sun_deflection(wp.sun_travel_dir)
+    alone, shared = cmap.FrameCaustics(waves, *own, t, D), cmap.FrameCaustics(waves, *pts, t, D)
+    out = []
+    for name, w in waters.items():
+        a = alone.factor(float(np.mean(w.sigma_s)), float(w.g))
+        d = np.abs(shared.factor(float(np.mean(w.sigma_s)), float(w.g))[: a.size] - a)
+        out.append(f"{name} mean {d.mean():.4f} p99 {np.quantile(d, 0.99):.3f} max {d.max():.2f} (std {a.std():.2f})")
+    return "; ".join(out)
 
 
 def main() -> None:
@@ -98,6 +128,9 @@ def main() -> None:
         f"per frame time: the whole wall {1e3 * total:.0f} CPU ms (levels {sorted(levels)}) against "
         f"{1e3 * share:.0f} ms of a frame's caustics on the wall: pays beyond {total / share:.1f} trials"
     )
+    print("|whole-wall map - frame's own map| at the frame's wall pixels (factor, 1 = flat sunlight):")
+    for r, fr in zip(cc.RANGES_M, frames):
+        print(f"{r:4.1f} m: {accuracy(fr, wp, waters, args.depth, 0.4)}")
 
 
 if __name__ == "__main__":
