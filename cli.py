@@ -861,7 +861,7 @@ def bench_glow(samples: int, size: int, volume_bounces: int, out: Path):
     "depths",
     multiple=True,
     type=click.FloatRange(0.1, 30.0),
-    help="floor depth in m (repeatable; default 1, 2, 4)",
+    help="floor depth in m (repeatable; default 1, 2, 4, 8)",
 )
 @click.option(
     "--water",
@@ -912,7 +912,7 @@ def bench_caustics(
 
     rows = cb.run(
         out,
-        depths or (1.0, 2.0, 4.0),
+        depths or cb.DEPTHS_M,
         waters or ("IB", "1C"),
         size,
         renders,

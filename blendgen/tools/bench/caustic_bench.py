@@ -191,9 +191,14 @@ def compare(ref: dict, spec: dict, water: dict) -> dict:
     }
 
 
+#: Floor depths (m) of the default table: the approach's walls down to 8 m, where the depth
+#: experiment's deepest dock (5 m) puts the wall the camera sees.
+DEPTHS_M = (1.0, 2.0, 4.0, 8.0)
+
+
 def run(
     out: Path,
-    depths=(1.0, 2.0, 4.0),
+    depths=DEPTHS_M,
     waters=("IB", "1C"),
     size: int = 1024,
     renders: int = 4,
