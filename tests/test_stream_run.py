@@ -148,18 +148,23 @@ def _start(cfg: Path, out: Path) -> subprocess.Popen:
 
 @pytest.mark.blender
 def test_a_run_killed_after_its_first_evaluated_sequence_resumes_to_the_same_results(runs, tmp_path):
-    from evalkit.stream import check_against
+    from evalkit.stream import check_against, done
 
     cfg, d = runs
     out = tmp_path / "run"
+
+    def finished() -> list[Path]:  # estimates saved and recorded (a bare .parquet may not be yet)
+        return [q for q in out.glob(".stream/*/*.parquet") if done(q.parent, q.stem)]
+
     p = _start(cfg, out)
     t_end = time.monotonic() + 300
-    while not list(out.glob(".stream/*/*.parquet")) and p.poll() is None and time.monotonic() < t_end:
+    while not finished() and p.poll() is None and time.monotonic() < t_end:
         time.sleep(0.05)
     assert p.poll() is None, "the run ended before it could be interrupted"
     os.killpg(p.pid, signal.SIGKILL)  # the parent, render and evaluation workers
     p.wait()
-    done_before = {q.name: q.stat().st_mtime_ns for q in out.glob(".stream/*/*.parquet")}
+    done_before = {q.name: q.stat().st_mtime_ns for q in finished()}
+    assert done_before
     _ok("run", cfg, *LOCS, "-o", out, "--images", "none", "-q")
     st, first = _stream(out), _stream(d / "run")  # --images none: no image encoded
     assert set(st["files"]) | set(st["pixels"]) == set(first["files"]) | set(first["pixels"])
