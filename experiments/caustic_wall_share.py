@@ -36,8 +36,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 cc = importlib.import_module("caustic_cost")  # the frames, waters and sun of the caustics harness
 
 
-def wall_pixels(frame, wp) -> tuple[np.ndarray, np.ndarray, int]:
-    """(on the wall (m,) bool, bin level (m,)) of a frame's sunlit pixels, and their number."""
+def sunlit(frame, wp) -> tuple[np.ndarray, ...]:
+    """(sunlit (H, W) bool, on the dock's wall (H, W) bool, footprint (H, W) m, hit points
+    (H, W, 3) m) of a harness frame, as ``world_post.caustic_geometry`` selects them."""
     rgb, albedo, rng, depth, rays, K, T = frame
     sun = sf.refracted_sun(wp.sun_travel_dir)
     n = world_post.facing_normals(rays, rng)
@@ -45,7 +46,12 @@ def wall_pixels(frame, wp) -> tuple[np.ndarray, np.ndarray, int]:
     hit = np.isfinite(rng) & (depth > 0) & (cos_i > 0.02)
     p = T[:3, 3] + rays * rng[..., None]
     on_wall = np.abs(p[..., 0] - cc.POOL[0] / 2) < 0.01
-    foot = world_post.footprint_m(rays, rng, n, 1.0 / float(K[0, 0]), sun, cos_i)
+    return hit, on_wall, world_post.footprint_m(rays, rng, n, 1.0 / float(K[0, 0]), sun, cos_i), p
+
+
+def wall_pixels(frame, wp) -> tuple[np.ndarray, np.ndarray, int]:
+    """(on the wall (m,) bool, bin level (m,)) of a frame's sunlit pixels, and their number."""
+    hit, on_wall, foot, _ = sunlit(frame, wp)
     return on_wall[hit], cmap._levels(foot[hit]), int(hit.sum())
 
 
@@ -75,15 +81,10 @@ def wall_points(level: int, depth_m: float, wp) -> tuple[np.ndarray, ...]:
 def accuracy(frame, wp, waters, depth_m: float, t: float) -> str:
     """How far the factors a frame's wall pixels read from maps of the whole wall (their own
     points grouped with the wall's grid at their levels) are from the frame's own factors."""
-    rgb, albedo, rng, depth, rays, K, T = frame
+    hit, on_wall, foot, p = sunlit(frame, wp)
+    wall = hit & on_wall
+    foot, h = foot[wall], frame[3][wall].astype(np.float64)  # footprints and depths of the wall pixels
     sun = sf.refracted_sun(wp.sun_travel_dir)
-    n = world_post.facing_normals(rays, rng)
-    cos_i = -(n @ sun.astype(np.float32))
-    hit = np.isfinite(rng) & (depth > 0) & (cos_i > 0.02)
-    p = T[:3, 3] + rays * rng[..., None]
-    wall = hit & (np.abs(p[..., 0] - cc.POOL[0] / 2) < 0.01)
-    foot = world_post.footprint_m(rays, rng, n, 1.0 / float(K[0, 0]), sun, cos_i)[wall]
-    h = depth[wall].astype(np.float64)
     back = -sun[:2] / -sun[2]
     own = (cc.POOL[0] / 2 + h * back[0], p[..., 1][wall] + h * back[1], h / -sun[2], foot)
     grids = [wall_points(int(v), depth_m, wp) for v in np.unique(cmap._levels(foot)) if v >= 0]
