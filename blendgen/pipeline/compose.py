@@ -295,9 +295,10 @@ def _world(
     wp, z = state.post.world, state.post.surface_z_m
     memo = {} if memo is None else memo
     occluded = None if occluders is None else occluders[0]
-    own = memo if occluded is None else {}  # parts made from this sequence's own passes
     clean = memo.get(CLEAN) if occluded is not None else None  # the frame's own passes (particles)
-    geo_memo = own if clean is None else memo  # where the water-independent geometry is kept
+    # where the water-independent geometry is kept: the frame's memo, unless it would be made
+    # from this sequence's particle-composited passes (no frame memo to take the clean ones from)
+    geo_memo = {} if occluded is not None and clean is None else memo
     rgb, range_m = passes["rgb"], passes["range_m"]
     h, wd = range_m.shape
     if "rays" not in memo:  # world directions of the pixels: the frame's pose
