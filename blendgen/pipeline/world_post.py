@@ -16,7 +16,9 @@ entirely when the sequence has them off (``SequencePost.world`` None or False).
   focusing factor of its sun ray at its beam path (``caustic_map.frame_factor``: the surface's
   ray map carried forward, all preimages summed), binned as coarse as the pixel's footprint,
   with the water's scattering coefficient (mean over RGB) and phase mean cosine ``g`` as
-  the turbidity.
+  the turbidity. Pixels in the sun's shadow (the render's sun pass 0) are left out: they have
+  no sunlight to focus, and the surface crossing of their beam is that of the lit surface
+  casting the shadow, whose beam path is shorter (sharing its bins moved its pattern).
 """
 
 from __future__ import annotations
@@ -335,6 +337,8 @@ def caustic_geometry(
     hit = np.isfinite(range_m) & (depth > 0) & (cos_i > 0.02)
     if emissive is not None:
         hit &= ~emissive
+    if sun_pass is not None:  # in the sun's shadow: no sunlight to focus, and its beam path is not
+        hit &= np.asarray(sun_pass).max(axis=-1) > 0  # the one its surface crossing's light travels
     if not hit.any():
         return None
     at = np.flatnonzero(hit)  # flat pixel indices: take/put, not masks
