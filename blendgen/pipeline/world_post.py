@@ -28,6 +28,7 @@ import math
 
 import numpy as np
 
+from blendgen.physics.light.surface_light import lit_pixels
 from blendgen.physics.surface import caustic_map
 from blendgen.physics.surface import optics as sf
 from blendgen.pipeline.stagetimer import term
@@ -251,16 +252,6 @@ def facing_normals(rays, range_m) -> np.ndarray:
     )
 
 
-def _any_positive(img) -> np.ndarray:
-    """(H, W) bool: some channel of ``img`` (H, W, C) is > 0 (channel by channel: a reduction
-    over the last axis, ``max(axis=-1)``, is ~20x slower on a 640x480 frame)."""
-    img = np.asarray(img)
-    out = img[..., 0] > 0
-    for c in range(1, img.shape[-1]):
-        out |= img[..., c] > 0
-    return out
-
-
 def _dot(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """(h, w) dot products of the vectors (h, w, 3) ``u`` with ``v`` ((h, w, 3) or (3,)),
     summed in component order (the products einsum sums, without its loop overhead)."""
@@ -347,8 +338,8 @@ def caustic_geometry(
     hit = np.isfinite(range_m) & (depth > 0) & (cos_i > 0.02)
     if emissive is not None:
         hit &= ~emissive
-    if sun_pass is not None:  # in the sun's shadow: no sunlight to focus, and its beam path is not
-        hit &= _any_positive(sun_pass)  # the one its surface crossing's light travels
+    if sun_pass is not None:  # in the sun's shadow: no sunlight to focus, and not its crossing's path
+        hit &= lit_pixels(sun_pass)
     if not hit.any():
         return None
     at = np.flatnonzero(hit)  # flat pixel indices: take/put, not masks
