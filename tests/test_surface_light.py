@@ -8,7 +8,7 @@ import pytest
 
 from blendgen.geometry import intrinsics_from_hfov
 from blendgen.physics.light.sources import PointLight
-from blendgen.physics.light.surface_light import lambert_radiance
+from blendgen.physics.light.surface_light import lambert_radiance, lit_pixels
 from blendgen.pipeline.compose import _unit_rays
 
 
@@ -109,3 +109,12 @@ def test_several_lights_on_the_coarse_grid_are_the_sum_of_each_alone():
     together = lambert_radiance(lights, rays, rng, albedo, c, step=4)
     alone = sum(lambert_radiance([li], rays, rng, albedo, c, step=4) for li in lights)
     np.testing.assert_allclose(together, alone, rtol=1e-5, atol=1e-9)
+
+
+@pytest.mark.parametrize("channels", [1, 3, 4])
+def test_lit_pixels_is_any_channel_above_zero(channels):
+    """The mask the lamp shadow test and the caustics take: the same as ``max(axis=-1) > 0``
+    for zeros, negatives, tiny and huge values, and -0.0."""
+    rng = np.random.default_rng(5)
+    img = rng.choice(np.array([0.0, -0.0, -1.0, 1e-30, 3.0, 1e30], np.float32), size=(37, 23, channels))
+    np.testing.assert_array_equal(lit_pixels(img), img.max(axis=-1) > 0)
