@@ -28,7 +28,7 @@ import math
 
 import numpy as np
 
-from blendgen.physics.light.surface_light import lit_pixels
+from blendgen.physics.light.surface_light import lit_pixels, surface_normals
 from blendgen.physics.surface import caustic_map
 from blendgen.physics.surface import optics as sf
 from blendgen.pipeline.stagetimer import term
@@ -245,8 +245,6 @@ def facing_normals(rays, range_m) -> np.ndarray:
     """(h, w, 3) float32 unit normals of the surface seen at each pixel, turned towards the
     camera (``surface_light.surface_normals`` of the camera-relative hit points); 0 where a
     neighbour is missing (object edges, open water)."""
-    from blendgen.physics.light.surface_light import surface_normals
-
     return surface_normals(
         np.asarray(rays, np.float32) * np.where(np.isfinite(range_m), range_m, np.nan).astype(np.float32)[..., None]
     )
